@@ -1,0 +1,1 @@
+"""Controllers for the swarm: scripted policies (``agents.scripted``) and SB3 training."""

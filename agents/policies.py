@@ -1,0 +1,40 @@
+"""Policies by name, for the CLI and evaluation: ``random``, ``scripted:NAME`` or a model file.
+
+A policy is any callable ``(observations, infos) -> actions`` over the live agents, with an
+optional ``reset(seed)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from agents import scripted
+from swarm_env.runner import random_policy
+
+SCRIPTED: dict[str, Callable[..., scripted.ScriptedPolicy]] = {
+    "wander": scripted.WanderPolicy.for_env,
+}
+
+
+def load_policy(spec: str, env: Any) -> Any:
+    """Build the policy named by ``spec`` for ``env``.
+
+    ``"random"``: uniform actions from the agents' seeded action spaces. ``"scripted:NAME"``: a
+    controller from :data:`SCRIPTED`. Anything ending in ``.zip``: a trained SB3 model.
+    """
+    if spec == "random":
+        return random_policy(env)
+    if spec.startswith("scripted:"):
+        name = spec.split(":", 1)[1]
+        if name not in SCRIPTED:
+            raise ValueError(f"unknown scripted policy {name!r}; choose from {sorted(SCRIPTED)}")
+        return SCRIPTED[name](env)
+    if spec.endswith(".zip"):
+        if not Path(spec).is_file():
+            raise ValueError(f"policy file {spec!r} does not exist")
+        from agents.sb3.policy import load_sb3_policy
+
+        return load_sb3_policy(spec, env)
+    raise ValueError(f"policy must be 'random', 'scripted:NAME' or a .zip model, got {spec!r}")

@@ -1,0 +1,157 @@
+"""Bridge configuration: timing, safety limits, staleness, queues. One frozen dataclass.
+
+Kinematic limits default to ``None`` = the env's :class:`swarm_env.config.RobotConfig` values, so
+the bridge never lets through more than the simulator's action space allows.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any
+
+SENSORS = ("odometry", "lidar", "camera", "mocap")
+FEED_SENSORS = ("odometry", "lidar", "camera")
+
+
+def _check_positive(name: str, value: Any) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+        math.isfinite(value) and value > 0
+    ):
+        raise ValueError(f"BridgeConfig.{name} must be a finite number > 0, got {value!r}")
+
+
+@dataclass(frozen=True, slots=True)
+class BridgeConfig:
+    """How the bridge talks to, times and protects the robots.
+
+    Attributes
+    ----------
+    watchdog_timeout_s : float
+        Zero velocity goes to every robot when ``step()`` has not been called for this long.
+    watchdog_poll_s : float
+        Watchdog thread tick (steady clock); bounds the firing latency beyond the timeout.
+    watchdog_repeat_s : float
+        While tripped, the zero command is re-sent at this period (a single lost message must not
+        leave a robot moving).
+    stale_odometry_s, stale_lidar_s, stale_camera_s, stale_mocap_s : float
+        A sensor whose newest message is older than this (ROS time) at the end of a step is
+        reported in ``infos[agent]["stale"]`` and its records are not fed to the filter.
+    connect_timeout_s : float
+        Wait for the websocket to open in :meth:`RealWorld.reset`.
+    reset_timeout_s : float
+        ``reset()`` waits this long for fresh data from every robot, then raises
+        :class:`RobotsSilentError` naming the silent robots and sensors.
+    required_sensors : tuple of str
+        Sensors every robot must deliver before ``reset()`` returns.
+    use_mocap : bool
+        Subscribe to ``/mocap/<robot>/pose`` (ground truth for rewards and metrics).
+    max_speed_mps, max_turn_rate_radps, max_accel_mps2, max_turn_accel_radps2 : float or None
+        Command limits enforced in the bridge; ``None`` = the env's robot config.
+    geofence_m : (x_min, x_max, y_min, y_max) or None
+        Allowed area in the motion-capture frame. Outside it a robot may only turn or drive back
+        in; without a fresh mocap pose it is stopped.
+    queue_length : int
+        rosbridge-side subscription queue (``queue_length``): 1 = always the newest message, a
+        slow link drops old ones instead of building a backlog.
+    throttle_rate_ms : int
+        rosbridge-side minimum interval between messages per topic (0 = no throttling).
+    buffer_length : int
+        Client-side bound per topic; older unread messages are dropped and counted.
+    duplicate_window_s : float
+        Header-less messages (camera bearings) identical to the previous one and arriving within
+        this window are counted as duplicates and dropped.
+    max_beams, max_bearings : int
+        Size limits of a scan and of a bearing array; larger messages are rejected.
+    max_message_bytes : int
+        Websocket frame / message size limit (bytes).
+    reconnect_initial_delay_s, reconnect_max_delay_s : float
+        Backoff of the automatic reconnection.
+    """
+
+    watchdog_timeout_s: float = 0.5
+    watchdog_poll_s: float = 0.01
+    watchdog_repeat_s: float = 0.25
+    stale_odometry_s: float = 0.5
+    stale_lidar_s: float = 0.6
+    stale_camera_s: float = 0.5
+    stale_mocap_s: float = 0.5
+    connect_timeout_s: float = 5.0
+    reset_timeout_s: float = 5.0
+    required_sensors: tuple[str, ...] = ("odometry", "lidar", "camera")
+    use_mocap: bool = True
+    max_speed_mps: float | None = None
+    max_turn_rate_radps: float | None = None
+    max_accel_mps2: float | None = None
+    max_turn_accel_radps2: float | None = None
+    geofence_m: tuple[float, float, float, float] | None = None
+    queue_length: int = 1
+    throttle_rate_ms: int = 0
+    buffer_length: int = 64
+    duplicate_window_s: float = 0.005
+    max_beams: int = 8192
+    max_bearings: int = 256
+    max_message_bytes: int = 4 * 1024 * 1024
+    reconnect_initial_delay_s: float = 0.2
+    reconnect_max_delay_s: float = 2.0
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if f.name.endswith("_s") or f.name.endswith("_mps") or f.name.endswith(
+                "_radps"
+            ) or f.name.endswith("_mps2") or f.name.endswith("_radps2"):
+                if value is not None:
+                    _check_positive(f.name, value)
+        for name in ("queue_length", "buffer_length", "max_beams", "max_bearings",
+                     "max_message_bytes"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"BridgeConfig.{name} must be an int >= 1, got {value!r}")
+        if isinstance(self.throttle_rate_ms, bool) or not isinstance(self.throttle_rate_ms, int) \
+                or self.throttle_rate_ms < 0:
+            raise ValueError(
+                f"BridgeConfig.throttle_rate_ms must be an int >= 0, got {self.throttle_rate_ms!r}"
+            )
+        unknown = set(self.required_sensors) - set(SENSORS)
+        if unknown:
+            raise ValueError(
+                f"BridgeConfig.required_sensors has unknown sensors {sorted(unknown)}; "
+                f"valid: {SENSORS}"
+            )
+        if "mocap" in self.required_sensors and not self.use_mocap:
+            raise ValueError("BridgeConfig.required_sensors has 'mocap' but use_mocap=False")
+        if self.geofence_m is not None:
+            fence = tuple(self.geofence_m)
+            if len(fence) != 4 or not all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                for v in fence
+            ):
+                raise ValueError(
+                    "BridgeConfig.geofence_m must be 4 finite numbers (x_min, x_max, y_min, "
+                    f"y_max), got {self.geofence_m!r}"
+                )
+            if not (fence[0] < fence[1] and fence[2] < fence[3]):
+                raise ValueError(
+                    f"BridgeConfig.geofence_m needs x_min < x_max and y_min < y_max, got {fence!r}"
+                )
+            object.__setattr__(self, "geofence_m", tuple(float(v) for v in fence))
+
+    def stale_age_s(self, sensor: str) -> float:
+        return float(getattr(self, f"stale_{sensor}_s"))
+
+
+def make_bridge_config(bridge: BridgeConfig | dict[str, Any] | None) -> BridgeConfig:
+    """A :class:`BridgeConfig` from ``None`` (defaults), a config, or a dict of fields."""
+    if bridge is None:
+        return BridgeConfig()
+    if isinstance(bridge, BridgeConfig):
+        return bridge
+    if isinstance(bridge, dict):
+        names = {f.name for f in dataclasses.fields(BridgeConfig)}
+        unknown = sorted(set(bridge) - names)
+        if unknown:
+            raise ValueError(f"unknown bridge config key(s) {unknown}; valid keys: {sorted(names)}")
+        return BridgeConfig(**bridge)
+    raise ValueError(f"bridge must be a BridgeConfig or a dict, got {type(bridge).__name__}")

@@ -1,0 +1,432 @@
+"""ROS message schemas: validation of incoming message dicts, builders for outgoing ones.
+
+Messages arrive as the JSON objects of the rosbridge v2 protocol (decoded with ``json.loads``,
+never pickle or eval). Every field the bridge uses is checked before use: the right JSON type
+(a number is an ``int`` or ``float``, never a ``bool`` or a string), finite, the right length.
+A failing message raises :class:`InvalidMessage` naming the field; callers count and log it.
+
+Conventions (REP-103 / REP-105): ``x`` forward, ``y`` left, yaw counter-clockwise, SI units.
+Stamps are integer nanoseconds of ROS time (``header.stamp``, ROS 2 ``sec``/``nanosec`` or
+ROS 1 ``secs``/``nsecs``). Scan ranges follow REP-117 and the YDLidar driver: ``0``, ``NaN``,
+``+-inf``, ``null`` or a value outside ``[range_min, range_max]`` all mean "no valid return" and
+become ``0``; that is data, not corruption. ``float32`` fields (scan, bearings) are rounded to
+``float32`` on parsing, so a live message and its copy read back from a bag parse identically.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import re
+import threading
+from collections import defaultdict
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+LOGGER = logging.getLogger("hardware_bridge")
+TWO_PI = 2.0 * math.pi
+_NS = 1_000_000_000
+_ROBOT_ID = re.compile(r"^[A-Za-z][A-Za-z0-9_]{0,63}$")
+
+# rosbridge type names (ROS 1 spelling, accepted by the ROS 2 rosbridge too) and bag type names.
+ROS_TYPES = {
+    "lidar": "sensor_msgs/LaserScan",
+    "odometry": "nav_msgs/Odometry",
+    "camera": "std_msgs/Float32MultiArray",
+    "mocap": "geometry_msgs/PoseStamped",
+    "cmd_vel": "geometry_msgs/Twist",
+}
+BAG_TYPES = {key: value.replace("/", "/msg/", 1) for key, value in ROS_TYPES.items()}
+
+
+class InvalidMessage(ValueError):
+    """A message failed validation; ``field`` names the offending field."""
+
+    def __init__(self, field: str, reason: str) -> None:
+        super().__init__(f"{field}: {reason}")
+        self.field = field
+        self.reason = reason
+
+
+# ---------------------------------------------------------------------------- naming
+def check_robot_id(robot: Any) -> str:
+    if not isinstance(robot, str) or not _ROBOT_ID.match(robot):
+        raise ValueError(
+            f"robot id must match {_ROBOT_ID.pattern} (a ROS name segment), got {robot!r}"
+        )
+    return robot
+
+
+def topics(robot: str) -> dict[str, str]:
+    """The ROS topics of one robot, by sensor name (and ``cmd_vel``)."""
+    return {
+        "lidar": f"/{robot}/scan",
+        "odometry": f"/{robot}/odom",
+        "camera": f"/{robot}/camera/bearings",
+        "mocap": f"/mocap/{robot}/pose",
+        "cmd_vel": f"/{robot}/cmd_vel",
+    }
+
+
+# ---------------------------------------------------------------------------- time
+def ns_to_s(stamp_ns: int) -> float:
+    """Integer nanoseconds to float seconds, the same way everywhere (live and replay)."""
+    return (stamp_ns // _NS) + (stamp_ns % _NS) * 1e-9
+
+
+def s_to_ns(stamp_s: float) -> int:
+    return int(round(stamp_s * 1e9))
+
+
+def wrap_angle(angle: np.ndarray | float) -> np.ndarray:
+    """Wrap to ``[-pi, pi)``."""
+    return np.mod(np.asarray(angle, dtype=np.float64) + np.pi, TWO_PI) - np.pi
+
+
+# ---------------------------------------------------------------------------- parsed forms
+@dataclass(frozen=True, slots=True)
+class Scan:
+    """A validated ``sensor_msgs/LaserScan``: beams sorted by bearing in ``[-pi, pi)``."""
+
+    stamp_ns: int
+    angles_rad: np.ndarray
+    ranges_m: np.ndarray
+    intensities: np.ndarray
+
+
+@dataclass(frozen=True, slots=True)
+class Odom:
+    """A validated ``nav_msgs/Odometry``: planar pose in the odom frame, body-frame twist."""
+
+    stamp_ns: int
+    x_m: float
+    y_m: float
+    yaw_rad: float
+    v_mps: float
+    omega_radps: float
+
+
+@dataclass(frozen=True, slots=True)
+class Bearings:
+    """A validated ``std_msgs/Float32MultiArray`` of bearings (robot frame, rad)."""
+
+    stamp_ns: int
+    bearings_rad: np.ndarray
+
+
+@dataclass(frozen=True, slots=True)
+class Pose:
+    """A validated ``geometry_msgs/PoseStamped`` reduced to ``x, y, yaw`` (mocap frame)."""
+
+    stamp_ns: int
+    x_m: float
+    y_m: float
+    yaw_rad: float
+
+
+# ---------------------------------------------------------------------------- primitives
+def _get(msg: Any, path: str) -> Any:
+    node = msg
+    walked = []
+    for key in path.split("."):
+        if not isinstance(node, dict):
+            where = ".".join(walked) or "message"
+            raise InvalidMessage(where, f"expected an object, got {type(node).__name__}")
+        walked.append(key)
+        if key not in node:
+            raise InvalidMessage(".".join(walked), "missing")
+        node = node[key]
+    return node
+
+
+def _is_number(value: Any) -> bool:
+    return type(value) in (int, float)  # excludes bool, str, None, containers
+
+
+def _number(msg: Any, path: str) -> float:
+    value = _get(msg, path)
+    if not _is_number(value):
+        raise InvalidMessage(path, f"expected a number, got {type(value).__name__}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise InvalidMessage(path, f"not finite: {value!r}")
+    return value
+
+
+def _optional_numbers(msg: dict, path: str, length: int) -> None:
+    """A field we do not use but which, when present, must still be well formed."""
+    try:
+        value = _get(msg, path)
+    except InvalidMessage as exc:
+        if exc.reason == "missing":
+            return
+        raise
+    _number_array(value, path, max_len=length, exact_len=length)
+
+
+def _number_array(value: Any, path: str, *, max_len: int, exact_len: int | None = None,
+                  non_finite_ok: bool = False, none_ok: bool = False) -> np.ndarray:
+    if not isinstance(value, (list, tuple)):
+        raise InvalidMessage(path, f"expected an array, got {type(value).__name__}")
+    n = len(value)
+    if exact_len is not None and n != exact_len:
+        raise InvalidMessage(path, f"expected {exact_len} elements, got {n}")
+    if n > max_len:
+        raise InvalidMessage(path, f"too long: {n} elements > {max_len}")
+    types = {type(v) for v in value}
+    allowed = {int, float} | ({type(None)} if none_ok else set())
+    if not types <= allowed:
+        bad = sorted(t.__name__ for t in types - allowed)
+        raise InvalidMessage(path, f"elements must be numbers, got {bad}")
+    if none_ok and type(None) in types:
+        value = [math.nan if v is None else v for v in value]
+    out = np.asarray(value, dtype=np.float64).reshape(-1)
+    if not non_finite_ok and not np.all(np.isfinite(out)):
+        raise InvalidMessage(path, "contains non-finite values")
+    return out
+
+
+def parse_stamp(msg: Any, path: str = "header.stamp") -> int:
+    """``header.stamp`` as integer nanoseconds (ROS 2 ``sec``/``nanosec`` or ROS 1 ``secs``/
+    ``nsecs``); zero and negative stamps are rejected (an unset driver clock)."""
+    stamp = _get(msg, path)
+    if not isinstance(stamp, dict):
+        raise InvalidMessage(path, f"expected an object, got {type(stamp).__name__}")
+    if "sec" in stamp:
+        sec_key, nsec_key = "sec", "nanosec"
+    elif "secs" in stamp:
+        sec_key, nsec_key = "secs", "nsecs"
+    else:
+        raise InvalidMessage(f"{path}.sec", "missing")
+    sec, nsec = stamp.get(sec_key), stamp.get(nsec_key, 0)
+    for key, value in ((sec_key, sec), (nsec_key, nsec)):
+        if type(value) is not int:
+            raise InvalidMessage(f"{path}.{key}", f"expected an integer, got {type(value).__name__}")
+    if not 0 <= nsec < _NS:
+        raise InvalidMessage(f"{path}.{nsec_key}", f"out of range [0, 1e9): {nsec}")
+    if sec < 0 or sec > 2**40:
+        raise InvalidMessage(f"{path}.{sec_key}", f"out of range: {sec}")
+    stamp_ns = sec * _NS + nsec
+    if stamp_ns == 0:
+        raise InvalidMessage(path, "zero stamp (driver clock not set)")
+    return stamp_ns
+
+
+def _yaw(msg: Any, path: str) -> float:
+    q = [_number(msg, f"{path}.{k}") for k in ("x", "y", "z", "w")]
+    norm = math.sqrt(sum(c * c for c in q))
+    if not 0.95 <= norm <= 1.05:
+        raise InvalidMessage(path, f"not a unit quaternion (norm {norm:.4g})")
+    x, y, z, w = (c / norm for c in q)
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def _root(msg: Any) -> dict:
+    if not isinstance(msg, dict):
+        raise InvalidMessage("message", f"expected an object, got {type(msg).__name__}")
+    return msg
+
+
+# ---------------------------------------------------------------------------- parsers
+def parse_laser_scan(msg: Any, max_beams: int = 8192) -> Scan:
+    """Validate a ``sensor_msgs/LaserScan`` and return its beams sorted by bearing."""
+    msg = _root(msg)
+    stamp_ns = parse_stamp(msg)
+    # float32 fields: round exactly as a bag would store them.
+    angle_min = float(np.float32(_number(msg, "angle_min")))
+    _number(msg, "angle_max")
+    increment = float(np.float32(_number(msg, "angle_increment")))
+    range_min = float(np.float32(_number(msg, "range_min")))
+    range_max = float(np.float32(_number(msg, "range_max")))
+    ranges = _number_array(_get(msg, "ranges"), "ranges", max_len=max_beams,
+                           non_finite_ok=True, none_ok=True)
+    n = ranges.size
+    if n == 0:
+        raise InvalidMessage("ranges", "empty")
+    if increment == 0.0:
+        raise InvalidMessage("angle_increment", "zero")
+    if abs(n * increment) > TWO_PI + abs(increment) + 1e-6:
+        raise InvalidMessage("angle_increment", f"{n} beams x {increment} rad exceed one revolution")
+    angle_max = float(np.float32(_number(msg, "angle_max")))
+    span_error = abs(angle_min + (n - 1) * increment - angle_max)
+    if span_error > 1.01 * abs(increment) + 1e-6:
+        raise InvalidMessage(
+            "angle_max", f"inconsistent with {n} beams from angle_min at angle_increment "
+                         f"(off by {span_error:.4g} rad)"
+        )
+    if range_min < 0.0 or not range_max > range_min:
+        raise InvalidMessage("range_max", f"need 0 <= range_min < range_max, got "
+                                          f"[{range_min}, {range_max}]")
+    raw_intensities = _get(msg, "intensities")
+    if isinstance(raw_intensities, (list, tuple)) and len(raw_intensities) == 0:
+        # No intensities: no return can be classified as a null (interference) return.
+        intensities = np.ones(n)
+    else:
+        intensities = _number_array(raw_intensities, "intensities", max_len=max_beams,
+                                    exact_len=n)
+        intensities = np.float32(intensities).astype(np.float64)
+    ranges = ranges.astype(np.float32).astype(np.float64)
+    with np.errstate(invalid="ignore"):
+        valid = np.isfinite(ranges) & (ranges >= range_min) & (ranges <= range_max)
+    ranges = np.where(valid, ranges, 0.0)
+    angles = wrap_angle(angle_min + np.arange(n) * increment)
+    order = np.argsort(angles, kind="stable")
+    return Scan(stamp_ns, angles[order], ranges[order], intensities[order])
+
+
+def parse_odometry(msg: Any) -> Odom:
+    """Validate a ``nav_msgs/Odometry``: pose in the odom frame, twist in the body frame."""
+    msg = _root(msg)
+    stamp_ns = parse_stamp(msg)
+    x = _number(msg, "pose.pose.position.x")
+    y = _number(msg, "pose.pose.position.y")
+    yaw = _yaw(msg, "pose.pose.orientation")
+    v = _number(msg, "twist.twist.linear.x")
+    omega = _number(msg, "twist.twist.angular.z")
+    _optional_numbers(msg, "pose.covariance", 36)
+    _optional_numbers(msg, "twist.covariance", 36)
+    return Odom(stamp_ns, x, y, yaw, v, omega)
+
+
+def parse_bearings(msg: Any, stamp_ns: int, max_bearings: int = 256) -> Bearings:
+    """Validate a ``std_msgs/Float32MultiArray`` of bearings. It has no header: the caller
+    supplies ``stamp_ns`` (arrival time on the bridge's ROS clock)."""
+    msg = _root(msg)
+    data = _number_array(_get(msg, "data"), "data", max_len=max_bearings)
+    if "layout" in msg:
+        layout = msg["layout"]
+        if not isinstance(layout, dict):
+            raise InvalidMessage("layout", f"expected an object, got {type(layout).__name__}")
+        dims = layout.get("dim", [])
+        if not isinstance(dims, list):
+            raise InvalidMessage("layout.dim", f"expected an array, got {type(dims).__name__}")
+        if dims:
+            if not isinstance(dims[0], dict):
+                raise InvalidMessage("layout.dim[0]", "expected an object")
+            size = dims[0].get("size")
+            if type(size) is not int:
+                raise InvalidMessage("layout.dim[0].size",
+                                     f"expected an integer, got {type(size).__name__}")
+            if size != data.size:
+                raise InvalidMessage("layout.dim[0].size",
+                                     f"says {size} elements, data has {data.size}")
+    bearings = wrap_angle(data.astype(np.float32).astype(np.float64))
+    return Bearings(stamp_ns, bearings)
+
+
+def parse_pose_stamped(msg: Any) -> Pose:
+    """Validate a ``geometry_msgs/PoseStamped`` (motion capture) and reduce it to x, y, yaw."""
+    msg = _root(msg)
+    stamp_ns = parse_stamp(msg)
+    return Pose(stamp_ns, _number(msg, "pose.position.x"), _number(msg, "pose.position.y"),
+                _yaw(msg, "pose.orientation"))
+
+
+def parse_twist(msg: Any) -> tuple[float, float]:
+    """Validate a ``geometry_msgs/Twist``; returns ``(v_mps, omega_radps)``. All six components
+    must be finite numbers, even the ones a differential drive ignores."""
+    msg = _root(msg)
+    for part in ("linear", "angular"):
+        for axis in ("x", "y", "z"):
+            _number(msg, f"{part}.{axis}")
+    return _number(msg, "linear.x"), _number(msg, "angular.z")
+
+
+# ---------------------------------------------------------------------------- builders
+def header(stamp_ns: int, frame_id: str) -> dict[str, Any]:
+    return {"stamp": {"sec": int(stamp_ns // _NS), "nanosec": int(stamp_ns % _NS)},
+            "frame_id": frame_id}
+
+
+def _quaternion(yaw: float) -> dict[str, float]:
+    return {"x": 0.0, "y": 0.0, "z": math.sin(0.5 * yaw), "w": math.cos(0.5 * yaw)}
+
+
+def twist_msg(v_mps: float, omega_radps: float) -> dict[str, Any]:
+    return {"linear": {"x": float(v_mps), "y": 0.0, "z": 0.0},
+            "angular": {"x": 0.0, "y": 0.0, "z": float(omega_radps)}}
+
+
+def laser_scan_msg(stamp_ns: int, angles_rad: np.ndarray, ranges_m: np.ndarray,
+                   intensities: np.ndarray, *, range_min_m: float, range_max_m: float,
+                   scan_time_s: float, frame_id: str) -> dict[str, Any]:
+    """A LaserScan from evenly spaced, increasing beams (as the simulator produces them)."""
+    angles = np.asarray(angles_rad, dtype=np.float64)
+    n = angles.size
+    increment = (angles[-1] - angles[0]) / (n - 1) if n > 1 else TWO_PI
+    return {
+        "header": header(stamp_ns, frame_id),
+        "angle_min": float(np.float32(angles[0])),
+        "angle_max": float(np.float32(angles[-1])),
+        "angle_increment": float(np.float32(increment)),
+        "time_increment": float(np.float32(scan_time_s / max(n, 1))),
+        "scan_time": float(np.float32(scan_time_s)),
+        "range_min": float(np.float32(range_min_m)),
+        "range_max": float(np.float32(range_max_m)),
+        "ranges": np.asarray(ranges_m, dtype=np.float32).tolist(),
+        "intensities": np.asarray(intensities, dtype=np.float32).tolist(),
+    }
+
+
+def odometry_msg(stamp_ns: int, x_m: float, y_m: float, yaw_rad: float, v_mps: float,
+                 omega_radps: float, *, frame_id: str = "odom",
+                 child_frame_id: str = "base_link") -> dict[str, Any]:
+    return {
+        "header": header(stamp_ns, frame_id),
+        "child_frame_id": child_frame_id,
+        "pose": {"pose": {"position": {"x": float(x_m), "y": float(y_m), "z": 0.0},
+                          "orientation": _quaternion(float(yaw_rad))},
+                 "covariance": [0.0] * 36},
+        "twist": {"twist": {"linear": {"x": float(v_mps), "y": 0.0, "z": 0.0},
+                            "angular": {"x": 0.0, "y": 0.0, "z": float(omega_radps)}},
+                  "covariance": [0.0] * 36},
+    }
+
+
+def bearings_msg(bearings_rad: np.ndarray) -> dict[str, Any]:
+    data = np.asarray(bearings_rad, dtype=np.float32).reshape(-1).tolist()
+    return {"layout": {"dim": [{"label": "bearing", "size": len(data), "stride": len(data)}],
+                       "data_offset": 0},
+            "data": data}
+
+
+def pose_stamped_msg(stamp_ns: int, x_m: float, y_m: float, yaw_rad: float,
+                     frame_id: str = "mocap") -> dict[str, Any]:
+    return {"header": header(stamp_ns, frame_id),
+            "pose": {"position": {"x": float(x_m), "y": float(y_m), "z": 0.0},
+                     "orientation": _quaternion(float(yaw_rad))}}
+
+
+# ---------------------------------------------------------------------------- counters
+class Counters:
+    """Thread-safe event counters (``"lidar.invalid"``, ``"transport.reconnects"``, ...), with
+    rate-limited logging of rejected messages (the first 5 of a kind, then every 100th)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._counts: dict[str, int] = defaultdict(int)
+
+    def incr(self, key: str, n: int = 1) -> int:
+        with self._lock:
+            self._counts[key] += n
+            return self._counts[key]
+
+    def get(self, key: str) -> int:
+        with self._lock:
+            return self._counts.get(key, 0)
+
+    def total(self, suffix: str) -> int:
+        """Sum of every counter whose key ends with ``suffix`` (e.g. ``".invalid"``)."""
+        with self._lock:
+            return sum(v for k, v in self._counts.items() if k.endswith(suffix))
+
+    def snapshot(self) -> dict[str, int]:
+        with self._lock:
+            return dict(sorted(self._counts.items()))
+
+    def reject(self, key: str, detail: str) -> None:
+        n = self.incr(key)
+        if n <= 5 or n % 100 == 0:
+            LOGGER.warning("rejected message (%s, #%d): %s", key, n, detail[:300])

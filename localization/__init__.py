@@ -1,0 +1,31 @@
+"""Robot-centric GM-PHD relative localization (pure numpy).
+
+Each robot runs its own :class:`RobotCentricPHD` on its own anonymous measurements (wheel
+odometry, lidar detections, camera bearings) and estimates, in its own body frame, how many
+teammates are around it and where. Nothing here knows about the simulator, PettingZoo or ROS.
+
+>>> from localization import PHDConfig, RobotCentricPHD
+>>> f = RobotCentricPHD(PHDConfig())          # seed defaults; PHDConfig(mode="lidar-only") for LO
+
+Modules: :mod:`~localization.config` (``PHDConfig``), :mod:`~localization.mixture`
+(``GaussianMixture`` and the component table), :mod:`~localization.gaussian` (Kalman/EKF
+math), :mod:`~localization.detection` (``P_s``, ``P_d``), :mod:`~localization.phd` (time and
+measurement updates), :mod:`~localization.reducer` (prune/merge/cap),
+:mod:`~localization.filter` (the orchestrator) and :mod:`~localization.metrics`.
+
+References
+----------
+.. [1] B.-N. Vo and W.-K. Ma, "The Gaussian Mixture Probability Hypothesis Density Filter",
+   IEEE Trans. Signal Processing, 54(11):4091-4104, 2006.
+.. [2] Perera 2021, seed ``000`` of this project (PHD-filter relative localization with lidar
+   and camera), chapter 3.
+"""
+
+from __future__ import annotations
+
+from . import metrics
+from .config import PHDConfig
+from .filter import RobotCentricPHD
+from .mixture import GaussianMixture
+
+__all__ = ["PHDConfig", "RobotCentricPHD", "GaussianMixture", "metrics"]

@@ -1,0 +1,277 @@
+"""Configuration of the robot-centric GM-PHD filter.
+
+One frozen dataclass, :class:`PHDConfig`, holds every model parameter. Defaults are the seed
+thesis' values (Perera 2021, chapter 3) wherever the seed gives one; the places where we had
+to choose (process noise, clutter, pruning, merging, guards) say so in the field description.
+Units are in the field names (``_m``, ``_deg``, ``_per_m``, ``_per_m2``, ``_per_rad``).
+
+References
+----------
+.. [1] B.-N. Vo and W.-K. Ma, "The Gaussian Mixture Probability Hypothesis Density Filter",
+   IEEE Trans. Signal Processing, 54(11):4091-4104, 2006.
+.. [2] Perera 2021, "PHD-filter based relative localization for robot swarms with lidar and
+   camera" (the project's seed ``000``), chapter 3, eqs. (7)-(30).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+__all__ = ["PHDConfig", "MODES", "BIRTH_MODELS", "LIDAR_PD_MODELS", "SURVIVAL_MODELS"]
+
+#: Sensor sets: lidar and camera (LC), or lidar only (LO: camera updates are no-ops).
+MODES = ("lidar-camera", "lidar-only")
+#: ``"fixed"``: seed eq. (11), one wide component per time update. ``"measurement"``: adaptive
+#: births from lidar detections that the current mixture does not explain.
+BIRTH_MODELS = ("fixed", "measurement")
+#: ``"seed"``: product of range x blind sectors x occlusion x interference (eq. 18).
+#: ``"constant"``: ``lidar_detection_probability`` inside ``lidar_range_m``, 0 outside.
+LIDAR_PD_MODELS = ("seed", "constant")
+#: ``"seed"``: inverse sigmoid of range (eq. 10). ``"constant"``: ``survival_probability``.
+SURVIVAL_MODELS = ("seed", "constant")
+
+
+@dataclass(frozen=True, slots=True)
+class PHDConfig:
+    """Parameters of :class:`~localization.RobotCentricPHD` (seed defaults).
+
+    Attributes
+    ----------
+    mode : str
+        ``"lidar-camera"`` (LC) or ``"lidar-only"`` (LO; ``update_camera`` does nothing).
+    process_noise_std_m : float
+        Standard deviation of the random-walk process noise added per **time update**,
+        ``Q = process_noise_std_m**2 * I``. The seed does not give Q. Default 0.03 m: a teammate
+        moving at 0.2-0.3 m/s covers 0.02-0.03 m per 10 Hz odometry step, and the observer's own
+        odometry error adds a little. Scale it with your time-update period.
+    survival_model : str
+        ``"seed"`` (eq. 10) or ``"constant"``.
+    survival_offset, survival_slope_per_m, survival_range_m : float
+        ``P_s(m) = 1 / (survival_offset + exp(survival_slope_per_m * (||m|| - survival_range_m)))``,
+        evaluated at the component mean *before* the time update. Seed: 1.05, 4, 4.
+    survival_probability : float
+        Constant ``P_s`` when ``survival_model == "constant"``.
+    birth : str
+        ``"fixed"`` (seed eq. 11) or ``"measurement"`` (adaptive births, see below).
+    birth_weight : float
+        Weight of the fixed birth component added at every time update. Seed: 0.001.
+    birth_mean_m : tuple of float
+        Mean ``(x, y)`` of the fixed birth component in the robot frame. Seed: (0, 0).
+    birth_std_m : float
+        Standard deviation of the fixed birth component, ``cov = birth_std_m**2 * I``.
+        Seed: 2 m (``cov = diag(4, 4)``).
+    measurement_birth_weight : float
+        Weight of each adaptive birth component (``birth == "measurement"``).
+    measurement_birth_cov_scale : float
+        Adaptive birth covariance is ``measurement_birth_cov_scale * R_L``.
+    measurement_birth_max_explained : float
+        A lidar detection spawns a birth when the fraction of it explained by the current
+        components, ``sum_i P_d w N / (kappa + sum_i P_d w N)``, is below this value.
+        The birth enters the mixture at the next time update (Ristic et al. 2012 style).
+    lidar_noise_std_m : float
+        Lidar position noise, ``R_L = lidar_noise_std_m**2 * I``. Seed eq. 17: 0.05 (0.0025 m^2).
+    lidar_pd_model : str
+        ``"seed"`` or ``"constant"`` (see ``LIDAR_PD_MODELS``).
+    lidar_pd_offset, lidar_pd_slope_per_m, lidar_pd_midpoint_m : float
+        Range factor ``1 / (offset + exp(slope * (||m|| - midpoint)))``. Seed eq. 19: 1.02, 8, 1.5.
+    lidar_detection_probability : float
+        Constant ``P_d`` used by ``lidar_pd_model == "constant"``.
+    lidar_range_m : float
+        Detection range of the ``"constant"`` model (seed: effective tracking range 2 m).
+    blind_sector_centers_deg, blind_sector_widths_deg : tuple of float
+        Lidar blind sectors caused by the camera pillars, robot frame, degrees. Each sector
+        multiplies ``P_d`` by ``1 - bump(bearing - centre; sigma = width / 2)`` with a bump of
+        peak 1, so ``P_d -> 0`` at the sector centre. Must match the simulator's lidar.
+    occlusion_std_deg : float
+        Angular std of the occlusion bump (seed eqs. 21-22: 3 deg).
+    occlusion_min_separation_m : float
+        A component only occludes components at least this much farther away (a teammate
+        cannot hide one that is at the same range). 0 reproduces the seed literally.
+    interference_depth : float
+        Depth of the interference notch (seed eq. 23: 0.6).
+    interference_std_deg : float
+        Angular std ``c`` of each null-return notch (the seed leaves ``c`` unspecified).
+    lidar_clutter_intensity : float
+        Lidar clutter intensity ``kappa_L`` per m^2 (Poisson false detections per unit area).
+        The seed uses 0; 0 is allowed but then every unexplained detection is taken as a
+        target. Default 0.05 /m^2, about 0.6 false detections per scan in the 2 m disc.
+    camera_noise_std_deg : float
+        Camera bearing noise, ``R_C = radians(camera_noise_std_deg)**2``. Seed: "25 deg" read
+        as a variance of 25 deg^2, i.e. 5 deg std.
+    camera_pd_offset, camera_pd_slope_per_m, camera_pd_midpoint_m : float
+        Camera range factor (seed eq. 30: 1.1, 5, 4).
+    camera_clutter_intensity : float
+        Camera clutter intensity ``kappa_C`` per radian of bearing. Default 0.05 /rad.
+    prune_threshold : float
+        Components with a lower weight are dropped after each update (mass is lost).
+    merge_threshold : float
+        Squared Mahalanobis distance below which components merge (Vo & Ma's ``U``).
+    max_components : int
+        Cap on the number of components kept after reduction (largest weights survive).
+    min_range_m : float
+        Floor on ``||m||`` for the bearing Jacobian and unit bearing vectors; components closer
+        than this (inside our own body) get camera ``P_d = 0`` because their bearing is undefined.
+    """
+
+    mode: str = "lidar-camera"
+    process_noise_std_m: float = 0.03
+    survival_model: str = "seed"
+    survival_offset: float = 1.05
+    survival_slope_per_m: float = 4.0
+    survival_range_m: float = 4.0
+    survival_probability: float = 0.99
+    birth: str = "fixed"
+    birth_weight: float = 0.001
+    birth_mean_m: tuple[float, float] = (0.0, 0.0)
+    birth_std_m: float = 2.0
+    measurement_birth_weight: float = 0.01
+    measurement_birth_cov_scale: float = 4.0
+    measurement_birth_max_explained: float = 0.5
+    lidar_noise_std_m: float = 0.05
+    lidar_pd_model: str = "seed"
+    lidar_pd_offset: float = 1.02
+    lidar_pd_slope_per_m: float = 8.0
+    lidar_pd_midpoint_m: float = 1.5
+    lidar_detection_probability: float = 0.9
+    lidar_range_m: float = 2.0
+    blind_sector_centers_deg: tuple[float, ...] = (45.0, 135.0, -135.0, -45.0)
+    blind_sector_widths_deg: tuple[float, ...] = (10.0, 10.0, 10.0, 10.0)
+    occlusion_std_deg: float = 3.0
+    occlusion_min_separation_m: float = 0.1
+    interference_depth: float = 0.6
+    interference_std_deg: float = 1.0
+    lidar_clutter_intensity: float = 0.05
+    camera_noise_std_deg: float = 5.0
+    camera_pd_offset: float = 1.1
+    camera_pd_slope_per_m: float = 5.0
+    camera_pd_midpoint_m: float = 4.0
+    camera_clutter_intensity: float = 0.05
+    prune_threshold: float = 1e-4
+    merge_threshold: float = 4.0
+    max_components: int = 64
+    min_range_m: float = 0.1
+
+    def __post_init__(self) -> None:
+        _check_choice("mode", self.mode, MODES)
+        _check_choice("survival_model", self.survival_model, SURVIVAL_MODELS)
+        _check_choice("birth", self.birth, BIRTH_MODELS)
+        _check_choice("lidar_pd_model", self.lidar_pd_model, LIDAR_PD_MODELS)
+        # Every float field must be a finite real number (bool is rejected: it is an int).
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.type in ("float", float):
+                if isinstance(value, bool) or not isinstance(value, (int, float)):
+                    raise ValueError(f"PHDConfig.{f.name} must be a number, got {value!r}")
+                if not math.isfinite(value):
+                    raise ValueError(f"PHDConfig.{f.name} must be finite, got {value!r}")
+        for name in (
+            "process_noise_std_m",
+            "survival_slope_per_m",
+            "birth_std_m",
+            "measurement_birth_cov_scale",
+            "lidar_noise_std_m",
+            "lidar_pd_slope_per_m",
+            "lidar_range_m",
+            "occlusion_std_deg",
+            "interference_std_deg",
+            "camera_noise_std_deg",
+            "camera_pd_slope_per_m",
+            "merge_threshold",
+            "min_range_m",
+        ):
+            _check_positive(name, getattr(self, name))
+        for name in (
+            "survival_range_m",
+            "lidar_pd_midpoint_m",
+            "camera_pd_midpoint_m",
+            "occlusion_min_separation_m",
+            "lidar_clutter_intensity",
+            "camera_clutter_intensity",
+        ):
+            if getattr(self, name) < 0.0:
+                raise ValueError(f"PHDConfig.{name} must be >= 0, got {getattr(self, name)!r}")
+        # Sigmoid offsets >= 1 keep P_s and P_d inside [0, 1] without clipping.
+        for name in ("survival_offset", "lidar_pd_offset", "camera_pd_offset"):
+            if getattr(self, name) < 1.0:
+                raise ValueError(f"PHDConfig.{name} must be >= 1, got {getattr(self, name)!r}")
+        for name in (
+            "survival_probability",
+            "lidar_detection_probability",
+            "interference_depth",
+            "measurement_birth_max_explained",
+        ):
+            value = getattr(self, name)
+            if not 0.0 <= value <= 1.0:
+                raise ValueError(f"PHDConfig.{name} must be in [0, 1], got {value!r}")
+        for name in ("birth_weight", "measurement_birth_weight"):
+            value = getattr(self, name)
+            if not 0.0 <= value < 1e3:
+                raise ValueError(f"PHDConfig.{name} must be in [0, 1000), got {value!r}")
+        if not 0.0 <= self.prune_threshold < 1.0:
+            raise ValueError(
+                f"PHDConfig.prune_threshold must be in [0, 1), got {self.prune_threshold!r}"
+            )
+        if (
+            isinstance(self.max_components, bool)
+            or not isinstance(self.max_components, int)
+            or self.max_components < 1
+        ):
+            raise ValueError(
+                f"PHDConfig.max_components must be an int >= 1, got {self.max_components!r}"
+            )
+        _check_pair("birth_mean_m", self.birth_mean_m)
+        _check_angles("blind_sector_centers_deg", self.blind_sector_centers_deg)
+        _check_angles("blind_sector_widths_deg", self.blind_sector_widths_deg)
+        if len(self.blind_sector_centers_deg) != len(self.blind_sector_widths_deg):
+            raise ValueError(
+                "PHDConfig.blind_sector_widths_deg must have one width per centre, got "
+                f"{self.blind_sector_widths_deg!r} for centres {self.blind_sector_centers_deg!r}"
+            )
+        for width in self.blind_sector_widths_deg:
+            if not 0.0 < width < 360.0:
+                raise ValueError(
+                    f"PHDConfig.blind_sector_widths_deg must be in (0, 360), got {width!r}"
+                )
+
+    @property
+    def lidar_noise_var_m2(self) -> float:
+        """Lidar noise variance ``R_L[0, 0]`` in m^2."""
+        return self.lidar_noise_std_m**2
+
+    @property
+    def camera_noise_var_rad2(self) -> float:
+        """Camera bearing noise variance ``R_C`` in rad^2."""
+        return math.radians(self.camera_noise_std_deg) ** 2
+
+
+def _check_choice(name: str, value: object, choices: tuple[str, ...]) -> None:
+    if value not in choices:
+        raise ValueError(f"PHDConfig.{name} must be one of {choices}, got {value!r}")
+
+
+def _check_positive(name: str, value: float) -> None:
+    if not value > 0.0:
+        raise ValueError(f"PHDConfig.{name} must be > 0, got {value!r}")
+
+
+def _check_pair(name: str, value: object) -> None:
+    ok = (
+        isinstance(value, tuple)
+        and len(value) == 2
+        and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+            for v in value
+        )
+    )
+    if not ok:
+        raise ValueError(f"PHDConfig.{name} must be a tuple of 2 finite numbers, got {value!r}")
+
+
+def _check_angles(name: str, value: object) -> None:
+    ok = isinstance(value, tuple) and all(
+        isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+        for v in value
+    )
+    if not ok:
+        raise ValueError(f"PHDConfig.{name} must be a tuple of finite numbers, got {value!r}")

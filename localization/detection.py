@@ -1,0 +1,279 @@
+"""Survival and detection probabilities of the robot-centric GM-PHD (seed eqs. 10, 18-23, 29-30).
+
+All factors are evaluated at the component means of the *prior* mixture, vectorised over
+components (and over component pairs for occlusion, components x null returns for
+interference). Angular bumps are written with unit bearing vectors: for two bearings whose
+difference is ``d``, ``u_i . u_j = cos d``, and the bump
+
+    ``bump(d; sigma) = exp((cos d - 1) / sigma^2)``
+
+has peak 1 at ``d = 0``, is periodic (no angle wrapping needed) and equals the Gaussian
+``exp(-d^2 / (2 sigma^2))`` up to a relative error of order ``d^4 / (24 sigma^2)`` in the
+exponent, i.e. identical for the few-degree widths used here. It costs one small matrix
+product instead of ``atan2`` plus wrapping.
+
+Corrections to the seed (see ``docs/localization.md``):
+
+* eq. 20 (blind sectors) and eq. 22 (occlusion) are written as *sums* of factors; a product
+  is what the text describes (each sector / each nearer robot removes detection), so we
+  multiply. The seed's ``N(theta; alpha, beta/2)`` is replaced by a bump of peak 1 with
+  ``sigma = beta/2``, so that ``P_d -> 0`` at the sector centre.
+* eq. 23 (interference) is also written as a sum; we use the product over null-return
+  bearings ``b`` of ``1 - depth * bump(theta - b; c)``.
+* Each occlusion factor ``1 - w_j bump`` is clipped at 0: merged weights can exceed 1.
+
+References
+----------
+.. [1] Perera 2021, seed ``000`` of this project, chapter 3.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .config import PHDConfig
+from .mixture import ROW_W, ROW_X, ROW_Y
+
+__all__ = [
+    "inverse_sigmoid",
+    "unit_bearings",
+    "blind_sector_factor",
+    "occlusion_factor",
+    "interference_factor",
+    "DetectionModel",
+]
+
+# exp(x) overflows above ~709; clip the sigmoid exponent (far components get P ~ 0 either way).
+_MAX_EXP = 700.0
+
+
+def inverse_sigmoid(
+    range_m: np.ndarray, offset: float, slope_per_m: float, midpoint_m: float
+) -> np.ndarray:
+    """``1 / (offset + exp(slope * (range - midpoint)))`` (seed eqs. 10, 19, 30).
+
+    Parameters
+    ----------
+    range_m : ndarray, shape (N,)
+        Ranges (m).
+    offset, slope_per_m, midpoint_m : float
+        Sigmoid parameters; ``offset >= 1`` keeps the result in ``[0, 1]``.
+
+    Returns
+    -------
+    ndarray, shape (N,)
+    """
+    # Guard: clipped exponent, so no overflow warning for absurdly far components.
+    return 1.0 / (offset + np.exp(np.minimum(range_m * slope_per_m - slope_per_m * midpoint_m,
+                                             _MAX_EXP)))
+
+
+def unit_bearings(table: np.ndarray, min_range_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Ranges and unit bearing vectors of the component means.
+
+    Parameters
+    ----------
+    table : ndarray, shape (6, N)
+        Component table.
+    min_range_m : float
+        Floor on the range used for the division; a component at the origin gets the zero
+        vector (it then neither occludes nor is affected by angular factors).
+
+    Returns
+    -------
+    ranges : ndarray, shape (N,)
+        ``||m||`` (m), unfloored.
+    units : ndarray, shape (2, N)
+        ``m / max(||m||, min_range_m)``.
+    """
+    ranges = np.hypot(table[ROW_X], table[ROW_Y])
+    # Guard: floor the divisor so a mean at the origin gives a zero vector, not NaN.
+    units = table[ROW_X : ROW_Y + 1] / np.maximum(ranges, min_range_m)
+    return ranges, units
+
+
+def blind_sector_factor(
+    units: np.ndarray, sector_dirs: np.ndarray, sector_inv_var: np.ndarray
+) -> np.ndarray:
+    """Product over blind sectors of ``1 - bump(theta - alpha_k; sigma_k)``.
+
+    Parameters
+    ----------
+    units : ndarray, shape (2, N)
+        Unit bearing vectors of the components.
+    sector_dirs : ndarray, shape (2, K)
+        Unit vectors of the sector centres ``alpha_k``.
+    sector_inv_var : ndarray, shape (K,)
+        ``1 / sigma_k^2`` with ``sigma_k = beta_k / 2`` (rad^-2).
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        Factor in ``[0, 1]``.
+    """
+    cos_diff = units.T @ sector_dirs  # (N, K)
+    return np.prod(1.0 - np.exp((cos_diff - 1.0) * sector_inv_var), axis=1)
+
+
+def occlusion_factor(
+    units: np.ndarray,
+    ranges: np.ndarray,
+    weights: np.ndarray,
+    inv_var: float,
+    min_separation_m: float,
+) -> np.ndarray:
+    """Seed eqs. 21-22 as a product over nearer components ``j`` of ``1 - w_j bump``.
+
+    Parameters
+    ----------
+    units : ndarray, shape (2, N)
+        Unit bearing vectors.
+    ranges : ndarray, shape (N,)
+        Component ranges (m).
+    weights : ndarray, shape (N,)
+        Component weights.
+    inv_var : float
+        ``1 / sigma^2`` of the occlusion bump (rad^-2).
+    min_separation_m : float
+        Component ``j`` occludes ``i`` only if ``r_j < r_i - min_separation_m``.
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        Factor in ``[0, 1]``.
+    """
+    bump = np.exp((units.T @ units - 1.0) * inv_var)  # (N, N), [i, j]
+    nearer = ranges < (ranges - min_separation_m)[:, None]  # [i, j]: j is nearer than i
+    # Guard: clip each factor at 0 (a merged weight w_j > 1 would make it negative).
+    return np.prod(np.maximum(1.0 - bump * (weights * nearer), 0.0), axis=1)
+
+
+def interference_factor(
+    units: np.ndarray, null_bearings_rad: np.ndarray, inv_var: float, depth: float
+) -> np.ndarray:
+    """Seed eq. 23 as a product over null-return bearings ``b`` of ``1 - depth * bump``.
+
+    Parameters
+    ----------
+    units : ndarray, shape (2, N)
+        Unit bearing vectors.
+    null_bearings_rad : ndarray, shape (B,)
+        Bearings of zero-intensity returns (rad, robot frame).
+    inv_var : float
+        ``1 / c^2`` (rad^-2).
+    depth : float
+        Notch depth in ``[0, 1]`` (seed: 0.6).
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        Factor in ``[1 - depth, 1]`` per null bearing, multiplied.
+    """
+    dirs = np.stack((np.cos(null_bearings_rad), np.sin(null_bearings_rad)))
+    bump = np.exp((units.T @ dirs - 1.0) * inv_var)  # (N, B)
+    return np.prod(1.0 - depth * bump, axis=1)
+
+
+class DetectionModel:
+    """Survival, lidar and camera detection probabilities built from a :class:`PHDConfig`.
+
+    Derived constants (sector unit vectors, inverse variances) are computed once here so
+    the per-call functions are a handful of numpy operations.
+
+    Parameters
+    ----------
+    config : PHDConfig
+        Filter configuration.
+    """
+
+    __slots__ = (
+        "config",
+        "_sector_dirs",
+        "_sector_inv_var",
+        "_occlusion_inv_var",
+        "_interference_inv_var",
+    )
+
+    def __init__(self, config: PHDConfig) -> None:
+        self.config = config
+        centres = np.radians(np.asarray(config.blind_sector_centers_deg, dtype=float))
+        sigmas = 0.5 * np.radians(np.asarray(config.blind_sector_widths_deg, dtype=float))
+        self._sector_dirs = np.stack((np.cos(centres), np.sin(centres)))  # (2, K)
+        self._sector_inv_var = 1.0 / sigmas**2
+        self._occlusion_inv_var = 1.0 / math.radians(config.occlusion_std_deg) ** 2
+        self._interference_inv_var = 1.0 / math.radians(config.interference_std_deg) ** 2
+
+    def __getstate__(self) -> PHDConfig:
+        return self.config
+
+    def __setstate__(self, config: PHDConfig) -> None:
+        self.__init__(config)  # type: ignore[misc]
+
+    def survival(self, table: np.ndarray) -> np.ndarray:
+        """``P_s`` per component (seed eq. 10 or constant), shape (N,)."""
+        cfg = self.config
+        if cfg.survival_model == "constant":
+            return np.full(table.shape[1], cfg.survival_probability)
+        ranges = np.hypot(table[ROW_X], table[ROW_Y])
+        return inverse_sigmoid(
+            ranges, cfg.survival_offset, cfg.survival_slope_per_m, cfg.survival_range_m
+        )
+
+    def lidar(self, table: np.ndarray, null_bearings_rad: np.ndarray | None) -> np.ndarray:
+        """Lidar ``P_d`` per component (seed eq. 18 or constant), shape (N,), in ``[0, 1]``.
+
+        Parameters
+        ----------
+        table : ndarray, shape (6, N)
+            Prior component table.
+        null_bearings_rad : ndarray, shape (B,), or None
+            Bearings of zero-intensity returns (interference factor); ``None`` or empty
+            disables the factor.
+        """
+        cfg = self.config
+        if cfg.lidar_pd_model == "constant":
+            ranges = np.hypot(table[ROW_X], table[ROW_Y])
+            return np.where(ranges <= cfg.lidar_range_m, cfg.lidar_detection_probability, 0.0)
+        ranges, units = unit_bearings(table, cfg.min_range_m)
+        pd = inverse_sigmoid(
+            ranges, cfg.lidar_pd_offset, cfg.lidar_pd_slope_per_m, cfg.lidar_pd_midpoint_m
+        )
+        if self._sector_dirs.shape[1]:
+            pd = pd * blind_sector_factor(units, self._sector_dirs, self._sector_inv_var)
+        if table.shape[1] > 1:
+            pd = pd * occlusion_factor(
+                units,
+                ranges,
+                table[ROW_W],
+                self._occlusion_inv_var,
+                cfg.occlusion_min_separation_m,
+            )
+        if null_bearings_rad is not None and null_bearings_rad.shape[0]:
+            pd = pd * interference_factor(
+                units, null_bearings_rad, self._interference_inv_var, cfg.interference_depth
+            )
+        # Every factor is in [0, 1] by construction, so no final clip is needed.
+        return pd
+
+    def camera(self, table: np.ndarray) -> np.ndarray:
+        """Camera ``P_d`` per component (seed eqs. 29-30), shape (N,), in ``[0, 1]``.
+
+        Components closer than ``min_range_m`` get 0: their bearing is undefined.
+        """
+        cfg = self.config
+        ranges, units = unit_bearings(table, cfg.min_range_m)
+        pd = inverse_sigmoid(
+            ranges, cfg.camera_pd_offset, cfg.camera_pd_slope_per_m, cfg.camera_pd_midpoint_m
+        )
+        pd = pd * (ranges >= cfg.min_range_m)
+        if table.shape[1] > 1:
+            pd = pd * occlusion_factor(
+                units,
+                ranges,
+                table[ROW_W],
+                self._occlusion_inv_var,
+                cfg.occlusion_min_separation_m,
+            )
+        return pd

@@ -1,0 +1,65 @@
+"""``swarm-phd bench``: env throughput on the ``seed-sim`` preset, one process.
+
+20 robots, all sensors at the seed's rates, random actions. Reported with localization off (the
+simulator alone) and with Lidar+Camera GM-PHD on every robot: env steps per second, the real-time
+factor (simulated seconds per wall second) and the lidar cost per scan (ray casting + feature
+extraction).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from pathlib import Path
+
+from swarm_env import parallel_env
+from swarm_env.runner import random_policy, rollout
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--preset", default="seed-sim")
+    parser.add_argument("--duration", type=float, default=60.0, help="simulated seconds per case")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--json", default=None, help="also write the figures to this file")
+
+
+def measure(preset: str, duration_s: float, seed: int, localize: bool) -> dict[str, float]:
+    observation = "phd" if localize else "measurements"
+    env = parallel_env(preset, observation=observation, localize=localize)
+    n_steps = int(round(duration_s / env.config.control_period_s))
+    rollout(env, random_policy(env), 20, seed=seed)  # warm-up (imports, caches)
+    for key in env.world.timing:
+        env.world.timing[key] = 0
+    result = rollout(env, random_policy(env), n_steps, seed=seed)
+    timing = env.world.timing
+    scans = max(timing["lidar_scans"], 1)
+    return {
+        "localization": "phd-lc" if localize else "off",
+        "n_robots": env.config.n_robots,
+        "steps": result.steps,
+        "steps_per_s": result.steps_per_s,
+        "real_time_factor": result.real_time_factor,
+        "lidar_ms_per_scan": 1e3 * timing["lidar_s"] / scans,
+        "lidar_share": timing["lidar_s"] / result.wall_time_s,
+        "camera_share": timing["camera_s"] / result.wall_time_s,
+        "physics_share": timing["physics_s"] / result.wall_time_s,
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    rows = [measure(args.preset, args.duration, args.seed, localize) for localize in (False, True)]
+    print(f"swarm-phd bench: {args.preset}, {args.duration:.0f} s simulated per case, "
+          f"{platform.processor() or platform.machine()}, {time.strftime('%Y-%m-%d')}")
+    print("| localization | robots | env steps/s | real-time factor | lidar ms/scan | "
+          "lidar | camera | physics |")
+    print("|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['localization']} | {r['n_robots']} | {r['steps_per_s']:.0f} | "
+              f"{r['real_time_factor']:.1f}x | {r['lidar_ms_per_scan']:.3f} | "
+              f"{r['lidar_share']:.0%} | {r['camera_share']:.0%} | {r['physics_share']:.0%} |")
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(rows, indent=2))
+    return 0

@@ -1,0 +1,109 @@
+"""Measurement records: what a World hands to the localizers, in simulation and on real robots.
+
+Every record is stamped in seconds of the World's clock (sim time, or the robots' synchronised
+ROS time) and expressed in the measuring robot's body frame (REP-103: x forward, y left, yaw
+counter-clockwise, metres, radians). Records are immutable; arrays inside them are read-only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+def _frozen(array: np.ndarray, dtype=np.float64) -> np.ndarray:
+    out = np.array(array, dtype=dtype, copy=True)
+    out.setflags(write=False)
+    return out
+
+
+@dataclass(frozen=True, slots=True)
+class OdometryRecord:
+    """Own motion between the previous odometry sample and ``stamp_s``.
+
+    Attributes
+    ----------
+    stamp_s : float
+        End of the interval, seconds.
+    delta : ndarray, shape (3,)
+        ``[dx_m, dy_m, dpsi_rad]``: the displacement of the robot expressed in its body frame at
+        the *start* of the interval, and its heading change (counter-clockwise positive).
+    velocity : ndarray, shape (2,)
+        ``[v_mps, omega_radps]`` averaged over the interval (what the policy sees as its own speed).
+    """
+
+    stamp_s: float
+    delta: np.ndarray
+    velocity: np.ndarray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "delta", _frozen(self.delta).reshape(3))
+        object.__setattr__(self, "velocity", _frozen(self.velocity).reshape(2))
+
+
+@dataclass(frozen=True, slots=True)
+class LidarRecord:
+    """One lidar revolution and what the feature extractor found in it.
+
+    Attributes
+    ----------
+    stamp_s : float
+        Time of the scan, seconds.
+    angles_rad : ndarray, shape (B,)
+        Beam bearings in the robot frame, in [-pi, pi).
+    ranges_m : ndarray, shape (B,)
+        Measured range; ``0.0`` means no valid return (as the YDLidar driver reports it).
+    intensities : ndarray, shape (B,)
+        Return intensity; ``0`` with range ``0`` marks a null return (e.g. lidar interference).
+    detections : ndarray, shape (M, 2)
+        Robot-like clusters (width <= ~65 mm), centre estimates ``[x_m, y_m]`` in the robot frame.
+    null_bearings_rad : ndarray, shape (K,)
+        Bearings of null returns (range 0 and intensity 0), for the interference P_d factor.
+    """
+
+    stamp_s: float
+    angles_rad: np.ndarray
+    ranges_m: np.ndarray
+    intensities: np.ndarray
+    detections: np.ndarray
+    null_bearings_rad: np.ndarray
+
+    def __post_init__(self) -> None:
+        for name in ("angles_rad", "ranges_m", "intensities", "null_bearings_rad"):
+            object.__setattr__(self, name, _frozen(getattr(self, name)).reshape(-1))
+        object.__setattr__(self, "detections", _frozen(self.detections).reshape(-1, 2))
+
+
+@dataclass(frozen=True, slots=True)
+class CameraRecord:
+    """One camera frame (front + back fisheye fused): bearings of red colour blobs.
+
+    Attributes
+    ----------
+    stamp_s : float
+        Time of the frame, seconds.
+    bearings_rad : ndarray, shape (M,)
+        Bearings in the robot frame, wrapped to [-pi, pi).
+    """
+
+    stamp_s: float
+    bearings_rad: np.ndarray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "bearings_rad", _frozen(self.bearings_rad).reshape(-1))
+
+
+@dataclass(frozen=True, slots=True)
+class RobotMeasurements:
+    """Everything one robot measured during one env step, each list sorted by stamp."""
+
+    odometry: list[OdometryRecord] = field(default_factory=list)
+    lidar: list[LidarRecord] = field(default_factory=list)
+    camera: list[CameraRecord] = field(default_factory=list)
+
+    def in_time_order(self) -> list[OdometryRecord | LidarRecord | CameraRecord]:
+        """All records merged by stamp; on equal stamps odometry comes first (predict first)."""
+        order = {OdometryRecord: 0, LidarRecord: 1, CameraRecord: 2}
+        merged = [*self.odometry, *self.lidar, *self.camera]
+        return sorted(merged, key=lambda r: (r.stamp_s, order[type(r)]))

@@ -1,0 +1,56 @@
+"""The Task protocol: reward, termination and task features, computed on top of any World.
+
+A task never changes what the robots can sense: the observation stays each agent's own PHD
+estimate; the task only appends a few constant or self-measured features (e.g. the goal radius).
+Rewards and terminations are computed from ground truth, which the simulator always has and a real
+swarm has only with motion capture (without it, rewards are zero and nothing terminates).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from swarm_env.world.base import GroundTruth
+
+
+class Task:
+    """Base class: subclasses override what they need. The defaults describe a task with no
+    reward, no features, no extra robots and no termination (the seed's free wandering)."""
+
+    name = "base"
+    n_extra_robots = 0
+
+    def __init__(self, **params: Any) -> None:
+        if params:
+            raise ValueError(f"task {self.name!r} got unknown parameters {sorted(params)}")
+
+    # -- observation ------------------------------------------------------------------------
+    def feature_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Low and high of the task features appended to every observation, shapes (F,)."""
+        return np.zeros(0), np.zeros(0)
+
+    def features(self, n_agents: int) -> np.ndarray:
+        """Task features per agent, shape (N, F)."""
+        return np.zeros((n_agents, 0))
+
+    # -- episode ----------------------------------------------------------------------------
+    def reset(self, truth: GroundTruth | None, rng: np.random.Generator, arena: Any) -> None:
+        """Start an episode (``arena`` is the ArenaConfig, for tasks that need the bounds)."""
+
+    def extra_commands(self, truth: GroundTruth | None, dt_s: float) -> np.ndarray | None:
+        """Commands ``(E, 2)`` for the non-agent robots this task adds, or ``None``."""
+        return None
+
+    def rewards(self, truth: GroundTruth | None, actions: np.ndarray) -> np.ndarray:
+        """Reward per agent, shape (N,). ``actions`` are the clipped commands, shape (N, 2)."""
+        return np.zeros(len(actions))
+
+    def terminated(self, truth: GroundTruth | None) -> np.ndarray | bool:
+        """Termination per agent (N,) bool, or one bool for the whole swarm."""
+        return False
+
+    def metrics(self) -> dict[str, float]:
+        """Episode metrics so far (e.g. final formation error), for evaluation tables."""
+        return {}

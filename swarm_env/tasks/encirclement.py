@@ -1,0 +1,205 @@
+"""``encirclement``: enclose a moving intruder in a circle (seed ``004``, particle-filter swarms).
+
+The intruder is one extra robot that is not an agent: same chassis, lidar housing and red strip,
+so every lidar and camera sees it like any teammate (it shows up in the PHD like one), but it has
+no sensors and moves on a scripted path:
+
+- ``path="circle"``: a loop of radius ``path_radius_m`` around the arena centre at
+  ``intruder_speed_mps`` (it first drives onto the loop from where it spawned);
+- ``path="static"``: it stands still.
+
+Its driver sees only its own world position (from the ground truth of the simulator): heading is
+estimated from its displacement, so it behaves like an open-loop target with position feedback.
+
+Reward (per agent i, per step; ``q`` intruder position, ``d_i = ||p_i - q||``, ``G`` the largest
+angular gap between the agents as seen from ``q``, N agents)::
+
+    r_i = -| d_i - r |  -  gap_weight * max(0, G - 2 pi / N) / pi
+
+The first term brings every agent onto the circle of radius ``r`` around the intruder, the second
+(shared) spreads them around it. The intruder is *enclosed* when ``G < pi`` (it lies inside the
+agents' convex hull).
+
+Termination: never. Truncation: ``max_steps`` of the config.
+
+Task features (per agent): ``[r]``, and with ``beacon=True`` (default) also
+``[cos b, sin b, rho]``, the intruder's bearing and range in the agent's frame with Gaussian
+noise. This models the seed's setting, where every robot ranges the intruder by radio (seed
+``004``: "range (and bearing) to others by wireless"): a real intruder carrying no beacon could
+not be told apart from a teammate by anonymous lidar/camera detections, so without the beacon the
+PHD alone does not say which component to enclose. With ``beacon=False`` only ``[r]`` is given.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from swarm_env.tasks.base import Task
+from swarm_env.tasks.common import check_choice, check_param, max_angular_gap
+from swarm_env.world.base import GroundTruth
+
+PATHS = ("circle", "static")
+_MAX_RANGE_M = 20.0
+
+
+class EncirclementTask(Task):
+    """Enclose a scripted intruder on a circle of radius ``radius_m``.
+
+    Parameters
+    ----------
+    radius_m : float
+        Enclosing circle radius, default 0.6 m.
+    gap_weight : float
+        Weight of the spread term, default 0.5.
+    path : {"circle", "static"}
+    intruder_speed_mps : float
+        Default 0.05 m/s; must be 0 for ``path="static"``.
+    path_radius_m : float or None
+        Loop radius; default ``0.25 * min(arena width, height)``.
+    beacon : bool
+        Give every agent the intruder's noisy range and bearing (default True).
+    beacon_range_std_m, beacon_bearing_std_deg : float
+        Beacon noise (default 0.05 m, 5 deg).
+    """
+
+    name = "encirclement"
+    n_extra_robots = 1
+
+    def __init__(self, radius_m: float = 0.6, gap_weight: float = 0.5, path: str = "circle",
+                 intruder_speed_mps: float | None = None, path_radius_m: float | None = None,
+                 beacon: bool = True, beacon_range_std_m: float = 0.05,
+                 beacon_bearing_std_deg: float = 5.0, **params: Any) -> None:
+        super().__init__(**params)
+        self.radius_m = check_param(self.name, "radius_m", radius_m, 0.0, 20.0, low_open=True)
+        self.gap_weight = check_param(self.name, "gap_weight", gap_weight, 0.0, 10.0)
+        self.path = check_choice(self.name, "path", path, PATHS)
+        if intruder_speed_mps is None:
+            intruder_speed_mps = 0.05 if path == "circle" else 0.0
+        self.intruder_speed_mps = check_param(self.name, "intruder_speed_mps",
+                                              intruder_speed_mps, 0.0, 2.0)
+        if path == "static" and (self.intruder_speed_mps > 0 or path_radius_m is not None):
+            raise ValueError(f"task {self.name!r}: path='static' takes no intruder_speed_mps > 0 "
+                             "or path_radius_m")
+        if path == "circle" and self.intruder_speed_mps == 0:
+            raise ValueError(f"task {self.name!r}: path='circle' needs intruder_speed_mps > 0 "
+                             "(use path='static' for a standing intruder)")
+        self.path_radius_m = None if path_radius_m is None else check_param(
+            self.name, "path_radius_m", path_radius_m, 0.0, 50.0, low_open=True)
+        if not isinstance(beacon, bool):
+            raise ValueError(f"task {self.name!r}: beacon must be True or False, got {beacon!r}")
+        self.beacon = beacon
+        self.beacon_range_std_m = check_param(self.name, "beacon_range_std_m",
+                                              beacon_range_std_m, 0.0, 5.0)
+        self.beacon_bearing_std_rad = math.radians(check_param(
+            self.name, "beacon_bearing_std_deg", beacon_bearing_std_deg, 0.0, 180.0))
+        self._rng = np.random.default_rng(0)
+        self._features = np.zeros((0, self.n_features))
+        self._loop_radius_m = 1.0
+        self._heading = 0.0
+        self._prev_xy: np.ndarray | None = None
+        self._last_omega = 0.0
+        self._errors: list[float] = []
+        self._gaps: list[float] = []
+
+    @property
+    def n_features(self) -> int:
+        return 4 if self.beacon else 1
+
+    # -- observation ----------------------------------------------------------------------
+    def feature_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        if not self.beacon:
+            return np.zeros(1), np.array([self.radius_m])
+        return (np.array([0.0, -1.0, -1.0, 0.0]),
+                np.array([self.radius_m, 1.0, 1.0, _MAX_RANGE_M]))
+
+    def features(self, n_agents: int) -> np.ndarray:
+        if len(self._features) != n_agents:
+            out = np.zeros((n_agents, self.n_features))
+            out[:, 0] = self.radius_m
+            return out
+        return self._features.copy()
+
+    def _update_features(self, truth: GroundTruth) -> None:
+        n = len(truth.poses)
+        out = np.zeros((n, self.n_features))
+        out[:, 0] = self.radius_m
+        if self.beacon and len(truth.extra_xy):
+            rel = intruder_in_agent_frames(truth.poses, truth.extra_xy[0])
+            rho = np.hypot(rel[:, 0], rel[:, 1]) + self._rng.normal(0.0, self.beacon_range_std_m, n)
+            bearing = np.arctan2(rel[:, 1], rel[:, 0]) + self._rng.normal(
+                0.0, self.beacon_bearing_std_rad, n)
+            out[:, 1], out[:, 2] = np.cos(bearing), np.sin(bearing)
+            out[:, 3] = np.clip(rho, 0.0, _MAX_RANGE_M)
+        self._features = out
+
+    # -- episode --------------------------------------------------------------------------
+    def reset(self, truth: GroundTruth | None, rng: np.random.Generator, arena: Any) -> None:
+        self._rng = rng
+        self._loop_radius_m = (self.path_radius_m if self.path_radius_m is not None
+                               else 0.25 * min(arena.width_m, arena.height_m))
+        self._heading = 0.0
+        self._prev_xy = None
+        self._last_omega = 0.0
+        self._errors, self._gaps = [], []
+        if truth is not None:
+            self._update_features(truth)
+
+    def extra_commands(self, truth: GroundTruth | None, dt_s: float) -> np.ndarray | None:
+        if truth is None or self.path == "static" or not len(truth.extra_xy):
+            return np.zeros((self.n_extra_robots, 2))
+        q = truth.extra_xy[0]
+        # Heading from the displacement since the last command (no skid on a differential
+        # drive); while barely moving, integrate the commanded turn rate instead.
+        self._heading += self._last_omega * dt_s
+        if self._prev_xy is not None:
+            step = q - self._prev_xy
+            if np.hypot(*step) > 2e-3:
+                self._heading = math.atan2(step[1], step[0])
+        self._prev_xy = q.copy()
+        # Carrot on the loop, 0.6 rad ahead (counter-clockwise) of the intruder's polar angle.
+        theta = math.atan2(q[1], q[0]) + 0.6
+        target = self._loop_radius_m * np.array([math.cos(theta), math.sin(theta)])
+        desired = math.atan2(target[1] - q[1], target[0] - q[0])
+        err = math.atan2(math.sin(desired - self._heading), math.cos(desired - self._heading))
+        omega = float(np.clip(2.0 * err, -1.0, 1.0))
+        v = self.intruder_speed_mps * max(0.3, math.cos(err))
+        self._last_omega = omega
+        return np.array([[v, omega]])
+
+    def errors(self, xy: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, float]:
+        """Per-agent radius error (N,) and the largest angular gap around ``q`` (rad)."""
+        return np.abs(np.linalg.norm(xy - q, axis=1) - self.radius_m), max_angular_gap(q, xy)
+
+    def rewards(self, truth: GroundTruth | None, actions: np.ndarray) -> np.ndarray:
+        if truth is None or not len(truth.extra_xy):
+            return np.zeros(len(actions))
+        xy = truth.poses[:, :2]
+        radius_err, gap = self.errors(xy, truth.extra_xy[0])
+        self._errors.append(float(radius_err.mean()))
+        self._gaps.append(gap)
+        self._update_features(truth)
+        spread = max(0.0, gap - 2 * math.pi / len(xy)) / math.pi
+        return -(radius_err + self.gap_weight * spread)
+
+    def metrics(self) -> dict[str, float]:
+        if not self._errors:
+            return {}
+        tail = max(1, len(self._errors) // 5)
+        gaps = np.asarray(self._gaps)
+        return {
+            "radius_error_m": float(np.mean(self._errors)),
+            "final_radius_error_m": float(np.mean(self._errors[-tail:])),
+            "enclosed_fraction": float(np.mean(gaps < math.pi)),
+            "final_enclosed_fraction": float(np.mean(gaps[-tail:] < math.pi)),
+            "mean_max_gap_deg": float(np.degrees(gaps.mean())),
+        }
+
+
+def intruder_in_agent_frames(poses: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The intruder's world position ``q`` (2,) in each agent's body frame, shape (N, 2)."""
+    d = q[None, :] - poses[:, :2]
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    return np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], axis=-1)

@@ -1,0 +1,125 @@
+"""``exploration``: cover the arena's grid cells with the swarm.
+
+The arena is divided into square cells of side ``cell_m`` (the last row/column may be narrower).
+A cell is covered once any robot's centre has been in it during the episode.
+
+Reward (per agent i, per step), ``new`` = cells covered for the first time at this step by anyone::
+
+    r_i = coverage_reward * new  -  collision_penalty * [i collides]
+
+The coverage term is shared (every agent gets the whole swarm's gain); the collision term is each
+robot's own. A robot "collides" while its centre is closer than ``collision_distance_m`` to
+another robot's centre or closer than ``wall_margin_m`` to a wall (ground truth; box obstacles are
+not in the ground truth and are not penalised — the lidar keeps robots off them anyway).
+
+Termination: the whole swarm, once the covered fraction reaches ``target_coverage``.
+Truncation: ``max_steps`` of the config. No task features (F = 0): a robot cannot sense the
+swarm's coverage map; what it can learn is to spread out and keep moving.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from swarm_env.tasks.base import Task
+from swarm_env.tasks.common import check_param, collisions
+from swarm_env.world.base import GroundTruth
+
+
+class ExplorationTask(Task):
+    """Grid-cell coverage with a shared reward and a per-robot collision penalty.
+
+    Parameters
+    ----------
+    cell_m : float
+        Cell side, default 0.5 m.
+    target_coverage : float
+        Covered fraction that ends the episode, in (0, 1], default 0.9.
+    coverage_reward : float
+        Reward per newly covered cell, default 1.0.
+    collision_penalty : float
+        Penalty per step in collision, default 0.1.
+    collision_distance_m : float
+        Robot-robot centre distance counted as a collision, default 0.3 m (about touching).
+    wall_margin_m : float
+        Centre-to-wall distance counted as a collision, default 0.16 m.
+    """
+
+    name = "exploration"
+
+    def __init__(self, cell_m: float = 0.5, target_coverage: float = 0.9,
+                 coverage_reward: float = 1.0, collision_penalty: float = 0.1,
+                 collision_distance_m: float = 0.3, wall_margin_m: float = 0.16,
+                 **params: Any) -> None:
+        super().__init__(**params)
+        self.cell_m = check_param(self.name, "cell_m", cell_m, 0.0, 10.0, low_open=True)
+        self.target_coverage = check_param(self.name, "target_coverage", target_coverage,
+                                           0.0, 1.0, low_open=True)
+        self.coverage_reward = check_param(self.name, "coverage_reward", coverage_reward,
+                                           0.0, 1e3)
+        self.collision_penalty = check_param(self.name, "collision_penalty",
+                                             collision_penalty, 0.0, 1e3)
+        self.collision_distance_m = check_param(self.name, "collision_distance_m",
+                                                collision_distance_m, 0.0, 5.0)
+        self.wall_margin_m = check_param(self.name, "wall_margin_m", wall_margin_m, 0.0, 5.0)
+        self._arena: Any = None
+        self.covered = np.zeros((0, 0), dtype=bool)
+        self._collision_steps = 0
+        self._steps = 0
+        self._robot_steps = 0
+
+    def reset(self, truth: GroundTruth | None, rng: np.random.Generator, arena: Any) -> None:
+        self._arena = arena
+        nx = math.ceil(arena.width_m / self.cell_m - 1e-9)
+        ny = math.ceil(arena.height_m / self.cell_m - 1e-9)
+        if nx * ny < 2:
+            raise ValueError(f"task {self.name!r}: cell_m={self.cell_m} leaves fewer than 2 cells "
+                             f"in a {arena.width_m} x {arena.height_m} m arena")
+        self.covered = np.zeros((nx, ny), dtype=bool)
+        self._collision_steps = 0
+        self._steps = 0
+        self._robot_steps = 0
+        if truth is not None:
+            self._cover(truth.poses[:, :2])  # the start cells are free: no reward for them
+
+    def cells(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Cell indices ``(ix, iy)`` of world positions (clipped into the grid)."""
+        ix = np.floor((xy[:, 0] + 0.5 * self._arena.width_m) / self.cell_m).astype(int)
+        iy = np.floor((xy[:, 1] + 0.5 * self._arena.height_m) / self.cell_m).astype(int)
+        return (np.clip(ix, 0, self.covered.shape[0] - 1),
+                np.clip(iy, 0, self.covered.shape[1] - 1))
+
+    def _cover(self, xy: np.ndarray) -> int:
+        ix, iy = self.cells(xy)
+        before = int(self.covered.sum())
+        self.covered[ix, iy] = True
+        return int(self.covered.sum()) - before
+
+    @property
+    def coverage(self) -> float:
+        return float(self.covered.mean()) if self.covered.size else 0.0
+
+    def rewards(self, truth: GroundTruth | None, actions: np.ndarray) -> np.ndarray:
+        if truth is None:
+            return np.zeros(len(actions))
+        xy = truth.poses[:, :2]
+        new = self._cover(xy)
+        hit = collisions(xy, self.collision_distance_m, self._arena, self.wall_margin_m)
+        self._collision_steps += int(hit.sum())
+        self._steps += 1
+        self._robot_steps += len(xy)
+        return self.coverage_reward * new - self.collision_penalty * hit.astype(float)
+
+    def terminated(self, truth: GroundTruth | None) -> bool:
+        return truth is not None and self.coverage >= self.target_coverage
+
+    def metrics(self) -> dict[str, float]:
+        if not self._steps:
+            return {}
+        return {
+            "coverage": self.coverage,
+            "collision_rate": self._collision_steps / max(1, self._robot_steps),
+        }

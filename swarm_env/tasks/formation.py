@@ -1,0 +1,143 @@
+"""``formation``: the swarm forms a circle of radius ``r`` around its own centroid (the seed's
+UAV/UGV task T4), or, with ``shape="lattice"``, every robot keeps distance ``d`` to its neighbours.
+
+Rewards (per agent i, per step, metres; ground-truth world positions ``p``):
+
+- circle: with centroid ``c = mean_j p_j``, target spacing ``s* = 2 r sin(pi / N)`` (the chord of
+  N robots evenly spread on the circle) and ``nn_i`` the distance to i's nearest teammate::
+
+      r_i = -( | ||p_i - c|| - r |  +  spacing_weight * | nn_i - s* | )
+
+- lattice: with ``N_i`` = teammates closer than ``1.5 d``, plus the nearest one in any case::
+
+      r_i = -mean_{j in N_i} | ||p_i - p_j|| - d |
+
+Termination: never (holding the formation is the task). Truncation: ``max_steps`` of the config.
+
+Task features appended to each observation (mission parameters a robot is given, not sensed):
+circle ``[r, s*]``, lattice ``[d]``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from swarm_env.tasks.base import Task
+from swarm_env.tasks.common import check_choice, check_param, pairwise_distances
+from swarm_env.world.base import GroundTruth
+
+SHAPES = ("circle", "lattice")
+_NEIGHBOUR_FACTOR = 1.5
+
+
+class FormationTask(Task):
+    """Circle around the centroid (T4) or lattice with neighbour distance ``d``.
+
+    Parameters
+    ----------
+    shape : {"circle", "lattice"}
+    radius_m : float
+        Circle radius (circle only), default 0.8 m.
+    spacing_m : float
+        Neighbour distance ``d`` (lattice only), default 0.6 m.
+    spacing_weight : float
+        Weight of the even-spread term (circle only), default 0.5.
+    """
+
+    name = "formation"
+
+    def __init__(self, shape: str = "circle", radius_m: float | None = None,
+                 spacing_m: float | None = None, spacing_weight: float | None = None,
+                 **params: Any) -> None:
+        super().__init__(**params)
+        self.shape = check_choice(self.name, "shape", shape, SHAPES)
+        if self.shape == "circle":
+            if spacing_m is not None:
+                raise ValueError(f"task {self.name!r}: spacing_m applies to shape='lattice'; "
+                                 "a circle's spacing follows from radius_m and the robot count")
+            self.radius_m = check_param(self.name, "radius_m", 0.8 if radius_m is None
+                                        else radius_m, 0.0, 20.0, low_open=True)
+            self.spacing_weight = check_param(
+                self.name, "spacing_weight", 0.5 if spacing_weight is None else spacing_weight,
+                0.0, 10.0)
+            self.spacing_m = None
+        else:
+            for name, value in (("radius_m", radius_m), ("spacing_weight", spacing_weight)):
+                if value is not None:
+                    raise ValueError(f"task {self.name!r}: {name} applies to shape='circle', "
+                                     "not 'lattice' (use spacing_m)")
+            self.spacing_m = check_param(self.name, "spacing_m", 0.6 if spacing_m is None
+                                         else spacing_m, 0.0, 20.0, low_open=True)
+            self.radius_m = None
+            self.spacing_weight = 0.0
+        self._errors: list[float] = []
+        self._spacing_errors: list[float] = []
+
+    # -- observation ----------------------------------------------------------------------
+    def feature_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        if self.shape == "circle":
+            return np.zeros(2), np.array([self.radius_m, 2 * self.radius_m])
+        return np.zeros(1), np.array([self.spacing_m])
+
+    def features(self, n_agents: int) -> np.ndarray:
+        if self.shape == "circle":
+            row = [self.radius_m, target_chord(self.radius_m, n_agents)]
+        else:
+            row = [self.spacing_m]
+        return np.tile(np.asarray(row, dtype=float), (n_agents, 1))
+
+    # -- episode --------------------------------------------------------------------------
+    def reset(self, truth: GroundTruth | None, rng: np.random.Generator, arena: Any) -> None:
+        self._errors = []
+        self._spacing_errors = []
+
+    def errors(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per-robot shape error and spacing error (m), shapes (N,), from world positions."""
+        n = len(xy)
+        if self.shape == "circle":
+            c = xy.mean(axis=0)
+            shape_err = np.abs(np.linalg.norm(xy - c, axis=1) - self.radius_m)
+            if n < 2:
+                return shape_err, np.zeros(n)
+            nn = pairwise_distances(xy).min(axis=1)
+            return shape_err, np.abs(nn - target_chord(self.radius_m, n))
+        return lattice_errors(xy, self.spacing_m), np.zeros(n)
+
+    def rewards(self, truth: GroundTruth | None, actions: np.ndarray) -> np.ndarray:
+        if truth is None:
+            return np.zeros(len(actions))
+        shape_err, spacing_err = self.errors(truth.poses[:, :2])
+        self._errors.append(float(shape_err.mean()))
+        self._spacing_errors.append(float(spacing_err.mean()))
+        return -(shape_err + self.spacing_weight * spacing_err)
+
+    def metrics(self) -> dict[str, float]:
+        if not self._errors:
+            return {}
+        tail = max(1, len(self._errors) // 5)
+        return {
+            "formation_error_m": float(np.mean(self._errors)),
+            "final_formation_error_m": float(np.mean(self._errors[-tail:])),
+            "spacing_error_m": float(np.mean(self._spacing_errors)),
+            "final_spacing_error_m": float(np.mean(self._spacing_errors[-tail:])),
+        }
+
+
+def target_chord(radius_m: float, n: int) -> float:
+    """Distance between neighbours of ``n`` robots evenly spread on a circle (0 for n < 2)."""
+    return 2.0 * radius_m * math.sin(math.pi / n) if n >= 2 else 0.0
+
+
+def lattice_errors(xy: np.ndarray, spacing_m: float) -> np.ndarray:
+    """Per robot: mean | d_ij - d | over teammates within 1.5 d plus the nearest one, (N,)."""
+    n = len(xy)
+    if n < 2:
+        return np.zeros(n)
+    d = pairwise_distances(xy)
+    near = d < _NEIGHBOUR_FACTOR * spacing_m
+    near[np.arange(n), d.argmin(axis=1)] = True
+    err = np.where(near, np.abs(d - spacing_m), 0.0)
+    return err.sum(axis=1) / near.sum(axis=1)

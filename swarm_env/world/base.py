@@ -1,0 +1,68 @@
+"""The World protocol: the only thing that differs between simulation, replay and real robots.
+
+A World accepts one velocity command per robot, advances by one control period, and returns the
+measurement records each robot produced in that period (see :mod:`swarm_env.records`) plus ground
+truth when it exists (the simulator always; motion capture on real robots, optionally).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from swarm_env.records import RobotMeasurements
+
+
+@dataclass(frozen=True, slots=True)
+class GroundTruth:
+    """True state at the end of a step, for rewards and metrics (never for observations).
+
+    Attributes
+    ----------
+    poses : ndarray, shape (N, 3)
+        ``[x_m, y_m, yaw_rad]`` of every robot in the world frame.
+    relative_xy : ndarray, shape (N, N, 2)
+        ``relative_xy[i, j]`` is robot j's position in robot i's body frame (zeros on the diagonal).
+    in_range : dict[str, ndarray (N, N) bool]
+        Per sensor name (``"lidar"``, ``"camera"``): j is within i's nominal sensor range.
+    visible : dict[str, ndarray (N, N) bool]
+        Per sensor name: j was actually detectable by i at the last tick of that sensor
+        (in range, line of sight, outside blind sectors, not interfered).
+    extra_xy : ndarray, shape (E, 2)
+        World positions of non-agent bodies that the sensors see like robots (e.g. an intruder).
+    """
+
+    poses: np.ndarray
+    relative_xy: np.ndarray
+    in_range: dict[str, np.ndarray] = field(default_factory=dict)
+    visible: dict[str, np.ndarray] = field(default_factory=dict)
+    extra_xy: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+
+
+@dataclass(frozen=True, slots=True)
+class WorldStep:
+    """What one control period produced: records per robot id, and ground truth or ``None``."""
+
+    time_s: float
+    measurements: dict[str, RobotMeasurements]
+    truth: GroundTruth | None
+    stale: dict[str, tuple[str, ...]] = field(default_factory=dict)
+
+
+@runtime_checkable
+class World(Protocol):
+    """Anything the env can drive: :class:`~swarm_env.world.sim.SimWorld`, replay, real robots."""
+
+    robot_ids: tuple[str, ...]
+
+    def reset(self, rng: np.random.Generator) -> WorldStep:
+        """Place the robots (sim) or wait for fresh data (real), and return the first records."""
+
+    def step(self, commands: np.ndarray) -> WorldStep:
+        """Apply ``commands`` (shape (N, 2), ``[v_mps, omega_radps]``, already validated and
+        clipped) for one control period and return what was measured during it."""
+
+    def close(self) -> None:
+        """Release resources; a real World stops every robot here."""

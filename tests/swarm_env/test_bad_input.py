@@ -1,0 +1,89 @@
+"""Bad input: clear ValueErrors naming the field and value, raised before any state changes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from swarm_env import parallel_env
+
+
+@pytest.fixture
+def env():
+    e = parallel_env("seed-lab")
+    e.reset(seed=0)
+    return e
+
+
+def _state(env):
+    return env.world.poses().copy(), env.time_s, env.localizers[0].mixture.weights.copy()
+
+
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        (np.array([np.nan, 0.0]), "ugv_2.*finite"),
+        (np.array([0.1, np.inf]), "ugv_2.*finite"),
+        (np.array([0.1, 0.0, 0.0]), r"ugv_2.*shape \(2,\)"),
+        ("fast", "ugv_2.*numeric"),
+    ],
+)
+def test_bad_action_raises_before_state_changes(env, bad, match):
+    env.step({a: np.array([0.2, 0.1]) for a in env.agents})
+    before = _state(env)
+    actions = {a: np.zeros(2) for a in env.agents}
+    actions["ugv_2"] = bad
+    with pytest.raises(ValueError, match=match):
+        env.step(actions)
+    after = _state(env)
+    assert np.array_equal(before[0], after[0]) and before[1] == after[1]
+    assert np.array_equal(before[2], after[2])
+
+
+def test_unknown_and_missing_agents(env):
+    actions = {a: np.zeros(2) for a in env.agents}
+    with pytest.raises(ValueError, match="ugv_99"):
+        env.step({**actions, "ugv_99": np.zeros(2)})
+    del actions["ugv_1"]
+    with pytest.raises(ValueError, match="missing.*ugv_1"):
+        env.step(actions)
+    assert env.time_s == 0.0
+
+
+def test_out_of_range_action_is_clipped(env):
+    env.step({a: np.array([50.0, -50.0]) for a in env.agents})
+    for _ in range(20):
+        env.step({a: np.array([50.0, -50.0]) for a in env.agents})
+    speeds = env.world.motor_speeds
+    assert np.allclose(speeds[:, 0], env.config.robot.max_speed_mps)
+    assert np.allclose(speeds[:, 1], -env.config.robot.max_turn_rate_radps)
+
+
+@pytest.mark.parametrize(
+    "overrides, match",
+    [
+        ({"lidar": {"rate_hz": -7.0}}, "rate_hz.*-7"),
+        ({"camera": {"rate_hz": 0.0}}, "rate_hz"),
+        ({"odometry": {"rate_hz": -1.0}}, "odometry.rate_hz"),
+        ({"n_robots": 0}, "n_robots"),
+        ({"n_robots": 500}, "n_robots"),
+        ({"n_robots": 150}, "do not fit"),
+        ({"robot": {"max_speed_mps": -0.3}}, "max_speed_mps"),
+        ({"robot": {"max_speed_mps": 5.0}}, "max_speed_mps"),
+        ({"arena": {"n_boxes": -1}}, "n_boxes"),
+        ({"control_period_s": 0.0}, "control_period_s"),
+        ({"observation": "pixels"}, "observation"),
+        ({"warp_drive": True}, "unknown config key 'warp_drive'"),
+        ({"lidar": {"colour": 1}}, "unknown config key 'lidar.colour'"),
+    ],
+)
+def test_impossible_config_raises_at_construction(overrides, match):
+    with pytest.raises(ValueError, match=match):
+        parallel_env("seed-sim", **overrides)
+
+
+def test_unknown_preset_and_render_mode():
+    with pytest.raises(ValueError, match="preset"):
+        parallel_env("seed-moon")
+    with pytest.raises(ValueError, match="render_mode"):
+        parallel_env("seed-lab", render_mode="ascii")
