@@ -37,14 +37,21 @@ LOCALIZERS = {"phd-lc": "lidar-camera", "phd-lo": "lidar-only"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--preset", default="seed-sim")
+    parser.add_argument("--preset", default=None,
+                        help="default: the model's preset for a model.zip, else seed-sim")
     parser.add_argument("--duration", type=float, default=300.0, help="simulated seconds")
     parser.add_argument("--localizer", default="phd-lc,phd-lo",
                         help=f"comma-separated, from {sorted(LOCALIZERS)}")
     parser.add_argument("--seeds", default="0", help="comma-separated integers")
     parser.add_argument("--policy", default="scripted:wander",
                         help="'scripted:NAME', 'random' or a trained model.zip")
-    parser.add_argument("--task", default="wander")
+    parser.add_argument("--task", default=None,
+                        help="default: the model's task for a model.zip, else 'wander'")
+    parser.add_argument("--task-params", default=None,
+                        help="JSON dict of task parameters (default: the model's, else {})")
+    parser.add_argument("--compare", default=None,
+                        help="a second policy run on the same env and seeds, reported side by "
+                             "side (e.g. --policy runs/X/model.zip --compare scripted:formation)")
     parser.add_argument("--out", default=None, help="write metrics.json and figures here")
 
 
@@ -54,24 +61,75 @@ def run(args: argparse.Namespace) -> int:
         seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
     except ValueError as exc:
         raise ValueError(f"--seeds must be comma-separated integers, got {args.seeds!r}") from exc
+    overrides: dict[str, Any] = {}
+    if args.task_params is not None:
+        try:
+            overrides["task_params"] = json.loads(args.task_params)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"--task-params must be a JSON object: {exc}") from exc
+    out_dir = Path(args.out) if args.out else None
     results = evaluate_localization(args.preset, args.duration, localizers, seeds,
-                                    policy=args.policy, task=args.task,
-                                    out_dir=Path(args.out) if args.out else None)
+                                    policy=args.policy, task=args.task, out_dir=out_dir,
+                                    **overrides)
     print_table(results)
+    if args.compare:
+        shared = shared_env_kwargs(args.policy, args.preset, args.task, **overrides)
+        other = evaluate_localization(
+            shared.pop("preset"), args.duration, localizers, seeds, policy=args.compare,
+            task=shared.pop("task"), out_dir=out_dir / "compare" if out_dir else None,
+            **shared)
+        print_table(other)
+        print_comparison([results, other])
+        if out_dir is not None:
+            (out_dir / "comparison.json").write_text(
+                json.dumps(comparison_rows([results, other]), indent=2))
     return 0
 
 
-def _make_env(preset: str, task: str, policy: str, **overrides: Any) -> SwarmEnv:
+def shared_env_kwargs(policy: str, preset: str | None, task: str | None,
+                      **overrides: Any) -> dict[str, Any]:
+    """Preset, task, task parameters and config overrides of ``policy``'s evaluation env, minus
+    the observation mode (each policy brings its own): what a ``--compare`` run must share."""
+    kwargs: dict[str, Any] = {}
     if policy.endswith(".zip"):
-        from agents.sb3.policy import env_kwargs_for_model
+        from agents.sb3.policy import read_metadata
 
-        overrides = {**env_kwargs_for_model(policy), **overrides}
+        kwargs = dict(read_metadata(policy)["env_kwargs"])
+    if task is not None and task != kwargs.get("task", task):
+        kwargs.pop("task_params", None)  # the model's parameters belong to its own task
+    kwargs.update(overrides)
+    for key in ("observation", "localize"):
+        kwargs.pop(key, None)
+    kwargs["preset"] = preset or kwargs.get("preset") or "seed-sim"
+    kwargs["task"] = task or kwargs.get("task") or "wander"
+    return kwargs
+
+
+def _make_env(preset: str | None, task: str | None, policy: str, **overrides: Any) -> SwarmEnv:
+    if policy.endswith(".zip"):
+        from agents.sb3.policy import read_metadata
+
+        model = dict(read_metadata(policy)["env_kwargs"])
+        model_preset = model.pop("preset", None)
+        model_task = model.pop("task", "wander")
+        model_params = model.pop("task_params", {})
+        if task is None or task == model_task:  # the model's observation includes its task
+            task = model_task
+            model["task_params"] = model_params
+        overrides = {**model, **overrides}
+        preset = preset or model_preset
     else:
-        # Scripted and random policies ignore the observation: skip the env's own filters,
-        # the evaluation runs its own banks of filters below.
-        overrides.setdefault("observation", "measurements")
-        overrides.setdefault("localize", False)
-    return parallel_env(preset, task=task, **overrides)
+        from agents.policies import policy_observation
+
+        observation = policy_observation(policy)
+        if observation is None:
+            # Policies that ignore the observation: skip the env's own filters, the evaluation
+            # runs its own banks of filters below.
+            overrides.setdefault("observation", "measurements")
+            overrides.setdefault("localize", False)
+        else:  # e.g. scripted:formation acts on the robot's own PHD estimate
+            overrides.setdefault("observation", observation)
+    return parallel_env(preset or "seed-sim", task=task or "wander", **overrides)
 
 
 def feed(localizer: RobotCentricPHD, records) -> None:
@@ -144,6 +202,9 @@ def evaluate_localization(
             if seed == seeds[0]:
                 paths.append(truth.poses[:, :2].copy())
         task_metrics.append(env.task.metrics())
+    preset = preset or ("seed-sim" if not policy.endswith(".zip") else
+                        _model_preset(policy))
+    task = env.task.name
     results = {
         "config": {"preset": preset, "duration_s": duration_s, "seeds": seeds, "policy": policy,
                    "task": task, "n_robots": env.config.n_robots,
@@ -160,6 +221,37 @@ def evaluate_localization(
 
         write_localization_figures(out_dir, results, trace, np.array(paths), estimates)
     return results
+
+
+def _model_preset(policy: str) -> str:
+    from agents.sb3.policy import read_metadata
+
+    return read_metadata(policy)["env_kwargs"].get("preset", "seed-sim")
+
+
+def comparison_rows(all_results: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One row per policy: its task metrics and each localizer's headline metrics."""
+    rows = []
+    for res in all_results:
+        row: dict[str, Any] = {"policy": res["config"]["policy"], **res.get("task", {})}
+        for name, m in res["localizers"].items():
+            row[f"{name} % err>30cm (median)"] = m["pct_time_err_gt_30cm"]["median"]
+            row[f"{name} GOSPA"] = m["gospa_mean"]
+            row[f"{name} card. MAE"] = m["cardinality_mae"]
+        rows.append(row)
+    return rows
+
+
+def print_comparison(all_results: list[dict[str, Any]]) -> None:
+    """Task and localization metrics of several policies, side by side (markdown)."""
+    rows = comparison_rows(all_results)
+    keys = list(dict.fromkeys(k for row in rows for k in row if k != "policy"))
+    print("  | metric | " + " | ".join(str(r["policy"]) for r in rows) + " |")
+    print("  |---|" + "---|" * len(rows))
+    for key in keys:
+        cells = [f"{r[key]:.3f}" if isinstance(r.get(key), float) else str(r.get(key, "-"))
+                 for r in rows]
+        print(f"  | {key} | " + " | ".join(cells) + " |")
 
 
 def _trace_step(trace: dict[str, list], step, bank: list[RobotCentricPHD], range_m: float):

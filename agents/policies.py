@@ -15,6 +15,9 @@ from swarm_env.runner import random_policy
 
 SCRIPTED: dict[str, Callable[..., scripted.ScriptedPolicy]] = {
     "wander": scripted.WanderPolicy.for_env,
+    "formation": scripted.FormationPolicy.for_env,
+    "encirclement": scripted.EncirclementPolicy.for_env,
+    "anti-symmetry": scripted.AntiSymmetryPolicy.for_env,
 }
 
 
@@ -38,3 +41,14 @@ def load_policy(spec: str, env: Any) -> Any:
 
         return load_sb3_policy(spec, env)
     raise ValueError(f"policy must be 'random', 'scripted:NAME' or a .zip model, got {spec!r}")
+
+
+def policy_observation(spec: str) -> str | None:
+    """The observation mode a scripted policy reads (``"phd"`` for the controllers acting on
+    the robot's PHD estimate), or ``None`` if it ignores the observation (``random``,
+    ``scripted:wander``: lidar only). Models carry their own mode (see ``agents.sb3.policy``)."""
+    if spec.startswith("scripted:"):
+        factory = SCRIPTED.get(spec.split(":", 1)[1])
+        modes = getattr(getattr(factory, "__self__", None), "observation_modes", None)
+        return modes[0] if modes else None
+    return None

@@ -108,3 +108,361 @@ class WanderPolicy(ScriptedPolicy):
             else:
                 self._avoid_sign.pop(agent, None)
         return np.array([v, omega], dtype=np.float32)
+
+
+# ---------------------------------------------------------------------------------------------
+# Controllers on the agent's own PHD estimate (the observation table), lidar and odometry.
+# ---------------------------------------------------------------------------------------------
+
+TABLE_COLUMNS = 7  # [w, x, y, sxx, sxy, syy, valid], see swarm_env.observation
+
+
+def split_observation(obs: np.ndarray, top_k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(table (K, 7), odometry [v, omega] (2,), task features (F,))`` of one observation in
+    the ``"phd"``/``"truth"`` layout."""
+    n_table = TABLE_COLUMNS * top_k
+    obs = np.asarray(obs, dtype=np.float64)
+    return (obs[:n_table].reshape(top_k, TABLE_COLUMNS), obs[n_table:n_table + 2],
+            obs[n_table + 2:])
+
+
+def estimated_neighbours(table: np.ndarray, min_weight: float = 0.5,
+                         max_variance_m2: float = 0.5,
+                         reference_variance_m2: float | None = None,
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """Positions (M, 2) and weights (M,) of the confident components of a PHD table.
+
+    Kept: valid rows with weight >= ``min_weight`` whose position variance is below
+    ``max_variance_m2`` (this drops the broad birth component at the origin). With
+    ``reference_variance_m2`` the returned weights are discounted by the component's spread,
+    ``w / (1 + (sxx + syy) / reference_variance_m2)``: a camera-only track (bearing known, range
+    drifting) then counts little next to a lidar-confirmed one.
+    """
+    keep = ((table[:, 6] > 0.5) & (table[:, 0] >= min_weight)
+            & (np.maximum(table[:, 3], table[:, 5]) <= max_variance_m2))
+    weights = table[keep, 0].copy()
+    if reference_variance_m2 is not None:
+        weights /= 1.0 + (table[keep, 3] + table[keep, 5]) / reference_variance_m2
+    return table[keep, 1:3].copy(), weights
+
+
+def lidar_points(scan: tuple[np.ndarray, np.ndarray] | None, max_range_m: float) -> np.ndarray:
+    """Valid lidar returns closer than ``max_range_m`` as body-frame points (P, 2)."""
+    if scan is None:
+        return np.zeros((0, 2))
+    angles, ranges = scan
+    keep = (ranges > 0) & (ranges < max_range_m)
+    return np.stack([ranges[keep] * np.cos(angles[keep]), ranges[keep] * np.sin(angles[keep])],
+                    axis=-1)
+
+
+def wrap_angle(a: float) -> float:
+    return float(np.arctan2(np.sin(a), np.cos(a)))
+
+
+class VectorFieldPolicy(ScriptedPolicy):
+    """Base of the PHD-driven controllers: each computes a desired planar velocity ``u`` in its
+    own body frame; this class adds lidar repulsion and turns ``u`` into ``[v, omega]`` for the
+    differential drive (driving backwards when ``u`` points behind, so no U-turns are needed).
+
+    Parameters
+    ----------
+    top_k : int
+        Rows of the observation table (``env.config.top_k``).
+    min_weight : float
+        PHD components below this weight are ignored.
+    avoid_distance_m : float
+        Lidar returns closer than this push the robot away (obstacles and teammates alike).
+    avoid_gain : float
+        Strength of that push (m/s at contact).
+    heading_gain : float
+        ``omega = heading_gain * heading error``.
+    deadband_mps : float
+        ``|u|`` below this is treated as "arrived": the robot stops (no dithering on noise).
+    """
+
+    observation_modes = ("phd", "truth")
+
+    def __init__(self, max_speed_mps: float = 0.3, max_turn_rate_radps: float = 1.5,
+                 top_k: int = 16, min_weight: float = 0.5, avoid_distance_m: float = 0.3,
+                 avoid_gain: float = 0.3, heading_gain: float = 2.0,
+                 deadband_mps: float = 0.02, seed: int | None = 0) -> None:
+        super().__init__(max_speed_mps, max_turn_rate_radps)
+        self.top_k = top_k
+        self.min_weight = min_weight
+        self.avoid_distance_m = avoid_distance_m
+        self.avoid_gain = avoid_gain
+        self.heading_gain = heading_gain
+        self.deadband_mps = deadband_mps
+        self._seed = seed
+        self.reset(seed)
+
+    @classmethod
+    def for_env(cls, env: Any, **kwargs: Any) -> ScriptedPolicy:
+        mode = env.config.observation
+        if mode not in cls.observation_modes:
+            raise ValueError(f"scripted:{cls.name} reads the PHD table: it needs "
+                             f"observation='phd' (or 'truth'), the env has {mode!r}")
+        return super().for_env(env, top_k=env.config.top_k, **kwargs)
+
+    def reset(self, seed: int | None = None) -> None:
+        seed = self._seed if seed is None else seed
+        self._rng = np.random.default_rng(seed)
+        self._scan: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self._wander = WanderPolicy(self.max_speed_mps, self.max_turn_rate_radps, seed=seed)
+
+    def __call__(self, observations, infos):
+        actions = {}
+        for agent, obs in observations.items():
+            scan = latest_scan(infos.get(agent, {}) if infos else {})
+            if scan is not None:
+                self._scan[agent] = scan
+                self._wander._scan[agent] = scan
+            table, odometry, features = split_observation(obs, self.top_k)
+            u = self.desired_velocity(agent, table, odometry, features)
+            if u is None:  # nothing to act on: search (the seed's random walk)
+                actions[agent] = self._wander._act(agent)
+                continue
+            u = u + self.avoidance(self._scan.get(agent))
+            actions[agent] = self.to_unicycle(u)
+        return actions
+
+    def desired_velocity(self, agent: str, table: np.ndarray, odometry: np.ndarray,
+                         features: np.ndarray) -> np.ndarray | None:
+        """Desired body-frame velocity (2,), or ``None`` to random-walk (e.g. nobody seen)."""
+        raise NotImplementedError
+
+    def avoidance(self, scan: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
+        """Sum of pushes away from lidar returns closer than ``avoid_distance_m``, (2,)."""
+        pts = lidar_points(scan, self.avoid_distance_m)
+        if not len(pts):
+            return np.zeros(2)
+        d = np.linalg.norm(pts, axis=1)
+        push = (self.avoid_distance_m - d) / self.avoid_distance_m
+        # Average over returns (one obstacle gives many beams), scaled by the closest one.
+        direction = -(pts / d[:, None] * push[:, None]).sum(axis=0)
+        norm = np.linalg.norm(direction)
+        return np.zeros(2) if norm < 1e-9 else self.avoid_gain * push.max() * direction / norm
+
+    def to_unicycle(self, u: np.ndarray) -> np.ndarray:
+        """Body-frame velocity ``u`` -> ``[v, omega]``: drive along ``u`` projected on the
+        heading, turn the nearer end (front or back) towards ``u``."""
+        speed = float(np.linalg.norm(u))
+        if speed < self.deadband_mps:
+            return np.zeros(2, dtype=np.float32)
+        angle = float(np.arctan2(u[1], u[0]))
+        turn = angle if abs(angle) <= np.pi / 2 else wrap_angle(angle - np.pi)
+        v = np.clip(u[0], -self.max_speed_mps, self.max_speed_mps)
+        omega = np.clip(self.heading_gain * turn, -self.max_turn_rate_radps,
+                        self.max_turn_rate_radps)
+        return np.array([v, omega], dtype=np.float32)
+
+    def _clip_speed(self, u: np.ndarray) -> np.ndarray:
+        speed = np.linalg.norm(u)
+        return u if speed <= self.max_speed_mps else u * (self.max_speed_mps / speed)
+
+
+class FormationPolicy(VectorFieldPolicy):
+    """Formation from the robot's own PHD estimate (task ``formation``).
+
+    Circle (the seed's T4): the centroid of the swarm as this robot sees it is
+    ``c = sum_k w_k m_k / (1 + sum_k w_k)`` over its confident components ``(w_k, m_k)`` plus
+    itself (weight 1 at its origin); ``w_k`` is discounted by the component's spread (see
+    :func:`estimated_neighbours`, reference variance 0.02 m^2) so that a camera-only track with
+    a drifting range does not drag the centroid. The robot heads for the closest point of the circle of radius
+    ``r`` around ``c`` (``c + r (-c) / ||c||``, gain ``k_p``) and is pushed away from estimated
+    neighbours closer than the even-spread chord ``s*`` (gain ``k_s``).
+    Lattice: a spring to every estimated neighbour within ``1.5 d`` (and to the nearest one):
+    ``u = k_p sum_k (||m_k|| - d) m_k / ||m_k||``.
+
+    ``r``, ``s*`` (circle) and ``d`` (lattice) come from the task features in the observation,
+    the shape from the mission (``shape=``). The chord also encodes the swarm size N; while the
+    robot estimates fewer than N - 1 teammates its centroid is only a local one, so it first
+    closes in on it (up to ``r / 2``). With fewer than ``min_neighbours`` estimated the robot
+    random-walks (the seed's wander) until it finds the swarm.
+    """
+
+    name = "formation"
+
+    def __init__(self, max_speed_mps: float = 0.3, max_turn_rate_radps: float = 1.5,
+                 shape: str = "circle", k_p: float = 0.8, k_s: float = 0.6,
+                 min_neighbours: int = 1, **kwargs: Any) -> None:
+        if shape not in ("circle", "lattice"):
+            raise ValueError(f"shape must be 'circle' or 'lattice', got {shape!r}")
+        self.shape = shape
+        self.k_p = k_p
+        self.k_s = k_s
+        self.min_neighbours = min_neighbours
+        super().__init__(max_speed_mps, max_turn_rate_radps, **kwargs)
+
+    @classmethod
+    def for_env(cls, env: Any, **kwargs: Any) -> ScriptedPolicy:
+        if env.task.name != "formation":
+            raise ValueError(f"scripted:formation needs task='formation', got {env.task.name!r}")
+        kwargs.setdefault("shape", env.task.shape)
+        return super().for_env(env, **kwargs)
+
+    def desired_velocity(self, agent, table, odometry, features):
+        pts, w = estimated_neighbours(table, self.min_weight, reference_variance_m2=0.02)
+        if len(pts) < self.min_neighbours:
+            return None
+        d = np.linalg.norm(pts, axis=1)
+        if self.shape == "circle":
+            radius, chord = float(features[0]), float(features[1])
+            c = (w[:, None] * pts).sum(axis=0) / (1.0 + w.sum())
+            dc = np.linalg.norm(c)
+            if len(pts) + 1 < expected_count(radius, chord) and dc > 0.5 * radius:
+                # Not everyone in sight: this centroid is only a local one. Close in first.
+                return self._clip_speed(self.k_p * c)
+            away = -c / dc if dc > 1e-6 else np.array([1.0, 0.0])
+            u = self.k_p * (c + radius * away)
+            close = (d < chord) & (d > 1e-6)
+            push = (chord - d[close]) / d[close]
+            u -= self.k_s * (push[:, None] * pts[close]).sum(axis=0)
+        else:
+            spacing = float(features[0])
+            near = d < 1.5 * spacing
+            near[np.argmin(d)] = True
+            u = self.k_p * (((d[near] - spacing) / np.maximum(d[near], 1e-6))[:, None]
+                            * pts[near]).sum(axis=0)
+        return self._clip_speed(u)
+
+
+def expected_count(radius_m: float, chord_m: float) -> int:
+    """Swarm size N implied by the circle features ``[r, s* = 2 r sin(pi / N)]``."""
+    ratio = chord_m / (2.0 * radius_m) if radius_m > 0 else 0.0
+    if not 0.0 < ratio <= 1.0:
+        return 1
+    return int(round(np.pi / np.arcsin(ratio)))
+
+
+class EncirclementPolicy(VectorFieldPolicy):
+    """Enclose the intruder (task ``encirclement``) on a circle of radius ``r``, evenly spread.
+
+    The intruder's position ``q`` comes from the beacon features ``[r, cos b, sin b, rho]`` and is
+    refined by the nearest confident PHD component within ``gate_m`` of it (the PHD is more
+    precise; the beacon says which component is the intruder). Radial term:
+    ``k_p (||q|| - r) q / ||q||``. Tangential term: with ``g+``/``g-`` the angular gaps (seen from
+    ``q``) to the nearest estimated teammates counter-clockwise and clockwise,
+    ``k_t r (g+ - g-) / 2`` along the counter-clockwise tangent, which evens the gaps out (the
+    classic cyclic spreading law).
+    """
+
+    name = "encirclement"
+
+    def __init__(self, max_speed_mps: float = 0.3, max_turn_rate_radps: float = 1.5,
+                 k_p: float = 0.8, k_t: float = 0.4, gate_m: float = 0.4,
+                 **kwargs: Any) -> None:
+        self.k_p = k_p
+        self.k_t = k_t
+        self.gate_m = gate_m
+        super().__init__(max_speed_mps, max_turn_rate_radps, **kwargs)
+
+    @classmethod
+    def for_env(cls, env: Any, **kwargs: Any) -> ScriptedPolicy:
+        if env.task.name != "encirclement" or not env.task.beacon:
+            raise ValueError("scripted:encirclement needs task='encirclement' with beacon=True "
+                             "(anonymous detections alone do not say which robot is the "
+                             "intruder)")
+        return super().for_env(env, **kwargs)
+
+    def desired_velocity(self, agent, table, odometry, features):
+        radius, cos_b, sin_b, rho = (float(x) for x in features[:4])
+        q = rho * np.array([cos_b, sin_b])
+        pts, w = estimated_neighbours(table, self.min_weight)
+        if len(pts):
+            gap = np.linalg.norm(pts - q, axis=1)
+            k = int(np.argmin(gap))
+            if gap[k] < self.gate_m:
+                q = pts[k]
+                pts = np.delete(pts, k, axis=0)
+        dq = float(np.linalg.norm(q))
+        if dq < 1e-6:
+            return np.zeros(2)
+        u = self.k_p * (dq - radius) * q / dq
+        if len(pts):
+            own = np.arctan2(-q[1], -q[0])
+            rel = np.arctan2(pts[:, 1] - q[1], pts[:, 0] - q[0])
+            ahead = np.mod(rel - own, 2 * np.pi)  # counter-clockwise angle to each teammate
+            ahead = ahead[(ahead > 1e-3) & (ahead < 2 * np.pi - 1e-3)]
+            if len(ahead):
+                g_ccw, g_cw = float(ahead.min()), float(2 * np.pi - ahead.max())
+                tangent = np.array([q[1], -q[0]]) / dq  # ccw tangent at our position around q
+                u = u + self.k_t * radius * 0.5 * (g_ccw - g_cw) * tangent
+        return self._clip_speed(u)
+
+
+def symmetry_metric(points: np.ndarray, phis: np.ndarray) -> np.ndarray:
+    """The thesis' symmetry metric ``gamma_Z(phi) = sum_z min_z'' ||z - z''||^2`` with ``z''`` in
+    Z rotated by ``phi`` about its centroid (seed ``001``, chapter 12), for every ``phi``."""
+    c = points.mean(axis=0)
+    z = points - c
+    cos, sin = np.cos(phis), np.sin(phis)
+    rot = np.stack([np.stack([cos, -sin], -1), np.stack([sin, cos], -1)], -2)  # (A, 2, 2)
+    rotated = np.einsum("aij,nj->ani", rot, z)  # (A, n, 2)
+    d2 = ((z[None, :, None, :] - rotated[:, None, :, :]) ** 2).sum(-1)  # (A, n, n)
+    return d2.min(axis=2).sum(axis=1)
+
+
+def internal_minimum(points: np.ndarray, n_angles: int = 360) -> tuple[float, float]:
+    """``(phi_bar, gamma_min)``: the minimiser and value of ``gamma_Z`` between its first rise
+    and its final fall (Proposition 6); ``gamma_min = 0`` iff Z is rotationally symmetric."""
+    phis = np.linspace(0.0, 2 * np.pi, n_angles, endpoint=False)
+    gamma = symmetry_metric(points, phis)
+    i1 = 1
+    while i1 < n_angles - 1 and gamma[i1 + 1] >= gamma[i1]:
+        i1 += 1
+    i2 = n_angles - 1
+    while i2 > i1 and gamma[i2 - 1] >= gamma[i2]:
+        i2 -= 1
+    k = i1 + int(np.argmin(gamma[i1:i2 + 1]))
+    return float(phis[k]), float(gamma[k])
+
+
+class AntiSymmetryPolicy(VectorFieldPolicy):
+    """The anti-symmetry control law (seed ``001``, chapter 12, eq. 46), robot-centric.
+
+    Each robot takes ``Z`` = its confident PHD components plus itself (the origin), finds the
+    rotation ``phi_bar`` about the centroid that minimises ``gamma_Z`` inside
+    ``[phi_1, phi_2]``, and moves at ``alpha`` m/s away from ``z_bar``, its closest point in
+    ``Z`` rotated by ``phi_bar`` (which raises ``gamma_Z(phi_bar)``: the formation moves away from
+    rotational symmetry, the configuration in which anonymous measurements are ambiguous). When
+    ``z_bar`` coincides with the robot (the law is undefined) it moves in a random direction.
+    Once ``gamma_min / |Z|`` exceeds ``gamma_stop_m2`` the robot stops (symmetry broken enough);
+    ``None`` never stops. With fewer than two neighbours estimated it waits.
+    """
+
+    name = "anti-symmetry"
+
+    def __init__(self, max_speed_mps: float = 0.3, max_turn_rate_radps: float = 1.5,
+                 alpha_mps: float = 0.1, gamma_stop_m2: float | None = 0.04,
+                 n_angles: int = 180, **kwargs: Any) -> None:
+        self.alpha_mps = alpha_mps
+        self.gamma_stop_m2 = gamma_stop_m2
+        self.n_angles = n_angles
+        super().__init__(max_speed_mps, max_turn_rate_radps, **kwargs)
+
+    def reset(self, seed: int | None = None) -> None:
+        super().reset(seed)
+        self._random_dir: dict[str, np.ndarray] = {}
+
+    def desired_velocity(self, agent, table, odometry, features):
+        pts, _ = estimated_neighbours(table, self.min_weight)
+        if len(pts) < 2:
+            return np.zeros(2)
+        z = np.vstack([np.zeros((1, 2)), pts])
+        phi, gamma_min = internal_minimum(z, self.n_angles)
+        if self.gamma_stop_m2 is not None and gamma_min / len(z) >= self.gamma_stop_m2:
+            return np.zeros(2)
+        c = z.mean(axis=0)
+        rot = np.array([[np.cos(phi), -np.sin(phi)], [np.sin(phi), np.cos(phi)]])
+        rotated = (z - c) @ rot.T + c
+        z_bar = rotated[np.argmin(np.linalg.norm(rotated, axis=1))]
+        dist = float(np.linalg.norm(z_bar))
+        if dist < 1e-3:
+            if agent not in self._random_dir:
+                a = self._rng.uniform(-np.pi, np.pi)
+                self._random_dir[agent] = np.array([np.cos(a), np.sin(a)])
+            return self.alpha_mps * self._random_dir[agent]
+        self._random_dir.pop(agent, None)
+        return -self.alpha_mps * z_bar / dist

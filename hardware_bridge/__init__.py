@@ -1,1 +1,121 @@
-"""TODO"""
+"""Hardware bridge: drive a real ROS swarm through the same env API as the simulator.
+
+>>> from hardware_bridge import real_env                       # doctest: +SKIP
+>>> env = real_env(robots=["ugv_0", "ugv_1"], preset="seed-lab")
+>>> obs, infos = env.reset()
+>>> obs, rew, term, trunc, infos = env.step({a: [0.1, 0.0] for a in env.agents})
+>>> env.close()                                               # stops every robot
+
+The env is :class:`swarm_env.env.SwarmEnv` itself (same spaces, localization, task and
+observation code) with a :class:`~hardware_bridge.world.RealWorld` instead of the simulator.
+See ``docs/hardware.md`` for running it on robots.
+
+Modules: :mod:`~hardware_bridge.config` (``BridgeConfig``), :mod:`~hardware_bridge.messages`
+(validation and builders), :mod:`~hardware_bridge.transport` (rosbridge client),
+:mod:`~hardware_bridge.world` (``RealWorld``), :mod:`~hardware_bridge.watchdog`,
+:mod:`~hardware_bridge.safety` (limits, geofence), :mod:`~hardware_bridge.bag` (record,
+``ReplayWorld``, export), :mod:`~hardware_bridge.loopback` (a rosbridge server over the sim).
+Twisted (roslibpy) is imported only when a RealWorld is created.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from hardware_bridge.config import BridgeConfig
+
+__all__ = ["BridgeConfig", "real_env", "replay_env", "RealWorld", "ReplayWorld", "BagRecorder",
+           "LoopbackServer", "FaultConfig", "RobotsSilentError", "export_sim_episode"]
+
+
+def real_env(robots: list[str] | tuple[str, ...] | None = None, host: str = "127.0.0.1",
+             port: int = 9090, preset: str = "seed-lab", task: Any = "wander", *,
+             allow_remote: bool = False, record: str | None = None,
+             bridge: BridgeConfig | dict | None = None, task_params: dict | None = None,
+             **overrides: Any):
+    """A PettingZoo ``ParallelEnv`` over real robots behind a rosbridge server.
+
+    Parameters
+    ----------
+    robots : list of str, optional
+        Robot namespaces, in agent order (default: ``ugv_0 ... ugv_{n-1}`` of the preset).
+        ``n_robots`` is ``len(robots)``.
+    host, port : rosbridge server (``rosbridge_websocket``). Loopback by default.
+    preset : str
+        SwarmConfig preset for the filter, control period, limits (``seed-lab`` = the seed's
+        real 3 m x 3 m testing area).
+    task : str or Task
+        A task without simulated extra robots.
+    allow_remote : bool
+        Required for a non-loopback ``host``.
+    record : str, optional
+        Record the episode(s) to a new ROS 2 bag directory at this path.
+    bridge : BridgeConfig or dict, optional
+        Watchdog, staleness, limits, geofence, queues.
+    **overrides
+        SwarmConfig fields (``control_period_s=0.1``, ``phd={"mode": "lidar-only"}``...).
+
+    The returned env refuses pickling, copying and vectorisation (it drives real robots).
+    """
+    from hardware_bridge.bag import BagRecorder
+    from hardware_bridge.config import make_bridge_config
+    from hardware_bridge.transport import check_host
+    from hardware_bridge.world import RealWorld
+    from swarm_env.config import make_config
+    from swarm_env.env import SwarmEnv
+    from swarm_env.tasks import make_task
+
+    check_host(host, allow_remote)
+    bridge_cfg = make_bridge_config(bridge)
+    if robots is None:
+        n = make_config(preset, **overrides).n_robots
+        robots = [f"ugv_{i}" for i in range(n)]
+    if isinstance(robots, str):
+        robots = [r for r in robots.split(",") if r]
+    robots = list(robots)
+    if "n_robots" in overrides and overrides["n_robots"] != len(robots):
+        raise ValueError(f"n_robots={overrides['n_robots']} but {len(robots)} robots were named")
+    overrides["n_robots"] = len(robots)
+    config = make_config(preset, **overrides)
+    task_obj = make_task(task, **(task_params or {}))
+    if task_obj.n_extra_robots:
+        raise ValueError(
+            f"task {task_obj.name!r} needs {task_obj.n_extra_robots} simulated extra robot(s); "
+            "it cannot run on real robots"
+        )
+    recorder = None
+    if record is not None:
+        recorder = BagRecorder(record, robots, config, source="bridge",
+                               stale_mocap_s=bridge_cfg.stale_mocap_s,
+                               use_mocap=bridge_cfg.use_mocap)
+    try:
+        world = RealWorld(robots, config, host=host, port=port, allow_remote=allow_remote,
+                          bridge=bridge_cfg, recorder=recorder)
+    except BaseException:
+        if recorder is not None:
+            recorder.close()
+        raise
+    try:
+        env = SwarmEnv(config=config, task=task_obj, world=world, render_agent=robots[0])
+    except BaseException:
+        world.close()
+        raise
+    # Never vectorise: SuperSuit and friends read this flag.
+    env.metadata = {**env.metadata, "is_parallelizable": False}
+    return env
+
+
+def __getattr__(name: str) -> Any:
+    if name in ("RealWorld", "RobotsSilentError"):
+        from hardware_bridge import world
+
+        return getattr(world, name)
+    if name in ("ReplayWorld", "BagRecorder", "replay_env", "export_sim_episode"):
+        from hardware_bridge import bag
+
+        return getattr(bag, name)
+    if name in ("LoopbackServer", "FaultConfig"):
+        from hardware_bridge import loopback
+
+        return getattr(loopback, name)
+    raise AttributeError(f"module 'hardware_bridge' has no attribute {name!r}")

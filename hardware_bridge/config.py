@@ -93,6 +93,7 @@ class BridgeConfig:
     max_beams: int = 8192
     max_bearings: int = 256
     max_message_bytes: int = 4 * 1024 * 1024
+    drop_pre_command: bool = True
     reconnect_initial_delay_s: float = 0.2
     reconnect_max_delay_s: float = 2.0
 

@@ -271,9 +271,28 @@ def parse_laser_scan(msg: Any, max_beams: int = 8192) -> Scan:
     with np.errstate(invalid="ignore"):
         valid = np.isfinite(ranges) & (ranges >= range_min) & (ranges <= range_max)
     ranges = np.where(valid, ranges, 0.0)
-    angles = wrap_angle(angle_min + np.arange(n) * increment)
+    angles = _beam_angles(angle_min, increment, n)
     order = np.argsort(angles, kind="stable")
     return Scan(stamp_ns, angles[order], ranges[order], intensities[order])
+
+
+def _beam_angles(angle_min: float, increment: float, n: int) -> np.ndarray:
+    """Beam bearings in ``[-pi, pi)``. A full revolution starting at ``-pi`` or ``0`` (to float32
+    precision) is snapped to the exact grid ``start + i 2 pi / n``, as the simulator and the
+    driver define it; ``float32`` angle fields cannot represent it, and a beam on the edge of a
+    blind sector must not change sides between the simulator, the bridge and a replay."""
+    if abs(abs(n * increment) - TWO_PI) < 0.5 * abs(increment):
+        step = math.copysign(TWO_PI / n, increment)
+        for start in (-math.pi, 0.0, math.pi):
+            if abs(angle_min - start) < 1e-5:
+                angles = start + np.arange(n) * step
+                break
+        else:
+            angles = angle_min + np.arange(n) * step
+    else:
+        angles = angle_min + np.arange(n) * increment
+    inside = (angles >= -math.pi) & (angles < math.pi)
+    return np.where(inside, angles, wrap_angle(angles))
 
 
 def parse_odometry(msg: Any) -> Odom:

@@ -48,14 +48,18 @@ class PHDConfig:
     survival_model : str
         ``"seed"`` (eq. 10) or ``"constant"``.
     survival_offset, survival_slope_per_m, survival_range_m : float
-        ``P_s(m) = 1 / (survival_offset + exp(survival_slope_per_m * (||m|| - survival_range_m)))``,
+        ``P_s(m) = 1 / (offset + exp(slope * (||m|| - range)))`` with those three values,
         evaluated at the component mean *before* the time update. Seed: 1.05, 4, 4.
     survival_probability : float
         Constant ``P_s`` when ``survival_model == "constant"``.
     birth : str
         ``"fixed"`` (seed eq. 11) or ``"measurement"`` (adaptive births, see below).
+        The fixed birth component joins the prior of every *lidar* update (the only sensor
+        that can initialise a position) and only its detected copies are kept, as in Stone
+        Soup; the seed adds it at every time update, where its lingering missed-detection
+        copies get merged into tracks and inflate their covariances.
     birth_weight : float
-        Weight of the fixed birth component added at every time update. Seed: 0.001.
+        Weight of the fixed birth component (expected births per lidar scan). Seed: 0.001.
     birth_mean_m : tuple of float
         Mean ``(x, y)`` of the fixed birth component in the robot frame. Seed: (0, 0).
     birth_std_m : float
@@ -102,9 +106,14 @@ class PHDConfig:
     camera_pd_offset, camera_pd_slope_per_m, camera_pd_midpoint_m : float
         Camera range factor (seed eq. 30: 1.1, 5, 4).
     camera_clutter_intensity : float
-        Camera clutter intensity ``kappa_C`` per radian of bearing. Default 0.05 /rad.
+        Camera clutter intensity ``kappa_C`` per radian of bearing. Besides false red blobs it
+        must account for the bearings of teammates the camera sees but the filter does not
+        track (the camera sees to ~4 m, the lidar-initialised mixture only holds teammates
+        within ~2 m); without it those bearings inflate the weights of tracked components at
+        similar bearings. Default 0.5 /rad (about 3 such bearings per frame).
     prune_threshold : float
         Components with a lower weight are dropped after each update (mass is lost).
+        Must be > 0 (zero-weight components are always dropped).
     merge_threshold : float
         Squared Mahalanobis distance below which components merge (Vo & Ma's ``U``).
     max_components : int
@@ -146,7 +155,7 @@ class PHDConfig:
     camera_pd_offset: float = 1.1
     camera_pd_slope_per_m: float = 5.0
     camera_pd_midpoint_m: float = 4.0
-    camera_clutter_intensity: float = 0.05
+    camera_clutter_intensity: float = 0.5
     prune_threshold: float = 1e-4
     merge_threshold: float = 4.0
     max_components: int = 64
@@ -208,9 +217,9 @@ class PHDConfig:
             value = getattr(self, name)
             if not 0.0 <= value < 1e3:
                 raise ValueError(f"PHDConfig.{name} must be in [0, 1000), got {value!r}")
-        if not 0.0 <= self.prune_threshold < 1.0:
+        if not 0.0 < self.prune_threshold < 1.0:
             raise ValueError(
-                f"PHDConfig.prune_threshold must be in [0, 1), got {self.prune_threshold!r}"
+                f"PHDConfig.prune_threshold must be in (0, 1), got {self.prune_threshold!r}"
             )
         if (
             isinstance(self.max_components, bool)
@@ -270,8 +279,7 @@ def _check_pair(name: str, value: object) -> None:
 
 def _check_angles(name: str, value: object) -> None:
     ok = isinstance(value, tuple) and all(
-        isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-        for v in value
+        isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value
     )
     if not ok:
         raise ValueError(f"PHDConfig.{name} must be a tuple of finite numbers, got {value!r}")

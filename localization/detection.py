@@ -39,6 +39,7 @@ from .mixture import ROW_W, ROW_X, ROW_Y
 __all__ = [
     "inverse_sigmoid",
     "unit_bearings",
+    "angular_bump",
     "blind_sector_factor",
     "occlusion_factor",
     "interference_factor",
@@ -66,17 +67,17 @@ def inverse_sigmoid(
     ndarray, shape (N,)
     """
     # Guard: clipped exponent, so no overflow warning for absurdly far components.
-    return 1.0 / (offset + np.exp(np.minimum(range_m * slope_per_m - slope_per_m * midpoint_m,
-                                             _MAX_EXP)))
+    exponent = np.minimum(range_m * slope_per_m - slope_per_m * midpoint_m, _MAX_EXP)
+    return 1.0 / (np.exp(exponent) + offset)
 
 
-def unit_bearings(table: np.ndarray, min_range_m: float) -> tuple[np.ndarray, np.ndarray]:
+def unit_bearings(means: np.ndarray, min_range_m: float) -> tuple[np.ndarray, np.ndarray]:
     """Ranges and unit bearing vectors of the component means.
 
     Parameters
     ----------
-    table : ndarray, shape (6, N)
-        Component table.
+    means : ndarray, shape (2, N)
+        Component means (m).
     min_range_m : float
         Floor on the range used for the division; a component at the origin gets the zero
         vector (it then neither occludes nor is affected by angular factors).
@@ -88,10 +89,29 @@ def unit_bearings(table: np.ndarray, min_range_m: float) -> tuple[np.ndarray, np
     units : ndarray, shape (2, N)
         ``m / max(||m||, min_range_m)``.
     """
-    ranges = np.hypot(table[ROW_X], table[ROW_Y])
+    ranges = np.hypot(means[0], means[1])
     # Guard: floor the divisor so a mean at the origin gives a zero vector, not NaN.
-    units = table[ROW_X : ROW_Y + 1] / np.maximum(ranges, min_range_m)
-    return ranges, units
+    return ranges, means / np.maximum(ranges, min_range_m)
+
+
+def angular_bump(units: np.ndarray, directions: np.ndarray, inv_var: np.ndarray) -> np.ndarray:
+    """``exp((cos d - 1) / sigma^2)`` between bearings and reference directions.
+
+    Parameters
+    ----------
+    units : ndarray, shape (2, N)
+        Unit bearing vectors.
+    directions : ndarray, shape (K, 2)
+        Unit reference directions.
+    inv_var : ndarray, shape (K, 1)
+        ``1 / sigma_k^2`` per direction (rad^-2).
+
+    Returns
+    -------
+    ndarray, shape (K, N)
+        Bump values in ``[0, 1]``, 1 where the bearing equals the direction.
+    """
+    return np.exp((directions * inv_var).dot(units) - inv_var)
 
 
 def blind_sector_factor(
@@ -103,18 +123,17 @@ def blind_sector_factor(
     ----------
     units : ndarray, shape (2, N)
         Unit bearing vectors of the components.
-    sector_dirs : ndarray, shape (2, K)
+    sector_dirs : ndarray, shape (K, 2)
         Unit vectors of the sector centres ``alpha_k``.
-    sector_inv_var : ndarray, shape (K,)
+    sector_inv_var : ndarray, shape (K, 1)
         ``1 / sigma_k^2`` with ``sigma_k = beta_k / 2`` (rad^-2).
 
     Returns
     -------
     ndarray, shape (N,)
-        Factor in ``[0, 1]``.
+        Factor in ``[0, 1]``; 0 at a sector centre.
     """
-    cos_diff = units.T @ sector_dirs  # (N, K)
-    return np.prod(1.0 - np.exp((cos_diff - 1.0) * sector_inv_var), axis=1)
+    return np.multiply.reduce(1.0 - angular_bump(units, sector_dirs, sector_inv_var), axis=0)
 
 
 def occlusion_factor(
@@ -144,10 +163,12 @@ def occlusion_factor(
     ndarray, shape (N,)
         Factor in ``[0, 1]``.
     """
-    bump = np.exp((units.T @ units - 1.0) * inv_var)  # (N, N), [i, j]
-    nearer = ranges < (ranges - min_separation_m)[:, None]  # [i, j]: j is nearer than i
-    # Guard: clip each factor at 0 (a merged weight w_j > 1 would make it negative).
-    return np.prod(np.maximum(1.0 - bump * (weights * nearer), 0.0), axis=1)
+    bump = np.exp((units.T * inv_var).dot(units) - inv_var)  # (N, N) [i, j], symmetric
+    nearer = ranges < (ranges - min_separation_m)[:, None]  # [i, j]: j nearer than i
+    # Guard: weights clipped at 1 so each factor 1 - w_j bump stays >= 0 (merged weights
+    # can exceed 1).
+    blockers = nearer * np.minimum(weights, 1.0)
+    return np.multiply.reduce(1.0 - bump * blockers, axis=1)
 
 
 def interference_factor(
@@ -169,11 +190,13 @@ def interference_factor(
     Returns
     -------
     ndarray, shape (N,)
-        Factor in ``[1 - depth, 1]`` per null bearing, multiplied.
+        Product of per-null factors, each in ``[1 - depth, 1]``.
     """
-    dirs = np.stack((np.cos(null_bearings_rad), np.sin(null_bearings_rad)))
-    bump = np.exp((units.T @ dirs - 1.0) * inv_var)  # (N, B)
-    return np.prod(1.0 - depth * bump, axis=1)
+    dirs = np.empty((null_bearings_rad.shape[0], 2))
+    dirs[:, 0] = np.cos(null_bearings_rad)
+    dirs[:, 1] = np.sin(null_bearings_rad)
+    bump = np.exp((dirs * inv_var).dot(units) - inv_var)  # (B, N)
+    return np.multiply.reduce(1.0 - depth * bump, axis=0)
 
 
 class DetectionModel:
@@ -200,8 +223,8 @@ class DetectionModel:
         self.config = config
         centres = np.radians(np.asarray(config.blind_sector_centers_deg, dtype=float))
         sigmas = 0.5 * np.radians(np.asarray(config.blind_sector_widths_deg, dtype=float))
-        self._sector_dirs = np.stack((np.cos(centres), np.sin(centres)))  # (2, K)
-        self._sector_inv_var = 1.0 / sigmas**2
+        self._sector_dirs = np.stack((np.cos(centres), np.sin(centres)), axis=1)  # (K, 2)
+        self._sector_inv_var = (1.0 / sigmas**2)[:, None]  # (K, 1)
         self._occlusion_inv_var = 1.0 / math.radians(config.occlusion_std_deg) ** 2
         self._interference_inv_var = 1.0 / math.radians(config.interference_std_deg) ** 2
 
@@ -216,9 +239,11 @@ class DetectionModel:
         cfg = self.config
         if cfg.survival_model == "constant":
             return np.full(table.shape[1], cfg.survival_probability)
-        ranges = np.hypot(table[ROW_X], table[ROW_Y])
         return inverse_sigmoid(
-            ranges, cfg.survival_offset, cfg.survival_slope_per_m, cfg.survival_range_m
+            np.hypot(table[ROW_X], table[ROW_Y]),
+            cfg.survival_offset,
+            cfg.survival_slope_per_m,
+            cfg.survival_range_m,
         )
 
     def lidar(self, table: np.ndarray, null_bearings_rad: np.ndarray | None) -> np.ndarray:
@@ -235,15 +260,15 @@ class DetectionModel:
         cfg = self.config
         if cfg.lidar_pd_model == "constant":
             ranges = np.hypot(table[ROW_X], table[ROW_Y])
-            return np.where(ranges <= cfg.lidar_range_m, cfg.lidar_detection_probability, 0.0)
-        ranges, units = unit_bearings(table, cfg.min_range_m)
+            return (ranges <= cfg.lidar_range_m) * cfg.lidar_detection_probability
+        ranges, units = unit_bearings(table[ROW_X : ROW_Y + 1], cfg.min_range_m)
         pd = inverse_sigmoid(
             ranges, cfg.lidar_pd_offset, cfg.lidar_pd_slope_per_m, cfg.lidar_pd_midpoint_m
         )
-        if self._sector_dirs.shape[1]:
-            pd = pd * blind_sector_factor(units, self._sector_dirs, self._sector_inv_var)
+        if self._sector_dirs.shape[0]:
+            pd *= blind_sector_factor(units, self._sector_dirs, self._sector_inv_var)
         if table.shape[1] > 1:
-            pd = pd * occlusion_factor(
+            pd *= occlusion_factor(
                 units,
                 ranges,
                 table[ROW_W],
@@ -251,10 +276,10 @@ class DetectionModel:
                 cfg.occlusion_min_separation_m,
             )
         if null_bearings_rad is not None and null_bearings_rad.shape[0]:
-            pd = pd * interference_factor(
+            pd *= interference_factor(
                 units, null_bearings_rad, self._interference_inv_var, cfg.interference_depth
             )
-        # Every factor is in [0, 1] by construction, so no final clip is needed.
+        # Every factor is in [0, 1] by construction, so the product needs no final clip.
         return pd
 
     def camera(self, table: np.ndarray) -> np.ndarray:
@@ -263,13 +288,13 @@ class DetectionModel:
         Components closer than ``min_range_m`` get 0: their bearing is undefined.
         """
         cfg = self.config
-        ranges, units = unit_bearings(table, cfg.min_range_m)
+        ranges, units = unit_bearings(table[ROW_X : ROW_Y + 1], cfg.min_range_m)
         pd = inverse_sigmoid(
             ranges, cfg.camera_pd_offset, cfg.camera_pd_slope_per_m, cfg.camera_pd_midpoint_m
         )
-        pd = pd * (ranges >= cfg.min_range_m)
+        pd *= ranges >= cfg.min_range_m
         if table.shape[1] > 1:
-            pd = pd * occlusion_factor(
+            pd *= occlusion_factor(
                 units,
                 ranges,
                 table[ROW_W],

@@ -32,7 +32,7 @@ import numpy as np
 from . import phd
 from .config import PHDConfig
 from .detection import DetectionModel
-from .mixture import ROW_W, ROW_X, ROW_Y, GaussianMixture, empty_table
+from .mixture import ROW_PXX, ROW_W, ROW_X, ROW_Y, GaussianMixture, empty_table
 from .reducer import reduce
 
 __all__ = ["RobotCentricPHD"]
@@ -80,7 +80,8 @@ class RobotCentricPHD:
         self.config = config
         self._model = DetectionModel(config)
         self._fixed_birth = phd.birth_components(
-            np.asarray([config.birth_mean_m], dtype=float), config.birth_std_m**2,
+            np.asarray([config.birth_mean_m], dtype=float),
+            config.birth_std_m**2,
             config.birth_weight,
         )
         self._table = empty_table()
@@ -91,6 +92,36 @@ class RobotCentricPHD:
     def reset(self) -> None:
         """Forget everything: back to the empty prior (no components, no pending births)."""
         self._table = empty_table()
+        self._pending_births = np.empty((0, 2))
+        self._mixture = None
+
+    def set_mixture(self, mixture: GaussianMixture) -> None:
+        """Replace the current PHD (e.g. to start from a known prior or replay a log).
+
+        Parameters
+        ----------
+        mixture : GaussianMixture
+            Weights must be finite and >= 0, means finite, covariances finite, symmetric and
+            positive definite.
+
+        Raises
+        ------
+        ValueError
+            If the mixture violates the above (the filter is left unchanged).
+        """
+        if not isinstance(mixture, GaussianMixture):
+            raise ValueError(f"mixture must be a GaussianMixture, got {type(mixture).__name__}")
+        table = mixture.to_table()
+        if not np.isfinite(table).all():
+            raise ValueError("mixture must be finite")
+        if (table[ROW_W] < 0).any():
+            raise ValueError(f"mixture weights must be >= 0, got {mixture.weights.tolist()}")
+        if not np.allclose(mixture.covs, mixture.covs.transpose(0, 2, 1), rtol=1e-9, atol=1e-12):
+            raise ValueError("mixture covariances must be symmetric")
+        pxx, pxy, pyy = table[ROW_PXX:]
+        if ((pxx <= 0) | (pxx * pyy - pxy * pxy <= 0)).any():
+            raise ValueError("mixture covariances must be positive definite")
+        self._table = table
         self._pending_births = np.empty((0, 2))
         self._mixture = None
 
@@ -133,6 +164,21 @@ class RobotCentricPHD:
             "pending_births": self._pending_births,
         }
 
+    def __copy__(self) -> RobotCentricPHD:
+        # Config, detection model, birth table and the component table are never mutated
+        # in place, so a shallow copy is an independent filter.
+        new = object.__new__(RobotCentricPHD)
+        for name in self.__slots__:
+            setattr(new, name, getattr(self, name))
+        return new
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> RobotCentricPHD:
+        new = self.__copy__()
+        new._table = self._table.copy()
+        new._pending_births = self._pending_births.copy()
+        new._mixture = None
+        return new
+
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__init__(state["config"])  # type: ignore[misc]
         self._table = np.array(state["table"], dtype=float)
@@ -169,8 +215,6 @@ class RobotCentricPHD:
             table = np.concatenate((table, births), axis=1)
             survival = np.concatenate((survival, np.ones(births.shape[1])))
         table = phd.predict(table, odo, survival, cfg.process_noise_std_m**2)
-        if cfg.birth == "fixed":
-            table = np.concatenate((table, self._fixed_birth), axis=1)
         if table.shape[1] > cfg.max_components:
             table = self._reduce(table)
         self._table = table
@@ -197,15 +241,28 @@ class RobotCentricPHD:
         nulls = None if null_bearings is None else _checked_angles(null_bearings, "null_bearings")
         cfg = self.config
         table = self._table
-        detection_prob = self._model.lidar(table, nulls)
         if pts.shape[0] == 0:
             out = table.copy()
-            out[ROW_W] *= 1.0 - detection_prob
+            out[ROW_W] *= 1.0 - self._model.lidar(table, nulls)
             explained = np.empty(0)
         else:
+            n = table.shape[1]
+            fixed_birth = cfg.birth == "fixed"
+            if fixed_birth:
+                # The seed's birth component (eq. 11) joins the prior of every lidar update.
+                table = np.concatenate((table, self._fixed_birth), axis=1)
             out, explained = phd.lidar_update(
-                table, pts, detection_prob, cfg.lidar_noise_var_m2, cfg.lidar_clutter_intensity
+                table,
+                pts,
+                self._model.lidar(table, nulls),
+                cfg.lidar_noise_var_m2,
+                cfg.lidar_clutter_intensity,
             )
+            if fixed_birth:
+                # Its missed-detection copy is dropped (weight 0, pruned): kept, a 2 m-wide
+                # component would be merged into the heaviest track at every reduction
+                # (Vo & Ma's gate uses the candidate's covariance) and inflate its covariance.
+                out[ROW_W, n] = 0.0
         if cfg.birth == "measurement":
             self._pending_births = pts[explained < cfg.measurement_birth_max_explained]
         self._table = self._reduce(out)
@@ -236,7 +293,7 @@ class RobotCentricPHD:
             out = table.copy()
             out[ROW_W] *= 1.0 - detection_prob
         else:
-            out = phd.camera_update(
+            out, _ = phd.camera_update(
                 table,
                 brg,
                 detection_prob,
@@ -293,7 +350,9 @@ def _as_float(value: Any, name: str) -> np.ndarray:
 def _checked_odometry(odometry: Any) -> np.ndarray:
     odo = _as_float(odometry, "odometry")
     if odo.shape != (3,):
-        raise ValueError(f"odometry must have shape (3,) [dx_m, dy_m, dpsi_rad], got {odo.shape}")
+        raise ValueError(
+            f"odometry must have shape (3,) [dx_m, dy_m, dpsi_rad], got shape {odo.shape}"
+        )
     if not (math.isfinite(odo[0]) and math.isfinite(odo[1]) and math.isfinite(odo[2])):
         raise ValueError(f"odometry must be finite, got {odo.tolist()}")
     return odo
@@ -304,7 +363,7 @@ def _checked_points(points: Any) -> np.ndarray:
     if pts.ndim != 2 or pts.shape[1] != 2:
         if pts.size == 0:
             return np.empty((0, 2))
-        raise ValueError(f"points must have shape (M, 2), got {pts.shape}")
+        raise ValueError(f"points must have shape (M, 2), got shape {pts.shape}")
     if not np.isfinite(pts).all():
         bad = int(np.flatnonzero(~np.isfinite(pts).all(axis=1))[0])
         raise ValueError(f"points must be finite, got points[{bad}] = {pts[bad].tolist()}")
@@ -316,7 +375,7 @@ def _checked_angles(angles: Any, name: str) -> np.ndarray:
     if arr.ndim != 1:
         if arr.size == 0:
             return np.empty(0)
-        raise ValueError(f"{name} must have shape (M,), got {arr.shape}")
+        raise ValueError(f"{name} must have shape (M,), got shape {arr.shape}")
     if not np.isfinite(arr).all():
         bad = int(np.flatnonzero(~np.isfinite(arr))[0])
         raise ValueError(f"{name} must be finite, got {name}[{bad}] = {arr[bad]!r}")

@@ -61,7 +61,13 @@ def table_from_arrays(weights: np.ndarray, means: np.ndarray, covs: np.ndarray) 
 
 
 def arrays_from_table(table: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Unpack a ``(6, N)`` table into new ``weights (N,)``, ``means (N, 2)``, ``covs (N, 2, 2)``."""
+    """Unpack a ``(6, N)`` table into new ``weights (N,)``, ``means (N, 2)``, ``covs (N, 2, 2)``.
+
+    Returns
+    -------
+    weights, means, covs : ndarray
+        Fresh arrays (the table is not referenced).
+    """
     n = table.shape[1]
     weights = table[ROW_W].copy()
     means = table[ROW_X : ROW_Y + 1].T.copy()

@@ -18,18 +18,9 @@ References
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-from .gaussian import (
-    TINY,
-    bearing_ekf_update,
-    frame_change_matrix,
-    kalman_update_position,
-    position_likelihood,
-    wrap_angle,
-)
+from .gaussian import TINY, bearing_update, frame_change_matrix, position_update
 from .mixture import N_ROWS, ROW_PXX, ROW_PXY, ROW_PYY, ROW_W, ROW_X, ROW_Y
 
 __all__ = [
@@ -38,8 +29,6 @@ __all__ = [
     "lidar_update",
     "camera_update",
 ]
-
-_INV_SQRT_TWO_PI = 1.0 / math.sqrt(2.0 * math.pi)
 
 
 def predict(
@@ -67,7 +56,7 @@ def predict(
     affine = frame_change_matrix(
         float(odometry[0]), float(odometry[1]), float(odometry[2]), process_var
     )
-    out = affine[:, :N_ROWS] @ table
+    out = affine[:, :N_ROWS].dot(table)
     out += affine[:, N_ROWS:]
     out[ROW_W] *= survival
     return out
@@ -101,36 +90,54 @@ def birth_components(
     return out
 
 
-def _assemble(
+def _posterior_table(
     table: np.ndarray,
-    missed_weights: np.ndarray,
-    detected_weights: np.ndarray,
-    x_post: np.ndarray,
-    y_post: np.ndarray,
-    cov_post: tuple[np.ndarray, np.ndarray, np.ndarray],
-) -> np.ndarray:
-    """Stack missed copies ``(6, N)`` and detected copies ``(6, N*M)`` into one table."""
-    n, m = detected_weights.shape
+    detection_prob: np.ndarray,
+    post_means: np.ndarray,
+    post_covs: np.ndarray,
+    likelihood: np.ndarray,
+    clutter_intensity: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """GM-PHD weights (Vo & Ma 2006, Table I, step 4) and the stacked posterior table.
+
+    Parameters
+    ----------
+    table : ndarray, shape (6, N)
+        Prior table.
+    detection_prob : ndarray, shape (N,)
+        ``P_d`` per component.
+    post_means : ndarray, shape (2, N, M)
+        Updated means per (component, measurement).
+    post_covs : ndarray, shape (3, N)
+        Updated covariances per component.
+    likelihood : ndarray, shape (N, M)
+        Measurement likelihood per (component, measurement).
+    clutter_intensity : float
+        ``kappa`` in the measurement's units.
+
+    Returns
+    -------
+    table : ndarray, shape (6, N + N*M)
+        Missed copies first (weight ``(1 - P_d) w``), then detected copies, component-major,
+        with weight ``P_d w g / (kappa + sum_i P_d w_i g_i)``.
+    explained : ndarray, shape (M,)
+        ``sum_i P_d w_i g_i / (kappa + sum_i ...)`` per measurement, in ``[0, 1]``.
+    """
+    n, m = likelihood.shape
+    weights = table[ROW_W]
+    detected = likelihood * (detection_prob * weights)[:, None]
+    sums = np.ones(n).dot(detected)  # column sums (a dot is cheaper than .sum(axis=0))
+    # Guard: with zero clutter and every likelihood underflowed, 0/0 would give NaN; the
+    # floor turns it into weights of exactly 0 (nothing explains that measurement).
+    inv_denom = 1.0 / np.maximum(sums + clutter_intensity, TINY)
     out = np.empty((N_ROWS, n + n * m))
-    out[ROW_W, :n] = missed_weights
+    out[ROW_W, :n] = (1.0 - detection_prob) * weights
     out[ROW_X:, :n] = table[ROW_X:]
-    detected = out[:, n:].reshape(N_ROWS, n, m)  # a view: component-major blocks
-    detected[ROW_W] = detected_weights
-    detected[ROW_X] = x_post
-    detected[ROW_Y] = y_post
-    detected[ROW_PXX] = cov_post[0][:, None]
-    detected[ROW_PXY] = cov_post[1][:, None]
-    detected[ROW_PYY] = cov_post[2][:, None]
-    return out
-
-
-def _normalise(weighted_likelihood: np.ndarray, clutter: float) -> tuple[np.ndarray, np.ndarray]:
-    """Divide each measurement column by ``clutter + sum_i``; return weights and the sums."""
-    sums = weighted_likelihood.sum(axis=0)
-    # Guard: with zero clutter and every likelihood underflowed, 0/0 would give NaN;
-    # the floor turns it into weights of exactly 0 (nothing explains that measurement).
-    denom = np.maximum(sums + clutter, TINY)
-    return weighted_likelihood / denom, sums / denom
+    blocks = out[:, n:].reshape(N_ROWS, n, m)  # a view: component-major (i, h) blocks
+    np.multiply(detected, inv_denom, out=blocks[ROW_W])
+    blocks[ROW_X : ROW_Y + 1] = post_means
+    blocks[ROW_PXX:] = post_covs[:, :, None]
+    return out, sums * inv_denom
 
 
 def lidar_update(
@@ -164,17 +171,12 @@ def lidar_update(
         Fraction of each measurement explained by the components,
         ``sum_i / (kappa + sum_i)`` in ``[0, 1]``.
     """
-    w, x, y, pxx, pxy, pyy = table
-    gain, cov_post, innov_inv, innov_det = kalman_update_position(pxx, pxy, pyy, noise_var)
-    dx = points[:, 0] - x[:, None]  # (N, M) innovations
-    dy = points[:, 1] - y[:, None]
-    likelihood = position_likelihood(dx, dy, innov_inv, innov_det)
-    weights, explained = _normalise((detection_prob * w)[:, None] * likelihood, clutter_intensity)
-    kxx, kxy, kyy = gain
-    x_post = x[:, None] + kxx[:, None] * dx + kxy[:, None] * dy
-    y_post = y[:, None] + kxy[:, None] * dx + kyy[:, None] * dy
-    out = _assemble(table, (1.0 - detection_prob) * w, weights, x_post, y_post, cov_post)
-    return out, explained
+    post_means, post_covs, likelihood = position_update(
+        table[ROW_X : ROW_Y + 1], table[ROW_PXX:], points.T, noise_var
+    )
+    return _posterior_table(
+        table, detection_prob, post_means, post_covs, likelihood, clutter_intensity
+    )
 
 
 def camera_update(
@@ -184,7 +186,7 @@ def camera_update(
     noise_var: float,
     clutter_intensity: float,
     min_range_m: float,
-) -> np.ndarray:
+) -> tuple[np.ndarray, np.ndarray]:
     """GM-PHD update with camera bearings, one EKF step per component (seed eqs. 24-30).
 
     Parameters
@@ -204,19 +206,15 @@ def camera_update(
 
     Returns
     -------
-    ndarray, shape (6, N + N*M)
+    table : ndarray, shape (6, N + N*M)
         Posterior table (layout as :func:`lidar_update`); the innovation is wrapped to
         ``[-pi, pi)`` and the weight factor is ``N(innovation; 0, H P H^T + R_C)``.
+    explained : ndarray, shape (M,)
+        As in :func:`lidar_update`.
     """
-    w, x, y, pxx, pxy, pyy = table
-    predicted, innov_var, (kx, ky), cov_post = bearing_ekf_update(
-        x, y, pxx, pxy, pyy, noise_var, min_range_m
+    post_means, post_covs, likelihood = bearing_update(
+        table[ROW_X : ROW_Y + 1], table[ROW_PXX:], bearings, noise_var, min_range_m
     )
-    innov = wrap_angle(bearings - predicted[:, None])  # (N, M)
-    inv_var = 1.0 / innov_var
-    likelihood = np.exp((innov * innov) * (-0.5 * inv_var)[:, None])
-    coeff = detection_prob * w * (_INV_SQRT_TWO_PI * np.sqrt(inv_var))
-    weights, _ = _normalise(coeff[:, None] * likelihood, clutter_intensity)
-    x_post = x[:, None] + kx[:, None] * innov
-    y_post = y[:, None] + ky[:, None] * innov
-    return _assemble(table, (1.0 - detection_prob) * w, weights, x_post, y_post, cov_post)
+    return _posterior_table(
+        table, detection_prob, post_means, post_covs, likelihood, clutter_intensity
+    )

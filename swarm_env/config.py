@@ -147,6 +147,9 @@ class SwarmConfig:
     localize : bool
         Run every robot's PHD filter. Required by ``observation="phd"``; switch it off to train
         faster on ``"truth"`` or ``"measurements"`` when localization metrics are not wanted.
+    sensor_stats : bool
+        Count each sensor's detections, false positives and misses against the truth at the
+        instant of every reading (``SimWorld.stats``; the demo prints them). Costs time.
     """
 
     n_robots: int = 20
@@ -165,6 +168,7 @@ class SwarmConfig:
     localization_range_m: float = 2.0
     spawn_clearance_m: float = 0.05
     localize: bool = True
+    sensor_stats: bool = False
 
     def __post_init__(self) -> None:
         check_int_range("n_robots", self.n_robots, 1, MAX_ROBOTS)

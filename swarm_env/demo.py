@@ -33,7 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    env = parallel_env(args.preset, render_mode="rgb_array" if args.frames else None)
+    env = parallel_env(args.preset, sensor_stats=True,
+                       render_mode="rgb_array" if args.frames else None)
     n_steps = int(round(args.duration / env.config.control_period_s))
     policy = WanderPolicy.for_env(env, seed=args.seed)
     every = max(1, n_steps // args.frames) if args.frames else 0

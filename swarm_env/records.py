@@ -2,7 +2,9 @@
 
 Every record is stamped in seconds of the World's clock (sim time, or the robots' synchronised
 ROS time) and expressed in the measuring robot's body frame (REP-103: x forward, y left, yaw
-counter-clockwise, metres, radians). Records are immutable; arrays inside them are read-only.
+counter-clockwise, metres, radians). Records are immutable; arrays inside them are read-only
+views of what the producer passed in (no copy), so a producer must not write to an array after
+making a record of it.
 """
 
 from __future__ import annotations
@@ -13,7 +15,9 @@ import numpy as np
 
 
 def _frozen(array: np.ndarray, dtype=np.float64) -> np.ndarray:
-    out = np.array(array, dtype=dtype, copy=True)
+    # A read-only view, not a copy: records are made on the hot path (about a hundred per env
+    # step). Producers hand over arrays they no longer write to.
+    out = np.asarray(array, dtype=dtype).view()
     out.setflags(write=False)
     return out
 

@@ -129,6 +129,7 @@ class LidarConfig:
 
     @property
     def beam_spacing_rad(self) -> float:
+        """Angle between consecutive beams, rad."""
         return TWO_PI / self.n_beams
 
 
@@ -172,6 +173,7 @@ class LidarScanBatch:
 
     @property
     def n_scans(self) -> int:
+        """Number of scans K in the batch."""
         return int(self.robots.shape[0])
 
     def owner_beam_counts(self, n_robots: int, after_interference: bool = True) -> np.ndarray:
@@ -234,6 +236,7 @@ class LidarSensor:
 
     @property
     def n_robots(self) -> int:
+        """Number of modelled heads N."""
         return int(self.head_phase_rad.shape[0])
 
     @property
@@ -294,6 +297,7 @@ class LidarSensor:
         robots: np.ndarray,
         stamps_s: np.ndarray,
         rng: np.random.Generator,
+        time_index: np.ndarray | None = None,
     ) -> LidarScanBatch:
         """Cast K full revolutions at once.
 
@@ -308,6 +312,8 @@ class LidarSensor:
         rng : numpy.random.Generator
             Source of the range and intensity noise. Always draws ``2 K B`` normals, so the
             stream advances the same way whatever the scene.
+        time_index : ndarray, shape (K,), int, optional
+            Instant of each scan in a time-stacked scene (see :class:`Scene`).
 
         Returns
         -------
@@ -328,10 +334,11 @@ class LidarSensor:
                 f"({self.n_robots} heads), got {robots.tolist()}"
             )
         n_scans, n_beams = robots.size, cfg.n_beams
-        origin = scene.robot_xy[robots]
-        yaw = scene.robot_yaw[robots]
+        if time_index is not None:
+            time_index = np.asarray(time_index, dtype=np.intp).reshape(-1)
+        origin, yaw = scene.observer_poses(robots, time_index)
 
-        flat, dist, code = self._cast(scene, origin, yaw, robots)
+        flat, dist, code = self._cast(scene, origin, yaw, robots, time_index)
         best = np.full(n_scans * n_beams, np.inf)
         np.minimum.at(best, flat, dist)
         winner = dist == best[flat]
@@ -365,9 +372,11 @@ class LidarSensor:
         hit_index = table_index[hit_code].reshape(shape)
         hit_owner = table_owner[hit_code].reshape(shape)
         falloff = 1.0 / (1.0 + np.square(ranges * (1.0 / cfg.intensity_falloff_m)))
-        intensities = table_intensity[hit_code] * falloff * np.exp(cfg.intensity_noise_std * noise[1])
+        intensities = (
+            table_intensity[hit_code] * falloff * np.exp(cfg.intensity_noise_std * noise[1])
+        )
 
-        interfered = self._interference(scene, robots, stamps, hit_owner, hit_index)
+        interfered = self._interference(scene, robots, stamps, hit_owner, hit_index, time_index)
         valid &= ~interfered.reshape(-1)
         ranges = np.where(valid, ranges, 0.0).reshape(shape)
         intensities = np.where(valid, intensities, 0.0).reshape(shape)
@@ -386,7 +395,8 @@ class LidarSensor:
     # -- internals -----------------------------------------------------------------------
 
     def _cast(
-        self, scene: Scene, origin: np.ndarray, yaw: np.ndarray, robots: np.ndarray
+        self, scene: Scene, origin: np.ndarray, yaw: np.ndarray, robots: np.ndarray,
+        time_index: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Candidate hits ``(flat beam index k*B + b, distance, surface code)``.
 
@@ -415,6 +425,9 @@ class LidarSensor:
                 & (d2 > radius * radius)
                 & (d2 < (reach + radius) ** 2)
             )
+            present = scene.circles_present(lidar_idx, time_index, robots.size)
+            if present is not None:
+                near &= present
             scan_i, circ_i = np.nonzero(near)
             px, py, r = cx[scan_i, circ_i], cy[scan_i, circ_i], radius[circ_i]
             dd = d2[scan_i, circ_i]
@@ -471,6 +484,7 @@ class LidarSensor:
         stamps: np.ndarray,
         hit_owner: np.ndarray,
         hit_index: np.ndarray,
+        time_index: np.ndarray | None = None,
     ) -> np.ndarray:
         """Beams hitting robot j's housing while j's head points back at the scanner.
 
@@ -490,9 +504,12 @@ class LidarSensor:
         rate = self.rates_hz[me]
         beam_time = stamps[scan_i] - 1.0 / rate + (beam / cfg.n_beams) / rate
         head_body = self.head_angle_rad(other, beam_time)
-        head_world = scene.robot_yaw[other] + head_body
+        when = None if time_index is None else time_index[scan_i]
+        my_xy, _ = scene.observer_poses(me, when)
+        _, other_yaw = scene.observer_poses(other, when)
+        head_world = other_yaw + head_body
         # The head sits at the centre of the housing the beam hit.
-        to_me = scene.robot_xy[me] - scene.circle_xy[hit_index[scan_i, beam]]
+        to_me = my_xy - scene.circle_xy[hit_index[scan_i, beam]]
         bearing_to_me = np.arctan2(to_me[:, 1], to_me[:, 0])
         tolerance = np.deg2rad(cfg.interference_tolerance_deg)
         aligned = np.abs(wrap_angle(head_world - bearing_to_me)) <= tolerance

@@ -52,6 +52,13 @@ class LidarFeatureConfig:
         Detections whose centre is farther are dropped. The seed's *effective* lidar range is
         ~2 m (few beams hit a 65 mm target beyond); that falloff is modelled by the filter's
         range P_d, so the extractor keeps everything up to the sensor's reach by default.
+    foreground_only : bool
+        Keep only clusters standing in front of both neighbouring returns (or next to invalid
+        returns). A free-standing post or housing always does; a one-beam sliver of a wall
+        seen at grazing incidence (beyond what ``jump_range_gain`` keeps connected) or a wall
+        fragment showing between two nearer objects does not. Costs the robots partially
+        hidden behind a nearer object, whose truncated arc would bias the centre anyway.
+        ``False`` gives the seed's plain width test.
     """
 
     jump_threshold_m: float = 0.05
@@ -60,6 +67,7 @@ class LidarFeatureConfig:
     min_beams: int = 1
     housing_radius_m: float = 0.0325
     tracking_range_m: float = 10.0
+    foreground_only: bool = True
 
     def __post_init__(self) -> None:
         for name in ("jump_threshold_m", "jump_range_gain", "housing_radius_m"):
@@ -104,7 +112,7 @@ class LidarDetections:
     def split(self) -> list[np.ndarray]:
         """Per-scan detections: a list of K arrays of shape (M_k, 2)."""
         bounds = np.searchsorted(self.scan_index, np.arange(self.n_scans + 1)).tolist()
-        return [self.xy_m[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
+        return [self.xy_m[a:b] for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
 
 
 def extract_clusters(
@@ -137,58 +145,71 @@ def extract_clusters(
         )
     valid = ranges > 0.0
     prev = np.roll(ranges, 1, axis=1)
-    threshold = cfg.jump_threshold_m + cfg.jump_range_gain * np.minimum(ranges, prev)
+    threshold = np.minimum(ranges, prev)
+    threshold *= cfg.jump_range_gain
+    threshold += cfg.jump_threshold_m
     # link[k, b]: beam b continues the cluster of beam b-1 (b = 0 links to B-1: the seam).
-    link = valid & (prev > 0.0) & (np.abs(ranges - prev) <= threshold)
+    prev -= ranges
+    link = np.abs(prev, out=prev) <= threshold
+    link &= valid
+    link &= np.roll(valid, 1, axis=1)
     start = valid & ~link
     end = valid & ~np.roll(link, -1, axis=1)
     # A scan whose valid returns all link around the full circle has no start: call it one
-    # cluster starting at beam 0 (it is as wide as the room, so it is rejected below).
+    # cluster from beam 0 to beam B-1 (as wide as the room, so it is rejected below).
     ring = valid.any(axis=1) & ~start.any(axis=1)
     start[ring, 0] = True
     end[ring, n_beams - 1] = True
 
-    n_starts = start.sum(axis=1)
-    label = np.cumsum(start, axis=1)
-    # Beams before a scan's first start belong to its last cluster (it wraps through the seam).
-    label = np.where(label == 0, n_starts[:, None], label)
-    first = np.cumsum(n_starts) - n_starts
-    gid = first[:, None] + label - 1  # global cluster id, meaningful where valid
-    n_clusters = int(n_starts.sum())
-
+    # Pair every cluster's first and last beam. Within a scan, starts and ends alternate in
+    # column order, except that a cluster through the seam ends (at a small column) before
+    # its start: unwrap such an end by +B, then sort the ends back into start order.
+    s_rows, s_cols = np.divmod(np.flatnonzero(start), n_beams)
+    e_rows, e_cols = np.divmod(np.flatnonzero(end), n_beams)
+    first_start = np.full(n_scans, n_beams, dtype=np.intp)
+    first_start[s_rows[::-1]] = s_cols[::-1]  # reversed: the smallest column is written last
+    e_cols += n_beams * (e_cols < first_start[e_rows])
+    # Row-major order of (row, unwrapped column): one integer sort.
+    e_cols = np.sort(e_rows * (2 * n_beams) + e_cols) % (2 * n_beams)
+    count = e_cols - s_cols + 1
+    e_wrapped = e_cols % n_beams
+    r_s, r_e = ranges[s_rows, s_cols], ranges[s_rows, e_wrapped]
     cos_a, sin_a = np.cos(angles), np.sin(angles)
-    rows, cols = np.nonzero(valid)
-    g = gid[rows, cols]
-    r = ranges[rows, cols]
-    count = np.bincount(g, minlength=n_clusters)
-    mean_r = np.bincount(g, weights=r, minlength=n_clusters) / np.maximum(count, 1)
-    sum_c = np.bincount(g, weights=cos_a[cols], minlength=n_clusters)
-    sum_s = np.bincount(g, weights=sin_a[cols], minlength=n_clusters)
-    bearing = np.arctan2(sum_s, sum_c)
+    width = np.hypot(
+        r_e * cos_a[e_wrapped] - r_s * cos_a[s_cols], r_e * sin_a[e_wrapped] - r_s * sin_a[s_cols]
+    )
+    keep = (count >= cfg.min_beams) & (width <= cfg.max_width_m) & (count < n_beams)
+    if cfg.foreground_only:
+        # Neighbours just outside the cluster: farther, or no return, for a standalone object.
+        before = ranges[s_rows, s_cols - 1]  # column -1 wraps to B-1: the seam
+        after = ranges[s_rows, (e_wrapped + 1) % n_beams]
+        keep &= (before == 0.0) | (before > r_s)
+        keep &= (after == 0.0) | (after > r_e)
 
-    # np.nonzero walks row-major, the order cluster ids were assigned in: the k-th start is
-    # cluster k. Ends are scattered by their own id (a seam cluster ends before it starts).
-    s_rows, s_cols = np.nonzero(start)
-    e_rows, e_cols = np.nonzero(end)
-    e_order = np.empty(n_clusters, dtype=np.intp)
-    e_order[gid[e_rows, e_cols]] = np.arange(n_clusters)
-    e_rows, e_cols = e_rows[e_order], e_cols[e_order]
-    r_s, r_e = ranges[s_rows, s_cols], ranges[e_rows, e_cols]
-    width = np.hypot(r_e * cos_a[e_cols] - r_s * cos_a[s_cols], r_e * sin_a[e_cols] - r_s * sin_a[s_cols])
-
+    # Range and bearing means over the (few) surviving clusters only.
+    s_rows, s_cols, count, width = s_rows[keep], s_cols[keep], count[keep], width[keep]
+    offsets = np.cumsum(count) - count
+    beam = np.repeat(s_cols - offsets, count) + np.arange(int(count.sum()))
+    beam %= n_beams
+    r = ranges[np.repeat(s_rows, count), beam]
+    if count.size:
+        mean_r = np.add.reduceat(r, offsets) / count
+        bearing = np.arctan2(
+            np.add.reduceat(sin_a[beam], offsets), np.add.reduceat(cos_a[beam], offsets)
+        )
+    else:
+        mean_r = bearing = np.zeros(0)
     centre_r = mean_r + cfg.housing_radius_m
-    keep = (count >= cfg.min_beams) & (width <= cfg.max_width_m)
-    keep &= centre_r <= cfg.tracking_range_m
-    keep[first[ring]] = False
-    xy = np.stack((centre_r * np.cos(bearing), centre_r * np.sin(bearing)), axis=1)
-    # Sort by scan then bearing: a seam cluster (labelled last) goes where its bearing says.
-    scan = s_rows[keep]
-    order = np.lexsort((bearing[keep], scan))
+    near = centre_r <= cfg.tracking_range_m
+    xy = np.stack((centre_r * np.cos(bearing), centre_r * np.sin(bearing)), axis=1)[near]
+    scan, width, count = s_rows[near], width[near], count[near]
+    # Sort by scan then bearing (a seam cluster is found first but may belong last).
+    order = np.lexsort((bearing[near], scan))
     return LidarDetections(
-        xy_m=xy[keep][order],
+        xy_m=xy[order],
         scan_index=scan[order],
-        width_m=width[keep][order],
-        n_beams=count[keep][order],
+        width_m=width[order],
+        n_beams=count[order],
         n_scans=n_scans,
     )
 

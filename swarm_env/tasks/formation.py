@@ -12,6 +12,11 @@ Rewards (per agent i, per step, metres; ground-truth world positions ``p``):
 
       r_i = -mean_{j in N_i} | ||p_i - p_j|| - d |
 
+Optional shaping (``progress_weight`` = k > 0, for training): with ``e_i`` the bracket above
+(circle) or the lattice error, ``r_i += k (e_i(t-1) - e_i(t))``, i.e. a reward for the error
+removed in this step. It is potential-based (potential ``-k e_i``, discount 1), so it does not
+change which policy is optimal, but it credits each agent's own motion at once.
+
 Termination: never (holding the formation is the task). Truncation: ``max_steps`` of the config.
 
 Task features appended to each observation (mission parameters a robot is given, not sensed):
@@ -39,6 +44,8 @@ class FormationTask(Task):
     Parameters
     ----------
     shape : {"circle", "lattice"}
+    progress_weight : float
+        Weight of the optional shaping term (default 0, see the module doc).
     radius_m : float
         Circle radius (circle only), default 0.8 m.
     spacing_m : float
@@ -51,9 +58,12 @@ class FormationTask(Task):
 
     def __init__(self, shape: str = "circle", radius_m: float | None = None,
                  spacing_m: float | None = None, spacing_weight: float | None = None,
-                 **params: Any) -> None:
+                 progress_weight: float = 0.0, **params: Any) -> None:
         super().__init__(**params)
         self.shape = check_choice(self.name, "shape", shape, SHAPES)
+        self.progress_weight = check_param(self.name, "progress_weight", progress_weight,
+                                           0.0, 1e3)
+        self._previous: np.ndarray | None = None
         if self.shape == "circle":
             if spacing_m is not None:
                 raise ValueError(f"task {self.name!r}: spacing_m applies to shape='lattice'; "
@@ -93,6 +103,10 @@ class FormationTask(Task):
     def reset(self, truth: GroundTruth | None, rng: np.random.Generator, arena: Any) -> None:
         self._errors = []
         self._spacing_errors = []
+        self._previous = None
+        if truth is not None:
+            shape_err, spacing_err = self.errors(truth.poses[:, :2])
+            self._previous = shape_err + self.spacing_weight * spacing_err
 
     def errors(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per-robot shape error and spacing error (m), shapes (N,), from world positions."""
@@ -112,7 +126,12 @@ class FormationTask(Task):
         shape_err, spacing_err = self.errors(truth.poses[:, :2])
         self._errors.append(float(shape_err.mean()))
         self._spacing_errors.append(float(spacing_err.mean()))
-        return -(shape_err + self.spacing_weight * spacing_err)
+        err = shape_err + self.spacing_weight * spacing_err
+        reward = -err
+        if self.progress_weight and self._previous is not None and len(self._previous) == len(err):
+            reward = reward + self.progress_weight * (self._previous - err)
+        self._previous = err
+        return reward
 
     def metrics(self) -> dict[str, float]:
         if not self._errors:

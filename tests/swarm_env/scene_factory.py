@@ -1,4 +1,4 @@
-"""Build :class:`~swarm_env.world.scene.Scene` snapshots directly with numpy, for tests and benchmarks.
+"""Build :class:`~swarm_env.world.scene.Scene` snapshots with numpy, for tests and benchmarks.
 
 Usage::
 
@@ -45,16 +45,14 @@ class SceneBuilder:
         strip: bool = True,
         intensity: float = 1.0,
     ) -> int:
-        """Add a robot: a lidar housing circle and a red camera-holder strip, both at its centre."""
+        """Add a robot: a lidar housing and a red camera-holder strip, both at its centre."""
         idx = len(self.robot_xy)
         self.robot_xy.append((x, y))
         self.robot_yaw.append(yaw_rad)
         if housing:
             self.add_circle(x, y, HOUSING_RADIUS_M, owner=idx, lidar=True, intensity=intensity)
         if strip:
-            self.add_circle(
-                x, y, STRIP_RADIUS_M, owner=idx, lidar=False, occluder=True, red=True
-            )
+            self.add_circle(x, y, STRIP_RADIUS_M, owner=idx, lidar=False, occluder=True, red=True)
         return idx
 
     def add_circle(
@@ -140,8 +138,10 @@ def make_arena_scene(
     while len(boxes) < n_boxes:
         cx, cy = rng.uniform(-half + 0.4, half - 0.4, size=2)
         w, h = rng.uniform(0.3, 0.6, size=2)
-        if all(abs(cx - bx) > 0.5 * (w + bw) + 0.3 or abs(cy - by) > 0.5 * (h + bh) + 0.3
-               for bx, by, bw, bh in boxes):
+        if all(
+            abs(cx - bx) > 0.5 * (w + bw) + 0.3 or abs(cy - by) > 0.5 * (h + bh) + 0.3
+            for bx, by, bw, bh in boxes
+        ):
             boxes.append((cx, cy, w, h))
             b.add_box(cx, cy, w, h)
     points: list[tuple[float, float]] = []
@@ -149,8 +149,10 @@ def make_arena_scene(
     def free_point() -> tuple[float, float]:
         while True:
             x, y = rng.uniform(-half, half, size=2)
-            if any(abs(x - bx) < 0.5 * bw + clearance_m and abs(y - by) < 0.5 * bh + clearance_m
-                   for bx, by, bw, bh in boxes):
+            if any(
+                abs(x - bx) < 0.5 * bw + clearance_m and abs(y - by) < 0.5 * bh + clearance_m
+                for bx, by, bw, bh in boxes
+            ):
                 continue
             if all((x - px) ** 2 + (y - py) ** 2 > clearance_m**2 for px, py in points):
                 points.append((x, y))

@@ -1,0 +1,118 @@
+"""Trained SB3 models as swarm policies, and the metadata that rebuilds their env.
+
+Every model zip written by ``swarm-phd train`` (the final ``model.zip`` and each checkpoint)
+carries one extra member, ``swarm_phd.json`` (SB3's loader ignores it)::
+
+    {"env_kwargs": {...},            # preset, task, task_params, observation, n_robots, ...
+     "obs_norm": {"mean": [...], "var": [...], "clip": 10.0, "epsilon": 1e-8} | null,
+     "action_scale": "unit"}         # the policy acts in [-1, 1]; scaled by [v_max, omega_max]
+
+``env_kwargs.json`` next to ``model.zip`` holds the same ``env_kwargs`` for humans and scripts.
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agents.sb3.adapter import scale_actions
+
+META_NAME = "swarm_phd.json"
+
+
+def write_metadata(model_path: str | Path, meta: dict[str, Any]) -> None:
+    """Add (or replace) ``swarm_phd.json`` inside the model zip."""
+    path = Path(model_path)
+    with zipfile.ZipFile(path, "r") as src:
+        members = {n: src.read(n) for n in src.namelist() if n != META_NAME}
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as dst:
+        for name, data in members.items():
+            dst.writestr(name, data)
+        dst.writestr(META_NAME, json.dumps(meta, indent=2))
+
+
+def read_metadata(model_path: str | Path) -> dict[str, Any]:
+    """The ``swarm_phd.json`` of a model zip; ``ValueError`` if it is not a swarm-phd model."""
+    path = Path(model_path)
+    if not path.is_file():
+        raise ValueError(f"model file {str(path)!r} does not exist")
+    try:
+        with zipfile.ZipFile(path) as z:
+            if META_NAME in z.namelist():
+                return json.loads(z.read(META_NAME))
+    except zipfile.BadZipFile as exc:
+        raise ValueError(f"{str(path)!r} is not a model zip: {exc}") from exc
+    side = path.parent / "env_kwargs.json"
+    if side.is_file():
+        return {"env_kwargs": json.loads(side.read_text()), "obs_norm": None,
+                "action_scale": "unit"}
+    raise ValueError(f"{str(path)!r} has no {META_NAME} and no env_kwargs.json beside it: "
+                     "train it with `swarm-phd train`")
+
+
+def env_kwargs_for_model(model_path: str | Path) -> dict[str, Any]:
+    """Env overrides the model was trained with (observation mode, task, task params, ...),
+    without ``preset`` (the caller chooses; pass ``preset=kw.pop('preset')`` to reuse it)."""
+    kwargs = dict(read_metadata(model_path)["env_kwargs"])
+    kwargs.pop("preset", None)
+    return kwargs
+
+
+class SB3Policy:
+    """A trained PPO model driving every agent with the same network (``(obs, infos) ->
+    actions``). Deterministic (the Gaussian's mean) unless ``deterministic=False``."""
+
+    def __init__(self, model: Any, meta: dict[str, Any], action_high: np.ndarray,
+                 deterministic: bool = True) -> None:
+        self.model = model
+        self.meta = meta
+        self.action_high = np.asarray(action_high, dtype=np.float64)
+        self.deterministic = deterministic
+        norm = meta.get("obs_norm")
+        if norm:
+            self._mean = np.asarray(norm["mean"], dtype=np.float64)
+            self._std = np.sqrt(np.asarray(norm["var"], dtype=np.float64) + norm["epsilon"])
+            self._clip = float(norm["clip"])
+        else:
+            self._mean = None
+
+    def reset(self, seed: int | None = None) -> None:
+        if seed is not None:
+            self.model.set_random_seed(seed)
+
+    def normalize(self, obs: np.ndarray) -> np.ndarray:
+        if self._mean is None:
+            return obs.astype(np.float32)
+        return np.clip((obs - self._mean) / self._std, -self._clip, self._clip).astype(np.float32)
+
+    def __call__(self, observations: dict[str, np.ndarray],
+                 infos: dict[str, dict[str, Any]] | None = None) -> dict[str, np.ndarray]:
+        if not observations:
+            return {}
+        agents = list(observations)
+        batch = self.normalize(np.stack([observations[a] for a in agents]))
+        actions, _ = self.model.predict(batch, deterministic=self.deterministic)
+        return {a: scale_actions(actions[k], self.action_high) for k, a in enumerate(agents)}
+
+
+def load_sb3_policy(path: str | Path, env: Any, deterministic: bool = True) -> SB3Policy:
+    """Load ``path`` for ``env``; the env's observation space must match the model's."""
+    import torch
+    from stable_baselines3 import PPO
+
+    torch.set_num_threads(1)
+    meta = read_metadata(path)
+    model = PPO.load(str(path), device="cpu")
+    agent = env.possible_agents[0]
+    want = model.observation_space.shape
+    have = env.observation_space(agent).shape
+    if want != have:
+        raise ValueError(
+            f"model {str(path)!r} expects observations of shape {want}, the env gives {have}: "
+            f"build the env with the model's kwargs {meta['env_kwargs']}"
+        )
+    return SB3Policy(model, meta, env.action_space(agent).high, deterministic=deterministic)

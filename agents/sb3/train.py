@@ -1,0 +1,191 @@
+"""``swarm-phd train``: PPO with parameter sharing (one policy for every agent) on a SwarmEnv task.
+
+Writes, under ``--out``::
+
+    model.zip                 final model (+ swarm_phd.json inside: env kwargs, obs normalisation)
+    env_kwargs.json           the env the model was trained in
+    train_config.json         the command's arguments and PPO hyper-parameters
+    checkpoints/model_<steps>_steps.zip   every --checkpoint-every agent-steps
+    tb/                       tensorboard logs (PPO_1/...)
+    monitor.csv               one row per agent-episode (VecMonitor): r, l, t
+    tb/progress.csv           rollout/ep_rew_mean etc. per PPO iteration
+
+Timesteps count *agent* transitions: one env step of N robots is N timesteps.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+from agents.sb3.policy import write_metadata
+
+DEFAULT_PRESET = "seed-lab"
+DEFAULT_MAX_STEPS = 300
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--task", default="formation", help="task name (see swarm_env.tasks)")
+    parser.add_argument("--task-params", default="{}",
+                        help='JSON dict of task parameters, e.g. \'{"radius_m": 0.8}\'')
+    parser.add_argument("--observation", default="phd", choices=["phd", "truth", "measurements"])
+    parser.add_argument("--preset", default=DEFAULT_PRESET)
+    parser.add_argument("--n-robots", type=int, default=None, help="default: the preset's")
+    parser.add_argument("--max-steps", type=int, default=DEFAULT_MAX_STEPS,
+                        help="episode length in env steps (0.1 s each)")
+    parser.add_argument("--env-overrides", default="{}",
+                        help='JSON dict of further SwarmConfig overrides, e.g. \'{"arena": '
+                             '{"n_boxes": 0}}\'')
+    parser.add_argument("--timesteps", type=int, default=200_000, help="agent transitions")
+    parser.add_argument("--out", required=True, help="run directory, e.g. runs/formation_phd")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--n-copies", type=int, default=4, help="env copies (x n_robots agents)")
+    parser.add_argument("--num-cpus", type=int, default=0,
+                        help="worker processes for the env copies (0: step them in-process)")
+    parser.add_argument("--n-steps", type=int, default=128, help="PPO rollout length per agent")
+    parser.add_argument("--batch-size", type=int, default=512)
+    parser.add_argument("--n-epochs", type=int, default=10)
+    parser.add_argument("--learning-rate", type=float, default=3e-4)
+    parser.add_argument("--gamma", type=float, default=0.99)
+    parser.add_argument("--ent-coef", type=float, default=0.0)
+    parser.add_argument("--checkpoint-every", type=int, default=50_000, help="agent transitions")
+    parser.add_argument("--torch-threads", type=int, default=1,
+                        help="torch intra-op threads (1 leaves the other core to the envs)")
+    parser.add_argument("--max-wall-minutes", type=float, default=None,
+                        help="stop early (and save) after this much wall time")
+    parser.add_argument("--no-progress-bar", action="store_true")
+
+
+def _json_arg(text: str, name: str) -> dict[str, Any]:
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{name} must be a JSON object, got {text!r}: {exc}") from exc
+    if not isinstance(value, dict):
+        raise ValueError(f"{name} must be a JSON object, got {text!r}")
+    return value
+
+
+def env_kwargs_from_args(args: argparse.Namespace) -> dict[str, Any]:
+    kwargs: dict[str, Any] = {
+        "preset": args.preset,
+        "task": args.task,
+        "task_params": _json_arg(args.task_params, "--task-params"),
+        "observation": args.observation,
+        "max_steps": args.max_steps,
+        **_json_arg(args.env_overrides, "--env-overrides"),
+    }
+    if args.n_robots is not None:
+        kwargs["n_robots"] = args.n_robots
+    if args.observation != "phd":
+        kwargs.setdefault("localize", False)  # the filters cost most of the step; unused here
+    return kwargs
+
+
+def run(args: argparse.Namespace) -> int:
+    env_kwargs = env_kwargs_from_args(args)
+    ppo_kwargs = {
+        "n_steps": args.n_steps, "batch_size": args.batch_size, "n_epochs": args.n_epochs,
+        "learning_rate": args.learning_rate, "gamma": args.gamma, "ent_coef": args.ent_coef,
+    }
+    train(env_kwargs, args.timesteps, Path(args.out), seed=args.seed, n_copies=args.n_copies,
+          num_cpus=args.num_cpus, checkpoint_every=args.checkpoint_every,
+          torch_threads=args.torch_threads, progress_bar=not args.no_progress_bar,
+          ppo_kwargs=ppo_kwargs, max_wall_s=None if args.max_wall_minutes is None
+          else 60.0 * args.max_wall_minutes)
+    return 0
+
+
+def train(env_kwargs: dict[str, Any], timesteps: int, out: Path, *, seed: int = 0,
+          n_copies: int = 4, num_cpus: int = 0, checkpoint_every: int = 50_000,
+          torch_threads: int = 1, progress_bar: bool = True,
+          ppo_kwargs: dict[str, Any] | None = None, max_wall_s: float | None = None) -> Path:
+    """Train and return the path of ``model.zip``; see the module docstring for the outputs."""
+    if timesteps <= 0:
+        raise ValueError(f"--timesteps must be > 0, got {timesteps}")
+    if n_copies < 1:
+        raise ValueError(f"--n-copies must be >= 1, got {n_copies}")
+    if num_cpus < 0:
+        raise ValueError(f"--num-cpus must be >= 0, got {num_cpus}")
+    try:
+        import torch
+        from stable_baselines3 import PPO
+        from stable_baselines3.common.callbacks import BaseCallback
+        from stable_baselines3.common.logger import configure
+        from stable_baselines3.common.vec_env import VecNormalize
+    except ImportError as exc:  # pragma: no cover - depends on the install
+        raise ValueError("training needs the rl extras: pip install -e '.[rl]'") from exc
+
+    from agents.sb3.adapter import make_vec_env
+    from swarm_env import parallel_env
+
+    torch.set_num_threads(max(1, torch_threads))
+    # Build one env first: bad task / config keys fail here with the env's own message.
+    probe = parallel_env(**env_kwargs)
+    n_agents = len(probe.possible_agents)
+    probe.close()
+
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "checkpoints").mkdir(exist_ok=True)
+    (out / "env_kwargs.json").write_text(json.dumps(env_kwargs, indent=2))
+    ppo = {"n_steps": 128, "batch_size": 512, "n_epochs": 10, "learning_rate": 3e-4,
+           "gamma": 0.99, "gae_lambda": 0.95, "ent_coef": 0.0, "clip_range": 0.2,
+           **(ppo_kwargs or {})}
+    policy_kwargs = {"net_arch": {"pi": [128, 128], "vf": [128, 128]}, "log_std_init": -0.5}
+    (out / "train_config.json").write_text(json.dumps({
+        "timesteps": timesteps, "seed": seed, "n_copies": n_copies, "num_cpus": num_cpus,
+        "n_agents_per_env": n_agents, "checkpoint_every": checkpoint_every,
+        "torch_threads": torch_threads, "ppo": ppo, "policy_kwargs": policy_kwargs,
+    }, indent=2))
+
+    venv = make_vec_env(env_kwargs, n_copies=n_copies, num_cpus=num_cpus, seed=seed,
+                        monitor_file=str(out / "monitor.csv"))
+    venv = VecNormalize(venv, norm_obs=True, norm_reward=True, clip_obs=10.0,
+                        gamma=ppo["gamma"])
+
+    def meta() -> dict[str, Any]:
+        rms = venv.obs_rms
+        return {"env_kwargs": env_kwargs, "action_scale": "unit",
+                "obs_norm": {"mean": rms.mean.tolist(), "var": rms.var.tolist(),
+                             "clip": venv.clip_obs, "epsilon": venv.epsilon}}
+
+    class Checkpoints(BaseCallback):
+        """Save ``model_<steps>_steps.zip`` (with its metadata) every ``every`` transitions;
+        stop training once ``max_wall_s`` has passed."""
+
+        def __init__(self, every: int) -> None:
+            super().__init__()
+            self.every = max(1, every)
+            self.next_at = self.every
+            self.t0 = time.perf_counter()
+
+        def _on_step(self) -> bool:
+            if self.num_timesteps >= self.next_at:
+                path = out / "checkpoints" / f"model_{self.num_timesteps}_steps.zip"
+                self.model.save(path)
+                write_metadata(path, meta())
+                self.next_at += self.every
+            if max_wall_s is not None and time.perf_counter() - self.t0 > max_wall_s:
+                print(f"stopping: wall-time budget of {max_wall_s:.0f} s reached")
+                return False
+            return True
+
+    model = PPO("MlpPolicy", venv, seed=seed, device="cpu", verbose=0,
+                policy_kwargs=policy_kwargs, tensorboard_log=None, **ppo)
+    model.set_logger(configure(str(out / "tb"), ["csv", "tensorboard"]))
+    start = time.perf_counter()
+    model.learn(total_timesteps=timesteps, callback=Checkpoints(checkpoint_every),
+                progress_bar=progress_bar)
+    path = out / "model.zip"
+    model.save(path)
+    write_metadata(path, meta())
+    elapsed = time.perf_counter() - start
+    summary = {"timesteps": int(model.num_timesteps), "wall_time_s": elapsed,
+               "agent_steps_per_s": model.num_timesteps / max(elapsed, 1e-9)}
+    (out / "train_summary.json").write_text(json.dumps(summary, indent=2))
+    print(f"trained {model.num_timesteps} agent steps in {elapsed:.0f} s -> {path}")
+    venv.close()
+    return path

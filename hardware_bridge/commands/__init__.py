@@ -1,0 +1,1 @@
+"""``swarm-phd`` subcommands of the hardware bridge: ``bridge``, ``replay``, ``export-bag``."""

@@ -1,0 +1,553 @@
+"""A loopback robot server: the rosbridge v2 protocol over websocket on 127.0.0.1, whose robots are
+the simulator stepped in real time. For tests and dry runs without robots.
+
+It implements the operations a rosbridge client uses: ``advertise``, ``unadvertise``,
+``publish``, ``subscribe`` (with ``queue_length`` and ``throttle_rate``), ``unsubscribe``,
+``call_service`` (answered "unsupported"), ``set_level``; unknown operations get a ``status``
+error. Every robot publishes what a real one does (topics in :func:`messages.topics`):
+``LaserScan`` (the sim's scan), ``Odometry`` (the encoder increments integrated into an odom
+pose), ``Float32MultiArray`` bearings, ``PoseStamped`` motion capture (the sim's truth), and it
+obeys ``Twist`` commands, stopping by itself when ``cmd_vel`` is silent for
+``robot_cmd_timeout_s`` (as a robot base driver does).
+
+Real time: the sim runs one control period ahead and every message is sent when the wall clock
+reaches its stamp, stamped in ROS time (``time.time_ns()``), so the client sees realistic
+arrival times. Faults can be injected on the outgoing sensor messages (:class:`FaultConfig`).
+
+The server runs its own asyncio loop in a daemon thread; :meth:`stop` takes the network down
+(the robots keep living), :meth:`start` brings it back on the same port, :meth:`close` ends it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from hardware_bridge.messages import (
+    Counters,
+    InvalidMessage,
+    bearings_msg,
+    laser_scan_msg,
+    odometry_msg,
+    parse_twist,
+    pose_stamped_msg,
+    topics,
+)
+from swarm_env.config import SwarmConfig, make_config
+from swarm_env.world.sim import SimWorld
+
+LOGGER = logging.getLogger("hardware_bridge.loopback")
+_MALFORMED_ANY = ("invalid_json", "not_object", "unknown_op", "binary", "missing_field")
+_MALFORMED_CONTENT = {
+    "lidar": ("nan", "wrong_length", "wrong_type"),
+    "odometry": ("nan", "wrong_length", "wrong_type"),
+    "camera": ("nan", "wrong_length", "wrong_type"),
+    "mocap": ("nan", "wrong_type"),
+}
+
+
+@dataclass(frozen=True)
+class FaultConfig:
+    """Probabilities of faults on each outgoing sensor message (mutually exclusive per message).
+
+    ``drop``: not sent. ``delay``: sent ``delay_s`` late. ``duplicate``: sent twice.
+    ``malformed``: replaced by a broken message (bad JSON, not an object, unknown op, binary
+    frame, missing header, NaN, wrong length, wrong type; cycled in turn).
+    """
+
+    drop: float = 0.0
+    delay: float = 0.0
+    duplicate: float = 0.0
+    malformed: float = 0.0
+    delay_s: float = 0.3
+    sensors: tuple[str, ...] = ("lidar", "odometry", "camera", "mocap")
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        total = self.drop + self.delay + self.duplicate + self.malformed
+        for name in ("drop", "delay", "duplicate", "malformed"):
+            p = getattr(self, name)
+            if not 0.0 <= p <= 1.0:
+                raise ValueError(f"FaultConfig.{name} must be in [0, 1], got {p!r}")
+        if total > 1.0:
+            raise ValueError(f"FaultConfig probabilities sum to {total} > 1")
+
+
+@dataclass
+class _Item:
+    payload: str | bytes
+    kind: str | None = None  # None, "duplicate", "delayed", "malformed"
+
+
+@dataclass
+class _Sub:
+    topic: str
+    queue: deque
+    throttle_s: float
+    event: asyncio.Event = field(default_factory=asyncio.Event)
+    task: asyncio.Task | None = None
+    last_sent: str | bytes | None = None
+
+
+class _Conn:
+    def __init__(self, ws) -> None:
+        self.ws = ws
+        self.subs: dict[str, _Sub] = {}
+
+
+class LoopbackServer:
+    """Simulated robots behind a rosbridge-compatible websocket on 127.0.0.1.
+
+    Parameters
+    ----------
+    preset : str
+        SwarmConfig preset of the simulated robots (``**overrides`` apply to it).
+    config : SwarmConfig, optional
+        A full config instead.
+    port : int
+        0 picks a free port (read :attr:`port` after :meth:`start`).
+    seed : int
+        Seeds the simulated arena and sensors.
+    faults : FaultConfig, optional
+    robot_cmd_timeout_s : float
+        A robot stops when its ``cmd_vel`` has been silent this long (robot-side safety).
+    mocap : bool
+        Publish ``/mocap/<robot>/pose``.
+    """
+
+    def __init__(self, preset: str = "seed-lab", *, config: SwarmConfig | None = None,
+                 host: str = "127.0.0.1", port: int = 0, seed: int = 0,
+                 faults: FaultConfig | None = None, robot_cmd_timeout_s: float = 0.5,
+                 mocap: bool = True, **overrides: Any) -> None:
+        if host not in ("127.0.0.1", "localhost", "::1"):
+            raise ValueError(f"the loopback server only binds to loopback, got {host!r}")
+        self.config = make_config(preset, config, **overrides)
+        self.host = host
+        self.port = int(port)
+        self.seed = seed
+        self.faults = faults or FaultConfig()
+        self.robot_cmd_timeout_s = robot_cmd_timeout_s
+        self.mocap = mocap
+        self.world = SimWorld(self.config)
+        self.robot_ids = self.world.robot_ids
+        self.counters = Counters()
+        self._fault_rng = np.random.default_rng(self.faults.seed)
+        self._malformed_turn = 0
+        self._topic_sensor: dict[str, tuple[str, str]] = {}
+        self._cmd_topics: dict[str, str] = {}
+        for robot in self.robot_ids:
+            names = topics(robot)
+            for sensor in ("lidar", "odometry", "camera", "mocap"):
+                self._topic_sensor[names[sensor]] = (robot, sensor)
+            self._cmd_topics[names["cmd_vel"]] = robot
+        n = len(self.robot_ids)
+        self._commands = np.zeros((n, 2))
+        self._command_time = np.full(n, -math.inf)
+        self._twists: deque = deque(maxlen=200_000)  # (monotonic s, robot, v, omega)
+        self._twist_lock = threading.Lock()
+        self._odom_pose = np.zeros((n, 3))
+        self._conns: set[_Conn] = set()
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._thread: threading.Thread | None = None
+        self._server = None
+        self._sim_task: asyncio.Task | None = None
+        self._running = False
+        self.sim_steps = 0
+        self.max_lag_s = 0.0
+
+    # ------------------------------------------------------------------ lifecycle
+    @property
+    def url(self) -> str:
+        return f"ws://{self.host}:{self.port}"
+
+    def start(self, timeout_s: float = 5.0) -> int:
+        """Start (or restart) serving; starts the real-time sim on first call. Returns the port."""
+        if self._thread is None:
+            ready = threading.Event()
+
+            def run() -> None:
+                self._loop = asyncio.new_event_loop()
+                asyncio.set_event_loop(self._loop)
+                ready.set()
+                self._loop.run_forever()
+
+            self._thread = threading.Thread(target=run, name="loopback-server", daemon=True)
+            self._thread.start()
+            ready.wait(timeout_s)
+        self._call(self._start_async(), timeout_s)
+        return self.port
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Take the network down (close every connection); the simulated robots keep running."""
+        if self._loop is not None and self._server is not None:
+            self._call(self._stop_async(), timeout_s)
+
+    def close(self, timeout_s: float = 5.0) -> None:
+        """Stop everything, including the sim and the loop thread."""
+        if self._loop is None:
+            return
+        self.stop(timeout_s)
+
+        async def _end() -> None:
+            self._running = False
+            if self._sim_task is not None:
+                self._sim_task.cancel()
+                try:
+                    await self._sim_task
+                except (asyncio.CancelledError, Exception):  # noqa: BLE001
+                    pass
+
+        self._call(_end(), timeout_s)
+        self._loop.call_soon_threadsafe(self._loop.stop)
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+        self._loop = None
+        self._thread = None
+
+    def __enter__(self) -> LoopbackServer:
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _call(self, coro, timeout_s: float):
+        assert self._loop is not None
+        return asyncio.run_coroutine_threadsafe(coro, self._loop).result(timeout_s)
+
+    def call(self, fn: Callable[[], Any], timeout_s: float = 5.0) -> Any:
+        """Run ``fn`` on the server's loop thread (e.g. read the sim state consistently)."""
+        async def _run():
+            return fn()
+
+        return self._call(_run(), timeout_s)
+
+    def set_faults(self, faults: FaultConfig) -> None:
+        """Change the injected faults (takes effect with the next message)."""
+        self.call(lambda: setattr(self, "faults", faults))
+
+    # ------------------------------------------------------------------ inspection
+    def twists(self) -> list[tuple[float, str, float, float]]:
+        """Every ``cmd_vel`` received: ``(monotonic time s, robot, v, omega)``."""
+        with self._twist_lock:
+            return list(self._twists)
+
+    def poses(self) -> np.ndarray:
+        """True ``[x, y, yaw]`` of the simulated robots."""
+        return self.call(lambda: self.world.poses()[: len(self.robot_ids)].copy())
+
+    @property
+    def n_clients(self) -> int:
+        return len(self._conns)
+
+    # ------------------------------------------------------------------ async internals
+    async def _start_async(self) -> None:
+        from websockets.asyncio.server import serve
+
+        if self._server is None:
+            self._server = await serve(
+                self._handle, self.host, self.port, max_size=4 * 1024 * 1024,
+                compression=None, ping_interval=None,
+            )
+            self.port = self._server.sockets[0].getsockname()[1]
+            self.counters.incr("server.starts")
+        if self._sim_task is None:
+            self.world.reset(np.random.default_rng(self.seed))
+            self._odom_pose[:] = 0.0
+            self._running = True
+            self._sim_task = asyncio.get_running_loop().create_task(self._sim_loop())
+
+    async def _stop_async(self) -> None:
+        server, self._server = self._server, None
+        if server is None:
+            return
+        server.close(close_connections=True)
+        await server.wait_closed()
+        for conn in list(self._conns):
+            for sub in conn.subs.values():
+                if sub.task is not None:
+                    sub.task.cancel()
+        self._conns.clear()
+        self.counters.incr("server.stops")
+
+    async def _handle(self, ws) -> None:
+        conn = _Conn(ws)
+        self._conns.add(conn)
+        self.counters.incr("server.connections")
+        try:
+            async for raw in ws:
+                self._on_client_message(conn, raw)
+        except Exception:  # noqa: BLE001 - connection errors end this client only
+            pass
+        finally:
+            self._conns.discard(conn)
+            for sub in conn.subs.values():
+                if sub.task is not None:
+                    sub.task.cancel()
+
+    def _status(self, conn: _Conn, level: str, text: str) -> None:
+        self.counters.incr(f"server.status_{level}")
+        payload = json.dumps({"op": "status", "level": level, "msg": text})
+        asyncio.get_running_loop().create_task(self._send_raw(conn, payload))
+
+    async def _send_raw(self, conn: _Conn, payload: str) -> None:
+        try:
+            await conn.ws.send(payload)
+        except Exception:  # noqa: BLE001
+            pass
+
+    def _on_client_message(self, conn: _Conn, raw: str | bytes) -> None:
+        if isinstance(raw, bytes):
+            self.counters.incr("server.invalid_in")
+            self._status(conn, "error", "binary frames are not supported")
+            return
+        try:
+            msg = json.loads(raw)
+        except ValueError as exc:
+            self.counters.incr("server.invalid_in")
+            self._status(conn, "error", f"invalid JSON: {exc}")
+            return
+        if not isinstance(msg, dict) or not isinstance(msg.get("op"), str):
+            self.counters.incr("server.invalid_in")
+            self._status(conn, "error", "a message must be an object with a string 'op'")
+            return
+        op = msg["op"]
+        topic = msg.get("topic")
+        if op == "publish":
+            robot = self._cmd_topics.get(topic)
+            if robot is None:
+                self._status(conn, "warning", f"publish to unknown topic {topic!r} ignored")
+                return
+            try:
+                v, omega = parse_twist(msg.get("msg"))
+            except InvalidMessage as exc:
+                self.counters.incr("server.invalid_in")
+                self._status(conn, "error", f"{topic}: {exc}")
+                return
+            i = self.robot_ids.index(robot)
+            now = time.monotonic()
+            with self._twist_lock:
+                self._twists.append((now, robot, v, omega))
+            self._commands[i] = (v, omega)
+            self._command_time[i] = now
+            self.counters.incr("server.twists")
+        elif op == "subscribe":
+            if not isinstance(topic, str):
+                self._status(conn, "error", "subscribe needs a topic")
+                return
+            queue_length = msg.get("queue_length", 0)
+            throttle_ms = msg.get("throttle_rate", 0)
+            if type(queue_length) is not int or queue_length < 0:
+                queue_length = 0
+            if type(throttle_ms) not in (int, float) or throttle_ms < 0:
+                throttle_ms = 0
+            old = conn.subs.pop(topic, None)
+            if old is not None and old.task is not None:
+                old.task.cancel()
+            sub = _Sub(topic, deque(maxlen=queue_length or 100), throttle_ms / 1000.0)
+            sub.task = asyncio.get_running_loop().create_task(self._sender(conn, sub))
+            conn.subs[topic] = sub
+            self.counters.incr("server.subscriptions")
+        elif op == "unsubscribe":
+            sub = conn.subs.pop(topic, None)
+            if sub is not None and sub.task is not None:
+                sub.task.cancel()
+        elif op in ("advertise", "unadvertise", "set_level", "status"):
+            self.counters.incr(f"server.{op}")
+        elif op == "call_service":
+            reply = {"op": "service_response", "service": msg.get("service"), "id": msg.get("id"),
+                     "result": False, "values": "services are not supported by the loopback"}
+            asyncio.get_running_loop().create_task(self._send_raw(conn, json.dumps(reply)))
+        else:
+            self.counters.incr("server.invalid_in")
+            self._status(conn, "error", f"unknown op {op!r}")
+
+    async def _sender(self, conn: _Conn, sub: _Sub) -> None:
+        try:
+            while True:
+                await sub.event.wait()
+                sub.event.clear()
+                while sub.queue:
+                    item = sub.queue.popleft()
+                    if item.kind == "duplicate" and sub.last_sent != item.payload:
+                        item.kind = None  # the original never went out: not a duplicate
+                    await conn.ws.send(item.payload)
+                    sub.last_sent = item.payload
+                    self.counters.incr("server.sent")
+                    if item.kind is not None:
+                        self.counters.incr(f"delivered.{item.kind}")
+                        self.counters.incr(f"delivered.{item.kind}.{self._sensor_of(sub.topic)}")
+                    if sub.throttle_s > 0:
+                        await asyncio.sleep(sub.throttle_s)
+        except asyncio.CancelledError:
+            raise
+        except Exception:  # noqa: BLE001 - the connection is gone
+            return
+
+    def _sensor_of(self, topic: str) -> str:
+        return self._topic_sensor.get(topic, ("", "other"))[1]
+
+    def _enqueue(self, topic: str, item: _Item) -> None:
+        for conn in list(self._conns):
+            sub = conn.subs.get(topic)
+            if sub is None:
+                continue
+            if len(sub.queue) == sub.queue.maxlen:
+                self.counters.incr("server.evicted")
+            sub.queue.append(_Item(item.payload, item.kind))
+            sub.event.set()
+
+    def _publish(self, topic: str, msg: dict) -> None:
+        """Send one sensor message, through the fault injector."""
+        sensor = self._sensor_of(topic)
+        text = json.dumps({"op": "publish", "topic": topic, "msg": msg})
+        faults = self.faults
+        self.counters.incr(f"published.{sensor}")
+        if sensor in faults.sensors:
+            u = self._fault_rng.random()
+            edges = np.cumsum([faults.drop, faults.delay, faults.duplicate, faults.malformed])
+            kind = ("drop", "delay", "duplicate", "malformed", None)[int(np.searchsorted(
+                edges, u, side="right"))]
+            if kind == "drop":
+                self.counters.incr("injected.drop")
+                self.counters.incr(f"injected.drop.{sensor}")
+                return
+            if kind == "delay":
+                self.counters.incr("injected.delayed")
+                self.counters.incr(f"injected.delayed.{sensor}")
+                asyncio.get_running_loop().call_later(
+                    faults.delay_s, self._enqueue, topic, _Item(text, "delayed"))
+                return
+            if kind == "duplicate":
+                self.counters.incr("injected.duplicate")
+                self.counters.incr(f"injected.duplicate.{sensor}")
+                self._enqueue(topic, _Item(text))
+                asyncio.get_running_loop().call_later(
+                    0.001, self._enqueue, topic, _Item(text, "duplicate"))
+                return
+            if kind == "malformed":
+                variant, payload = self._malform(topic, sensor, msg)
+                self.counters.incr("injected.malformed")
+                self.counters.incr(f"injected.malformed.{variant}")
+                self._enqueue(topic, _Item(payload, "malformed"))
+                return
+        self._enqueue(topic, _Item(text))
+
+    def _malform(self, topic: str, sensor: str, msg: dict) -> tuple[str, str | bytes]:
+        variants = _MALFORMED_ANY + _MALFORMED_CONTENT.get(sensor, ())
+        variant = variants[self._malformed_turn % len(variants)]
+        self._malformed_turn += 1
+        if variant == "invalid_json":
+            return variant, '{"op": "publish", "topic": "' + topic + '", "msg": {'
+        if variant == "not_object":
+            return variant, "[1, 2, 3]"
+        if variant == "unknown_op":
+            return variant, json.dumps({"op": "teleport", "topic": topic})
+        if variant == "binary":
+            return variant, b"\x00\x01binary"
+        bad = json.loads(json.dumps(msg))  # deep copy
+        if variant == "missing_field":
+            bad.pop("header", None)
+            bad.pop("data", None)
+        elif variant == "nan":
+            if sensor == "lidar":
+                bad["angle_increment"] = math.nan
+            elif sensor == "odometry":
+                bad["pose"]["pose"]["position"]["x"] = math.nan
+            elif sensor == "camera":
+                bad["data"] = [math.nan] + bad["data"]
+                bad["layout"]["dim"][0]["size"] += 1
+            else:
+                bad["pose"]["position"]["x"] = math.inf
+        elif variant == "wrong_length":
+            if sensor == "lidar":
+                bad["intensities"] = bad["intensities"][:-1]
+            elif sensor == "odometry":
+                bad["pose"]["covariance"] = bad["pose"]["covariance"][:-1]
+            else:
+                bad["layout"]["dim"][0]["size"] += 1
+        elif variant == "wrong_type":
+            if sensor == "lidar":
+                bad["ranges"][0] = "1.0"
+            elif sensor == "odometry":
+                bad["pose"]["pose"]["position"]["x"] = "0.5"
+            elif sensor == "camera":
+                bad["data"] = ["0.5"] + bad["data"]
+                bad["layout"]["dim"][0]["size"] += 1
+            else:
+                bad["pose"]["position"]["x"] = [0.5]
+        return variant, json.dumps({"op": "publish", "topic": topic, "msg": bad})
+
+    # ------------------------------------------------------------------ the robots
+    def _robot_commands(self) -> np.ndarray:
+        now = time.monotonic()
+        cmd = self._commands.copy()
+        cmd[now - self._command_time > self.robot_cmd_timeout_s] = 0.0
+        high = np.array([self.config.robot.max_speed_mps, self.config.robot.max_turn_rate_radps])
+        return np.clip(cmd, -high, high)
+
+    async def _sim_loop(self) -> None:
+        cfg = self.config
+        loop = asyncio.get_running_loop()
+        mono0 = time.monotonic()
+        wall0_ns = time.time_ns()
+
+        def stamp_ns(t_s: float) -> int:
+            return wall0_ns + int(round(t_s * 1e9))
+
+        # The odom frame starts where each robot stands.
+        for i, robot in enumerate(self.robot_ids):
+            self._publish(topics(robot)["odometry"],
+                          odometry_msg(stamp_ns(0.0), 0.0, 0.0, 0.0, 0.0, 0.0,
+                                       frame_id=f"{robot}/odom",
+                                       child_frame_id=f"{robot}/base_link"))
+        scan_time = 1.0 / cfg.lidar.rate_hz
+        while self._running:
+            step = await loop.run_in_executor(None, self.world.step, self._robot_commands())
+            self.sim_steps += 1
+            events: list[tuple[float, int, str, dict]] = []
+            for i, robot in enumerate(self.robot_ids):
+                names = topics(robot)
+                rec = step.measurements[robot]
+                for r in rec.odometry:
+                    x, y, yaw = self._odom_pose[i]
+                    dx, dy, dpsi = r.delta
+                    c, s = math.cos(yaw), math.sin(yaw)
+                    self._odom_pose[i] = (x + c * dx - s * dy, y + s * dx + c * dy,
+                                          math.remainder(yaw + dpsi, 2 * math.pi))
+                    events.append((r.stamp_s, 0, names["odometry"], odometry_msg(
+                        stamp_ns(r.stamp_s), *self._odom_pose[i], *r.velocity,
+                        frame_id=f"{robot}/odom", child_frame_id=f"{robot}/base_link")))
+                for r in rec.lidar:
+                    events.append((r.stamp_s, 1, names["lidar"], laser_scan_msg(
+                        stamp_ns(r.stamp_s), r.angles_rad, r.ranges_m, r.intensities,
+                        range_min_m=cfg.lidar.range_min_m, range_max_m=cfg.lidar.range_max_m,
+                        scan_time_s=scan_time, frame_id=f"{robot}/laser")))
+                for r in rec.camera:
+                    events.append((r.stamp_s, 2, names["camera"], bearings_msg(r.bearings_rad)))
+                if self.mocap and step.truth is not None:
+                    x, y, yaw = step.truth.poses[i]
+                    events.append((step.time_s, 3, names["mocap"],
+                                   pose_stamped_msg(stamp_ns(step.time_s), x, y, yaw)))
+            events.sort(key=lambda e: (e[0], e[1]))
+            for t_s, _, topic, msg in events:
+                delay = mono0 + t_s - time.monotonic()
+                if delay > 0:
+                    await asyncio.sleep(delay)
+                else:
+                    self.max_lag_s = max(self.max_lag_s, -delay)
+                self._publish(topic, msg)
+            # Next period starts when the wall clock reaches the end of this one.
+            delay = mono0 + step.time_s - time.monotonic()
+            if delay > 0:
+                await asyncio.sleep(delay)

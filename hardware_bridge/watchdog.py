@@ -1,0 +1,165 @@
+"""The safety watchdog: a steady-clock thread that sends zero velocity to every robot.
+
+It fires when
+
+* ``step()`` has not been called within ``timeout_s`` of the previous one returning (a stalled or
+  crashed controller: policy exception, debugger, blocked GC);
+* :meth:`trip` is called: ``close()``, an exception inside ``step()``, SIGINT, loss of the
+  transport (the zero command then goes out the moment the link is back).
+
+While tripped, the zero command is repeated every ``repeat_s`` until the next ``step()``, so a
+single lost message cannot leave a robot moving. The clock is ``time.monotonic`` (immune to NTP
+or chrony steps); ``threading.Event.wait`` uses it too.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import threading
+import time
+from collections.abc import Callable
+
+LOGGER = logging.getLogger("hardware_bridge")
+
+
+class Watchdog:
+    """Steady-clock dead-man switch.
+
+    Parameters
+    ----------
+    stop_all : callable(reason) -> None
+        Sends zero velocity to every robot. Must be thread-safe and must not block for long.
+    timeout_s : float
+        Allowed time between the end of one ``step()`` and the start of the next.
+    poll_s : float
+        Thread tick; the firing latency is at most ``timeout_s + poll_s``.
+    repeat_s : float
+        Re-send period of the zero command while tripped.
+    max_step_s : float
+        A single ``step()`` longer than this (a hung step) also trips the watchdog.
+    """
+
+    def __init__(self, stop_all: Callable[[str], None], timeout_s: float = 0.5,
+                 poll_s: float = 0.01, repeat_s: float = 0.25, max_step_s: float = 2.0) -> None:
+        self._stop_all = stop_all
+        self.timeout_s = timeout_s
+        self.poll_s = poll_s
+        self.repeat_s = repeat_s
+        self.max_step_s = max_step_s
+        self._lock = threading.RLock()
+        self._sigint_pending = False
+        self._armed = False
+        self._in_step = False
+        self._last_kick = time.monotonic()
+        self._tripped_at: float | None = None
+        self._last_stop = 0.0
+        self._closed = threading.Event()
+        self.trips: list[tuple[float, str]] = []  # (monotonic time, reason)
+        self._thread = threading.Thread(target=self._run, name="bridge-watchdog", daemon=True)
+        self._previous_sigint = None
+        self._thread.start()
+
+    # ------------------------------------------------------------------ controller side
+    def step_started(self) -> None:
+        with self._lock:
+            self._armed = True
+            self._in_step = True
+            self._last_kick = time.monotonic()
+            self._tripped_at = None
+
+    def step_finished(self) -> None:
+        with self._lock:
+            self._in_step = False
+            self._last_kick = time.monotonic()
+
+    def disarm(self) -> None:
+        """No controller is expected (before the first step, after a reset): no timeout."""
+        with self._lock:
+            self._armed = False
+            self._in_step = False
+
+    @property
+    def tripped(self) -> bool:
+        return self._tripped_at is not None
+
+    def trip(self, reason: str) -> None:
+        """Stop every robot now (from any thread) and keep them stopped until the next step."""
+        with self._lock:
+            now = time.monotonic()
+            self._tripped_at = now
+            self._last_stop = now
+            self._in_step = False
+            self.trips.append((now, reason))
+        LOGGER.warning("watchdog: stopping all robots (%s)", reason)
+        self._safe_stop(reason)
+
+    def close(self) -> None:
+        self._closed.set()
+        if self._thread.is_alive() and threading.current_thread() is not self._thread:
+            self._thread.join(timeout=1.0)
+        self.uninstall_sigint()
+
+    # ------------------------------------------------------------------ SIGINT
+    def install_sigint(self) -> bool:
+        """Trip on Ctrl-C before the usual ``KeyboardInterrupt`` (main thread only)."""
+        if threading.current_thread() is not threading.main_thread():
+            return False
+        previous = signal.getsignal(signal.SIGINT)
+
+        def handler(signum, frame):
+            # No locks or I/O in a signal handler (the main thread may hold them): flag it; the
+            # watchdog thread sends the stop within one poll tick.
+            self._sigint_pending = True
+            if callable(previous):
+                return previous(signum, frame)
+            raise KeyboardInterrupt
+
+        signal.signal(signal.SIGINT, handler)
+        self._previous_sigint = (handler, previous)
+        return True
+
+    def uninstall_sigint(self) -> None:
+        if self._previous_sigint is None:
+            return
+        if threading.current_thread() is not threading.main_thread():
+            return
+        handler, previous = self._previous_sigint
+        if signal.getsignal(signal.SIGINT) is handler:
+            signal.signal(signal.SIGINT, previous if previous is not None else signal.SIG_DFL)
+        self._previous_sigint = None
+
+    # ------------------------------------------------------------------ thread
+    def _run(self) -> None:
+        while not self._closed.wait(self.poll_s):
+            reason = None
+            if self._sigint_pending:
+                self._sigint_pending = False
+                self.trip("SIGINT")
+                continue
+            with self._lock:
+                now = time.monotonic()
+                if self._tripped_at is not None:
+                    if now - self._last_stop >= self.repeat_s:
+                        self._last_stop = now
+                        reason = "repeat"
+                elif self._armed:
+                    idle = now - self._last_kick
+                    if not self._in_step and idle > self.timeout_s:
+                        reason = f"step() not called for {idle:.3f} s"
+                    elif self._in_step and idle > self.max_step_s:
+                        reason = f"step() running for {idle:.3f} s"
+                    if reason is not None:
+                        self._tripped_at = now
+                        self._last_stop = now
+                        self.trips.append((now, reason))
+            if reason is not None:
+                if reason != "repeat":
+                    LOGGER.warning("watchdog: stopping all robots (%s)", reason)
+                self._safe_stop(reason)
+
+    def _safe_stop(self, reason: str) -> None:
+        try:
+            self._stop_all(reason)
+        except Exception:  # the watchdog must survive anything the transport throws
+            LOGGER.exception("watchdog: stop command failed")

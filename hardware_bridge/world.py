@@ -1,0 +1,512 @@
+"""RealWorld: the :class:`swarm_env.world.base.World` of a real swarm behind a rosbridge server.
+
+Timing (honest by construction):
+
+* ``step(commands)`` limits the commands (:class:`~hardware_bridge.safety.CommandLimiter`),
+  publishes them, notes the ROS time ``t_cmd``, waits out the control period on the steady
+  clock, and returns only records stamped in ``(t_cmd, now]``. Messages stamped before
+  ``t_cmd`` (measured before the robots got this step's commands, e.g. during the policy's
+  compute) are dropped and counted as ``<sensor>.pre_command``; future stamps (clock skew) wait
+  for the next step. Odometry increments always span from the last pose used, so dropping a
+  pose loses no motion.
+* A sensor whose newest message is older than its configured age at the end of a step is
+  reported in ``WorldStep.stale`` (the env puts it in ``infos[agent]["stale"]`` and does not
+  feed it to the filter).
+* ``reset()`` stops every robot and waits for fresh data from every robot; on timeout it raises
+  :class:`RobotsSilentError` listing the silent robots and sensors.
+
+ROS time is this host's ``time.time_ns()``; the robots' clocks must be synchronised to it
+(chrony, see ``docs/hardware.md``): a robot whose clock is behind by more than a sensor's stale
+age looks silent.
+"""
+
+from __future__ import annotations
+
+import atexit
+import logging
+import threading
+import time
+import weakref
+from collections import deque
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from hardware_bridge.assembly import RecordAssembler
+from hardware_bridge.config import FEED_SENSORS, BridgeConfig, make_bridge_config
+from hardware_bridge.messages import (
+    ROS_TYPES,
+    Counters,
+    InvalidMessage,
+    Pose,
+    check_robot_id,
+    ns_to_s,
+    parse_bearings,
+    parse_laser_scan,
+    parse_odometry,
+    parse_pose_stamped,
+    topics,
+    twist_msg,
+)
+from hardware_bridge.safety import CommandLimiter
+from hardware_bridge.transport import RosbridgeClient, Subscription, check_host
+from hardware_bridge.watchdog import Watchdog
+from swarm_env.config import SwarmConfig
+from swarm_env.world.base import WorldStep
+
+LOGGER = logging.getLogger("hardware_bridge")
+
+# One live RealWorld per (host, port, robot) per process: two controllers must never fight over
+# the same robot (e.g. an accidental second env or a vectorised copy).
+_ACTIVE: dict[tuple[str, int, str], weakref.ref] = {}
+_ACTIVE_LOCK = threading.Lock()
+
+
+class RobotsSilentError(TimeoutError):
+    """``reset()`` did not hear from every robot in time. ``silent`` maps robot -> sensors."""
+
+    def __init__(self, silent: dict[str, list[str]], timeout_s: float, connected: bool,
+                 where: str) -> None:
+        self.silent = silent
+        if not connected:
+            text = (f"could not connect to rosbridge at {where} within {timeout_s:.1f} s; "
+                    f"silent robots: {sorted(silent)}")
+        else:
+            parts = [f"{robot} ({', '.join(sensors)})" for robot, sensors in sorted(silent.items())]
+            text = (f"no fresh data within {timeout_s:.1f} s from {len(silent)} robot(s): "
+                    f"{'; '.join(parts)}. Check that the robots run their drivers and "
+                    f"rosbridge at {where} sees the topics, and that their clocks are "
+                    "synchronised (chrony).")
+        super().__init__(text)
+
+
+class _Buffer:
+    """Validated messages of one topic, newest last, bounded; plus freshness bookkeeping."""
+
+    __slots__ = ("items", "newest_ns", "last_payload", "last_arrival", "seen")
+
+    def __init__(self, maxlen: int) -> None:
+        self.items: deque = deque(maxlen=maxlen)
+        self.newest_ns = 0
+        self.last_payload: Any = None
+        self.last_arrival = -1.0
+        self.seen = False
+
+
+class RealWorld:
+    """Real robots as a :class:`~swarm_env.world.base.World` (see the module docstring).
+
+    Parameters
+    ----------
+    robot_ids : sequence of str
+        ROS namespaces of the robots (``ugv_0`` ...), in agent order.
+    config : SwarmConfig
+        The env's config: control period, robot limits, lidar feature extractor, rates.
+    host, port : rosbridge server. A non-loopback host needs ``allow_remote=True``.
+    bridge : BridgeConfig or dict, optional
+    recorder : :class:`hardware_bridge.bag.BagRecorder`, optional
+        Records every message the bridge uses and every command it sends.
+    clock_ns : callable, optional
+        ROS time in integer nanoseconds (default ``time.time_ns``).
+    """
+
+    def __init__(self, robot_ids: Sequence[str], config: SwarmConfig, *, host: str = "127.0.0.1",
+                 port: int = 9090, allow_remote: bool = False,
+                 bridge: BridgeConfig | dict | None = None, recorder: Any = None,
+                 clock_ns: Callable[[], int] = time.time_ns) -> None:
+        check_host(host, allow_remote)
+        if isinstance(port, bool) or not isinstance(port, int) or not 0 < port < 65536:
+            raise ValueError(f"port must be an int in 1..65535, got {port!r}")
+        ids = tuple(check_robot_id(r) for r in robot_ids)
+        if not ids:
+            raise ValueError("robots must name at least one robot")
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"robot ids must be unique, got {list(ids)}")
+        self.robot_ids = ids
+        self.config = config
+        self.bridge = make_bridge_config(bridge)
+        self.host, self.port = host, port
+        self.period_s = config.control_period_s
+        self._clock_ns = clock_ns
+        self.counters = Counters()
+        self.recorder = recorder
+        self.assembler = RecordAssembler(ids, config)
+        self.limiter = CommandLimiter(ids, self.bridge, config.robot, self.period_s, self.counters)
+        self._lock = threading.Lock()
+        self._sensors = FEED_SENSORS + (("mocap",) if self.bridge.use_mocap else ())
+        self._buffers = {(r, s): _Buffer(self.bridge.buffer_length)
+                         for r in ids for s in self._sensors}
+        self._nominal_period_s = {
+            "odometry": 1.0 / config.odometry.rate_hz,
+            "lidar": 1.0 / config.lidar.rate_hz,
+            "camera": 1.0 / config.camera.rate_hz,
+        }
+        self._mocap: dict[str, Pose | None] = {r: None for r in ids}  # newest, for the fence
+        self._truth_pose: dict[str, Pose | None] = {r: None for r in ids}
+        self._closed = False
+        self._step_index = 0
+        self._last_step_end_mono: float | None = None
+        self._last_end_ns = 0
+        self.timing = {"steps": 0, "overruns": 0, "max_gap_s": 0.0, "max_late_s": 0.0}
+
+        self._claim()
+        subscriptions, publications = [], {}
+        for robot in ids:
+            names = topics(robot)
+            for sensor in self._sensors:
+                subscriptions.append(Subscription(names[sensor], ROS_TYPES[sensor],
+                                                  self._callback(robot, sensor)))
+            publications[names["cmd_vel"]] = ROS_TYPES["cmd_vel"]
+        self._cmd_topics = [topics(r)["cmd_vel"] for r in ids]
+        self.client = RosbridgeClient(
+            host, port, subscriptions=subscriptions, publications=publications,
+            config=self.bridge, counters=self.counters,
+            on_ready=self._on_link_up, on_lost=self._on_link_lost,
+        )
+        self.watchdog = Watchdog(
+            self._stop_all, timeout_s=self.bridge.watchdog_timeout_s,
+            poll_s=self.bridge.watchdog_poll_s, repeat_s=self.bridge.watchdog_repeat_s,
+            max_step_s=self.period_s + 2.0,
+        )
+        self.watchdog.install_sigint()
+        self._atexit = self._make_atexit()
+        atexit.register(self._atexit)
+        self.client.start()
+
+    # ------------------------------------------------------------------ pickling / copies
+    def __reduce_ex__(self, protocol):
+        raise TypeError(
+            "RealWorld cannot be pickled or copied: it drives real robots. Run the bridge env in "
+            "one process, unvectorised (no SuperSuit/gymnasium vector envs, no subprocess copies)."
+        )
+
+    def __getstate__(self):
+        self.__reduce_ex__(2)
+
+    def __copy__(self):
+        self.__reduce_ex__(2)
+
+    def __deepcopy__(self, memo):
+        self.__reduce_ex__(2)
+
+    # ------------------------------------------------------------------ World API
+    def reset(self, rng: np.random.Generator | None = None) -> WorldStep:
+        """Stop the robots, wait for fresh data from every robot, return the first records."""
+        if self._closed:
+            raise RuntimeError("RealWorld.reset() after close()")
+        self.watchdog.disarm()
+        where = f"{self.host}:{self.port}"
+        deadline = time.monotonic() + self.bridge.reset_timeout_s
+        if not self.client.wait_connected(self.bridge.connect_timeout_s):
+            silent = {r: list(self.bridge.required_sensors) for r in self.robot_ids}
+            raise RobotsSilentError(silent, self.bridge.connect_timeout_s, False, where)
+        self._stop_all("reset")
+        start_ns = self._clock_ns()
+        with self._lock:
+            for buf in self._buffers.values():
+                buf.items.clear()
+        self.assembler.reset()
+        self.limiter.stopped()
+        self._step_index = 0
+        while True:
+            silent = self._silent_since(start_ns)
+            if not silent:
+                break
+            if time.monotonic() >= deadline:
+                raise RobotsSilentError(silent, self.bridge.reset_timeout_s,
+                                        self.client.connected, where)
+            time.sleep(0.01)
+        end_ns = self._clock_ns()
+        taken = self._take(start_ns, end_ns)
+        # Records of the reset: the newest scan and camera frame of each robot; the newest
+        # odometry pose only sets the baseline of the increments.
+        used = {}
+        for robot in self.robot_ids:
+            used[robot] = {
+                "odometry": taken[robot].get("odometry", [])[-1:],
+                "lidar": taken[robot].get("lidar", [])[-1:],
+                "camera": taken[robot].get("camera", [])[-1:],
+                "mocap": taken[robot].get("mocap", [])[-1:],
+            }
+            self.assembler.odometry(robot, [m for m, _ in used[robot]["odometry"]])
+        self._truth_pose = {r: None for r in self.robot_ids}
+        per_robot = {r: {"lidar": [m for m, _ in used[r]["lidar"]],
+                         "camera": [m for m, _ in used[r]["camera"]]}
+                     for r in self.robot_ids}
+        measurements = self.assembler.measurements(per_robot)
+        truth = self._truth(used, end_ns)
+        stale = self._stale(end_ns)
+        self._last_end_ns = end_ns
+        if self.recorder is not None:
+            self.recorder.record_step("reset", 0, end_ns, used, None, stale)
+        self._last_step_end_mono = time.monotonic()
+        return WorldStep(time_s=ns_to_s(end_ns), measurements=measurements, truth=truth,
+                         stale=stale)
+
+    def step(self, commands: np.ndarray) -> WorldStep:
+        if self._closed:
+            raise RuntimeError("RealWorld.step() after close()")
+        self.watchdog.step_started()
+        try:
+            return self._step(commands)
+        except BaseException as exc:
+            self.watchdog.trip(f"exception in step(): {type(exc).__name__}")
+            raise
+        finally:
+            if not self.watchdog.tripped:
+                self.watchdog.step_finished()
+
+    def close(self) -> None:
+        """Stop every robot (zero velocity, flushed), disconnect, release the robots."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self.watchdog.trip("close()")
+            self.client.flush(1.0)
+        finally:
+            self.watchdog.close()
+            self.client.close()
+            if self.recorder is not None:
+                self.recorder.close()
+            self._release()
+            try:
+                atexit.unregister(self._atexit)
+            except Exception:  # noqa: BLE001
+                pass
+
+    # ------------------------------------------------------------------ stepping internals
+    def _step(self, commands: np.ndarray) -> WorldStep:
+        start_mono = time.monotonic()
+        if self._last_step_end_mono is not None:
+            gap = start_mono - self._last_step_end_mono
+            self.timing["max_gap_s"] = max(self.timing["max_gap_s"], gap)
+        limited = self.limiter.limit(commands, self._fresh_mocap())
+        t_cmd_ns = self._clock_ns()
+        cmd_mono = time.monotonic()
+        sent = self.client.publish([(topic, twist_msg(v, w))
+                                    for topic, (v, w) in zip(self._cmd_topics, limited)])
+        if not sent:
+            self.counters.incr("commands.not_sent_steps")
+        # Wait out the period on the steady clock.
+        deadline = cmd_mono + self.period_s
+        while True:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                break
+            time.sleep(min(remaining, 0.02))
+        late = time.monotonic() - deadline
+        self.timing["max_late_s"] = max(self.timing["max_late_s"], late)
+        if late > 0.5 * self.period_s:
+            self.timing["overruns"] += 1
+        end_ns = self._clock_ns()
+        after_ns = t_cmd_ns if self.bridge.drop_pre_command else self._last_end_ns
+        used = self._take(after_ns, end_ns)
+        self._last_end_ns = end_ns
+        per_robot = {r: {s: [m for m, _ in used[r].get(s, [])] for s in FEED_SENSORS}
+                     for r in self.robot_ids}
+        measurements = self.assembler.measurements(per_robot)
+        truth = self._truth(used, end_ns)
+        stale = self._stale(end_ns)
+        self._step_index += 1
+        self.timing["steps"] += 1
+        if self.recorder is not None:
+            self.recorder.record_step("step", self._step_index, end_ns, used,
+                                      (t_cmd_ns, limited) if sent else None, stale)
+        self._last_step_end_mono = time.monotonic()
+        return WorldStep(time_s=ns_to_s(end_ns), measurements=measurements, truth=truth,
+                         stale=stale)
+
+    def _take(self, after_ns: int, until_ns: int) -> dict[str, dict[str, list]]:
+        """Remove and return buffered ``(parsed, raw)`` messages stamped in
+        ``(after_ns, until_ns]``, oldest first; older ones are dropped (``pre_command``),
+        newer ones (clock skew) stay for the next step."""
+        out: dict[str, dict[str, list]] = {r: {} for r in self.robot_ids}
+        with self._lock:
+            for (robot, sensor), buf in self._buffers.items():
+                keep, take = [], []
+                for item in buf.items:
+                    stamp = item[0].stamp_ns
+                    if stamp <= after_ns:
+                        self.counters.incr(f"{sensor}.pre_command")
+                    elif stamp <= until_ns:
+                        take.append(item)
+                    else:
+                        keep.append(item)
+                buf.items.clear()
+                buf.items.extend(keep)
+                take.sort(key=lambda it: it[0].stamp_ns)
+                out[robot][sensor] = take
+        return out
+
+    def _truth(self, used: dict[str, dict[str, list]], end_ns: int):
+        """Ground truth from the newest mocap pose of each robot taken so far, if every robot
+        has one no older than ``stale_mocap_s`` (the replay applies the same rule)."""
+        if not self.bridge.use_mocap:
+            return None
+        for robot in self.robot_ids:
+            poses = used[robot].get("mocap", [])
+            if poses:
+                self._truth_pose[robot] = poses[-1][0]
+        limit_ns = self.bridge.stale_mocap_s * 1e9
+        fresh = {r: (p if p is not None and end_ns - p.stamp_ns <= limit_ns else None)
+                 for r, p in self._truth_pose.items()}
+        return self.assembler.truth(fresh)
+
+    def _silent_since(self, start_ns: int) -> dict[str, list[str]]:
+        silent: dict[str, list[str]] = {}
+        with self._lock:
+            for robot in self.robot_ids:
+                missing = [s for s in self.bridge.required_sensors
+                           if self._buffers[(robot, s)].newest_ns <= start_ns]
+                if missing:
+                    silent[robot] = missing
+        return silent
+
+    def _stale(self, now_ns: int) -> dict[str, tuple[str, ...]]:
+        out = {}
+        with self._lock:
+            for robot in self.robot_ids:
+                stale = []
+                for sensor in self._sensors:
+                    buf = self._buffers[(robot, sensor)]
+                    if sensor == "mocap" and not buf.seen and "mocap" not in \
+                            self.bridge.required_sensors:
+                        continue  # no mocap in this lab: not "stale", just absent
+                    age_s = (now_ns - buf.newest_ns) * 1e-9
+                    if age_s > self.bridge.stale_age_s(sensor):
+                        stale.append(sensor)
+                if stale:
+                    out[robot] = tuple(stale)
+        for robot, sensors in out.items():
+            for sensor in sensors:
+                self.counters.incr(f"{sensor}.stale_steps")
+        return out
+
+    def _fresh_mocap(self, now_ns: int | None = None) -> dict[str, Pose | None]:
+        now_ns = self._clock_ns() if now_ns is None else now_ns
+        limit_ns = self.bridge.stale_mocap_s * 1e9
+        with self._lock:
+            return {r: (p if p is not None and now_ns - p.stamp_ns <= limit_ns else None)
+                    for r, p in self._mocap.items()}
+
+    # ------------------------------------------------------------------ receive side
+    def _callback(self, robot: str, sensor: str) -> Callable[[Any], None]:
+        key = sensor
+        topic = topics(robot)[sensor]
+        buf = self._buffers[(robot, sensor)]
+        bridge = self.bridge
+        nominal = self._nominal_period_s.get(sensor)
+
+        def on_message(msg: Any) -> None:
+            try:
+                self.counters.incr(f"{key}.received")
+                arrival = time.monotonic()
+                if sensor == "lidar":
+                    parsed = parse_laser_scan(msg, bridge.max_beams)
+                elif sensor == "odometry":
+                    parsed = parse_odometry(msg)
+                elif sensor == "camera":
+                    parsed = parse_bearings(msg, self._clock_ns(), bridge.max_bearings)
+                else:
+                    parsed = parse_pose_stamped(msg)
+            except InvalidMessage as exc:
+                self.counters.reject(f"{key}.invalid", f"{robot} {sensor}: {exc}")
+                return
+            except Exception as exc:  # noqa: BLE001 - never let a message kill the reactor
+                self.counters.reject(f"{key}.invalid", f"{robot} {sensor}: {exc!r}")
+                return
+            with self._lock:
+                if sensor == "camera":
+                    # No header: a duplicate is the same payload again within a few ms.
+                    if (buf.last_payload is not None
+                            and arrival - buf.last_arrival < bridge.duplicate_window_s
+                            and np.array_equal(buf.last_payload, parsed.bearings_rad)):
+                        self.counters.incr(f"{key}.duplicate")
+                        return
+                    buf.last_payload = parsed.bearings_rad
+                else:
+                    if parsed.stamp_ns == buf.newest_ns:
+                        self.counters.incr(f"{key}.duplicate")
+                        return
+                    if parsed.stamp_ns < buf.newest_ns:
+                        self.counters.incr(f"{key}.out_of_order")
+                        return
+                    if buf.newest_ns and nominal is not None:
+                        gap_s = (parsed.stamp_ns - buf.newest_ns) * 1e-9
+                        missed = int(round(gap_s / nominal)) - 1
+                        if missed > 0:
+                            self.counters.incr(f"{key}.missed_estimate", missed)
+                buf.last_arrival = arrival
+                buf.newest_ns = max(buf.newest_ns, parsed.stamp_ns)
+                buf.seen = True
+                if sensor == "mocap":
+                    self._mocap[robot] = parsed
+                if len(buf.items) == buf.items.maxlen:
+                    self.counters.incr(f"{key}.overflow")
+                buf.items.append((parsed, (topic, parsed.stamp_ns, msg)))
+            self.counters.incr(f"{key}.accepted")
+
+        return on_message
+
+    # ------------------------------------------------------------------ safety side
+    def _stop_all(self, reason: str) -> None:
+        """Zero velocity to every robot (thread-safe; dropped and counted if the link is down)."""
+        self.limiter.stopped()
+        zero = twist_msg(0.0, 0.0)
+        if self.client.publish([(topic, zero) for topic in self._cmd_topics]):
+            self.counters.incr("watchdog.stop_commands")
+            if self.recorder is not None and reason != "repeat":
+                self.recorder.record_stop(self._clock_ns(), self.robot_ids)
+        else:
+            self.counters.incr("watchdog.stop_unsent")
+
+    def _on_link_up(self) -> None:
+        # First thing on every (re)connection: stop every robot.
+        self.limiter.stopped()
+        zero = twist_msg(0.0, 0.0)
+        self.client.publish([(topic, zero) for topic in self._cmd_topics])
+
+    def _on_link_lost(self) -> None:
+        self.watchdog.trip("transport lost")
+
+    def _make_atexit(self) -> Callable[[], None]:
+        ref = weakref.ref(self)
+
+        def _exit() -> None:
+            world = ref()
+            if world is not None:
+                world.close()
+
+        return _exit
+
+    # ------------------------------------------------------------------ ownership
+    def _claim(self) -> None:
+        with _ACTIVE_LOCK:
+            for robot in self.robot_ids:
+                key = (self.host, self.port, robot)
+                other = _ACTIVE.get(key)
+                if other is not None and other() is not None and not other()._closed:
+                    raise RuntimeError(
+                        f"robot {robot!r} at {self.host}:{self.port} is already driven by "
+                        "another open RealWorld in this process; close() it first (the bridge "
+                        "env cannot be vectorised or copied)"
+                    )
+            for robot in self.robot_ids:
+                _ACTIVE[(self.host, self.port, robot)] = weakref.ref(self)
+
+    def _release(self) -> None:
+        with _ACTIVE_LOCK:
+            for robot in self.robot_ids:
+                key = (self.host, self.port, robot)
+                ref = _ACTIVE.get(key)
+                if ref is not None and ref() is self:
+                    del _ACTIVE[key]
+
+    # ------------------------------------------------------------------ reporting
+    def counters_snapshot(self) -> dict[str, int]:
+        return self.counters.snapshot()
+
+    def rejected_total(self) -> int:
+        return self.counters.total(".invalid") + self.counters.get("transport.malformed")

@@ -1,0 +1,209 @@
+"""Camera colour-blob bearings: geometry, occlusion, range, noise statistics, determinism."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from swarm_env.sensors.camera import CameraConfig, CameraSensor
+from tests.swarm_env.scene_factory import SceneBuilder, make_arena_scene
+
+EXACT = CameraConfig(bearing_noise_std_deg=0.0, miss_probability=0.0, false_positive_rate=0.0)
+DEG = math.pi / 180.0
+
+
+def observe(scene, robots=(0,), config=EXACT, seed=0):
+    return CameraSensor(config).observe(scene, np.asarray(robots), np.random.default_rng(seed))
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [
+        ("rate_hz", 0.0),
+        ("range_max_m", 0.05),
+        ("bearing_noise_std_deg", -1.0),
+        ("miss_probability", 1.5),
+        ("false_positive_rate", -0.1),
+    ],
+)
+def test_config_rejects_bad_values_naming_the_field(field, value):
+    with pytest.raises(ValueError, match=field):
+        CameraConfig(**{field: value})
+
+
+def test_frame_signs_robot_on_the_right_is_at_minus_90_deg():
+    b = SceneBuilder()
+    b.add_robot(0.0, 0.0, yaw_rad=math.pi / 2)  # facing world +y
+    b.add_robot(1.0, 0.0)  # world +x: the observer's right
+    batch = observe(b.build())
+    np.testing.assert_allclose(batch.bearings[0], [-math.pi / 2], atol=1e-12)
+    np.testing.assert_array_equal(batch.visible, [[False, True]])
+
+
+def test_bearings_in_a_rotated_observer_frame():
+    b = SceneBuilder()
+    b.add_robot(1.0, 1.0, yaw_rad=0.7)
+    targets = [(2.0, 1.5), (0.0, 2.5), (-0.5, 0.2), (1.5, -1.0)]
+    for x, y in targets:
+        b.add_robot(x, y)
+    batch = observe(b.build())
+    expected = [
+        (math.atan2(y - 1.0, x - 1.0) - 0.7 + math.pi) % (2 * math.pi) - math.pi
+        for x, y in targets
+    ]
+    np.testing.assert_allclose(batch.bearings[0], np.sort(expected), atol=1e-12)
+    assert np.all(np.diff(batch.bearings[0]) >= 0)  # sorted: no identity leaks through order
+
+
+def test_out_of_range_and_too_close_are_not_seen():
+    b = SceneBuilder()
+    b.add_robot(0.0, 0.0)
+    b.add_robot(3.9, 0.0)
+    b.add_robot(0.0, 4.1)
+    b.add_robot(-0.05, 0.0, housing=False)  # closer than range_min (geometry only)
+    batch = observe(b.build())
+    np.testing.assert_array_equal(batch.visible, [[False, True, False, False]])
+
+
+def test_box_and_other_robot_occlude_but_own_circles_do_not():
+    b = SceneBuilder()
+    b.add_robot(0.0, 0.0)
+    b.add_robot(2.0, 0.0)  # behind a box
+    b.add_box(1.0, 0.0, 0.2, 0.6)
+    b.add_robot(0.0, 1.0)  # in front of robot 3
+    b.add_robot(0.0, 2.5)  # hidden by robot 2's strip
+    b.add_robot(-1.5, 0.0)  # clear
+    batch = observe(b.build())
+    np.testing.assert_array_equal(batch.visible[0], [False, False, True, False, True])
+    assert len(batch.bearings[0]) == 2
+
+
+def test_decoy_post_occludes_red_decoy_is_seen_as_a_robot_bearing():
+    b = SceneBuilder()
+    b.add_robot(0.0, 0.0)
+    red = b.add_red_decoy(0.0, -1.5)
+    b.add_robot(1.5, 0.0)
+    b.add_post(0.8, 0.0)  # blocks robot 1's strip
+    batch = observe(b.build())
+    np.testing.assert_array_equal(batch.visible, [[False, False]])
+    np.testing.assert_allclose(batch.bearings[0], [-math.pi / 2])
+    np.testing.assert_array_equal(batch.sources[0], [red])
+    assert batch.target_visible[0, batch.target_index == red].all()
+
+
+def test_occlusion_is_symmetric_between_observers():
+    b = SceneBuilder()
+    for x in (0.0, 1.0, 2.0):
+        b.add_robot(x, 0.0)
+    batch = observe(b.build(), robots=(0, 1, 2))
+    np.testing.assert_array_equal(
+        batch.visible,
+        [[False, True, False], [True, False, True], [False, True, False]],
+    )
+
+
+def test_vectorised_visibility_matches_a_loop():
+    scene = make_arena_scene(np.random.default_rng(3))
+    cam = CameraSensor(EXACT)
+    target, visible, bearing = cam.visibility(scene, np.arange(scene.n_robots))
+    occ = np.flatnonzero(scene.circle_camera_occluder)
+    for k in range(scene.n_robots):
+        o = scene.robot_xy[k]
+        for ti, c in enumerate(target):
+            p = scene.circle_xy[c]
+            d = p - o
+            dist = math.hypot(*d)
+            ok = scene.circle_owner[c] != k and EXACT.range_min_m <= dist <= EXACT.range_max_m
+            if not ok:
+                assert not visible[k, ti]
+                continue
+            for s in range(scene.segment_a.shape[0]):
+                a, e = scene.segment_a[s], scene.segment_b[s] - scene.segment_a[s]
+                den = d[0] * e[1] - d[1] * e[0]
+                if den == 0:
+                    continue
+                u = ((a - o)[0] * e[1] - (a - o)[1] * e[0]) / den
+                v = ((a - o)[0] * d[1] - (a - o)[1] * d[0]) / den
+                if 0 < u < 1 and 0 < v < 1:
+                    ok = False
+            for j in occ:
+                if j == c or scene.circle_owner[j] == k:
+                    continue
+                if scene.circle_owner[c] >= 0 and scene.circle_owner[j] == scene.circle_owner[c]:
+                    continue
+                s = np.clip(np.dot(scene.circle_xy[j] - o, d) / dist**2, 0, 1)
+                if np.linalg.norm(o + s * d - scene.circle_xy[j]) < scene.circle_radius_m[j]:
+                    ok = False
+            assert visible[k, ti] == ok, (k, c)
+    assert 0 < visible.sum() < visible.size
+
+
+def test_miss_probability_and_false_positive_statistics():
+    b = SceneBuilder()
+    b.add_robot(0.0, 0.0)
+    b.add_robot(1.0, 0.0)
+    b.add_robot(-1.0, 1.0)
+    scene = b.build()
+    config = CameraConfig(miss_probability=0.3, false_positive_rate=0.5)
+    n = 4000
+    batch = observe(scene, robots=np.zeros(n, int), config=config, seed=11)
+    sources = np.concatenate(batch.sources)
+    bearings = np.concatenate(batch.bearings)
+    detected = (sources >= 0).sum() / (2 * n)
+    clutter = bearings[sources < 0]
+    assert detected == pytest.approx(0.7, abs=0.02)
+    assert clutter.size / n == pytest.approx(0.5, abs=0.04)
+    # Clutter is uniform on the circle: mean resultant length ~ 0.
+    assert abs(np.mean(np.exp(1j * clutter))) < 0.05
+    assert np.all((bearings >= -math.pi) & (bearings < math.pi))
+
+
+def test_bearing_noise_has_the_configured_sigma():
+    b = SceneBuilder()
+    b.add_robot(0.0, 0.0)
+    b.add_robot(-2.0, 0.001)  # near the +/-pi seam: errors must be wrapped
+    config = dataclasses.replace(EXACT, bearing_noise_std_deg=5.0)
+    batch = observe(b.build(), robots=np.zeros(3000, int), config=config, seed=5)
+    bearings = np.concatenate(batch.bearings)
+    err = (bearings - math.atan2(0.001, -2.0) + math.pi) % (2 * math.pi) - math.pi
+    assert err.std() == pytest.approx(5.0 * DEG, rel=0.05)
+    assert abs(err.mean()) < 0.5 * DEG
+
+
+def test_deterministic_given_rng_and_scene_untouched():
+    scene = make_arena_scene(np.random.default_rng(2))
+    for f in dataclasses.fields(scene):
+        if getattr(scene, f.name) is not None:
+            getattr(scene, f.name).setflags(write=False)  # any write raises
+    cam = CameraSensor()
+    a = cam.observe(scene, np.arange(20), np.random.default_rng(4))
+    b = cam.observe(scene, np.arange(20), np.random.default_rng(4))
+    c = cam.observe(scene, np.arange(20), np.random.default_rng(5))
+    for x, y in zip(a.bearings, b.bearings, strict=True):
+        np.testing.assert_array_equal(x, y)
+    np.testing.assert_array_equal(a.visible, b.visible)
+    assert any(not np.array_equal(x, y) for x, y in zip(a.bearings, c.bearings, strict=True))
+
+
+def test_visible_columns_cover_sensorless_owners():
+    b = SceneBuilder()
+    b.add_robot(0.0, 0.0)
+    b.add_robot(1.0, 0.0)
+    b.add_circle(0.0, 1.0, 0.05, owner=2, red=True, occluder=True)  # an intruder's strip
+    batch = observe(b.build())
+    np.testing.assert_array_equal(batch.visible, [[False, True, True]])
+
+
+def test_observe_rejects_unknown_robots():
+    b = SceneBuilder()
+    b.add_robot(0.0, 0.0)
+    with pytest.raises(ValueError, match="robots"):
+        observe(b.build(), robots=(1,))
+
+
+def test_empty_observers():
+    batch = observe(make_arena_scene(np.random.default_rng(0)), robots=np.zeros(0, int))
+    assert batch.bearings == [] and batch.visible.shape == (0, 20)

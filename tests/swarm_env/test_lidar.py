@@ -1,0 +1,535 @@
+"""Lidar ray casting, interference and the feature extractor vs analytic cases and a naive loop."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from swarm_env.sensors.lidar import (
+    HIT_CIRCLE,
+    HIT_NONE,
+    HIT_SEGMENT,
+    LidarConfig,
+    LidarSensor,
+)
+from swarm_env.sensors.lidar_features import (
+    LidarFeatureConfig,
+    extract_clusters,
+    extract_detections,
+    null_bearings,
+)
+from tests.swarm_env.scene_factory import (
+    HOUSING_RADIUS_M,
+    POST_RADIUS_M,
+    SceneBuilder,
+    make_arena_scene,
+)
+
+# Exact geometry: no noise, no blind sectors, no interference.
+EXACT = LidarConfig(
+    range_noise_std_m=0.0,
+    intensity_noise_std=0.0,
+    blind_sector_centers_deg=(),
+    blind_sector_widths_deg=(),
+    interference_tolerance_deg=0.0,
+)
+DEG = math.pi / 180.0
+
+
+def scan_one(scene, robot=0, config=EXACT, seed=0, stamp=1.0, sensor=None):
+    sensor = sensor or LidarSensor(config, scene.n_robots)
+    batch = sensor.scan(scene, np.array([robot]), np.array([stamp]), np.random.default_rng(seed))
+    return sensor, batch
+
+
+def beam_index(angle_rad: float, n_beams: int = 720) -> int:
+    return int(round((angle_rad + math.pi) / (2 * math.pi / n_beams))) % n_beams
+
+
+def rel_world(x0, y0, yaw, bearing, dist):
+    """World point at robot-frame bearing/distance from a robot at (x0, y0, yaw)."""
+    return x0 + dist * math.cos(yaw + bearing), y0 + dist * math.sin(yaw + bearing)
+
+
+# --------------------------------------------------------------------------- config
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [
+        ("rate_hz", -7.0),
+        ("n_beams", 0),
+        ("range_min_m", -0.1),
+        ("range_max_m", 0.1),
+        ("range_noise_std_m", -0.01),
+        ("interference_tolerance_deg", 200.0),
+        ("head_rate_jitter_hz", 8.0),
+    ],
+)
+def test_config_rejects_bad_values_naming_the_field(field, value):
+    with pytest.raises(ValueError, match=field):
+        LidarConfig(**{field: value})
+
+
+def test_config_rejects_mismatched_blind_sectors():
+    with pytest.raises(ValueError, match="blind_sector_widths_deg"):
+        LidarConfig(blind_sector_centers_deg=(45.0,), blind_sector_widths_deg=(10.0, 10.0))
+
+
+def test_beam_angles_follow_the_convention():
+    sensor = LidarSensor(LidarConfig(), 1)
+    angles = sensor.angles_rad
+    assert angles.shape == (720,)
+    assert angles[0] == -math.pi
+    np.testing.assert_allclose(np.diff(angles), 0.5 * DEG, atol=1e-12)
+    assert angles.max() < math.pi
+
+
+# --------------------------------------------------------------------------- analytic ranges
+
+
+@pytest.mark.parametrize("yaw", [0.0, 0.3, -2.9])
+def test_beam_through_circle_centre_returns_distance_minus_radius(yaw):
+    b = SceneBuilder()
+    b.add_robot(1.0, 2.0, yaw_rad=yaw)
+    bearing = -30.0 * DEG  # beam 300 exactly
+    x, y = rel_world(1.0, 2.0, yaw, bearing, 1.5)
+    b.add_robot(x, y, yaw_rad=0.7)
+    _, batch = scan_one(b.build())
+    k = beam_index(bearing)
+    assert batch.angles_rad[k] == pytest.approx(bearing)
+    assert batch.ranges_m[0, k] == pytest.approx(1.5 - HOUSING_RADIUS_M, abs=1e-9)
+    assert batch.hit_owner[0, k] == 1
+    assert batch.hit_kind[0, k] == HIT_CIRCLE
+
+
+def test_wall_at_two_metres_returns_two_over_cos():
+    b = SceneBuilder()
+    b.add_robot(0.0, 0.0)
+    b.add_segment(2.0, -50.0, 2.0, 50.0)
+    _, batch = scan_one(b.build())
+    a = batch.angles_rad
+    expected = 2.0 / np.cos(a)
+    in_reach = (np.abs(a) < math.pi / 2) & (expected <= EXACT.range_max_m)
+    np.testing.assert_allclose(batch.ranges_m[0, in_reach], expected[in_reach], rtol=1e-12)
+    assert np.all(batch.ranges_m[0, ~in_reach] == 0.0)
+    assert np.all(batch.hit_kind[0, in_reach] == HIT_SEGMENT)
+    assert np.all(batch.hit_kind[0, ~in_reach] == HIT_NONE)
+    assert np.all(batch.hit_owner[0] == -1)
+
+
+def test_corner_beam_is_not_lost_between_two_walls():
+    b = SceneBuilder()
+    b.add_robot(0.0, 0.0)
+    b.add_walls(6.0, 6.0)  # beam 450 (+45 deg) goes exactly through the corner (3, 3)
+    _, batch = scan_one(b.build())
+    assert np.all(batch.ranges_m[0] > 0.0)
+    assert batch.ranges_m[0, beam_index(45 * DEG)] == pytest.approx(3.0 * math.sqrt(2.0))
+
+
+def test_range_limits_drop_returns():
+    b = SceneBuilder()
+    b.add_robot(0.0, 0.0)
+    b.add_circle(11.0, 0.0, 0.5)  # nearest point 10.5 m > range_max
+    b.add_circle(0.0, 0.1, 0.0)  # zero-radius: never hit
+    b.add_circle(-0.08, 0.0, 0.03)  # every point it shows is nearer than range_min
+    _, batch = scan_one(b.build())
+    assert np.all(batch.ranges_m == 0.0)
+    assert np.all(batch.intensities == 0.0)
+    assert np.all(batch.hit_kind == HIT_NONE)
+
+
+def test_own_circles_and_non_lidar_circles_are_ignored():
+    b = SceneBuilder()
+    b.add_robot(0.0, 0.0)  # own housing and strip surround the sensor
+    b.add_circle(1.0, 0.0, 0.1, lidar=False)  # above lidar height
+    b.add_segment(2.0, -1.0, 2.0, 1.0)
+    _, batch = scan_one(b.build())
+    assert batch.ranges_m[0, beam_index(0.0)] == pytest.approx(2.0)
+
+
+def naive_scan(scene, robot, config):
+    """Reference: loop over every beam and every shape with textbook formulas."""
+    n_beams = config.n_beams
+    ox, oy = scene.robot_xy[robot]
+    yaw = scene.robot_yaw[robot]
+    ranges = np.zeros(n_beams)
+    owners = np.full(n_beams, -1)
+    for k in range(n_beams):
+        theta = yaw - math.pi + k * 2 * math.pi / n_beams
+        ux, uy = math.cos(theta), math.sin(theta)
+        best, best_owner = math.inf, -1
+        for c in range(scene.circle_xy.shape[0]):
+            if not scene.circle_lidar[c] or scene.circle_owner[c] == robot:
+                continue
+            px, py = scene.circle_xy[c, 0] - ox, scene.circle_xy[c, 1] - oy
+            r = scene.circle_radius_m[c]
+            tc = px * ux + py * uy
+            disc = r * r - (px * px + py * py - tc * tc)
+            if disc < 0 or px * px + py * py <= r * r:
+                continue
+            t = tc - math.sqrt(disc)
+            if 0 < t < best:
+                best, best_owner = t, scene.circle_owner[c]
+        for s in range(scene.segment_a.shape[0]):
+            ax, ay = scene.segment_a[s, 0] - ox, scene.segment_a[s, 1] - oy
+            ex = scene.segment_b[s, 0] - scene.segment_a[s, 0]
+            ey = scene.segment_b[s, 1] - scene.segment_a[s, 1]
+            den = ux * ey - uy * ex
+            if den == 0:
+                continue
+            t = (ax * ey - ay * ex) / den
+            u = (ax * uy - ay * ux) / den
+            if 0 <= u <= 1 and 0 < t < best:
+                best, best_owner = t, -1
+        if config.range_min_m <= best <= config.range_max_m:
+            ranges[k], owners[k] = best, best_owner
+    return ranges, owners
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_vectorised_scan_matches_naive_loop(seed):
+    scene = make_arena_scene(np.random.default_rng(seed), n_robots=8, n_posts=5, n_boxes=3)
+    robots = np.array([0, 3, 7])
+    sensor = LidarSensor(EXACT, scene.n_robots)
+    batch = sensor.scan(scene, robots, np.ones(3), np.random.default_rng(0))
+    for row, robot in enumerate(robots):
+        ranges, owners = naive_scan(scene, robot, EXACT)
+        np.testing.assert_allclose(batch.ranges_m[row], ranges, rtol=0, atol=1e-9)
+        np.testing.assert_array_equal(batch.hit_owner[row], owners)
+    assert np.any(batch.hit_owner >= 0)  # the comparison covered robot hits too
+
+
+# --------------------------------------------------------------------------- noise, intensity
+
+
+def test_range_noise_is_gaussian_with_the_configured_sigma():
+    b = SceneBuilder()
+    b.add_robot(0.0, 0.0)
+    b.add_walls(6.0, 6.0)
+    scene = b.build()
+    config = dataclasses.replace(EXACT, range_noise_std_m=0.01)
+    sensor = LidarSensor(config, 1)
+    exact = LidarSensor(EXACT, 1).scan(scene, [0], [0.0], np.random.default_rng(0)).ranges_m
+    batch = sensor.scan(scene, np.zeros(50, int), np.zeros(50), np.random.default_rng(3))
+    err = batch.ranges_m - exact
+    assert abs(err.mean()) < 5e-4
+    assert err.std() == pytest.approx(0.01, rel=0.05)
+
+
+def test_intensity_positive_exactly_on_valid_returns():
+    scene = make_arena_scene(np.random.default_rng(4))
+    sensor = LidarSensor(LidarConfig(), scene.n_robots)
+    sensor.reset(np.random.default_rng(5))
+    batch = sensor.scan(scene, np.arange(6), np.full(6, 2.0), np.random.default_rng(6))
+    valid = batch.ranges_m > 0
+    assert np.all(batch.intensities[valid] > 0)
+    assert np.all(batch.intensities[~valid] == 0)
+    assert valid.mean() > 0.8
+
+
+def test_intensity_falls_with_range():
+    b = SceneBuilder()
+    b.add_robot(0.0, 0.0)
+    b.add_segment(1.0, -0.5, 1.0, 0.5, intensity=1.0)
+    b.add_segment(-3.0, -0.5, -3.0, 0.5, intensity=1.0)
+    _, batch = scan_one(b.build())
+    near, far = batch.intensities[0, beam_index(0.0)], batch.intensities[0, 0]
+    assert 0 < far < near
+
+
+# --------------------------------------------------------------------------- blind sectors
+
+
+def test_blind_sector_beams_return_nothing():
+    b = SceneBuilder()
+    b.add_robot(0.0, 0.0)
+    b.add_walls(6.0, 6.0)
+    sensor, batch = scan_one(b.build(), config=LidarConfig(range_noise_std_m=0.0))
+    blind = sensor.blind_mask
+    assert blind.sum() == 4 * 21  # +/- 5 deg around each centre, 0.5 deg beams, inclusive
+    for centre in (45.0, 135.0, -135.0, -45.0):
+        assert blind[beam_index(centre * DEG)]
+    assert np.all(batch.ranges_m[0, blind] == 0) and np.all(batch.intensities[0, blind] == 0)
+    assert np.all(batch.ranges_m[0, ~blind] > 0)
+
+
+# --------------------------------------------------------------------------- contract
+
+
+def _readonly_scene(scene):
+    for f in dataclasses.fields(scene):
+        if getattr(scene, f.name) is not None:
+            getattr(scene, f.name).setflags(write=False)
+    return scene
+
+
+def test_scan_is_deterministic_and_does_not_mutate_the_scene():
+    scene = _readonly_scene(make_arena_scene(np.random.default_rng(7)))  # writes would raise
+    before = {f.name: np.copy(getattr(scene, f.name)) for f in dataclasses.fields(scene)}
+    sensor = LidarSensor(LidarConfig(), scene.n_robots)
+    sensor.reset(np.random.default_rng(8))
+    a = sensor.scan(scene, np.arange(5), np.full(5, 3.0), np.random.default_rng(9))
+    b = sensor.scan(scene, np.arange(5), np.full(5, 3.0), np.random.default_rng(9))
+    c = sensor.scan(scene, np.arange(5), np.full(5, 3.0), np.random.default_rng(10))
+    for f in dataclasses.fields(a):
+        np.testing.assert_array_equal(getattr(a, f.name), getattr(b, f.name))
+    assert not np.array_equal(a.ranges_m, c.ranges_m)
+    for f in dataclasses.fields(scene):
+        np.testing.assert_array_equal(getattr(scene, f.name), before[f.name])
+
+
+def test_scan_rejects_bad_inputs():
+    scene = make_arena_scene(np.random.default_rng(0), n_robots=3)
+    sensor = LidarSensor(LidarConfig(), 3)
+    with pytest.raises(ValueError, match="stamps_s"):
+        sensor.scan(scene, np.array([0, 1]), np.array([0.0]), np.random.default_rng(0))
+    with pytest.raises(ValueError, match="robots"):
+        sensor.scan(scene, np.array([3]), np.array([0.0]), np.random.default_rng(0))
+
+
+def test_empty_batch_and_empty_scene():
+    b = SceneBuilder()
+    b.add_robot(0.0, 0.0, housing=False, strip=False)
+    scene = b.build()
+    sensor = LidarSensor(LidarConfig(), 1)
+    batch = sensor.scan(scene, np.zeros(0, int), np.zeros(0), np.random.default_rng(0))
+    assert batch.ranges_m.shape == (0, 720)
+    batch = sensor.scan(scene, [0], [0.0], np.random.default_rng(0))
+    assert np.all(batch.ranges_m == 0) and np.all(batch.hit_index == -1)
+
+
+def test_owner_beam_counts_match_hit_owner():
+    scene = make_arena_scene(np.random.default_rng(11), n_robots=10)
+    sensor = LidarSensor(LidarConfig(), 10)
+    batch = sensor.scan(scene, np.arange(4), np.zeros(4), np.random.default_rng(0))
+    counts = batch.owner_beam_counts(10, after_interference=False)
+    for k in range(4):
+        np.testing.assert_array_equal(
+            counts[k], np.bincount(batch.hit_owner[k][batch.hit_owner[k] >= 0], minlength=10)
+        )
+        assert counts[k, k] == 0
+
+
+# --------------------------------------------------------------------------- interference
+
+
+def facing_pair(yaw_j=math.pi):
+    b = SceneBuilder()
+    b.add_robot(0.0, 0.0, yaw_rad=0.0)
+    b.add_robot(1.0, 0.0, yaw_rad=yaw_j)
+    b.add_walls(6.0, 6.0)  # every other beam returns
+    return b.build()
+
+
+def align_head(sensor, scene, j, i_stamp, aligned=True):
+    """Set robot j's head phase so it points at robot 0 when robot 0's beam 360 fires."""
+    cfg = sensor.config
+    rate = sensor.rates_hz[0]
+    t_fire = i_stamp - 1.0 / rate + (360 / cfg.n_beams) / rate
+    to_i = math.atan2(
+        scene.robot_xy[0, 1] - scene.robot_xy[j, 1], scene.robot_xy[0, 0] - scene.robot_xy[j, 0]
+    )
+    target_body = to_i - scene.robot_yaw[j] + (0.0 if aligned else math.pi)
+    phase = target_body - 2 * math.pi * sensor.rates_hz[j] * t_fire
+    sensor.head_phase_rad[j] = phase % (2 * math.pi)
+
+
+def test_facing_heads_null_exactly_the_beams_on_the_other_housing():
+    scene = facing_pair()
+    config = dataclasses.replace(EXACT, interference_tolerance_deg=6.0)
+    sensor = LidarSensor(config, 2)
+    sensor.rate_offset_hz[:] = (0.02, -0.03)
+    align_head(sensor, scene, 1, i_stamp=5.0)
+    _, batch = scan_one(scene, sensor=sensor, stamp=5.0)
+    on_j = batch.hit_owner[0] == 1
+    assert 5 <= on_j.sum() <= 9  # +/- asin(32.5 mm / 1 m) at 0.5 deg per beam
+    np.testing.assert_array_equal(batch.interfered[0], on_j)
+    assert np.all(batch.ranges_m[0, on_j] == 0) and np.all(batch.intensities[0, on_j] == 0)
+    nulls = null_bearings(batch.angles_rad, batch.ranges_m[0], batch.intensities[0])
+    np.testing.assert_array_equal(nulls, batch.angles_rad[on_j])
+
+
+def test_misaligned_heads_return_normally():
+    scene = facing_pair()
+    config = dataclasses.replace(EXACT, interference_tolerance_deg=6.0)
+    sensor = LidarSensor(config, 2)
+    align_head(sensor, scene, 1, i_stamp=5.0, aligned=False)
+    _, batch = scan_one(scene, sensor=sensor, stamp=5.0)
+    on_j = batch.hit_owner[0] == 1
+    assert on_j.sum() >= 5
+    assert not batch.interfered.any()
+    np.testing.assert_allclose(batch.ranges_m[0, on_j].min(), 1.0 - HOUSING_RADIUS_M, atol=1e-9)
+
+
+def test_head_pointing_into_its_own_pillar_does_not_interfere():
+    # j's yaw puts the direction to i at robot-frame -135 deg: inside j's blind sector.
+    scene = facing_pair(yaw_j=math.pi + 135 * DEG)
+    config = dataclasses.replace(
+        LidarConfig(range_noise_std_m=0.0), interference_tolerance_deg=6.0
+    )
+    sensor = LidarSensor(config, 2)
+    align_head(sensor, scene, 1, i_stamp=5.0)
+    _, batch = scan_one(scene, sensor=sensor, stamp=5.0)
+    assert (batch.hit_owner[0] == 1).sum() >= 5
+    assert not batch.interfered.any()
+
+
+def test_interference_is_pseudo_periodic_over_time():
+    scene = facing_pair()
+    sensor = LidarSensor(LidarConfig(), 2)
+    sensor.reset(np.random.default_rng(12))
+    stamps = np.arange(0.0, 60.0, 1 / 7.0)
+    batch = sensor.scan(scene, np.zeros(stamps.size, int), stamps, np.random.default_rng(0))
+    hit_scans = batch.interfered.any(axis=1)
+    # Some revolutions are nulled, most are not (the heads drift in and out of phase).
+    assert 0 < hit_scans.sum() < 0.5 * stamps.size
+
+
+def test_scan_stamps_end_revolutions_with_the_head_at_minus_pi():
+    sensor = LidarSensor(LidarConfig(), 5)
+    sensor.reset(np.random.default_rng(13))
+    robots, stamps = sensor.scan_stamps(10.0, 12.0)
+    assert np.all((stamps > 10.0) & (stamps <= 12.0)) and np.all(np.diff(stamps) >= 0)
+    counts = np.bincount(robots, minlength=5)
+    assert np.all((counts >= 13) & (counts <= 15))  # 2 s at ~7 Hz
+    head = sensor.head_angle_rad(robots, stamps)
+    np.testing.assert_allclose(np.abs(head), math.pi, atol=1e-6)
+
+
+# --------------------------------------------------------------------------- features
+
+
+def detect(scene, robot=0, lidar=None, features=None, seed=0):
+    sensor = LidarSensor(lidar or LidarConfig(interference_tolerance_deg=0.0), scene.n_robots)
+    batch = sensor.scan(scene, np.array([robot]), np.zeros(1), np.random.default_rng(seed))
+    return extract_detections(batch.angles_rad, batch.ranges_m, features)[0]
+
+
+def test_robot_at_known_position_is_detected_there():
+    b = SceneBuilder()
+    b.add_robot(0.5, -0.2, yaw_rad=0.4)
+    x, y = rel_world(0.5, -0.2, 0.4, 20 * DEG, 1.2)
+    b.add_robot(x, y)
+    b.add_walls(6.0, 6.0)
+    det = detect(b.build())
+    assert det.shape == (1, 2)
+    expected = 1.2 * np.array([math.cos(20 * DEG), math.sin(20 * DEG)])
+    assert np.linalg.norm(det[0] - expected) < 0.02
+
+
+def test_decoy_post_is_a_false_positive_and_a_box_is_rejected():
+    b = SceneBuilder()
+    b.add_robot(0.0, 0.0)
+    b.add_post(1.0, 0.5, radius_m=POST_RADIUS_M)
+    b.add_box(-1.5, 0.5, 0.5, 0.4, yaw_rad=0.3)
+    b.add_walls(6.0, 6.0)
+    det = detect(b.build())
+    assert det.shape == (1, 2)
+    np.testing.assert_allclose(det[0], [1.0, 0.5], atol=0.03)
+
+
+def test_empty_arena_with_boxes_yields_no_detections():
+    b = SceneBuilder()
+    b.add_robot(0.3, -0.4, yaw_rad=1.0)
+    b.add_box(1.5, 1.0, 0.5, 0.5)
+    b.add_box(-1.2, -1.5, 0.3, 0.6, yaw_rad=0.7)
+    b.add_walls(6.0, 6.0)
+    for seed in range(5):
+        assert detect(b.build(), seed=seed).shape == (0, 2)
+
+
+@pytest.mark.parametrize(("bearing_deg", "seen"), [(45.0, False), (-135.0, False), (60.0, True)])
+def test_blind_sector_hides_a_robot(bearing_deg, seen):
+    b = SceneBuilder()
+    b.add_robot(0.0, 0.0)
+    b.add_robot(*rel_world(0.0, 0.0, 0.0, bearing_deg * DEG, 1.0))
+    det = detect(b.build())
+    assert det.shape[0] == int(seen)
+
+
+def test_occluded_robot_is_missing():
+    b = SceneBuilder()
+    b.add_robot(0.0, 0.0)
+    b.add_robot(1.0, 0.0)
+    b.add_robot(2.0, 0.0)  # hidden behind robot 1
+    det = detect(b.build())
+    assert det.shape == (1, 2)
+    np.testing.assert_allclose(det[0], [1.0, 0.0], atol=0.02)
+
+
+def test_robot_straddling_the_seam_is_one_detection():
+    b = SceneBuilder()
+    b.add_robot(0.0, 0.0)
+    b.add_robot(-1.0, 0.0)  # directly behind: beams on both sides of +/-pi
+    det = detect(b.build())
+    assert det.shape == (1, 2)
+    np.testing.assert_allclose(det[0], [-1.0, 0.0], atol=0.02)
+
+
+def test_frame_signs_robot_on_the_right_is_at_negative_y():
+    b = SceneBuilder()
+    b.add_robot(0.0, 0.0, yaw_rad=math.pi / 2)  # facing world +y
+    b.add_robot(1.0, 0.0)  # world +x = the observer's right
+    det = detect(b.build())
+    np.testing.assert_allclose(det[0], [0.0, -1.0], atol=0.02)
+
+
+def test_extractor_on_synthetic_ranges():
+    angles = -math.pi + np.arange(720) * (2 * math.pi / 720)
+    ranges = np.zeros((3, 720))
+    ranges[0, [0, 1, 2, 718, 719]] = 1.0  # one cluster through the seam
+    ranges[1, :] = 2.0  # a ring: the whole circle is one (huge) cluster
+    ranges[2, 100:104] = 1.5  # a small object ...
+    ranges[2, 104:110] = 3.0  # ... in front of a jump
+    clusters = extract_clusters(angles, ranges)
+    np.testing.assert_array_equal(clusters.scan_index, [0, 2])
+    assert clusters.n_beams.tolist() == [5, 4]
+    np.testing.assert_allclose(clusters.xy_m[0], [-1.0 - HOUSING_RADIUS_M, 0.0], atol=1e-9)
+    per_scan = clusters.split()
+    assert [len(p) for p in per_scan] == [1, 0, 1]
+
+
+def test_extractor_width_and_range_gates():
+    angles = -math.pi + np.arange(720) * (2 * math.pi / 720)
+    ranges = np.zeros((1, 720))
+    ranges[0, 10:30] = 1.0  # 20 beams at 1 m: ~0.17 m wide
+    ranges[0, 200:202] = 6.0  # narrow but beyond a 5 m tracking range
+    assert extract_detections(angles, ranges)[0].shape == (1, 2)  # only the narrow one
+    clusters = extract_clusters(angles, ranges, LidarFeatureConfig(tracking_range_m=5.0))
+    assert clusters.xy_m.shape == (0, 2)
+    clusters = extract_clusters(angles, ranges, LidarFeatureConfig(max_width_m=0.2))
+    assert clusters.xy_m.shape == (2, 2)
+
+
+def test_oblique_walls_shatter_only_without_the_breakpoint_and_foreground_tests():
+    b = SceneBuilder()
+    b.add_robot(0.0, -2.7)  # 0.3 m from the bottom wall: long oblique stretches
+    b.add_walls(6.0, 6.0)
+    scene = b.build()
+    seed_like = LidarFeatureConfig(jump_range_gain=0.0, foreground_only=False)
+    adaptive_only = LidarFeatureConfig(foreground_only=False)
+    assert detect(scene, features=seed_like).shape[0] > 20
+    assert 0 < detect(scene, features=adaptive_only).shape[0] < 10  # beyond 80 deg incidence
+    assert detect(scene).shape[0] == 0
+
+
+def test_null_bearings_exclude_mask():
+    angles = np.linspace(-math.pi, math.pi, 8, endpoint=False)
+    ranges = np.array([0.0, 1.0, 0.0, 0.0, 2.0, 0.0, 1.0, 1.0])
+    intens = np.array([0.0, 5.0, 0.0, 3.0, 1.0, 0.0, 1.0, 1.0])  # beam 3: range 0, intensity 3
+    np.testing.assert_array_equal(null_bearings(angles, ranges, intens), angles[[0, 2, 5]])
+    exclude = np.zeros(8, bool)
+    exclude[2] = True
+    np.testing.assert_array_equal(null_bearings(angles, ranges, intens, exclude), angles[[0, 5]])
+
+
+@pytest.mark.parametrize(
+    ("field", "value"), [("max_width_m", 0.0), ("min_beams", 0), ("jump_threshold_m", -1.0)]
+)
+def test_feature_config_validation(field, value):
+    with pytest.raises(ValueError, match=field):
+        LidarFeatureConfig(**{field: value})

@@ -1,0 +1,71 @@
+"""Sensors inside the simulator, end to end: records land where ground truth says they should."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from swarm_env import make_config
+from swarm_env.world.sim import SimWorld
+
+EMPTY = {"n_decoy_posts": 0, "n_red_decoys": 0, "n_boxes": 0}
+
+
+def _world(n: int, **overrides) -> SimWorld:
+    world = SimWorld(make_config("seed-sim", n_robots=n, arena=EMPTY, **overrides))
+    world.reset(np.random.default_rng(0))
+    return world
+
+
+def _place(world: SimWorld, poses) -> None:
+    for body, drive, (x, y, yaw) in zip(world.bodies, world._drives, poses):
+        body.position, body.angle = (x, y), yaw
+        drive.position, drive.angle = (x, y), yaw
+        world.space.reindex_shapes_for_body(body)
+
+
+def _records(world: SimWorld, robot: str, seconds: float = 1.0):
+    lidar, camera = [], []
+    for _ in range(int(seconds / world.config.control_period_s)):
+        step = world.step(np.zeros((world.n_agents, 2)))
+        lidar += step.measurements[robot].lidar
+        camera += step.measurements[robot].camera
+    return lidar, camera
+
+
+def test_lidar_detects_a_neighbour_at_its_relative_position():
+    world = _world(2)
+    # Observer facing +y; the neighbour 1 m to its left in the body frame sits at world (-1, 0).
+    _place(world, [(0.0, 0.0, np.pi / 2), (-1.0, 0.0, 0.0)])
+    lidar, _ = _records(world, "ugv_0")
+    assert len(lidar) >= 6  # 7 Hz
+    hits = [r.detections for r in lidar if len(r.detections)]
+    assert len(hits) >= 0.8 * len(lidar)  # interference may null a few scans, not most
+    near = np.concatenate(hits)
+    near = near[np.linalg.norm(near - [0.0, 1.0], axis=1) < 0.2]
+    assert len(near) >= 0.8 * len(lidar)
+    assert np.allclose(near.mean(axis=0), [0.0, 1.0], atol=0.03)
+
+
+def test_blind_sector_hides_a_neighbour_from_the_lidar():
+    world = _world(2)
+    centre = np.deg2rad(world.config.lidar.blind_sector_centers_deg[0])
+    _place(world, [(0.0, 0.0, 0.0), (np.cos(centre), np.sin(centre), 0.0)])
+    lidar, camera = _records(world, "ugv_0")
+    assert all(len(r.detections) == 0 for r in lidar)
+    # The camera has no pillar blind spot: it still sees the neighbour's red strip.
+    bearings = np.concatenate([r.bearings_rad for r in camera])
+    assert np.sum(np.abs(bearings - centre) < np.deg2rad(15)) >= 0.7 * len(camera)
+
+
+def test_occluded_neighbour_is_missing_from_the_camera():
+    # ugv_1 stands between ugv_0 and ugv_2, on the same line of sight.
+    world = _world(3, camera={"false_positive_rate": 0.0})
+    _place(world, [(-1.5, 0.0, 0.0), (-0.5, 0.0, 0.0), (1.0, 0.0, 0.0)])
+    _, camera = _records(world, "ugv_0")
+    bearings = np.concatenate([r.bearings_rad for r in camera])
+    assert len(camera) >= 25
+    # Only one blob ahead (ugv_1), never two: ugv_2 is hidden behind it.
+    per_frame = [np.sum(np.abs(r.bearings_rad) < np.deg2rad(20)) for r in camera]
+    assert max(per_frame) <= 1 and np.mean(bearings) < np.deg2rad(20)
+    assert not world.ground_truth().visible["camera"][0, 2]
+    assert world.ground_truth().visible["camera"][0, 1]
