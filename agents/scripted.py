@@ -269,9 +269,9 @@ class FormationPolicy(VectorFieldPolicy):
     ``c = sum_k w_k m_k / (1 + sum_k w_k)`` over its confident components ``(w_k, m_k)`` plus
     itself (weight 1 at its origin); ``w_k`` is discounted by the component's spread (see
     :func:`estimated_neighbours`, reference variance 0.02 m^2) so that a camera-only track with
-    a drifting range does not drag the centroid. The robot heads for the closest point of the circle of radius
-    ``r`` around ``c`` (``c + r (-c) / ||c||``, gain ``k_p``) and is pushed away from estimated
-    neighbours closer than the even-spread chord ``s*`` (gain ``k_s``).
+    a drifting range does not drag the centroid. The robot heads for the closest point of the
+    circle of radius ``r`` around ``c`` (``c + r (-c) / ||c||``, gain ``k_p``) and is pushed
+    away from estimated neighbours closer than the even-spread chord ``s*`` (gain ``k_s``).
     Lattice: a spring to every estimated neighbour within ``1.5 d`` (and to the nearest one):
     ``u = k_p sum_k (||m_k|| - d) m_k / ||m_k||``.
 

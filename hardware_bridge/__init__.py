@@ -24,15 +24,33 @@ from typing import Any
 
 from hardware_bridge.config import BridgeConfig
 
-__all__ = ["BridgeConfig", "real_env", "replay_env", "RealWorld", "ReplayWorld", "BagRecorder",
-           "LoopbackServer", "FaultConfig", "RobotsSilentError", "export_sim_episode"]
+__all__ = [
+    "BridgeConfig",
+    "real_env",
+    "replay_env",
+    "RealWorld",
+    "ReplayWorld",
+    "BagRecorder",
+    "LoopbackServer",
+    "FaultConfig",
+    "RobotsSilentError",
+    "export_sim_episode",
+]
 
 
-def real_env(robots: list[str] | tuple[str, ...] | None = None, host: str = "127.0.0.1",
-             port: int = 9090, preset: str = "seed-lab", task: Any = "wander", *,
-             allow_remote: bool = False, record: str | None = None,
-             bridge: BridgeConfig | dict | None = None, task_params: dict | None = None,
-             **overrides: Any):
+def real_env(
+    robots: list[str] | tuple[str, ...] | None = None,
+    host: str = "127.0.0.1",
+    port: int = 9090,
+    preset: str = "seed-lab",
+    task: Any = "wander",
+    *,
+    allow_remote: bool = False,
+    record: str | None = None,
+    bridge: BridgeConfig | dict | None = None,
+    task_params: dict | None = None,
+    **overrides: Any,
+):
     """A PettingZoo ``ParallelEnv`` over real robots behind a rosbridge server.
 
     Parameters
@@ -85,12 +103,24 @@ def real_env(robots: list[str] | tuple[str, ...] | None = None, host: str = "127
         )
     recorder = None
     if record is not None:
-        recorder = BagRecorder(record, robots, config, source="bridge",
-                               stale_mocap_s=bridge_cfg.stale_mocap_s,
-                               use_mocap=bridge_cfg.use_mocap)
+        recorder = BagRecorder(
+            record,
+            robots,
+            config,
+            source="bridge",
+            stale_mocap_s=bridge_cfg.stale_mocap_s,
+            use_mocap=bridge_cfg.use_mocap,
+        )
     try:
-        world = RealWorld(robots, config, host=host, port=port, allow_remote=allow_remote,
-                          bridge=bridge_cfg, recorder=recorder)
+        world = RealWorld(
+            robots,
+            config,
+            host=host,
+            port=port,
+            allow_remote=allow_remote,
+            bridge=bridge_cfg,
+            recorder=recorder,
+        )
     except BaseException:
         if recorder is not None:
             recorder.close()

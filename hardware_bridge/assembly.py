@@ -62,8 +62,13 @@ class RecordAssembler:
             self._baseline[robot] = msg
             if prev is None or msg.stamp_ns <= prev.stamp_ns:
                 continue
-            out.append(OdometryRecord(ns_to_s(msg.stamp_ns), odometry_increment(prev, msg),
-                                      np.array([msg.v_mps, msg.omega_radps])))
+            out.append(
+                OdometryRecord(
+                    ns_to_s(msg.stamp_ns),
+                    odometry_increment(prev, msg),
+                    np.array([msg.v_mps, msg.omega_radps]),
+                )
+            )
         return out
 
     def lidar(self, scans: Sequence[Scan]) -> list[LidarRecord]:
@@ -77,7 +82,7 @@ class RecordAssembler:
             ranges = np.stack([scans[k].ranges_m for k in members])
             detections = extract_detections(angles, ranges, self.config.lidar_features)
             blind = self.blind_mask(angles)
-            for k, det in zip(members, detections):
+            for k, det in zip(members, detections, strict=True):
                 scan = scans[k]
                 records[k] = LidarRecord(
                     stamp_s=ns_to_s(scan.stamp_ns),
@@ -85,8 +90,9 @@ class RecordAssembler:
                     ranges_m=scan.ranges_m,
                     intensities=scan.intensities,
                     detections=det,
-                    null_bearings_rad=null_bearings(scan.angles_rad, scan.ranges_m,
-                                                    scan.intensities, exclude=blind),
+                    null_bearings_rad=null_bearings(
+                        scan.angles_rad, scan.ranges_m, scan.intensities, exclude=blind
+                    ),
                 )
         return [r for r in records if r is not None]
 
@@ -104,20 +110,23 @@ class RecordAssembler:
 
     @staticmethod
     def camera(frames: Iterable[Bearings]) -> list[CameraRecord]:
-        return [CameraRecord(ns_to_s(f.stamp_ns), f.bearings_rad)
-                for f in sorted(frames, key=lambda f: f.stamp_ns)]
+        return [
+            CameraRecord(ns_to_s(f.stamp_ns), f.bearings_rad)
+            for f in sorted(frames, key=lambda f: f.stamp_ns)
+        ]
 
     def measurements(self, per_robot: dict[str, dict[str, list]]) -> dict[str, RobotMeasurements]:
         """``{robot: {"odometry": [Odom], "lidar": [Scan], "camera": [Bearings]}}`` -> records."""
         scans: list[Scan] = []
         owners: list[str] = []
         for robot in self.robot_ids:
-            for scan in sorted(per_robot.get(robot, {}).get("lidar", []),
-                               key=lambda s: s.stamp_ns):
+            for scan in sorted(
+                per_robot.get(robot, {}).get("lidar", []), key=lambda s: s.stamp_ns
+            ):
                 scans.append(scan)
                 owners.append(robot)
         lidar = {robot: [] for robot in self.robot_ids}
-        for robot, record in zip(owners, self.lidar(scans)):
+        for robot, record in zip(owners, self.lidar(scans), strict=True):
             lidar[robot].append(record)
         out = {}
         for robot in self.robot_ids:

@@ -79,6 +79,7 @@ def config_to_dict(config: SwarmConfig) -> dict[str, Any]:
 
 def config_from_dict(data: dict[str, Any]) -> SwarmConfig:
     """Rebuild a SwarmConfig from :func:`config_to_dict` output (lists back to tuples)."""
+
     def convert(template: Any, value: Any) -> Any:
         if dataclasses.is_dataclass(template) and isinstance(value, dict):
             names = {f.name for f in dataclasses.fields(template)}
@@ -112,16 +113,22 @@ def _header(ts, d: dict):
     frame = d.get("frame_id", "")
     return ts.types["std_msgs/msg/Header"](
         stamp=ts.types["builtin_interfaces/msg/Time"](sec=int(sec), nanosec=int(nsec)),
-        frame_id=frame if isinstance(frame, str) else "")
+        frame_id=frame if isinstance(frame, str) else "",
+    )
 
 
 def _pose(ts, d: dict):
     return ts.types["geometry_msgs/msg/Pose"](
         position=ts.types["geometry_msgs/msg/Point"](
-            x=_num(d["position"], "x"), y=_num(d["position"], "y"), z=_num(d["position"], "z")),
+            x=_num(d["position"], "x"), y=_num(d["position"], "y"), z=_num(d["position"], "z")
+        ),
         orientation=ts.types["geometry_msgs/msg/Quaternion"](
-            x=_num(d["orientation"], "x"), y=_num(d["orientation"], "y"),
-            z=_num(d["orientation"], "z"), w=_num(d["orientation"], "w", 1.0)))
+            x=_num(d["orientation"], "x"),
+            y=_num(d["orientation"], "y"),
+            z=_num(d["orientation"], "z"),
+            w=_num(d["orientation"], "w", 1.0),
+        ),
+    )
 
 
 def _cov(d: dict) -> np.ndarray:
@@ -140,48 +147,72 @@ def to_rosbags(ts, sensor: str, msg: dict):
     t = ts.types
     if sensor == "lidar":
         return t[BAG_TYPES["lidar"]](
-            header=_header(ts, msg["header"]), angle_min=_num(msg, "angle_min"),
-            angle_max=_num(msg, "angle_max"), angle_increment=_num(msg, "angle_increment"),
-            time_increment=_num(msg, "time_increment"), scan_time=_num(msg, "scan_time"),
-            range_min=_num(msg, "range_min"), range_max=_num(msg, "range_max"),
-            ranges=_floats32(msg["ranges"]), intensities=_floats32(msg["intensities"]))
+            header=_header(ts, msg["header"]),
+            angle_min=_num(msg, "angle_min"),
+            angle_max=_num(msg, "angle_max"),
+            angle_increment=_num(msg, "angle_increment"),
+            time_increment=_num(msg, "time_increment"),
+            scan_time=_num(msg, "scan_time"),
+            range_min=_num(msg, "range_min"),
+            range_max=_num(msg, "range_max"),
+            ranges=_floats32(msg["ranges"]),
+            intensities=_floats32(msg["intensities"]),
+        )
     if sensor == "odometry":
         twist = msg["twist"]["twist"]
         child = msg.get("child_frame_id", "")
         return t[BAG_TYPES["odometry"]](
             header=_header(ts, msg["header"]),
             child_frame_id=child if isinstance(child, str) else "",
-            pose=t["geometry_msgs/msg/PoseWithCovariance"](pose=_pose(ts, msg["pose"]["pose"]),
-                                                            covariance=_cov(msg["pose"])),
+            pose=t["geometry_msgs/msg/PoseWithCovariance"](
+                pose=_pose(ts, msg["pose"]["pose"]), covariance=_cov(msg["pose"])
+            ),
             twist=t["geometry_msgs/msg/TwistWithCovariance"](
-                twist=t["geometry_msgs/msg/Twist"](linear=_vec3(ts, twist["linear"]),
-                                                   angular=_vec3(ts, twist["angular"])),
-                covariance=_cov(msg["twist"])))
+                twist=t["geometry_msgs/msg/Twist"](
+                    linear=_vec3(ts, twist["linear"]), angular=_vec3(ts, twist["angular"])
+                ),
+                covariance=_cov(msg["twist"]),
+            ),
+        )
     if sensor == "camera":
         data = msg["data"]
-        dims = [t["std_msgs/msg/MultiArrayDimension"](label="bearing", size=len(data),
-                                                      stride=len(data))]
+        dims = [
+            t["std_msgs/msg/MultiArrayDimension"](
+                label="bearing", size=len(data), stride=len(data)
+            )
+        ]
         return t[BAG_TYPES["camera"]](
             layout=t["std_msgs/msg/MultiArrayLayout"](dim=dims, data_offset=0),
-            data=np.asarray(data, dtype=np.float32))
+            data=np.asarray(data, dtype=np.float32),
+        )
     if sensor == "mocap":
-        return t[BAG_TYPES["mocap"]](header=_header(ts, msg["header"]),
-                                     pose=_pose(ts, msg["pose"]))
+        return t[BAG_TYPES["mocap"]](
+            header=_header(ts, msg["header"]), pose=_pose(ts, msg["pose"])
+        )
     if sensor == "cmd_vel":
-        return t[BAG_TYPES["cmd_vel"]](linear=_vec3(ts, msg["linear"]),
-                                       angular=_vec3(ts, msg["angular"]))
+        return t[BAG_TYPES["cmd_vel"]](
+            linear=_vec3(ts, msg["linear"]), angular=_vec3(ts, msg["angular"])
+        )
     raise ValueError(f"unknown sensor {sensor!r}")
 
 
 def _header_dict(h) -> dict:
-    return {"stamp": {"sec": int(h.stamp.sec), "nanosec": int(h.stamp.nanosec)},
-            "frame_id": h.frame_id}
+    return {
+        "stamp": {"sec": int(h.stamp.sec), "nanosec": int(h.stamp.nanosec)},
+        "frame_id": h.frame_id,
+    }
 
 
 def _pose_dict(p) -> dict:
-    return {"position": {"x": p.position.x, "y": p.position.y, "z": p.position.z},
-            "orientation": {"x": p.orientation.x, "y": p.orientation.y, "z": p.orientation.z,
-                            "w": p.orientation.w}}
+    return {
+        "position": {"x": p.position.x, "y": p.position.y, "z": p.position.z},
+        "orientation": {
+            "x": p.orientation.x,
+            "y": p.orientation.y,
+            "z": p.orientation.z,
+            "w": p.orientation.w,
+        },
+    }
 
 
 def _vec_dict(v) -> dict:
@@ -191,22 +222,42 @@ def _vec_dict(v) -> dict:
 def from_rosbags(sensor: str, m) -> dict:
     """A rosbags message as the dict rosbridge would have delivered (ROS 2 header form)."""
     if sensor == "lidar":
-        return {"header": _header_dict(m.header), "angle_min": float(m.angle_min),
-                "angle_max": float(m.angle_max), "angle_increment": float(m.angle_increment),
-                "time_increment": float(m.time_increment), "scan_time": float(m.scan_time),
-                "range_min": float(m.range_min), "range_max": float(m.range_max),
-                "ranges": m.ranges.astype(np.float64).tolist(),
-                "intensities": m.intensities.astype(np.float64).tolist()}
+        return {
+            "header": _header_dict(m.header),
+            "angle_min": float(m.angle_min),
+            "angle_max": float(m.angle_max),
+            "angle_increment": float(m.angle_increment),
+            "time_increment": float(m.time_increment),
+            "scan_time": float(m.scan_time),
+            "range_min": float(m.range_min),
+            "range_max": float(m.range_max),
+            "ranges": m.ranges.astype(np.float64).tolist(),
+            "intensities": m.intensities.astype(np.float64).tolist(),
+        }
     if sensor == "odometry":
-        return {"header": _header_dict(m.header), "child_frame_id": m.child_frame_id,
-                "pose": {"pose": _pose_dict(m.pose.pose), "covariance": m.pose.covariance.tolist()},
-                "twist": {"twist": {"linear": _vec_dict(m.twist.twist.linear),
-                                    "angular": _vec_dict(m.twist.twist.angular)},
-                          "covariance": m.twist.covariance.tolist()}}
+        return {
+            "header": _header_dict(m.header),
+            "child_frame_id": m.child_frame_id,
+            "pose": {"pose": _pose_dict(m.pose.pose), "covariance": m.pose.covariance.tolist()},
+            "twist": {
+                "twist": {
+                    "linear": _vec_dict(m.twist.twist.linear),
+                    "angular": _vec_dict(m.twist.twist.angular),
+                },
+                "covariance": m.twist.covariance.tolist(),
+            },
+        }
     if sensor == "camera":
-        return {"layout": {"dim": [{"label": d.label, "size": int(d.size), "stride": int(d.stride)}
-                                   for d in m.layout.dim], "data_offset": int(m.layout.data_offset)},
-                "data": m.data.astype(np.float64).tolist()}
+        return {
+            "layout": {
+                "dim": [
+                    {"label": d.label, "size": int(d.size), "stride": int(d.stride)}
+                    for d in m.layout.dim
+                ],
+                "data_offset": int(m.layout.data_offset),
+            },
+            "data": m.data.astype(np.float64).tolist(),
+        }
     if sensor == "mocap":
         return {"header": _header_dict(m.header), "pose": _pose_dict(m.pose)}
     if sensor == "cmd_vel":
@@ -219,20 +270,35 @@ class BagRecorder:
     """Writes one ROS 2 bag (thread-safe). Create it, hand it to a world (``recorder=``) or call
     the ``write_*`` methods, and :meth:`close` it (that writes ``metadata.yaml``)."""
 
-    def __init__(self, path: str | Path, robot_ids: Sequence[str], config: SwarmConfig, *,
-                 source: str = "bridge", stale_mocap_s: float = 0.5,
-                 use_mocap: bool = True) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        robot_ids: Sequence[str],
+        config: SwarmConfig,
+        *,
+        source: str = "bridge",
+        stale_mocap_s: float = 0.5,
+        use_mocap: bool = True,
+    ) -> None:
         from rosbags.rosbag2 import Writer
 
         self.path = Path(path)
         self.robot_ids = tuple(robot_ids)
         self._ts = _typestore()
         self._writer = Writer(self.path, version=BAG_VERSION)
-        self._writer.set_custom_data(META_KEY, json.dumps({
-            "format": 1, "source": source, "robots": list(self.robot_ids),
-            "config": config_to_dict(config), "stale_mocap_s": stale_mocap_s,
-            "use_mocap": use_mocap,
-        }))
+        self._writer.set_custom_data(
+            META_KEY,
+            json.dumps(
+                {
+                    "format": 1,
+                    "source": source,
+                    "robots": list(self.robot_ids),
+                    "config": config_to_dict(config),
+                    "stale_mocap_s": stale_mocap_s,
+                    "use_mocap": use_mocap,
+                }
+            ),
+        )
         self._writer.open()
         self._connections: dict[str, Any] = {}
         self._lock = threading.Lock()
@@ -260,10 +326,12 @@ class BagRecorder:
             self._writer.write(self._connection(topic, BAG_TYPES[sensor]), int(stamp_ns), data)
             self.messages_written += 1
 
-    def write_marker(self, kind: str, index: int, end_ns: int,
-                     stale: dict[str, tuple[str, ...]]) -> None:
-        text = json.dumps({"kind": kind, "index": index,
-                           "stale": {r: list(s) for r, s in stale.items()}})
+    def write_marker(
+        self, kind: str, index: int, end_ns: int, stale: dict[str, tuple[str, ...]]
+    ) -> None:
+        text = json.dumps(
+            {"kind": kind, "index": index, "stale": {r: list(s) for r, s in stale.items()}}
+        )
         obj = self._ts.types[STRING_TYPE](data=text)
         data = self._ts.serialize_cdr(obj, STRING_TYPE)
         with self._lock:
@@ -272,12 +340,19 @@ class BagRecorder:
             self._writer.write(self._connection(STEP_TOPIC, STRING_TYPE), int(end_ns), data)
 
     def write_commands(self, t_ns: int, commands: np.ndarray) -> None:
-        for robot, (v, w) in zip(self.robot_ids, np.asarray(commands).reshape(-1, 2)):
+        for robot, (v, w) in zip(self.robot_ids, np.asarray(commands).reshape(-1, 2), strict=True):
             self.write(topics(robot)["cmd_vel"], "cmd_vel", t_ns, twist_msg(v, w))
 
     # -- RealWorld hooks
-    def record_step(self, kind: str, index: int, end_ns: int, used: dict, commands,
-                    stale: dict[str, tuple[str, ...]]) -> None:
+    def record_step(
+        self,
+        kind: str,
+        index: int,
+        end_ns: int,
+        used: dict,
+        commands,
+        stale: dict[str, tuple[str, ...]],
+    ) -> None:
         if commands is not None:
             self.write_commands(*commands)
         for robot in self.robot_ids:
@@ -312,11 +387,16 @@ def read_meta(path: str | Path) -> dict[str, Any]:
         raise ValueError(f"{path}: invalid metadata.yaml") from exc
     raw = custom.get(META_KEY)
     if not isinstance(raw, str):
-        raise ValueError(f"{path}: not a swarm-phd bag (no custom_data[{META_KEY!r}]); record it "
-                         "with the bridge (record=PATH) or swarm-phd export-bag")
+        raise ValueError(
+            f"{path}: not a swarm-phd bag (no custom_data[{META_KEY!r}]); record it "
+            "with the bridge (record=PATH) or swarm-phd export-bag"
+        )
     meta = json.loads(raw)
-    if not isinstance(meta, dict) or not isinstance(meta.get("robots"), list) \
-            or not isinstance(meta.get("config"), dict):
+    if (
+        not isinstance(meta, dict)
+        or not isinstance(meta.get("robots"), list)
+        or not isinstance(meta.get("config"), dict)
+    ):
         raise ValueError(f"{path}: invalid swarm-phd metadata")
     for robot in meta["robots"]:
         check_robot_id(robot)
@@ -424,8 +504,10 @@ class ReplayWorld:
         for robot in self.robot_ids:
             if parsed[robot]["mocap"]:
                 self._truth_pose[robot] = parsed[robot]["mocap"][-1]
-        fresh = {r: (p if p is not None and end_ns - p.stamp_ns <= self.stale_mocap_ns else None)
-                 for r, p in self._truth_pose.items()}
+        fresh = {
+            r: (p if p is not None and end_ns - p.stamp_ns <= self.stale_mocap_ns else None)
+            for r, p in self._truth_pose.items()
+        }
         return self.assembler.truth(fresh)
 
     def _world_step(self, k: int) -> WorldStep:
@@ -435,13 +517,19 @@ class ReplayWorld:
         if marker["kind"] == "reset":
             for robot in self.robot_ids:
                 self.assembler.odometry(robot, parsed[robot]["odometry"][-1:])
-            per_robot = {r: {"lidar": parsed[r]["lidar"][-1:], "camera": parsed[r]["camera"][-1:]}
-                         for r in self.robot_ids}
+            per_robot = {
+                r: {"lidar": parsed[r]["lidar"][-1:], "camera": parsed[r]["camera"][-1:]}
+                for r in self.robot_ids
+            }
         else:
             per_robot = {r: {s: parsed[r][s] for s in FEED_SENSORS} for r in self.robot_ids}
         measurements = self.assembler.measurements(per_robot)
-        return WorldStep(time_s=ns_to_s(end_ns), measurements=measurements,
-                         truth=self._truth(parsed, end_ns), stale=stale)
+        return WorldStep(
+            time_s=ns_to_s(end_ns),
+            measurements=measurements,
+            truth=self._truth(parsed, end_ns),
+            stale=stale,
+        )
 
     def reset(self, rng: np.random.Generator | None = None) -> WorldStep:
         self._episode += 1
@@ -458,16 +546,18 @@ class ReplayWorld:
         episode = self._episodes[self._episode]
         self._cursor += 1
         if self._cursor >= len(episode):
-            raise EOFError(f"{self.path}: episode {self._episode} has only {len(episode) - 1} "
-                           "recorded steps")
+            raise EOFError(
+                f"{self.path}: episode {self._episode} has only {len(episode) - 1} recorded steps"
+            )
         return self._world_step(episode[self._cursor])
 
     def close(self) -> None:
         """Nothing to release: the bag was read at construction."""
 
 
-def replay_env(path: str | Path, *, task: str = "wander", render_mode: str | None = None,
-               **overrides: Any):
+def replay_env(
+    path: str | Path, *, task: str = "wander", render_mode: str | None = None, **overrides: Any
+):
     """The env API over a recorded bag: ``SwarmEnv(world=ReplayWorld(path))``. ``overrides``
     change the recorded config (e.g. ``phd={"mode": "lidar-only"}`` to rerun another filter);
     the robots and timing come from the bag."""
@@ -483,14 +573,25 @@ def replay_env(path: str | Path, *, task: str = "wander", render_mode: str | Non
         config = dataclasses.replace(config, max_steps=max(1, world.n_steps(0)))
         world.config = config
         world.assembler = RecordAssembler(world.robot_ids, config)
-    return SwarmEnv(config=config, task=task, world=world, render_mode=render_mode,
-                    render_agent=world.robot_ids[0])
+    return SwarmEnv(
+        config=config,
+        task=task,
+        world=world,
+        render_mode=render_mode,
+        render_agent=world.robot_ids[0],
+    )
 
 
 # ---------------------------------------------------------------------------- export
-def export_sim_episode(path: str | Path, *, preset: str = "seed-lab", duration_s: float = 10.0,
-                       seed: int = 0, start_stamp_s: float = 1.7e9,
-                       **overrides: Any) -> dict[str, Any]:
+def export_sim_episode(
+    path: str | Path,
+    *,
+    preset: str = "seed-lab",
+    duration_s: float = 10.0,
+    seed: int = 0,
+    start_stamp_s: float = 1.7e9,
+    **overrides: Any,
+) -> dict[str, Any]:
     """Run the simulator with the scripted wander policy for ``duration_s`` and write the episode
     as a bag, exactly as the bridge would have recorded it from robots (odometry as integrated
     odom poses, scans as ``LaserScan``, bearings, mocap = the sim's truth, commands).
@@ -526,16 +627,30 @@ def export_sim_episode(path: str | Path, *, preset: str = "seed-lab", duration_s
         return base_ns + int(round(t_s * 1e9))
 
     def snapshot() -> dict[str, tuple[np.ndarray, np.ndarray]]:
-        return {a: (env.localizers[i].mixture.weights.copy(), env.localizers[i].mixture.means.copy())
-                for i, a in enumerate(agents)}
+        return {
+            a: (env.localizers[i].mixture.weights.copy(), env.localizers[i].mixture.means.copy())
+            for i, a in enumerate(agents)
+        }
 
     try:
         obs, infos = env.reset(seed=seed)
         for a in agents:
             names = topics(a)
-            recorder.write(names["odometry"], "odometry", base_ns,
-                           odometry_msg(base_ns, 0.0, 0.0, 0.0, 0.0, 0.0,
-                                        frame_id=f"{a}/odom", child_frame_id=f"{a}/base_link"))
+            recorder.write(
+                names["odometry"],
+                "odometry",
+                base_ns,
+                odometry_msg(
+                    base_ns,
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0,
+                    frame_id=f"{a}/odom",
+                    child_frame_id=f"{a}/base_link",
+                ),
+            )
             pose = infos[a]["truth"]["pose"]
             recorder.write(names["mocap"], "mocap", base_ns, pose_stamped_msg(base_ns, *pose))
         recorder.write_marker("reset", 0, base_ns, {})
@@ -543,8 +658,9 @@ def export_sim_episode(path: str | Path, *, preset: str = "seed-lab", duration_s
         scan_time = 1.0 / config.lidar.rate_hz
         for k in range(1, n_steps + 1):
             actions = policy(obs, infos)
-            commands = np.array([np.clip(np.asarray(actions[a], dtype=np.float64), -high, high)
-                                 for a in agents])
+            commands = np.array(
+                [np.clip(np.asarray(actions[a], dtype=np.float64), -high, high) for a in agents]
+            )
             recorder.write_commands(stamp(env.time_s) + 1, commands)
             obs, _, _, _, infos = env.step(actions)
             end_ns = stamp(env.time_s)
@@ -555,28 +671,61 @@ def export_sim_episode(path: str | Path, *, preset: str = "seed-lab", duration_s
                     x, y, yaw = odom[a]
                     dx, dy, dpsi = r["delta"]
                     c, s = np.cos(yaw), np.sin(yaw)
-                    odom[a] = np.array([x + c * dx - s * dy, y + s * dx + c * dy,
-                                        np.remainder(yaw + dpsi + np.pi, 2 * np.pi) - np.pi])
+                    odom[a] = np.array(
+                        [
+                            x + c * dx - s * dy,
+                            y + s * dx + c * dy,
+                            np.remainder(yaw + dpsi + np.pi, 2 * np.pi) - np.pi,
+                        ]
+                    )
                     t = stamp(r["stamp_s"])
-                    recorder.write(names["odometry"], "odometry", t, odometry_msg(
-                        t, *odom[a], *r["velocity"], frame_id=f"{a}/odom",
-                        child_frame_id=f"{a}/base_link"))
+                    recorder.write(
+                        names["odometry"],
+                        "odometry",
+                        t,
+                        odometry_msg(
+                            t,
+                            *odom[a],
+                            *r["velocity"],
+                            frame_id=f"{a}/odom",
+                            child_frame_id=f"{a}/base_link",
+                        ),
+                    )
                 for r in m["lidar"]:
                     t = stamp(r["stamp_s"])
-                    recorder.write(names["lidar"], "lidar", t, laser_scan_msg(
-                        t, r["angles_rad"], r["ranges_m"], r["intensities"],
-                        range_min_m=config.lidar.range_min_m, range_max_m=config.lidar.range_max_m,
-                        scan_time_s=scan_time, frame_id=f"{a}/laser"))
+                    recorder.write(
+                        names["lidar"],
+                        "lidar",
+                        t,
+                        laser_scan_msg(
+                            t,
+                            r["angles_rad"],
+                            r["ranges_m"],
+                            r["intensities"],
+                            range_min_m=config.lidar.range_min_m,
+                            range_max_m=config.lidar.range_max_m,
+                            scan_time_s=scan_time,
+                            frame_id=f"{a}/laser",
+                        ),
+                    )
                 for r in m["camera"]:
-                    recorder.write(names["camera"], "camera", stamp(r["stamp_s"]),
-                                   bearings_msg(r["bearings_rad"]))
+                    recorder.write(
+                        names["camera"],
+                        "camera",
+                        stamp(r["stamp_s"]),
+                        bearings_msg(r["bearings_rad"]),
+                    )
                 pose = infos[a]["truth"]["pose"]
-                recorder.write(names["mocap"], "mocap", end_ns,
-                               pose_stamped_msg(end_ns, *pose))
+                recorder.write(names["mocap"], "mocap", end_ns, pose_stamped_msg(end_ns, *pose))
             recorder.write_marker("step", k, end_ns, {})
             trace.append(snapshot())
     finally:
         recorder.close()
         env.close()
-    return {"path": str(path), "robots": agents, "steps": n_steps,
-            "messages": recorder.messages_written, "trace": trace}
+    return {
+        "path": str(path),
+        "robots": agents,
+        "steps": n_steps,
+        "messages": recorder.messages_written,
+        "trace": trace,
+    }

@@ -16,8 +16,10 @@ FEED_SENSORS = ("odometry", "lidar", "camera")
 
 
 def _check_positive(name: str, value: Any) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
-        math.isfinite(value) and value > 0
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float))
+        or not (math.isfinite(value) and value > 0)
     ):
         raise ValueError(f"BridgeConfig.{name} must be a finite number > 0, got {value!r}")
 
@@ -100,18 +102,30 @@ class BridgeConfig:
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
-            if f.name.endswith("_s") or f.name.endswith("_mps") or f.name.endswith(
-                "_radps"
-            ) or f.name.endswith("_mps2") or f.name.endswith("_radps2"):
+            if (
+                f.name.endswith("_s")
+                or f.name.endswith("_mps")
+                or f.name.endswith("_radps")
+                or f.name.endswith("_mps2")
+                or f.name.endswith("_radps2")
+            ):
                 if value is not None:
                     _check_positive(f.name, value)
-        for name in ("queue_length", "buffer_length", "max_beams", "max_bearings",
-                     "max_message_bytes"):
+        for name in (
+            "queue_length",
+            "buffer_length",
+            "max_beams",
+            "max_bearings",
+            "max_message_bytes",
+        ):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"BridgeConfig.{name} must be an int >= 1, got {value!r}")
-        if isinstance(self.throttle_rate_ms, bool) or not isinstance(self.throttle_rate_ms, int) \
-                or self.throttle_rate_ms < 0:
+        if (
+            isinstance(self.throttle_rate_ms, bool)
+            or not isinstance(self.throttle_rate_ms, int)
+            or self.throttle_rate_ms < 0
+        ):
             raise ValueError(
                 f"BridgeConfig.throttle_rate_ms must be an int >= 0, got {self.throttle_rate_ms!r}"
             )
@@ -153,6 +167,8 @@ def make_bridge_config(bridge: BridgeConfig | dict[str, Any] | None) -> BridgeCo
         names = {f.name for f in dataclasses.fields(BridgeConfig)}
         unknown = sorted(set(bridge) - names)
         if unknown:
-            raise ValueError(f"unknown bridge config key(s) {unknown}; valid keys: {sorted(names)}")
+            raise ValueError(
+                f"unknown bridge config key(s) {unknown}; valid keys: {sorted(names)}"
+            )
         return BridgeConfig(**bridge)
     raise ValueError(f"bridge must be a BridgeConfig or a dict, got {type(bridge).__name__}")

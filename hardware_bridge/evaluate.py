@@ -23,20 +23,29 @@ class EpisodeResult:
 
 
 def snapshot_mixtures(env) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    return {a: (env.localizers[i].mixture.weights.copy(), env.localizers[i].mixture.means.copy())
-            for i, a in enumerate(env.possible_agents)}
+    return {
+        a: (env.localizers[i].mixture.weights.copy(), env.localizers[i].mixture.means.copy())
+        for i, a in enumerate(env.possible_agents)
+    }
 
 
-def run_episode(env, policy: Callable[[dict, dict], dict] | None, n_steps: int, *,
-                seed: int | None = 0, trace: bool = False,
-                on_step: Callable[[int, dict], None] | None = None) -> EpisodeResult:
+def run_episode(
+    env,
+    policy: Callable[[dict, dict], dict] | None,
+    n_steps: int,
+    *,
+    seed: int | None = 0,
+    trace: bool = False,
+    on_step: Callable[[int, dict], None] | None = None,
+) -> EpisodeResult:
     """Reset ``env``, run ``policy`` (``None``: zero commands) for up to ``n_steps`` steps and
     score every step that has ground truth. Stops early at the end of the episode."""
     from localization.metrics import LocalizationScorer
 
     n = len(env.possible_agents)
-    # One scorer pooled over observers: a neighbour id is the (observer, neighbour) pair.
-    scorer = LocalizationScorer(cardinality_range_m=env.config.localization_range_m)
+    range_m = env.config.localization_range_m
+    # Per observer, as ``swarm-phd evaluate`` scores the simulator.
+    scorer = LocalizationScorer(n, cardinality_range_m=range_m)
     result = EpisodeResult()
     obs, infos = env.reset(seed=seed)
     if trace:
@@ -44,8 +53,11 @@ def run_episode(env, policy: Callable[[dict, dict], dict] | None, n_steps: int, 
     for k in range(n_steps):
         if not env.agents:
             break
-        actions = policy(obs, infos) if policy is not None else {
-            a: np.zeros(2, dtype=np.float32) for a in env.agents}
+        actions = (
+            policy(obs, infos)
+            if policy is not None
+            else {a: np.zeros(2, dtype=np.float32) for a in env.agents}
+        )
         obs, _, _, _, infos = env.step(actions)
         result.steps += 1
         if trace:
@@ -61,16 +73,13 @@ def run_episode(env, policy: Callable[[dict, dict], dict] | None, n_steps: int, 
             if truth is None:
                 continue
             mask = np.asarray(truth["in_range"]["lidar"], dtype=bool)
-            ids = i * n + np.flatnonzero(mask)
-            scorer.update(truth["neighbours_xy"][mask], ids, env.localizers[i].mixture)
+            scorer.add(i, truth["neighbours_xy"][mask], env.localizers[i].mixture, range_m=range_m)
             scored = True
         result.scored_steps += int(scored)
         if on_step is not None:
             on_step(k, infos)
     if result.scored_steps:
-        summary = scorer.summary()
-        summary.pop("robots_over_25pct", None)  # counts (observer, neighbour) pairs here
-        result.metrics = summary
+        result.metrics = scorer.summary()
     return result
 
 

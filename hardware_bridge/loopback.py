@@ -96,7 +96,7 @@ class _Sub:
     throttle_s: float
     event: asyncio.Event = field(default_factory=asyncio.Event)
     task: asyncio.Task | None = None
-    last_sent: str | bytes | None = None
+    sent: deque = field(default_factory=lambda: deque(maxlen=32))  # hashes of recent payloads
 
 
 class _Conn:
@@ -125,10 +125,19 @@ class LoopbackServer:
         Publish ``/mocap/<robot>/pose``.
     """
 
-    def __init__(self, preset: str = "seed-lab", *, config: SwarmConfig | None = None,
-                 host: str = "127.0.0.1", port: int = 0, seed: int = 0,
-                 faults: FaultConfig | None = None, robot_cmd_timeout_s: float = 0.5,
-                 mocap: bool = True, **overrides: Any) -> None:
+    def __init__(
+        self,
+        preset: str = "seed-lab",
+        *,
+        config: SwarmConfig | None = None,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        seed: int = 0,
+        faults: FaultConfig | None = None,
+        robot_cmd_timeout_s: float = 0.5,
+        mocap: bool = True,
+        **overrides: Any,
+    ) -> None:
         if host not in ("127.0.0.1", "localhost", "::1"):
             raise ValueError(f"the loopback server only binds to loopback, got {host!r}")
         self.config = make_config(preset, config, **overrides)
@@ -227,6 +236,7 @@ class LoopbackServer:
 
     def call(self, fn: Callable[[], Any], timeout_s: float = 5.0) -> Any:
         """Run ``fn`` on the server's loop thread (e.g. read the sim state consistently)."""
+
         async def _run():
             return fn()
 
@@ -256,8 +266,12 @@ class LoopbackServer:
 
         if self._server is None:
             self._server = await serve(
-                self._handle, self.host, self.port, max_size=4 * 1024 * 1024,
-                compression=None, ping_interval=None,
+                self._handle,
+                self.host,
+                self.port,
+                max_size=4 * 1024 * 1024,
+                compression=None,
+                ping_interval=None,
             )
             self.port = self._server.sockets[0].getsockname()[1]
             self.counters.incr("server.starts")
@@ -365,8 +379,13 @@ class LoopbackServer:
         elif op in ("advertise", "unadvertise", "set_level", "status"):
             self.counters.incr(f"server.{op}")
         elif op == "call_service":
-            reply = {"op": "service_response", "service": msg.get("service"), "id": msg.get("id"),
-                     "result": False, "values": "services are not supported by the loopback"}
+            reply = {
+                "op": "service_response",
+                "service": msg.get("service"),
+                "id": msg.get("id"),
+                "result": False,
+                "values": "services are not supported by the loopback",
+            }
             asyncio.get_running_loop().create_task(self._send_raw(conn, json.dumps(reply)))
         else:
             self.counters.incr("server.invalid_in")
@@ -379,10 +398,11 @@ class LoopbackServer:
                 sub.event.clear()
                 while sub.queue:
                     item = sub.queue.popleft()
-                    if item.kind == "duplicate" and sub.last_sent != item.payload:
+                    key = hash(item.payload)
+                    if item.kind == "duplicate" and key not in sub.sent:
                         item.kind = None  # the original never went out: not a duplicate
                     await conn.ws.send(item.payload)
-                    sub.last_sent = item.payload
+                    sub.sent.append(key)
                     self.counters.incr("server.sent")
                     if item.kind is not None:
                         self.counters.incr(f"delivered.{item.kind}")
@@ -416,8 +436,9 @@ class LoopbackServer:
         if sensor in faults.sensors:
             u = self._fault_rng.random()
             edges = np.cumsum([faults.drop, faults.delay, faults.duplicate, faults.malformed])
-            kind = ("drop", "delay", "duplicate", "malformed", None)[int(np.searchsorted(
-                edges, u, side="right"))]
+            kind = ("drop", "delay", "duplicate", "malformed", None)[
+                int(np.searchsorted(edges, u, side="right"))
+            ]
             if kind == "drop":
                 self.counters.incr("injected.drop")
                 self.counters.incr(f"injected.drop.{sensor}")
@@ -426,14 +447,16 @@ class LoopbackServer:
                 self.counters.incr("injected.delayed")
                 self.counters.incr(f"injected.delayed.{sensor}")
                 asyncio.get_running_loop().call_later(
-                    faults.delay_s, self._enqueue, topic, _Item(text, "delayed"))
+                    faults.delay_s, self._enqueue, topic, _Item(text, "delayed")
+                )
                 return
             if kind == "duplicate":
                 self.counters.incr("injected.duplicate")
                 self.counters.incr(f"injected.duplicate.{sensor}")
                 self._enqueue(topic, _Item(text))
                 asyncio.get_running_loop().call_later(
-                    0.001, self._enqueue, topic, _Item(text, "duplicate"))
+                    0.001, self._enqueue, topic, _Item(text, "duplicate")
+                )
                 return
             if kind == "malformed":
                 variant, payload = self._malform(topic, sensor, msg)
@@ -499,22 +522,39 @@ class LoopbackServer:
     async def _sim_loop(self) -> None:
         cfg = self.config
         loop = asyncio.get_running_loop()
-        mono0 = time.monotonic()
-        wall0_ns = time.time_ns()
+        anchor = {"mono": time.monotonic(), "wall_ns": time.time_ns()}
 
         def stamp_ns(t_s: float) -> int:
-            return wall0_ns + int(round(t_s * 1e9))
+            return anchor["wall_ns"] + int(round(t_s * 1e9))
 
         # The odom frame starts where each robot stands.
-        for i, robot in enumerate(self.robot_ids):
-            self._publish(topics(robot)["odometry"],
-                          odometry_msg(stamp_ns(0.0), 0.0, 0.0, 0.0, 0.0, 0.0,
-                                       frame_id=f"{robot}/odom",
-                                       child_frame_id=f"{robot}/base_link"))
+        for robot in self.robot_ids:
+            self._publish(
+                topics(robot)["odometry"],
+                odometry_msg(
+                    stamp_ns(0.0),
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0,
+                    frame_id=f"{robot}/odom",
+                    child_frame_id=f"{robot}/base_link",
+                ),
+            )
         scan_time = 1.0 / cfg.lidar.rate_hz
         while self._running:
+            t_start = self.world.time_s
             step = await loop.run_in_executor(None, self.world.step, self._robot_commands())
             self.sim_steps += 1
+            behind = time.monotonic() - (anchor["mono"] + t_start)
+            if behind > 0.25:
+                # The host cannot keep up (CPU starvation): slow the sim down rather than
+                # stamping in the past, as a robot's sensors always stamp at acquisition.
+                anchor["mono"] += behind
+                anchor["wall_ns"] += int(behind * 1e9)
+                self.counters.incr("server.realtime_resyncs")
+            mono0 = anchor["mono"]
             events: list[tuple[float, int, str, dict]] = []
             for i, robot in enumerate(self.robot_ids):
                 names = topics(robot)
@@ -523,22 +563,55 @@ class LoopbackServer:
                     x, y, yaw = self._odom_pose[i]
                     dx, dy, dpsi = r.delta
                     c, s = math.cos(yaw), math.sin(yaw)
-                    self._odom_pose[i] = (x + c * dx - s * dy, y + s * dx + c * dy,
-                                          math.remainder(yaw + dpsi, 2 * math.pi))
-                    events.append((r.stamp_s, 0, names["odometry"], odometry_msg(
-                        stamp_ns(r.stamp_s), *self._odom_pose[i], *r.velocity,
-                        frame_id=f"{robot}/odom", child_frame_id=f"{robot}/base_link")))
+                    self._odom_pose[i] = (
+                        x + c * dx - s * dy,
+                        y + s * dx + c * dy,
+                        math.remainder(yaw + dpsi, 2 * math.pi),
+                    )
+                    events.append(
+                        (
+                            r.stamp_s,
+                            0,
+                            names["odometry"],
+                            odometry_msg(
+                                stamp_ns(r.stamp_s),
+                                *self._odom_pose[i],
+                                *r.velocity,
+                                frame_id=f"{robot}/odom",
+                                child_frame_id=f"{robot}/base_link",
+                            ),
+                        )
+                    )
                 for r in rec.lidar:
-                    events.append((r.stamp_s, 1, names["lidar"], laser_scan_msg(
-                        stamp_ns(r.stamp_s), r.angles_rad, r.ranges_m, r.intensities,
-                        range_min_m=cfg.lidar.range_min_m, range_max_m=cfg.lidar.range_max_m,
-                        scan_time_s=scan_time, frame_id=f"{robot}/laser")))
+                    events.append(
+                        (
+                            r.stamp_s,
+                            1,
+                            names["lidar"],
+                            laser_scan_msg(
+                                stamp_ns(r.stamp_s),
+                                r.angles_rad,
+                                r.ranges_m,
+                                r.intensities,
+                                range_min_m=cfg.lidar.range_min_m,
+                                range_max_m=cfg.lidar.range_max_m,
+                                scan_time_s=scan_time,
+                                frame_id=f"{robot}/laser",
+                            ),
+                        )
+                    )
                 for r in rec.camera:
                     events.append((r.stamp_s, 2, names["camera"], bearings_msg(r.bearings_rad)))
                 if self.mocap and step.truth is not None:
                     x, y, yaw = step.truth.poses[i]
-                    events.append((step.time_s, 3, names["mocap"],
-                                   pose_stamped_msg(stamp_ns(step.time_s), x, y, yaw)))
+                    events.append(
+                        (
+                            step.time_s,
+                            3,
+                            names["mocap"],
+                            pose_stamped_msg(stamp_ns(step.time_s), x, y, yaw),
+                        )
+                    )
             events.sort(key=lambda e: (e[0], e[1]))
             for t_s, _, topic, msg in events:
                 delay = mono0 + t_s - time.monotonic()

@@ -166,8 +166,15 @@ def _optional_numbers(msg: dict, path: str, length: int) -> None:
     _number_array(value, path, max_len=length, exact_len=length)
 
 
-def _number_array(value: Any, path: str, *, max_len: int, exact_len: int | None = None,
-                  non_finite_ok: bool = False, none_ok: bool = False) -> np.ndarray:
+def _number_array(
+    value: Any,
+    path: str,
+    *,
+    max_len: int,
+    exact_len: int | None = None,
+    non_finite_ok: bool = False,
+    none_ok: bool = False,
+) -> np.ndarray:
     if not isinstance(value, (list, tuple)):
         raise InvalidMessage(path, f"expected an array, got {type(value).__name__}")
     n = len(value)
@@ -203,7 +210,9 @@ def parse_stamp(msg: Any, path: str = "header.stamp") -> int:
     sec, nsec = stamp.get(sec_key), stamp.get(nsec_key, 0)
     for key, value in ((sec_key, sec), (nsec_key, nsec)):
         if type(value) is not int:
-            raise InvalidMessage(f"{path}.{key}", f"expected an integer, got {type(value).__name__}")
+            raise InvalidMessage(
+                f"{path}.{key}", f"expected an integer, got {type(value).__name__}"
+            )
     if not 0 <= nsec < _NS:
         raise InvalidMessage(f"{path}.{nsec_key}", f"out of range [0, 1e9): {nsec}")
     if sec < 0 or sec > 2**40:
@@ -240,32 +249,36 @@ def parse_laser_scan(msg: Any, max_beams: int = 8192) -> Scan:
     increment = float(np.float32(_number(msg, "angle_increment")))
     range_min = float(np.float32(_number(msg, "range_min")))
     range_max = float(np.float32(_number(msg, "range_max")))
-    ranges = _number_array(_get(msg, "ranges"), "ranges", max_len=max_beams,
-                           non_finite_ok=True, none_ok=True)
+    ranges = _number_array(
+        _get(msg, "ranges"), "ranges", max_len=max_beams, non_finite_ok=True, none_ok=True
+    )
     n = ranges.size
     if n == 0:
         raise InvalidMessage("ranges", "empty")
     if increment == 0.0:
         raise InvalidMessage("angle_increment", "zero")
     if abs(n * increment) > TWO_PI + abs(increment) + 1e-6:
-        raise InvalidMessage("angle_increment", f"{n} beams x {increment} rad exceed one revolution")
+        raise InvalidMessage(
+            "angle_increment", f"{n} beams x {increment} rad exceed one revolution"
+        )
     angle_max = float(np.float32(_number(msg, "angle_max")))
     span_error = abs(angle_min + (n - 1) * increment - angle_max)
     if span_error > 1.01 * abs(increment) + 1e-6:
         raise InvalidMessage(
-            "angle_max", f"inconsistent with {n} beams from angle_min at angle_increment "
-                         f"(off by {span_error:.4g} rad)"
+            "angle_max",
+            f"inconsistent with {n} beams from angle_min at angle_increment "
+            f"(off by {span_error:.4g} rad)",
         )
     if range_min < 0.0 or not range_max > range_min:
-        raise InvalidMessage("range_max", f"need 0 <= range_min < range_max, got "
-                                          f"[{range_min}, {range_max}]")
+        raise InvalidMessage(
+            "range_max", f"need 0 <= range_min < range_max, got [{range_min}, {range_max}]"
+        )
     raw_intensities = _get(msg, "intensities")
     if isinstance(raw_intensities, (list, tuple)) and len(raw_intensities) == 0:
         # No intensities: no return can be classified as a null (interference) return.
         intensities = np.ones(n)
     else:
-        intensities = _number_array(raw_intensities, "intensities", max_len=max_beams,
-                                    exact_len=n)
+        intensities = _number_array(raw_intensities, "intensities", max_len=max_beams, exact_len=n)
         intensities = np.float32(intensities).astype(np.float64)
     ranges = ranges.astype(np.float32).astype(np.float64)
     with np.errstate(invalid="ignore"):
@@ -326,11 +339,13 @@ def parse_bearings(msg: Any, stamp_ns: int, max_bearings: int = 256) -> Bearings
                 raise InvalidMessage("layout.dim[0]", "expected an object")
             size = dims[0].get("size")
             if type(size) is not int:
-                raise InvalidMessage("layout.dim[0].size",
-                                     f"expected an integer, got {type(size).__name__}")
+                raise InvalidMessage(
+                    "layout.dim[0].size", f"expected an integer, got {type(size).__name__}"
+                )
             if size != data.size:
-                raise InvalidMessage("layout.dim[0].size",
-                                     f"says {size} elements, data has {data.size}")
+                raise InvalidMessage(
+                    "layout.dim[0].size", f"says {size} elements, data has {data.size}"
+                )
     bearings = wrap_angle(data.astype(np.float32).astype(np.float64))
     return Bearings(stamp_ns, bearings)
 
@@ -339,8 +354,12 @@ def parse_pose_stamped(msg: Any) -> Pose:
     """Validate a ``geometry_msgs/PoseStamped`` (motion capture) and reduce it to x, y, yaw."""
     msg = _root(msg)
     stamp_ns = parse_stamp(msg)
-    return Pose(stamp_ns, _number(msg, "pose.position.x"), _number(msg, "pose.position.y"),
-                _yaw(msg, "pose.orientation"))
+    return Pose(
+        stamp_ns,
+        _number(msg, "pose.position.x"),
+        _number(msg, "pose.position.y"),
+        _yaw(msg, "pose.orientation"),
+    )
 
 
 def parse_twist(msg: Any) -> tuple[float, float]:
@@ -355,8 +374,10 @@ def parse_twist(msg: Any) -> tuple[float, float]:
 
 # ---------------------------------------------------------------------------- builders
 def header(stamp_ns: int, frame_id: str) -> dict[str, Any]:
-    return {"stamp": {"sec": int(stamp_ns // _NS), "nanosec": int(stamp_ns % _NS)},
-            "frame_id": frame_id}
+    return {
+        "stamp": {"sec": int(stamp_ns // _NS), "nanosec": int(stamp_ns % _NS)},
+        "frame_id": frame_id,
+    }
 
 
 def _quaternion(yaw: float) -> dict[str, float]:
@@ -364,13 +385,23 @@ def _quaternion(yaw: float) -> dict[str, float]:
 
 
 def twist_msg(v_mps: float, omega_radps: float) -> dict[str, Any]:
-    return {"linear": {"x": float(v_mps), "y": 0.0, "z": 0.0},
-            "angular": {"x": 0.0, "y": 0.0, "z": float(omega_radps)}}
+    return {
+        "linear": {"x": float(v_mps), "y": 0.0, "z": 0.0},
+        "angular": {"x": 0.0, "y": 0.0, "z": float(omega_radps)},
+    }
 
 
-def laser_scan_msg(stamp_ns: int, angles_rad: np.ndarray, ranges_m: np.ndarray,
-                   intensities: np.ndarray, *, range_min_m: float, range_max_m: float,
-                   scan_time_s: float, frame_id: str) -> dict[str, Any]:
+def laser_scan_msg(
+    stamp_ns: int,
+    angles_rad: np.ndarray,
+    ranges_m: np.ndarray,
+    intensities: np.ndarray,
+    *,
+    range_min_m: float,
+    range_max_m: float,
+    scan_time_s: float,
+    frame_id: str,
+) -> dict[str, Any]:
     """A LaserScan from evenly spaced, increasing beams (as the simulator produces them)."""
     angles = np.asarray(angles_rad, dtype=np.float64)
     n = angles.size
@@ -389,33 +420,58 @@ def laser_scan_msg(stamp_ns: int, angles_rad: np.ndarray, ranges_m: np.ndarray,
     }
 
 
-def odometry_msg(stamp_ns: int, x_m: float, y_m: float, yaw_rad: float, v_mps: float,
-                 omega_radps: float, *, frame_id: str = "odom",
-                 child_frame_id: str = "base_link") -> dict[str, Any]:
+def odometry_msg(
+    stamp_ns: int,
+    x_m: float,
+    y_m: float,
+    yaw_rad: float,
+    v_mps: float,
+    omega_radps: float,
+    *,
+    frame_id: str = "odom",
+    child_frame_id: str = "base_link",
+) -> dict[str, Any]:
     return {
         "header": header(stamp_ns, frame_id),
         "child_frame_id": child_frame_id,
-        "pose": {"pose": {"position": {"x": float(x_m), "y": float(y_m), "z": 0.0},
-                          "orientation": _quaternion(float(yaw_rad))},
-                 "covariance": [0.0] * 36},
-        "twist": {"twist": {"linear": {"x": float(v_mps), "y": 0.0, "z": 0.0},
-                            "angular": {"x": 0.0, "y": 0.0, "z": float(omega_radps)}},
-                  "covariance": [0.0] * 36},
+        "pose": {
+            "pose": {
+                "position": {"x": float(x_m), "y": float(y_m), "z": 0.0},
+                "orientation": _quaternion(float(yaw_rad)),
+            },
+            "covariance": [0.0] * 36,
+        },
+        "twist": {
+            "twist": {
+                "linear": {"x": float(v_mps), "y": 0.0, "z": 0.0},
+                "angular": {"x": 0.0, "y": 0.0, "z": float(omega_radps)},
+            },
+            "covariance": [0.0] * 36,
+        },
     }
 
 
 def bearings_msg(bearings_rad: np.ndarray) -> dict[str, Any]:
     data = np.asarray(bearings_rad, dtype=np.float32).reshape(-1).tolist()
-    return {"layout": {"dim": [{"label": "bearing", "size": len(data), "stride": len(data)}],
-                       "data_offset": 0},
-            "data": data}
+    return {
+        "layout": {
+            "dim": [{"label": "bearing", "size": len(data), "stride": len(data)}],
+            "data_offset": 0,
+        },
+        "data": data,
+    }
 
 
-def pose_stamped_msg(stamp_ns: int, x_m: float, y_m: float, yaw_rad: float,
-                     frame_id: str = "mocap") -> dict[str, Any]:
-    return {"header": header(stamp_ns, frame_id),
-            "pose": {"position": {"x": float(x_m), "y": float(y_m), "z": 0.0},
-                     "orientation": _quaternion(float(yaw_rad))}}
+def pose_stamped_msg(
+    stamp_ns: int, x_m: float, y_m: float, yaw_rad: float, frame_id: str = "mocap"
+) -> dict[str, Any]:
+    return {
+        "header": header(stamp_ns, frame_id),
+        "pose": {
+            "position": {"x": float(x_m), "y": float(y_m), "z": 0.0},
+            "orientation": _quaternion(float(yaw_rad)),
+        },
+    }
 
 
 # ---------------------------------------------------------------------------- counters

@@ -23,14 +23,21 @@ class CommandLimiter:
       that takes it back towards the inside; a robot without a fresh mocap pose is stopped.
     """
 
-    def __init__(self, robot_ids: Sequence[str], bridge: BridgeConfig, robot: RobotConfig,
-                 period_s: float, counters: Counters) -> None:
+    def __init__(
+        self,
+        robot_ids: Sequence[str],
+        bridge: BridgeConfig,
+        robot: RobotConfig,
+        period_s: float,
+        counters: Counters,
+    ) -> None:
         self.robot_ids = tuple(robot_ids)
         self.period_s = period_s
         self.counters = counters
         self.v_max = min(bridge.max_speed_mps or robot.max_speed_mps, robot.max_speed_mps)
-        self.w_max = min(bridge.max_turn_rate_radps or robot.max_turn_rate_radps,
-                         robot.max_turn_rate_radps)
+        self.w_max = min(
+            bridge.max_turn_rate_radps or robot.max_turn_rate_radps, robot.max_turn_rate_radps
+        )
         self.a_max = bridge.max_accel_mps2 or robot.max_accel_mps2
         self.alpha_max = bridge.max_turn_accel_radps2 or robot.max_turn_accel_radps2
         self.geofence = bridge.geofence_m
@@ -64,10 +71,13 @@ class CommandLimiter:
             return np.zeros(2)
         x_min, x_max, y_min, y_max = self.geofence
         # Outward direction: sum of the normals of the violated bounds.
-        out = np.array([
-            (pose.x_m > x_max) - (pose.x_m < x_min),
-            (pose.y_m > y_max) - (pose.y_m < y_min),
-        ], dtype=np.float64)
+        out = np.array(
+            [
+                (pose.x_m > x_max) - (pose.x_m < x_min),
+                (pose.y_m > y_max) - (pose.y_m < y_min),
+            ],
+            dtype=np.float64,
+        )
         if not out.any():
             return cmd
         heading = np.array([math.cos(pose.yaw_rad), math.sin(pose.yaw_rad)])

@@ -59,8 +59,10 @@ def _ensure_reactor() -> None:
         if reactor.running:
             return
         _REACTOR_THREAD = threading.Thread(
-            target=reactor.run, kwargs={"installSignalHandlers": False},
-            name="rosbridge-reactor", daemon=True,
+            target=reactor.run,
+            kwargs={"installSignalHandlers": False},
+            name="rosbridge-reactor",
+            daemon=True,
         )
         _REACTOR_THREAD.start()
 
@@ -135,10 +137,18 @@ class RosbridgeClient:
         Called on the reactor thread when an established link is lost.
     """
 
-    def __init__(self, host: str, port: int, *, subscriptions: list[Subscription],
-                 publications: dict[str, str], config: BridgeConfig, counters: Counters,
-                 on_ready: Callable[[], None] | None = None,
-                 on_lost: Callable[[], None] | None = None) -> None:
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        *,
+        subscriptions: list[Subscription],
+        publications: dict[str, str],
+        config: BridgeConfig,
+        counters: Counters,
+        on_ready: Callable[[], None] | None = None,
+        on_lost: Callable[[], None] | None = None,
+    ) -> None:
         import roslibpy
 
         self.host, self.port = host, int(port)
@@ -229,8 +239,16 @@ class RosbridgeClient:
             self.counters.incr("transport.publish_dropped", len(items))
             return False
         for topic, msg in items:
-            proto.send_ros_message(Message({"op": "publish", "id": self._next_id("publish", topic),
-                                            "topic": topic, "msg": msg}))
+            proto.send_ros_message(
+                Message(
+                    {
+                        "op": "publish",
+                        "id": self._next_id("publish", topic),
+                        "topic": topic,
+                        "msg": msg,
+                    }
+                )
+            )
         self.counters.incr("transport.published", len(items))
         return True
 
@@ -253,17 +271,32 @@ class RosbridgeClient:
             proto.sendClose()
             return
         for topic, msg_type in self.publications.items():
-            proto.send_ros_message(Message({
-                "op": "advertise", "id": self._next_id("advertise", topic), "topic": topic,
-                "type": msg_type, "queue_size": 1, "latch": False,
-            }))
+            proto.send_ros_message(
+                Message(
+                    {
+                        "op": "advertise",
+                        "id": self._next_id("advertise", topic),
+                        "topic": topic,
+                        "type": msg_type,
+                        "queue_size": 1,
+                        "latch": False,
+                    }
+                )
+            )
         for sub in self.subscriptions:
-            proto.send_ros_message(Message({
-                "op": "subscribe", "id": self._next_id("subscribe", sub.topic),
-                "topic": sub.topic, "type": sub.msg_type, "compression": "none",
-                "throttle_rate": self.config.throttle_rate_ms,
-                "queue_length": self.config.queue_length,
-            }))
+            proto.send_ros_message(
+                Message(
+                    {
+                        "op": "subscribe",
+                        "id": self._next_id("subscribe", sub.topic),
+                        "topic": sub.topic,
+                        "type": sub.msg_type,
+                        "compression": "none",
+                        "throttle_rate": self.config.throttle_rate_ms,
+                        "queue_length": self.config.queue_length,
+                    }
+                )
+            )
         with self._proto_lock:
             self._proto = proto
         if self._ever_connected:

@@ -40,8 +40,14 @@ class Watchdog:
         A single ``step()`` longer than this (a hung step) also trips the watchdog.
     """
 
-    def __init__(self, stop_all: Callable[[str], None], timeout_s: float = 0.5,
-                 poll_s: float = 0.01, repeat_s: float = 0.25, max_step_s: float = 2.0) -> None:
+    def __init__(
+        self,
+        stop_all: Callable[[str], None],
+        timeout_s: float = 0.5,
+        poll_s: float = 0.01,
+        repeat_s: float = 0.25,
+        max_step_s: float = 2.0,
+    ) -> None:
         self._stop_all = stop_all
         self.timeout_s = timeout_s
         self.poll_s = poll_s
@@ -91,7 +97,8 @@ class Watchdog:
             self._last_stop = now
             self._in_step = False
             self.trips.append((now, reason))
-        LOGGER.warning("watchdog: stopping all robots (%s)", reason)
+        level = logging.INFO if reason == "close()" else logging.WARNING
+        LOGGER.log(level, "watchdog: stopping all robots (%s)", reason)
         self._safe_stop(reason)
 
     def close(self) -> None:

@@ -66,18 +66,25 @@ _ACTIVE_LOCK = threading.Lock()
 class RobotsSilentError(TimeoutError):
     """``reset()`` did not hear from every robot in time. ``silent`` maps robot -> sensors."""
 
-    def __init__(self, silent: dict[str, list[str]], timeout_s: float, connected: bool,
-                 where: str) -> None:
+    def __init__(
+        self, silent: dict[str, list[str]], timeout_s: float, connected: bool, where: str
+    ) -> None:
         self.silent = silent
         if not connected:
-            text = (f"could not connect to rosbridge at {where} within {timeout_s:.1f} s; "
-                    f"silent robots: {sorted(silent)}")
+            text = (
+                f"could not connect to rosbridge at {where} within {timeout_s:.1f} s; "
+                f"silent robots: {sorted(silent)}"
+            )
         else:
-            parts = [f"{robot} ({', '.join(sensors)})" for robot, sensors in sorted(silent.items())]
-            text = (f"no fresh data within {timeout_s:.1f} s from {len(silent)} robot(s): "
-                    f"{'; '.join(parts)}. Check that the robots run their drivers and "
-                    f"rosbridge at {where} sees the topics, and that their clocks are "
-                    "synchronised (chrony).")
+            parts = [
+                f"{robot} ({', '.join(sensors)})" for robot, sensors in sorted(silent.items())
+            ]
+            text = (
+                f"no fresh data within {timeout_s:.1f} s from {len(silent)} robot(s): "
+                f"{'; '.join(parts)}. Check that the robots run their drivers and "
+                f"rosbridge at {where} sees the topics, and that their clocks are "
+                "synchronised (chrony)."
+            )
         super().__init__(text)
 
 
@@ -111,10 +118,18 @@ class RealWorld:
         ROS time in integer nanoseconds (default ``time.time_ns``).
     """
 
-    def __init__(self, robot_ids: Sequence[str], config: SwarmConfig, *, host: str = "127.0.0.1",
-                 port: int = 9090, allow_remote: bool = False,
-                 bridge: BridgeConfig | dict | None = None, recorder: Any = None,
-                 clock_ns: Callable[[], int] = time.time_ns) -> None:
+    def __init__(
+        self,
+        robot_ids: Sequence[str],
+        config: SwarmConfig,
+        *,
+        host: str = "127.0.0.1",
+        port: int = 9090,
+        allow_remote: bool = False,
+        bridge: BridgeConfig | dict | None = None,
+        recorder: Any = None,
+        clock_ns: Callable[[], int] = time.time_ns,
+    ) -> None:
         check_host(host, allow_remote)
         if isinstance(port, bool) or not isinstance(port, int) or not 0 < port < 65536:
             raise ValueError(f"port must be an int in 1..65535, got {port!r}")
@@ -135,8 +150,9 @@ class RealWorld:
         self.limiter = CommandLimiter(ids, self.bridge, config.robot, self.period_s, self.counters)
         self._lock = threading.Lock()
         self._sensors = FEED_SENSORS + (("mocap",) if self.bridge.use_mocap else ())
-        self._buffers = {(r, s): _Buffer(self.bridge.buffer_length)
-                         for r in ids for s in self._sensors}
+        self._buffers = {
+            (r, s): _Buffer(self.bridge.buffer_length) for r in ids for s in self._sensors
+        }
         self._nominal_period_s = {
             "odometry": 1.0 / config.odometry.rate_hz,
             "lidar": 1.0 / config.lidar.rate_hz,
@@ -151,28 +167,46 @@ class RealWorld:
         self.timing = {"steps": 0, "overruns": 0, "max_gap_s": 0.0, "max_late_s": 0.0}
 
         self._claim()
-        subscriptions, publications = [], {}
-        for robot in ids:
-            names = topics(robot)
-            for sensor in self._sensors:
-                subscriptions.append(Subscription(names[sensor], ROS_TYPES[sensor],
-                                                  self._callback(robot, sensor)))
-            publications[names["cmd_vel"]] = ROS_TYPES["cmd_vel"]
-        self._cmd_topics = [topics(r)["cmd_vel"] for r in ids]
-        self.client = RosbridgeClient(
-            host, port, subscriptions=subscriptions, publications=publications,
-            config=self.bridge, counters=self.counters,
-            on_ready=self._on_link_up, on_lost=self._on_link_lost,
-        )
-        self.watchdog = Watchdog(
-            self._stop_all, timeout_s=self.bridge.watchdog_timeout_s,
-            poll_s=self.bridge.watchdog_poll_s, repeat_s=self.bridge.watchdog_repeat_s,
-            max_step_s=self.period_s + 2.0,
-        )
-        self.watchdog.install_sigint()
-        self._atexit = self._make_atexit()
-        atexit.register(self._atexit)
-        self.client.start()
+        self.watchdog: Watchdog | None = None
+        try:
+            subscriptions, publications = [], {}
+            for robot in ids:
+                names = topics(robot)
+                for sensor in self._sensors:
+                    subscriptions.append(
+                        Subscription(
+                            names[sensor], ROS_TYPES[sensor], self._callback(robot, sensor)
+                        )
+                    )
+                publications[names["cmd_vel"]] = ROS_TYPES["cmd_vel"]
+            self._cmd_topics = [topics(r)["cmd_vel"] for r in ids]
+            self.client = RosbridgeClient(
+                host,
+                port,
+                subscriptions=subscriptions,
+                publications=publications,
+                config=self.bridge,
+                counters=self.counters,
+                on_ready=self._on_link_up,
+                on_lost=self._on_link_lost,
+            )
+            self.watchdog = Watchdog(
+                self._stop_all,
+                timeout_s=self.bridge.watchdog_timeout_s,
+                poll_s=self.bridge.watchdog_poll_s,
+                repeat_s=self.bridge.watchdog_repeat_s,
+                max_step_s=self.period_s + 2.0,
+            )
+            self.watchdog.install_sigint()
+            self._atexit = self._make_atexit()
+            atexit.register(self._atexit)
+            self.client.start()
+        except BaseException:
+            self._closed = True
+            if self.watchdog is not None:
+                self.watchdog.close()
+            self._release()
+            raise
 
     # ------------------------------------------------------------------ pickling / copies
     def __reduce_ex__(self, protocol):
@@ -214,8 +248,9 @@ class RealWorld:
             if not silent:
                 break
             if time.monotonic() >= deadline:
-                raise RobotsSilentError(silent, self.bridge.reset_timeout_s,
-                                        self.client.connected, where)
+                raise RobotsSilentError(
+                    silent, self.bridge.reset_timeout_s, self.client.connected, where
+                )
             time.sleep(0.01)
         end_ns = self._clock_ns()
         taken = self._take(start_ns, end_ns)
@@ -231,9 +266,13 @@ class RealWorld:
             }
             self.assembler.odometry(robot, [m for m, _ in used[robot]["odometry"]])
         self._truth_pose = {r: None for r in self.robot_ids}
-        per_robot = {r: {"lidar": [m for m, _ in used[r]["lidar"]],
-                         "camera": [m for m, _ in used[r]["camera"]]}
-                     for r in self.robot_ids}
+        per_robot = {
+            r: {
+                "lidar": [m for m, _ in used[r]["lidar"]],
+                "camera": [m for m, _ in used[r]["camera"]],
+            }
+            for r in self.robot_ids
+        }
         measurements = self.assembler.measurements(per_robot)
         truth = self._truth(used, end_ns)
         stale = self._stale(end_ns)
@@ -241,8 +280,9 @@ class RealWorld:
         if self.recorder is not None:
             self.recorder.record_step("reset", 0, end_ns, used, None, stale)
         self._last_step_end_mono = time.monotonic()
-        return WorldStep(time_s=ns_to_s(end_ns), measurements=measurements, truth=truth,
-                         stale=stale)
+        return WorldStep(
+            time_s=ns_to_s(end_ns), measurements=measurements, truth=truth, stale=stale
+        )
 
     def step(self, commands: np.ndarray) -> WorldStep:
         if self._closed:
@@ -285,8 +325,12 @@ class RealWorld:
         limited = self.limiter.limit(commands, self._fresh_mocap())
         t_cmd_ns = self._clock_ns()
         cmd_mono = time.monotonic()
-        sent = self.client.publish([(topic, twist_msg(v, w))
-                                    for topic, (v, w) in zip(self._cmd_topics, limited)])
+        sent = self.client.publish(
+            [
+                (topic, twist_msg(v, w))
+                for topic, (v, w) in zip(self._cmd_topics, limited, strict=True)
+            ]
+        )
         if not sent:
             self.counters.incr("commands.not_sent_steps")
         # Wait out the period on the steady clock.
@@ -304,19 +348,28 @@ class RealWorld:
         after_ns = t_cmd_ns if self.bridge.drop_pre_command else self._last_end_ns
         used = self._take(after_ns, end_ns)
         self._last_end_ns = end_ns
-        per_robot = {r: {s: [m for m, _ in used[r].get(s, [])] for s in FEED_SENSORS}
-                     for r in self.robot_ids}
+        per_robot = {
+            r: {s: [m for m, _ in used[r].get(s, [])] for s in FEED_SENSORS}
+            for r in self.robot_ids
+        }
         measurements = self.assembler.measurements(per_robot)
         truth = self._truth(used, end_ns)
         stale = self._stale(end_ns)
         self._step_index += 1
         self.timing["steps"] += 1
         if self.recorder is not None:
-            self.recorder.record_step("step", self._step_index, end_ns, used,
-                                      (t_cmd_ns, limited) if sent else None, stale)
+            self.recorder.record_step(
+                "step",
+                self._step_index,
+                end_ns,
+                used,
+                (t_cmd_ns, limited) if sent else None,
+                stale,
+            )
         self._last_step_end_mono = time.monotonic()
-        return WorldStep(time_s=ns_to_s(end_ns), measurements=measurements, truth=truth,
-                         stale=stale)
+        return WorldStep(
+            time_s=ns_to_s(end_ns), measurements=measurements, truth=truth, stale=stale
+        )
 
     def _take(self, after_ns: int, until_ns: int) -> dict[str, dict[str, list]]:
         """Remove and return buffered ``(parsed, raw)`` messages stamped in
@@ -350,16 +403,21 @@ class RealWorld:
             if poses:
                 self._truth_pose[robot] = poses[-1][0]
         limit_ns = self.bridge.stale_mocap_s * 1e9
-        fresh = {r: (p if p is not None and end_ns - p.stamp_ns <= limit_ns else None)
-                 for r, p in self._truth_pose.items()}
+        fresh = {
+            r: (p if p is not None and end_ns - p.stamp_ns <= limit_ns else None)
+            for r, p in self._truth_pose.items()
+        }
         return self.assembler.truth(fresh)
 
     def _silent_since(self, start_ns: int) -> dict[str, list[str]]:
         silent: dict[str, list[str]] = {}
         with self._lock:
             for robot in self.robot_ids:
-                missing = [s for s in self.bridge.required_sensors
-                           if self._buffers[(robot, s)].newest_ns <= start_ns]
+                missing = [
+                    s
+                    for s in self.bridge.required_sensors
+                    if self._buffers[(robot, s)].newest_ns <= start_ns
+                ]
                 if missing:
                     silent[robot] = missing
         return silent
@@ -371,15 +429,18 @@ class RealWorld:
                 stale = []
                 for sensor in self._sensors:
                     buf = self._buffers[(robot, sensor)]
-                    if sensor == "mocap" and not buf.seen and "mocap" not in \
-                            self.bridge.required_sensors:
+                    if (
+                        sensor == "mocap"
+                        and not buf.seen
+                        and "mocap" not in self.bridge.required_sensors
+                    ):
                         continue  # no mocap in this lab: not "stale", just absent
                     age_s = (now_ns - buf.newest_ns) * 1e-9
                     if age_s > self.bridge.stale_age_s(sensor):
                         stale.append(sensor)
                 if stale:
                     out[robot] = tuple(stale)
-        for robot, sensors in out.items():
+        for sensors in out.values():
             for sensor in sensors:
                 self.counters.incr(f"{sensor}.stale_steps")
         return out
@@ -388,8 +449,10 @@ class RealWorld:
         now_ns = self._clock_ns() if now_ns is None else now_ns
         limit_ns = self.bridge.stale_mocap_s * 1e9
         with self._lock:
-            return {r: (p if p is not None and now_ns - p.stamp_ns <= limit_ns else None)
-                    for r, p in self._mocap.items()}
+            return {
+                r: (p if p is not None and now_ns - p.stamp_ns <= limit_ns else None)
+                for r, p in self._mocap.items()
+            }
 
     # ------------------------------------------------------------------ receive side
     def _callback(self, robot: str, sensor: str) -> Callable[[Any], None]:
@@ -420,9 +483,11 @@ class RealWorld:
             with self._lock:
                 if sensor == "camera":
                     # No header: a duplicate is the same payload again within a few ms.
-                    if (buf.last_payload is not None
-                            and arrival - buf.last_arrival < bridge.duplicate_window_s
-                            and np.array_equal(buf.last_payload, parsed.bearings_rad)):
+                    if (
+                        buf.last_payload is not None
+                        and arrival - buf.last_arrival < bridge.duplicate_window_s
+                        and np.array_equal(buf.last_payload, parsed.bearings_rad)
+                    ):
                         self.counters.incr(f"{key}.duplicate")
                         return
                     buf.last_payload = parsed.bearings_rad

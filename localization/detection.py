@@ -114,8 +114,16 @@ def angular_bump(units: np.ndarray, directions: np.ndarray, inv_var: np.ndarray)
     return np.exp((directions * inv_var).dot(units) - inv_var)
 
 
+def _scaled_bump(scaled_dirs: np.ndarray, units: np.ndarray, inv_var: np.ndarray) -> np.ndarray:
+    """:func:`angular_bump` with ``directions * inv_var`` precomputed."""
+    return np.exp(scaled_dirs.dot(units) - inv_var)
+
+
 def blind_sector_factor(
-    units: np.ndarray, sector_dirs: np.ndarray, sector_inv_var: np.ndarray
+    units: np.ndarray,
+    sector_dirs: np.ndarray,
+    sector_inv_var: np.ndarray,
+    _scaled_dirs: np.ndarray | None = None,
 ) -> np.ndarray:
     """Product over blind sectors of ``1 - bump(theta - alpha_k; sigma_k)``.
 
@@ -133,7 +141,11 @@ def blind_sector_factor(
     ndarray, shape (N,)
         Factor in ``[0, 1]``; 0 at a sector centre.
     """
-    return np.multiply.reduce(1.0 - angular_bump(units, sector_dirs, sector_inv_var), axis=0)
+    if _scaled_dirs is None:
+        bump = angular_bump(units, sector_dirs, sector_inv_var)
+    else:
+        bump = _scaled_bump(_scaled_dirs, units, sector_inv_var)
+    return np.multiply.reduce(1.0 - bump, axis=0)
 
 
 def occlusion_factor(
@@ -215,6 +227,7 @@ class DetectionModel:
         "config",
         "_sector_dirs",
         "_sector_inv_var",
+        "_sector_scaled",
         "_occlusion_inv_var",
         "_interference_inv_var",
     )
@@ -225,6 +238,7 @@ class DetectionModel:
         sigmas = 0.5 * np.radians(np.asarray(config.blind_sector_widths_deg, dtype=float))
         self._sector_dirs = np.stack((np.cos(centres), np.sin(centres)), axis=1)  # (K, 2)
         self._sector_inv_var = (1.0 / sigmas**2)[:, None]  # (K, 1)
+        self._sector_scaled = self._sector_dirs * self._sector_inv_var
         self._occlusion_inv_var = 1.0 / math.radians(config.occlusion_std_deg) ** 2
         self._interference_inv_var = 1.0 / math.radians(config.interference_std_deg) ** 2
 
@@ -266,7 +280,9 @@ class DetectionModel:
             ranges, cfg.lidar_pd_offset, cfg.lidar_pd_slope_per_m, cfg.lidar_pd_midpoint_m
         )
         if self._sector_dirs.shape[0]:
-            pd *= blind_sector_factor(units, self._sector_dirs, self._sector_inv_var)
+            pd *= blind_sector_factor(
+                units, self._sector_dirs, self._sector_inv_var, self._sector_scaled
+            )
         if table.shape[1] > 1:
             pd *= occlusion_factor(
                 units,

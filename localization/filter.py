@@ -364,9 +364,13 @@ def _checked_points(points: Any) -> np.ndarray:
         if pts.size == 0:
             return np.empty((0, 2))
         raise ValueError(f"points must have shape (M, 2), got shape {pts.shape}")
-    if not np.isfinite(pts).all():
-        bad = int(np.flatnonzero(~np.isfinite(pts).all(axis=1))[0])
-        raise ValueError(f"points must be finite, got points[{bad}] = {pts[bad].tolist()}")
+    # Fast check first: a finite sum means finite entries (an overflowing sum of huge finite
+    # values falls through to the exact check, which then finds nothing to complain about).
+    if not math.isfinite(np.add.reduce(pts.ravel())):
+        bad_rows = np.flatnonzero(~np.isfinite(pts).all(axis=1))
+        if bad_rows.size:
+            bad = int(bad_rows[0])
+            raise ValueError(f"points must be finite, got points[{bad}] = {pts[bad].tolist()}")
     return pts
 
 
@@ -376,7 +380,9 @@ def _checked_angles(angles: Any, name: str) -> np.ndarray:
         if arr.size == 0:
             return np.empty(0)
         raise ValueError(f"{name} must have shape (M,), got shape {arr.shape}")
-    if not np.isfinite(arr).all():
-        bad = int(np.flatnonzero(~np.isfinite(arr))[0])
-        raise ValueError(f"{name} must be finite, got {name}[{bad}] = {arr[bad]!r}")
+    if not math.isfinite(np.add.reduce(arr)):
+        bad_idx = np.flatnonzero(~np.isfinite(arr))
+        if bad_idx.size:
+            bad = int(bad_idx[0])
+            raise ValueError(f"{name} must be finite, got {name}[{bad}] = {arr[bad]!r}")
     return arr

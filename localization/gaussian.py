@@ -175,18 +175,20 @@ def position_update(
     """
     r = noise_var
     pxx, pxy, pyy = covs
-    det_p = pxx * pyy - pxy * pxy
+    pxy2 = pxy * pxy
+    det_p = pxx * pyy - pxy2
     s = covs + r * _EYE3
     # det S >= r^2 > 0 for PSD P; the floor only guards a corrupted input.
-    inv_det_s = 1.0 / np.maximum(s[0] * s[2] - pxy * pxy, TINY)
-    s_inv = s[::-1] * (_INV_SIGN3 * inv_det_s)  # rows: (S^-1)_xx, _xy, _yy
+    inv_det_s = 1.0 / np.maximum(s[0] * s[2] - pxy2, TINY)
+    # -S^-1 / 2, rows xx, xy, yy (the -1/2 of the exponent folded in once per component).
+    half_inv = s[::-1] * (_INV_SIGN3 * (-0.5 * inv_det_s))
     post_covs = (covs * r + _EYE3 * det_p) * (r * inv_det_s)
     diff = points[:, None, :] - means[:, :, None]  # (2, N, M): z - m
-    # e = S^-1 (z - m), row by row.
-    e = s_inv[0:2, :, None] * diff[0] + s_inv[1:3, :, None] * diff[1]
-    maha = diff[0] * e[0] + diff[1] * e[1]
-    likelihood = np.exp(maha * -0.5) * (np.sqrt(inv_det_s) * _INV_TWO_PI)[:, None]
-    post_means = points[:, None, :] - r * e
+    # e = -S^-1 (z - m) / 2, row by row.
+    e = half_inv[0:2, :, None] * diff[0] + half_inv[1:3, :, None] * diff[1]
+    likelihood = np.exp(diff[0] * e[0] + diff[1] * e[1])
+    likelihood *= (np.sqrt(inv_det_s) * _INV_TWO_PI)[:, None]
+    post_means = points[:, None, :] + (2.0 * r) * e  # z - r S^-1 (z - m)
     return post_means, post_covs, likelihood
 
 
@@ -267,8 +269,6 @@ def bearing_update(
     post_covs = joseph_update(covs, gain, jac, noise_var)
     innov = wrap_angle(bearings - np.arctan2(means[1], means[0])[:, None])  # (N, M)
     post_means = means[:, :, None] + gain[:, :, None] * innov
-    likelihood = (
-        np.exp((innov * innov) * (-0.5 * inv_s)[:, None])
-        * (np.sqrt(inv_s) * _INV_SQRT_TWO_PI)[:, None]
-    )
+    likelihood = np.exp((innov * innov) * (-0.5 * inv_s)[:, None])
+    likelihood *= (np.sqrt(inv_s) * _INV_SQRT_TWO_PI)[:, None]
     return post_means, post_covs, likelihood

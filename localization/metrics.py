@@ -34,7 +34,8 @@ References
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import KW_ONLY, dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -48,6 +49,7 @@ __all__ = [
     "gospa",
     "in_range_mask",
     "closest_component_errors",
+    "extract_estimates",
     "LocalizationScorer",
 ]
 
@@ -135,6 +137,25 @@ class GospaResult:
     false: int
     missed_cost: float
     false_cost: float
+
+    def as_dict(self) -> dict[str, float]:
+        """The fields as a dict; ``"total"`` is an alias of ``"distance"``."""
+        return {
+            "total": self.distance,
+            "distance": self.distance,
+            "localisation": self.localisation,
+            "missed": self.missed,
+            "false": self.false,
+            "missed_cost": self.missed_cost,
+            "false_cost": self.false_cost,
+        }
+
+    def __getitem__(self, key: str) -> float:
+        """Mapping-style access: ``result["total"]`` (= ``distance``), ``result["missed"]``..."""
+        try:
+            return self.as_dict()[key]
+        except KeyError:
+            raise KeyError(f"GospaResult has no field {key!r}") from None
 
 
 def gospa(
@@ -235,19 +256,54 @@ def closest_component_errors(
     return _distances(pts, means).min(axis=1)
 
 
-@dataclass
-class LocalizationScorer:
-    """Accumulate the seed's localization statistics over time for one observer.
-
-    Feed it once per evaluation step with the true positions of the neighbours that are in
-    range (the caller decides; see :func:`in_range_mask`), their ids, and the observer's
-    mixture. Per neighbour id it accumulates the fraction of in-range steps whose error
-    exceeds ``error_threshold_m`` (seed fig. 7, 0.30 m) and the fraction within
-    ``accurate_threshold_m`` (seed ``001`` tables, 0.1 m). Per step it records the mixture's
-    weight sum against the true count (seed fig. 8) for the cardinality error.
+def extract_estimates(
+    mixture: GaussianMixture, threshold: float = 0.5, range_m: float | None = None
+) -> np.ndarray:
+    """Vo & Ma extraction from a mixture (as ``RobotCentricPHD.estimate``), optionally in range.
 
     Parameters
     ----------
+    mixture : GaussianMixture
+    threshold : float
+        Components with weight ``>= threshold`` are reported ``max(1, floor(w + 0.5))`` times.
+    range_m : float or None
+        Keep only estimates within this distance of the observer.
+
+    Returns
+    -------
+    ndarray, shape (K, 2)
+    """
+    w = mixture.weights
+    keep = w >= threshold
+    if range_m is not None:
+        keep &= np.hypot(mixture.means[:, 0], mixture.means[:, 1]) <= range_m
+    counts = np.maximum(np.floor(w[keep] + 0.5), 1.0).astype(np.intp)
+    return np.repeat(mixture.means[keep], counts, axis=0)
+
+
+@dataclass
+class LocalizationScorer:
+    """Accumulate the seed's localization statistics over time.
+
+    Two ways to feed it, each once per evaluation step:
+
+    * ``update(truth, ids, mixture)``: one observer, the true positions (observer frame) of the
+      neighbours in range and their ids. Statistics are kept **per neighbour id** (the seed's
+      fig. 7: % of time each UGV's error exceeds 0.30 m).
+    * ``add(observer, truth, mixture, range_m=None)``: a swarm of observers, each with its own
+      filter. Statistics are kept **per observer** (pooled over its neighbours in range).
+
+    Either way, each call also records the mixture's weight sum within range against the true
+    count (seed fig. 8) and the GOSPA between the truth and the extracted estimates
+    (weight >= ``extraction_threshold``) within range. "In range" is decided by the caller
+    (pass only the neighbours in range; see :func:`in_range_mask`); the weight-sum and
+    estimate range is ``range_m`` (``add``) or ``cardinality_range_m``.
+
+    Parameters
+    ----------
+    n_observers : int or None
+        Number of observers for ``add`` (per-observer lists then have this length, NaN for an
+        observer never scored). Optional.
     error_threshold_m : float
         "Large error" threshold (m), seed fig. 7: 0.30.
     accurate_threshold_m : float
@@ -255,8 +311,11 @@ class LocalizationScorer:
     min_weight : float
         Components with weight ``<= min_weight`` are ignored for the error (seed: 0.1).
     cardinality_range_m : float or None
-        If set, the weight sum is taken over components within this range of the observer
-        only (so it compares with a count of in-range neighbours); ``None`` sums all weights.
+        Range (m) for the weight sum and the GOSPA estimates; ``None`` takes everything.
+    extraction_threshold : float
+        Weight threshold of the estimates used for GOSPA (0.5).
+    gospa_c : float
+        GOSPA cut-off (m); ``p = 2``, ``alpha = 2``.
 
     Examples
     --------
@@ -265,10 +324,14 @@ class LocalizationScorer:
     >>> # then: scorer.summary()
     """
 
+    n_observers: int | None = None
+    _: KW_ONLY
     error_threshold_m: float = 0.30
     accurate_threshold_m: float = 0.10
     min_weight: float = 0.1
     cardinality_range_m: float | None = DEFAULT_RANGE_M
+    extraction_threshold: float = 0.5
+    gospa_c: float = 1.0
     steps: int = field(default=0, init=False)
     in_range_steps: dict[int, int] = field(default_factory=dict, init=False)
     large_error_steps: dict[int, int] = field(default_factory=dict, init=False)
@@ -276,18 +339,19 @@ class LocalizationScorer:
     weight_sums: list[float] = field(default_factory=list, init=False)
     true_counts: list[int] = field(default_factory=list, init=False)
     errors: list[float] = field(default_factory=list, init=False)
+    gospas: list[float] = field(default_factory=list, init=False)
 
     def update(
         self, truth: np.ndarray, ids: np.ndarray | list[int], mixture: GaussianMixture
     ) -> np.ndarray:
-        """Add one time step.
+        """Add one time step of one observer, keyed by neighbour id.
 
         Parameters
         ----------
         truth : array_like, shape (K, 2)
             True positions (observer frame, m) of the neighbours in range at this step.
         ids : array_like of int, shape (K,)
-            Their identities (any hashable ints), to accumulate per neighbour.
+            Their identities (any ints), to accumulate per neighbour.
         mixture : GaussianMixture
             The observer's PHD at this step.
 
@@ -302,29 +366,78 @@ class LocalizationScorer:
             raise ValueError(f"ids must have {pts.shape[0]} entries, got {len(id_list)}")
         errors = closest_component_errors(pts, mixture, self.min_weight)
         for ident, err in zip(id_list, errors.tolist(), strict=True):
-            self.in_range_steps[ident] = self.in_range_steps.get(ident, 0) + 1
-            if not err <= self.error_threshold_m:  # inf counts as large
-                self.large_error_steps[ident] = self.large_error_steps.get(ident, 0) + 1
-            if err <= self.accurate_threshold_m:
-                self.accurate_steps[ident] = self.accurate_steps.get(ident, 0) + 1
-        self.errors.extend(errors.tolist())
-        weights = mixture.weights
-        if self.cardinality_range_m is not None:
-            ranges = np.hypot(mixture.means[:, 0], mixture.means[:, 1])
-            weights = weights[ranges <= self.cardinality_range_m]
-        self.weight_sums.append(float(weights.sum()))
-        self.true_counts.append(pts.shape[0])
-        self.steps += 1
+            self._count(ident, err)
+        self._record_step(pts, errors, mixture, self.cardinality_range_m)
         return errors
 
+    def add(
+        self,
+        observer: int,
+        truth: np.ndarray,
+        mixture: GaussianMixture,
+        range_m: float | None = None,
+    ) -> np.ndarray:
+        """Add one time step of observer ``observer``, keyed by observer.
+
+        Parameters
+        ----------
+        observer : int
+            Index of the observing robot.
+        truth : array_like, shape (K, 2)
+            True positions (its frame, m) of its neighbours in range at this step.
+        mixture : GaussianMixture
+            Its PHD at this step.
+        range_m : float or None
+            Range for its weight sum and GOSPA estimates (default ``cardinality_range_m``).
+
+        Returns
+        -------
+        ndarray, shape (K,)
+            This step's per-neighbour errors (m).
+        """
+        pts = _points(truth, "truth")
+        errors = closest_component_errors(pts, mixture, self.min_weight)
+        observer = int(observer)
+        for err in errors.tolist():
+            self._count(observer, err)
+        self._record_step(
+            pts, errors, mixture, self.cardinality_range_m if range_m is None else range_m
+        )
+        return errors
+
+    def _count(self, key: int, err: float) -> None:
+        self.in_range_steps[key] = self.in_range_steps.get(key, 0) + 1
+        if not err <= self.error_threshold_m:  # inf counts as large
+            self.large_error_steps[key] = self.large_error_steps.get(key, 0) + 1
+        if err <= self.accurate_threshold_m:
+            self.accurate_steps[key] = self.accurate_steps.get(key, 0) + 1
+
+    def _record_step(
+        self,
+        pts: np.ndarray,
+        errors: np.ndarray,
+        mixture: GaussianMixture,
+        range_m: float | None,
+    ) -> None:
+        self.errors.extend(errors.tolist())
+        weights = mixture.weights
+        if range_m is not None:
+            ranges = np.hypot(mixture.means[:, 0], mixture.means[:, 1])
+            weights = weights[ranges <= range_m]
+        self.weight_sums.append(float(weights.sum()))
+        self.true_counts.append(pts.shape[0])
+        estimates = extract_estimates(mixture, self.extraction_threshold, range_m)
+        self.gospas.append(gospa(pts, estimates, c=self.gospa_c).distance)
+        self.steps += 1
+
     def percent_large_error(self) -> dict[int, float]:
-        """Per neighbour id: % of its in-range steps with error > ``error_threshold_m``."""
+        """Per key (neighbour id or observer): % of in-range steps with a large error."""
         return {
             i: 100.0 * self.large_error_steps.get(i, 0) / n for i, n in self.in_range_steps.items()
         }
 
     def percent_accurate(self) -> dict[int, float]:
-        """Per neighbour id: % of its in-range steps with error <= ``accurate_threshold_m``."""
+        """Per key (neighbour id or observer): % of in-range steps within the accurate range."""
         return {
             i: 100.0 * self.accurate_steps.get(i, 0) / n for i, n in self.in_range_steps.items()
         }
@@ -335,29 +448,49 @@ class LocalizationScorer:
             return float("nan")
         return float(np.mean(np.abs(np.subtract(self.weight_sums, self.true_counts))))
 
-    def summary(self) -> dict[str, float]:
-        """Pooled figures: % large error, % accurate (over all neighbour-steps), cardinality.
+    def _per_key(self, values: dict[int, float]) -> dict[str, Any]:
+        if self.n_observers is not None:
+            keys = list(range(self.n_observers))
+        else:
+            keys = sorted(values)
+        per = [values.get(k, float("nan")) for k in keys]
+        finite = [v for v in per if math.isfinite(v)]
+        return {
+            "per_robot": per,
+            "median": float(np.median(finite)) if finite else float("nan"),
+            "max": float(max(finite)) if finite else float("nan"),
+        }
+
+    def summary(self) -> dict[str, Any]:
+        """Pooled and per-key figures.
 
         Returns
         -------
         dict
             ``percent_large_error``, ``percent_accurate`` (pooled over neighbour-steps),
-            ``robots_over_25pct`` (number of neighbours with > 25 % large-error time, the
-            seed's headline count), ``cardinality_mae``, ``mean_weight_sum``,
-            ``mean_true_count``, ``median_error_m`` (finite errors only), ``steps``.
+            ``robots_over_25pct`` (keys with > 25 % large-error time, the seed's headline
+            count), ``cardinality_mae``, ``mean_weight_sum``, ``mean_true_count``,
+            ``median_error_m`` (finite errors only), ``gospa_mean``, ``steps``, and the per-key
+            distributions ``pct_time_err_gt_30cm`` and ``pct_time_within_10cm``, each
+            ``{"per_robot": [...], "median": m, "max": M}`` (per neighbour id for ``update``,
+            per observer for ``add``; the names assume the default thresholds).
         """
         total = sum(self.in_range_steps.values())
         large = sum(self.large_error_steps.values())
         accurate = sum(self.accurate_steps.values())
         finite = [e for e in self.errors if math.isfinite(e)]
-        per_robot = self.percent_large_error()
+        per_key = self.percent_large_error()
+        nan = float("nan")
         return {
-            "percent_large_error": 100.0 * large / total if total else float("nan"),
-            "percent_accurate": 100.0 * accurate / total if total else float("nan"),
-            "robots_over_25pct": float(sum(v > 25.0 for v in per_robot.values())),
+            "percent_large_error": 100.0 * large / total if total else nan,
+            "percent_accurate": 100.0 * accurate / total if total else nan,
+            "robots_over_25pct": float(sum(v > 25.0 for v in per_key.values())),
             "cardinality_mae": self.cardinality_mae(),
-            "mean_weight_sum": float(np.mean(self.weight_sums)) if self.steps else float("nan"),
-            "mean_true_count": float(np.mean(self.true_counts)) if self.steps else float("nan"),
-            "median_error_m": float(np.median(finite)) if finite else float("nan"),
+            "mean_weight_sum": float(np.mean(self.weight_sums)) if self.steps else nan,
+            "mean_true_count": float(np.mean(self.true_counts)) if self.steps else nan,
+            "median_error_m": float(np.median(finite)) if finite else nan,
+            "gospa_mean": float(np.mean(self.gospas)) if self.steps else nan,
             "steps": float(self.steps),
+            "pct_time_err_gt_30cm": self._per_key(per_key),
+            "pct_time_within_10cm": self._per_key(self.percent_accurate()),
         }

@@ -125,13 +125,14 @@ def _posterior_table(
     """
     n, m = likelihood.shape
     weights = table[ROW_W]
-    detected = likelihood * (detection_prob * weights)[:, None]
+    pd_w = detection_prob * weights
+    detected = likelihood * pd_w[:, None]
     sums = np.ones(n).dot(detected)  # column sums (a dot is cheaper than .sum(axis=0))
     # Guard: with zero clutter and every likelihood underflowed, 0/0 would give NaN; the
     # floor turns it into weights of exactly 0 (nothing explains that measurement).
     inv_denom = 1.0 / np.maximum(sums + clutter_intensity, TINY)
     out = np.empty((N_ROWS, n + n * m))
-    out[ROW_W, :n] = (1.0 - detection_prob) * weights
+    np.subtract(weights, pd_w, out=out[ROW_W, :n])  # (1 - P_d) w
     out[ROW_X:, :n] = table[ROW_X:]
     blocks = out[:, n:].reshape(N_ROWS, n, m)  # a view: component-major (i, h) blocks
     np.multiply(detected, inv_denom, out=blocks[ROW_W])

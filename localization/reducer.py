@@ -9,10 +9,14 @@
   cluster's weight is the sum of its members') and the first two moments of every cluster.
 * :func:`cap` keeps the ``max_components`` heaviest components (loses the rest's mass).
 
-The greedy merge is computed without a Python loop over components (see
-:func:`greedy_clusters`): a component is a cluster leader iff no heavier *leader* has it in
-its gate, and it joins the heaviest leader whose gate holds it. That is exactly the cluster
-the sequential "pop the heaviest, absorb its gate" loop gives it.
+How the greedy merge is computed (see :func:`greedy_clusters`): a component is a cluster
+leader iff no heavier *leader* has it in its gate, and it joins the heaviest leader whose
+gate holds it, which is exactly the cluster the sequential "pop the heaviest, absorb its
+gate" loop gives it. All pairwise gate distances come from one matrix product. In the common
+case (every component's heaviest coverer is a leader) the labels follow from one argmax.
+Otherwise the sequential loop runs on Python-int bitsets of the gate rows: one integer test
+per component and one bitwise "remove my gate" per leader, no numpy call per component.
+Moment matching is one matrix product of per-component moments with the cluster weights.
 
 References
 ----------
@@ -27,8 +31,6 @@ import numpy as np
 from .gaussian import sym_inverse
 from .mixture import N_ROWS, ROW_PXX, ROW_W, ROW_X, ROW_Y
 
-#: Up to this many chain members are resolved one by one; beyond, by whole-array passes.
-_MAX_SEQUENTIAL = 16
 _WEIGHT_FLOOR = 1e-150
 
 __all__ = ["prune", "merge", "cap", "reduce", "greedy_clusters", "gate_distances"]
@@ -144,40 +146,27 @@ def greedy_clusters(close: np.ndarray, weights: np.ndarray) -> np.ndarray:
     if np.count_nonzero(certain_best) == n:
         # Every best coverer is a leader, so every component's cluster is known: done.
         return best
-    # General case: covering chains. Resolve the components whose best coverer is not a
-    # certain leader ("uncertain") by the recursion
-    #     leader[i] = no leader ranked above i has i in its gate.
-    # In column i of `masked` (leaders' scores plus i's own), the argmax is i exactly when no
-    # leader above covers i, and otherwise it is the highest-ranked leader covering i, i.e.
-    # i's cluster. Components certainly absorbed keep `best` (a certain leader).
-    diagonal = (index, index)
-    own = score[diagonal]
-    uncertain = (~certain_best).nonzero()[0]
-    if uncertain.shape[0] <= _MAX_SEQUENTIAL:
-        # Few uncertain components (the usual case): decide them one by one in rank order;
-        # every leader ranked above i is known by the time i is decided.
-        uncertain = uncertain[np.lexsort((uncertain, -weights[uncertain]))]
-        labels = best.copy()
-        leader = certain.copy()
-        for i in uncertain.tolist():
-            column = score[:, i] * leader
-            column[i] = own[i]
-            top = int(column.argmax())
-            labels[i] = top
-            leader[i] = top == i
-        return labels
-    # Many uncertain components: iterate the recursion on all of them at once to its fixed
-    # point (it has one solution; each pass fixes at least one more rank). Start from "not
-    # certainly absorbed", which is exact for chains of depth 2.
-    leader = certain | ~certain_best
-    while True:
-        masked = score * leader[:, None]
-        masked[diagonal] = own
-        labels = masked.argmax(axis=0)
-        new_leader = labels == index
-        if np.count_nonzero(new_leader != leader) == 0:
-            return labels
-        leader = new_leader
+    # General case (covering chains: i's best coverer is itself absorbed by someone else).
+    # Run the sequential greedy itself, on Python-int bitsets: one pass in rank order, an
+    # integer test per component and a 'remove my gate' per leader. The gate rows are
+    # packed to bytes once; each leader's row becomes an int only when it is needed.
+    order = np.lexsort((index, -weights)).tolist()  # rank order, ties: lower index first
+    packed = np.packbits(close, axis=1, bitorder="little")
+    row_bytes = packed.shape[1]
+    buf = packed.tobytes()
+    from_bytes = int.from_bytes
+    remaining = (1 << n) - 1
+    leaders = []
+    for j in order:
+        if remaining >> j & 1:
+            leaders.append(j)
+            start = j * row_bytes
+            remaining &= ~from_bytes(buf[start : start + row_bytes], "little")
+            if not remaining:
+                break
+    # Each component joins the highest-ranked leader whose gate holds it.
+    lead = np.array(leaders)
+    return lead[(score[lead]).argmax(axis=0)]
 
 
 def merge(table: np.ndarray, threshold: float) -> np.ndarray:
@@ -210,32 +199,31 @@ def merge(table: np.ndarray, threshold: float) -> np.ndarray:
     n_out = leaders.shape[0]
     if n_out == n:
         return table
-    member = labels == leaders[:, None]  # (L, N) cluster membership
-    # Guard: weights floored at 1e-150 (far above underflow) for the moments, so an all-zero
-    # cluster still gets a well-defined (unweighted) mean and covariance instead of 0/0.
-    floored = np.maximum(w, _WEIGHT_FLOOR)
-    member_w = member * floored
-    # Weighted sums per cluster of [1, d, P, d d^T] with d = m - m_leader: moments about
-    # each cluster's leader, so no cancellation even far from the origin.
-    rows = np.empty((9, n))
+    # Guard: weights floored at 1e-150 (far above underflow), so an all-zero cluster still
+    # gets a well-defined (unweighted) mean and covariance instead of 0/0. Cluster weights
+    # are then exact sums up to that floor.
+    member_w = (labels == leaders[:, None]) * np.maximum(w, _WEIGHT_FLOOR)  # (L, N)
+    # Weighted sums per cluster of [1, d, P + d d^T], d = m - (heaviest mean): moments about
+    # a point inside the mixture, so no cancellation even for a mixture far from the origin.
+    ref = means[:, w.argmax()][:, None]
+    rows = np.empty((N_ROWS, n))
     rows[0] = 1.0
     d = rows[1:3]
-    np.subtract(means, means[:, labels], out=d)
-    rows[3:6] = covs
-    np.multiply(d, d[0], out=rows[6:8])
-    np.multiply(d[1], d[1], out=rows[8])
-    sums = rows.dot(member_w.T)  # (9, L)
+    np.subtract(means, ref, out=d)
+    np.multiply(d, d[0], out=rows[3:5])
+    np.multiply(d[1], d[1], out=rows[5])
+    rows[3:] += covs
+    sums = rows.dot(member_w.T)  # (6, L)
     inv_total = 1.0 / sums[0]
-    shift = sums[1:3] * inv_total
     out = np.empty((N_ROWS, n_out))
-    # Cluster weights are the plain sums of member weights (total weight preserved); the
-    # floored sums differ only if some weight was below the floor.
-    out[ROW_W] = sums[0] if w.min() >= _WEIGHT_FLOOR else member.dot(w)
-    np.add(means[:, leaders], shift, out=out[ROW_X : ROW_Y + 1])
+    out[ROW_W] = sums[0]
+    mean = out[ROW_X : ROW_Y + 1]
+    np.multiply(sums[1:3], inv_total, out=mean)
     cov = out[ROW_PXX:]
-    np.multiply(sums[3:6] + sums[6:9], inv_total, out=cov)
-    cov[0:2] -= shift * shift[0]
-    cov[2] -= shift[1] * shift[1]
+    np.multiply(sums[3:], inv_total, out=cov)  # E[P + d d^T] - E[d] E[d]^T
+    cov[0:2] -= mean * mean[0]
+    cov[2] -= mean[1] * mean[1]
+    mean += ref
     return out
 
 

@@ -30,7 +30,8 @@ _add("bridge", "drive robots (or --loopback simulated ones) over rosbridge",
      "hardware_bridge.commands.bridge")
 _add("replay", "rerun localization and metrics offline on a recorded bag",
      "hardware_bridge.commands.replay")
-_add("export-bag", "write a simulated episode as a ROS 2 bag", "hardware_bridge.commands.export_bag")
+_add("export-bag", "write a simulated episode as a ROS 2 bag",
+     "hardware_bridge.commands.export_bag")
 _add("train", "train a PPO policy shared by all agents on a task (stable-baselines3)",
      "agents.sb3.train")
 

@@ -50,8 +50,8 @@ def build_space(
 ) -> spaces.Box:
     """The observation space shared by all agents."""
     low, high = table_bounds(top_k) if mode != "measurements" else measurement_bounds(top_k)
-    low = np.r_[low, -max_speed_mps, -max_turn_rate_radps, feature_low]
-    high = np.r_[high, max_speed_mps, max_turn_rate_radps, feature_high]
+    low = np.concatenate([low, [-max_speed_mps, -max_turn_rate_radps], feature_low])
+    high = np.concatenate([high, [max_speed_mps, max_turn_rate_radps], feature_high])
     return spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
 
 
@@ -89,11 +89,11 @@ def measurement_table(detections: np.ndarray, bearings: np.ndarray, top_k: int) 
     cam = np.zeros((top_k, 3))
     b = np.sort(bearings)[:top_k]
     cam[: b.size, 0], cam[: b.size, 1], cam[: b.size, 2] = np.cos(b), np.sin(b), 1.0
-    return np.r_[lidar.ravel(), cam.ravel()]
+    return np.concatenate([lidar.ravel(), cam.ravel()])
 
 
 def assemble(space: spaces.Box, table: np.ndarray, velocity: np.ndarray,
              features: np.ndarray) -> np.ndarray:
     """Concatenate and clip into ``space``; returns float32 of ``space.shape``."""
-    obs = np.concatenate([table.ravel(), velocity, features])
-    return np.clip(obs, space.low, space.high).astype(np.float32)
+    obs = np.concatenate([table.ravel(), velocity, features]).astype(np.float32)
+    return np.minimum(np.maximum(obs, space.low, out=obs), space.high, out=obs)

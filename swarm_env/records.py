@@ -17,7 +17,9 @@ import numpy as np
 def _frozen(array: np.ndarray, dtype=np.float64) -> np.ndarray:
     # A read-only view, not a copy: records are made on the hot path (about a hundred per env
     # step). Producers hand over arrays they no longer write to.
-    out = np.asarray(array, dtype=dtype).view()
+    if type(array) is not np.ndarray or array.dtype != dtype:
+        array = np.asarray(array, dtype=dtype)
+    out = array.view()
     out.setflags(write=False)
     return out
 

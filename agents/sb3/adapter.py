@@ -24,6 +24,7 @@ at deployment (see :mod:`agents.sb3.policy`).
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import numpy as np
@@ -99,9 +100,13 @@ def make_vec_env(env_kwargs: dict[str, Any], n_copies: int = 1, num_cpus: int = 
     env = TrainingWrapper(parallel_env(**env_kwargs))
     vec = ss.pettingzoo_env_to_vec_env_v1(env)
     vec = ss.concat_vec_envs_v1(vec, n_copies, num_cpus=num_cpus, base_class="gymnasium")
-    vec = _SeededSB3Wrapper(vec)
-    vec.seed(seed)
-    return VecMonitor(vec, filename=monitor_file)
+    with warnings.catch_warnings():
+        # SB3 asks every env for render_mode; SuperSuit's vector env answers None (we do not
+        # render while training), which SB3 reports as "not defined".
+        warnings.filterwarnings("ignore", message="The `render_mode` attribute is not defined")
+        vec = _SeededSB3Wrapper(vec)
+        vec.seed(seed)
+        return VecMonitor(vec, filename=monitor_file)
 
 
 def _sb3_wrapper_class():

@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -54,6 +55,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--checkpoint-every", type=int, default=50_000, help="agent transitions")
     parser.add_argument("--torch-threads", type=int, default=1,
                         help="torch intra-op threads (1 leaves the other core to the envs)")
+    parser.add_argument("--extractor", default="sets", choices=["sets", "mlp"],
+                        help="'sets': permutation-invariant Deep Sets over the neighbour table "
+                             "(phd/truth observations); 'mlp': plain MLP on the normalised "
+                             "vector")
     parser.add_argument("--max-wall-minutes", type=float, default=None,
                         help="stop early (and save) after this much wall time")
     parser.add_argument("--no-progress-bar", action="store_true")
@@ -95,14 +100,15 @@ def run(args: argparse.Namespace) -> int:
           num_cpus=args.num_cpus, checkpoint_every=args.checkpoint_every,
           torch_threads=args.torch_threads, progress_bar=not args.no_progress_bar,
           ppo_kwargs=ppo_kwargs, max_wall_s=None if args.max_wall_minutes is None
-          else 60.0 * args.max_wall_minutes)
+          else 60.0 * args.max_wall_minutes, extractor=args.extractor)
     return 0
 
 
 def train(env_kwargs: dict[str, Any], timesteps: int, out: Path, *, seed: int = 0,
           n_copies: int = 4, num_cpus: int = 0, checkpoint_every: int = 50_000,
           torch_threads: int = 1, progress_bar: bool = True,
-          ppo_kwargs: dict[str, Any] | None = None, max_wall_s: float | None = None) -> Path:
+          ppo_kwargs: dict[str, Any] | None = None, max_wall_s: float | None = None,
+          extractor: str = "sets") -> Path:
     """Train and return the path of ``model.zip``; see the module docstring for the outputs."""
     if timesteps <= 0:
         raise ValueError(f"--timesteps must be > 0, got {timesteps}")
@@ -126,6 +132,7 @@ def train(env_kwargs: dict[str, Any], timesteps: int, out: Path, *, seed: int = 
     # Build one env first: bad task / config keys fail here with the env's own message.
     probe = parallel_env(**env_kwargs)
     n_agents = len(probe.possible_agents)
+    probe_top_k = probe.config.top_k
     probe.close()
 
     out.mkdir(parents=True, exist_ok=True)
@@ -134,23 +141,44 @@ def train(env_kwargs: dict[str, Any], timesteps: int, out: Path, *, seed: int = 
     ppo = {"n_steps": 128, "batch_size": 512, "n_epochs": 10, "learning_rate": 3e-4,
            "gamma": 0.99, "gae_lambda": 0.95, "ent_coef": 0.0, "clip_range": 0.2,
            **(ppo_kwargs or {})}
-    policy_kwargs = {"net_arch": {"pi": [128, 128], "vf": [128, 128]}, "log_std_init": -0.5}
+    if extractor not in ("sets", "mlp"):
+        raise ValueError(f"extractor must be 'sets' or 'mlp', got {extractor!r}")
+    if extractor == "sets" and env_kwargs.get("observation", "phd") == "measurements":
+        raise ValueError("--extractor sets reads the neighbour table: use it with "
+                         "--observation phd or truth (or --extractor mlp)")
+    policy_kwargs: dict[str, Any] = {"net_arch": {"pi": [128, 128], "vf": [128, 128]},
+                                     "log_std_init": -0.5}
+    if extractor == "sets":
+        from agents.sb3.features import NeighbourSetExtractor
+
+        top_k = probe_top_k
+        policy_kwargs.update(features_extractor_class=NeighbourSetExtractor,
+                             features_extractor_kwargs={"top_k": top_k})
     (out / "train_config.json").write_text(json.dumps({
         "timesteps": timesteps, "seed": seed, "n_copies": n_copies, "num_cpus": num_cpus,
         "n_agents_per_env": n_agents, "checkpoint_every": checkpoint_every,
-        "torch_threads": torch_threads, "ppo": ppo, "policy_kwargs": policy_kwargs,
+        "torch_threads": torch_threads, "ppo": ppo, "extractor": extractor,
+        "policy_kwargs": {k: v for k, v in policy_kwargs.items()
+                          if k != "features_extractor_class"},
     }, indent=2))
 
+    # SB3 asks each env for render_mode; SuperSuit's vector env answers None (no rendering
+    # while training), which SB3 reports as "not defined" on every wrapper.
+    warnings.filterwarnings("ignore", message="The `render_mode` attribute is not defined")
     venv = make_vec_env(env_kwargs, n_copies=n_copies, num_cpus=num_cpus, seed=seed,
                         monitor_file=str(out / "monitor.csv"))
-    venv = VecNormalize(venv, norm_obs=True, norm_reward=True, clip_obs=10.0,
+    # The set extractor scales its rows itself (per-slot statistics would break permutation
+    # invariance); the MLP gets VecNormalize's running mean/std. Rewards are normalised in both.
+    norm_obs = extractor == "mlp"
+    venv = VecNormalize(venv, norm_obs=norm_obs, norm_reward=True, clip_obs=10.0,
                         gamma=ppo["gamma"])
 
     def meta() -> dict[str, Any]:
-        rms = venv.obs_rms
-        return {"env_kwargs": env_kwargs, "action_scale": "unit",
-                "obs_norm": {"mean": rms.mean.tolist(), "var": rms.var.tolist(),
-                             "clip": venv.clip_obs, "epsilon": venv.epsilon}}
+        norm = None if not norm_obs else {
+            "mean": venv.obs_rms.mean.tolist(), "var": venv.obs_rms.var.tolist(),
+            "clip": venv.clip_obs, "epsilon": venv.epsilon}
+        return {"env_kwargs": env_kwargs, "action_scale": "unit", "obs_norm": norm,
+                "extractor": extractor}
 
     class Checkpoints(BaseCallback):
         """Save ``model_<steps>_steps.zip`` (with its metadata) every ``every`` transitions;

@@ -16,27 +16,48 @@ import time
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     target = parser.add_mutually_exclusive_group(required=True)
-    target.add_argument("--loopback", action="store_true",
-                        help="dry run against an in-process loopback server (simulated robots)")
+    target.add_argument(
+        "--loopback",
+        action="store_true",
+        help="dry run against an in-process loopback server (simulated robots)",
+    )
     target.add_argument("--host", help="rosbridge server host (robots)")
     parser.add_argument("--port", type=int, default=9090, help="rosbridge port (default 9090)")
-    parser.add_argument("--robots", default=None,
-                        help="comma-separated robot namespaces (default: the preset's ugv_i)")
-    parser.add_argument("--allow-remote", action="store_true",
-                        help="allow a non-loopback --host (rosbridge has no authentication)")
+    parser.add_argument(
+        "--robots",
+        default=None,
+        help="comma-separated robot namespaces (default: the preset's ugv_i)",
+    )
+    parser.add_argument(
+        "--allow-remote",
+        action="store_true",
+        help="allow a non-loopback --host (rosbridge has no authentication)",
+    )
     parser.add_argument("--preset", default="seed-lab")
     parser.add_argument("--steps", type=int, default=100, help="env steps (default 100 = 10 s)")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--policy", choices=("wander", "stop"), default="wander",
-                        help="'stop' sends zero velocity (sensor check without motion)")
-    parser.add_argument("--max-speed", type=float, default=None,
-                        help="cap the forward speed (m/s) below the preset's limit")
-    parser.add_argument("--geofence", default=None,
-                        help="x_min,x_max,y_min,y_max in the mocap frame (m)")
+    parser.add_argument(
+        "--policy",
+        choices=("wander", "stop"),
+        default="wander",
+        help="'stop' sends zero velocity (sensor check without motion)",
+    )
+    parser.add_argument(
+        "--max-speed",
+        type=float,
+        default=None,
+        help="cap the forward speed (m/s) below the preset's limit",
+    )
+    parser.add_argument(
+        "--geofence", default=None, help="x_min,x_max,y_min,y_max in the mocap frame (m)"
+    )
     parser.add_argument("--no-mocap", action="store_true", help="do not subscribe to mocap")
     parser.add_argument("--record", default=None, help="record the episode to this bag directory")
-    parser.add_argument("--faults", default=None,
-                        help="loopback only: fault probabilities, e.g. drop=0.05,malformed=0.02")
+    parser.add_argument(
+        "--faults",
+        default=None,
+        help="loopback only: fault probabilities, e.g. drop=0.05,malformed=0.02",
+    )
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
 
 
@@ -50,8 +71,9 @@ def _faults(text: str | None):
         key, _, value = part.partition("=")
         key = key.strip()
         if key not in ("drop", "delay", "duplicate", "malformed", "delay_s"):
-            raise ValueError(f"--faults: unknown fault {key!r} (drop, delay, duplicate, "
-                             "malformed, delay_s)")
+            raise ValueError(
+                f"--faults: unknown fault {key!r} (drop, delay, duplicate, malformed, delay_s)"
+            )
         try:
             values[key] = float(value)
         except ValueError as exc:
@@ -84,23 +106,36 @@ def run(args: argparse.Namespace) -> int:
         port = server.start()
         host = "127.0.0.1"
         if not args.json:
-            print(f"loopback robot server on ws://127.0.0.1:{port} ({len(server.robot_ids)} "
-                  f"simulated robots, preset {args.preset})")
+            print(
+                f"loopback robot server on ws://127.0.0.1:{port} ({len(server.robot_ids)} "
+                f"simulated robots, preset {args.preset})"
+            )
     elif args.faults:
         raise ValueError("--faults only applies to --loopback")
     env = None
     try:
-        env = real_env(robots=robots, host=host, port=port, preset=args.preset,
-                       allow_remote=args.allow_remote, record=args.record, bridge=bridge,
-                       max_steps=args.steps)
+        env = real_env(
+            robots=robots,
+            host=host,
+            port=port,
+            preset=args.preset,
+            allow_remote=args.allow_remote,
+            record=args.record,
+            bridge=bridge,
+            max_steps=args.steps,
+        )
         policy = WanderPolicy.for_env(env, seed=args.seed) if args.policy == "wander" else None
         if args.max_speed is not None and policy is not None:
-            policy = WanderPolicy(max_speed_mps=min(args.max_speed, env.config.robot.max_speed_mps),
-                                  max_turn_rate_radps=env.config.robot.max_turn_rate_radps,
-                                  seed=args.seed)
+            policy = WanderPolicy(
+                max_speed_mps=min(args.max_speed, env.config.robot.max_speed_mps),
+                max_turn_rate_radps=env.config.robot.max_turn_rate_radps,
+                seed=args.seed,
+            )
         if not args.json:
-            print(f"bridge: {len(env.possible_agents)} robots {env.possible_agents} at "
-                  f"{host}:{port}, {args.steps} steps of {env.config.control_period_s} s")
+            print(
+                f"bridge: {len(env.possible_agents)} robots {env.possible_agents} at "
+                f"{host}:{port}, {args.steps} steps of {env.config.control_period_s} s"
+            )
         start = time.monotonic()
         result = run_episode(env, policy, args.steps, seed=args.seed)
         wall = time.monotonic() - start
@@ -113,20 +148,32 @@ def run(args: argparse.Namespace) -> int:
         if server is not None:
             server_counters = server.counters.snapshot()
             server.close()
-    summary = {"steps": result.steps, "wall_s": round(wall, 3), "metrics": result.metrics,
-               "stale_steps": result.stale_steps, "counters": counters, "timing": timing,
-               "rejected_messages": sum(v for k, v in counters.items()
-                                        if k.endswith(".invalid") or k == "transport.malformed")}
+    summary = {
+        "steps": result.steps,
+        "wall_s": round(wall, 3),
+        "metrics": result.metrics,
+        "stale_steps": result.stale_steps,
+        "counters": counters,
+        "timing": timing,
+        "rejected_messages": sum(
+            v for k, v in counters.items() if k.endswith(".invalid") or k == "transport.malformed"
+        ),
+    }
     if server is not None:
-        summary["server"] = {k: v for k, v in server_counters.items()
-                             if k.startswith(("injected", "server.twists", "published"))}
+        summary["server"] = {
+            k: v
+            for k, v in server_counters.items()
+            if k.startswith(("injected", "server.twists", "published"))
+        }
     if args.record:
         summary["bag"] = args.record
     if args.json:
         print(json.dumps(summary, indent=2, default=float))
         return 0
-    print(f"ran {result.steps} steps in {wall:.2f} s "
-          f"(max step overrun {timing['max_late_s'] * 1e3:.1f} ms)")
+    print(
+        f"ran {result.steps} steps in {wall:.2f} s "
+        f"(max step overrun {timing['max_late_s'] * 1e3:.1f} ms)"
+    )
     print("localization (each robot's own PHD vs ground truth):")
     print(format_metrics(result.metrics))
     print("stale sensor-steps:", result.stale_steps or "none")

@@ -21,8 +21,11 @@ def run(args: argparse.Namespace) -> int:
 
     if Path(args.out).exists():
         raise ValueError(f"--out {args.out} exists already; bags are never overwritten")
-    summary = export_sim_episode(args.out, preset=args.preset, duration_s=args.duration,
-                                 seed=args.seed)
-    print(f"wrote {summary['path']}: {summary['steps']} steps, {summary['messages']} messages, "
-          f"robots {summary['robots']}")
+    summary = export_sim_episode(
+        args.out, preset=args.preset, duration_s=args.duration, seed=args.seed
+    )
+    print(
+        f"wrote {summary['path']}: {summary['steps']} steps, {summary['messages']} messages, "
+        f"robots {summary['robots']}"
+    )
     return 0

@@ -128,7 +128,8 @@ class EncirclementTask(Task):
         out[:, 0] = self.radius_m
         if self.beacon and len(truth.extra_xy):
             rel = intruder_in_agent_frames(truth.poses, truth.extra_xy[0])
-            rho = np.hypot(rel[:, 0], rel[:, 1]) + self._rng.normal(0.0, self.beacon_range_std_m, n)
+            rho = np.hypot(rel[:, 0], rel[:, 1]) + self._rng.normal(
+                0.0, self.beacon_range_std_m, n)
             bearing = np.arctan2(rel[:, 1], rel[:, 0]) + self._rng.normal(
                 0.0, self.beacon_bearing_std_rad, n)
             out[:, 1], out[:, 2] = np.cos(bearing), np.sin(bearing)

@@ -20,11 +20,13 @@ STAMPED = ("lidar", "odometry", "mocap")
 
 @pytest.mark.timeout(45)
 def test_injected_faults_are_counted_and_survived(loopback):
-    faults = FaultConfig(drop=0.04, delay=0.04, duplicate=0.04, malformed=0.04, delay_s=0.3,
-                         seed=7)
+    faults = FaultConfig(
+        drop=0.04, delay=0.04, duplicate=0.04, malformed=0.04, delay_s=0.3, seed=7
+    )
     server = loopback(faults=faults)
-    env = real_env(port=server.port, preset="seed-lab", max_steps=1000,
-                   bridge={"reset_timeout_s": 3.0})
+    env = real_env(
+        port=server.port, preset="seed-lab", max_steps=1000, bridge={"reset_timeout_s": 3.0}
+    )
     try:
         result = run_episode(env, WanderPolicy.for_env(env, seed=0), 40, seed=0)
         server.set_faults(FaultConfig())  # stop injecting, let in-flight messages land
@@ -35,20 +37,32 @@ def test_injected_faults_are_counted_and_survived(loopback):
             return world.counters.total(".invalid") + world.counters.get("transport.malformed")
 
         def duplicates():
-            return world.counters.total(".duplicate")
+            return sum(world.counters.get(f"{k}.duplicate") for k in STAMPED)
 
-        assert wait_until(lambda: rejected() == server.counters.get("delivered.malformed")
-                          and duplicates() == server.counters.get("delivered.duplicate"), 3.0)
+        def delivered_duplicates():
+            return sum(server.counters.get(f"delivered.duplicate.{k}") for k in STAMPED)
+
+        wait_until(
+            lambda: (
+                rejected() == server.counters.get("delivered.malformed")
+                and duplicates() == delivered_duplicates()
+            ),
+            3.0,
+        )
         c = world.counters_snapshot()
         s = server.counters.snapshot()
         # Enough of every fault happened for the counts to mean something.
         for kind in ("drop", "delayed", "duplicate", "malformed"):
             assert s.get(f"injected.{kind}", 0) >= 10, (kind, s)
         # Every malformed message that reached the client was rejected and counted, once.
-        assert rejected() == s["delivered.malformed"] > 0
+        assert rejected() == s["delivered.malformed"] > 0, (c, s)
         assert c.get("transport.malformed", 0) > 0 and c.get("lidar.invalid", 0) > 0
-        # Every duplicate was recognised (header stamps; identical bearings within 5 ms).
-        assert duplicates() == s["delivered.duplicate"] > 0
+        # Every duplicate of a stamped message was recognised by its header stamp...
+        assert duplicates() == delivered_duplicates() > 0, (c, s)
+        # ...and header-less bearings by identical content within 5 ms (a heuristic: two
+        # genuinely identical frames, e.g. empty ones, can coincide).
+        camera_dups = s.get("delivered.duplicate.camera", 0)
+        assert abs(c.get("camera.duplicate", 0) - camera_dups) <= 2, (c, s)
         # Delayed stamped messages arrive after newer ones: refused as out of order.
         delayed = sum(s.get(f"delivered.delayed.{k}", 0) for k in STAMPED)
         out_of_order = sum(c.get(f"{k}.out_of_order", 0) for k in STAMPED)
@@ -101,6 +115,8 @@ def test_client_reconnects_after_the_server_restarts(loopback):
                 recovered = True
                 break
         assert recovered, "sensors still stale 6 s after the server came back"
+        for _ in range(3):
+            env.step(command)
         assert world.counters.get("transport.reconnects") == 1
         after = [(t, r, v) for t, r, v, _ in server.twists() if t > t_restart]
         for robot in env.possible_agents:
@@ -114,8 +130,12 @@ def test_client_reconnects_after_the_server_restarts(loopback):
 @pytest.mark.timeout(30)
 def test_reset_times_out_naming_the_silent_robots(loopback):
     server = loopback()  # simulates ugv_0 ... ugv_3
-    env = real_env(robots=["ugv_1", "ugv_7"], port=server.port, preset="seed-lab",
-                   bridge={"reset_timeout_s": 1.0})
+    env = real_env(
+        robots=["ugv_1", "ugv_7"],
+        port=server.port,
+        preset="seed-lab",
+        bridge={"reset_timeout_s": 1.0},
+    )
     try:
         t0 = time.monotonic()
         with pytest.raises(RobotsSilentError) as err:
@@ -130,8 +150,12 @@ def test_reset_times_out_naming_the_silent_robots(loopback):
 
 @pytest.mark.timeout(30)
 def test_reset_reports_an_unreachable_server():
-    env = real_env(robots=["ugv_0"], port=1, preset="seed-lab",
-                   bridge={"connect_timeout_s": 0.5, "reset_timeout_s": 0.5})
+    env = real_env(
+        robots=["ugv_0"],
+        port=1,
+        preset="seed-lab",
+        bridge={"connect_timeout_s": 0.5, "reset_timeout_s": 0.5},
+    )
     try:
         with pytest.raises(RobotsSilentError, match="could not connect"):
             env.reset(seed=0)
@@ -143,8 +167,12 @@ def test_reset_reports_an_unreachable_server():
 def test_silent_sensor_is_reported_stale_and_not_fed(loopback):
     # The camera topics are dropped entirely; lidar and odometry flow.
     server = loopback(faults=FaultConfig(drop=1.0, sensors=("camera",)))
-    env = real_env(port=server.port, preset="seed-lab", max_steps=1000,
-                   bridge={"required_sensors": ("odometry", "lidar")})
+    env = real_env(
+        port=server.port,
+        preset="seed-lab",
+        max_steps=1000,
+        bridge={"required_sensors": ("odometry", "lidar")},
+    )
     try:
         _, infos = env.reset(seed=0)
         for _ in range(5):

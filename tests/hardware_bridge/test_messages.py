@@ -43,8 +43,16 @@ def scan(n=720, **changes):
     ranges[10:14] = 0.0
     intensities = np.full(n, 800.0)
     intensities[10:12] = 0.0
-    msg = laser_scan_msg(STAMP, angles, ranges, intensities, range_min_m=0.12, range_max_m=10.0,
-                         scan_time_s=1 / 7, frame_id="laser")
+    msg = laser_scan_msg(
+        STAMP,
+        angles,
+        ranges,
+        intensities,
+        range_min_m=0.12,
+        range_max_m=10.0,
+        scan_time_s=1 / 7,
+        frame_id="laser",
+    )
     msg.update(changes)
     return msg
 
@@ -86,11 +94,11 @@ def test_scan_angles_match_the_simulator_grid_so_blind_sectors_agree():
 
 def test_scan_rep117_no_returns_become_zero_and_nulls_are_kept():
     msg = scan()
-    msg["ranges"][0] = None           # rosbridge's encoding of NaN/inf in some versions
+    msg["ranges"][0] = None  # rosbridge's encoding of NaN/inf in some versions
     msg["ranges"][1] = math.inf
     msg["ranges"][2] = math.nan
-    msg["ranges"][3] = 0.05           # below range_min
-    msg["ranges"][4] = 50.0           # above range_max
+    msg["ranges"][3] = 0.05  # below range_min
+    msg["ranges"][4] = 50.0  # above range_max
     s = parse_laser_scan(json.loads(json.dumps(msg)))
     assert np.all(s.ranges_m[:5] == 0.0) and np.all(np.isfinite(s.ranges_m))
     assert np.count_nonzero((s.ranges_m == 0) & (s.intensities == 0)) == 2
@@ -98,9 +106,16 @@ def test_scan_rep117_no_returns_become_zero_and_nulls_are_kept():
 
 def test_scan_from_zero_to_two_pi_is_reordered_to_minus_pi_pi():
     n = 8
-    msg = laser_scan_msg(STAMP, np.arange(n) * 2 * np.pi / n, np.arange(1, n + 1, dtype=float),
-                         np.ones(n), range_min_m=0.1, range_max_m=20.0, scan_time_s=0.1,
-                         frame_id="l")
+    msg = laser_scan_msg(
+        STAMP,
+        np.arange(n) * 2 * np.pi / n,
+        np.arange(1, n + 1, dtype=float),
+        np.ones(n),
+        range_min_m=0.1,
+        range_max_m=20.0,
+        scan_time_s=0.1,
+        frame_id="l",
+    )
     s = parse_laser_scan(msg)
     assert np.all(np.diff(s.angles_rad) > 0)
     # The beam at +pi/2 (index 2) keeps its range after reordering.
@@ -131,22 +146,25 @@ def _mutate(msg, path, value):
     return msg
 
 
-@pytest.mark.parametrize("path,value,field", [
-    ("angle_increment", math.nan, "angle_increment"),            # NaN
-    ("angle_min", math.inf, "angle_min"),                         # inf
-    ("angle_increment", "0.0087", "angle_increment"),            # string number
-    ("angle_increment", True, "angle_increment"),                # bool is not a number
-    ("angle_increment", 0.0, "angle_increment"),                 # degenerate
-    ("angle_max", 1.0, "angle_max"),                             # inconsistent with the beams
-    ("ranges.3", "1.0", "ranges"),                               # wrong element type
-    ("ranges", "not an array", "ranges"),                        # wrong container type
-    ("ranges", [], "ranges"),                                    # empty
-    ("header", KeyError, "header"),                              # missing
-    ("header.stamp.sec", 1.5, "header.stamp.sec"),               # float seconds
-    ("header.stamp.nanosec", 2_000_000_000, "header.stamp.nanosec"),
-    ("header.stamp", {"sec": 0, "nanosec": 0}, "header.stamp"),  # unset clock
-    ("range_max", 0.01, "range_max"),                            # max < min
-])
+@pytest.mark.parametrize(
+    "path,value,field",
+    [
+        ("angle_increment", math.nan, "angle_increment"),  # NaN
+        ("angle_min", math.inf, "angle_min"),  # inf
+        ("angle_increment", "0.0087", "angle_increment"),  # string number
+        ("angle_increment", True, "angle_increment"),  # bool is not a number
+        ("angle_increment", 0.0, "angle_increment"),  # degenerate
+        ("angle_max", 1.0, "angle_max"),  # inconsistent with the beams
+        ("ranges.3", "1.0", "ranges"),  # wrong element type
+        ("ranges", "not an array", "ranges"),  # wrong container type
+        ("ranges", [], "ranges"),  # empty
+        ("header", KeyError, "header"),  # missing
+        ("header.stamp.sec", 1.5, "header.stamp.sec"),  # float seconds
+        ("header.stamp.nanosec", 2_000_000_000, "header.stamp.nanosec"),
+        ("header.stamp", {"sec": 0, "nanosec": 0}, "header.stamp"),  # unset clock
+        ("range_max", 0.01, "range_max"),  # max < min
+    ],
+)
 def test_invalid_scans_are_rejected_naming_the_field(path, value, field):
     with pytest.raises(InvalidMessage) as err:
         parse_laser_scan(_mutate(scan(), path, value))
@@ -164,40 +182,49 @@ def test_scan_wrong_lengths_are_rejected():
         parse_laser_scan([1, 2, 3])
 
 
-@pytest.mark.parametrize("path,value", [
-    ("pose.pose.position.x", math.nan),
-    ("pose.pose.position.y", "1"),
-    ("pose.pose.orientation.w", None),
-    ("pose.pose.orientation", {"x": 0.0, "y": 0.0, "z": 0.0, "w": 3.0}),  # not unit
-    ("twist.twist.angular.z", math.inf),
-    ("pose.covariance", [0.0] * 35),                                       # wrong length
-    ("twist.covariance", [0.0] * 35 + ["x"]),                              # wrong type
-    ("twist", KeyError),
-])
+@pytest.mark.parametrize(
+    "path,value",
+    [
+        ("pose.pose.position.x", math.nan),
+        ("pose.pose.position.y", "1"),
+        ("pose.pose.orientation.w", None),
+        ("pose.pose.orientation", {"x": 0.0, "y": 0.0, "z": 0.0, "w": 3.0}),  # not unit
+        ("twist.twist.angular.z", math.inf),
+        ("pose.covariance", [0.0] * 35),  # wrong length
+        ("twist.covariance", [0.0] * 35 + ["x"]),  # wrong type
+        ("twist", KeyError),
+    ],
+)
 def test_invalid_odometry_is_rejected(path, value):
     with pytest.raises(InvalidMessage):
         parse_odometry(_mutate(odom(), path, value))
 
 
-@pytest.mark.parametrize("msg", [
-    {"data": [0.1, math.nan]},
-    {"data": [0.1, "0.2"]},
-    {"data": 0.1},
-    {"data": [0.1, 0.2], "layout": {"dim": [{"label": "b", "size": 3, "stride": 3}]}},
-    {"data": [0.1] * 300},
-    {"layout": {"dim": []}},
-])
+@pytest.mark.parametrize(
+    "msg",
+    [
+        {"data": [0.1, math.nan]},
+        {"data": [0.1, "0.2"]},
+        {"data": 0.1},
+        {"data": [0.1, 0.2], "layout": {"dim": [{"label": "b", "size": 3, "stride": 3}]}},
+        {"data": [0.1] * 300},
+        {"layout": {"dim": []}},
+    ],
+)
 def test_invalid_bearings_are_rejected(msg):
     with pytest.raises(InvalidMessage):
         parse_bearings(msg, STAMP, max_bearings=256)
 
 
-@pytest.mark.parametrize("bad", [
-    {"linear": {"x": math.nan, "y": 0.0, "z": 0.0}, "angular": {"x": 0.0, "y": 0.0, "z": 0.0}},
-    {"linear": {"x": 0.1, "y": 0.0, "z": 0.0}, "angular": {"x": 0.0, "y": 0.0, "z": "1"}},
-    {"linear": {"x": 0.1, "y": 0.0, "z": 0.0}},
-    {"linear": {"x": 0.1, "y": 0.0, "z": math.inf}, "angular": {"x": 0.0, "y": 0.0, "z": 0.0}},
-])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"linear": {"x": math.nan, "y": 0.0, "z": 0.0}, "angular": {"x": 0.0, "y": 0.0, "z": 0.0}},
+        {"linear": {"x": 0.1, "y": 0.0, "z": 0.0}, "angular": {"x": 0.0, "y": 0.0, "z": "1"}},
+        {"linear": {"x": 0.1, "y": 0.0, "z": 0.0}},
+        {"linear": {"x": 0.1, "y": 0.0, "z": math.inf}, "angular": {"x": 0.0, "y": 0.0, "z": 0.0}},
+    ],
+)
 def test_invalid_twists_are_rejected(bad):
     with pytest.raises(InvalidMessage):
         parse_twist(bad)
@@ -278,10 +305,9 @@ def test_geofence_blocks_driving_out_allows_driving_back_and_stops_without_pose(
     lim = _limiter(geofence_m=(-1.0, 1.0, -1.0, 1.0), max_accel_mps2=100.0)
     cmd = np.array([[0.2, 0.5], [0.2, 0.5]])
     inside = Pose(1, 0.0, 0.0, 0.0)
-    out_facing_out = Pose(1, 1.2, 0.0, 0.0)          # beyond x_max, facing +x
-    assert lim.limit(cmd, {"a": inside, "b": out_facing_out}).tolist() == [[0.2, 0.5],
-                                                                            [0.0, 0.5]]
-    out_facing_in = Pose(1, 1.2, 0.0, np.pi)          # beyond x_max, facing back in
+    out_facing_out = Pose(1, 1.2, 0.0, 0.0)  # beyond x_max, facing +x
+    assert lim.limit(cmd, {"a": inside, "b": out_facing_out}).tolist() == [[0.2, 0.5], [0.0, 0.5]]
+    out_facing_in = Pose(1, 1.2, 0.0, np.pi)  # beyond x_max, facing back in
     assert lim.limit(cmd, {"a": inside, "b": out_facing_in})[1] == pytest.approx([0.2, 0.5])
     reversing_out = np.array([[0.2, 0.5], [-0.2, 0.5]])
     assert lim.limit(reversing_out, {"a": inside, "b": out_facing_in})[1, 0] == 0.0

@@ -50,8 +50,10 @@ def test_watchdog_sends_zero_twist_within_0_6_s_of_the_client_stalling(loopback)
         assert all(dt <= 0.6 for dt in latency.values()), latency
         assert all(dt >= 0.45 for dt in latency.values()), f"fired before the timeout {latency}"
         # It keeps the robots stopped (repeats) until the next step.
-        assert wait_until(lambda: len([1 for t, *_ in server.twists()
-                                       if t > max(zeros.values()) + 0.1]) >= 4, 1.0)
+        assert wait_until(
+            lambda: len([1 for t, *_ in server.twists() if t > max(zeros.values()) + 0.1]) >= 4,
+            1.0,
+        )
         # Stepping again resumes motion.
         _drive(env, 2)
     finally:
@@ -85,8 +87,10 @@ def test_exception_in_step_and_close_stop_the_robots_at_once(loopback, monkeypat
 
 
 @pytest.mark.timeout(30)
-@pytest.mark.skipif(threading.current_thread() is not threading.main_thread(),
-                    reason="signals are delivered to the main thread")
+@pytest.mark.skipif(
+    threading.current_thread() is not threading.main_thread(),
+    reason="signals are delivered to the main thread",
+)
 def test_sigint_stops_the_robots_before_keyboard_interrupt(loopback):
     server = loopback()
     env = real_env(port=server.port, preset="seed-lab")

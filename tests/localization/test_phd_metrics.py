@@ -66,3 +66,24 @@ def test_scorer_accumulates_percentages_and_cardinality():
     assert s["cardinality_mae"] == pytest.approx((0 + 0 + 0 + 1 + 1) / 5)
     with pytest.raises(ValueError, match="ids"):
         scorer.update([[1.0, 0.0]], [1, 2], good)
+
+
+def test_scorer_per_observer_api_and_gospa_mapping():
+    scorer = metrics.LocalizationScorer(3)
+    mix = GaussianMixture(np.array([1.0]), np.array([[1.0, 0.0]]), np.eye(2)[None] * 0.01)
+    scorer.add(0, [[1.0, 0.05]], mix, range_m=2.0)  # accurate, GOSPA 0.05
+    scorer.add(2, [[1.0, 0.5], [0.0, 1.0]], mix)  # large + inf (nothing near (0, 1))
+    s = scorer.summary()
+    assert s["pct_time_err_gt_30cm"]["per_robot"][0] == 0.0
+    assert math.isnan(s["pct_time_err_gt_30cm"]["per_robot"][1])  # observer never scored
+    assert s["pct_time_err_gt_30cm"]["per_robot"][2] == 100.0
+    assert s["pct_time_within_10cm"]["median"] == 50.0
+    # GOSPA step 2: (0.5^2 + 0.5 * 1) ** 0.5 (one assigned at 0.5, one missed)
+    assert s["gospa_mean"] == pytest.approx((0.05 + math.sqrt(0.25 + 0.5)) / 2)
+    r = metrics.gospa([[0.0, 0.0]], [[0.3, 0.4]])
+    assert r["total"] == r.distance == pytest.approx(0.5)
+    assert r.as_dict()["missed"] == 0
+    with pytest.raises(KeyError):
+        r["nope"]
+    with pytest.raises(TypeError):
+        metrics.LocalizationScorer(3, 0.5)  # thresholds are keyword-only

@@ -367,3 +367,30 @@ def test_filter_step_matches_reference_pipeline(seed):
     assert np.allclose(gw, ew, rtol=RTOL, atol=ATOL)
     assert np.allclose(gm, em, rtol=RTOL, atol=ATOL)
     assert np.allclose(gc, ec, rtol=RTOL, atol=ATOL)
+
+
+def ref_greedy_labels(close, weights):
+    """Sequential greedy on an arbitrary gate matrix: heaviest first (ties: lower index)."""
+    n = len(weights)
+    remaining = set(range(n))
+    labels = [-1] * n
+    while remaining:
+        j = max(remaining, key=lambda i: (weights[i], -i))
+        for i in list(remaining):
+            if close[j, i]:
+                labels[i] = j
+                remaining.discard(i)
+    return np.array(labels)
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_greedy_clusters_matches_sequential_loop_on_arbitrary_gates(seed):
+    from localization.reducer import greedy_clusters
+
+    rng = np.random.default_rng(500 + seed)
+    n = int(rng.integers(1, 80))
+    density = rng.choice([0.02, 0.1, 0.3, 0.7])
+    close = rng.random((n, n)) < density
+    np.fill_diagonal(close, True)
+    weights = rng.choice([0.1, 0.5, 1.0], size=n) if seed % 3 == 0 else rng.random(n)
+    assert np.array_equal(greedy_clusters(close, weights), ref_greedy_labels(close, weights))

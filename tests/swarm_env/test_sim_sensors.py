@@ -69,3 +69,31 @@ def test_occluded_neighbour_is_missing_from_the_camera():
     assert max(per_frame) <= 1 and np.mean(bearings) < np.deg2rad(20)
     assert not world.ground_truth().visible["camera"][0, 2]
     assert world.ground_truth().visible["camera"][0, 1]
+
+
+def test_time_stacked_scene_matches_single_instant_scenes():
+    """One batched call over a step's substeps equals one call per substep's own scene."""
+    world = SimWorld(make_config(
+        "seed-sim", lidar={"range_noise_std_m": 0.0, "intensity_noise_std": 0.0},
+        camera={"bearing_noise_std_deg": 0.0, "miss_probability": 0.0,
+                "false_positive_rate": 0.0}))
+    world.reset(np.random.default_rng(3))
+    instants = []
+    for _ in range(3):  # instants 2 s apart, so occlusions differ between them
+        for _ in range(20):
+            world.step(np.tile([0.3, 0.8], (world.n_agents, 1)))
+        instants.append(world.poses())
+    stacked = world.scene(np.stack(instants))
+    robots = np.tile(np.arange(world.n_agents), 3)
+    when = np.repeat([0, 1, 2], world.n_agents)
+    stamps = np.full(robots.size, 1.0)
+    batch = world.lidar.scan(stacked, robots, stamps, np.random.default_rng(0), time_index=when)
+    cams = world.camera.observe(stacked, robots, np.random.default_rng(0), time_index=when)
+    for k, (i, t) in enumerate(zip(robots, when)):
+        single = world.scene(instants[t])
+        alone = world.lidar.scan(single, np.array([i]), stamps[:1], np.random.default_rng(0))
+        np.testing.assert_array_equal(batch.ranges_m[k], alone.ranges_m[0])
+        np.testing.assert_array_equal(batch.hit_owner[k], alone.hit_owner[0])
+        cam = world.camera.observe(single, np.array([i]), np.random.default_rng(0))
+        np.testing.assert_array_equal(cams.visible[k], cam.visible[0])
+        np.testing.assert_allclose(np.sort(cams.bearings[k]), np.sort(cam.bearings[0]))

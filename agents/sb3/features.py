@@ -1,0 +1,57 @@
+"""A permutation-invariant feature extractor for the neighbour table (Deep Sets).
+
+The observation's table is a *set* of Gaussian components (or true neighbours) sorted by weight
+(PHD) or distance (truth): when two components swap rank, a plain MLP sees two rows swap and
+has to relearn the same geometry for every slot. Here one small network ``phi`` encodes every
+row, and the rows are pooled with the PHD's own weights (``sum_k w_k phi(row_k)``, the integral
+of ``phi`` against the PHD intensity) and with a masked max. The pooled code, the odometry and
+the task features go to SB3's policy and value heads.
+
+Row inputs (scaled to O(1)): ``w``, ``x / 2``, ``y / 2``, ``rho / 2``, ``sqrt(sxx)``,
+``sqrt(syy)``, ``sxy``, with ``rho = ||(x, y)||``; rows with ``valid = 0`` are masked out.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import torch
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
+from torch import nn
+
+ROW = 7
+
+
+class NeighbourSetExtractor(BaseFeaturesExtractor):
+    """Deep Sets over the ``top_k`` rows of the ``"phd"``/``"truth"`` observation layout."""
+
+    def __init__(self, observation_space: gym.spaces.Box, top_k: int = 16,
+                 hidden: int = 64) -> None:
+        n_extra = observation_space.shape[0] - ROW * top_k
+        if n_extra < 2:
+            raise ValueError(f"observation of size {observation_space.shape[0]} does not hold "
+                             f"{top_k} table rows plus odometry")
+        super().__init__(observation_space, features_dim=2 * hidden + n_extra)
+        self.top_k = top_k
+        self.phi = nn.Sequential(nn.Linear(ROW, hidden), nn.ReLU(),
+                                 nn.Linear(hidden, hidden), nn.ReLU())
+        high = torch.as_tensor(observation_space.high[ROW * top_k:], dtype=torch.float32)
+        self.register_buffer("extra_scale", torch.clamp(high.abs(), min=1e-6))
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        b = obs.shape[0]
+        rows = obs[:, : ROW * self.top_k].reshape(b, self.top_k, ROW)
+        w, x, y = rows[..., 0], rows[..., 1], rows[..., 2]
+        sxx, sxy, syy, valid = rows[..., 3], rows[..., 4], rows[..., 5], rows[..., 6]
+        rho = torch.sqrt(x * x + y * y + 1e-9)
+        inputs = torch.stack([
+            w.clamp(0, 3), x / 2, y / 2, rho / 2,
+            torch.sqrt(sxx.clamp(min=0)).clamp(max=3), torch.sqrt(syy.clamp(min=0)).clamp(max=3),
+            sxy.clamp(-3, 3),
+        ], dim=-1)
+        h = self.phi(inputs)  # (B, K, H)
+        mask = (valid > 0.5).float().unsqueeze(-1)
+        weighted = (h * mask * w.clamp(0, 3).unsqueeze(-1)).sum(dim=1)
+        maxed = (h * mask - (1 - mask) * 1e4).max(dim=1).values
+        maxed = torch.where(mask.sum(dim=1) > 0, maxed, torch.zeros_like(maxed))
+        extra = obs[:, ROW * self.top_k:] / self.extra_scale
+        return torch.cat([weighted, maxed, extra], dim=1)

@@ -1,0 +1,177 @@
+"""Score policies on a task and draw learning curves (the figures of ``docs/results.md``).
+
+    python -m agents.sb3.report --runs runs/formation_phd runs/formation_truth \\
+        --baselines random scripted:formation --seeds 100-109 --out docs/
+
+Every policy runs on the same held-out seeds (not used in training: training seeds its copies
+from 0..n_copies-1 and continues their generators), in the env its model was trained in, for one
+episode (``max_steps``). Scripted policies get the model's env with ``observation="phd"``
+(``scripted:formation@truth`` for ground-truth neighbours); ``random`` ignores the observation.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+METRICS = ("formation_error_m", "final_formation_error_m", "spacing_error_m")
+
+
+def _seeds(text: str) -> list[int]:
+    if "-" in text:
+        lo, hi = (int(x) for x in text.split("-"))
+        return list(range(lo, hi + 1))
+    return [int(x) for x in text.split(",") if x.strip()]
+
+
+def score(policy_spec: str, env_kwargs: dict[str, Any], seeds: list[int],
+          n_steps: int | None = None) -> dict[str, Any]:
+    """Mean/std over seeds of the task metrics and of the per-agent episode return."""
+    from agents.policies import load_policy
+    from swarm_env import parallel_env
+
+    kwargs = dict(env_kwargs)
+    spec = policy_spec
+    if spec.endswith("@truth"):
+        spec = spec[: -len("@truth")]
+        kwargs.update(observation="truth", localize=False)
+    elif not spec.endswith(".zip"):
+        from agents.policies import policy_observation
+
+        mode = policy_observation(spec)
+        kwargs.update(observation=mode or "measurements", localize=mode == "phd")
+    env = parallel_env(**kwargs)
+    policy = load_policy(spec, env)
+    n_steps = n_steps or env.config.max_steps
+    per_seed: list[dict[str, float]] = []
+    for seed in seeds:
+        if hasattr(policy, "reset"):
+            policy.reset(seed)
+        obs, infos = env.reset(seed=seed)
+        total = 0.0
+        for _ in range(n_steps):
+            if not env.agents:
+                break
+            obs, rewards, _, _, infos = env.step(policy(obs, infos))
+            total += float(np.mean(list(rewards.values()))) if rewards else 0.0
+        per_seed.append({**env.task.metrics(), "episode_return": total})
+    env.close()
+    keys = per_seed[0].keys()
+    return {"policy": policy_spec, "seeds": seeds,
+            "mean": {k: float(np.mean([d[k] for d in per_seed])) for k in keys},
+            "std": {k: float(np.std([d[k] for d in per_seed])) for k in keys},
+            "per_seed": per_seed}
+
+
+def monitor_curve(run_dir: Path, window: int = 200) -> tuple[np.ndarray, np.ndarray]:
+    """(agent timesteps, moving-average episode return) from ``monitor.csv``."""
+    with open(run_dir / "monitor.csv") as f:
+        lines = [line for line in f if not line.startswith("#")]
+    rows = list(csv.DictReader(lines))
+    returns = np.array([float(r["r"]) for r in rows])
+    lengths = np.array([float(r["l"]) for r in rows])
+    steps = np.cumsum(lengths)  # each row is one agent-episode of l transitions
+    if len(returns) == 0:
+        return np.zeros(0), np.zeros(0)
+    w = min(window, len(returns))
+    smooth = np.convolve(returns, np.ones(w) / w, mode="valid")
+    return steps[w - 1:], smooth
+
+
+def checkpoint_scores(run_dir: Path, seeds: list[int]) -> list[tuple[int, dict[str, Any]]]:
+    from agents.sb3.policy import read_metadata
+
+    out = []
+    for path in sorted((run_dir / "checkpoints").glob("model_*_steps.zip"),
+                       key=lambda p: int(re.findall(r"\d+", p.stem)[0])):
+        steps = int(re.findall(r"\d+", path.stem)[0])
+        out.append((steps, score(str(path), read_metadata(path)["env_kwargs"], seeds)))
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--runs", nargs="+", required=True)
+    parser.add_argument("--baselines", nargs="*",
+                        default=["random", "scripted:formation", "scripted:formation@truth"])
+    parser.add_argument("--seeds", default="100-109")
+    parser.add_argument("--out", default="docs")
+    parser.add_argument("--checkpoints", action="store_true",
+                        help="also score every checkpoint (slower)")
+    parser.add_argument("--checkpoint-seeds", default="100-104")
+    args = parser.parse_args(argv)
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from agents.sb3.policy import read_metadata
+
+    seeds = _seeds(args.seeds)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    runs = [Path(r) for r in args.runs]
+    env_kwargs = read_metadata(runs[0] / "model.zip")["env_kwargs"]
+    env_kwargs = {k: v for k, v in env_kwargs.items() if k not in ("observation", "localize")}
+    results: dict[str, Any] = {"seeds": seeds, "env_kwargs": env_kwargs, "policies": {}}
+    for spec in args.baselines:
+        results["policies"][spec] = score(spec, env_kwargs, seeds)
+        print(spec, results["policies"][spec]["mean"])
+    curves = {}
+    for run in runs:
+        spec = str(run / "model.zip")
+        results["policies"][spec] = score(spec, read_metadata(spec)["env_kwargs"], seeds)
+        print(spec, results["policies"][spec]["mean"])
+        curves[run.name] = monitor_curve(run)
+        if args.checkpoints:
+            results.setdefault("checkpoints", {})[run.name] = [
+                (s, r["mean"]) for s, r in checkpoint_scores(run, _seeds(args.checkpoint_seeds))]
+            final = score(spec, read_metadata(spec)["env_kwargs"], _seeds(args.checkpoint_seeds))
+            results["checkpoints"][run.name].append((
+                int(json.loads((run / "train_summary.json").read_text())["timesteps"]),
+                final["mean"]))
+    (out / "results_formation.json").write_text(json.dumps(results, indent=2))
+
+    n_panels = 2 if args.checkpoints else 1
+    fig, axes = plt.subplots(1, n_panels, figsize=(6.5 * n_panels, 4.2), squeeze=False)
+    ax = axes[0, 0]
+    colors = {"random": "tab:gray", "scripted:formation": "tab:green",
+              "scripted:formation@truth": "tab:olive"}
+    for name, (x, y) in curves.items():
+        ax.plot(x, y, label=f"PPO {name} (training episodes)")
+    for spec in args.baselines:
+        ax.axhline(results["policies"][spec]["mean"]["episode_return"], ls="--",
+                   color=colors.get(spec), label=spec)
+    ax.set_xlabel("agent transitions")
+    ax.set_ylabel("episode return per agent (moving avg.)")
+    ax.set_title("formation, PPO with parameter sharing")
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3)
+    if args.checkpoints:
+        ax = axes[0, 1]
+        for name, pts in results["checkpoints"].items():
+            ax.plot([s for s, _ in pts], [m["formation_error_m"] for _, m in pts], "o-",
+                    label=f"PPO {name}")
+        for spec in args.baselines:
+            base = score(spec, env_kwargs, _seeds(args.checkpoint_seeds))
+            ax.axhline(base["mean"]["formation_error_m"], ls="--", color=colors.get(spec),
+                       label=spec)
+        ax.set_xlabel("agent transitions")
+        ax.set_ylabel("formation error (m), held-out seeds")
+        ax.set_title("checkpoints on held-out seeds (lower is better)")
+        ax.legend(fontsize=7)
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(out / "results_formation_learning_curve.png", dpi=110)
+    print(f"wrote {out / 'results_formation_learning_curve.png'}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,138 @@
+"""Scripted controllers: each achieves its task in a fixed-seed rollout, on the robot's own PHD."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from agents.policies import SCRIPTED, load_policy, policy_observation
+from agents.scripted import (
+    FormationPolicy,
+    expected_count,
+    internal_minimum,
+    split_observation,
+    symmetry_metric,
+)
+from swarm_env import parallel_env
+
+
+def _run(env, policy, n_steps: int, seed: int, on_step=None):
+    if hasattr(policy, "reset"):
+        policy.reset(seed)
+    obs, infos = env.reset(seed=seed)
+    for k in range(n_steps):
+        obs, _, _, _, infos = env.step(policy(obs, infos))
+        if on_step is not None:
+            on_step(env, k)
+        if not env.agents:
+            break
+    return env
+
+
+def test_registry_and_observation_modes():
+    assert {"wander", "formation", "encirclement", "anti-symmetry"} <= set(SCRIPTED)
+    assert policy_observation("scripted:formation") == "phd"
+    assert policy_observation("scripted:wander") is None
+    assert policy_observation("random") is None
+
+
+def test_controllers_refuse_envs_they_cannot_run_in():
+    env = parallel_env("seed-lab", task="formation", observation="measurements", localize=False)
+    with pytest.raises(ValueError, match="observation='phd'"):
+        load_policy("scripted:formation", env)
+    with pytest.raises(ValueError, match="task='formation'"):
+        load_policy("scripted:formation", parallel_env("seed-lab"))
+    no_beacon = parallel_env("seed-lab", task="encirclement", task_params={"beacon": False})
+    with pytest.raises(ValueError, match="beacon"):
+        load_policy("scripted:encirclement", no_beacon)
+    with pytest.raises(ValueError, match="unknown scripted policy"):
+        load_policy("scripted:nope", env)
+
+
+@pytest.mark.parametrize("seed", [0, 2])
+def test_formation_from_phd_reaches_the_circle(seed):
+    env = parallel_env("seed-lab", task="formation", max_steps=400)
+    policy = load_policy("scripted:formation", env)
+    errors = []
+    _run(env, policy, 300, seed, lambda e, k: errors.append(e.task._errors[-1]))
+    start, end = errors[0], float(np.mean(errors[-50:]))  # last 5 s of 30 s
+    assert end < 0.25, (start, end)
+    assert end < start or end < 0.1
+
+
+def test_formation_from_truth_is_tight():
+    env = parallel_env("seed-lab", task="formation", observation="truth", localize=False)
+    policy = load_policy("scripted:formation", env)
+    _run(env, policy, 200, seed=1)
+    assert env.task.metrics()["final_formation_error_m"] < 0.08
+
+
+def test_lattice_from_truth_keeps_the_spacing():
+    env = parallel_env("seed-lab", task="formation", observation="truth", localize=False,
+                       task_params={"shape": "lattice", "spacing_m": 0.6})
+    policy = load_policy("scripted:formation", env)
+    assert policy.shape == "lattice"
+    errors = []
+    _run(env, policy, 250, 0, lambda e, k: errors.append(e.task._errors[-1]))
+    assert np.mean(errors[-30:]) < 0.1
+
+
+def test_encirclement_encloses_the_moving_intruder():
+    env = parallel_env("seed-lab", task="encirclement", max_steps=400)
+    policy = load_policy("scripted:encirclement", env)
+    _run(env, policy, 300, seed=0)
+    m = env.task.metrics()
+    assert m["final_enclosed_fraction"] == 1.0
+    assert m["final_radius_error_m"] < 0.15
+
+
+def _square_start(env):
+    square = [(-0.5, -0.5), (0.5, -0.5), (0.5, 0.5), (-0.5, 0.5)]
+    for body, (x, y), yaw in zip(env.world.bodies, square, [0.3, 1.2, 2.5, -1.0], strict=True):
+        body.position, body.angle = (x, y), yaw
+
+
+def test_anti_symmetry_breaks_a_square():
+    env = parallel_env("seed-lab", max_steps=200, arena={"n_decoy_posts": 0, "n_red_decoys": 0})
+    policy = load_policy("scripted:anti-symmetry", env)
+    policy.reset(0)
+    obs, infos = env.reset(seed=0)
+    _square_start(env)
+    first = None
+    for _ in range(100):  # 10 s
+        obs, _, _, _, infos = env.step(policy(obs, infos))
+        if first is None:
+            first = internal_minimum(env.last_world_step.truth.poses[:, :2])[1]
+    last = internal_minimum(env.last_world_step.truth.poses[:, :2])[1]
+    assert first < 1e-3  # the square is rotationally symmetric (G_4)
+    assert last / 4 > 0.02  # mean squared displacement from symmetry >= (0.14 m)^2
+
+
+def test_symmetry_metric_properties():
+    square = np.array([[0, 0], [1, 0], [1, 1], [0, 1.0]])
+    phis = np.linspace(0, 2 * np.pi, 8, endpoint=False)
+    gamma = symmetry_metric(square, phis)
+    assert gamma[0] == pytest.approx(0.0, abs=1e-12)
+    assert gamma[2] == pytest.approx(0.0, abs=1e-12)  # pi / 2: a symmetry of the square
+    assert gamma[1] > 0.1
+    assert internal_minimum(square)[1] == pytest.approx(0.0, abs=1e-9)
+    skew = square + np.array([[0.2, 0], [0, 0], [0, 0], [0, 0]])
+    assert internal_minimum(skew)[1] > 0.01
+
+
+def test_expected_count_inverts_the_chord():
+    for n in range(2, 12):
+        assert expected_count(0.8, 2 * 0.8 * np.sin(np.pi / n)) == n
+
+
+def test_formation_controller_reads_only_its_observation():
+    """Same observation, no infos (no lidar): the action is a pure function of the table."""
+    env = parallel_env("seed-lab", task="formation", observation="truth", localize=False)
+    obs, _ = env.reset(seed=0)
+    a = FormationPolicy.for_env(env)(obs, {})
+    b = FormationPolicy.for_env(env)(obs, {})
+    for agent in obs:
+        np.testing.assert_array_equal(a[agent], b[agent])
+        table, odom, feats = split_observation(obs[agent], env.config.top_k)
+        assert table.shape == (16, 7) and odom.shape == (2,) and feats.shape == (2,)
+        assert env.action_space(agent).contains(a[agent])

@@ -1,0 +1,222 @@
+"""Tasks: parameter checks, rewards on hand-built configurations, and the PettingZoo API."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from pettingzoo.test import parallel_api_test
+
+from swarm_env import parallel_env
+from swarm_env.config import ArenaConfig
+from swarm_env.tasks import TASKS, make_task
+from swarm_env.tasks.encirclement import EncirclementTask
+from swarm_env.tasks.exploration import ExplorationTask
+from swarm_env.tasks.formation import FormationTask
+from swarm_env.world.base import GroundTruth
+
+
+def truth(xy, yaw=None, extra=None) -> GroundTruth:
+    xy = np.asarray(xy, dtype=float)
+    yaw = np.zeros(len(xy)) if yaw is None else np.asarray(yaw, dtype=float)
+    poses = np.c_[xy, yaw]
+    rel = xy[None, :, :] - xy[:, None, :]  # yaw 0 everywhere in these tests but the beacon one
+    extra_xy = np.zeros((0, 2)) if extra is None else np.asarray(extra, dtype=float)
+    return GroundTruth(poses=poses, relative_xy=rel, extra_xy=extra_xy)
+
+
+RNG = np.random.default_rng(0)
+ARENA = ArenaConfig(width_m=3.0, height_m=3.0)
+
+
+# ------------------------------------------------------------------ registry and bad input
+def test_registry_has_every_task():
+    assert {"wander", "formation", "exploration", "encirclement"} <= set(TASKS)
+
+
+def test_unknown_task_name_lists_the_choices():
+    with pytest.raises(ValueError, match="task must be one of"):
+        make_task("formaton")
+    with pytest.raises(ValueError, match="task must be one of"):
+        parallel_env("seed-lab", task="nope")
+
+
+@pytest.mark.parametrize("name", ["formation", "exploration", "encirclement", "wander"])
+def test_unknown_task_parameter_is_named(name):
+    with pytest.raises(ValueError, match="radius_typo"):
+        make_task(name, radius_typo=1.0)
+
+
+@pytest.mark.parametrize(
+    "name, params, match",
+    [
+        ("formation", {"radius_m": -1.0}, "radius_m"),
+        ("formation", {"radius_m": float("nan")}, "radius_m"),
+        ("formation", {"shape": "square"}, "shape"),
+        ("formation", {"shape": "lattice", "radius_m": 1.0}, "radius_m"),
+        ("formation", {"shape": "circle", "spacing_m": 0.5}, "spacing_m"),
+        ("formation", {"progress_weight": -1}, "progress_weight"),
+        ("exploration", {"target_coverage": 0.0}, "target_coverage"),
+        ("exploration", {"cell_m": 0}, "cell_m"),
+        ("encirclement", {"path": "static", "intruder_speed_mps": 0.1}, "static"),
+        ("encirclement", {"path": "circle", "intruder_speed_mps": 0.0}, "intruder_speed_mps"),
+        ("encirclement", {"beacon": "yes"}, "beacon"),
+        ("encirclement", {"radius_m": 0}, "radius_m"),
+    ],
+)
+def test_bad_or_inconsistent_parameters_raise(name, params, match):
+    with pytest.raises(ValueError, match=match):
+        make_task(name, **params)
+
+
+def test_env_passes_task_params_and_rejects_bad_ones():
+    env = parallel_env("seed-lab", task="formation", task_params={"radius_m": 0.5})
+    assert env.task.radius_m == 0.5
+    with pytest.raises(ValueError, match="spacing_m"):
+        parallel_env("seed-lab", task="formation", task_params={"spacing_m": 0.5})
+
+
+def test_exploration_cell_larger_than_arena_raises_at_reset():
+    task = ExplorationTask(cell_m=5.0)
+    with pytest.raises(ValueError, match="cell_m"):
+        task.reset(truth([[0.0, 0.0]]), RNG, ARENA)
+
+
+# ------------------------------------------------------------------ formation rewards
+def test_circle_reward_zero_on_the_target_formation():
+    task = FormationTask(radius_m=1.0)
+    t = truth([[1, 0], [0, 1], [-1, 0], [0, -1]])
+    task.reset(t, RNG, ARENA)
+    np.testing.assert_allclose(task.rewards(t, np.zeros((4, 2))), 0.0, atol=1e-12)
+
+
+def test_circle_reward_hand_computed():
+    # Square of half-diagonal 1 with r = 0.5: radial error 0.5; chord 2 * 0.5 * sin(pi/4)
+    # = 0.70711 vs nearest-neighbour distance sqrt(2): spacing error 0.70711.
+    task = FormationTask(radius_m=0.5, spacing_weight=0.5)
+    t = truth([[1, 0], [0, 1], [-1, 0], [0, -1]])
+    task.reset(t, RNG, ARENA)
+    expected = -(0.5 + 0.5 * (math.sqrt(2) - math.sqrt(2) / 2))
+    np.testing.assert_allclose(task.rewards(t, np.zeros((4, 2))), expected)
+    # Two robots 2 m apart, r = 0.8: centroid between them, radial error 0.2 each;
+    # chord for N = 2 is the diameter 1.6, spacing error 0.4 -> r = -(0.2 + 0.5 * 0.4).
+    task = FormationTask(radius_m=0.8)
+    t = truth([[0, 0], [2, 0]])
+    task.reset(t, RNG, ARENA)
+    np.testing.assert_allclose(task.rewards(t, np.zeros((2, 2))), [-0.4, -0.4])
+    assert task.metrics()["formation_error_m"] == pytest.approx(0.2)
+
+
+def test_circle_progress_shaping_rewards_the_error_removed():
+    task = FormationTask(radius_m=0.8, progress_weight=10.0)
+    start = truth([[0, 0], [2, 0]])
+    task.reset(start, RNG, ARENA)
+    np.testing.assert_allclose(task.rewards(start, np.zeros((2, 2))), [-0.4, -0.4])  # no change
+    done = truth([[0.2, 0], [1.8, 0]])  # on the circle, spacing = diameter: error 0
+    np.testing.assert_allclose(task.rewards(done, np.zeros((2, 2))), [4.0, 4.0])
+
+
+def test_lattice_reward_hand_computed():
+    # d = 1: robot 0 and 1 are at distance 1 (error 0); robot 2's nearest is robot 1 at 2 m.
+    task = FormationTask(shape="lattice", spacing_m=1.0)
+    t = truth([[0, 0], [1, 0], [3, 0]])
+    task.reset(t, RNG, ARENA)
+    np.testing.assert_allclose(task.rewards(t, np.zeros((3, 2))), [0.0, 0.0, -1.0])
+    # Robot 1 has two neighbours within 1.5 d: errors |1 - 1| and |1.2 - 1| -> mean 0.1.
+    t = truth([[0, 0], [1, 0], [2.2, 0]])
+    np.testing.assert_allclose(task.rewards(t, np.zeros((3, 2))), [0.0, -0.1, -0.2])
+
+
+def test_formation_features():
+    task = FormationTask(radius_m=1.0)
+    f = task.features(4)
+    np.testing.assert_allclose(f, [[1.0, math.sqrt(2)]] * 4)
+    low, high = task.feature_bounds()
+    assert np.all(f >= low) and np.all(f <= high)
+    lattice = FormationTask(shape="lattice", spacing_m=0.7)
+    np.testing.assert_allclose(lattice.features(3), [[0.7]] * 3)
+
+
+# ------------------------------------------------------------------ exploration rewards
+def test_exploration_rewards_new_cells_and_penalises_collisions():
+    arena = ArenaConfig(width_m=2.0, height_m=2.0)  # 4 cells of 1 m
+    task = ExplorationTask(cell_m=1.0, target_coverage=1.0, coverage_reward=1.0,
+                           collision_penalty=0.1, collision_distance_m=0.3, wall_margin_m=0.16)
+    start = truth([[-0.5, -0.5], [-0.4, -0.5]])  # both in cell (0, 0), 0.1 m apart: colliding
+    task.reset(start, RNG, arena)
+    assert task.coverage == 0.25
+    np.testing.assert_allclose(task.rewards(start, np.zeros((2, 2))), [-0.1, -0.1])
+    moved = truth([[0.5, -0.5], [-0.5, 0.5]])  # two new cells, 1.41 m apart
+    np.testing.assert_allclose(task.rewards(moved, np.zeros((2, 2))), [2.0, 2.0])
+    assert not task.terminated(moved)
+    last = truth([[0.5, 0.5], [-0.5, 0.9]])  # one new cell; robot 1 is 0.1 m from the wall
+    np.testing.assert_allclose(task.rewards(last, np.zeros((2, 2))), [1.0, 0.9])
+    assert task.coverage == 1.0 and task.terminated(last)
+    m = task.metrics()
+    assert m["coverage"] == 1.0 and m["collision_rate"] == pytest.approx(3 / 6)
+
+
+# ------------------------------------------------------------------ encirclement rewards
+def test_encirclement_reward_hand_computed():
+    task = EncirclementTask(radius_m=0.6, gap_weight=0.5, path="static", beacon=False)
+    ring = truth([[0.6, 0], [0, 0.6], [-0.6, 0], [0, -0.6]], extra=[[0.0, 0.0]])
+    task.reset(ring, RNG, ARENA)
+    np.testing.assert_allclose(task.rewards(ring, np.zeros((4, 2))), 0.0, atol=1e-12)
+    # Three robots on a half circle: largest gap pi, even gap 2 pi / 3 -> spread 1/3.
+    half = truth([[0.6, 0], [0, 0.6], [-0.6, 0]], extra=[[0.0, 0.0]])
+    np.testing.assert_allclose(task.rewards(half, np.zeros((3, 2))), -0.5 / 3)
+    # One robot 1 m away (error 0.4), four around: enclosed.
+    far = truth([[1.0, 0], [0, 0.6], [-0.6, 0], [0, -0.6]], extra=[[0.0, 0.0]])
+    np.testing.assert_allclose(task.rewards(far, np.zeros((4, 2))), [-0.4, 0, 0, 0], atol=1e-12)
+    m = task.metrics()
+    assert m["enclosed_fraction"] == pytest.approx(2 / 3)
+
+
+def test_encirclement_beacon_is_the_intruder_in_the_agent_frame():
+    task = EncirclementTask(beacon=True, beacon_range_std_m=0.0, beacon_bearing_std_deg=0.0,
+                            path="static")
+    t = truth([[1.0, 0.0]], yaw=[math.pi / 2], extra=[[0.0, 0.0]])
+    task.reset(t, RNG, ARENA)
+    r, cos_b, sin_b, rho = task.features(1)[0]
+    # The intruder is 1 m behind along world -x; the agent faces +y, so it is on its left.
+    assert (r, rho) == pytest.approx((0.6, 1.0))
+    assert (cos_b, sin_b) == pytest.approx((0.0, 1.0), abs=1e-12)
+
+
+def test_intruder_moves_on_its_loop_and_static_stays():
+    static = EncirclementTask(path="static")
+    static.reset(truth([[0, 0]], extra=[[1, 1]]), RNG, ARENA)
+    np.testing.assert_array_equal(static.extra_commands(truth([[0, 0]], extra=[[1, 1]]), 0.1),
+                                  [[0.0, 0.0]])
+    moving = EncirclementTask(path="circle", intruder_speed_mps=0.1)
+    t = truth([[0, 0]], extra=[[0.75, 0.0]])
+    moving.reset(t, RNG, ARENA)
+    v, omega = moving.extra_commands(t, 0.1)[0]
+    assert 0.0 < v <= 0.1 and abs(omega) <= 1.0
+
+
+# ------------------------------------------------------------------ PettingZoo API per task
+@pytest.mark.parametrize(
+    "task, params",
+    [
+        ("formation", {}),
+        ("formation", {"shape": "lattice", "spacing_m": 0.5}),
+        ("exploration", {}),
+        ("encirclement", {}),
+        ("encirclement", {"beacon": False, "path": "static"}),
+    ],
+)
+def test_parallel_api_per_task(task, params):
+    env = parallel_env("seed-lab", task=task, task_params=params, max_steps=30)
+    parallel_api_test(env, num_cycles=35)
+
+
+def test_encirclement_env_has_an_intruder_the_sensors_see():
+    env = parallel_env("seed-lab", task="encirclement", max_steps=20)
+    env.reset(seed=0)
+    for _ in range(5):
+        env.step({a: np.zeros(2, dtype=np.float32) for a in env.agents})
+    t = env.last_world_step.truth
+    assert t.extra_xy.shape == (1, 2)
+    assert env.world.n_extra == 1
