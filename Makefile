@@ -23,8 +23,11 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest
 
+# Figures go to benchmarks/RESULTS.md by hand, with the date and the machine.
 bench: $(STAMP)
-	$(VENV)/bin/swarm-phd bench
+	$(VENV)/bin/swarm-phd bench --json runs/bench/env.json
+	$(PY) benchmarks/bench_sensors.py
+	$(PY) benchmarks/bench_phd_vs_stonesoup.py --json runs/bench/phd_vs_stonesoup.json
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .

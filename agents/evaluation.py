@@ -267,7 +267,7 @@ def _trace_step(trace: dict[str, list], step, bank: list[RobotCentricPHD], range
     trace["time_s"].append(step.time_s)
     trace["weight_sum"].append(float(mixture.weights[near].sum()))
     trace["true_count"].append(int(mask.sum()))
-    trace["gospa"].append(float(gospa(truth.relative_xy[0][mask], est)["total"]))
+    trace["gospa"].append(float(gospa(truth.relative_xy[0][mask], est).distance))
 
 
 def _world_estimates(localizer: RobotCentricPHD, pose: np.ndarray) -> np.ndarray:

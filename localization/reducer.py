@@ -14,8 +14,9 @@ leader iff no heavier *leader* has it in its gate, and it joins the heaviest lea
 gate holds it, which is exactly the cluster the sequential "pop the heaviest, absorb its
 gate" loop gives it. All pairwise gate distances come from one matrix product. In the common
 case (every component's heaviest coverer is a leader) the labels follow from one argmax.
-Otherwise the sequential loop runs on Python-int bitsets of the gate rows: one integer test
-per component and one bitwise "remove my gate" per leader, no numpy call per component.
+Otherwise the sequential loop runs once per output cluster on Python-int bitsets of the
+rank-ordered gate rows (next leader = lowest set bit, absorb = one AND-NOT), with no numpy
+call inside the loop.
 Moment matching is one matrix product of per-component moments with the cluster weights.
 
 References
@@ -147,26 +148,25 @@ def greedy_clusters(close: np.ndarray, weights: np.ndarray) -> np.ndarray:
         # Every best coverer is a leader, so every component's cluster is known: done.
         return best
     # General case (covering chains: i's best coverer is itself absorbed by someone else).
-    # Run the sequential greedy itself, on Python-int bitsets: one pass in rank order, an
-    # integer test per component and a 'remove my gate' per leader. The gate rows are
-    # packed to bytes once; each leader's row becomes an int only when it is needed.
-    order = np.lexsort((index, -weights)).tolist()  # rank order, ties: lower index first
-    packed = np.packbits(close, axis=1, bitorder="little")
+    # Run the sequential greedy itself, once per output cluster, on Python-int bitsets: with
+    # the gate matrix in rank order, the next leader is the lowest set bit of the remaining
+    # set, and absorbing its gate is one AND-NOT. The rows are packed to bytes once; a row
+    # becomes an int only for a leader.
+    order = np.lexsort((index, -weights))  # rank order, ties: lower index first
+    packed = np.packbits(close[np.ix_(order, order)], axis=1, bitorder="little")
     row_bytes = packed.shape[1]
     buf = packed.tobytes()
     from_bytes = int.from_bytes
     remaining = (1 << n) - 1
     leaders = []
-    for j in order:
-        if remaining >> j & 1:
-            leaders.append(j)
-            start = j * row_bytes
-            remaining &= ~from_bytes(buf[start : start + row_bytes], "little")
-            if not remaining:
-                break
+    while remaining:
+        j = (remaining & -remaining).bit_length() - 1  # highest-ranked remaining component
+        leaders.append(j)
+        start = j * row_bytes
+        remaining &= ~from_bytes(buf[start : start + row_bytes], "little")
     # Each component joins the highest-ranked leader whose gate holds it.
-    lead = np.array(leaders)
-    return lead[(score[lead]).argmax(axis=0)]
+    lead = order[leaders]
+    return lead[score[lead].argmax(axis=0)]
 
 
 def merge(table: np.ndarray, threshold: float) -> np.ndarray:
