@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from localization import PHDConfig, RobotCentricPHD
+from localization import RobotCentricPHD
 from localization.metrics import LocalizationScorer
 from swarm_env import parallel_env
 from swarm_env.env import SwarmEnv
@@ -37,21 +37,33 @@ LOCALIZERS = {"phd-lc": "lidar-camera", "phd-lo": "lidar-only"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--preset", default=None,
-                        help="default: the model's preset for a model.zip, else seed-sim")
+    parser.add_argument(
+        "--preset", default=None, help="default: the model's preset for a model.zip, else seed-sim"
+    )
     parser.add_argument("--duration", type=float, default=300.0, help="simulated seconds")
-    parser.add_argument("--localizer", default="phd-lc,phd-lo",
-                        help=f"comma-separated, from {sorted(LOCALIZERS)}")
+    parser.add_argument(
+        "--localizer", default="phd-lc,phd-lo", help=f"comma-separated, from {sorted(LOCALIZERS)}"
+    )
     parser.add_argument("--seeds", default="0", help="comma-separated integers")
-    parser.add_argument("--policy", default="scripted:wander",
-                        help="'scripted:NAME', 'random' or a trained model.zip")
-    parser.add_argument("--task", default=None,
-                        help="default: the model's task for a model.zip, else 'wander'")
-    parser.add_argument("--task-params", default=None,
-                        help="JSON dict of task parameters (default: the model's, else {})")
-    parser.add_argument("--compare", default=None,
-                        help="a second policy run on the same env and seeds, reported side by "
-                             "side (e.g. --policy runs/X/model.zip --compare scripted:formation)")
+    parser.add_argument(
+        "--policy",
+        default="scripted:wander",
+        help="'scripted:NAME', 'random' or a trained model.zip",
+    )
+    parser.add_argument(
+        "--task", default=None, help="default: the model's task for a model.zip, else 'wander'"
+    )
+    parser.add_argument(
+        "--task-params",
+        default=None,
+        help="JSON dict of task parameters (default: the model's, else {})",
+    )
+    parser.add_argument(
+        "--compare",
+        default=None,
+        help="a second policy run on the same env and seeds, reported side by "
+        "side (e.g. --policy runs/X/model.zip --compare scripted:formation)",
+    )
     parser.add_argument("--out", default=None, help="write metrics.json and figures here")
 
 
@@ -68,26 +80,41 @@ def run(args: argparse.Namespace) -> int:
         except json.JSONDecodeError as exc:
             raise ValueError(f"--task-params must be a JSON object: {exc}") from exc
     out_dir = Path(args.out) if args.out else None
-    results = evaluate_localization(args.preset, args.duration, localizers, seeds,
-                                    policy=args.policy, task=args.task, out_dir=out_dir,
-                                    **overrides)
+    results = evaluate_localization(
+        args.preset,
+        args.duration,
+        localizers,
+        seeds,
+        policy=args.policy,
+        task=args.task,
+        out_dir=out_dir,
+        **overrides,
+    )
     print_table(results)
     if args.compare:
         shared = shared_env_kwargs(args.policy, args.preset, args.task, **overrides)
         other = evaluate_localization(
-            shared.pop("preset"), args.duration, localizers, seeds, policy=args.compare,
-            task=shared.pop("task"), out_dir=out_dir / "compare" if out_dir else None,
-            **shared)
+            shared.pop("preset"),
+            args.duration,
+            localizers,
+            seeds,
+            policy=args.compare,
+            task=shared.pop("task"),
+            out_dir=out_dir / "compare" if out_dir else None,
+            **shared,
+        )
         print_table(other)
         print_comparison([results, other])
         if out_dir is not None:
             (out_dir / "comparison.json").write_text(
-                json.dumps(comparison_rows([results, other]), indent=2))
+                json.dumps(comparison_rows([results, other]), indent=2)
+            )
     return 0
 
 
-def shared_env_kwargs(policy: str, preset: str | None, task: str | None,
-                      **overrides: Any) -> dict[str, Any]:
+def shared_env_kwargs(
+    policy: str, preset: str | None, task: str | None, **overrides: Any
+) -> dict[str, Any]:
     """Preset, task, task parameters and config overrides of ``policy``'s evaluation env, minus
     the observation mode (each policy brings its own): what a ``--compare`` run must share."""
     kwargs: dict[str, Any] = {}
@@ -144,8 +171,13 @@ def feed(localizer: RobotCentricPHD, records) -> None:
 
 
 def evaluate_localization(
-    preset: str, duration_s: float, localizers: list[str], seeds: list[int],
-    policy: str = "scripted:wander", task: str = "wander", out_dir: Path | None = None,
+    preset: str,
+    duration_s: float,
+    localizers: list[str],
+    seeds: list[int],
+    policy: str = "scripted:wander",
+    task: str = "wander",
+    out_dir: Path | None = None,
     **overrides: Any,
 ) -> dict[str, Any]:
     """Run the experiment; return (and optionally write) the metrics per localizer.
@@ -169,15 +201,19 @@ def evaluate_localization(
     n_steps = int(round(duration_s / env.config.control_period_s))
     base_phd = env.config.phd
     scorers = {name: LocalizationScorer(env.config.n_robots) for name in localizers}
-    trace = {name: {"time_s": [], "weight_sum": [], "true_count": [], "gospa": []}
-             for name in localizers}
+    trace = {
+        name: {"time_s": [], "weight_sum": [], "true_count": [], "gospa": []}
+        for name in localizers
+    }
     paths: list[np.ndarray] = []
     estimates: dict[str, list[np.ndarray]] = {name: [] for name in localizers}
     task_metrics: list[dict[str, float]] = []
     for seed in seeds:
         banks = {
-            name: [RobotCentricPHD(dataclasses.replace(base_phd, mode=LOCALIZERS[name]))
-                   for _ in env.possible_agents]
+            name: [
+                RobotCentricPHD(dataclasses.replace(base_phd, mode=LOCALIZERS[name]))
+                for _ in env.possible_agents
+            ]
             for name in localizers
         }
         act = load_policy(policy, env)
@@ -194,21 +230,30 @@ def evaluate_localization(
                 for i, agent in enumerate(env.possible_agents):
                     feed(banks[name][i], step.measurements[agent])
                     mask = truth.in_range["lidar"][i]
-                    scorers[name].add(i, truth.relative_xy[i][mask], banks[name][i].mixture,
-                                      range_m=env.config.localization_range_m)
+                    scorers[name].add(
+                        i,
+                        truth.relative_xy[i][mask],
+                        banks[name][i].mixture,
+                        range_m=env.config.localization_range_m,
+                    )
                 if seed == seeds[0]:
                     _trace_step(trace[name], step, banks[name], env.config.localization_range_m)
                     estimates[name].append(_world_estimates(banks[name][0], truth.poses[0]))
             if seed == seeds[0]:
                 paths.append(truth.poses[:, :2].copy())
         task_metrics.append(env.task.metrics())
-    preset = preset or ("seed-sim" if not policy.endswith(".zip") else
-                        _model_preset(policy))
+    preset = preset or ("seed-sim" if not policy.endswith(".zip") else _model_preset(policy))
     task = env.task.name
     results = {
-        "config": {"preset": preset, "duration_s": duration_s, "seeds": seeds, "policy": policy,
-                   "task": task, "n_robots": env.config.n_robots,
-                   "localization_range_m": env.config.localization_range_m},
+        "config": {
+            "preset": preset,
+            "duration_s": duration_s,
+            "seeds": seeds,
+            "policy": policy,
+            "task": task,
+            "n_robots": env.config.n_robots,
+            "localization_range_m": env.config.localization_range_m,
+        },
         "localizers": {name: scorers[name].summary() for name in localizers},
         "task": _mean_dicts(task_metrics),
         "wall_time_s": time.perf_counter() - start,
@@ -249,8 +294,10 @@ def print_comparison(all_results: list[dict[str, Any]]) -> None:
     print("  | metric | " + " | ".join(str(r["policy"]) for r in rows) + " |")
     print("  |---|" + "---|" * len(rows))
     for key in keys:
-        cells = [f"{r[key]:.3f}" if isinstance(r.get(key), float) else str(r.get(key, "-"))
-                 for r in rows]
+        cells = [
+            f"{r[key]:.3f}" if isinstance(r.get(key), float) else str(r.get(key, "-"))
+            for r in rows
+        ]
         print(f"  | {key} | " + " | ".join(cells) + " |")
 
 
@@ -283,18 +330,24 @@ def _mean_dicts(items: list[dict[str, float]]) -> dict[str, float]:
 
 def print_table(results: dict[str, Any]) -> None:
     cfg = results["config"]
-    print(f"  {cfg['preset']}, {cfg['n_robots']} robots, {cfg['duration_s']:.0f} s x "
-          f"{len(cfg['seeds'])} seed(s), policy {cfg['policy']}, in range = "
-          f"{cfg['localization_range_m']:.1f} m")
-    print("  | localizer | % time err > 30 cm (median robot) | worst robot | robots > 25 % | "
-          "% time < 10 cm | GOSPA mean | cardinality MAE |")
+    print(
+        f"  {cfg['preset']}, {cfg['n_robots']} robots, {cfg['duration_s']:.0f} s x "
+        f"{len(cfg['seeds'])} seed(s), policy {cfg['policy']}, in range = "
+        f"{cfg['localization_range_m']:.1f} m"
+    )
+    print(
+        "  | localizer | % time err > 30 cm (median robot) | worst robot | robots > 25 % | "
+        "% time < 10 cm | GOSPA mean | cardinality MAE |"
+    )
     print("  |---|---|---|---|---|---|---|")
     for name, m in results["localizers"].items():
         per_robot = np.asarray(m["pct_time_err_gt_30cm"]["per_robot"], dtype=float)
-        print(f"  | {name} | {m['pct_time_err_gt_30cm']['median']:.1f} | "
-              f"{m['pct_time_err_gt_30cm']['max']:.1f} | {int((per_robot > 25).sum())} | "
-              f"{m['pct_time_within_10cm']['median']:.1f} | {m['gospa_mean']:.3f} | "
-              f"{m['cardinality_mae']:.2f} |")
+        print(
+            f"  | {name} | {m['pct_time_err_gt_30cm']['median']:.1f} | "
+            f"{m['pct_time_err_gt_30cm']['max']:.1f} | {int((per_robot > 25).sum())} | "
+            f"{m['pct_time_within_10cm']['median']:.1f} | {m['gospa_mean']:.3f} | "
+            f"{m['cardinality_mae']:.2f} |"
+        )
     if results.get("task"):
         print("  task: " + ", ".join(f"{k} = {v:.3f}" for k, v in results["task"].items()))
     print(f"  wall time {results['wall_time_s']:.1f} s")

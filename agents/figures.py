@@ -8,8 +8,13 @@ from typing import Any
 import numpy as np
 
 
-def write_localization_figures(out_dir: Path, results: dict[str, Any], trace: dict[str, dict],
-                               paths: np.ndarray, estimates: dict[str, list[np.ndarray]]) -> None:
+def write_localization_figures(
+    out_dir: Path,
+    results: dict[str, Any],
+    trace: dict[str, dict],
+    paths: np.ndarray,
+    estimates: dict[str, list[np.ndarray]],
+) -> None:
     """Write fig7_error_time.png, fig8_weight_sum.png, fig9_paths.png and gospa.png.
 
     Parameters
@@ -29,10 +34,10 @@ def write_localization_figures(out_dir: Path, results: dict[str, Any], trace: di
     fig, ax = plt.subplots(figsize=(9, 3.5))
     width = 0.8 / len(names)
     for k, name in enumerate(names):
-        per_robot = np.asarray(results["localizers"][name]["pct_time_err_gt_30cm"]["per_robot"],
-                               dtype=float)
-        ax.bar(np.arange(len(per_robot)) + k * width, np.nan_to_num(per_robot), width,
-               label=name)
+        per_robot = np.asarray(
+            results["localizers"][name]["pct_time_err_gt_30cm"]["per_robot"], dtype=float
+        )
+        ax.bar(np.arange(len(per_robot)) + k * width, np.nan_to_num(per_robot), width, label=name)
     ax.axhline(25, color="k", ls=":", lw=1)
     ax.set_xlabel("robot")
     ax.set_ylabel("% time error > 0.30 m (in range)")
@@ -61,8 +66,15 @@ def write_localization_figures(out_dir: Path, results: dict[str, Any], trace: di
     pts = [e for e in estimates[names[0]] if len(e)]
     if pts:
         pts = np.concatenate(pts)
-        ax.scatter(pts[:, 0], pts[:, 1], marker="x", s=4, color="k", alpha=0.3,
-                   label=f"ugv_0 estimates ({names[0]})")
+        ax.scatter(
+            pts[:, 0],
+            pts[:, 1],
+            marker="x",
+            s=4,
+            color="k",
+            alpha=0.3,
+            label=f"ugv_0 estimates ({names[0]})",
+        )
         ax.legend(loc="upper right")
     ax.set_aspect("equal")
     ax.set_title("paths (ugv_0 red) and ugv_0's estimates")

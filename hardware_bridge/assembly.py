@@ -24,9 +24,11 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from hardware_bridge.messages import Bearings, Odom, Pose, Scan, ns_to_s, wrap_angle
+from hardware_bridge.messages import Bearings, Odom, Pose, Scan, ns_to_s
 from swarm_env.config import SwarmConfig
 from swarm_env.records import CameraRecord, LidarRecord, OdometryRecord, RobotMeasurements
+from swarm_env.sensors.geometry import wrap_angle
+from swarm_env.sensors.lidar import blind_mask
 from swarm_env.sensors.lidar_features import extract_detections, null_bearings
 from swarm_env.world.base import GroundTruth
 from swarm_env.world.sim import relative_positions
@@ -100,13 +102,7 @@ class RecordAssembler:
         """Beams inside the configured blind sectors (camera pillars), as the simulator's
         :class:`~swarm_env.sensors.lidar.LidarSensor` computes them: their null returns are
         not interference, so they are not reported (the filter has a blind-sector factor)."""
-        cfg = self.config.lidar
-        centers = np.deg2rad(np.asarray(cfg.blind_sector_centers_deg, dtype=np.float64))
-        half = 0.5 * np.deg2rad(np.asarray(cfg.blind_sector_widths_deg, dtype=np.float64))
-        if centers.size == 0:
-            return np.zeros(angles_rad.shape, dtype=bool)
-        offset = np.abs(wrap_angle(angles_rad[:, None] - centers[None, :]))
-        return (offset <= half[None, :]).any(axis=1)
+        return blind_mask(angles_rad, self.config.lidar)
 
     @staticmethod
     def camera(frames: Iterable[Bearings]) -> list[CameraRecord]:

@@ -25,6 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from swarm_env.sensors.geometry import wrap_angle
+
 LOGGER = logging.getLogger("hardware_bridge")
 TWO_PI = 2.0 * math.pi
 _NS = 1_000_000_000
@@ -78,11 +80,6 @@ def ns_to_s(stamp_ns: int) -> float:
 
 def s_to_ns(stamp_s: float) -> int:
     return int(round(stamp_s * 1e9))
-
-
-def wrap_angle(angle: np.ndarray | float) -> np.ndarray:
-    """Wrap to ``[-pi, pi)``."""
-    return np.mod(np.asarray(angle, dtype=np.float64) + np.pi, TWO_PI) - np.pi
 
 
 # ---------------------------------------------------------------------------- parsed forms

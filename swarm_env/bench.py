@@ -50,15 +50,21 @@ def measure(preset: str, duration_s: float, seed: int, localize: bool) -> dict[s
 
 def run(args: argparse.Namespace) -> int:
     rows = [measure(args.preset, args.duration, args.seed, localize) for localize in (False, True)]
-    print(f"swarm-phd bench: {args.preset}, {args.duration:.0f} s simulated per case, "
-          f"{platform.processor() or platform.machine()}, {time.strftime('%Y-%m-%d')}")
-    print("| localization | robots | env steps/s | real-time factor | lidar ms/scan | "
-          "lidar | camera | physics |")
+    print(
+        f"swarm-phd bench: {args.preset}, {args.duration:.0f} s simulated per case, "
+        f"{platform.processor() or platform.machine()}, {time.strftime('%Y-%m-%d')}"
+    )
+    print(
+        "| localization | robots | env steps/s | real-time factor | lidar ms/scan | "
+        "lidar | camera | physics |"
+    )
     print("|---|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['localization']} | {r['n_robots']} | {r['steps_per_s']:.0f} | "
-              f"{r['real_time_factor']:.1f}x | {r['lidar_ms_per_scan']:.3f} | "
-              f"{r['lidar_share']:.0%} | {r['camera_share']:.0%} | {r['physics_share']:.0%} |")
+        print(
+            f"| {r['localization']} | {r['n_robots']} | {r['steps_per_s']:.0f} | "
+            f"{r['real_time_factor']:.1f}x | {r['lidar_ms_per_scan']:.3f} | "
+            f"{r['lidar_share']:.0%} | {r['camera_share']:.0%} | {r['physics_share']:.0%} |"
+        )
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(rows, indent=2))

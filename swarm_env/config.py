@@ -107,8 +107,13 @@ class ArenaConfig:
     box_size_range_m: tuple[float, float] = (0.3, 0.6)
 
     def __post_init__(self) -> None:
-        for name in ("width_m", "height_m", "wall_thickness_m", "decoy_post_radius_m",
-                     "red_decoy_radius_m"):
+        for name in (
+            "width_m",
+            "height_m",
+            "wall_thickness_m",
+            "decoy_post_radius_m",
+            "red_decoy_radius_m",
+        ):
             check_positive(f"arena.{name}", getattr(self, name))
         for name in ("n_decoy_posts", "n_red_decoys", "n_boxes"):
             check_int_range(f"arena.{name}", getattr(self, name), 0, 100)
@@ -116,7 +121,9 @@ class ArenaConfig:
             raise ValueError(f"arena size must be <= 100 m, got {self.width_m} x {self.height_m}")
         low, high = self.box_size_range_m
         if not 0 < low <= high:
-            raise ValueError(f"arena.box_size_range_m must be 0 < low <= high, got {(low, high)!r}")
+            raise ValueError(
+                f"arena.box_size_range_m must be 0 < low <= high, got {(low, high)!r}"
+            )
 
     @property
     def area_m2(self) -> float:
@@ -189,8 +196,8 @@ class SwarmConfig:
         substep_m = self.robot.max_speed_mps * self.physics_dt_s
         if substep_m > 0.5 * self.arena.wall_thickness_m:
             raise ValueError(
-                f"physics_substeps={self.physics_substeps} lets a robot move {substep_m:.3f} m per "
-                f"substep, more than half the wall thickness: raise physics_substeps"
+                f"physics_substeps={self.physics_substeps} lets a robot move {substep_m:.3f} m "
+                "per substep, more than half the wall thickness: raise physics_substeps"
             )
         # Rough packing bound: robots' enclosing discs must cover < 35 % of the free area.
         disc = math.pi * (self.robot.footprint_radius_m + self.spawn_clearance_m) ** 2
@@ -233,9 +240,7 @@ def _replace_strict(obj: Any, overrides: dict[str, Any], prefix: str) -> Any:
     changes: dict[str, Any] = {}
     for key, value in overrides.items():
         if key not in names:
-            raise ValueError(
-                f"unknown config key {prefix + key!r}; valid keys: {sorted(names)}"
-            )
+            raise ValueError(f"unknown config key {prefix + key!r}; valid keys: {sorted(names)}")
         current = getattr(obj, key)
         if dataclasses.is_dataclass(current) and isinstance(value, dict):
             value = _replace_strict(current, value, prefix=f"{prefix}{key}.")

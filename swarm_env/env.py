@@ -55,16 +55,16 @@ class SwarmEnv(ParallelEnv):
     ## Observation Space
     ``Box(float32)`` of size ``7 K + 2 + F`` (K = ``top_k`` = 16, F = task features):
 
-    | Slice                 | Observation                                             | Min   | Max  |
-    |-----------------------|---------------------------------------------------------|-------|------|
-    | ``7k + 0``            | component weight ``w`` (largest first)                  | 0     | 10   |
-    | ``7k + 1 : 7k + 3``   | component mean ``x, y`` in the agent's frame (m)        | -20   | 20   |
-    | ``7k + 3``            | covariance ``sxx`` (m^2)                                | 0     | 25   |
-    | ``7k + 4``            | covariance ``sxy`` (m^2)                                | -25   | 25   |
-    | ``7k + 5``            | covariance ``syy`` (m^2)                                | 0     | 25   |
-    | ``7k + 6``            | row valid (1) or padding (0)                            | 0     | 1    |
-    | ``7K : 7K + 2``       | own odometry ``v`` (m/s), ``omega`` (rad/s)             | -vmax | vmax |
-    | ``7K + 2 :``          | task features (e.g. the formation radius)              | task  | task |
+    | Slice               | Observation                                      | Min   | Max  |
+    |---------------------|--------------------------------------------------|-------|------|
+    | ``7k + 0``          | component weight ``w`` (largest first)           | 0     | 10   |
+    | ``7k + 1 : 7k + 3`` | component mean ``x, y``, agent's frame (m)       | -20   | 20   |
+    | ``7k + 3``          | covariance ``sxx`` (m^2)                         | 0     | 25   |
+    | ``7k + 4``          | covariance ``sxy`` (m^2)                         | -25   | 25   |
+    | ``7k + 5``          | covariance ``syy`` (m^2)                         | 0     | 25   |
+    | ``7k + 6``          | row valid (1) or padding (0)                     | 0     | 1    |
+    | ``7K : 7K + 2``     | own odometry ``v`` (m/s), ``omega`` (rad/s)      | -vmax | vmax |
+    | ``7K + 2 :``        | task features (e.g. the formation radius)        | task  | task |
 
     ``observation="truth"`` fills the table with the true neighbours within
     ``localization_range_m`` (``w = 1``, zero covariance); ``observation="measurements"`` gives
@@ -90,7 +90,7 @@ class SwarmEnv(ParallelEnv):
 
     | Parameter     | Type        | Default      | Description                                   |
     |---------------|-------------|--------------|-----------------------------------------------|
-    | preset        | str         | "seed-sim"   | "seed-sim" (6x6 m, 20 UGVs), "seed-lab" (3x3 m, 4) |
+    | preset        | str         | "seed-sim"   | "seed-sim" (6x6 m, 20), "seed-lab" (3x3 m, 4) |
     | config        | SwarmConfig | None         | a full config instead of a preset             |
     | task          | str / Task  | "wander"     | see :mod:`swarm_env.tasks`                    |
     | task_params   | dict        | {}           | keyword arguments of the task                 |
@@ -107,8 +107,12 @@ class SwarmEnv(ParallelEnv):
     * v0: initial release.
     """
 
-    metadata = {"name": "swarm_v0", "render_modes": ["human", "rgb_array"], "render_fps": 10,
-                "is_parallelizable": True}
+    metadata = {
+        "name": "swarm_v0",
+        "render_modes": ["human", "rgb_array"],
+        "render_fps": 10,
+        "is_parallelizable": True,
+    }
 
     def __init__(
         self,
@@ -129,14 +133,13 @@ class SwarmEnv(ParallelEnv):
             )
         self.render_mode = render_mode
         self.task = make_task(task, **(task_params or {}))
-        self.world: World = world if world is not None else SimWorld(
-            self.config, n_extra=self.task.n_extra_robots
+        self.world: World = (
+            world if world is not None else SimWorld(self.config, n_extra=self.task.n_extra_robots)
         )
         self.possible_agents = list(self.world.robot_ids)
         if len(self.possible_agents) != self.config.n_robots:
             raise ValueError(
-                f"world has {len(self.possible_agents)} robots but n_robots="
-                f"{self.config.n_robots}"
+                f"world has {len(self.possible_agents)} robots but n_robots={self.config.n_robots}"
             )
         if render_agent not in self.possible_agents:
             raise ValueError(f"render_agent {render_agent!r} is not one of the agents")
@@ -146,12 +149,19 @@ class SwarmEnv(ParallelEnv):
 
         robot = self.config.robot
         self._action_high = np.array([robot.max_speed_mps, robot.max_turn_rate_radps])
-        action_space = spaces.Box(-self._action_high.astype(np.float32),
-                                  self._action_high.astype(np.float32), dtype=np.float32)
+        action_space = spaces.Box(
+            -self._action_high.astype(np.float32),
+            self._action_high.astype(np.float32),
+            dtype=np.float32,
+        )
         feature_low, feature_high = self.task.feature_bounds()
         observation_space = obs_lib.build_space(
-            self.config.observation, self.config.top_k, robot.max_speed_mps,
-            robot.max_turn_rate_radps, feature_low, feature_high,
+            self.config.observation,
+            self.config.top_k,
+            robot.max_speed_mps,
+            robot.max_turn_rate_radps,
+            feature_low,
+            feature_high,
         )
         # One space object per agent, identical, returned on every call (PettingZoo API).
         self.action_spaces = {a: copy.deepcopy(action_space) for a in self.possible_agents}
@@ -210,8 +220,9 @@ class SwarmEnv(ParallelEnv):
         if not self.agents:
             raise RuntimeError("step() called on a finished episode: call reset() first")
         commands = self._validate_actions(actions)
-        extra = self.task.extra_commands(self._last_step.truth if self._last_step else None,
-                                         self.config.control_period_s)
+        extra = self.task.extra_commands(
+            self._last_step.truth if self._last_step else None, self.config.control_period_s
+        )
         if extra is not None and isinstance(self.world, SimWorld):
             step = self.world.step(commands, extra_commands=extra)
         else:
@@ -219,8 +230,9 @@ class SwarmEnv(ParallelEnv):
         self._step_count += 1
         self._absorb(step)
         rewards_arr = self.task.rewards(step.truth, commands)
-        term = np.broadcast_to(np.asarray(self.task.terminated(step.truth), dtype=bool),
-                               (len(self.possible_agents),))
+        term = np.broadcast_to(
+            np.asarray(self.task.terminated(step.truth), dtype=bool), (len(self.possible_agents),)
+        )
         truncated = self._step_count >= self.config.max_steps
         obs = self._observations(step)
         infos = self._infos(step)
@@ -357,10 +369,19 @@ class SwarmEnv(ParallelEnv):
 def measurements_as_dict(m: RobotMeasurements) -> dict[str, list[dict[str, Any]]]:
     """Records as plain dicts of arrays (comparable with ``data_equivalence``, JSON-friendly)."""
     return {
-        "odometry": [{"stamp_s": r.stamp_s, "delta": r.delta, "velocity": r.velocity}
-                     for r in m.odometry],
-        "lidar": [{"stamp_s": r.stamp_s, "angles_rad": r.angles_rad, "ranges_m": r.ranges_m, "intensities": r.intensities,
-                   "detections": r.detections, "null_bearings_rad": r.null_bearings_rad}
-                  for r in m.lidar],
+        "odometry": [
+            {"stamp_s": r.stamp_s, "delta": r.delta, "velocity": r.velocity} for r in m.odometry
+        ],
+        "lidar": [
+            {
+                "stamp_s": r.stamp_s,
+                "angles_rad": r.angles_rad,
+                "ranges_m": r.ranges_m,
+                "intensities": r.intensities,
+                "detections": r.detections,
+                "null_bearings_rad": r.null_bearings_rad,
+            }
+            for r in m.lidar
+        ],
         "camera": [{"stamp_s": r.stamp_s, "bearings_rad": r.bearings_rad} for r in m.camera],
     }

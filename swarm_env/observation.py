@@ -32,8 +32,17 @@ MAX_VARIANCE_M2 = 25.0
 def table_bounds(top_k: int) -> tuple[np.ndarray, np.ndarray]:
     """Bounds of the K x 7 neighbour table, flattened."""
     low = np.array([0.0, -MAX_POSITION_M, -MAX_POSITION_M, 0.0, -MAX_VARIANCE_M2, 0.0, 0.0])
-    high = np.array([MAX_WEIGHT, MAX_POSITION_M, MAX_POSITION_M, MAX_VARIANCE_M2,
-                     MAX_VARIANCE_M2, MAX_VARIANCE_M2, 1.0])
+    high = np.array(
+        [
+            MAX_WEIGHT,
+            MAX_POSITION_M,
+            MAX_POSITION_M,
+            MAX_VARIANCE_M2,
+            MAX_VARIANCE_M2,
+            MAX_VARIANCE_M2,
+            1.0,
+        ]
+    )
     return np.tile(low, top_k), np.tile(high, top_k)
 
 
@@ -45,8 +54,12 @@ def measurement_bounds(top_k: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def build_space(
-    mode: str, top_k: int, max_speed_mps: float, max_turn_rate_radps: float,
-    feature_low: np.ndarray, feature_high: np.ndarray,
+    mode: str,
+    top_k: int,
+    max_speed_mps: float,
+    max_turn_rate_radps: float,
+    feature_low: np.ndarray,
+    feature_high: np.ndarray,
 ) -> spaces.Box:
     """The observation space shared by all agents."""
     low, high = table_bounds(top_k) if mode != "measurements" else measurement_bounds(top_k)
@@ -92,8 +105,9 @@ def measurement_table(detections: np.ndarray, bearings: np.ndarray, top_k: int) 
     return np.concatenate([lidar.ravel(), cam.ravel()])
 
 
-def assemble(space: spaces.Box, table: np.ndarray, velocity: np.ndarray,
-             features: np.ndarray) -> np.ndarray:
+def assemble(
+    space: spaces.Box, table: np.ndarray, velocity: np.ndarray, features: np.ndarray
+) -> np.ndarray:
     """Concatenate and clip into ``space``; returns float32 of ``space.shape``."""
     obs = np.concatenate([table.ravel(), velocity, features]).astype(np.float32)
     return np.minimum(np.maximum(obs, space.low, out=obs), space.high, out=obs)

@@ -36,7 +36,7 @@ class OdometryRecord:
         ``[dx_m, dy_m, dpsi_rad]``: the displacement of the robot expressed in its body frame at
         the *start* of the interval, and its heading change (counter-clockwise positive).
     velocity : ndarray, shape (2,)
-        ``[v_mps, omega_radps]`` averaged over the interval (what the policy sees as its own speed).
+        ``[v_mps, omega_radps]`` averaged over the interval (the policy's own speed).
     """
 
     stamp_s: float

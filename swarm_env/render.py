@@ -85,8 +85,9 @@ class Renderer:
             for corners in layout.box_corners():
                 ax.fill(corners[:, 0], corners[:, 1], color="0.45")
             ax.scatter(*layout.posts_xy.T, s=18, color="tab:brown", marker="o", label="decoy post")
-            ax.scatter(*layout.red_decoys_xy.T, s=40, color="tab:red", marker="s",
-                       label="red decoy")
+            ax.scatter(
+                *layout.red_decoys_xy.T, s=40, color="tab:red", marker="s", label="red decoy"
+            )
         if truth is None:
             self.canvas.draw()
             return np.asarray(self.canvas.buffer_rgba())[..., :3].copy()
@@ -119,8 +120,7 @@ class Renderer:
             segs = np.stack([np.broadcast_to(origin, ends.shape), ends], axis=1)[::4]
             from matplotlib.collections import LineCollection
 
-            ax.add_collection(LineCollection(segs, colors="tab:orange", linewidths=0.3,
-                                             alpha=0.5))
+            ax.add_collection(LineCollection(segs, colors="tab:orange", linewidths=0.3, alpha=0.5))
             if len(scan.detections):
                 det = scan.detections @ rot.T + origin
                 ax.scatter(det[:, 0], det[:, 1], marker="x", color="k", s=30, zorder=5)
@@ -132,8 +132,15 @@ class Renderer:
         if len(mixture.weights):
             means = mixture.means @ rot.T + origin
             alpha = np.clip(mixture.weights, 0.05, 1.0)
-            ax.scatter(means[:, 0], means[:, 1], s=150, facecolors="none",
-                       edgecolors=[(0.1, 0.1, 0.8, a) for a in alpha], linewidths=1.5, zorder=6)
+            ax.scatter(
+                means[:, 0],
+                means[:, 1],
+                s=150,
+                facecolors="none",
+                edgecolors=[(0.1, 0.1, 0.8, a) for a in alpha],
+                linewidths=1.5,
+                zorder=6,
+            )
 
     def close(self) -> None:
         if self._window is not None:

@@ -31,8 +31,13 @@ class RolloutResult:
         return self.steps / max(self.wall_time_s, 1e-9)
 
 
-def rollout(env: SwarmEnv, policy: Policy, n_steps: int, seed: int | None = 0,
-            on_step: StepHook | None = None) -> RolloutResult:
+def rollout(
+    env: SwarmEnv,
+    policy: Policy,
+    n_steps: int,
+    seed: int | None = 0,
+    on_step: StepHook | None = None,
+) -> RolloutResult:
     """Reset with ``seed`` and step ``n_steps`` times (or until every agent is done)."""
     obs, infos = env.reset(seed=seed)
     returns = {a: 0.0 for a in env.possible_agents}

@@ -25,7 +25,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from swarm_env.sensors.geometry import lines_hit_own_circles, sight_lines_blocked, to_body_frame, wrap_angle
+from swarm_env.sensors.geometry import (
+    lines_hit_own_circles,
+    sight_lines_blocked,
+    to_body_frame,
+    wrap_angle,
+)
 from swarm_env.world.scene import Scene
 
 

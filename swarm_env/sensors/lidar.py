@@ -227,10 +227,7 @@ class LidarSensor:
         self.angles_rad = _readonly(angles)
         self._beam_ux = np.cos(angles)
         self._beam_uy = np.sin(angles)
-        centers = np.deg2rad(np.asarray(cfg.blind_sector_centers_deg, dtype=np.float64))
-        half = 0.5 * np.deg2rad(np.asarray(cfg.blind_sector_widths_deg, dtype=np.float64))
-        offset = np.abs(wrap_angle(angles[:, None] - centers[None, :]))
-        self.blind_mask = _readonly((offset <= half[None, :]).any(axis=1))
+        self.blind_mask = _readonly(blind_mask(angles, cfg))
         self.head_phase_rad = np.zeros(n_robots)
         self.rate_offset_hz = np.zeros(n_robots)
 
@@ -518,6 +515,20 @@ class LidarSensor:
         aligned &= ~self.blind_mask[head_beam % cfg.n_beams]
         interfered[scan_i, beam] = aligned
         return interfered
+
+
+def blind_mask(angles_rad: np.ndarray, config: LidarConfig) -> np.ndarray:
+    """Beams inside the camera-pillar blind sectors of ``config``, shape like ``angles_rad``.
+
+    Shared by the simulator and the hardware bridge, so that a beam's side of a sector edge is
+    the same everywhere (their null returns are not interference: the filter has a blind factor).
+    """
+    centers = np.deg2rad(np.asarray(config.blind_sector_centers_deg, dtype=np.float64))
+    half = 0.5 * np.deg2rad(np.asarray(config.blind_sector_widths_deg, dtype=np.float64))
+    if centers.size == 0:
+        return np.zeros(np.shape(angles_rad), dtype=bool)
+    offset = np.abs(wrap_angle(np.asarray(angles_rad)[..., None] - centers))
+    return (offset <= half).any(axis=-1)
 
 
 def _expand(lo: np.ndarray, hi: np.ndarray, n_beams: int) -> tuple[np.ndarray, np.ndarray]:

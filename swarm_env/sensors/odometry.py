@@ -1,4 +1,4 @@
-"""Wheel odometry: encoder pulses from the true wheel motion, with slip, turned into U = [dx, dy, dpsi].
+"""Wheel odometry: encoder pulses of the true wheel motion, with slip, as U = [dx, dy, dpsi].
 
 The seed's Cherokey has 16-pulse encoders behind a 120:1 gearbox, i.e. 1920 pulses per wheel
 revolution (Perera 2021, sec. 5.3). The wheels turn as the motor controller drives them (the
@@ -42,7 +42,9 @@ class OdometryConfig:
         check_positive("odometry.rate_hz", self.rate_hz)
         check_positive("odometry.pulses_per_revolution", self.pulses_per_revolution)
         if not 0.0 <= self.slip_noise_std < 0.5:
-            raise ValueError(f"odometry.slip_noise_std must be in [0, 0.5), got {self.slip_noise_std!r}")
+            raise ValueError(
+                f"odometry.slip_noise_std must be in [0, 0.5), got {self.slip_noise_std!r}"
+            )
 
 
 def pulses_to_delta(
@@ -107,8 +109,10 @@ class WheelEncoders:
         """
         half_axle = 0.5 * self.axle_width_m
         wheel_mps = np.stack(
-            [body_speeds[:, 0] - half_axle * body_speeds[:, 1],
-             body_speeds[:, 0] + half_axle * body_speeds[:, 1]],
+            [
+                body_speeds[:, 0] - half_axle * body_speeds[:, 1],
+                body_speeds[:, 0] + half_axle * body_speeds[:, 1],
+            ],
             axis=1,
         )
         slip = 1.0 + self.config.slip_noise_std * rng.standard_normal(wheel_mps.shape)

@@ -54,7 +54,10 @@ def wall_segments(arena: ArenaConfig) -> tuple[np.ndarray, np.ndarray]:
 
 
 def sample_layout(
-    arena: ArenaConfig, robot: RobotConfig, n_robots: int, clearance_m: float,
+    arena: ArenaConfig,
+    robot: RobotConfig,
+    n_robots: int,
+    clearance_m: float,
     rng: np.random.Generator,
 ) -> tuple[Layout, np.ndarray]:
     """Draw obstacles, then robot poses, so that nothing overlaps anything.
@@ -79,8 +82,10 @@ def sample_layout(
             raise ValueError(f"an object of radius {radius:.3f} m does not fit the arena")
         for _ in range(_MAX_TRIES):
             x, y = rng.uniform(-hx, hx), rng.uniform(-hy, hy)
-            if all((x - px) ** 2 + (y - py) ** 2 >= (radius + pr + clearance_m) ** 2
-                   for px, py, pr in placed):
+            if all(
+                (x - px) ** 2 + (y - py) ** 2 >= (radius + pr + clearance_m) ** 2
+                for px, py, pr in placed
+            ):
                 placed.append((x, y, radius))
                 return x, y
         raise ValueError(

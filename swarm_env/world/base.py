@@ -24,7 +24,7 @@ class GroundTruth:
     poses : ndarray, shape (N, 3)
         ``[x_m, y_m, yaw_rad]`` of every robot in the world frame.
     relative_xy : ndarray, shape (N, N, 2)
-        ``relative_xy[i, j]`` is robot j's position in robot i's body frame (zeros on the diagonal).
+        ``relative_xy[i, j]``: robot j's position in robot i's body frame (0 on the diagonal).
     in_range : dict[str, ndarray (N, N) bool]
         Per sensor name (``"lidar"``, ``"camera"``): j is within i's nominal sensor range.
     visible : dict[str, ndarray (N, N) bool]

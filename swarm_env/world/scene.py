@@ -78,8 +78,9 @@ class Scene:
         t = np.zeros_like(robots) if time_index is None else time_index
         return self.robot_xy[t, robots], self.robot_yaw[t, robots]
 
-    def circles_present(self, circles: np.ndarray, time_index: np.ndarray | None,
-                        n_readings: int) -> np.ndarray | None:
+    def circles_present(
+        self, circles: np.ndarray, time_index: np.ndarray | None, n_readings: int
+    ) -> np.ndarray | None:
         """(K, len(circles)) mask of the circles that exist at each reading's instant, or
         ``None`` when every circle always exists (single-instant scene)."""
         if self.circle_time is None or time_index is None:
@@ -95,11 +96,16 @@ class Scene:
         robot_xy = self.robot_xy[instant] if self.robot_xy.ndim == 3 else self.robot_xy
         robot_yaw = self.robot_yaw[instant] if self.robot_yaw.ndim == 2 else self.robot_yaw
         sub = replace(
-            self, robot_xy=robot_xy, robot_yaw=robot_yaw, circle_xy=self.circle_xy[kept],
-            circle_radius_m=self.circle_radius_m[kept], circle_owner=self.circle_owner[kept],
+            self,
+            robot_xy=robot_xy,
+            robot_yaw=robot_yaw,
+            circle_xy=self.circle_xy[kept],
+            circle_radius_m=self.circle_radius_m[kept],
+            circle_owner=self.circle_owner[kept],
             circle_lidar=self.circle_lidar[kept],
             circle_camera_occluder=self.circle_camera_occluder[kept],
-            circle_red=self.circle_red[kept], circle_intensity=self.circle_intensity[kept],
+            circle_red=self.circle_red[kept],
+            circle_intensity=self.circle_intensity[kept],
             circle_time=None,
         )
         return sub, kept

@@ -91,8 +91,10 @@ class SimWorld:
         # Lidar: matched within 0.15 m, counted within the tracking range; camera: within 3 sigma.
         return {
             "lidar": SensorStats(range_m=self.config.localization_range_m, gate=0.15),
-            "camera": SensorStats(range_m=self.config.camera.range_max_m,
-                                  gate=3.0 * np.deg2rad(self.config.camera.bearing_noise_std_deg)),
+            "camera": SensorStats(
+                range_m=self.config.camera.range_max_m,
+                gate=3.0 * np.deg2rad(self.config.camera.bearing_noise_std_deg),
+            ),
         }
 
     # ------------------------------------------------------------------ lifecycle
@@ -203,7 +205,7 @@ class SimWorld:
         target = np.zeros_like(self.motor_speeds)
         target[: self.n_agents] = commands
         if extra_commands is not None and self.n_extra:
-            target[self.n_agents:] = extra_commands
+            target[self.n_agents :] = extra_commands
         limits = np.array([cfg.robot.max_accel_mps2, cfg.robot.max_turn_accel_radps2])
         dt = cfg.physics_dt_s
         n_sub = cfg.physics_substeps
@@ -251,11 +253,13 @@ class SimWorld:
     # pymunk.batch reads and writes every body of the space in one C call, instead of four
     # Python property accesses per body per substep. Rows follow the space's body order (which
     # pickling keeps); ``_robot_rows`` and ``_drive_rows`` locate our bodies in it.
-    _STATE_FIELDS = (pymunk.batch.BodyFields.POSITION | pymunk.batch.BodyFields.ANGLE
-                     | pymunk.batch.BodyFields.VELOCITY
-                     | pymunk.batch.BodyFields.ANGULAR_VELOCITY)
-    _VELOCITY_FIELDS = (pymunk.batch.BodyFields.VELOCITY
-                        | pymunk.batch.BodyFields.ANGULAR_VELOCITY)
+    _STATE_FIELDS = (
+        pymunk.batch.BodyFields.POSITION
+        | pymunk.batch.BodyFields.ANGLE
+        | pymunk.batch.BodyFields.VELOCITY
+        | pymunk.batch.BodyFields.ANGULAR_VELOCITY
+    )
+    _VELOCITY_FIELDS = pymunk.batch.BodyFields.VELOCITY | pymunk.batch.BodyFields.ANGULAR_VELOCITY
 
     def _body_state(self) -> np.ndarray:
         """``[x, y, angle, vx, vy, omega]`` of every body in space order, shape (B, 6)."""
@@ -291,12 +295,13 @@ class SimWorld:
         t0 = time.perf_counter()
         scene = self.scene(poses)
         batch = self.lidar.scan(scene, robots, stamps[when], self._rng, time_index=when)
-        detections = extract_detections(batch.angles_rad, batch.ranges_m,
-                                         self.config.lidar_features)
+        detections = extract_detections(
+            batch.angles_rad, batch.ranges_m, self.config.lidar_features
+        )
         null = (batch.ranges_m == 0.0) & (batch.intensities == 0.0) & ~self.lidar.blind_mask
         n_total = self.n_agents + self.n_extra
         counts = batch.owner_beam_counts(n_total, after_interference=True)
-        for k, (i, sub) in enumerate(zip(robots.tolist(), when.tolist())):
+        for k, (i, sub) in enumerate(zip(robots.tolist(), when.tolist(), strict=True)):
             record = LidarRecord(
                 stamp_s=float(stamps[sub]),
                 angles_rad=batch.angles_rad,
@@ -312,7 +317,7 @@ class SimWorld:
         self.timing["lidar_scans"] += int(robots.size)
         if self.config.sensor_stats:
             rel = self._relative_at(poses)
-            for k, (i, sub) in enumerate(zip(robots.tolist(), when.tolist())):
+            for k, (i, sub) in enumerate(zip(robots.tolist(), when.tolist(), strict=True)):
                 self.stats["lidar"].add_points(detections[k], _others(rel[sub], i))
         return out
 
@@ -323,7 +328,7 @@ class SimWorld:
             return out
         t0 = time.perf_counter()
         batch = self.camera.observe(self.scene(poses), robots, self._rng, time_index=when)
-        for k, (i, sub) in enumerate(zip(robots.tolist(), when.tolist())):
+        for k, (i, sub) in enumerate(zip(robots.tolist(), when.tolist(), strict=True)):
             record = CameraRecord(float(stamps[sub]), batch.bearings[k])
             out[i].append(record)
             self.last_camera[i] = record
@@ -332,7 +337,7 @@ class SimWorld:
         self.timing["camera_s"] += time.perf_counter() - t0
         if self.config.sensor_stats:
             rel = self._relative_at(poses)
-            for k, (i, sub) in enumerate(zip(robots.tolist(), when.tolist())):
+            for k, (i, sub) in enumerate(zip(robots.tolist(), when.tolist(), strict=True)):
                 self.stats["camera"].add_bearings(batch.bearings[k], _others(rel[sub], i))
         return out
 
@@ -353,19 +358,23 @@ class SimWorld:
         box_a, box_b = layout.box_edges()
         return {
             "circle_xy": np.concatenate([layout.posts_xy, layout.red_decoys_xy]),
-            "circle_radius_m": np.concatenate([
-                np.full(n_post, cfg.arena.decoy_post_radius_m),
-                np.full(n_red, cfg.arena.red_decoy_radius_m),
-            ]),
+            "circle_radius_m": np.concatenate(
+                [
+                    np.full(n_post, cfg.arena.decoy_post_radius_m),
+                    np.full(n_red, cfg.arena.red_decoy_radius_m),
+                ]
+            ),
             "circle_lidar": np.ones(n_post + n_red, dtype=bool),
             "circle_camera_occluder": np.r_[np.zeros(n_post, bool), np.ones(n_red, bool)],
             "circle_red": np.r_[np.zeros(n_post, bool), np.ones(n_red, bool)],
-            "circle_intensity": np.r_[np.full(n_post, _INTENSITY_POST),
-                                      np.full(n_red, _INTENSITY_OBSTACLE)],
+            "circle_intensity": np.r_[
+                np.full(n_post, _INTENSITY_POST), np.full(n_red, _INTENSITY_OBSTACLE)
+            ],
             "segment_a": np.concatenate([wall_a, box_a]),
             "segment_b": np.concatenate([wall_b, box_b]),
-            "segment_intensity": np.r_[np.full(4, _INTENSITY_WALL),
-                                       np.full(len(box_a), _INTENSITY_OBSTACLE)],
+            "segment_intensity": np.r_[
+                np.full(4, _INTENSITY_WALL), np.full(len(box_a), _INTENSITY_OBSTACLE)
+            ],
         }
 
     def scene(self, poses: np.ndarray | None = None) -> Scene:
@@ -391,24 +400,38 @@ class SimWorld:
             robot_xy=p[:, : self.n_agents, :2] if stacked else poses[: self.n_agents, :2],
             robot_yaw=p[:, : self.n_agents, 2] if stacked else poses[: self.n_agents, 2],
             circle_xy=np.concatenate([static["circle_xy"], xy, xy]),
-            circle_radius_m=np.concatenate([
-                static["circle_radius_m"], np.full(m, robot.housing_radius_m),
-                np.full(m, robot.camera_holder_radius_m)]),
+            circle_radius_m=np.concatenate(
+                [
+                    static["circle_radius_m"],
+                    np.full(m, robot.housing_radius_m),
+                    np.full(m, robot.camera_holder_radius_m),
+                ]
+            ),
             circle_owner=np.concatenate([np.full(n_static, -1), ids, ids]),
-            circle_lidar=np.concatenate([static["circle_lidar"], np.ones(m, bool),
-                                         np.zeros(m, bool)]),
-            circle_camera_occluder=np.concatenate([static["circle_camera_occluder"],
-                                                   np.zeros(m, bool), np.ones(m, bool)]),
+            circle_lidar=np.concatenate(
+                [static["circle_lidar"], np.ones(m, bool), np.zeros(m, bool)]
+            ),
+            circle_camera_occluder=np.concatenate(
+                [static["circle_camera_occluder"], np.zeros(m, bool), np.ones(m, bool)]
+            ),
             circle_red=np.concatenate([static["circle_red"], np.zeros(m, bool), np.ones(m, bool)]),
-            circle_intensity=np.concatenate([static["circle_intensity"],
-                                             np.full(2 * m, _INTENSITY_HOUSING)]),
+            circle_intensity=np.concatenate(
+                [static["circle_intensity"], np.full(2 * m, _INTENSITY_HOUSING)]
+            ),
             segment_a=static["segment_a"],
             segment_b=static["segment_b"],
             segment_intensity=static["segment_intensity"],
-            circle_time=(np.concatenate([np.full(n_static, -1),
-                                         np.repeat(np.arange(n_time), n),
-                                         np.repeat(np.arange(n_time), n)])
-                         if stacked else None),
+            circle_time=(
+                np.concatenate(
+                    [
+                        np.full(n_static, -1),
+                        np.repeat(np.arange(n_time), n),
+                        np.repeat(np.arange(n_time), n),
+                    ]
+                )
+                if stacked
+                else None
+            ),
         )
 
     def ground_truth(self) -> GroundTruth:
@@ -429,7 +452,7 @@ class SimWorld:
                 "lidar": self._lidar_visible[:, : self.n_agents].copy(),
                 "camera": self._camera_visible[:, : self.n_agents].copy(),
             },
-            extra_xy=poses[self.n_agents:, :2].copy(),
+            extra_xy=poses[self.n_agents :, :2].copy(),
         )
 
 

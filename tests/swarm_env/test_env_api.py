@@ -66,7 +66,8 @@ def test_spaces_are_float32_identical_and_stable():
     assert env.action_space("ugv_1") is env.action_space("ugv_1")
     assert spaces_[0].dtype == np.float32 and env.action_space("ugv_0").dtype == np.float32
     high = env.action_space("ugv_0").high
-    assert np.allclose(high, [env.config.robot.max_speed_mps, env.config.robot.max_turn_rate_radps])
+    robot = env.config.robot
+    assert np.allclose(high, [robot.max_speed_mps, robot.max_turn_rate_radps])
     obs, _ = env.reset(seed=0)
     assert obs["ugv_0"].shape == (7 * 16 + 2,)
 
@@ -74,7 +75,7 @@ def test_spaces_are_float32_identical_and_stable():
 def test_truncation_at_max_steps():
     env = parallel_env("seed-lab", max_steps=5)
     env.reset(seed=0)
-    for k in range(5):
+    for _ in range(5):
         _, _, term, trunc, _ = env.step({a: np.zeros(2) for a in env.agents})
     assert all(trunc.values()) and not any(term.values())
     assert env.agents == []

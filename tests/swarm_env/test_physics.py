@@ -85,15 +85,21 @@ def test_pulses_to_delta_signs_follow_rep103():
     assert d[0] > 0 and d[1] > 0 and d[2] > 0
     per_pulse = 2 * np.pi * cfg.wheel_radius_m / 1920
     assert np.isclose(d[2], per_pulse * 200 / cfg.axle_width_m)
-    straight = pulses_to_delta(np.array([[1920, 1920]]), cfg.wheel_radius_m, cfg.axle_width_m,
-                               1920)[0]
+    straight = pulses_to_delta(
+        np.array([[1920, 1920]]), cfg.wheel_radius_m, cfg.axle_width_m, 1920
+    )[0]
     assert np.allclose(straight, [2 * np.pi * cfg.wheel_radius_m, 0.0, 0.0])
 
 
 def _compose(pose: np.ndarray, delta: np.ndarray) -> np.ndarray:
     c, s = np.cos(pose[2]), np.sin(pose[2])
-    return np.array([pose[0] + c * delta[0] - s * delta[1],
-                     pose[1] + s * delta[0] + c * delta[1], pose[2] + delta[2]])
+    return np.array(
+        [
+            pose[0] + c * delta[0] - s * delta[1],
+            pose[1] + s * delta[0] + c * delta[1],
+            pose[2] + delta[2],
+        ]
+    )
 
 
 @pytest.mark.parametrize("slip", [0.0, 0.02])

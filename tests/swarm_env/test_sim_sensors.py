@@ -17,7 +17,7 @@ def _world(n: int, **overrides) -> SimWorld:
 
 
 def _place(world: SimWorld, poses) -> None:
-    for body, drive, (x, y, yaw) in zip(world.bodies, world._drives, poses):
+    for body, drive, (x, y, yaw) in zip(world.bodies, world._drives, poses, strict=False):
         body.position, body.angle = (x, y), yaw
         drive.position, drive.angle = (x, y), yaw
         world.space.reindex_shapes_for_body(body)
@@ -73,10 +73,17 @@ def test_occluded_neighbour_is_missing_from_the_camera():
 
 def test_time_stacked_scene_matches_single_instant_scenes():
     """One batched call over a step's substeps equals one call per substep's own scene."""
-    world = SimWorld(make_config(
-        "seed-sim", lidar={"range_noise_std_m": 0.0, "intensity_noise_std": 0.0},
-        camera={"bearing_noise_std_deg": 0.0, "miss_probability": 0.0,
-                "false_positive_rate": 0.0}))
+    world = SimWorld(
+        make_config(
+            "seed-sim",
+            lidar={"range_noise_std_m": 0.0, "intensity_noise_std": 0.0},
+            camera={
+                "bearing_noise_std_deg": 0.0,
+                "miss_probability": 0.0,
+                "false_positive_rate": 0.0,
+            },
+        )
+    )
     world.reset(np.random.default_rng(3))
     instants = []
     for _ in range(3):  # instants 2 s apart, so occlusions differ between them
@@ -89,7 +96,7 @@ def test_time_stacked_scene_matches_single_instant_scenes():
     stamps = np.full(robots.size, 1.0)
     batch = world.lidar.scan(stacked, robots, stamps, np.random.default_rng(0), time_index=when)
     cams = world.camera.observe(stacked, robots, np.random.default_rng(0), time_index=when)
-    for k, (i, t) in enumerate(zip(robots, when)):
+    for k, (i, t) in enumerate(zip(robots, when, strict=True)):
         single = world.scene(instants[t])
         alone = world.lidar.scan(single, np.array([i]), stamps[:1], np.random.default_rng(0))
         np.testing.assert_array_equal(batch.ranges_m[k], alone.ranges_m[0])
