@@ -7,8 +7,9 @@ that raises leaves the filter exactly as it was.
 
 Each step reads like Stone Soup's tracker loop::
 
-    predict:       P_s -> frame change + Q -> add birth
-    update_lidar:  P_d (range x blind x occlusion x interference) -> GM-PHD update -> reduce
+    predict:       P_s -> frame change + Q (+ pending measurement births)
+    update_lidar:  (+ fixed birth) -> P_d (range x blind x occlusion x interference)
+                   -> GM-PHD update (birth keeps detected copies only) -> reduce
     update_camera: P_d (range x occlusion) -> EKF bearing GM-PHD update -> reduce
     estimate:      components with weight >= threshold
 
@@ -186,7 +187,7 @@ class RobotCentricPHD:
 
     # ------------------------------------------------------------------ steps
     def predict(self, odometry: np.ndarray) -> None:
-        """Time update with the observer's own motion (seed eqs. 7-11).
+        """Time update with the observer's own motion (seed eqs. 7-10).
 
         Parameters
         ----------

@@ -49,9 +49,11 @@ class LidarFeatureConfig:
     housing_radius_m : float
         The centre estimate is pushed this far behind the mean return, along the beam.
     tracking_range_m : float
-        Detections whose centre is farther are dropped. The seed's *effective* lidar range is
-        ~2 m (few beams hit a 65 mm target beyond); that falloff is modelled by the filter's
-        range P_d, so the extractor keeps everything up to the sensor's reach by default.
+        Detections whose centre is farther are dropped. The seed limits the lidar to 2 m for
+        teammate detection ("the range of the lidar is limited to 2m", sec. 3.2), and its
+        filter's range P_d (eq. 19) is built for that limit; beyond it a 65 mm housing returns
+        only one or two beams and most clusters there are fragments. Raise it together with
+        ``PHDConfig.lidar_pd_midpoint_m``.
     foreground_only : bool
         Keep only clusters standing in front of both neighbouring returns (or next to invalid
         returns). A free-standing post or housing always does; a one-beam sliver of a wall
@@ -66,7 +68,7 @@ class LidarFeatureConfig:
     max_width_m: float = 0.065 * 1.2
     min_beams: int = 1
     housing_radius_m: float = 0.0325
-    tracking_range_m: float = 10.0
+    tracking_range_m: float = 2.0
     foreground_only: bool = True
 
     def __post_init__(self) -> None:

@@ -498,11 +498,13 @@ def test_extractor_width_and_range_gates():
     ranges = np.zeros((1, 720))
     ranges[0, 10:30] = 1.0  # 20 beams at 1 m: ~0.17 m wide
     ranges[0, 200:202] = 6.0  # narrow but beyond a 5 m tracking range
-    assert extract_detections(angles, ranges)[0].shape == (1, 2)  # only the narrow one
+    far = LidarFeatureConfig(tracking_range_m=10.0)
+    assert extract_detections(angles, ranges, far)[0].shape == (1, 2)  # only the narrow one
     clusters = extract_clusters(angles, ranges, LidarFeatureConfig(tracking_range_m=5.0))
     assert clusters.xy_m.shape == (0, 2)
+    assert extract_clusters(angles, ranges).xy_m.shape == (0, 2)  # the seed's 2 m default
     clusters = extract_clusters(angles, ranges, LidarFeatureConfig(max_width_m=0.2))
-    assert clusters.xy_m.shape == (2, 2)
+    assert clusters.xy_m.shape == (1, 2)  # the wide one; the narrow one is beyond 2 m
 
 
 def test_oblique_walls_shatter_only_without_the_breakpoint_and_foreground_tests():
@@ -510,11 +512,12 @@ def test_oblique_walls_shatter_only_without_the_breakpoint_and_foreground_tests(
     b.add_robot(0.0, -2.7)  # 0.3 m from the bottom wall: long oblique stretches
     b.add_walls(6.0, 6.0)
     scene = b.build()
-    seed_like = LidarFeatureConfig(jump_range_gain=0.0, foreground_only=False)
-    adaptive_only = LidarFeatureConfig(foreground_only=False)
+    reach = {"tracking_range_m": 10.0}  # the whole wall, not only its first 2 m
+    seed_like = LidarFeatureConfig(jump_range_gain=0.0, foreground_only=False, **reach)
+    adaptive_only = LidarFeatureConfig(foreground_only=False, **reach)
     assert detect(scene, features=seed_like).shape[0] > 20
     assert 0 < detect(scene, features=adaptive_only).shape[0] < 10  # beyond 80 deg incidence
-    assert detect(scene).shape[0] == 0
+    assert detect(scene, features=LidarFeatureConfig(**reach)).shape[0] == 0
 
 
 def test_null_bearings_exclude_mask():
