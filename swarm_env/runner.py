@@ -60,10 +60,25 @@ def rollout(
     return RolloutResult(steps, env.time_s, wall, returns)
 
 
-def random_policy(env: SwarmEnv) -> Policy:
-    """Uniform random actions from the agents' (seeded) action spaces."""
+class RandomPolicy:
+    """Uniform random actions within the action bounds, for all live agents in one draw.
 
-    def act(observations, infos):
-        return {a: env.action_space(a).sample() for a in observations}
+    Seeded on its own (``reset(seed)``), so its actions do not depend on the env's generator.
+    """
 
-    return act
+    def __init__(self, env: SwarmEnv, seed: int | None = 0) -> None:
+        self.high = env.action_space(env.possible_agents[0]).high.astype(np.float64)
+        self.reset(seed)
+
+    def reset(self, seed: int | None = None) -> None:
+        self._rng = np.random.default_rng(seed)
+
+    def __call__(self, observations, infos):
+        agents = list(observations)
+        draws = self._rng.uniform(-self.high, self.high, size=(len(agents), 2))
+        return dict(zip(agents, draws.astype(np.float32), strict=True))
+
+
+def random_policy(env: SwarmEnv, seed: int | None = 0) -> RandomPolicy:
+    """A :class:`RandomPolicy` for ``env``."""
+    return RandomPolicy(env, seed)
