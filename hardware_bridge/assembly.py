@@ -30,8 +30,7 @@ from swarm_env.records import CameraRecord, LidarRecord, OdometryRecord, RobotMe
 from swarm_env.sensors.geometry import wrap_angle
 from swarm_env.sensors.lidar import blind_mask
 from swarm_env.sensors.lidar_features import extract_detections, null_bearings
-from swarm_env.world.base import GroundTruth
-from swarm_env.world.sim import relative_positions
+from swarm_env.world.base import GroundTruth, truth_from_poses
 
 
 def odometry_increment(prev: Odom, cur: Odom) -> np.ndarray:
@@ -139,15 +138,6 @@ class RecordAssembler:
         if any(poses.get(r) is None for r in self.robot_ids):
             return None
         arr = np.array([[poses[r].x_m, poses[r].y_m, poses[r].yaw_rad] for r in self.robot_ids])
-        rel = relative_positions(arr, arr)
-        dist = np.linalg.norm(rel, axis=-1)
-        off_diag = ~np.eye(len(self.robot_ids), dtype=bool)
-        return GroundTruth(
-            poses=arr,
-            relative_xy=rel,
-            in_range={
-                "lidar": off_diag & (dist <= self.config.localization_range_m),
-                "camera": off_diag & (dist <= self.config.camera.range_max_m),
-            },
-            visible={},
+        return truth_from_poses(
+            arr, self.config.localization_range_m, self.config.camera.range_max_m
         )

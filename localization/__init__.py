@@ -11,7 +11,8 @@ Modules: :mod:`~localization.config` (``PHDConfig``), :mod:`~localization.mixtur
 (``GaussianMixture`` and the component table), :mod:`~localization.gaussian` (Kalman/EKF
 math), :mod:`~localization.detection` (``P_s``, ``P_d``), :mod:`~localization.phd` (time and
 measurement updates), :mod:`~localization.reducer` (prune/merge/cap),
-:mod:`~localization.filter` (the orchestrator) and :mod:`~localization.metrics`.
+:mod:`~localization.filter` (the orchestrator), :mod:`~localization.bank` (``PHDBank``: many
+robots' filters advanced in vectorised batches) and :mod:`~localization.metrics`.
 
 References
 ----------
@@ -24,8 +25,9 @@ References
 from __future__ import annotations
 
 from . import metrics
+from .bank import PHDBank
 from .config import PHDConfig
 from .filter import RobotCentricPHD
 from .mixture import GaussianMixture
 
-__all__ = ["PHDConfig", "RobotCentricPHD", "GaussianMixture", "metrics"]
+__all__ = ["PHDConfig", "RobotCentricPHD", "PHDBank", "GaussianMixture", "metrics"]

@@ -59,6 +59,10 @@ _EYE3 = np.array([[1.0], [0.0], [1.0]])  # identity in (xx, xy, yy) layout
 _INV_SIGN3 = np.array([[1.0], [-1.0], [1.0]])  # adj([[a, b], [b, c]]) = [c, -b, a]
 _JAC_SIGN = np.array([[-1.0], [1.0]])  # d atan2(y, x) / d(x, y) = [-y, x] / r^2
 _EYE22 = np.eye(2)[:, :, None]
+# The same columns with one more trailing axis, for tables batched over robots, (rows, K, N).
+_EYE3_B = _EYE3[:, :, None]
+_INV_SIGN3_B = _INV_SIGN3[:, :, None]
+_JAC_SIGN_B = _JAC_SIGN[:, :, None]
 _FULL_FROM_SYM = np.array([0, 1, 1, 2])  # (xx, xy, yy) -> (xx, xy, yx, yy)
 _SYM_FROM_FULL = np.array([0, 1, 3])
 _FRAME_TEMPLATE = np.zeros((6, 7))
@@ -75,20 +79,20 @@ def sym_inverse(covs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
     Parameters
     ----------
-    covs : ndarray, shape (3, N)
+    covs : ndarray, shape (3, N) or (3, K, N)
         Rows ``Pxx, Pxy, Pyy``.
 
     Returns
     -------
-    inverse : ndarray, shape (3, N)
+    inverse : ndarray, same shape as ``covs``
         Rows of ``P^-1`` in the same layout.
-    det : ndarray, shape (N,)
+    det : ndarray, shape (N,) or (K, N)
         ``det P``, floored at :data:`TINY`.
     """
     # Guard: a singular or (by round-off) indefinite matrix gets a tiny positive determinant
     # instead of a division by zero.
     det = np.maximum(covs[0] * covs[2] - covs[1] * covs[1], TINY)
-    return covs[::-1] * (_INV_SIGN3 / det), det
+    return covs[::-1] * ((_INV_SIGN3 if covs.ndim == 2 else _INV_SIGN3_B) / det), det
 
 
 def frame_change_matrix(dx: float, dy: float, dpsi: float, process_var: float) -> np.ndarray:
@@ -103,42 +107,47 @@ def frame_change_matrix(dx: float, dy: float, dpsi: float, process_var: float) -
 
     Parameters
     ----------
-    dx, dy : float
+    dx, dy : float or ndarray, shape (K,)
         Observer translation (m) in its frame at the start of the interval.
-    dpsi : float
-        Observer rotation (rad, counter-clockwise).
+    dpsi : float or ndarray, shape (K,)
+        Observer rotation (rad, counter-clockwise). Arrays give one matrix per robot.
     process_var : float
         Process-noise variance (m^2) added to ``Pxx`` and ``Pyy``.
 
     Returns
     -------
-    ndarray, shape (6, 7)
+    ndarray, shape (6, 7), or (K, 6, 7) for array inputs
         ``A`` with ``table' = A[:, :6] @ table + A[:, 6:]`` for a ``(6, N)`` table with rows
         ``w, x, y, Pxx, Pxy, Pyy`` (the weight row is copied unchanged).
     """
-    c = math.cos(dpsi)
-    s = math.sin(dpsi)
+    if isinstance(dpsi, np.ndarray):
+        c = np.cos(dpsi)
+        s = np.sin(dpsi)
+        a = np.broadcast_to(_FRAME_TEMPLATE, dpsi.shape + _FRAME_TEMPLATE.shape).copy()
+    else:
+        c = math.cos(dpsi)
+        s = math.sin(dpsi)
+        a = _FRAME_TEMPLATE.copy()
     cc, ss, cs = c * c, s * s, c * s
-    a = _FRAME_TEMPLATE.copy()
     # Means: R^T = [[c, s], [-s, c]], offset -R^T d.
-    a[1, 1] = c
-    a[1, 2] = s
-    a[1, 6] = -(c * dx + s * dy)
-    a[2, 1] = -s
-    a[2, 2] = c
-    a[2, 6] = s * dx - c * dy
+    a[..., 1, 1] = c
+    a[..., 1, 2] = s
+    a[..., 1, 6] = -(c * dx + s * dy)
+    a[..., 2, 1] = -s
+    a[..., 2, 2] = c
+    a[..., 2, 6] = s * dx - c * dy
     # Covariances: (Pxx, Pxy, Pyy) of R^T P R, a linear map of (Pxx, Pxy, Pyy).
-    a[3, 3] = cc
-    a[3, 4] = 2.0 * cs
-    a[3, 5] = ss
-    a[3, 6] = process_var
-    a[4, 3] = -cs
-    a[4, 4] = cc - ss
-    a[4, 5] = cs
-    a[5, 3] = ss
-    a[5, 4] = -2.0 * cs
-    a[5, 5] = cc
-    a[5, 6] = process_var
+    a[..., 3, 3] = cc
+    a[..., 3, 4] = 2.0 * cs
+    a[..., 3, 5] = ss
+    a[..., 3, 6] = process_var
+    a[..., 4, 3] = -cs
+    a[..., 4, 4] = cc - ss
+    a[..., 4, 5] = cs
+    a[..., 5, 3] = ss
+    a[..., 5, 4] = -2.0 * cs
+    a[..., 5, 5] = cc
+    a[..., 5, 6] = process_var
     return a
 
 
@@ -151,44 +160,46 @@ def position_update(
 
     Parameters
     ----------
-    means : ndarray, shape (2, N)
-        Prior means (m).
-    covs : ndarray, shape (3, N)
+    means : ndarray, shape (2, N) or (2, K, N)
+        Prior means (m); the optional middle axis batches ``K`` independent robots.
+    covs : ndarray, shape (3, N) or (3, K, N)
         Prior covariances (m^2).
-    points : ndarray, shape (2, M)
-        Measurements as columns (m).
+    points : ndarray, shape (2, M) or (2, K, M)
+        Measurements as columns (m), per robot when batched.
     noise_var : float
         Measurement noise variance ``r`` (m^2).
 
     Returns
     -------
-    post_means : ndarray, shape (2, N, M)
+    post_means : ndarray, shape (2, N, M) or (2, K, N, M)
         ``m + K (z - m)``, written as ``z - r S^-1 (z - m)`` (the same thing: ``I - K = r S^-1``).
-    post_covs : ndarray, shape (3, N)
+    post_covs : ndarray, shape (3, N) or (3, K, N)
         Posterior covariance (independent of ``z``). The Joseph form
         ``(I - K) P (I - K)^T + K R K^T`` reduces exactly, for ``H = I`` and ``R = r I``, to
         ``r S^-1 P = r (det(P) I + r P) / det(S)``; we evaluate that expression, whose terms are
         all non-negative, so it keeps Joseph's guarantee (no cancellation, PSD under
         round-off) at a fraction of the cost (tested against the explicit Joseph product).
-    likelihood : ndarray, shape (N, M)
+    likelihood : ndarray, shape (N, M) or (K, N, M)
         ``N(z; m, S)`` (1/m^2); far pairs underflow to exactly 0.
     """
+    eye3, sign3 = (_EYE3, _INV_SIGN3) if covs.ndim == 2 else (_EYE3_B, _INV_SIGN3_B)
     r = noise_var
     pxx, pxy, pyy = covs
     pxy2 = pxy * pxy
     det_p = pxx * pyy - pxy2
-    s = covs + r * _EYE3
+    s = covs + r * eye3
     # det S >= r^2 > 0 for PSD P; the floor only guards a corrupted input.
     inv_det_s = 1.0 / np.maximum(s[0] * s[2] - pxy2, TINY)
     # -S^-1 / 2, rows xx, xy, yy (the -1/2 of the exponent folded in once per component).
-    half_inv = s[::-1] * (_INV_SIGN3 * (-0.5 * inv_det_s))
-    post_covs = (covs * r + _EYE3 * det_p) * (r * inv_det_s)
-    diff = points[:, None, :] - means[:, :, None]  # (2, N, M): z - m
+    half_inv = s[::-1] * (sign3 * (-0.5 * inv_det_s))
+    post_covs = (covs * r + eye3 * det_p) * (r * inv_det_s)
+    pts = points[..., None, :]
+    diff = pts - means[..., None]  # (2, [K,] N, M): z - m
     # e = -S^-1 (z - m) / 2, row by row.
-    e = half_inv[0:2, :, None] * diff[0] + half_inv[1:3, :, None] * diff[1]
+    e = half_inv[0:2, ..., None] * diff[0] + half_inv[1:3, ..., None] * diff[1]
     likelihood = np.exp(diff[0] * e[0] + diff[1] * e[1])
-    likelihood *= (np.sqrt(inv_det_s) * _INV_TWO_PI)[:, None]
-    post_means = points[:, None, :] + (2.0 * r) * e  # z - r S^-1 (z - m)
+    likelihood *= (np.sqrt(inv_det_s) * _INV_TWO_PI)[..., None]
+    post_means = pts + (2.0 * r) * e  # z - r S^-1 (z - m)
     return post_means, post_covs, likelihood
 
 
@@ -237,12 +248,12 @@ def bearing_update(
 
     Parameters
     ----------
-    means : ndarray, shape (2, N)
-        Prior means (m).
-    covs : ndarray, shape (3, N)
+    means : ndarray, shape (2, N) or (2, K, N)
+        Prior means (m); the optional middle axis batches ``K`` independent robots.
+    covs : ndarray, shape (3, N) or (3, K, N)
         Prior covariances (m^2).
-    bearings : ndarray, shape (M,)
-        Measured bearings (rad).
+    bearings : ndarray, shape (M,) or (K, M)
+        Measured bearings (rad), per robot when batched.
     noise_var : float
         Bearing noise variance ``R_C`` (rad^2).
     min_range : float
@@ -250,25 +261,32 @@ def bearing_update(
 
     Returns
     -------
-    post_means : ndarray, shape (2, N, M)
+    post_means : ndarray, shape (2, N, M) or (2, K, N, M)
         ``m + K * wrap(theta - atan2(y, x))``.
-    post_covs : ndarray, shape (3, N)
+    post_covs : ndarray, shape (3, N) or (3, K, N)
         Joseph-form posterior covariance (independent of the measured value).
-    likelihood : ndarray, shape (N, M)
+    likelihood : ndarray, shape (N, M) or (K, N, M)
         ``N(innovation; 0, S)`` with ``S = H P H^T + R_C`` (1/rad).
     """
     # Guard: ||m||^2 floored so the Jacobian stays finite for components at the origin.
     sq = means * means
     inv_r2 = 1.0 / np.maximum(sq[0] + sq[1], min_range * min_range)
-    jac = means[::-1] * (_JAC_SIGN * inv_r2)  # (2, N): [-y, x] / r^2
+    batched = means.ndim == 3
+    jac = means[::-1] * ((_JAC_SIGN_B if batched else _JAC_SIGN) * inv_r2)  # (2, N): [-y, x] / r^2
     u = covs[0:2] * jac[0] + covs[1:3] * jac[1]  # P H^T
     hu = jac * u
     inv_s = 1.0 / (hu[0] + hu[1] + noise_var)  # S >= R_C > 0
     gain = u * inv_s
     # Joseph form: a sum of two PSD products (round-off cannot make it indefinite).
-    post_covs = joseph_update(covs, gain, jac, noise_var)
-    innov = wrap_angle(bearings - np.arctan2(means[1], means[0])[:, None])  # (N, M)
-    post_means = means[:, :, None] + gain[:, :, None] * innov
-    likelihood = np.exp((innov * innov) * (-0.5 * inv_s)[:, None])
-    likelihood *= (np.sqrt(inv_s) * _INV_SQRT_TWO_PI)[:, None]
+    if batched:  # the Joseph product is per component: run it on the flattened (K * N) axis
+        post_covs = joseph_update(
+            covs.reshape(3, -1), gain.reshape(2, -1), jac.reshape(2, -1), noise_var
+        ).reshape(covs.shape)
+    else:
+        post_covs = joseph_update(covs, gain, jac, noise_var)
+    # ([K,] N, M)
+    innov = wrap_angle(bearings[..., None, :] - np.arctan2(means[1], means[0])[..., None])
+    post_means = means[..., None] + gain[..., None] * innov
+    likelihood = np.exp((innov * innov) * (-0.5 * inv_s)[..., None])
+    likelihood *= (np.sqrt(inv_s) * _INV_SQRT_TWO_PI)[..., None]
     return post_means, post_covs, likelihood

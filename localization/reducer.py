@@ -34,7 +34,19 @@ from .mixture import N_ROWS, ROW_PXX, ROW_W, ROW_X, ROW_Y
 
 _WEIGHT_FLOOR = 1e-150
 
-__all__ = ["prune", "merge", "cap", "reduce", "greedy_clusters", "gate_distances"]
+__all__ = [
+    "prune",
+    "merge",
+    "cap",
+    "reduce",
+    "greedy_clusters",
+    "gate_distances",
+    "compact",
+    "greedy_clusters_batched",
+    "merge_batched",
+    "cap_batched",
+    "reduce_batched",
+]
 
 
 def prune(table: np.ndarray, threshold: float) -> np.ndarray:
@@ -85,33 +97,40 @@ def gate_distances(means: np.ndarray, covs: np.ndarray) -> np.ndarray:
 
     Parameters
     ----------
-    means : ndarray, shape (2, N)
-    covs : ndarray, shape (3, N)
+    means : ndarray, shape (2, N) or (2, K, N)
+    covs : ndarray, shape (3, N) or (3, K, N)
+        The optional middle axis batches ``K`` independent mixtures.
 
     Returns
     -------
-    ndarray, shape (N, N)
+    ndarray, shape (N, N) or (K, N, N)
         ``q[j, i]`` uses the covariance of the *candidate* ``i`` (Vo & Ma 2006, Table II).
     """
-    n = means.shape[1]
+    n = means.shape[-1]
+    batch = means.shape[1:-1]
     x = means[0]
     inv, _ = sym_inverse(covs)  # rows A_xx, A_xy, A_yy
-    lhs = np.empty((6, n))  # terms of m_j
+    lhs = np.empty((6, *batch, n))  # terms of m_j
     np.multiply(means, x, out=lhs[0:2])  # x_j^2, x_j y_j
     lhs[1] *= 2.0
     np.multiply(means[1], means[1], out=lhs[2])
     np.multiply(means, -2.0, out=lhs[3:5])
     lhs[5] = 1.0
-    rhs = np.empty((6, n))  # terms of candidate i
+    rhs = np.empty((6, *batch, n))  # terms of candidate i
     rhs[0:3] = inv
     v = rhs[3:5]
     np.multiply(inv[0:2], x, out=v)  # A_i m_i
     v += inv[1:3] * means[1]
     mv = means * v
     np.add(mv[0], mv[1], out=rhs[5])  # m_i^T A_i m_i
-    q = lhs.T.dot(rhs)
     # Guard: the expansion leaves ~1e-13 round-off on the diagonal, which is exactly 0.
-    q.flat[:: n + 1] = 0.0
+    if batch:
+        q = np.matmul(lhs.transpose(1, 2, 0), rhs.transpose(1, 0, 2))
+        diag = np.arange(n)
+        q[:, diag, diag] = 0.0
+    else:
+        q = lhs.T.dot(rhs)
+        q.flat[:: n + 1] = 0.0
     return q
 
 
@@ -203,19 +222,45 @@ def merge(table: np.ndarray, threshold: float) -> np.ndarray:
     # gets a well-defined (unweighted) mean and covariance instead of 0/0. Cluster weights
     # are then exact sums up to that floor.
     member_w = (labels == leaders[:, None]) * np.maximum(w, _WEIGHT_FLOOR)  # (L, N)
-    # Weighted sums per cluster of [1, d, P + d d^T], d = m - (heaviest mean): moments about
-    # a point inside the mixture, so no cancellation even for a mixture far from the origin.
-    ref = means[:, w.argmax()][:, None]
-    rows = np.empty((N_ROWS, n))
+    return _moment_match(means, covs, member_w, means[:, w.argmax()][:, None])
+
+
+def _moment_match(
+    means: np.ndarray, covs: np.ndarray, member_w: np.ndarray, ref: np.ndarray
+) -> np.ndarray:
+    """Moment-matched cluster components from per-cluster member weights.
+
+    Parameters
+    ----------
+    means : ndarray, shape (2, N) or (2, K, N)
+    covs : ndarray, shape (3, N) or (3, K, N)
+    member_w : ndarray, shape (L, N) or (K, L, N)
+        ``member_w[l, i]``: weight of component ``i`` in cluster ``l`` (0 if not a member).
+        Every cluster must have a positive total.
+    ref : ndarray, shape (2, 1) or (2, K, 1)
+        Reference point (the heaviest mean): moments are taken about it, so no cancellation
+        even for a mixture far from the origin.
+
+    Returns
+    -------
+    ndarray, shape (6, L) or (6, K, L)
+        Weight ``W = sum w_i``, mean ``sum w_i m_i / W``, covariance
+        ``sum w_i (P_i + (m - m_i)(m - m_i)^T) / W``.
+    """
+    # Weighted sums per cluster of [1, d, P + d d^T], d = m - ref.
+    rows = np.empty((N_ROWS, *means.shape[1:]))
     rows[0] = 1.0
     d = rows[1:3]
     np.subtract(means, ref, out=d)
     np.multiply(d, d[0], out=rows[3:5])
     np.multiply(d[1], d[1], out=rows[5])
     rows[3:] += covs
-    sums = rows.dot(member_w.T)  # (6, L)
+    if member_w.ndim == 2:
+        sums = rows.dot(member_w.T)  # (6, L)
+    else:
+        sums = np.matmul(rows.transpose(1, 0, 2), member_w.transpose(0, 2, 1)).transpose(1, 0, 2)
     inv_total = 1.0 / sums[0]
-    out = np.empty((N_ROWS, n_out))
+    out = np.empty(sums.shape)
     out[ROW_W] = sums[0]
     mean = out[ROW_X : ROW_Y + 1]
     np.multiply(sums[1:3], inv_total, out=mean)
@@ -245,3 +290,186 @@ def reduce(
     table = prune(table, prune_threshold)
     table = merge(table, merge_threshold)
     return cap(table, max_components)
+
+
+# ---------------------------------------------------------------------- batched over robots
+# The functions below reduce K independent mixtures at once. A batched table has shape
+# (6, K, N): robot k's components are the columns [:, k, :counts[k]], and the rest is padding
+# with weight 0 (any finite values). Each robot gets exactly the result of the single-mixture
+# function above (same components, same order up to floating-point summation order, except
+# that :func:`cap_batched` orders the kept components by decreasing weight).
+
+
+def compact(table: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Move each robot's kept components to the front, in their original order.
+
+    Parameters
+    ----------
+    table : ndarray, shape (6, K, N)
+    keep : ndarray of bool, shape (K, N)
+
+    Returns
+    -------
+    table : ndarray, shape (6, K, L)
+        ``L = max(counts)`` (at least 1); padding columns are all zero.
+    counts : ndarray of int, shape (K,)
+    """
+    counts = np.count_nonzero(keep, axis=1)
+    width = max(int(counts.max(initial=0)), 1)
+    rows, cols = keep.nonzero()  # row-major: robot by robot, columns in order
+    slot = np.cumsum(keep, axis=1)[rows, cols] - 1
+    out = np.zeros((N_ROWS, keep.shape[0], width))
+    out[:, rows, slot] = table[:, rows, cols]
+    return out, counts
+
+
+def greedy_clusters_batched(close: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """:func:`greedy_clusters` for ``K`` gate matrices at once.
+
+    The leader set is found in rounds, each vectorised over robots and components: a
+    component with a leader above it in its coverers is absorbed; one whose coverers above it
+    are all absorbed is a leader. Rounds = longest covering chain (1 in the common case).
+
+    Parameters
+    ----------
+    close : ndarray of bool, shape (K, N, N)
+        ``close[k, j, i]``: component ``i`` is inside ``j``'s gate (robot ``k``); the
+        diagonal must be True.
+    weights : ndarray, shape (K, N)
+
+    Returns
+    -------
+    ndarray of int, shape (K, N)
+        Leader index of each component's cluster (``labels[k, j] == j`` for leaders).
+    """
+    n = close.shape[-1]
+    index = np.arange(n)
+    score = close * (weights + 1.0)[:, :, None]  # [k, j, i]
+    best = score.argmax(axis=1)  # highest-ranked coverer of i (maybe i itself)
+    leader = best == index  # nobody ranked above covers it
+    if np.take_along_axis(leader, best, axis=1).all():
+        return best  # every best coverer is a leader (the common case)
+    # above[k, j, i]: j covers i and is ranked above it (heavier, ties: lower index).
+    wj = weights[:, :, None]
+    wi = weights[:, None, :]
+    above = close & ((wj > wi) | ((wj == wi) & (index[:, None] < index)))
+    above_f = above.astype(float)
+    undecided = ~leader
+    while True:
+        # absorbed: some leader above covers it
+        undecided &= np.matmul(leader[:, None, :].astype(float), above_f)[:, 0] == 0.0
+        if not undecided.any():
+            break
+        # leader: no undecided coverer above (and, from the line above, no leader above)
+        new = undecided & (np.matmul(undecided[:, None, :].astype(float), above_f)[:, 0] == 0.0)
+        leader |= new
+        undecided &= ~new
+    # Each component joins the highest-ranked leader whose gate holds it.
+    return (score * leader[:, :, None]).argmax(axis=1)
+
+
+def merge_batched(
+    table: np.ndarray, counts: np.ndarray, threshold: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`merge` of ``K`` mixtures at once.
+
+    Parameters
+    ----------
+    table : ndarray, shape (6, K, N)
+        Padded batched table (see :func:`compact`); real weights must be > 0.
+    counts : ndarray of int, shape (K,)
+    threshold : float
+
+    Returns
+    -------
+    table : ndarray, shape (6, K, L)
+        Per robot the clusters in increasing leader index, as :func:`merge`; a robot where
+        nothing merges keeps its components unchanged (bit for bit).
+    counts : ndarray of int, shape (K,)
+    """
+    k, n = table.shape[1:]
+    if n < 2:
+        return table, counts
+    w = table[ROW_W]
+    means = table[ROW_X : ROW_Y + 1]
+    covs = table[ROW_PXX:]
+    index = np.arange(n)
+    valid = index < counts[:, None]
+    close = gate_distances(means, covs) <= threshold
+    close &= valid[:, :, None] & valid[:, None, :]
+    close[:, index, index] = True  # padding: zero-weight singletons, dropped below
+    labels = greedy_clusters_batched(close, w)
+    is_leader = (labels == index) & valid
+    n_out = np.count_nonzero(is_leader, axis=1)
+    merged = n_out < counts
+    if not merged.any():
+        return table, counts
+    # Leaders to the front, in index order: slot l of robot k holds leader lead[k, l].
+    width = int(n_out.max())
+    lead = np.argsort(~is_leader, axis=1, kind="stable")[:, :width]  # (K, L)
+    lead_valid = index[:width] < n_out[:, None]
+    member = (labels[:, None, :] == lead[:, :, None]) & valid[:, None, :]
+    member &= lead_valid[:, :, None]
+    # Guard: as in merge (floored weights); an unused leader slot gets component 0 alone so
+    # that no cluster total is 0 (the slot is zeroed below).
+    member[:, :, 0] |= ~lead_valid
+    member_w = member * np.maximum(w, _WEIGHT_FLOOR)[:, None, :]  # (K, L, N)
+    ref = means[:, np.arange(k), w.argmax(axis=1)][:, :, None]
+    out = _moment_match(means, covs, member_w, ref)
+    out *= lead_valid
+    # Robots where nothing merged keep their input components.
+    keep_input = ~merged
+    out[:, keep_input] = table[:, keep_input, :width]
+    return out, n_out
+
+
+def cap_batched(
+    table: np.ndarray, counts: np.ndarray, max_components: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`cap` of ``K`` mixtures at once (the kept components of a capped robot are in
+    decreasing-weight order; other robots are unchanged).
+
+    Parameters
+    ----------
+    table : ndarray, shape (6, K, N)
+    counts : ndarray of int, shape (K,)
+    max_components : int
+
+    Returns
+    -------
+    table : ndarray, shape (6, K, min(N, max_components))
+    counts : ndarray of int, shape (K,)
+    """
+    over = counts > max_components
+    if not over.any():
+        return table, counts
+    out = table[:, :, :max_components].copy()
+    sub = table[:, over]
+    # padding has weight 0 <= any kept weight; stable order keeps the single cap's choice
+    # among equal weights up to ties exactly at the boundary.
+    order = np.argsort(-sub[ROW_W], axis=1, kind="stable")[:, :max_components]
+    out[:, over] = np.take_along_axis(sub, order[None], axis=2)
+    return out, np.minimum(counts, max_components)
+
+
+def reduce_batched(
+    table: np.ndarray, prune_threshold: float, merge_threshold: float, max_components: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`reduce` (prune, merge, cap) of ``K`` mixtures at once.
+
+    Parameters
+    ----------
+    table : ndarray, shape (6, K, N)
+        Batched table; padding must have weight 0 (< ``prune_threshold``), so it is pruned.
+    prune_threshold, merge_threshold : float
+    max_components : int
+
+    Returns
+    -------
+    table : ndarray, shape (6, K, L), ``L <= max_components`` (at least 1)
+        Zero padding beyond each robot's count.
+    counts : ndarray of int, shape (K,)
+    """
+    out, counts = compact(table, table[ROW_W] >= prune_threshold)
+    out, counts = merge_batched(out, counts, merge_threshold)
+    return cap_batched(out, counts, max_components)

@@ -41,6 +41,52 @@ class GroundTruth:
     extra_xy: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
 
+def truth_from_poses(
+    poses: np.ndarray,
+    lidar_range_m: float,
+    camera_range_m: float,
+    visible: dict[str, np.ndarray] | None = None,
+    extra_xy: np.ndarray | None = None,
+) -> GroundTruth:
+    """Ground truth from world poses (N, 3): relative positions and per-sensor range masks.
+
+    Shared by every World that has truth (the simulator; motion capture on real robots).
+    """
+    rel = relative_positions(poses, poses)
+    dist = np.hypot(rel[..., 0], rel[..., 1])
+    off_diag = ~np.eye(len(poses), dtype=bool)
+    return GroundTruth(
+        poses=poses,
+        relative_xy=rel,
+        in_range={
+            "lidar": off_diag & (dist <= lidar_range_m),
+            "camera": off_diag & (dist <= camera_range_m),
+        },
+        visible=visible or {},
+        extra_xy=np.zeros((0, 2)) if extra_xy is None else extra_xy,
+    )
+
+
+def relative_positions(observers: np.ndarray, targets_xy: np.ndarray) -> np.ndarray:
+    """Targets in each observer's body frame.
+
+    Parameters
+    ----------
+    observers : ndarray, shape (N, 3)
+        ``[x, y, yaw]`` world poses.
+    targets_xy : ndarray, shape (M, 2+)
+        World positions (extra columns ignored).
+
+    Returns
+    -------
+    ndarray, shape (N, M, 2)
+        ``out[i, j] = R(yaw_i)^T (p_j - p_i)``.
+    """
+    d = targets_xy[None, :, :2] - observers[:, None, :2]
+    c, s = np.cos(observers[:, 2])[:, None], np.sin(observers[:, 2])[:, None]
+    return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], axis=-1)
+
+
 @dataclass(frozen=True, slots=True)
 class WorldStep:
     """What one control period produced: records per robot id, and ground truth or ``None``."""

@@ -28,7 +28,7 @@ from swarm_env.sensors.lidar import LidarSensor
 from swarm_env.sensors.lidar_features import extract_detections
 from swarm_env.sensors.odometry import WheelEncoders
 from swarm_env.world.arena import Layout, sample_layout, wall_segments
-from swarm_env.world.base import GroundTruth, WorldStep
+from swarm_env.world.base import GroundTruth, WorldStep, relative_positions, truth_from_poses
 from swarm_env.world.diagnostics import SensorStats
 from swarm_env.world.scene import Scene
 
@@ -437,17 +437,10 @@ class SimWorld:
     def ground_truth(self) -> GroundTruth:
         """True poses, relative positions, and per-sensor range and visibility masks."""
         poses = self.poses()
-        agents = poses[: self.n_agents]
-        rel = relative_positions(agents, agents)
-        dist = np.linalg.norm(rel, axis=-1)
-        off_diag = ~np.eye(self.n_agents, dtype=bool)
-        return GroundTruth(
-            poses=agents,
-            relative_xy=rel,
-            in_range={
-                "lidar": off_diag & (dist <= self.config.localization_range_m),
-                "camera": off_diag & (dist <= self.config.camera.range_max_m),
-            },
+        return truth_from_poses(
+            poses[: self.n_agents],
+            self.config.localization_range_m,
+            self.config.camera.range_max_m,
             visible={
                 "lidar": self._lidar_visible[:, : self.n_agents].copy(),
                 "camera": self._camera_visible[:, : self.n_agents].copy(),
@@ -459,23 +452,3 @@ class SimWorld:
 def _others(rel: np.ndarray, i: int) -> np.ndarray:
     """Row i of a (N, N+E, 2) relative-position array without robot i itself."""
     return np.delete(rel[i], i, axis=0)
-
-
-def relative_positions(observers: np.ndarray, targets_xy: np.ndarray) -> np.ndarray:
-    """Targets in each observer's body frame.
-
-    Parameters
-    ----------
-    observers : ndarray, shape (N, 3)
-        ``[x, y, yaw]`` world poses.
-    targets_xy : ndarray, shape (M, 2+)
-        World positions (extra columns ignored).
-
-    Returns
-    -------
-    ndarray, shape (N, M, 2)
-        ``out[i, j] = R(yaw_i)^T (p_j - p_i)``.
-    """
-    d = targets_xy[None, :, :2] - observers[:, None, :2]
-    c, s = np.cos(observers[:, 2])[:, None], np.sin(observers[:, 2])[:, None]
-    return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], axis=-1)

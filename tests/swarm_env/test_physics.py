@@ -7,7 +7,8 @@ import pytest
 
 from swarm_env import make_config
 from swarm_env.sensors.odometry import pulses_to_delta
-from swarm_env.world.sim import SimWorld, relative_positions
+from swarm_env.world.base import relative_positions
+from swarm_env.world.sim import SimWorld
 
 EMPTY = {"n_decoy_posts": 0, "n_red_decoys": 0, "n_boxes": 0}
 
