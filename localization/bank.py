@@ -159,7 +159,7 @@ class PHDBank:
         return mix
 
     def estimate(self, robot: int, threshold: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`RobotCentricPHD.estimate` of robot ``robot``: ``positions (K, 2), weights (K,)``."""
+        """:meth:`RobotCentricPHD.estimate` of one robot: ``positions (K, 2), weights (K,)``."""
         holder = _TableHolder(self._table[:, robot, : self._counts[robot]])
         return RobotCentricPHD.estimate(holder, threshold)  # type: ignore[arg-type]
 
@@ -267,7 +267,9 @@ class PHDBank:
         """
         calls = list(calls)
         if len(calls) != self.n_robots:
-            raise ValueError(f"calls must have one list per robot ({self.n_robots}), got {len(calls)}")
+            raise ValueError(
+                f"calls must have one list per robot ({self.n_robots}), got {len(calls)}"
+            )
         queues = []
         for r, seq in enumerate(calls):
             queue = []
@@ -281,7 +283,11 @@ class PHDBank:
                     elif kind == "lidar":
                         nb = c[2] if len(c) > 2 else None
                         queue.append(
-                            (kind, _checked_points(c[1]), None if nb is None else _checked_nulls(nb))
+                            (
+                                kind,
+                                _checked_points(c[1]),
+                                None if nb is None else _checked_nulls(nb),
+                            )
                         )
                     else:
                         queue.append((kind, _checked_bearings(c[1])))
@@ -451,7 +457,7 @@ class PHDBank:
         self._reduce_store(rob, out)
 
     def _set_pending(self, rob: np.ndarray, births: list[np.ndarray]) -> None:
-        for r, b in zip(rob.tolist(), births):
+        for r, b in zip(rob.tolist(), births, strict=False):
             self._pending[r] = b
 
 
@@ -506,7 +512,9 @@ class PHDBankView:
         self.bank.predict([self.robot], np.asarray(_checked_odometry(odometry))[None])
 
     def update_lidar(self, points: Any, null_bearings: Any = None) -> None:
-        self.bank.update_lidar([self.robot], [points], None if null_bearings is None else [null_bearings])
+        self.bank.update_lidar(
+            [self.robot], [points], None if null_bearings is None else [null_bearings]
+        )
 
     def update_camera(self, bearings: Any) -> None:
         self.bank.update_camera([self.robot], [bearings])
@@ -554,7 +562,9 @@ def _checked_list(
 ) -> list[Any]:
     """Validate a per-robot list with the single filter's checks; errors name ``name[i]``."""
     if isinstance(values, np.ndarray) or not isinstance(values, Sequence):
-        raise ValueError(f"{name} must be a list of {k} arrays (one per robot), got {type(values)}")
+        raise ValueError(
+            f"{name} must be a list of {k} arrays (one per robot), got {type(values)}"
+        )
     if len(values) != k:
         raise ValueError(f"{name} must have one entry per robot ({k}), got {len(values)}")
     out = []
@@ -572,7 +582,7 @@ def _checked_list(
 def _pad_ragged(
     arrays: list[np.ndarray | None], tail: tuple[int, ...], k: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Stack K ragged arrays ``(M_k, *tail)`` (None = empty) as ``(K, M, *tail)`` + mask ``(K, M)``."""
+    """Stack K ragged ``(M_k, *tail)`` arrays (None: empty) as ``(K, M, *tail)`` + mask."""
     lengths = np.array([0 if a is None else a.shape[0] for a in arrays], dtype=np.intp)
     width = int(lengths.max(initial=0))
     valid = np.arange(width) < lengths[:, None]

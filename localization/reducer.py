@@ -125,7 +125,9 @@ def gate_distances(means: np.ndarray, covs: np.ndarray) -> np.ndarray:
     np.add(mv[0], mv[1], out=rhs[5])  # m_i^T A_i m_i
     # Guard: the expansion leaves ~1e-13 round-off on the diagonal, which is exactly 0.
     if batch:
-        q = np.matmul(lhs.transpose(1, 2, 0), rhs.transpose(1, 0, 2))
+        # computed as [k, i, j] (contiguous along the coverer j, which the batched greedy
+        # merge reduces over) and returned as the [k, j, i] view
+        q = np.matmul(rhs.transpose(1, 2, 0), lhs.transpose(1, 0, 2)).transpose(0, 2, 1)
         diag = np.arange(n)
         q[:, diag, diag] = 0.0
     else:
@@ -296,8 +298,8 @@ def reduce(
 # The functions below reduce K independent mixtures at once. A batched table has shape
 # (6, K, N): robot k's components are the columns [:, k, :counts[k]], and the rest is padding
 # with weight 0 (any finite values). Each robot gets exactly the result of the single-mixture
-# function above (same components, same order up to floating-point summation order, except
-# that :func:`cap_batched` orders the kept components by decreasing weight).
+# function above: the same components in the same order, values equal up to floating-point
+# summation order.
 
 
 def compact(table: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -344,28 +346,31 @@ def greedy_clusters_batched(close: np.ndarray, weights: np.ndarray) -> np.ndarra
     """
     n = close.shape[-1]
     index = np.arange(n)
-    score = close * (weights + 1.0)[:, :, None]  # [k, j, i]
-    best = score.argmax(axis=1)  # highest-ranked coverer of i (maybe i itself)
+    # Work on covered[k, i, j] = close[k, j, i]: reductions over the coverer j run along the
+    # last axis (contiguous when ``close`` is a transposed view, as merge_batched passes it).
+    covered = close.transpose(0, 2, 1)
+    score = covered * (weights + 1.0)[:, None, :]  # [k, i, j]
+    best = score.argmax(axis=2)  # highest-ranked coverer of i (maybe i itself)
     leader = best == index  # nobody ranked above covers it
     if np.take_along_axis(leader, best, axis=1).all():
         return best  # every best coverer is a leader (the common case)
-    # above[k, j, i]: j covers i and is ranked above it (heavier, ties: lower index).
-    wj = weights[:, :, None]
-    wi = weights[:, None, :]
-    above = close & ((wj > wi) | ((wj == wi) & (index[:, None] < index)))
-    above_f = above.astype(float)
+    # above[k, i, j]: j covers i and is ranked above it (heavier, ties: lower index).
+    rank = np.empty_like(best)
+    np.put_along_axis(rank, np.argsort(-weights, axis=1, kind="stable"), index[None], axis=1)
+    above_f = (covered & (rank[:, None, :] < rank[:, :, None])).astype(float)
     undecided = ~leader
     while True:
         # absorbed: some leader above covers it
-        undecided &= np.matmul(leader[:, None, :].astype(float), above_f)[:, 0] == 0.0
+        undecided &= np.matmul(above_f, leader[:, :, None].astype(float))[:, :, 0] == 0.0
         if not undecided.any():
             break
         # leader: no undecided coverer above (and, from the line above, no leader above)
-        new = undecided & (np.matmul(undecided[:, None, :].astype(float), above_f)[:, 0] == 0.0)
+        pending = np.matmul(above_f, undecided[:, :, None].astype(float))[:, :, 0]
+        new = undecided & (pending == 0.0)
         leader |= new
         undecided &= ~new
     # Each component joins the highest-ranked leader whose gate holds it.
-    return (score * leader[:, :, None]).argmax(axis=1)
+    return (score * leader[:, None, :]).argmax(axis=2)
 
 
 def merge_batched(
@@ -426,8 +431,10 @@ def merge_batched(
 def cap_batched(
     table: np.ndarray, counts: np.ndarray, max_components: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`cap` of ``K`` mixtures at once (the kept components of a capped robot are in
-    decreasing-weight order; other robots are unchanged).
+    """:func:`cap` of ``K`` mixtures at once; robots within the cap are unchanged.
+
+    The (rare) robots over the cap go through :func:`cap` one by one, so that among equal
+    weights at the boundary they keep exactly the components the single filter keeps.
 
     Parameters
     ----------
@@ -440,15 +447,12 @@ def cap_batched(
     table : ndarray, shape (6, K, min(N, max_components))
     counts : ndarray of int, shape (K,)
     """
-    over = counts > max_components
-    if not over.any():
+    over = (counts > max_components).nonzero()[0]
+    if not over.shape[0]:
         return table, counts
     out = table[:, :, :max_components].copy()
-    sub = table[:, over]
-    # padding has weight 0 <= any kept weight; stable order keeps the single cap's choice
-    # among equal weights up to ties exactly at the boundary.
-    order = np.argsort(-sub[ROW_W], axis=1, kind="stable")[:, :max_components]
-    out[:, over] = np.take_along_axis(sub, order[None], axis=2)
+    for k in over.tolist():
+        out[:, k] = cap(table[:, k, : counts[k]], max_components)
     return out, np.minimum(counts, max_components)
 
 

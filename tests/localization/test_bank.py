@@ -1,0 +1,240 @@
+"""PHDBank: batched filters must give exactly what independent RobotCentricPHD filters give."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from localization import GaussianMixture, PHDBank, PHDConfig, RobotCentricPHD
+
+R = 20
+
+
+def canonical(table: np.ndarray) -> np.ndarray:
+    """Columns sorted by (w, x, y, ...) so two tables with the same components compare."""
+    if table.shape[1] == 0:
+        return table
+    return table[:, np.lexsort(table[::-1])]
+
+
+def assert_same(filters: list[RobotCentricPHD], bank: PHDBank, where: str) -> None:
+    for r, f in enumerate(filters):
+        a, b = canonical(np.asarray(f.table)), canonical(bank.table(r))
+        assert a.shape == b.shape, (
+            f"{where}: robot {r} has {b.shape[1]} != {a.shape[1]} components"
+        )
+        assert np.allclose(a, b, rtol=0.0, atol=1e-10), f"{where}: robot {r} differs"
+        pa, pb = f.__getstate__()["pending_births"], bank._pending[r]
+        assert pa.shape == pb.shape and np.allclose(pa, pb, rtol=0.0, atol=1e-10), where
+
+
+def random_calls(rng: np.random.Generator, steps: int):
+    """Random mixed batches: (kind, robots, args) with empty sets, clutter and null bearings."""
+    targets = rng.uniform(-2.5, 2.5, size=(R, 8, 2))
+    for _ in range(steps):
+        kind = rng.choice(["predict", "lidar", "camera"], p=[0.3, 0.3, 0.4])
+        robots = rng.choice(R, size=int(rng.integers(0, R + 1)), replace=False)
+        if kind == "predict":
+            yield kind, robots, (rng.normal(0.0, [0.03, 0.01, 0.05], size=(robots.size, 3)),)
+        elif kind == "lidar":
+            points, nulls = [], []
+            for r in robots:
+                m = int(rng.integers(0, 6))
+                pts = targets[r, rng.choice(8, size=m, replace=False)]
+                pts = pts + rng.normal(0.0, 0.05, (m, 2))
+                if rng.random() < 0.3:  # clutter
+                    pts = np.concatenate([pts, rng.uniform(-2.0, 2.0, (2, 2))])
+                points.append(pts)
+                nb = None if rng.random() < 0.5 else rng.uniform(-np.pi, np.pi, rng.integers(0, 4))
+                nulls.append(nb)
+            yield kind, robots, (points, None if rng.random() < 0.3 else nulls)
+        else:
+            bearings = []
+            for r in robots:
+                tg = targets[r, rng.integers(0, 8, int(rng.integers(0, 15)))]
+                bearings.append(np.arctan2(tg[:, 1], tg[:, 0]) + rng.normal(0.0, 0.08, len(tg)))
+            yield kind, robots, (bearings,)
+
+
+def run_both(config: PHDConfig, seed: int, steps: int = 60):
+    filters = [RobotCentricPHD(config) for _ in range(R)]
+    bank = PHDBank(config, R)
+    rng = np.random.default_rng(seed)
+    for step, (kind, robots, args) in enumerate(random_calls(rng, steps)):
+        for i, r in enumerate(robots):
+            f = filters[r]
+            if kind == "predict":
+                f.predict(args[0][i])
+            elif kind == "lidar":
+                f.update_lidar(args[0][i], None if args[1] is None else args[1][i])
+            else:
+                f.update_camera(args[0][i])
+        getattr(bank, "predict" if kind == "predict" else f"update_{kind}")(robots, *args)
+        assert_same(filters, bank, f"seed {seed} step {step} ({kind})")
+    return filters, bank
+
+
+CONFIGS = {
+    "lc-fixed": PHDConfig(),
+    "lc-measurement": PHDConfig(birth="measurement"),
+    "lo-fixed": PHDConfig(mode="lidar-only"),
+    "lo-measurement": PHDConfig(mode="lidar-only", birth="measurement"),
+    "lc-fixed-cap": PHDConfig(max_components=6),
+    "lc-measurement-cap": PHDConfig(birth="measurement", max_components=5),
+    "constant-models": PHDConfig(
+        lidar_pd_model="constant", survival_model="constant", occlusion_min_separation_m=0.0
+    ),
+    "wide-merge": PHDConfig(birth="measurement", merge_threshold=30.0),
+}
+
+
+@pytest.mark.parametrize("name", sorted(CONFIGS))
+@pytest.mark.parametrize("seed", [0, 1])
+def test_bank_matches_independent_filters(name, seed):
+    filters, bank = run_both(CONFIGS[name], seed)
+    # the scenario did exercise the filter: some robots track something
+    assert max(len(f) for f in filters) > 0
+    if "cap" in name:
+        assert max(len(f) for f in filters) == CONFIGS[name].max_components
+
+
+def test_cap_and_covering_chains_are_exercised(monkeypatch):
+    """The equivalence runs hit the cap and the multi-round greedy merge."""
+    import localization.reducer as reducer
+
+    seen = {"rounds": 0, "cap": 0}
+    original_cap = reducer.cap_batched
+
+    def counting_cap(table, counts, max_components):
+        seen["cap"] += int((counts > max_components).any())
+        return original_cap(table, counts, max_components)
+
+    original_clusters = reducer.greedy_clusters_batched
+
+    def counting_clusters(close, weights):
+        n = close.shape[-1]
+        best = (close * (weights + 1.0)[:, :, None]).argmax(axis=1)
+        seen["rounds"] += int(not np.take_along_axis(best == np.arange(n), best, axis=1).all())
+        return original_clusters(close, weights)
+
+    monkeypatch.setattr(reducer, "cap_batched", counting_cap)
+    monkeypatch.setattr(reducer, "greedy_clusters_batched", counting_clusters)
+    import localization.bank as bank_module
+
+    monkeypatch.setattr(bank_module, "reduce_batched", reducer.reduce_batched)
+    run_both(CONFIGS["lc-measurement-cap"], 3, steps=40)
+    assert seen["cap"] > 0 and seen["rounds"] > 0
+
+
+def test_apply_schedules_per_robot_order():
+    config = PHDConfig(birth="measurement")
+    rng = np.random.default_rng(5)
+    calls = [[] for _ in range(R)]
+    for kind, robots, args in random_calls(rng, 40):
+        for i, r in enumerate(robots):
+            if kind == "predict":
+                calls[r].append(("predict", args[0][i]))
+            elif kind == "lidar":
+                calls[r].append(("lidar", args[0][i], None if args[1] is None else args[1][i]))
+            else:
+                calls[r].append(("camera", args[0][i]))
+    filters = [RobotCentricPHD(config) for _ in range(R)]
+    for f, seq in zip(filters, calls, strict=False):
+        for c in seq:
+            {"predict": f.predict, "lidar": f.update_lidar, "camera": f.update_camera}[c[0]](
+                *c[1:]
+            )
+    bank = PHDBank(config, R)
+    bank.apply(calls)
+    assert_same(filters, bank, "apply")
+
+
+def test_round_trip_and_views():
+    filters, bank = run_both(CONFIGS["lc-measurement"], 7, steps=30)
+    copy = PHDBank.from_filters(filters)
+    assert_same(filters, copy, "from_filters")
+    back = bank.to_filters()
+    assert_same(back, bank, "to_filters")
+    for r in range(R):
+        view = bank.views[r]
+        mix = view.mixture
+        assert isinstance(mix, GaussianMixture) and len(mix) == len(view) == len(filters[r])
+        assert view.mixture is mix  # cached
+        pos, w = view.estimate(0.3)
+        pos_f, w_f = filters[r].estimate(0.3)
+        assert pos.shape == pos_f.shape and np.allclose(w, w_f, atol=1e-10)
+        assert view.total_weight == pytest.approx(filters[r].total_weight, abs=1e-9)
+    # single-robot calls through a view equal the filter's
+    view, f = bank.views[4], filters[4]
+    view.predict([0.02, 0.0, 0.01])
+    f.predict(np.array([0.02, 0.0, 0.01]))
+    view.update_lidar([[1.0, 0.5]], [0.3])
+    f.update_lidar(np.array([[1.0, 0.5]]), np.array([0.3]))
+    view.update_camera([0.4, -1.0])
+    f.update_camera(np.array([0.4, -1.0]))
+    assert np.allclose(canonical(bank.table(4)), canonical(np.asarray(f.table)), atol=1e-10)
+    view.reset()
+    assert len(view) == 0 and len(bank.views[5]) == len(filters[5])
+    bank.reset()
+    assert bank.counts.sum() == 0
+
+
+def snapshot(bank: PHDBank):
+    return bank._table.copy(), bank._counts.copy(), [p.copy() for p in bank._pending]
+
+
+def assert_unchanged(bank: PHDBank, before) -> None:
+    table, counts, pending = snapshot(bank)
+    assert np.array_equal(table, before[0]) and np.array_equal(counts, before[1])
+    assert all(np.array_equal(a, b) for a, b in zip(pending, before[2], strict=False))
+
+
+GOOD = [np.array([[1.0, 0.5]]), np.empty((0, 2))]
+
+
+@pytest.mark.parametrize(
+    "method, args, name",
+    [
+        ("predict", ([0, 1], np.zeros((2, 2))), "odometry"),
+        ("predict", ([0, 1], [[0.0, 0.0, np.nan], [0.0, 0.0, 0.0]]), "odometry"),
+        ("predict", ([0, 1], np.zeros((3, 3))), "odometry"),
+        ("predict", ([0, 0], np.zeros((2, 3))), "robots"),
+        ("predict", ([0, 20], np.zeros((2, 3))), "robots"),
+        ("predict", ([0.5, 1.0], np.zeros((2, 3))), "robots"),
+        ("predict", ([[0, 1]], np.zeros((2, 3))), "robots"),
+        ("update_lidar", ([0, 1], [np.zeros((1, 3)), np.zeros((0, 2))]), "points"),
+        ("update_lidar", ([0, 1], [np.array([[0.0, np.inf]]), np.zeros((0, 2))]), "points"),
+        ("update_lidar", ([0, 1], GOOD[:1]), "points"),
+        ("update_lidar", ([0, 1], np.zeros((2, 1, 2))), "points"),
+        ("update_lidar", ([0, 1], GOOD, [np.array([0.1, np.nan]), None]), "null_bearings"),
+        ("update_lidar", ([0, 1], GOOD, [np.ones((2, 2)), None]), "null_bearings"),
+        ("update_lidar", ([0, 1], GOOD, [None]), "null_bearings"),
+        ("update_camera", ([0, 1], [np.array([0.1, np.nan]), np.zeros(0)]), "bearings"),
+        ("update_camera", ([0, 1], [np.zeros((2, 2)), np.zeros(0)]), "bearings"),
+        ("update_camera", ([0], [np.zeros(1), np.zeros(1)]), "bearings"),
+        ("update_camera", ([-1], [np.zeros(1)]), "robots"),
+    ],
+)
+def test_bad_input_raises_before_any_change(method, args, name):
+    filters, bank = run_both(CONFIGS["lc-measurement"], 2, steps=20)
+    before = snapshot(bank)
+    with pytest.raises(ValueError, match=name):
+        getattr(bank, method)(*args)
+    assert_unchanged(bank, before)
+
+
+def test_bad_constructor_and_apply():
+    with pytest.raises(ValueError, match="config"):
+        PHDBank("nope", 3)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="n_robots"):
+        PHDBank(PHDConfig(), 0)
+    bank = PHDBank(PHDConfig(), 2)
+    bank.apply([[("predict", [0.0, 0.0, 0.0]), ("lidar", [[1.0, 0.0]], None)], []])
+    before = snapshot(bank)
+    with pytest.raises(ValueError, match="odometry"):
+        bank.apply([[("camera", [0.1])], [("predict", [0.0, np.nan, 0.0])]])
+    with pytest.raises(ValueError, match="calls"):
+        bank.apply([[("teleport", 1.0)], []])
+    assert_unchanged(bank, before)
+    with pytest.raises(ValueError, match="same config"):
+        PHDBank.from_filters([RobotCentricPHD(), RobotCentricPHD(mode="lidar-only")])
