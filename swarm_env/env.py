@@ -19,10 +19,10 @@ from gymnasium import spaces
 from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
-from localization import RobotCentricPHD
+from localization import PHDBank
 from swarm_env import observation as obs_lib
 from swarm_env.config import SwarmConfig, make_config
-from swarm_env.records import CameraRecord, LidarRecord, OdometryRecord, RobotMeasurements
+from swarm_env.records import LidarRecord, OdometryRecord, RobotMeasurements
 from swarm_env.tasks import Task, make_task
 from swarm_env.world.base import GroundTruth, World, WorldStep
 from swarm_env.world.sim import SimWorld
@@ -167,7 +167,10 @@ class SwarmEnv(ParallelEnv):
         self.action_spaces = {a: copy.deepcopy(action_space) for a in self.possible_agents}
         self.observation_spaces = {a: observation_space for a in self.possible_agents}
 
-        self.localizers = [RobotCentricPHD(self.config.phd) for _ in self.possible_agents]
+        # Every robot's own filter, advanced in batches over robots (same math per robot as
+        # RobotCentricPHD); ``localizers[i]`` reads robot i's mixture and estimates.
+        self._bank = PHDBank(self.config.phd, len(self.possible_agents))
+        self.localizers = self._bank.views
         self._rng: np.random.Generator | None = None
         self._step_count = 0
         self._last_step: WorldStep | None = None
@@ -201,8 +204,7 @@ class SwarmEnv(ParallelEnv):
         world_rng, task_rng = self._rng.spawn(2)
         self.agents = list(self.possible_agents)
         self._step_count = 0
-        for localizer in self.localizers:
-            localizer.reset()
+        self._bank.reset()
         self._velocity[:] = 0.0
         for i in range(len(self.possible_agents)):
             self._last_detections[i] = np.zeros((0, 2))
@@ -292,30 +294,21 @@ class SwarmEnv(ParallelEnv):
         return commands
 
     def _absorb(self, step: WorldStep) -> None:
-        """Feed every robot's records to its own filter, in time order."""
+        """Feed every robot's records to its own filter, in time order (one batched call)."""
         self._last_step = step
-        run_filter = self.config.localize
+        calls = []
         for i, agent in enumerate(self.possible_agents):
-            records = step.measurements.get(agent)
-            if records is None:
-                continue
-            stale = set(step.stale.get(agent, ()))
-            localizer = self.localizers[i]
-            for record in records.in_time_order():
-                if isinstance(record, OdometryRecord):
-                    if "odometry" not in stale:
-                        self._velocity[i] = record.velocity
-                        if run_filter:
-                            localizer.predict(record.delta)
-                elif isinstance(record, LidarRecord):
-                    if "lidar" not in stale:
-                        self._last_detections[i] = record.detections
-                        if run_filter:
-                            localizer.update_lidar(record.detections, record.null_bearings_rad)
-                elif isinstance(record, CameraRecord) and "camera" not in stale:
-                    self._last_bearings[i] = record.bearings_rad
-                    if run_filter:
-                        localizer.update_camera(record.bearings_rad)
+            records = step.measurements.get(agent, RobotMeasurements())
+            stale = step.stale.get(agent, ())
+            if records.odometry and "odometry" not in stale:
+                self._velocity[i] = records.odometry[-1].velocity
+            if records.lidar and "lidar" not in stale:
+                self._last_detections[i] = records.lidar[-1].detections
+            if records.camera and "camera" not in stale:
+                self._last_bearings[i] = records.camera[-1].bearings_rad
+            calls.append(localizer_calls(records, stale))
+        if self.config.localize:
+            self._bank.apply(calls)
 
     def _observations(self, step: WorldStep) -> dict[str, np.ndarray]:
         cfg = self.config
@@ -385,3 +378,22 @@ def measurements_as_dict(m: RobotMeasurements) -> dict[str, list[dict[str, Any]]
         ],
         "camera": [{"stamp_s": r.stamp_s, "bearings_rad": r.bearings_rad} for r in m.camera],
     }
+
+
+def localizer_calls(records: RobotMeasurements, stale=()) -> list[tuple]:
+    """One robot's records as time-ordered filter calls, skipping ``stale`` sensors.
+
+    ``("predict", delta)`` for odometry, ``("lidar", detections, null_bearings)`` and
+    ``("camera", bearings)``, as :meth:`localization.PHDBank.apply` takes them.
+    """
+    calls: list[tuple] = []
+    for record in records.in_time_order():
+        if isinstance(record, OdometryRecord):
+            if "odometry" not in stale:
+                calls.append(("predict", record.delta))
+        elif isinstance(record, LidarRecord):
+            if "lidar" not in stale:
+                calls.append(("lidar", record.detections, record.null_bearings_rad))
+        elif "camera" not in stale:
+            calls.append(("camera", record.bearings_rad))
+    return calls
