@@ -60,8 +60,10 @@ class RecordAssembler:
         out = []
         for msg in sorted(messages, key=lambda m: m.stamp_ns):
             prev = self._baseline[robot]
+            if prev is not None and msg.stamp_ns <= prev.stamp_ns:
+                continue  # out of order: keep the newer baseline, never count motion twice
             self._baseline[robot] = msg
-            if prev is None or msg.stamp_ns <= prev.stamp_ns:
+            if prev is None:
                 continue
             out.append(
                 OdometryRecord(

@@ -203,8 +203,11 @@ class RealWorld:
             self.client.start()
         except BaseException:
             self._closed = True
+            if self._atexit is not None:
+                atexit.unregister(self._atexit)  # the hook holds self: do not leak it
             if self.watchdog is not None:
                 self.watchdog.close()
+            self.client.close()
             self._release()
             raise
 

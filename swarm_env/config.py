@@ -199,6 +199,15 @@ class SwarmConfig:
                 f"physics_substeps={self.physics_substeps} lets a robot move {substep_m:.3f} m "
                 "per substep, more than half the wall thickness: raise physics_substeps"
             )
+        # Sensors fire on substep boundaries, at most once per substep each.
+        substep_hz = 1.0 / self.physics_dt_s
+        for name in ("lidar", "camera", "odometry"):
+            rate = getattr(self, name).rate_hz
+            if rate > substep_hz + 1e-9:
+                raise ValueError(
+                    f"{name}.rate_hz={rate} exceeds the physics substep rate {substep_hz:g} Hz "
+                    f"(control_period_s / physics_substeps): raise physics_substeps"
+                )
         # Rough packing bound: robots' enclosing discs must cover < 35 % of the free area.
         disc = math.pi * (self.robot.footprint_radius_m + self.spawn_clearance_m) ** 2
         if self.n_robots * disc > 0.35 * self.arena.area_m2:

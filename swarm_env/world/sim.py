@@ -76,7 +76,6 @@ class SimWorld:
         self.space: pymunk.Space | None = None
         self.bodies: list[pymunk.Body] = []
         self._rng: np.random.Generator | None = None
-        self._next_lidar_s = np.zeros(self.n_agents)
         self._next_camera_s = np.zeros(self.n_agents)
         self._next_odometry_s = 0.0
         self._lidar_visible = np.zeros((self.n_agents, n_total), dtype=bool)
@@ -112,7 +111,6 @@ class SimWorld:
         self.encoders.reset(0.0)
         self.lidar.reset(rng)
         # Each robot's sensors run with their own phase, as unsynchronised hardware does.
-        self._next_lidar_s = rng.uniform(0.0, 1.0 / cfg.lidar.rate_hz, self.n_agents)
         self._next_camera_s = rng.uniform(0.0, 1.0 / cfg.camera.rate_hz, self.n_agents)
         self._next_odometry_s = 1.0 / cfg.odometry.rate_hz
         self._lidar_visible[:] = False
@@ -213,6 +211,7 @@ class SimWorld:
         stamps = np.empty(n_sub)
         odometry: list[list[OdometryRecord]] = [[] for _ in range(self.n_agents)]
         lidar_due: list[np.ndarray] = []
+        lidar_stamps: list[np.ndarray] = []
         camera_due: list[np.ndarray] = []
         t0 = time.perf_counter()
         state = self._body_state()
@@ -238,11 +237,15 @@ class SimWorld:
                 for i in range(self.n_agents):
                     odometry[i].append(OdometryRecord(t, delta[i], velocity[i]))
                 self._next_odometry_s += 1.0 / cfg.odometry.rate_hz
-            lidar_due.append(self._due(self._next_lidar_s, t, cfg.lidar.rate_hz))
+            # A scan is due when a head completes a revolution (its own phase and spin rate,
+            # which the interference model uses too); it sees the world of this substep.
+            due, due_stamps = self.lidar.scan_stamps(t - dt, t)
+            lidar_due.append(due)
+            lidar_stamps.append(due_stamps)
             camera_due.append(self._due(self._next_camera_s, t, cfg.camera.rate_hz))
         self.timing["physics_s"] += time.perf_counter() - t0
 
-        lidar = self._read_lidars(poses, stamps, lidar_due)
+        lidar = self._read_lidars(poses, np.concatenate(lidar_stamps), lidar_due)
         camera = self._read_cameras(poses, stamps, camera_due)
         measurements = {
             rid: RobotMeasurements(odometry[i], lidar[i], camera[i])
@@ -287,23 +290,24 @@ class SimWorld:
         when = np.repeat(np.arange(len(due)), [d.size for d in due])
         return robots.astype(np.intp), when
 
-    def _read_lidars(self, poses, stamps, due) -> list[list[LidarRecord]]:
+    def _read_lidars(self, poses, scan_stamps, due) -> list[list[LidarRecord]]:
+        """All scans of the period in one call; ``scan_stamps`` (K,) are revolution ends."""
         out: list[list[LidarRecord]] = [[] for _ in range(self.n_agents)]
         robots, when = self._flatten_due(due)
         if robots.size == 0:
             return out
         t0 = time.perf_counter()
         scene = self.scene(poses)
-        batch = self.lidar.scan(scene, robots, stamps[when], self._rng, time_index=when)
+        batch = self.lidar.scan(scene, robots, scan_stamps, self._rng, time_index=when)
         detections = extract_detections(
             batch.angles_rad, batch.ranges_m, self.config.lidar_features
         )
         null = (batch.ranges_m == 0.0) & (batch.intensities == 0.0) & ~self.lidar.blind_mask
         n_total = self.n_agents + self.n_extra
         counts = batch.owner_beam_counts(n_total, after_interference=True)
-        for k, (i, sub) in enumerate(zip(robots.tolist(), when.tolist(), strict=True)):
+        for k, i in enumerate(robots.tolist()):
             record = LidarRecord(
-                stamp_s=float(stamps[sub]),
+                stamp_s=float(scan_stamps[k]),
                 angles_rad=batch.angles_rad,
                 ranges_m=batch.ranges_m[k],
                 intensities=batch.intensities[k],

@@ -150,13 +150,13 @@ def test_cli_export_replay_and_loopback_bridge(tmp_path, capsys):
     assert "10 steps" in capsys.readouterr().out
     assert main(["replay", str(bag), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert out["episodes"][0]["steps"] == 10 and out["episodes"][0]["metrics"]["steps"] > 0
+    assert out["episodes"][0]["steps"] == 10 and out["episodes"][0]["metrics"]["scored_observations"] > 0
 
     rec = tmp_path / "bridge_bag"
     assert main(["bridge", "--loopback", "--steps", "12", "--json", "--record", str(rec)]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["steps"] == 12 and out["rejected_messages"] == 0
-    assert out["counters"]["lidar.accepted"] > 0 and out["metrics"]["steps"] > 0
+    assert out["counters"]["lidar.accepted"] > 0 and out["metrics"]["scored_observations"] > 0
     assert main(["replay", str(rec)]) == 0
     assert "12 steps" in capsys.readouterr().out
 

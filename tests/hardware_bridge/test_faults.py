@@ -77,7 +77,7 @@ def test_injected_faults_are_counted_and_survived(loopback):
         assert not world.watchdog.trips
         for localizer in env.localizers:
             assert np.all(np.isfinite(localizer.mixture.means))
-        assert result.metrics["steps"] > 0
+        assert result.metrics["scored_observations"] > 0
     finally:
         env.close()
 

@@ -16,7 +16,13 @@ def env():
 
 
 def _state(env):
-    return env.world.poses().copy(), env.time_s, env.localizers[0].mixture.weights.copy()
+    return (
+        env.world.poses().copy(),
+        env.time_s,
+        env.localizers[0].mixture.weights.copy(),
+        env.world.motor_speeds.copy(),
+        env._rng.bit_generator.state,
+    )
 
 
 @pytest.mark.parametrize(
@@ -37,7 +43,8 @@ def test_bad_action_raises_before_state_changes(env, bad, match):
         env.step(actions)
     after = _state(env)
     assert np.array_equal(before[0], after[0]) and before[1] == after[1]
-    assert np.array_equal(before[2], after[2])
+    assert np.array_equal(before[2], after[2]) and np.array_equal(before[3], after[3])
+    assert before[4] == after[4]  # no random draw either
 
 
 def test_unknown_and_missing_agents(env):
@@ -87,3 +94,8 @@ def test_unknown_preset_and_render_mode():
         parallel_env("seed-moon")
     with pytest.raises(ValueError, match="render_mode"):
         parallel_env("seed-lab", render_mode="ascii")
+
+
+def test_sensor_faster_than_the_substeps_is_refused():
+    with pytest.raises(ValueError, match="camera.rate_hz=30.0 exceeds"):
+        parallel_env("seed-lab", physics_substeps=2)
