@@ -470,8 +470,8 @@ class LocalizationScorer:
             ``percent_large_error``, ``percent_accurate`` (pooled over neighbour-steps),
             ``robots_over_25pct`` (keys with > 25 % large-error time, the seed's headline
             count), ``cardinality_mae``, ``mean_weight_sum``, ``mean_true_count``,
-            ``median_error_m`` (finite errors only), ``gospa_mean``, ``scored_observations`` (one per
-            ``update``/``add`` call: observer-steps), and the per-key
+            ``median_error_m`` (finite errors only), ``gospa_mean``, ``scored_observations``
+            (one per ``update``/``add`` call: observer-steps), and the per-key
             distributions ``pct_time_err_gt_30cm`` and ``pct_time_within_10cm``, each
             ``{"per_robot": [...], "median": m, "max": M}`` (per neighbour id for ``update``,
             per observer for ``add``; the names assume the default thresholds).

@@ -150,7 +150,8 @@ def test_cli_export_replay_and_loopback_bridge(tmp_path, capsys):
     assert "10 steps" in capsys.readouterr().out
     assert main(["replay", str(bag), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert out["episodes"][0]["steps"] == 10 and out["episodes"][0]["metrics"]["scored_observations"] > 0
+    episode = out["episodes"][0]
+    assert episode["steps"] == 10 and episode["metrics"]["scored_observations"] > 0
 
     rec = tmp_path / "bridge_bag"
     assert main(["bridge", "--loopback", "--steps", "12", "--json", "--record", str(rec)]) == 0
