@@ -27,11 +27,10 @@ from typing import Any
 
 import numpy as np
 
-from localization import RobotCentricPHD
+from localization import PHDBank
 from localization.metrics import LocalizationScorer
 from swarm_env import parallel_env
-from swarm_env.env import SwarmEnv
-from swarm_env.records import CameraRecord, LidarRecord, OdometryRecord
+from swarm_env.env import SwarmEnv, localizer_calls
 
 LOCALIZERS = {"phd-lc": "lidar-camera", "phd-lo": "lidar-only"}
 
@@ -159,17 +158,6 @@ def _make_env(preset: str | None, task: str | None, policy: str, **overrides: An
     return parallel_env(preset or "seed-sim", task=task or "wander", **overrides)
 
 
-def feed(localizer: RobotCentricPHD, records) -> None:
-    """Apply one robot's step records to a filter, in time order (what the env does)."""
-    for record in records.in_time_order():
-        if isinstance(record, OdometryRecord):
-            localizer.predict(record.delta)
-        elif isinstance(record, LidarRecord):
-            localizer.update_lidar(record.detections, record.null_bearings_rad)
-        elif isinstance(record, CameraRecord):
-            localizer.update_camera(record.bearings_rad)
-
-
 def evaluate_localization(
     preset: str,
     duration_s: float,
@@ -200,6 +188,7 @@ def evaluate_localization(
     env = _make_env(preset, task, policy, **overrides)
     n_steps = int(round(duration_s / env.config.control_period_s))
     base_phd = env.config.phd
+    n_agents = len(env.possible_agents)
     scorers = {name: LocalizationScorer(env.config.n_robots) for name in localizers}
     trace = {
         name: {"time_s": [], "weight_sum": [], "true_count": [], "gospa": []}
@@ -209,11 +198,9 @@ def evaluate_localization(
     estimates: dict[str, list[np.ndarray]] = {name: [] for name in localizers}
     task_metrics: list[dict[str, float]] = []
     for seed in seeds:
+        # One filter per robot and localizer, fed the same records (a paired comparison).
         banks = {
-            name: [
-                RobotCentricPHD(dataclasses.replace(base_phd, mode=LOCALIZERS[name]))
-                for _ in env.possible_agents
-            ]
+            name: PHDBank(dataclasses.replace(base_phd, mode=LOCALIZERS[name]), n_agents)
             for name in localizers
         }
         act = load_policy(policy, env)
@@ -226,19 +213,24 @@ def evaluate_localization(
             obs, _, _, _, infos = env.step(act(obs, infos))
             step = env.last_world_step
             truth = step.truth
+            calls = [
+                localizer_calls(step.measurements[agent], step.stale.get(agent, ()))
+                for agent in env.possible_agents
+            ]
             for name in localizers:
-                for i, agent in enumerate(env.possible_agents):
-                    feed(banks[name][i], step.measurements[agent])
+                banks[name].apply(calls)
+                views = banks[name].views
+                for i in range(n_agents):
                     mask = truth.in_range["lidar"][i]
                     scorers[name].add(
                         i,
                         truth.relative_xy[i][mask],
-                        banks[name][i].mixture,
+                        views[i].mixture,
                         range_m=env.config.localization_range_m,
                     )
                 if seed == seeds[0]:
-                    _trace_step(trace[name], step, banks[name], env.config.localization_range_m)
-                    estimates[name].append(_world_estimates(banks[name][0], truth.poses[0]))
+                    _trace_step(trace[name], step, views, env.config.localization_range_m)
+                    estimates[name].append(_world_estimates(views[0], truth.poses[0]))
             if seed == seeds[0]:
                 paths.append(truth.poses[:, :2].copy())
         task_metrics.append(env.task.metrics())
@@ -301,7 +293,7 @@ def print_comparison(all_results: list[dict[str, Any]]) -> None:
         print(f"  | {key} | " + " | ".join(cells) + " |")
 
 
-def _trace_step(trace: dict[str, list], step, bank: list[RobotCentricPHD], range_m: float):
+def _trace_step(trace: dict[str, list], step, bank, range_m: float):
     """Fig. 8 / GOSPA-over-time data for observer ugv_0."""
     from localization.metrics import gospa
 
@@ -317,7 +309,7 @@ def _trace_step(trace: dict[str, list], step, bank: list[RobotCentricPHD], range
     trace["gospa"].append(float(gospa(truth.relative_xy[0][mask], est).distance))
 
 
-def _world_estimates(localizer: RobotCentricPHD, pose: np.ndarray) -> np.ndarray:
+def _world_estimates(localizer, pose: np.ndarray) -> np.ndarray:
     est, _ = localizer.estimate(threshold=0.5)
     c, s = np.cos(pose[2]), np.sin(pose[2])
     return est @ np.array([[c, s], [-s, c]]) + pose[:2] if len(est) else np.zeros((0, 2))
