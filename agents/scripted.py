@@ -271,7 +271,8 @@ class FormationPolicy(VectorFieldPolicy):
     :func:`estimated_neighbours`, reference variance 0.02 m^2) so that a camera-only track with
     a drifting range does not drag the centroid. The robot heads for the closest point of the
     circle of radius ``r`` around ``c`` (``c + r (-c) / ||c||``, gain ``k_p``) and is pushed
-    away from estimated neighbours closer than the even-spread chord ``s*`` (gain ``k_s``).
+    away from estimated neighbours closer than the even-spread chord ``s*`` and pulled towards
+    those farther than the diameter ``2 r`` (gain ``k_s``).
     Lattice: a spring to every estimated neighbour within ``1.5 d`` (and to the nearest one):
     ``u = k_p sum_k (||m_k|| - d) m_k / ||m_k||``.
 
@@ -319,6 +320,12 @@ class FormationPolicy(VectorFieldPolicy):
             close = (d < chord) & (d > 1e-6)
             push = (chord - d[close]) / d[close]
             u -= self.k_s * (push[:, None] * pts[close]).sum(axis=0)
+            # Nobody on the circle is farther than its diameter: pull towards anyone beyond it.
+            # This holds whatever the centroid estimate is, so it keeps the swarm compact even
+            # when far teammates are only camera-tracked (range drifts, weight discounted).
+            far = d > 2.0 * radius
+            pull = (d[far] - 2.0 * radius) / d[far]
+            u += self.k_s * (pull[:, None] * pts[far]).sum(axis=0)
         else:
             spacing = float(features[0])
             near = d < 1.5 * spacing

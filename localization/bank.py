@@ -146,6 +146,14 @@ class PHDBank:
         """Number of components per robot, shape ``(R,)`` (a copy)."""
         return self._counts.copy()
 
+    def padded_tables(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every robot's table at once: a read-only view ``(6, R, max_components)`` (rows
+        ``w, x, y, pxx, pxy, pyy``; columns past ``counts[r]`` are padding) and ``counts (R,)``.
+        """
+        view = self._table.view()
+        view.setflags(write=False)
+        return view, self.counts
+
     def table(self, robot: int) -> np.ndarray:
         """Robot ``robot``'s component table, shape ``(6, N)`` (a new array)."""
         return self._table[:, robot, : self._counts[robot]].copy()

@@ -313,12 +313,13 @@ class SwarmEnv(ParallelEnv):
     def _observations(self, step: WorldStep) -> dict[str, np.ndarray]:
         cfg = self.config
         features = self.task.features(len(self.possible_agents))
+        if cfg.observation == "phd":
+            tables = obs_lib.phd_tables(*self._bank.padded_tables(), cfg.top_k)
         out = {}
         for agent in self.agents:
             i = self._index[agent]
             if cfg.observation == "phd":
-                m = self.localizers[i].mixture
-                table = obs_lib.phd_table(m.weights, m.means, m.covs, cfg.top_k)
+                table = tables[i]
             elif cfg.observation == "truth":
                 table = obs_lib.truth_table(self._neighbours_in_range(step.truth, i), cfg.top_k)
             else:

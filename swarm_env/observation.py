@@ -82,6 +82,34 @@ def phd_table(weights: np.ndarray, means: np.ndarray, covs: np.ndarray, top_k: i
     return table
 
 
+def phd_tables(tables: np.ndarray, counts: np.ndarray, top_k: int) -> np.ndarray:
+    """:func:`phd_table` for R robots at once, from padded component tables.
+
+    Parameters
+    ----------
+    tables : ndarray, shape (6, R, N)
+        Rows ``w, x, y, pxx, pxy, pyy``; robot r's columns past ``counts[r]`` are padding.
+    counts : ndarray, shape (R,)
+
+    Returns
+    -------
+    ndarray, shape (R, top_k, 7)
+        Same rows and order as :func:`phd_table` gives robot by robot.
+    """
+    n_robots, width = tables.shape[1], tables.shape[2]
+    valid = np.arange(width)[None, :] < counts[:, None]
+    # Padding sorts last; a stable sort keeps equal weights in table order, as phd_table does.
+    keys = np.where(valid, -tables[0], np.inf)
+    order = np.argsort(keys, axis=1, kind="stable")[:, :top_k]
+    rows = np.take_along_axis(tables, order[None], axis=2)  # (6, R, k)
+    kept = np.take_along_axis(valid, order, axis=1)
+    out = np.zeros((n_robots, top_k, 7))
+    k = order.shape[1]
+    out[:, :k, :6] = np.where(kept[None], rows, 0.0).transpose(1, 2, 0)
+    out[:, :k, 6] = kept
+    return out
+
+
 def truth_table(neighbours_xy: np.ndarray, top_k: int) -> np.ndarray:
     """True neighbours (M, 2), nearest first, as rows ``[1, x, y, 0, 0, 0, 1]``, (K, 7)."""
     table = np.zeros((top_k, 7))

@@ -210,8 +210,7 @@ class SimWorld:
         poses = np.empty((n_sub, self.n_agents + self.n_extra, 3))
         stamps = np.empty(n_sub)
         odometry: list[list[OdometryRecord]] = [[] for _ in range(self.n_agents)]
-        lidar_due: list[np.ndarray] = []
-        lidar_stamps: list[np.ndarray] = []
+        start_s = self.time_s
         camera_due: list[np.ndarray] = []
         t0 = time.perf_counter()
         state = self._body_state()
@@ -237,15 +236,14 @@ class SimWorld:
                 for i in range(self.n_agents):
                     odometry[i].append(OdometryRecord(t, delta[i], velocity[i]))
                 self._next_odometry_s += 1.0 / cfg.odometry.rate_hz
-            # A scan is due when a head completes a revolution (its own phase and spin rate,
-            # which the interference model uses too); it sees the world of this substep.
-            due, due_stamps = self.lidar.scan_stamps(t - dt, t)
-            lidar_due.append(due)
-            lidar_stamps.append(due_stamps)
             camera_due.append(self._due(self._next_camera_s, t, cfg.camera.rate_hz))
         self.timing["physics_s"] += time.perf_counter() - t0
 
-        lidar = self._read_lidars(poses, np.concatenate(lidar_stamps), lidar_due)
+        # A scan is due when a head completes a revolution (its own phase and spin rate, which
+        # the interference model uses too); it sees the world of the substep that ends next.
+        scanners, scan_stamps = self.lidar.scan_stamps(start_s, self.time_s)
+        scan_substep = np.minimum(np.searchsorted(stamps, scan_stamps - _EPS_S), n_sub - 1)
+        lidar = self._read_lidars(poses, scanners, scan_substep, scan_stamps)
         camera = self._read_cameras(poses, stamps, camera_due)
         measurements = {
             rid: RobotMeasurements(odometry[i], lidar[i], camera[i])
@@ -290,10 +288,10 @@ class SimWorld:
         when = np.repeat(np.arange(len(due)), [d.size for d in due])
         return robots.astype(np.intp), when
 
-    def _read_lidars(self, poses, scan_stamps, due) -> list[list[LidarRecord]]:
-        """All scans of the period in one call; ``scan_stamps`` (K,) are revolution ends."""
+    def _read_lidars(self, poses, robots, when, scan_stamps) -> list[list[LidarRecord]]:
+        """All scans of the period in one call: ``robots``, their substeps ``when`` and the
+        revolution ends ``scan_stamps``, each (K,) in time order."""
         out: list[list[LidarRecord]] = [[] for _ in range(self.n_agents)]
-        robots, when = self._flatten_due(due)
         if robots.size == 0:
             return out
         t0 = time.perf_counter()

@@ -114,3 +114,19 @@ def test_render_human_headless():
     env.reset(seed=0)
     env.step({a: np.zeros(2) for a in env.agents})
     env.close()
+
+
+def test_batched_phd_tables_match_the_per_robot_encoder():
+    from swarm_env.observation import phd_table, phd_tables
+
+    env = parallel_env("seed-sim", n_robots=8)
+    env.reset(seed=2)
+    for _ in range(30):
+        env.step({a: env.action_space(a).sample() for a in env.agents})
+    tables, counts = env._bank.padded_tables()
+    for top_k in (3, 16, 80):
+        batched = phd_tables(tables, counts, top_k)
+        for i, view in enumerate(env.localizers):
+            m = view.mixture
+            np.testing.assert_array_equal(batched[i], phd_table(m.weights, m.means, m.covs, top_k))
+    assert counts.max() > 3  # the cut at top_k=3 was exercised
