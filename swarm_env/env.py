@@ -277,20 +277,17 @@ class SwarmEnv(ParallelEnv):
         missing = sorted(set(self.agents) - set(actions))
         if missing:
             raise ValueError(f"missing action for agent(s) {missing}")
+        agents = list(actions)
+        try:
+            values = np.asarray([actions[a] for a in agents], dtype=np.float64)
+        except (TypeError, ValueError):
+            values = None  # ragged or non-numeric: find the culprit below
+        if values is None or values.shape != (len(agents), 2) or not np.isfinite(values).all():
+            for agent in agents:  # slow path, only to name the agent and the value
+                _check_action(agent, actions[agent])
         commands = np.zeros((len(self.possible_agents), 2))
-        for agent, action in actions.items():
-            try:
-                value = np.asarray(action, dtype=np.float64)
-            except (TypeError, ValueError) as exc:
-                raise ValueError(f"action of {agent} is not numeric: {action!r}") from exc
-            if value.shape != (2,):
-                raise ValueError(
-                    f"action of {agent} must have shape (2,) [v_mps, omega_radps], got shape "
-                    f"{value.shape}: {action!r}"
-                )
-            if not np.all(np.isfinite(value)):
-                raise ValueError(f"action of {agent} must be finite, got {value.tolist()}")
-            commands[self._index[agent]] = np.clip(value, -self._action_high, self._action_high)
+        rows = [self._index[a] for a in agents]
+        commands[rows] = np.clip(values, -self._action_high, self._action_high)
         return commands
 
     def _absorb(self, step: WorldStep) -> None:
@@ -306,7 +303,8 @@ class SwarmEnv(ParallelEnv):
                 self._last_detections[i] = records.lidar[-1].detections
             if records.camera and "camera" not in stale:
                 self._last_bearings[i] = records.camera[-1].bearings_rad
-            calls.append(localizer_calls(records, stale))
+            if self.config.localize:
+                calls.append(localizer_calls(records, stale))
         if self.config.localize:
             self._bank.apply(calls)
 
@@ -315,17 +313,17 @@ class SwarmEnv(ParallelEnv):
         features = self.task.features(len(self.possible_agents))
         if cfg.observation == "phd":
             tables = obs_lib.phd_tables(*self._bank.padded_tables(), cfg.top_k)
+        elif cfg.observation == "measurements":
+            tables = obs_lib.measurement_tables(
+                self._last_detections, self._last_bearings, cfg.top_k
+            )
         out = {}
         for agent in self.agents:
             i = self._index[agent]
-            if cfg.observation == "phd":
-                table = tables[i]
-            elif cfg.observation == "truth":
+            if cfg.observation == "truth":
                 table = obs_lib.truth_table(self._neighbours_in_range(step.truth, i), cfg.top_k)
             else:
-                table = obs_lib.measurement_table(
-                    self._last_detections[i], self._last_bearings[i], cfg.top_k
-                )
+                table = tables[i]
             out[agent] = obs_lib.assemble(
                 self.observation_spaces[agent], table, self._velocity[i], features[i]
             )
@@ -350,11 +348,12 @@ class SwarmEnv(ParallelEnv):
                 "stale": tuple(step.stale.get(agent, ())),
             }
             if truth is not None:
+                # Views, not copies: every step's GroundTruth is new and never written to.
                 info["truth"] = {
-                    "pose": truth.poses[i].copy(),
-                    "neighbours_xy": truth.relative_xy[i].copy(),
-                    "in_range": {k: v[i].copy() for k, v in truth.in_range.items()},
-                    "visible": {k: v[i].copy() for k, v in truth.visible.items()},
+                    "pose": truth.poses[i],
+                    "neighbours_xy": truth.relative_xy[i],
+                    "in_range": {k: v[i] for k, v in truth.in_range.items()},
+                    "visible": {k: v[i] for k, v in truth.visible.items()},
                 }
             infos[agent] = info
         return infos
@@ -398,3 +397,18 @@ def localizer_calls(records: RobotMeasurements, stale=()) -> list[tuple]:
         elif "camera" not in stale:
             calls.append(("camera", record.bearings_rad))
     return calls
+
+
+def _check_action(agent: str, action: Any) -> None:
+    """Raise ``ValueError`` naming ``agent`` and the value unless ``action`` is a finite (2,)."""
+    try:
+        value = np.asarray(action, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"action of {agent} is not numeric: {action!r}") from exc
+    if value.shape != (2,):
+        raise ValueError(
+            f"action of {agent} must have shape (2,) [v_mps, omega_radps], got shape "
+            f"{value.shape}: {action!r}"
+        )
+    if not np.all(np.isfinite(value)):
+        raise ValueError(f"action of {agent} must be finite, got {value.tolist()}")

@@ -68,22 +68,9 @@ def build_space(
     return spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
 
 
-def phd_table(weights: np.ndarray, means: np.ndarray, covs: np.ndarray, top_k: int) -> np.ndarray:
-    """Top-K components by weight as rows ``[w, x, y, sxx, sxy, syy, 1]``, zero-padded, (K, 7)."""
-    table = np.zeros((top_k, 7))
-    order = np.argsort(-weights, kind="stable")[:top_k]
-    n = order.size
-    table[:n, 0] = weights[order]
-    table[:n, 1:3] = means[order]
-    table[:n, 3] = covs[order, 0, 0]
-    table[:n, 4] = covs[order, 0, 1]
-    table[:n, 5] = covs[order, 1, 1]
-    table[:n, 6] = 1.0
-    return table
-
-
 def phd_tables(tables: np.ndarray, counts: np.ndarray, top_k: int) -> np.ndarray:
-    """:func:`phd_table` for R robots at once, from padded component tables.
+    """Each robot's top-K components by weight as rows ``[w, x, y, sxx, sxy, syy, 1]``,
+    zero-padded, for R robots at once, from padded component tables.
 
     Parameters
     ----------
@@ -94,11 +81,11 @@ def phd_tables(tables: np.ndarray, counts: np.ndarray, top_k: int) -> np.ndarray
     Returns
     -------
     ndarray, shape (R, top_k, 7)
-        Same rows and order as :func:`phd_table` gives robot by robot.
+        Largest weight first; equal weights keep their table order.
     """
     n_robots, width = tables.shape[1], tables.shape[2]
     valid = np.arange(width)[None, :] < counts[:, None]
-    # Padding sorts last; a stable sort keeps equal weights in table order, as phd_table does.
+    # Padding sorts last; a stable sort keeps equal weights in table order.
     keys = np.where(valid, -tables[0], np.inf)
     order = np.argsort(keys, axis=1, kind="stable")[:, :top_k]
     rows = np.take_along_axis(tables, order[None], axis=2)  # (6, R, k)
@@ -121,16 +108,39 @@ def truth_table(neighbours_xy: np.ndarray, top_k: int) -> np.ndarray:
     return table
 
 
-def measurement_table(detections: np.ndarray, bearings: np.ndarray, top_k: int) -> np.ndarray:
-    """Lidar detections (M, 2) nearest first and camera bearings (B,), padded, (2K*3,)."""
-    lidar = np.zeros((top_k, 3))
-    order = np.argsort(np.hypot(detections[:, 0], detections[:, 1]), kind="stable")[:top_k]
-    lidar[: order.size, 0:2] = detections[order]
-    lidar[: order.size, 2] = 1.0
-    cam = np.zeros((top_k, 3))
-    b = np.sort(bearings)[:top_k]
-    cam[: b.size, 0], cam[: b.size, 1], cam[: b.size, 2] = np.cos(b), np.sin(b), 1.0
-    return np.concatenate([lidar.ravel(), cam.ravel()])
+def measurement_tables(
+    detections: list[np.ndarray], bearings: list[np.ndarray], top_k: int
+) -> np.ndarray:
+    """Each robot's lidar detections (M_r, 2), nearest first, and camera bearings (B_r,),
+    ascending, as padded rows ``[x, y, valid]`` and ``[cos b, sin b, valid]``: (R, 6 top_k)."""
+    n = len(detections)
+    lidar = np.zeros((n, top_k, 3))
+    owner = np.repeat(np.arange(n), [len(d) for d in detections])
+    if owner.size:
+        pts = np.concatenate(detections)
+        order = np.lexsort((np.hypot(pts[:, 0], pts[:, 1]), owner))  # by robot, then range
+        rank = _rank_within(owner[order])
+        keep = rank < top_k
+        rows, slots = owner[order][keep], rank[keep]
+        lidar[rows, slots, 0:2] = pts[order][keep]
+        lidar[rows, slots, 2] = 1.0
+    cam = np.zeros((n, top_k, 3))
+    owner = np.repeat(np.arange(n), [len(b) for b in bearings])
+    if owner.size:
+        b = np.concatenate(bearings)
+        order = np.lexsort((b, owner))
+        rank = _rank_within(owner[order])
+        keep = rank < top_k
+        rows, slots, b = owner[order][keep], rank[keep], b[order][keep]
+        cam[rows, slots, 0], cam[rows, slots, 1], cam[rows, slots, 2] = np.cos(b), np.sin(b), 1.0
+    return np.concatenate([lidar.reshape(n, -1), cam.reshape(n, -1)], axis=1)
+
+
+def _rank_within(sorted_groups: np.ndarray) -> np.ndarray:
+    """Position of each element within its run of equal (sorted) group ids."""
+    start = np.flatnonzero(np.r_[True, sorted_groups[1:] != sorted_groups[:-1]])
+    counts = np.diff(np.r_[start, sorted_groups.size])
+    return np.arange(sorted_groups.size) - np.repeat(start, counts)
 
 
 def assemble(

@@ -14,12 +14,18 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
-def _frozen(array: np.ndarray, dtype=np.float64) -> np.ndarray:
-    # A read-only view, not a copy: records are made on the hot path (about a hundred per env
-    # step). Producers hand over arrays they no longer write to.
-    if type(array) is not np.ndarray or array.dtype != dtype:
-        array = np.asarray(array, dtype=dtype)
-    out = array.view()
+def _frozen(array: np.ndarray, shape: tuple[int, ...] | None = None, ndim: int = 0) -> np.ndarray:
+    """A read-only float64 view of ``array`` (reshaped to ``shape``, or flattened if ``ndim``
+    is 1). Not a copy: records are made on the hot path (about a hundred per env step), and
+    producers hand over arrays they no longer write to."""
+    if type(array) is not np.ndarray or array.dtype != np.float64:
+        array = np.asarray(array, dtype=np.float64)
+    if shape is not None:
+        out = array.reshape(shape)
+    elif ndim == 1 and array.ndim != 1:
+        out = array.reshape(-1)
+    else:
+        out = array.view()
     out.setflags(write=False)
     return out
 
@@ -44,8 +50,8 @@ class OdometryRecord:
     velocity: np.ndarray
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "delta", _frozen(self.delta).reshape(3))
-        object.__setattr__(self, "velocity", _frozen(self.velocity).reshape(2))
+        object.__setattr__(self, "delta", _frozen(self.delta, shape=(3,)))
+        object.__setattr__(self, "velocity", _frozen(self.velocity, shape=(2,)))
 
 
 @dataclass(frozen=True, slots=True)
@@ -77,8 +83,8 @@ class LidarRecord:
 
     def __post_init__(self) -> None:
         for name in ("angles_rad", "ranges_m", "intensities", "null_bearings_rad"):
-            object.__setattr__(self, name, _frozen(getattr(self, name)).reshape(-1))
-        object.__setattr__(self, "detections", _frozen(self.detections).reshape(-1, 2))
+            object.__setattr__(self, name, _frozen(getattr(self, name), ndim=1))
+        object.__setattr__(self, "detections", _frozen(self.detections, shape=(-1, 2)))
 
 
 @dataclass(frozen=True, slots=True)
@@ -97,7 +103,7 @@ class CameraRecord:
     bearings_rad: np.ndarray
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "bearings_rad", _frozen(self.bearings_rad).reshape(-1))
+        object.__setattr__(self, "bearings_rad", _frozen(self.bearings_rad, ndim=1))
 
 
 @dataclass(frozen=True, slots=True)

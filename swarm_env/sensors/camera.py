@@ -215,32 +215,52 @@ class CameraSensor:
         occ = np.flatnonzero(np.asarray(scene.circle_camera_occluder, dtype=bool))
         static, timed = occ[when[occ] < 0], occ[when[occ] >= 0]
         # Static occluders exclude only the target itself (and the observer's own circles).
-        applies = (owner[static][None, :] != robots[pair_k][:, None])
+        applies = owner[static][None, :] != robots[pair_k][:, None]
         applies &= static[None, :] != target[pair_t][:, None]
         blocked = sight_lines_blocked(
-            origin, scene.circle_xy[target], pair_k, pair_t, scene.segment_a, scene.segment_b,
-            scene.circle_xy[static], radius[static], applies,
+            origin,
+            scene.circle_xy[target],
+            pair_k,
+            pair_t,
+            scene.segment_a,
+            scene.segment_b,
+            scene.circle_xy[static],
+            radius[static],
+            applies,
         )
         if timed.size:
             timed = timed[np.lexsort((owner[timed], when[timed]))]
             per_instant = np.bincount(when[timed])
             if per_instant.min() != per_instant.max() or time_index.max() >= per_instant.size:
-                raise ValueError("a time-stacked scene needs the same moving circles at every "
-                                 f"instant, got counts {per_instant.tolist()}")
+                raise ValueError(
+                    "a time-stacked scene needs the same moving circles at every "
+                    f"instant, got counts {per_instant.tolist()}"
+                )
             slots = timed.reshape(per_instant.size, per_instant[0])[time_index[pair_k]]
             # Neither the observer's nor the target robot's own circles block the line.
-            own = (owner[slots] != robots[pair_k][:, None])
+            own = owner[slots] != robots[pair_k][:, None]
             own &= (owner[slots] != t_owner[pair_t][:, None]) | (t_owner[pair_t][:, None] < 0)
             own &= slots != target[pair_t][:, None]
             o = origin[pair_k]
+            # Gather the (P, n) occluders from float32 copies: the gather is the cost.
+            xy32 = scene.circle_xy.astype(np.float32)
             blocked |= lines_hit_own_circles(
-                o, scene.circle_xy[target[pair_t]] - o, scene.circle_xy[slots], radius[slots], own
+                o,
+                scene.circle_xy[target[pair_t]] - o,
+                xy32[slots],
+                radius.astype(np.float32)[slots],
+                own,
             )
         visible[pair_k[blocked], pair_t[blocked]] = False
         return target, visible, np.arctan2(ty, tx)
 
-    def observe(self, scene: Scene, robots: np.ndarray, rng: np.random.Generator,
-                time_index: np.ndarray | None = None) -> CameraBatch:
+    def observe(
+        self,
+        scene: Scene,
+        robots: np.ndarray,
+        rng: np.random.Generator,
+        time_index: np.ndarray | None = None,
+    ) -> CameraBatch:
         """One frame for each observer in ``robots``.
 
         Parameters
@@ -250,8 +270,9 @@ class CameraSensor:
         robots : ndarray, shape (K,), int
             Observers (indices into ``scene.robot_xy``).
         rng : numpy.random.Generator
-            Draws, in this order: K*T miss uniforms, K*T bearing normals, K Poisson clutter
-            counts, then the clutter bearings.
+            Draws, in this order: V miss uniforms and V bearing normals for the V visible
+            (observer, target) pairs in row-major order, K Poisson clutter counts, then the
+            clutter bearings.
         time_index : ndarray, shape (K,), int, optional
             Instant of each frame in a time-stacked scene (see :class:`Scene`).
 
@@ -270,18 +291,17 @@ class CameraSensor:
         if time_index is not None:
             time_index = np.asarray(time_index, dtype=np.intp).reshape(-1)
         target, visible, bearing = self.visibility(scene, robots, time_index)
-        n_targets = target.size
 
-        miss = rng.random((n_obs, n_targets)) < cfg.miss_probability
-        noise = rng.standard_normal((n_obs, n_targets)) * np.deg2rad(cfg.bearing_noise_std_deg)
+        # Draws only for the visible (observer, target) pairs, in row-major order.
+        vis_obs, vis_t = np.nonzero(visible)
+        hit = rng.random(vis_obs.size) >= cfg.miss_probability
+        noise = rng.standard_normal(vis_obs.size) * np.deg2rad(cfg.bearing_noise_std_deg)
         n_clutter = rng.poisson(cfg.false_positive_rate, size=n_obs)
         clutter = rng.uniform(-np.pi, np.pi, size=int(n_clutter.sum()))
 
-        det_obs, det_t = np.nonzero(visible & ~miss)
+        det_obs, det_t = vis_obs[hit], vis_t[hit]
         obs_index = np.concatenate((det_obs, np.repeat(np.arange(n_obs), n_clutter)))
-        values = np.concatenate(
-            (wrap_angle(bearing[det_obs, det_t] + noise[det_obs, det_t]), clutter)
-        )
+        values = np.concatenate((wrap_angle(bearing[det_obs, det_t] + noise[hit]), clutter))
         source = np.concatenate((target[det_t], np.full(clutter.size, -1, dtype=np.intp)))
         # Sort by observer, then bearing: bearings lie in [-pi, pi), so one float key does it.
         order = np.argsort(obs_index * 8.0 + values, kind="stable")
@@ -291,7 +311,6 @@ class CameraSensor:
         owner = np.asarray(scene.circle_owner, dtype=np.intp)
         n_owners = max(scene.n_robots, int(owner.max()) + 1 if owner.size else 0)
         robot_visible = np.zeros((n_obs, n_owners), dtype=bool)
-        vis_obs, vis_t = np.nonzero(visible)
         t_owner = owner[target[vis_t]]
         is_robot = t_owner >= 0
         robot_visible[vis_obs[is_robot], t_owner[is_robot]] = True

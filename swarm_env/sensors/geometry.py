@@ -230,10 +230,12 @@ def lines_hit_own_circles(
     ndarray, shape (P,), bool
         The line passes closer than a radius to a circle centre (closest point of the segment).
     """
-    # Component-wise arithmetic: einsum is slow for a length-2 contraction.
-    dx, dy = vectors_xy[:, 0:1], vectors_xy[:, 1:2]
-    wx = centres_xy[..., 0] - origins_xy[:, 0:1]  # (P, n)
-    wy = centres_xy[..., 1] - origins_xy[:, 1:2]
+    # Component-wise arithmetic (einsum is slow for a length-2 contraction), in float32: the
+    # (P, n) temporaries are the cost, and sub-millimetre precision is plenty for occlusion.
+    f32 = np.float32
+    dx, dy = vectors_xy[:, 0:1].astype(f32), vectors_xy[:, 1:2].astype(f32)
+    wx = centres_xy[..., 0].astype(f32) - origins_xy[:, 0:1].astype(f32)  # (P, n)
+    wy = centres_xy[..., 1].astype(f32) - origins_xy[:, 1:2].astype(f32)
     wd = wx * dx + wy * dy
     w2 = wx * wx + wy * wy
     length2 = dx * dx + dy * dy
@@ -241,6 +243,6 @@ def lines_hit_own_circles(
     np.clip(s, 0.0, 1.0, out=s)
     # |w - s d|^2 = |w|^2 - 2 s w.d + s^2 |d|^2
     w2 += s * (s * length2 - 2.0 * wd)
-    hit = w2 < radii_m * radii_m
+    hit = w2 < np.square(radii_m, dtype=f32)
     hit &= applies
     return hit.any(axis=1)

@@ -342,7 +342,8 @@ class LidarSensor:
         hit_code = np.full(n_scans * n_beams, -1, dtype=np.intp)
         hit_code[flat[winner]] = code[winner]
 
-        noise = rng.standard_normal((2, n_scans * n_beams))
+        # float32 draws: half the cost, and ample for 1 cm range noise.
+        noise = rng.standard_normal((2, n_scans * n_beams), dtype=np.float32)
         ranges = best + cfg.range_noise_std_m * noise[0]  # inf (no hit) stays inf
         valid = np.tile(~self.blind_mask, n_scans)
         valid &= ranges >= cfg.range_min_m

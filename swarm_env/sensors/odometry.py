@@ -90,6 +90,8 @@ class WheelEncoders:
         self.wheel_radius_m = wheel_radius_m
         self.axle_width_m = axle_width_m
         self._rad_per_pulse = 2.0 * np.pi / config.pulses_per_revolution
+        half_axle = 0.5 * axle_width_m
+        self._to_wheels = np.array([[1.0, 1.0], [-half_axle, half_axle]])
         self.wheel_angle_rad = np.zeros((n_robots, 2))  # continuous shaft angle [left, right]
         self._last_count = np.zeros((n_robots, 2), dtype=np.int64)
         self._last_stamp_s = 0.0
@@ -107,16 +109,10 @@ class WheelEncoders:
         body_speeds : ndarray, shape (N, 2)
             The motor-driven ``[v_mps, omega_radps]`` (acceleration-limited command).
         """
-        half_axle = 0.5 * self.axle_width_m
-        wheel_mps = np.stack(
-            [
-                body_speeds[:, 0] - half_axle * body_speeds[:, 1],
-                body_speeds[:, 0] + half_axle * body_speeds[:, 1],
-            ],
-            axis=1,
-        )
+        # [v_L, v_R] = [v - omega w/2, v + omega w/2], as one (N, 2) @ (2, 2) product.
+        wheel_mps = body_speeds @ self._to_wheels
         slip = 1.0 + self.config.slip_noise_std * rng.standard_normal(wheel_mps.shape)
-        self.wheel_angle_rad += wheel_mps * dt_s / self.wheel_radius_m * slip
+        self.wheel_angle_rad += wheel_mps * (dt_s / self.wheel_radius_m) * slip
 
     def sample(self, time_s: float) -> tuple[np.ndarray, np.ndarray]:
         """Read the encoders: pulses since the last sample -> (delta (N,3), velocity (N,2))."""

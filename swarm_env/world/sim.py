@@ -243,13 +243,15 @@ class SimWorld:
         # the interference model uses too); it sees the world of the substep that ends next.
         scanners, scan_stamps = self.lidar.scan_stamps(start_s, self.time_s)
         scan_substep = np.minimum(np.searchsorted(stamps, scan_stamps - _EPS_S), n_sub - 1)
-        lidar = self._read_lidars(poses, scanners, scan_substep, scan_stamps)
-        camera = self._read_cameras(poses, stamps, camera_due)
+        scene = self.scene(poses)  # one time-stacked scene serves every reading of the period
+        lidar = self._read_lidars(scene, poses, scanners, scan_substep, scan_stamps)
+        camera = self._read_cameras(scene, poses, stamps, camera_due)
         measurements = {
             rid: RobotMeasurements(odometry[i], lidar[i], camera[i])
             for i, rid in enumerate(self.robot_ids)
         }
-        return WorldStep(time_s=self.time_s, measurements=measurements, truth=self.ground_truth())
+        truth = self.ground_truth(poses[-1])
+        return WorldStep(time_s=self.time_s, measurements=measurements, truth=truth)
 
     # pymunk.batch reads and writes every body of the space in one C call, instead of four
     # Python property accesses per body per substep. Rows follow the space's body order (which
@@ -288,14 +290,13 @@ class SimWorld:
         when = np.repeat(np.arange(len(due)), [d.size for d in due])
         return robots.astype(np.intp), when
 
-    def _read_lidars(self, poses, robots, when, scan_stamps) -> list[list[LidarRecord]]:
+    def _read_lidars(self, scene, poses, robots, when, scan_stamps) -> list[list[LidarRecord]]:
         """All scans of the period in one call: ``robots``, their substeps ``when`` and the
         revolution ends ``scan_stamps``, each (K,) in time order."""
         out: list[list[LidarRecord]] = [[] for _ in range(self.n_agents)]
         if robots.size == 0:
             return out
         t0 = time.perf_counter()
-        scene = self.scene(poses)
         batch = self.lidar.scan(scene, robots, scan_stamps, self._rng, time_index=when)
         detections = extract_detections(
             batch.angles_rad, batch.ranges_m, self.config.lidar_features
@@ -323,13 +324,13 @@ class SimWorld:
                 self.stats["lidar"].add_points(detections[k], _others(rel[sub], i))
         return out
 
-    def _read_cameras(self, poses, stamps, due) -> list[list[CameraRecord]]:
+    def _read_cameras(self, scene, poses, stamps, due) -> list[list[CameraRecord]]:
         out: list[list[CameraRecord]] = [[] for _ in range(self.n_agents)]
         robots, when = self._flatten_due(due)
         if robots.size == 0:
             return out
         t0 = time.perf_counter()
-        batch = self.camera.observe(self.scene(poses), robots, self._rng, time_index=when)
+        batch = self.camera.observe(scene, robots, self._rng, time_index=when)
         for k, (i, sub) in enumerate(zip(robots.tolist(), when.tolist(), strict=True)):
             record = CameraRecord(float(stamps[sub]), batch.bearings[k])
             out[i].append(record)
@@ -436,9 +437,12 @@ class SimWorld:
             ),
         )
 
-    def ground_truth(self) -> GroundTruth:
-        """True poses, relative positions, and per-sensor range and visibility masks."""
-        poses = self.poses()
+    def ground_truth(self, poses: np.ndarray | None = None) -> GroundTruth:
+        """True poses, relative positions, and per-sensor range and visibility masks.
+
+        ``poses`` (N+E, 3) are the current body poses if the caller already has them.
+        """
+        poses = self.poses() if poses is None else poses
         return truth_from_poses(
             poses[: self.n_agents],
             self.config.localization_range_m,

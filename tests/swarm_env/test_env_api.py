@@ -117,7 +117,7 @@ def test_render_human_headless():
 
 
 def test_batched_phd_tables_match_the_per_robot_encoder():
-    from swarm_env.observation import phd_table, phd_tables
+    from swarm_env.observation import phd_tables
 
     env = parallel_env("seed-sim", n_robots=8)
     env.reset(seed=2)
@@ -130,3 +130,43 @@ def test_batched_phd_tables_match_the_per_robot_encoder():
             m = view.mixture
             np.testing.assert_array_equal(batched[i], phd_table(m.weights, m.means, m.covs, top_k))
     assert counts.max() > 3  # the cut at top_k=3 was exercised
+
+
+def test_batched_measurement_tables_match_the_per_robot_encoder():
+    from swarm_env.observation import measurement_tables
+
+    rng = np.random.default_rng(0)
+    detections = [rng.normal(size=(m, 2)) for m in (0, 3, 9, 1)]
+    bearings = [rng.uniform(-3, 3, size=m) for m in (5, 0, 12, 2)]
+    for top_k in (2, 8):
+        batched = measurement_tables(detections, bearings, top_k)
+        for i in range(4):
+            single = measurement_table(detections[i], bearings[i], top_k)
+            np.testing.assert_array_equal(batched[i], single)
+
+
+# Reference encoders, one robot at a time (what the batched ones must reproduce).
+def phd_table(weights: np.ndarray, means: np.ndarray, covs: np.ndarray, top_k: int) -> np.ndarray:
+    """Top-K components by weight as rows ``[w, x, y, sxx, sxy, syy, 1]``, zero-padded, (K, 7)."""
+    table = np.zeros((top_k, 7))
+    order = np.argsort(-weights, kind="stable")[:top_k]
+    n = order.size
+    table[:n, 0] = weights[order]
+    table[:n, 1:3] = means[order]
+    table[:n, 3] = covs[order, 0, 0]
+    table[:n, 4] = covs[order, 0, 1]
+    table[:n, 5] = covs[order, 1, 1]
+    table[:n, 6] = 1.0
+    return table
+
+
+def measurement_table(detections: np.ndarray, bearings: np.ndarray, top_k: int) -> np.ndarray:
+    """Lidar detections (M, 2) nearest first and camera bearings (B,), padded, (2K*3,)."""
+    lidar = np.zeros((top_k, 3))
+    order = np.argsort(np.hypot(detections[:, 0], detections[:, 1]), kind="stable")[:top_k]
+    lidar[: order.size, 0:2] = detections[order]
+    lidar[: order.size, 2] = 1.0
+    cam = np.zeros((top_k, 3))
+    b = np.sort(bearings)[:top_k]
+    cam[: b.size, 0], cam[: b.size, 1], cam[: b.size, 2] = np.cos(b), np.sin(b), 1.0
+    return np.concatenate([lidar.ravel(), cam.ravel()])
