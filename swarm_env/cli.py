@@ -24,16 +24,29 @@ def _add(name: str, help_text: str, module: str):
 
 _add("demo", "run the seed's swarm for 60 s and show sensors and localization", "swarm_env.demo")
 _add("bench", "measure env throughput (steps/s, real-time factor, lidar cost)", "swarm_env.bench")
-_add("evaluate", "reproduce the seed's localization experiment / evaluate a policy",
-     "agents.evaluation")
-_add("bridge", "drive robots (or --loopback simulated ones) over rosbridge",
-     "hardware_bridge.commands.bridge")
-_add("replay", "rerun localization and metrics offline on a recorded bag",
-     "hardware_bridge.commands.replay")
-_add("export-bag", "write a simulated episode as a ROS 2 bag",
-     "hardware_bridge.commands.export_bag")
-_add("train", "train a PPO policy shared by all agents on a task (stable-baselines3)",
-     "agents.sb3.train")
+_add(
+    "evaluate",
+    "reproduce the seed's localization experiment / evaluate a policy",
+    "agents.evaluation",
+)
+_add(
+    "bridge",
+    "drive robots (or --loopback simulated ones) over rosbridge",
+    "hardware_bridge.commands.bridge",
+)
+_add(
+    "replay",
+    "rerun localization and metrics offline on a recorded bag",
+    "hardware_bridge.commands.replay",
+)
+_add(
+    "export-bag", "write a simulated episode as a ROS 2 bag", "hardware_bridge.commands.export_bag"
+)
+_add(
+    "train",
+    "train a PPO policy shared by all agents on a task (stable-baselines3)",
+    "agents.sb3.train",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -211,8 +211,11 @@ def _lines_hit_circles(origins, pair_o, o, d, centre, radius, applies) -> np.nda
 
 
 def lines_hit_own_circles(
-    origins_xy: np.ndarray, vectors_xy: np.ndarray, centres_xy: np.ndarray,
-    radii_m: np.ndarray, applies: np.ndarray,
+    origins_xy: np.ndarray,
+    vectors_xy: np.ndarray,
+    centres_xy: np.ndarray,
+    radii_m: np.ndarray,
+    applies: np.ndarray,
 ) -> np.ndarray:
     """P line segments ``o -> o + d``, each against its own n circles: (P,) any hit.
 

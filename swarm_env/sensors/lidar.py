@@ -393,7 +393,11 @@ class LidarSensor:
     # -- internals -----------------------------------------------------------------------
 
     def _cast(
-        self, scene: Scene, origin: np.ndarray, yaw: np.ndarray, robots: np.ndarray,
+        self,
+        scene: Scene,
+        origin: np.ndarray,
+        yaw: np.ndarray,
+        robots: np.ndarray,
         time_index: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Candidate hits ``(flat beam index k*B + b, distance, surface code)``.
