@@ -24,14 +24,18 @@ class ScriptedPolicy:
     @classmethod
     def for_env(cls, env: Any, **kwargs: Any) -> ScriptedPolicy:
         robot = env.config.robot
-        return cls(max_speed_mps=robot.max_speed_mps,
-                   max_turn_rate_radps=robot.max_turn_rate_radps, **kwargs)
+        return cls(
+            max_speed_mps=robot.max_speed_mps,
+            max_turn_rate_radps=robot.max_turn_rate_radps,
+            **kwargs,
+        )
 
     def reset(self, seed: int | None = None) -> None:
         """Forget per-agent state; reseed any randomness."""
 
-    def __call__(self, observations: dict[str, np.ndarray],
-                 infos: dict[str, dict[str, Any]]) -> dict[str, np.ndarray]:
+    def __call__(
+        self, observations: dict[str, np.ndarray], infos: dict[str, dict[str, Any]]
+    ) -> dict[str, np.ndarray]:
         raise NotImplementedError
 
 
@@ -55,10 +59,16 @@ class WanderPolicy(ScriptedPolicy):
 
     name = "wander"
 
-    def __init__(self, max_speed_mps: float = 0.3, max_turn_rate_radps: float = 1.5,
-                 cruise_fraction: float = 0.6, avoid_distance_m: float = 0.45,
-                 front_half_angle_deg: float = 50.0, turn_noise: float = 0.6,
-                 seed: int | None = 0) -> None:
+    def __init__(
+        self,
+        max_speed_mps: float = 0.3,
+        max_turn_rate_radps: float = 1.5,
+        cruise_fraction: float = 0.6,
+        avoid_distance_m: float = 0.45,
+        front_half_angle_deg: float = 50.0,
+        turn_noise: float = 0.6,
+        seed: int | None = 0,
+    ) -> None:
         super().__init__(max_speed_mps, max_turn_rate_radps)
         self.cruise_mps = cruise_fraction * max_speed_mps
         self.avoid_distance_m = avoid_distance_m
@@ -122,14 +132,19 @@ def split_observation(obs: np.ndarray, top_k: int) -> tuple[np.ndarray, np.ndarr
     the ``"phd"``/``"truth"`` layout."""
     n_table = TABLE_COLUMNS * top_k
     obs = np.asarray(obs, dtype=np.float64)
-    return (obs[:n_table].reshape(top_k, TABLE_COLUMNS), obs[n_table:n_table + 2],
-            obs[n_table + 2:])
+    return (
+        obs[:n_table].reshape(top_k, TABLE_COLUMNS),
+        obs[n_table : n_table + 2],
+        obs[n_table + 2 :],
+    )
 
 
-def estimated_neighbours(table: np.ndarray, min_weight: float = 0.5,
-                         max_variance_m2: float = 0.5,
-                         reference_variance_m2: float | None = None,
-                         ) -> tuple[np.ndarray, np.ndarray]:
+def estimated_neighbours(
+    table: np.ndarray,
+    min_weight: float = 0.5,
+    max_variance_m2: float = 0.5,
+    reference_variance_m2: float | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """Positions (M, 2) and weights (M,) of the confident components of a PHD table.
 
     Kept: valid rows with weight >= ``min_weight`` whose position variance is below
@@ -138,8 +153,11 @@ def estimated_neighbours(table: np.ndarray, min_weight: float = 0.5,
     ``w / (1 + (sxx + syy) / reference_variance_m2)``: a camera-only track (bearing known, range
     drifting) then counts little next to a lidar-confirmed one.
     """
-    keep = ((table[:, 6] > 0.5) & (table[:, 0] >= min_weight)
-            & (np.maximum(table[:, 3], table[:, 5]) <= max_variance_m2))
+    keep = (
+        (table[:, 6] > 0.5)
+        & (table[:, 0] >= min_weight)
+        & (np.maximum(table[:, 3], table[:, 5]) <= max_variance_m2)
+    )
     weights = table[keep, 0].copy()
     if reference_variance_m2 is not None:
         weights /= 1.0 + (table[keep, 3] + table[keep, 5]) / reference_variance_m2
@@ -152,8 +170,9 @@ def lidar_points(scan: tuple[np.ndarray, np.ndarray] | None, max_range_m: float)
         return np.zeros((0, 2))
     angles, ranges = scan
     keep = (ranges > 0) & (ranges < max_range_m)
-    return np.stack([ranges[keep] * np.cos(angles[keep]), ranges[keep] * np.sin(angles[keep])],
-                    axis=-1)
+    return np.stack(
+        [ranges[keep] * np.cos(angles[keep]), ranges[keep] * np.sin(angles[keep])], axis=-1
+    )
 
 
 def wrap_angle(a: float) -> float:
@@ -183,10 +202,18 @@ class VectorFieldPolicy(ScriptedPolicy):
 
     observation_modes = ("phd", "truth")
 
-    def __init__(self, max_speed_mps: float = 0.3, max_turn_rate_radps: float = 1.5,
-                 top_k: int = 16, min_weight: float = 0.5, avoid_distance_m: float = 0.3,
-                 avoid_gain: float = 0.3, heading_gain: float = 2.0,
-                 deadband_mps: float = 0.02, seed: int | None = 0) -> None:
+    def __init__(
+        self,
+        max_speed_mps: float = 0.3,
+        max_turn_rate_radps: float = 1.5,
+        top_k: int = 16,
+        min_weight: float = 0.5,
+        avoid_distance_m: float = 0.3,
+        avoid_gain: float = 0.3,
+        heading_gain: float = 2.0,
+        deadband_mps: float = 0.02,
+        seed: int | None = 0,
+    ) -> None:
         super().__init__(max_speed_mps, max_turn_rate_radps)
         self.top_k = top_k
         self.min_weight = min_weight
@@ -201,8 +228,10 @@ class VectorFieldPolicy(ScriptedPolicy):
     def for_env(cls, env: Any, **kwargs: Any) -> ScriptedPolicy:
         mode = env.config.observation
         if mode not in cls.observation_modes:
-            raise ValueError(f"scripted:{cls.name} reads the PHD table: it needs "
-                             f"observation='phd' (or 'truth'), the env has {mode!r}")
+            raise ValueError(
+                f"scripted:{cls.name} reads the PHD table: it needs "
+                f"observation='phd' (or 'truth'), the env has {mode!r}"
+            )
         return super().for_env(env, top_k=env.config.top_k, **kwargs)
 
     def reset(self, seed: int | None = None) -> None:
@@ -227,8 +256,9 @@ class VectorFieldPolicy(ScriptedPolicy):
             actions[agent] = self.to_unicycle(u)
         return actions
 
-    def desired_velocity(self, agent: str, table: np.ndarray, odometry: np.ndarray,
-                         features: np.ndarray) -> np.ndarray | None:
+    def desired_velocity(
+        self, agent: str, table: np.ndarray, odometry: np.ndarray, features: np.ndarray
+    ) -> np.ndarray | None:
         """Desired body-frame velocity (2,), or ``None`` to random-walk (e.g. nobody seen)."""
         raise NotImplementedError
 
@@ -253,8 +283,9 @@ class VectorFieldPolicy(ScriptedPolicy):
         angle = float(np.arctan2(u[1], u[0]))
         turn = angle if abs(angle) <= np.pi / 2 else wrap_angle(angle - np.pi)
         v = np.clip(u[0], -self.max_speed_mps, self.max_speed_mps)
-        omega = np.clip(self.heading_gain * turn, -self.max_turn_rate_radps,
-                        self.max_turn_rate_radps)
+        omega = np.clip(
+            self.heading_gain * turn, -self.max_turn_rate_radps, self.max_turn_rate_radps
+        )
         return np.array([v, omega], dtype=np.float32)
 
     def _clip_speed(self, u: np.ndarray) -> np.ndarray:
@@ -285,9 +316,16 @@ class FormationPolicy(VectorFieldPolicy):
 
     name = "formation"
 
-    def __init__(self, max_speed_mps: float = 0.3, max_turn_rate_radps: float = 1.5,
-                 shape: str = "circle", k_p: float = 0.8, k_s: float = 0.6,
-                 min_neighbours: int = 1, **kwargs: Any) -> None:
+    def __init__(
+        self,
+        max_speed_mps: float = 0.3,
+        max_turn_rate_radps: float = 1.5,
+        shape: str = "circle",
+        k_p: float = 0.8,
+        k_s: float = 0.6,
+        min_neighbours: int = 1,
+        **kwargs: Any,
+    ) -> None:
         if shape not in ("circle", "lattice"):
             raise ValueError(f"shape must be 'circle' or 'lattice', got {shape!r}")
         self.shape = shape
@@ -330,8 +368,9 @@ class FormationPolicy(VectorFieldPolicy):
             spacing = float(features[0])
             near = d < 1.5 * spacing
             near[np.argmin(d)] = True
-            u = self.k_p * (((d[near] - spacing) / np.maximum(d[near], 1e-6))[:, None]
-                            * pts[near]).sum(axis=0)
+            u = self.k_p * (
+                ((d[near] - spacing) / np.maximum(d[near], 1e-6))[:, None] * pts[near]
+            ).sum(axis=0)
         return self._clip_speed(u)
 
 
@@ -357,9 +396,15 @@ class EncirclementPolicy(VectorFieldPolicy):
 
     name = "encirclement"
 
-    def __init__(self, max_speed_mps: float = 0.3, max_turn_rate_radps: float = 1.5,
-                 k_p: float = 0.8, k_t: float = 0.4, gate_m: float = 0.4,
-                 **kwargs: Any) -> None:
+    def __init__(
+        self,
+        max_speed_mps: float = 0.3,
+        max_turn_rate_radps: float = 1.5,
+        k_p: float = 0.8,
+        k_t: float = 0.4,
+        gate_m: float = 0.4,
+        **kwargs: Any,
+    ) -> None:
         self.k_p = k_p
         self.k_t = k_t
         self.gate_m = gate_m
@@ -368,9 +413,11 @@ class EncirclementPolicy(VectorFieldPolicy):
     @classmethod
     def for_env(cls, env: Any, **kwargs: Any) -> ScriptedPolicy:
         if env.task.name != "encirclement" or not env.task.beacon:
-            raise ValueError("scripted:encirclement needs task='encirclement' with beacon=True "
-                             "(anonymous detections alone do not say which robot is the "
-                             "intruder)")
+            raise ValueError(
+                "scripted:encirclement needs task='encirclement' with beacon=True "
+                "(anonymous detections alone do not say which robot is the "
+                "intruder)"
+            )
         return super().for_env(env, **kwargs)
 
     def desired_velocity(self, agent, table, odometry, features):
@@ -422,7 +469,7 @@ def internal_minimum(points: np.ndarray, n_angles: int = 360) -> tuple[float, fl
     i2 = n_angles - 1
     while i2 > i1 and gamma[i2 - 1] >= gamma[i2]:
         i2 -= 1
-    k = i1 + int(np.argmin(gamma[i1:i2 + 1]))
+    k = i1 + int(np.argmin(gamma[i1 : i2 + 1]))
     return float(phis[k]), float(gamma[k])
 
 
@@ -441,9 +488,15 @@ class AntiSymmetryPolicy(VectorFieldPolicy):
 
     name = "anti-symmetry"
 
-    def __init__(self, max_speed_mps: float = 0.3, max_turn_rate_radps: float = 1.5,
-                 alpha_mps: float = 0.1, gamma_stop_m2: float | None = 0.04,
-                 n_angles: int = 180, **kwargs: Any) -> None:
+    def __init__(
+        self,
+        max_speed_mps: float = 0.3,
+        max_turn_rate_radps: float = 1.5,
+        alpha_mps: float = 0.1,
+        gamma_stop_m2: float | None = 0.04,
+        n_angles: int = 180,
+        **kwargs: Any,
+    ) -> None:
         self.alpha_mps = alpha_mps
         self.gamma_stop_m2 = gamma_stop_m2
         self.n_angles = n_angles

@@ -85,8 +85,13 @@ class TrainingWrapper(ParallelEnv):
         self.env.close()
 
 
-def make_vec_env(env_kwargs: dict[str, Any], n_copies: int = 1, num_cpus: int = 0,
-                 seed: int | None = 0, monitor_file: str | None = None):
+def make_vec_env(
+    env_kwargs: dict[str, Any],
+    n_copies: int = 1,
+    num_cpus: int = 0,
+    seed: int | None = 0,
+    monitor_file: str | None = None,
+):
     """A SB3 VecEnv with ``n_copies * n_robots`` entries, wrapped in ``VecMonitor``.
 
     ``num_cpus`` > 0 steps the copies in that many worker processes (SuperSuit's

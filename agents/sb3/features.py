@@ -24,17 +24,21 @@ ROW = 7
 class NeighbourSetExtractor(BaseFeaturesExtractor):
     """Deep Sets over the ``top_k`` rows of the ``"phd"``/``"truth"`` observation layout."""
 
-    def __init__(self, observation_space: gym.spaces.Box, top_k: int = 16,
-                 hidden: int = 64) -> None:
+    def __init__(
+        self, observation_space: gym.spaces.Box, top_k: int = 16, hidden: int = 64
+    ) -> None:
         n_extra = observation_space.shape[0] - ROW * top_k
         if n_extra < 2:
-            raise ValueError(f"observation of size {observation_space.shape[0]} does not hold "
-                             f"{top_k} table rows plus odometry")
+            raise ValueError(
+                f"observation of size {observation_space.shape[0]} does not hold "
+                f"{top_k} table rows plus odometry"
+            )
         super().__init__(observation_space, features_dim=2 * hidden + n_extra)
         self.top_k = top_k
-        self.phi = nn.Sequential(nn.Linear(ROW, hidden), nn.ReLU(),
-                                 nn.Linear(hidden, hidden), nn.ReLU())
-        high = torch.as_tensor(observation_space.high[ROW * top_k:], dtype=torch.float32)
+        self.phi = nn.Sequential(
+            nn.Linear(ROW, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU()
+        )
+        high = torch.as_tensor(observation_space.high[ROW * top_k :], dtype=torch.float32)
         self.register_buffer("extra_scale", torch.clamp(high.abs(), min=1e-6))
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
@@ -43,15 +47,22 @@ class NeighbourSetExtractor(BaseFeaturesExtractor):
         w, x, y = rows[..., 0], rows[..., 1], rows[..., 2]
         sxx, sxy, syy, valid = rows[..., 3], rows[..., 4], rows[..., 5], rows[..., 6]
         rho = torch.sqrt(x * x + y * y + 1e-9)
-        inputs = torch.stack([
-            w.clamp(0, 3), x / 2, y / 2, rho / 2,
-            torch.sqrt(sxx.clamp(min=0)).clamp(max=3), torch.sqrt(syy.clamp(min=0)).clamp(max=3),
-            sxy.clamp(-3, 3),
-        ], dim=-1)
+        inputs = torch.stack(
+            [
+                w.clamp(0, 3),
+                x / 2,
+                y / 2,
+                rho / 2,
+                torch.sqrt(sxx.clamp(min=0)).clamp(max=3),
+                torch.sqrt(syy.clamp(min=0)).clamp(max=3),
+                sxy.clamp(-3, 3),
+            ],
+            dim=-1,
+        )
         h = self.phi(inputs)  # (B, K, H)
         mask = (valid > 0.5).float().unsqueeze(-1)
         weighted = (h * mask * w.clamp(0, 3).unsqueeze(-1)).sum(dim=1)
         maxed = (h * mask - (1 - mask) * 1e4).max(dim=1).values
         maxed = torch.where(mask.sum(dim=1) > 0, maxed, torch.zeros_like(maxed))
-        extra = obs[:, ROW * self.top_k:] / self.extra_scale
+        extra = obs[:, ROW * self.top_k :] / self.extra_scale
         return torch.cat([weighted, maxed, extra], dim=1)

@@ -48,10 +48,15 @@ def read_metadata(model_path: str | Path) -> dict[str, Any]:
         raise ValueError(f"{str(path)!r} is not a model zip: {exc}") from exc
     side = path.parent / "env_kwargs.json"
     if side.is_file():
-        return {"env_kwargs": json.loads(side.read_text()), "obs_norm": None,
-                "action_scale": "unit"}
-    raise ValueError(f"{str(path)!r} has no {META_NAME} and no env_kwargs.json beside it: "
-                     "train it with `swarm-phd train`")
+        return {
+            "env_kwargs": json.loads(side.read_text()),
+            "obs_norm": None,
+            "action_scale": "unit",
+        }
+    raise ValueError(
+        f"{str(path)!r} has no {META_NAME} and no env_kwargs.json beside it: "
+        "train it with `swarm-phd train`"
+    )
 
 
 def env_kwargs_for_model(model_path: str | Path) -> dict[str, Any]:
@@ -66,8 +71,9 @@ class SB3Policy:
     """A trained PPO model driving every agent with the same network (``(obs, infos) ->
     actions``). Deterministic (the Gaussian's mean) unless ``deterministic=False``."""
 
-    def __init__(self, model: Any, meta: dict[str, Any], action_high: np.ndarray,
-                 deterministic: bool = True) -> None:
+    def __init__(
+        self, model: Any, meta: dict[str, Any], action_high: np.ndarray, deterministic: bool = True
+    ) -> None:
         self.model = model
         self.meta = meta
         self.action_high = np.asarray(action_high, dtype=np.float64)
@@ -89,8 +95,9 @@ class SB3Policy:
             return obs.astype(np.float32)
         return np.clip((obs - self._mean) / self._std, -self._clip, self._clip).astype(np.float32)
 
-    def __call__(self, observations: dict[str, np.ndarray],
-                 infos: dict[str, dict[str, Any]] | None = None) -> dict[str, np.ndarray]:
+    def __call__(
+        self, observations: dict[str, np.ndarray], infos: dict[str, dict[str, Any]] | None = None
+    ) -> dict[str, np.ndarray]:
         if not observations:
             return {}
         agents = list(observations)

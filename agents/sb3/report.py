@@ -30,8 +30,9 @@ def _seeds(text: str) -> list[int]:
     return [int(x) for x in text.split(",") if x.strip()]
 
 
-def score(policy_spec: str, env_kwargs: dict[str, Any], seeds: list[int],
-          n_steps: int | None = None) -> dict[str, Any]:
+def score(
+    policy_spec: str, env_kwargs: dict[str, Any], seeds: list[int], n_steps: int | None = None
+) -> dict[str, Any]:
     """Mean/std over seeds of the task metrics and of the per-agent episode return."""
     from agents.policies import load_policy
     from swarm_env import parallel_env
@@ -63,10 +64,13 @@ def score(policy_spec: str, env_kwargs: dict[str, Any], seeds: list[int],
         per_seed.append({**env.task.metrics(), "episode_return": total})
     env.close()
     keys = per_seed[0].keys()
-    return {"policy": policy_spec, "seeds": seeds,
-            "mean": {k: float(np.mean([d[k] for d in per_seed])) for k in keys},
-            "std": {k: float(np.std([d[k] for d in per_seed])) for k in keys},
-            "per_seed": per_seed}
+    return {
+        "policy": policy_spec,
+        "seeds": seeds,
+        "mean": {k: float(np.mean([d[k] for d in per_seed])) for k in keys},
+        "std": {k: float(np.std([d[k] for d in per_seed])) for k in keys},
+        "per_seed": per_seed,
+    }
 
 
 def monitor_curve(run_dir: Path, window: int = 200) -> tuple[np.ndarray, np.ndarray]:
@@ -81,15 +85,17 @@ def monitor_curve(run_dir: Path, window: int = 200) -> tuple[np.ndarray, np.ndar
         return np.zeros(0), np.zeros(0)
     w = min(window, len(returns))
     smooth = np.convolve(returns, np.ones(w) / w, mode="valid")
-    return steps[w - 1:], smooth
+    return steps[w - 1 :], smooth
 
 
 def checkpoint_scores(run_dir: Path, seeds: list[int]) -> list[tuple[int, dict[str, Any]]]:
     from agents.sb3.policy import read_metadata
 
     out = []
-    for path in sorted((run_dir / "checkpoints").glob("model_*_steps.zip"),
-                       key=lambda p: int(re.findall(r"\d+", p.stem)[0])):
+    for path in sorted(
+        (run_dir / "checkpoints").glob("model_*_steps.zip"),
+        key=lambda p: int(re.findall(r"\d+", p.stem)[0]),
+    ):
         steps = int(re.findall(r"\d+", path.stem)[0])
         out.append((steps, score(str(path), read_metadata(path)["env_kwargs"], seeds)))
     return out
@@ -98,12 +104,16 @@ def checkpoint_scores(run_dir: Path, seeds: list[int]) -> list[tuple[int, dict[s
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--runs", nargs="+", required=True)
-    parser.add_argument("--baselines", nargs="*",
-                        default=["random", "scripted:formation", "scripted:formation@truth"])
+    parser.add_argument(
+        "--baselines",
+        nargs="*",
+        default=["random", "scripted:formation", "scripted:formation@truth"],
+    )
     parser.add_argument("--seeds", default="100-109")
     parser.add_argument("--out", default="docs")
-    parser.add_argument("--checkpoints", action="store_true",
-                        help="also score every checkpoint (slower)")
+    parser.add_argument(
+        "--checkpoints", action="store_true", help="also score every checkpoint (slower)"
+    )
     parser.add_argument("--checkpoint-seeds", default="100-104")
     args = parser.parse_args(argv)
     import matplotlib
@@ -131,23 +141,34 @@ def main(argv: list[str] | None = None) -> int:
         curves[run.name] = monitor_curve(run)
         if args.checkpoints:
             results.setdefault("checkpoints", {})[run.name] = [
-                (s, r["mean"]) for s, r in checkpoint_scores(run, _seeds(args.checkpoint_seeds))]
+                (s, r["mean"]) for s, r in checkpoint_scores(run, _seeds(args.checkpoint_seeds))
+            ]
             final = score(spec, read_metadata(spec)["env_kwargs"], _seeds(args.checkpoint_seeds))
-            results["checkpoints"][run.name].append((
-                int(json.loads((run / "train_summary.json").read_text())["timesteps"]),
-                final["mean"]))
+            results["checkpoints"][run.name].append(
+                (
+                    int(json.loads((run / "train_summary.json").read_text())["timesteps"]),
+                    final["mean"],
+                )
+            )
     (out / "results_formation.json").write_text(json.dumps(results, indent=2))
 
     n_panels = 2 if args.checkpoints else 1
     fig, axes = plt.subplots(1, n_panels, figsize=(6.5 * n_panels, 4.2), squeeze=False)
     ax = axes[0, 0]
-    colors = {"random": "tab:gray", "scripted:formation": "tab:green",
-              "scripted:formation@truth": "tab:olive"}
+    colors = {
+        "random": "tab:gray",
+        "scripted:formation": "tab:green",
+        "scripted:formation@truth": "tab:olive",
+    }
     for name, (x, y) in curves.items():
         ax.plot(x, y, label=f"PPO {name} (training episodes)")
     for spec in args.baselines:
-        ax.axhline(results["policies"][spec]["mean"]["episode_return"], ls="--",
-                   color=colors.get(spec), label=spec)
+        ax.axhline(
+            results["policies"][spec]["mean"]["episode_return"],
+            ls="--",
+            color=colors.get(spec),
+            label=spec,
+        )
     ax.set_xlabel("agent transitions")
     ax.set_ylabel("episode return per agent (moving avg.)")
     ax.set_title("formation, PPO with parameter sharing")
@@ -156,12 +177,17 @@ def main(argv: list[str] | None = None) -> int:
     if args.checkpoints:
         ax = axes[0, 1]
         for name, pts in results["checkpoints"].items():
-            ax.plot([s for s, _ in pts], [m["formation_error_m"] for _, m in pts], "o-",
-                    label=f"PPO {name}")
+            ax.plot(
+                [s for s, _ in pts],
+                [m["formation_error_m"] for _, m in pts],
+                "o-",
+                label=f"PPO {name}",
+            )
         for spec in args.baselines:
             base = score(spec, env_kwargs, _seeds(args.checkpoint_seeds))
-            ax.axhline(base["mean"]["formation_error_m"], ls="--", color=colors.get(spec),
-                       label=spec)
+            ax.axhline(
+                base["mean"]["formation_error_m"], ls="--", color=colors.get(spec), label=spec
+            )
         ax.set_xlabel("agent transitions")
         ax.set_ylabel("formation error (m), held-out seeds")
         ax.set_title("checkpoints on held-out seeds (lower is better)")

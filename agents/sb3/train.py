@@ -30,22 +30,35 @@ DEFAULT_MAX_STEPS = 300
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--task", default="formation", help="task name (see swarm_env.tasks)")
-    parser.add_argument("--task-params", default="{}",
-                        help='JSON dict of task parameters, e.g. \'{"radius_m": 0.8}\'')
+    parser.add_argument(
+        "--task-params",
+        default="{}",
+        help="JSON dict of task parameters, e.g. '{\"radius_m\": 0.8}'",
+    )
     parser.add_argument("--observation", default="phd", choices=["phd", "truth", "measurements"])
     parser.add_argument("--preset", default=DEFAULT_PRESET)
     parser.add_argument("--n-robots", type=int, default=None, help="default: the preset's")
-    parser.add_argument("--max-steps", type=int, default=DEFAULT_MAX_STEPS,
-                        help="episode length in env steps (0.1 s each)")
-    parser.add_argument("--env-overrides", default="{}",
-                        help='JSON dict of further SwarmConfig overrides, e.g. \'{"arena": '
-                             '{"n_boxes": 0}}\'')
+    parser.add_argument(
+        "--max-steps",
+        type=int,
+        default=DEFAULT_MAX_STEPS,
+        help="episode length in env steps (0.1 s each)",
+    )
+    parser.add_argument(
+        "--env-overrides",
+        default="{}",
+        help='JSON dict of further SwarmConfig overrides, e.g. \'{"arena": {"n_boxes": 0}}\'',
+    )
     parser.add_argument("--timesteps", type=int, default=200_000, help="agent transitions")
     parser.add_argument("--out", required=True, help="run directory, e.g. runs/formation_phd")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--n-copies", type=int, default=4, help="env copies (x n_robots agents)")
-    parser.add_argument("--num-cpus", type=int, default=0,
-                        help="worker processes for the env copies (0: step them in-process)")
+    parser.add_argument(
+        "--num-cpus",
+        type=int,
+        default=0,
+        help="worker processes for the env copies (0: step them in-process)",
+    )
     parser.add_argument("--n-steps", type=int, default=128, help="PPO rollout length per agent")
     parser.add_argument("--batch-size", type=int, default=512)
     parser.add_argument("--n-epochs", type=int, default=10)
@@ -53,14 +66,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--gamma", type=float, default=0.99)
     parser.add_argument("--ent-coef", type=float, default=0.0)
     parser.add_argument("--checkpoint-every", type=int, default=50_000, help="agent transitions")
-    parser.add_argument("--torch-threads", type=int, default=1,
-                        help="torch intra-op threads (1 leaves the other core to the envs)")
-    parser.add_argument("--extractor", default="sets", choices=["sets", "mlp"],
-                        help="'sets': permutation-invariant Deep Sets over the neighbour table "
-                             "(phd/truth observations); 'mlp': plain MLP on the normalised "
-                             "vector")
-    parser.add_argument("--max-wall-minutes", type=float, default=None,
-                        help="stop early (and save) after this much wall time")
+    parser.add_argument(
+        "--torch-threads",
+        type=int,
+        default=1,
+        help="torch intra-op threads (1 leaves the other core to the envs)",
+    )
+    parser.add_argument(
+        "--extractor",
+        default="sets",
+        choices=["sets", "mlp"],
+        help="'sets': permutation-invariant Deep Sets over the neighbour table "
+        "(phd/truth observations); 'mlp': plain MLP on the normalised "
+        "vector",
+    )
+    parser.add_argument(
+        "--max-wall-minutes",
+        type=float,
+        default=None,
+        help="stop early (and save) after this much wall time",
+    )
     parser.add_argument("--no-progress-bar", action="store_true")
 
 
@@ -93,22 +118,45 @@ def env_kwargs_from_args(args: argparse.Namespace) -> dict[str, Any]:
 def run(args: argparse.Namespace) -> int:
     env_kwargs = env_kwargs_from_args(args)
     ppo_kwargs = {
-        "n_steps": args.n_steps, "batch_size": args.batch_size, "n_epochs": args.n_epochs,
-        "learning_rate": args.learning_rate, "gamma": args.gamma, "ent_coef": args.ent_coef,
+        "n_steps": args.n_steps,
+        "batch_size": args.batch_size,
+        "n_epochs": args.n_epochs,
+        "learning_rate": args.learning_rate,
+        "gamma": args.gamma,
+        "ent_coef": args.ent_coef,
     }
-    train(env_kwargs, args.timesteps, Path(args.out), seed=args.seed, n_copies=args.n_copies,
-          num_cpus=args.num_cpus, checkpoint_every=args.checkpoint_every,
-          torch_threads=args.torch_threads, progress_bar=not args.no_progress_bar,
-          ppo_kwargs=ppo_kwargs, max_wall_s=None if args.max_wall_minutes is None
-          else 60.0 * args.max_wall_minutes, extractor=args.extractor)
+    train(
+        env_kwargs,
+        args.timesteps,
+        Path(args.out),
+        seed=args.seed,
+        n_copies=args.n_copies,
+        num_cpus=args.num_cpus,
+        checkpoint_every=args.checkpoint_every,
+        torch_threads=args.torch_threads,
+        progress_bar=not args.no_progress_bar,
+        ppo_kwargs=ppo_kwargs,
+        max_wall_s=None if args.max_wall_minutes is None else 60.0 * args.max_wall_minutes,
+        extractor=args.extractor,
+    )
     return 0
 
 
-def train(env_kwargs: dict[str, Any], timesteps: int, out: Path, *, seed: int = 0,
-          n_copies: int = 4, num_cpus: int = 0, checkpoint_every: int = 50_000,
-          torch_threads: int = 1, progress_bar: bool = True,
-          ppo_kwargs: dict[str, Any] | None = None, max_wall_s: float | None = None,
-          extractor: str = "sets") -> Path:
+def train(
+    env_kwargs: dict[str, Any],
+    timesteps: int,
+    out: Path,
+    *,
+    seed: int = 0,
+    n_copies: int = 4,
+    num_cpus: int = 0,
+    checkpoint_every: int = 50_000,
+    torch_threads: int = 1,
+    progress_bar: bool = True,
+    ppo_kwargs: dict[str, Any] | None = None,
+    max_wall_s: float | None = None,
+    extractor: str = "sets",
+) -> Path:
     """Train and return the path of ``model.zip``; see the module docstring for the outputs."""
     if timesteps <= 0:
         raise ValueError(f"--timesteps must be > 0, got {timesteps}")
@@ -138,47 +186,90 @@ def train(env_kwargs: dict[str, Any], timesteps: int, out: Path, *, seed: int = 
     out.mkdir(parents=True, exist_ok=True)
     (out / "checkpoints").mkdir(exist_ok=True)
     (out / "env_kwargs.json").write_text(json.dumps(env_kwargs, indent=2))
-    ppo = {"n_steps": 128, "batch_size": 512, "n_epochs": 10, "learning_rate": 3e-4,
-           "gamma": 0.99, "gae_lambda": 0.95, "ent_coef": 0.0, "clip_range": 0.2,
-           **(ppo_kwargs or {})}
+    ppo = {
+        "n_steps": 128,
+        "batch_size": 512,
+        "n_epochs": 10,
+        "learning_rate": 3e-4,
+        "gamma": 0.99,
+        "gae_lambda": 0.95,
+        "ent_coef": 0.0,
+        "clip_range": 0.2,
+        **(ppo_kwargs or {}),
+    }
     if extractor not in ("sets", "mlp"):
         raise ValueError(f"extractor must be 'sets' or 'mlp', got {extractor!r}")
     if extractor == "sets" and env_kwargs.get("observation", "phd") == "measurements":
-        raise ValueError("--extractor sets reads the neighbour table: use it with "
-                         "--observation phd or truth (or --extractor mlp)")
-    policy_kwargs: dict[str, Any] = {"net_arch": {"pi": [128, 128], "vf": [128, 128]},
-                                     "log_std_init": -0.5}
+        raise ValueError(
+            "--extractor sets reads the neighbour table: use it with "
+            "--observation phd or truth (or --extractor mlp)"
+        )
+    policy_kwargs: dict[str, Any] = {
+        "net_arch": {"pi": [128, 128], "vf": [128, 128]},
+        "log_std_init": -0.5,
+    }
     if extractor == "sets":
         from agents.sb3.features import NeighbourSetExtractor
 
         top_k = probe_top_k
-        policy_kwargs.update(features_extractor_class=NeighbourSetExtractor,
-                             features_extractor_kwargs={"top_k": top_k})
-    (out / "train_config.json").write_text(json.dumps({
-        "timesteps": timesteps, "seed": seed, "n_copies": n_copies, "num_cpus": num_cpus,
-        "n_agents_per_env": n_agents, "checkpoint_every": checkpoint_every,
-        "torch_threads": torch_threads, "ppo": ppo, "extractor": extractor,
-        "policy_kwargs": {k: v for k, v in policy_kwargs.items()
-                          if k != "features_extractor_class"},
-    }, indent=2))
+        policy_kwargs.update(
+            features_extractor_class=NeighbourSetExtractor,
+            features_extractor_kwargs={"top_k": top_k},
+        )
+    (out / "train_config.json").write_text(
+        json.dumps(
+            {
+                "timesteps": timesteps,
+                "seed": seed,
+                "n_copies": n_copies,
+                "num_cpus": num_cpus,
+                "n_agents_per_env": n_agents,
+                "checkpoint_every": checkpoint_every,
+                "torch_threads": torch_threads,
+                "ppo": ppo,
+                "extractor": extractor,
+                "policy_kwargs": {
+                    k: v for k, v in policy_kwargs.items() if k != "features_extractor_class"
+                },
+            },
+            indent=2,
+        )
+    )
 
     # SB3 asks each env for render_mode; SuperSuit's vector env answers None (no rendering
     # while training), which SB3 reports as "not defined" on every wrapper.
     warnings.filterwarnings("ignore", message="The `render_mode` attribute is not defined")
-    venv = make_vec_env(env_kwargs, n_copies=n_copies, num_cpus=num_cpus, seed=seed,
-                        monitor_file=str(out / "monitor.csv"))
+    venv = make_vec_env(
+        env_kwargs,
+        n_copies=n_copies,
+        num_cpus=num_cpus,
+        seed=seed,
+        monitor_file=str(out / "monitor.csv"),
+    )
     # The set extractor scales its rows itself (per-slot statistics would break permutation
     # invariance); the MLP gets VecNormalize's running mean/std. Rewards are normalised in both.
     norm_obs = extractor == "mlp"
-    venv = VecNormalize(venv, norm_obs=norm_obs, norm_reward=True, clip_obs=10.0,
-                        gamma=ppo["gamma"])
+    venv = VecNormalize(
+        venv, norm_obs=norm_obs, norm_reward=True, clip_obs=10.0, gamma=ppo["gamma"]
+    )
 
     def meta() -> dict[str, Any]:
-        norm = None if not norm_obs else {
-            "mean": venv.obs_rms.mean.tolist(), "var": venv.obs_rms.var.tolist(),
-            "clip": venv.clip_obs, "epsilon": venv.epsilon}
-        return {"env_kwargs": env_kwargs, "action_scale": "unit", "obs_norm": norm,
-                "extractor": extractor}
+        norm = (
+            None
+            if not norm_obs
+            else {
+                "mean": venv.obs_rms.mean.tolist(),
+                "var": venv.obs_rms.var.tolist(),
+                "clip": venv.clip_obs,
+                "epsilon": venv.epsilon,
+            }
+        )
+        return {
+            "env_kwargs": env_kwargs,
+            "action_scale": "unit",
+            "obs_norm": norm,
+            "extractor": extractor,
+        }
 
     class Checkpoints(BaseCallback):
         """Save ``model_<steps>_steps.zip`` (with its metadata) every ``every`` transitions;
@@ -201,18 +292,32 @@ def train(env_kwargs: dict[str, Any], timesteps: int, out: Path, *, seed: int = 
                 return False
             return True
 
-    model = PPO("MlpPolicy", venv, seed=seed, device="cpu", verbose=0,
-                policy_kwargs=policy_kwargs, tensorboard_log=None, **ppo)
+    model = PPO(
+        "MlpPolicy",
+        venv,
+        seed=seed,
+        device="cpu",
+        verbose=0,
+        policy_kwargs=policy_kwargs,
+        tensorboard_log=None,
+        **ppo,
+    )
     model.set_logger(configure(str(out / "tb"), ["csv", "tensorboard"]))
     start = time.perf_counter()
-    model.learn(total_timesteps=timesteps, callback=Checkpoints(checkpoint_every),
-                progress_bar=progress_bar)
+    model.learn(
+        total_timesteps=timesteps,
+        callback=Checkpoints(checkpoint_every),
+        progress_bar=progress_bar,
+    )
     path = out / "model.zip"
     model.save(path)
     write_metadata(path, meta())
     elapsed = time.perf_counter() - start
-    summary = {"timesteps": int(model.num_timesteps), "wall_time_s": elapsed,
-               "agent_steps_per_s": model.num_timesteps / max(elapsed, 1e-9)}
+    summary = {
+        "timesteps": int(model.num_timesteps),
+        "wall_time_s": elapsed,
+        "agent_steps_per_s": model.num_timesteps / max(elapsed, 1e-9),
+    }
     (out / "train_summary.json").write_text(json.dumps(summary, indent=2))
     print(f"trained {model.num_timesteps} agent steps in {elapsed:.0f} s -> {path}")
     venv.close()

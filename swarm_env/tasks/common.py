@@ -8,8 +8,9 @@ from typing import Any
 import numpy as np
 
 
-def check_param(task: str, name: str, value: Any, low: float, high: float,
-                *, low_open: bool = False) -> float:
+def check_param(
+    task: str, name: str, value: Any, low: float, high: float, *, low_open: bool = False
+) -> float:
     """``value`` as a float in ``[low, high]`` (``(low, high]`` with ``low_open``), else a
     ``ValueError`` naming the task and the parameter."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
@@ -17,8 +18,9 @@ def check_param(task: str, name: str, value: Any, low: float, high: float,
     too_low = value <= low if low_open else value < low
     if too_low or value > high:
         bracket = "(" if low_open else "["
-        raise ValueError(f"task {task!r}: {name} must be in {bracket}{low}, {high}], "
-                         f"got {value!r}")
+        raise ValueError(
+            f"task {task!r}: {name} must be in {bracket}{low}, {high}], got {value!r}"
+        )
     return float(value)
 
 
@@ -35,12 +37,16 @@ def pairwise_distances(xy: np.ndarray) -> np.ndarray:
     return d
 
 
-def collisions(xy: np.ndarray, min_distance_m: float, arena: Any | None = None,
-               wall_margin_m: float = 0.0) -> np.ndarray:
+def collisions(
+    xy: np.ndarray, min_distance_m: float, arena: Any | None = None, wall_margin_m: float = 0.0
+) -> np.ndarray:
     """Per robot: touching (centre distance < ``min_distance_m``) another robot, or closer than
     ``wall_margin_m`` to a wall of ``arena`` (an ``ArenaConfig``). Shape (N,) bool."""
-    hit = (pairwise_distances(xy) < min_distance_m).any(axis=1) if len(xy) > 1 else \
-        np.zeros(len(xy), dtype=bool)
+    hit = (
+        (pairwise_distances(xy) < min_distance_m).any(axis=1)
+        if len(xy) > 1
+        else np.zeros(len(xy), dtype=bool)
+    )
     if arena is not None and wall_margin_m > 0:
         hx, hy = 0.5 * arena.width_m, 0.5 * arena.height_m
         hit |= (np.abs(xy[:, 0]) > hx - wall_margin_m) | (np.abs(xy[:, 1]) > hy - wall_margin_m)

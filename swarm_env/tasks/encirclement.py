@@ -68,33 +68,51 @@ class EncirclementTask(Task):
     name = "encirclement"
     n_extra_robots = 1
 
-    def __init__(self, radius_m: float = 0.6, gap_weight: float = 0.5, path: str = "circle",
-                 intruder_speed_mps: float | None = None, path_radius_m: float | None = None,
-                 beacon: bool = True, beacon_range_std_m: float = 0.05,
-                 beacon_bearing_std_deg: float = 5.0, **params: Any) -> None:
+    def __init__(
+        self,
+        radius_m: float = 0.6,
+        gap_weight: float = 0.5,
+        path: str = "circle",
+        intruder_speed_mps: float | None = None,
+        path_radius_m: float | None = None,
+        beacon: bool = True,
+        beacon_range_std_m: float = 0.05,
+        beacon_bearing_std_deg: float = 5.0,
+        **params: Any,
+    ) -> None:
         super().__init__(**params)
         self.radius_m = check_param(self.name, "radius_m", radius_m, 0.0, 20.0, low_open=True)
         self.gap_weight = check_param(self.name, "gap_weight", gap_weight, 0.0, 10.0)
         self.path = check_choice(self.name, "path", path, PATHS)
         if intruder_speed_mps is None:
             intruder_speed_mps = 0.05 if path == "circle" else 0.0
-        self.intruder_speed_mps = check_param(self.name, "intruder_speed_mps",
-                                              intruder_speed_mps, 0.0, 2.0)
+        self.intruder_speed_mps = check_param(
+            self.name, "intruder_speed_mps", intruder_speed_mps, 0.0, 2.0
+        )
         if path == "static" and (self.intruder_speed_mps > 0 or path_radius_m is not None):
-            raise ValueError(f"task {self.name!r}: path='static' takes no intruder_speed_mps > 0 "
-                             "or path_radius_m")
+            raise ValueError(
+                f"task {self.name!r}: path='static' takes no intruder_speed_mps > 0 "
+                "or path_radius_m"
+            )
         if path == "circle" and self.intruder_speed_mps == 0:
-            raise ValueError(f"task {self.name!r}: path='circle' needs intruder_speed_mps > 0 "
-                             "(use path='static' for a standing intruder)")
-        self.path_radius_m = None if path_radius_m is None else check_param(
-            self.name, "path_radius_m", path_radius_m, 0.0, 50.0, low_open=True)
+            raise ValueError(
+                f"task {self.name!r}: path='circle' needs intruder_speed_mps > 0 "
+                "(use path='static' for a standing intruder)"
+            )
+        self.path_radius_m = (
+            None
+            if path_radius_m is None
+            else check_param(self.name, "path_radius_m", path_radius_m, 0.0, 50.0, low_open=True)
+        )
         if not isinstance(beacon, bool):
             raise ValueError(f"task {self.name!r}: beacon must be True or False, got {beacon!r}")
         self.beacon = beacon
-        self.beacon_range_std_m = check_param(self.name, "beacon_range_std_m",
-                                              beacon_range_std_m, 0.0, 5.0)
-        self.beacon_bearing_std_rad = math.radians(check_param(
-            self.name, "beacon_bearing_std_deg", beacon_bearing_std_deg, 0.0, 180.0))
+        self.beacon_range_std_m = check_param(
+            self.name, "beacon_range_std_m", beacon_range_std_m, 0.0, 5.0
+        )
+        self.beacon_bearing_std_rad = math.radians(
+            check_param(self.name, "beacon_bearing_std_deg", beacon_bearing_std_deg, 0.0, 180.0)
+        )
         self._rng = np.random.default_rng(0)
         self._features = np.zeros((0, self.n_features))
         self._loop_radius_m = 1.0
@@ -112,8 +130,10 @@ class EncirclementTask(Task):
     def feature_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         if not self.beacon:
             return np.zeros(1), np.array([self.radius_m])
-        return (np.array([0.0, -1.0, -1.0, 0.0]),
-                np.array([self.radius_m, 1.0, 1.0, _MAX_RANGE_M]))
+        return (
+            np.array([0.0, -1.0, -1.0, 0.0]),
+            np.array([self.radius_m, 1.0, 1.0, _MAX_RANGE_M]),
+        )
 
     def features(self, n_agents: int) -> np.ndarray:
         if len(self._features) != n_agents:
@@ -129,9 +149,11 @@ class EncirclementTask(Task):
         if self.beacon and len(truth.extra_xy):
             rel = intruder_in_agent_frames(truth.poses, truth.extra_xy[0])
             rho = np.hypot(rel[:, 0], rel[:, 1]) + self._rng.normal(
-                0.0, self.beacon_range_std_m, n)
+                0.0, self.beacon_range_std_m, n
+            )
             bearing = np.arctan2(rel[:, 1], rel[:, 0]) + self._rng.normal(
-                0.0, self.beacon_bearing_std_rad, n)
+                0.0, self.beacon_bearing_std_rad, n
+            )
             out[:, 1], out[:, 2] = np.cos(bearing), np.sin(bearing)
             out[:, 3] = np.clip(rho, 0.0, _MAX_RANGE_M)
         self._features = out
@@ -139,8 +161,11 @@ class EncirclementTask(Task):
     # -- episode --------------------------------------------------------------------------
     def reset(self, truth: GroundTruth | None, rng: np.random.Generator, arena: Any) -> None:
         self._rng = rng
-        self._loop_radius_m = (self.path_radius_m if self.path_radius_m is not None
-                               else 0.25 * min(arena.width_m, arena.height_m))
+        self._loop_radius_m = (
+            self.path_radius_m
+            if self.path_radius_m is not None
+            else 0.25 * min(arena.width_m, arena.height_m)
+        )
         self._heading = 0.0
         self._prev_xy = None
         self._last_omega = 0.0

@@ -50,20 +50,28 @@ class ExplorationTask(Task):
 
     name = "exploration"
 
-    def __init__(self, cell_m: float = 0.5, target_coverage: float = 0.9,
-                 coverage_reward: float = 1.0, collision_penalty: float = 0.1,
-                 collision_distance_m: float = 0.3, wall_margin_m: float = 0.16,
-                 **params: Any) -> None:
+    def __init__(
+        self,
+        cell_m: float = 0.5,
+        target_coverage: float = 0.9,
+        coverage_reward: float = 1.0,
+        collision_penalty: float = 0.1,
+        collision_distance_m: float = 0.3,
+        wall_margin_m: float = 0.16,
+        **params: Any,
+    ) -> None:
         super().__init__(**params)
         self.cell_m = check_param(self.name, "cell_m", cell_m, 0.0, 10.0, low_open=True)
-        self.target_coverage = check_param(self.name, "target_coverage", target_coverage,
-                                           0.0, 1.0, low_open=True)
-        self.coverage_reward = check_param(self.name, "coverage_reward", coverage_reward,
-                                           0.0, 1e3)
-        self.collision_penalty = check_param(self.name, "collision_penalty",
-                                             collision_penalty, 0.0, 1e3)
-        self.collision_distance_m = check_param(self.name, "collision_distance_m",
-                                                collision_distance_m, 0.0, 5.0)
+        self.target_coverage = check_param(
+            self.name, "target_coverage", target_coverage, 0.0, 1.0, low_open=True
+        )
+        self.coverage_reward = check_param(self.name, "coverage_reward", coverage_reward, 0.0, 1e3)
+        self.collision_penalty = check_param(
+            self.name, "collision_penalty", collision_penalty, 0.0, 1e3
+        )
+        self.collision_distance_m = check_param(
+            self.name, "collision_distance_m", collision_distance_m, 0.0, 5.0
+        )
         self.wall_margin_m = check_param(self.name, "wall_margin_m", wall_margin_m, 0.0, 5.0)
         self._arena: Any = None
         self.covered = np.zeros((0, 0), dtype=bool)
@@ -76,8 +84,10 @@ class ExplorationTask(Task):
         nx = math.ceil(arena.width_m / self.cell_m - 1e-9)
         ny = math.ceil(arena.height_m / self.cell_m - 1e-9)
         if nx * ny < 2:
-            raise ValueError(f"task {self.name!r}: cell_m={self.cell_m} leaves fewer than 2 cells "
-                             f"in a {arena.width_m} x {arena.height_m} m arena")
+            raise ValueError(
+                f"task {self.name!r}: cell_m={self.cell_m} leaves fewer than 2 cells "
+                f"in a {arena.width_m} x {arena.height_m} m arena"
+            )
         self.covered = np.zeros((nx, ny), dtype=bool)
         self._collision_steps = 0
         self._steps = 0
@@ -89,8 +99,10 @@ class ExplorationTask(Task):
         """Cell indices ``(ix, iy)`` of world positions (clipped into the grid)."""
         ix = np.floor((xy[:, 0] + 0.5 * self._arena.width_m) / self.cell_m).astype(int)
         iy = np.floor((xy[:, 1] + 0.5 * self._arena.height_m) / self.cell_m).astype(int)
-        return (np.clip(ix, 0, self.covered.shape[0] - 1),
-                np.clip(iy, 0, self.covered.shape[1] - 1))
+        return (
+            np.clip(ix, 0, self.covered.shape[0] - 1),
+            np.clip(iy, 0, self.covered.shape[1] - 1),
+        )
 
     def _cover(self, xy: np.ndarray) -> int:
         ix, iy = self.cells(xy)

@@ -56,31 +56,56 @@ class FormationTask(Task):
 
     name = "formation"
 
-    def __init__(self, shape: str = "circle", radius_m: float | None = None,
-                 spacing_m: float | None = None, spacing_weight: float | None = None,
-                 progress_weight: float = 0.0, **params: Any) -> None:
+    def __init__(
+        self,
+        shape: str = "circle",
+        radius_m: float | None = None,
+        spacing_m: float | None = None,
+        spacing_weight: float | None = None,
+        progress_weight: float = 0.0,
+        **params: Any,
+    ) -> None:
         super().__init__(**params)
         self.shape = check_choice(self.name, "shape", shape, SHAPES)
-        self.progress_weight = check_param(self.name, "progress_weight", progress_weight,
-                                           0.0, 1e3)
+        self.progress_weight = check_param(self.name, "progress_weight", progress_weight, 0.0, 1e3)
         self._previous: np.ndarray | None = None
         if self.shape == "circle":
             if spacing_m is not None:
-                raise ValueError(f"task {self.name!r}: spacing_m applies to shape='lattice'; "
-                                 "a circle's spacing follows from radius_m and the robot count")
-            self.radius_m = check_param(self.name, "radius_m", 0.8 if radius_m is None
-                                        else radius_m, 0.0, 20.0, low_open=True)
+                raise ValueError(
+                    f"task {self.name!r}: spacing_m applies to shape='lattice'; "
+                    "a circle's spacing follows from radius_m and the robot count"
+                )
+            self.radius_m = check_param(
+                self.name,
+                "radius_m",
+                0.8 if radius_m is None else radius_m,
+                0.0,
+                20.0,
+                low_open=True,
+            )
             self.spacing_weight = check_param(
-                self.name, "spacing_weight", 0.5 if spacing_weight is None else spacing_weight,
-                0.0, 10.0)
+                self.name,
+                "spacing_weight",
+                0.5 if spacing_weight is None else spacing_weight,
+                0.0,
+                10.0,
+            )
             self.spacing_m = None
         else:
             for name, value in (("radius_m", radius_m), ("spacing_weight", spacing_weight)):
                 if value is not None:
-                    raise ValueError(f"task {self.name!r}: {name} applies to shape='circle', "
-                                     "not 'lattice' (use spacing_m)")
-            self.spacing_m = check_param(self.name, "spacing_m", 0.6 if spacing_m is None
-                                         else spacing_m, 0.0, 20.0, low_open=True)
+                    raise ValueError(
+                        f"task {self.name!r}: {name} applies to shape='circle', "
+                        "not 'lattice' (use spacing_m)"
+                    )
+            self.spacing_m = check_param(
+                self.name,
+                "spacing_m",
+                0.6 if spacing_m is None else spacing_m,
+                0.0,
+                20.0,
+                low_open=True,
+            )
             self.radius_m = None
             self.spacing_weight = 0.0
         self._errors: list[float] = []

@@ -18,9 +18,20 @@ def fake_model(tmp_path):
     path = tmp_path / "model.zip"
     with zipfile.ZipFile(path, "w") as z:
         z.writestr("data", "{}")
-    write_metadata(path, {"env_kwargs": {
-        "preset": "seed-lab", "task": "formation", "task_params": {"radius_m": 0.7},
-        "observation": "truth", "localize": False, "max_steps": 300}, "obs_norm": None})
+    write_metadata(
+        path,
+        {
+            "env_kwargs": {
+                "preset": "seed-lab",
+                "task": "formation",
+                "task_params": {"radius_m": 0.7},
+                "observation": "truth",
+                "localize": False,
+                "max_steps": 300,
+            },
+            "obs_norm": None,
+        },
+    )
     return str(path)
 
 
@@ -39,10 +50,15 @@ def test_scripted_phd_controller_gets_a_phd_env():
 
 def test_compare_shares_everything_but_the_observation(fake_model):
     shared = shared_env_kwargs(fake_model, None, None)
-    assert shared == {"preset": "seed-lab", "task": "formation",
-                      "task_params": {"radius_m": 0.7}, "max_steps": 300}
-    other = shared_env_kwargs("scripted:formation", "seed-lab", "formation",
-                              task_params={"radius_m": 0.5})
+    assert shared == {
+        "preset": "seed-lab",
+        "task": "formation",
+        "task_params": {"radius_m": 0.7},
+        "max_steps": 300,
+    }
+    other = shared_env_kwargs(
+        "scripted:formation", "seed-lab", "formation", task_params={"radius_m": 0.5}
+    )
     assert other["task_params"] == {"radius_m": 0.5} and "observation" not in other
 
 
@@ -50,9 +66,25 @@ def test_evaluate_compare_end_to_end(tmp_path):
     from swarm_env.cli import main
 
     out = tmp_path / "eval"
-    code = main(["evaluate", "--preset", "seed-lab", "--task", "formation",
-                 "--policy", "scripted:formation", "--compare", "random", "--duration", "3",
-                 "--localizer", "phd-lc", "--out", str(out)])
+    code = main(
+        [
+            "evaluate",
+            "--preset",
+            "seed-lab",
+            "--task",
+            "formation",
+            "--policy",
+            "scripted:formation",
+            "--compare",
+            "random",
+            "--duration",
+            "3",
+            "--localizer",
+            "phd-lc",
+            "--out",
+            str(out),
+        ]
+    )
     assert code == 0
     rows = json.loads((out / "comparison.json").read_text())
     assert [r["policy"] for r in rows] == ["scripted:formation", "random"]

@@ -20,12 +20,34 @@ from swarm_env.cli import main  # noqa: E402
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory):
     out = tmp_path_factory.mktemp("runs") / "smoke"
-    code = main([
-        "train", "--task", "formation", "--observation", "phd", "--timesteps", "3000",
-        "--out", str(out), "--n-copies", "1", "--n-steps", "256", "--batch-size", "256",
-        "--n-epochs", "2", "--checkpoint-every", "1000", "--max-steps", "100",
-        "--task-params", '{"radius_m": 0.7, "progress_weight": 5}', "--no-progress-bar",
-    ])
+    code = main(
+        [
+            "train",
+            "--task",
+            "formation",
+            "--observation",
+            "phd",
+            "--timesteps",
+            "3000",
+            "--out",
+            str(out),
+            "--n-copies",
+            "1",
+            "--n-steps",
+            "256",
+            "--batch-size",
+            "256",
+            "--n-epochs",
+            "2",
+            "--checkpoint-every",
+            "1000",
+            "--max-steps",
+            "100",
+            "--task-params",
+            '{"radius_m": 0.7, "progress_weight": 5}',
+            "--no-progress-bar",
+        ]
+    )
     assert code == 0
     return out
 
@@ -75,15 +97,35 @@ def test_model_on_a_mismatched_env_is_a_clear_error(run_dir):
 
 
 def test_bad_training_input_is_rejected(tmp_path):
-    assert main(["train", "--task", "nope", "--timesteps", "10", "--out",
-                 str(tmp_path / "x")]) == 2
-    assert main(["train", "--task", "formation", "--task-params", "[1]", "--timesteps", "10",
-                 "--out", str(tmp_path / "y")]) == 2
+    assert (
+        main(["train", "--task", "nope", "--timesteps", "10", "--out", str(tmp_path / "x")]) == 2
+    )
+    assert (
+        main(
+            [
+                "train",
+                "--task",
+                "formation",
+                "--task-params",
+                "[1]",
+                "--timesteps",
+                "10",
+                "--out",
+                str(tmp_path / "y"),
+            ]
+        )
+        == 2
+    )
 
 
 def test_vec_env_is_one_entry_per_agent_and_flags_truncation():
-    kwargs = {"preset": "seed-lab", "task": "formation", "observation": "truth",
-              "localize": False, "max_steps": 3}
+    kwargs = {
+        "preset": "seed-lab",
+        "task": "formation",
+        "observation": "truth",
+        "localize": False,
+        "max_steps": 3,
+    }
     venv = make_vec_env(kwargs, n_copies=2, seed=0)
     assert venv.num_envs == 8
     assert venv.action_space.high.tolist() == [1.0, 1.0]
@@ -94,8 +136,9 @@ def test_vec_env_is_one_entry_per_agent_and_flags_truncation():
     assert all(info["TimeLimit.truncated"] and "terminal_observation" in info for info in infos)
     assert "episode" in infos[0]  # VecMonitor statistics
     venv.close()
-    np.testing.assert_allclose(scale_actions(np.array([2.0, -0.5]), np.array([0.3, 1.5])),
-                               [0.3, -0.75])
+    np.testing.assert_allclose(
+        scale_actions(np.array([2.0, -0.5]), np.array([0.3, 1.5])), [0.3, -0.75]
+    )
 
 
 def test_set_extractor_ignores_row_order_and_padding():
@@ -107,9 +150,14 @@ def test_set_extractor_ignores_row_order_and_padding():
     space = env.observation_space("ugv_0")
     extractor = NeighbourSetExtractor(space, top_k=16)
     obs = np.zeros(space.shape, dtype=np.float32)
-    rows = np.array([[1.0, 0.5, -0.2, 0.01, 0.0, 0.02, 1.0],
-                     [0.8, -1.0, 0.7, 0.05, 0.01, 0.04, 1.0],
-                     [0.3, 2.0, 1.0, 0.2, 0.0, 0.1, 1.0]], dtype=np.float32)
+    rows = np.array(
+        [
+            [1.0, 0.5, -0.2, 0.01, 0.0, 0.02, 1.0],
+            [0.8, -1.0, 0.7, 0.05, 0.01, 0.04, 1.0],
+            [0.3, 2.0, 1.0, 0.2, 0.0, 0.1, 1.0],
+        ],
+        dtype=np.float32,
+    )
     obs[:21] = rows.ravel()
     obs[-4:] = [0.1, 0.2, 0.8, 1.13]
     swapped = obs.copy()

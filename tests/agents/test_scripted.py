@@ -68,8 +68,13 @@ def test_formation_from_truth_is_tight():
 
 
 def test_lattice_from_truth_keeps_the_spacing():
-    env = parallel_env("seed-lab", task="formation", observation="truth", localize=False,
-                       task_params={"shape": "lattice", "spacing_m": 0.6})
+    env = parallel_env(
+        "seed-lab",
+        task="formation",
+        observation="truth",
+        localize=False,
+        task_params={"shape": "lattice", "spacing_m": 0.6},
+    )
     policy = load_policy("scripted:formation", env)
     assert policy.shape == "lattice"
     errors = []

@@ -141,8 +141,14 @@ def test_formation_features():
 # ------------------------------------------------------------------ exploration rewards
 def test_exploration_rewards_new_cells_and_penalises_collisions():
     arena = ArenaConfig(width_m=2.0, height_m=2.0)  # 4 cells of 1 m
-    task = ExplorationTask(cell_m=1.0, target_coverage=1.0, coverage_reward=1.0,
-                           collision_penalty=0.1, collision_distance_m=0.3, wall_margin_m=0.16)
+    task = ExplorationTask(
+        cell_m=1.0,
+        target_coverage=1.0,
+        coverage_reward=1.0,
+        collision_penalty=0.1,
+        collision_distance_m=0.3,
+        wall_margin_m=0.16,
+    )
     start = truth([[-0.5, -0.5], [-0.4, -0.5]])  # both in cell (0, 0), 0.1 m apart: colliding
     task.reset(start, RNG, arena)
     assert task.coverage == 0.25
@@ -174,8 +180,9 @@ def test_encirclement_reward_hand_computed():
 
 
 def test_encirclement_beacon_is_the_intruder_in_the_agent_frame():
-    task = EncirclementTask(beacon=True, beacon_range_std_m=0.0, beacon_bearing_std_deg=0.0,
-                            path="static")
+    task = EncirclementTask(
+        beacon=True, beacon_range_std_m=0.0, beacon_bearing_std_deg=0.0, path="static"
+    )
     t = truth([[1.0, 0.0]], yaw=[math.pi / 2], extra=[[0.0, 0.0]])
     task.reset(t, RNG, ARENA)
     r, cos_b, sin_b, rho = task.features(1)[0]
@@ -187,8 +194,9 @@ def test_encirclement_beacon_is_the_intruder_in_the_agent_frame():
 def test_intruder_moves_on_its_loop_and_static_stays():
     static = EncirclementTask(path="static")
     static.reset(truth([[0, 0]], extra=[[1, 1]]), RNG, ARENA)
-    np.testing.assert_array_equal(static.extra_commands(truth([[0, 0]], extra=[[1, 1]]), 0.1),
-                                  [[0.0, 0.0]])
+    np.testing.assert_array_equal(
+        static.extra_commands(truth([[0, 0]], extra=[[1, 1]]), 0.1), [[0.0, 0.0]]
+    )
     moving = EncirclementTask(path="circle", intruder_speed_mps=0.1)
     t = truth([[0, 0]], extra=[[0.75, 0.0]])
     moving.reset(t, RNG, ARENA)
