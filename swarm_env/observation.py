@@ -115,32 +115,31 @@ def measurement_tables(
     ascending, as padded rows ``[x, y, valid]`` and ``[cos b, sin b, valid]``: (R, 6 top_k)."""
     n = len(detections)
     lidar = np.zeros((n, top_k, 3))
-    owner = np.repeat(np.arange(n), [len(d) for d in detections])
-    if owner.size:
-        pts = np.concatenate(detections)
-        order = np.lexsort((np.hypot(pts[:, 0], pts[:, 1]), owner))  # by robot, then range
-        rank = _rank_within(owner[order])
-        keep = rank < top_k
-        rows, slots = owner[order][keep], rank[keep]
-        lidar[rows, slots, 0:2] = pts[order][keep]
-        lidar[rows, slots, 2] = 1.0
     cam = np.zeros((n, top_k, 3))
-    owner = np.repeat(np.arange(n), [len(b) for b in bearings])
-    if owner.size:
+    counts = np.fromiter(map(len, detections), dtype=np.intp, count=n)
+    if counts.any():
+        pts = np.concatenate(detections)
+        owner, rank = _owner_and_rank(counts)
+        order = np.lexsort((np.hypot(pts[:, 0], pts[:, 1]), owner))  # by robot, then range
+        keep = rank < top_k  # the lexsort keeps robots' runs where they were
+        lidar[owner[keep], rank[keep], 0:2] = pts[order[keep]]
+        lidar[owner[keep], rank[keep], 2] = 1.0
+    counts = np.fromiter(map(len, bearings), dtype=np.intp, count=n)
+    if counts.any():
         b = np.concatenate(bearings)
+        owner, rank = _owner_and_rank(counts)
         order = np.lexsort((b, owner))
-        rank = _rank_within(owner[order])
         keep = rank < top_k
-        rows, slots, b = owner[order][keep], rank[keep], b[order][keep]
+        rows, slots, b = owner[keep], rank[keep], b[order[keep]]
         cam[rows, slots, 0], cam[rows, slots, 1], cam[rows, slots, 2] = np.cos(b), np.sin(b), 1.0
     return np.concatenate([lidar.reshape(n, -1), cam.reshape(n, -1)], axis=1)
 
 
-def _rank_within(sorted_groups: np.ndarray) -> np.ndarray:
-    """Position of each element within its run of equal (sorted) group ids."""
-    start = np.flatnonzero(np.r_[True, sorted_groups[1:] != sorted_groups[:-1]])
-    counts = np.diff(np.r_[start, sorted_groups.size])
-    return np.arange(sorted_groups.size) - np.repeat(start, counts)
+def _owner_and_rank(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Owner and position within its owner of each element of runs of ``counts`` elements."""
+    owner = np.repeat(np.arange(counts.size), counts)
+    first = np.cumsum(counts) - counts
+    return owner, np.arange(owner.size) - first[owner]
 
 
 def assemble(

@@ -192,10 +192,11 @@ class CameraSensor:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`visibility` of a time-stacked scene, in one pass.
 
-        A frame only involves the circles of its own instant. Static occluders are tested
-        densely as in a single-instant scene; the moving ones (one per robot and instant) are
-        gathered per sight line from the line's own instant, so the work does not grow with
-        the number of instants.
+        A frame only involves the circles of its own instant, so each observer gets just the
+        targets and moving occluders of its instant, gathered from per-instant grids: the work
+        does not grow with the number of instants. Static occluders and segments are tested as
+        in a single-instant scene. ``bearing_rad`` is filled for the static targets and those
+        of the frame's own instant (0 elsewhere).
         """
         cfg = self.config
         time_index = np.asarray(time_index, dtype=np.intp).reshape(-1)
@@ -203,14 +204,26 @@ class CameraSensor:
         when = np.asarray(scene.circle_time, dtype=np.intp)
         radius = np.asarray(scene.circle_radius_m, dtype=np.float64)
         target = np.flatnonzero(np.asarray(scene.circle_red, dtype=bool))
+        n_obs = robots.size
+        # Candidate targets of each frame, as positions in `target`: the static ones, then the
+        # moving ones of the frame's instant.
+        t_static = np.flatnonzero(when[target] < 0)
+        t_grid = np.searchsorted(target, _instant_grid(target[when[target] >= 0], owner, when))
+        _check_instants(t_grid, time_index)
+        cand = np.concatenate(
+            (np.broadcast_to(t_static, (n_obs, t_static.size)), t_grid[time_index]), axis=1
+        )  # (K, T')
         origin, yaw = scene.observer_poses(robots, time_index)
-        tx, ty = to_body_frame(scene.circle_xy[target], origin, yaw)
-        dist2 = tx * tx + ty * ty
+        cand_xy = scene.circle_xy[target[cand]]  # (K, T', 2)
+        rx = cand_xy[..., 0] - origin[:, 0:1]
+        ry = cand_xy[..., 1] - origin[:, 1:2]
+        dist2 = rx * rx + ry * ry
         t_owner = owner[target]
-        visible = (t_owner[None, :] != robots[:, None]) & (dist2 >= cfg.range_min_m**2)
-        visible &= dist2 <= cfg.range_max_m**2
-        visible &= scene.circles_present(target, time_index, robots.size)
-        pair_k, pair_t = np.nonzero(visible)
+        in_range = t_owner[cand] != robots[:, None]
+        in_range &= dist2 >= cfg.range_min_m**2
+        in_range &= dist2 <= cfg.range_max_m**2
+        pair_k, pair_j = np.nonzero(in_range)
+        pair_t = cand[pair_k, pair_j]
 
         occ = np.flatnonzero(np.asarray(scene.circle_camera_occluder, dtype=bool))
         static, timed = occ[when[occ] < 0], occ[when[occ] >= 0]
@@ -229,30 +242,35 @@ class CameraSensor:
             applies,
         )
         if timed.size:
-            timed = timed[np.lexsort((owner[timed], when[timed]))]
-            per_instant = np.bincount(when[timed])
-            if per_instant.min() != per_instant.max() or time_index.max() >= per_instant.size:
-                raise ValueError(
-                    "a time-stacked scene needs the same moving circles at every "
-                    f"instant, got counts {per_instant.tolist()}"
-                )
-            slots = timed.reshape(per_instant.size, per_instant[0])[time_index[pair_k]]
+            o_grid = _instant_grid(timed, owner, when)
+            _check_instants(o_grid, time_index)
+            o_grid = o_grid[time_index]  # (K, n): the moving occluders of each frame's instant
             # Neither the observer's nor the target robot's own circles block the line.
-            own = owner[slots] != robots[pair_k][:, None]
-            own &= (owner[slots] != t_owner[pair_t][:, None]) | (t_owner[pair_t][:, None] < 0)
-            own &= slots != target[pair_t][:, None]
-            o = origin[pair_k]
-            # Gather the (P, n) occluders from float32 copies: the gather is the cost.
-            xy32 = scene.circle_xy.astype(np.float32)
+            o_owner = owner[o_grid][pair_k]  # (P, n)
+            p_owner = t_owner[pair_t][:, None]
+            applies = o_owner != robots[pair_k][:, None]
+            applies &= (o_owner != p_owner) | (p_owner < 0)
+            applies &= o_grid[pair_k] != target[pair_t][:, None]
+            # Occluders relative to their observer, float32: the (P, n) temporaries are the
+            # cost, and sub-millimetre precision is plenty for occlusion.
+            f32 = np.float32
+            o_xy = np.empty((2, n_obs, o_grid.shape[1]), dtype=f32)
+            np.subtract(scene.circle_xy[o_grid, 0], origin[:, 0:1], out=o_xy[0], casting="unsafe")
+            np.subtract(scene.circle_xy[o_grid, 1], origin[:, 1:2], out=o_xy[1], casting="unsafe")
             blocked |= lines_hit_own_circles(
-                o,
-                scene.circle_xy[target[pair_t]] - o,
-                xy32[slots],
-                radius.astype(np.float32)[slots],
-                own,
+                np.stack((rx[pair_k, pair_j], ry[pair_k, pair_j]), axis=1),
+                o_xy[0][pair_k],
+                o_xy[1][pair_k],
+                np.square(radius[o_grid], dtype=f32)[pair_k],
+                applies,
             )
-        visible[pair_k[blocked], pair_t[blocked]] = False
-        return target, visible, np.arctan2(ty, tx)
+        visible = np.zeros((n_obs, target.size), dtype=bool)
+        clear = ~blocked
+        visible[pair_k[clear], pair_t[clear]] = True
+        bearing = np.zeros((n_obs, target.size))
+        # Body-frame bearing = world bearing - yaw.
+        bearing[np.arange(n_obs)[:, None], cand] = wrap_angle(np.arctan2(ry, rx) - yaw[:, None])
+        return target, visible, bearing
 
     def observe(
         self,
@@ -322,4 +340,24 @@ class CameraSensor:
             visible=robot_visible,
             target_index=target,
             target_visible=visible,
+        )
+
+
+def _instant_grid(circles: np.ndarray, owner: np.ndarray, when: np.ndarray) -> np.ndarray:
+    """Moving ``circles`` as an (instants, per instant) grid, each row in owner order."""
+    circles = circles[np.lexsort((owner[circles], when[circles]))]
+    per_instant = np.bincount(when[circles])
+    if per_instant.size and per_instant.min() != per_instant.max():
+        raise ValueError(
+            "a time-stacked scene needs the same moving circles at every instant, got counts "
+            f"{per_instant.tolist()}"
+        )
+    return circles.reshape(per_instant.size, -1)
+
+
+def _check_instants(grid: np.ndarray, time_index: np.ndarray) -> None:
+    if time_index.size and time_index.max() >= grid.shape[0]:
+        raise ValueError(
+            f"time_index must be < the scene's {grid.shape[0]} instants, got "
+            f"{int(time_index.max())}"
         )

@@ -211,20 +211,25 @@ def _lines_hit_circles(origins, pair_o, o, d, centre, radius, applies) -> np.nda
 
 
 def lines_hit_own_circles(
-    origins_xy: np.ndarray,
     vectors_xy: np.ndarray,
-    centres_xy: np.ndarray,
-    radii_m: np.ndarray,
+    centres_x: np.ndarray,
+    centres_y: np.ndarray,
+    radii2_m2: np.ndarray,
     applies: np.ndarray,
 ) -> np.ndarray:
-    """P line segments ``o -> o + d``, each against its own n circles: (P,) any hit.
+    """P line segments ``0 -> d``, each against its own n circles: (P,) any hit.
+
+    Coordinates are relative to each line's origin.
 
     Parameters
     ----------
-    origins_xy, vectors_xy : ndarray, shape (P, 2)
-    centres_xy : ndarray, shape (P, n, 2)
-        The circles line p is tested against (e.g. the robots at line p's own instant).
-    radii_m : ndarray, shape (P, n)
+    vectors_xy : ndarray, shape (P, 2)
+        Line vectors ``d`` (origin to end point), metres.
+    centres_x, centres_y : ndarray, shape (P, n)
+        The circles line p is tested against (e.g. the robots at line p's own instant),
+        relative to its origin. float32 is enough (and what makes it fast).
+    radii2_m2 : ndarray, shape (P, n)
+        Squared radii.
     applies : ndarray, shape (P, n), bool
         Which of them may block line p.
 
@@ -233,19 +238,20 @@ def lines_hit_own_circles(
     ndarray, shape (P,), bool
         The line passes closer than a radius to a circle centre (closest point of the segment).
     """
-    # Component-wise arithmetic (einsum is slow for a length-2 contraction), in float32: the
-    # (P, n) temporaries are the cost, and sub-millimetre precision is plenty for occlusion.
-    f32 = np.float32
-    dx, dy = vectors_xy[:, 0:1].astype(f32), vectors_xy[:, 1:2].astype(f32)
-    wx = centres_xy[..., 0].astype(f32) - origins_xy[:, 0:1].astype(f32)  # (P, n)
-    wy = centres_xy[..., 1].astype(f32) - origins_xy[:, 1:2].astype(f32)
-    wd = wx * dx + wy * dy
-    w2 = wx * wx + wy * wy
+    # Component-wise arithmetic (einsum is slow for a length-2 contraction) in the dtype of the
+    # centres: the (P, n) temporaries are the cost.
+    dtype = centres_x.dtype
+    dx = vectors_xy[:, 0:1].astype(dtype)
+    dy = vectors_xy[:, 1:2].astype(dtype)
+    wd = centres_x * dx
+    wd += centres_y * dy
+    w2 = np.square(centres_x)
+    w2 += np.square(centres_y)
     length2 = dx * dx + dy * dy
     s = wd / np.where(length2 > 0.0, length2, 1.0)
     np.clip(s, 0.0, 1.0, out=s)
     # |w - s d|^2 = |w|^2 - 2 s w.d + s^2 |d|^2
     w2 += s * (s * length2 - 2.0 * wd)
-    hit = w2 < np.square(radii_m, dtype=f32)
+    hit = w2 < radii2_m2
     hit &= applies
     return hit.any(axis=1)

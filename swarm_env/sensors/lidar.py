@@ -40,6 +40,7 @@ from swarm_env.sensors.geometry import (
     to_body_frame,
     wrap_angle,
 )
+from swarm_env.sensors.noise import TabulatedNormal
 from swarm_env.world.scene import Scene
 
 # Bearing intervals are widened by this much so rounding never loses a beam through an end point.
@@ -228,6 +229,9 @@ class LidarSensor:
         self._beam_ux = np.cos(angles)
         self._beam_uy = np.sin(angles)
         self.blind_mask = _readonly(blind_mask(angles, cfg))
+        # Per-beam noise as table lookups (see noise.py): range offsets and intensity factors.
+        self._range_noise = TabulatedNormal(lambda z: cfg.range_noise_std_m * z)
+        self._intensity_noise = TabulatedNormal(lambda z: np.exp(cfg.intensity_noise_std * z))
         self.head_phase_rad = np.zeros(n_robots)
         self.rate_offset_hz = np.zeros(n_robots)
 
@@ -307,8 +311,9 @@ class LidarSensor:
         stamps_s : ndarray, shape (K,)
             End time of each revolution, seconds.
         rng : numpy.random.Generator
-            Source of the range and intensity noise. Always draws ``2 K B`` normals, so the
-            stream advances the same way whatever the scene.
+            Source of the range and intensity noise. Always draws ``2 K B`` tabulated normals
+            (:class:`~swarm_env.sensors.noise.TabulatedNormal`), so the stream advances the
+            same way whatever the scene.
         time_index : ndarray, shape (K,), int, optional
             Instant of each scan in a time-stacked scene (see :class:`Scene`).
 
@@ -342,9 +347,7 @@ class LidarSensor:
         hit_code = np.full(n_scans * n_beams, -1, dtype=np.intp)
         hit_code[flat[winner]] = code[winner]
 
-        # float32 draws: half the cost, and ample for 1 cm range noise.
-        noise = rng.standard_normal((2, n_scans * n_beams), dtype=np.float32)
-        ranges = best + cfg.range_noise_std_m * noise[0]  # inf (no hit) stays inf
+        ranges = best + self._range_noise.draw(rng, n_scans * n_beams)  # inf (no hit) stays inf
         valid = np.tile(~self.blind_mask, n_scans)
         valid &= ranges >= cfg.range_min_m
         valid &= ranges <= cfg.range_max_m
@@ -371,7 +374,9 @@ class LidarSensor:
         hit_owner = table_owner[hit_code].reshape(shape)
         falloff = 1.0 / (1.0 + np.square(ranges * (1.0 / cfg.intensity_falloff_m)))
         intensities = (
-            table_intensity[hit_code] * falloff * np.exp(cfg.intensity_noise_std * noise[1])
+            table_intensity[hit_code]
+            * falloff
+            * self._intensity_noise.draw(rng, n_scans * n_beams)
         )
 
         interfered = self._interference(scene, robots, stamps, hit_owner, hit_index, time_index)

@@ -146,7 +146,7 @@ def extract_clusters(
             f"extract_clusters: {angles.shape[0]} angles for ranges of shape {ranges.shape}"
         )
     valid = ranges > 0.0
-    prev = np.roll(ranges, 1, axis=1)
+    prev = _roll_beams(ranges, 1)
     threshold = np.minimum(ranges, prev)
     threshold *= cfg.jump_range_gain
     threshold += cfg.jump_threshold_m
@@ -154,9 +154,9 @@ def extract_clusters(
     prev -= ranges
     link = np.abs(prev, out=prev) <= threshold
     link &= valid
-    link &= np.roll(valid, 1, axis=1)
+    link &= _roll_beams(valid, 1)
     start = valid & ~link
-    end = valid & ~np.roll(link, -1, axis=1)
+    end = valid & ~_roll_beams(link, -1)
     # A scan whose valid returns all link around the full circle has no start: call it one
     # cluster from beam 0 to beam B-1 (as wide as the room, so it is rejected below).
     ring = valid.any(axis=1) & ~start.any(axis=1)
@@ -214,6 +214,18 @@ def extract_clusters(
         n_beams=count[order],
         n_scans=n_scans,
     )
+
+
+def _roll_beams(a: np.ndarray, shift: int) -> np.ndarray:
+    """``np.roll(a, shift, axis=1)`` for shift +-1, as two slice copies (np.roll is ~5x slower)."""
+    out = np.empty_like(a)
+    if shift == 1:
+        out[:, 1:] = a[:, :-1]
+        out[:, 0] = a[:, -1]
+    else:
+        out[:, :-1] = a[:, 1:]
+        out[:, -1] = a[:, 0]
+    return out
 
 
 def extract_detections(

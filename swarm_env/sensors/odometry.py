@@ -101,22 +101,47 @@ class WheelEncoders:
         self._last_count[:] = 0
         self._last_stamp_s = time_s
 
-    def advance(self, body_speeds: np.ndarray, dt_s: float, rng: np.random.Generator) -> None:
-        """Turn the wheels for one substep.
+    def advance(
+        self, body_speeds: np.ndarray, dt_s: float, rng: np.random.Generator
+    ) -> np.ndarray:
+        """Turn the wheels for one substep, or for S substeps at once.
 
         Parameters
         ----------
-        body_speeds : ndarray, shape (N, 2)
-            The motor-driven ``[v_mps, omega_radps]`` (acceleration-limited command).
+        body_speeds : ndarray, shape (N, 2) or (S, N, 2)
+            The motor-driven ``[v_mps, omega_radps]`` (acceleration-limited command) of each
+            substep.
+        dt_s : float
+            Substep length, seconds.
+        rng : numpy.random.Generator
+            Draws one slip factor per wheel and substep, substep by substep.
+
+        Returns
+        -------
+        ndarray, shape (N, 2) or (S, N, 2)
+            Shaft angles ``[left, right]`` (rad) after each substep; pass one to :meth:`sample`.
         """
-        # [v_L, v_R] = [v - omega w/2, v + omega w/2], as one (N, 2) @ (2, 2) product.
+        # [v_L, v_R] = [v - omega w/2, v + omega w/2], as one (..., 2) @ (2, 2) product.
         wheel_mps = body_speeds @ self._to_wheels
         slip = 1.0 + self.config.slip_noise_std * rng.standard_normal(wheel_mps.shape)
-        self.wheel_angle_rad += wheel_mps * (dt_s / self.wheel_radius_m) * slip
+        turn = wheel_mps * (dt_s / self.wheel_radius_m) * slip
+        if turn.ndim == 2:
+            self.wheel_angle_rad += turn
+            return self.wheel_angle_rad.copy()
+        angles = self.wheel_angle_rad + np.cumsum(turn, axis=0)
+        self.wheel_angle_rad = angles[-1].copy()
+        return angles
 
-    def sample(self, time_s: float) -> tuple[np.ndarray, np.ndarray]:
-        """Read the encoders: pulses since the last sample -> (delta (N,3), velocity (N,2))."""
-        count = np.floor(self.wheel_angle_rad / self._rad_per_pulse).astype(np.int64)
+    def sample(
+        self, time_s: float, wheel_angle_rad: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Read the encoders: pulses since the last sample -> (delta (N,3), velocity (N,2)).
+
+        ``wheel_angle_rad`` (N, 2): the shaft angles at ``time_s`` (one row block of what
+        :meth:`advance` returned for several substeps); default the current ones.
+        """
+        angle = self.wheel_angle_rad if wheel_angle_rad is None else wheel_angle_rad
+        count = np.floor(angle / self._rad_per_pulse).astype(np.int64)
         pulses = count - self._last_count
         self._last_count = count
         delta = pulses_to_delta(

@@ -213,10 +213,15 @@ class SimWorld:
         start_s = self.time_s
         camera_due: list[np.ndarray] = []
         t0 = time.perf_counter()
+        # The motors slew towards the (constant) command at the acceleration limits, so the
+        # speed after substep s is in closed form: all substeps at once, encoders included.
+        reach = np.arange(1, n_sub + 1)[:, None, None] * (limits * dt)
+        speeds = self.motor_speeds + np.clip(target - self.motor_speeds, -reach, reach)
+        self.motor_speeds = speeds[-1].copy()
+        wheel_angles = self.encoders.advance(speeds, dt, self._rng)  # (n_sub, R, 2)
         state = self._body_state()
         for sub in range(n_sub):
-            self.motor_speeds += np.clip(target - self.motor_speeds, -limits * dt, limits * dt)
-            v, omega = self.motor_speeds[:, 0], self.motor_speeds[:, 1]
+            v, omega = speeds[sub, :, 0], speeds[sub, :, 1]
             # Chord direction of this substep's arc: the heading half a substep ahead.
             heading = state[self._robot_rows, 2] + 0.5 * omega * dt
             velocities = state[:, 3:6].copy()
@@ -225,14 +230,13 @@ class SimWorld:
             velocities[self._drive_rows, 2] = omega
             self._set_body_velocities(velocities)
             self.space.step(dt)
-            self.encoders.advance(self.motor_speeds, dt, self._rng)
             self.time_s += dt
             state = self._body_state()
             poses[sub] = state[self._robot_rows, 0:3]
             stamps[sub] = t = self.time_s
             if self._next_odometry_s <= t + _EPS_S:
                 # One shared encoder clock: all robots sample together at the odometry rate.
-                delta, velocity = self.encoders.sample(t)
+                delta, velocity = self.encoders.sample(t, wheel_angles[sub])
                 for i in range(self.n_agents):
                     odometry[i].append(OdometryRecord(t, delta[i], velocity[i]))
                 self._next_odometry_s += 1.0 / cfg.odometry.rate_hz
