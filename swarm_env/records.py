@@ -18,6 +18,13 @@ def _frozen(array: np.ndarray, shape: tuple[int, ...] | None = None, ndim: int =
     """A read-only float64 view of ``array`` (reshaped to ``shape``, or flattened if ``ndim``
     is 1). Not a copy: records are made on the hot path (about a hundred per env step), and
     producers hand over arrays they no longer write to."""
+    if type(array) is np.ndarray and array.dtype == np.float64 and not array.flags.writeable:
+        # Fast path: already a read-only view (e.g. a row of a frozen batch) of the right shape.
+        if shape is None:
+            if ndim != 1 or array.ndim == 1:
+                return array
+        elif len(shape) == array.ndim and all(s in (-1, a) for s, a in zip(shape, array.shape)):
+            return array
     if type(array) is not np.ndarray or array.dtype != np.float64:
         array = np.asarray(array, dtype=np.float64)
     if shape is not None:

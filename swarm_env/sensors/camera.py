@@ -325,6 +325,7 @@ class CameraSensor:
         order = np.argsort(obs_index * 8.0 + values, kind="stable")
         bounds = np.searchsorted(obs_index[order], np.arange(n_obs + 1)).tolist()
         values, source = values[order], source[order]
+        values.setflags(write=False)  # the per-frame slices become read-only views
 
         owner = np.asarray(scene.circle_owner, dtype=np.intp)
         n_owners = max(scene.n_robots, int(owner.max()) + 1 if owner.size else 0)

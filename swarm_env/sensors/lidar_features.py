@@ -114,7 +114,9 @@ class LidarDetections:
     def split(self) -> list[np.ndarray]:
         """Per-scan detections: a list of K arrays of shape (M_k, 2)."""
         bounds = np.searchsorted(self.scan_index, np.arange(self.n_scans + 1)).tolist()
-        return [self.xy_m[a:b] for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+        xy = self.xy_m.view()
+        xy.setflags(write=False)  # read-only views, as records want them (no copy)
+        return [xy[a:b] for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
 
 
 def extract_clusters(

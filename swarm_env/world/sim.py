@@ -237,6 +237,8 @@ class SimWorld:
             if self._next_odometry_s <= t + _EPS_S:
                 # One shared encoder clock: all robots sample together at the odometry rate.
                 delta, velocity = self.encoders.sample(t, wheel_angles[sub])
+                delta.setflags(write=False)  # records hold row views (see records.py)
+                velocity.setflags(write=False)
                 for i in range(self.n_agents):
                     odometry[i].append(OdometryRecord(t, delta[i], velocity[i]))
                 self._next_odometry_s += 1.0 / cfg.odometry.rate_hz
@@ -306,6 +308,9 @@ class SimWorld:
             batch.angles_rad, batch.ranges_m, self.config.lidar_features
         )
         null = (batch.ranges_m == 0.0) & (batch.intensities == 0.0) & ~self.lidar.blind_mask
+        # Records keep read-only views: freezing the batch once makes every row view read-only.
+        batch.ranges_m.setflags(write=False)
+        batch.intensities.setflags(write=False)
         n_total = self.n_agents + self.n_extra
         counts = batch.owner_beam_counts(n_total, after_interference=True)
         for k, i in enumerate(robots.tolist()):
