@@ -328,49 +328,40 @@ def compact(table: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray
 def greedy_clusters_batched(close: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """:func:`greedy_clusters` for ``K`` gate matrices at once.
 
-    The leader set is found in rounds, each vectorised over robots and components: a
-    component with a leader above it in its coverers is absorbed; one whose coverers above it
-    are all absorbed is a leader. Rounds = longest covering chain (1 in the common case).
+    Vo & Ma's loop, vectorised over robots: each pass takes every robot's heaviest remaining
+    component (ties: lowest index) as a leader and removes the remaining components inside its
+    gate. Passes = the largest number of clusters of any robot; each pass costs a few (K, N)
+    operations, so no (K, N, N) temporaries are built.
 
     Parameters
     ----------
     close : ndarray of bool, shape (K, N, N)
-        ``close[k, j, i]``: component ``i`` is inside ``j``'s gate (robot ``k``); the
-        diagonal must be True.
+        ``close[k, j, i]``: component ``i`` is inside ``j``'s gate (robot ``k``). Entries
+        involving padding are ignored.
     weights : ndarray, shape (K, N)
+        Real components have weight > 0; padding (weight 0) stays a singleton.
 
     Returns
     -------
     ndarray of int, shape (K, N)
         Leader index of each component's cluster (``labels[k, j] == j`` for leaders).
     """
-    n = close.shape[-1]
-    index = np.arange(n)
-    # Work on covered[k, i, j] = close[k, j, i]: reductions over the coverer j run along the
-    # last axis (contiguous when ``close`` is a transposed view, as merge_batched passes it).
-    covered = close.transpose(0, 2, 1)
-    score = covered * (weights + 1.0)[:, None, :]  # [k, i, j]
-    best = score.argmax(axis=2)  # highest-ranked coverer of i (maybe i itself)
-    leader = best == index  # nobody ranked above covers it
-    if np.take_along_axis(leader, best, axis=1).all():
-        return best  # every best coverer is a leader (the common case)
-    # above[k, i, j]: j covers i and is ranked above it (heavier, ties: lower index).
-    rank = np.empty_like(best)
-    np.put_along_axis(rank, np.argsort(-weights, axis=1, kind="stable"), index[None], axis=1)
-    above_f = (covered & (rank[:, None, :] < rank[:, :, None])).astype(float)
-    undecided = ~leader
+    k, n = weights.shape
+    rows = np.arange(k)
+    labels = np.broadcast_to(np.arange(n), (k, n)).copy()
+    remaining = weights > 0.0
+    # Removed components get weight -1, below every real one, so argmax skips them.
+    w_left = np.where(remaining, weights, -1.0)
     while True:
-        # absorbed: some leader above covers it
-        undecided &= np.matmul(above_f, leader[:, :, None].astype(float))[:, :, 0] == 0.0
-        if not undecided.any():
-            break
-        # leader: no undecided coverer above (and, from the line above, no leader above)
-        pending = np.matmul(above_f, undecided[:, :, None].astype(float))[:, :, 0]
-        new = undecided & (pending == 0.0)
-        leader |= new
-        undecided &= ~new
-    # Each component joins the highest-ranked leader whose gate holds it.
-    return (score * leader[:, None, :]).argmax(axis=2)
+        leader = w_left.argmax(axis=1)  # (K,); a robot with nothing left yields no members
+        members = close[rows, leader]  # (K, N): the leader's gate
+        members[rows, leader] = True  # the leader itself, whatever round-off did to q[j, j]
+        members &= remaining
+        if not members.any():
+            return labels
+        np.copyto(labels, leader[:, None], where=members)
+        np.copyto(w_left, -1.0, where=members)
+        remaining &= ~members
 
 
 def merge_batched(
@@ -400,9 +391,9 @@ def merge_batched(
     covs = table[ROW_PXX:]
     index = np.arange(n)
     valid = index < counts[:, None]
+    # Padding entries of the gate matrix are never read: the greedy pass only takes real
+    # (weight > 0) components as leaders or members; padding stays singleton, dropped below.
     close = gate_distances(means, covs) <= threshold
-    close &= valid[:, :, None] & valid[:, None, :]
-    close[:, index, index] = True  # padding: zero-weight singletons, dropped below
     labels = greedy_clusters_batched(close, w)
     is_leader = (labels == index) & valid
     n_out = np.count_nonzero(is_leader, axis=1)

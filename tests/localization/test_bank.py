@@ -99,7 +99,7 @@ def test_bank_matches_independent_filters(name, seed):
 
 
 def test_cap_and_covering_chains_are_exercised(monkeypatch):
-    """The equivalence runs hit the cap and the multi-round greedy merge."""
+    """The equivalence runs hit the cap and covering chains (a best coverer itself absorbed)."""
     import localization.reducer as reducer
 
     seen = {"rounds": 0, "cap": 0}
@@ -238,3 +238,25 @@ def test_bad_constructor_and_apply():
     assert_unchanged(bank, before)
     with pytest.raises(ValueError, match="same config"):
         PHDBank.from_filters([RobotCentricPHD(), RobotCentricPHD(mode="lidar-only")])
+
+
+def test_batched_greedy_clusters_match_the_single_mixture_greedy():
+    """Random gates with long covering chains and ties; padding (weight 0) entries of the gate
+    matrix are arbitrary and must be ignored."""
+    from localization.reducer import greedy_clusters, greedy_clusters_batched
+
+    rng = np.random.default_rng(11)
+    k, n = 7, 30
+    counts = rng.integers(0, n + 1, size=k)
+    weights = np.round(rng.uniform(0.1, 1.0, size=(k, n)), 1)  # > 0, with many ties
+    close = rng.random((k, n, n)) < 0.15
+    valid = np.arange(n) < counts[:, None]
+    weights[~valid] = 0.0
+    close[:, np.arange(n), np.arange(n)] = True
+    labels = greedy_clusters_batched(close, weights)
+    for r in range(k):
+        c = counts[r]
+        np.testing.assert_array_equal(
+            labels[r, :c], greedy_clusters(close[r, :c, :c], weights[r, :c])
+        )
+        np.testing.assert_array_equal(labels[r, c:], np.arange(c, n))  # padding: singletons
