@@ -385,9 +385,12 @@ def expected_count(radius_m: float, chord_m: float) -> int:
 class EncirclementPolicy(VectorFieldPolicy):
     """Enclose the intruder (task ``encirclement``) on a circle of radius ``r``, evenly spread.
 
-    The intruder's position ``q`` comes from the beacon features ``[r, cos b, sin b, rho]`` and is
-    refined by the nearest confident PHD component within ``gate_m`` of it (the PHD is more
-    precise; the beacon says which component is the intruder). Radial term:
+    The intruder's position ``q`` comes from the beacon features ``[r, valid, cos b, sin b, rho]``
+    and is refined by the nearest confident PHD component within ``gate_m`` of it (the PHD is more
+    precise; the beacon says which component is the intruder). While ``valid`` is 0 (no beacon
+    reading, e.g. real robots without motion capture) nothing says which component is the
+    intruder, so the robot ignores the beacon values and random-walks, as with nobody in sight.
+    Radial term:
     ``k_p (||q|| - r) q / ||q||``. Tangential term: with ``g+``/``g-`` the angular gaps (seen from
     ``q``) to the nearest estimated teammates counter-clockwise and clockwise,
     ``k_t r (g+ - g-) / 2`` along the counter-clockwise tangent, which evens the gaps out (the
@@ -421,7 +424,9 @@ class EncirclementPolicy(VectorFieldPolicy):
         return super().for_env(env, **kwargs)
 
     def desired_velocity(self, agent, table, odometry, features):
-        radius, cos_b, sin_b, rho = (float(x) for x in features[:4])
+        radius, valid, cos_b, sin_b, rho = (float(x) for x in features[:5])
+        if valid < 0.5:
+            return None  # no beacon reading: rho = 0 would put the intruder on this robot
         q = rho * np.array([cos_b, sin_b])
         pts, w = estimated_neighbours(table, self.min_weight)
         if len(pts):

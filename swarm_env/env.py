@@ -210,7 +210,9 @@ class SwarmEnv(ParallelEnv):
             self._last_detections[i] = np.zeros((0, 2))
             self._last_bearings[i] = np.zeros(0)
         step = self.world.reset(world_rng)
-        self.task.reset(step.truth, task_rng, self.config.arena)
+        # The sim knows where its obstacles are (exploration penalises them); real robots do not.
+        layout = getattr(self.world, "layout", None)
+        self.task.reset(step.truth, task_rng, self.config.arena, layout=layout)
         self._absorb(step)
         obs = self._observations(step)
         infos = self._infos(step)

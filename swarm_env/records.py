@@ -23,7 +23,9 @@ def _frozen(array: np.ndarray, shape: tuple[int, ...] | None = None, ndim: int =
         if shape is None:
             if ndim != 1 or array.ndim == 1:
                 return array
-        elif len(shape) == array.ndim and all(s in (-1, a) for s, a in zip(shape, array.shape)):
+        elif len(shape) == array.ndim and all(
+            s in (-1, a) for s, a in zip(shape, array.shape, strict=True)
+        ):
             return array
     if type(array) is not np.ndarray or array.dtype != np.float64:
         array = np.asarray(array, dtype=np.float64)

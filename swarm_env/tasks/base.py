@@ -8,11 +8,14 @@ swarm has only with motion capture (without it, rewards are zero and nothing ter
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from swarm_env.world.base import GroundTruth
+
+if TYPE_CHECKING:
+    from swarm_env.world.arena import Layout
 
 
 class Task:
@@ -36,8 +39,20 @@ class Task:
         return np.zeros((n_agents, 0))
 
     # -- episode ----------------------------------------------------------------------------
-    def reset(self, truth: GroundTruth | None, rng: np.random.Generator, arena: Any) -> None:
-        """Start an episode (``arena`` is the ArenaConfig, for tasks that need the bounds)."""
+    def reset(
+        self,
+        truth: GroundTruth | None,
+        rng: np.random.Generator,
+        arena: Any,
+        *,
+        layout: Layout | None = None,
+    ) -> None:
+        """Start an episode.
+
+        ``arena`` is the ArenaConfig (bounds, obstacle sizes); ``layout`` the episode's obstacle
+        geometry when the World has one (``SimWorld.layout``; ``None`` on real robots), for tasks
+        that score contact with obstacles.
+        """
 
     def extra_commands(self, truth: GroundTruth | None, dt_s: float) -> np.ndarray | None:
         """Commands ``(E, 2)`` for the non-agent robots this task adds, or ``None``."""

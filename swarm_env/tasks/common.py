@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from swarm_env.world.arena import Layout
 
 
 def check_param(
@@ -37,11 +40,63 @@ def pairwise_distances(xy: np.ndarray) -> np.ndarray:
     return d
 
 
+def obstacle_distances(xy: np.ndarray, layout: Layout, arena: Any) -> np.ndarray:
+    """Signed distance from every point to the surface of every obstacle of ``layout``.
+
+    Parameters
+    ----------
+    xy : ndarray, shape (N, 2)
+        World positions, metres.
+    layout : Layout
+        The episode's obstacles (``SimWorld.layout``): boxes ``[cx, cy, size_x, size_y, yaw]``
+        (rectangles rotated by ``yaw``), decoy posts and red decoys (circles).
+    arena : ArenaConfig
+        For the circle radii (``decoy_post_radius_m``, ``red_decoy_radius_m``), which the layout
+        does not store.
+
+    Returns
+    -------
+    ndarray, shape (N, B + P + D)
+        Metres, negative inside an obstacle; columns are the boxes, then the posts, then the red
+        decoys, in layout order.
+    """
+    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+    boxes = layout.boxes
+    # Boxes: each point in each box's own frame (rotate by -yaw), then the rectangle's signed
+    # distance: outside, the distance to the nearest point of the rectangle; inside, minus the
+    # distance to the nearest side.
+    d = xy[:, None, :] - boxes[None, :, 0:2]  # (N, B, 2)
+    c, s = np.cos(boxes[:, 4]), np.sin(boxes[:, 4])
+    local = np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], axis=-1)
+    q = np.abs(local) - 0.5 * boxes[None, :, 2:4]
+    box_d = np.linalg.norm(np.maximum(q, 0.0), axis=-1) + np.minimum(q.max(axis=-1), 0.0)
+    # Circles: centre distance minus radius.
+    centres = np.concatenate([layout.posts_xy, layout.red_decoys_xy]).reshape(-1, 2)
+    radii = np.concatenate(
+        [
+            np.full(len(layout.posts_xy), arena.decoy_post_radius_m),
+            np.full(len(layout.red_decoys_xy), arena.red_decoy_radius_m),
+        ]
+    )
+    circle_d = np.linalg.norm(xy[:, None, :] - centres[None, :, :], axis=-1) - radii[None, :]
+    return np.concatenate([box_d, circle_d], axis=1)
+
+
 def collisions(
-    xy: np.ndarray, min_distance_m: float, arena: Any | None = None, wall_margin_m: float = 0.0
+    xy: np.ndarray,
+    min_distance_m: float,
+    arena: Any | None = None,
+    wall_margin_m: float = 0.0,
+    layout: Layout | None = None,
 ) -> np.ndarray:
-    """Per robot: touching (centre distance < ``min_distance_m``) another robot, or closer than
-    ``wall_margin_m`` to a wall of ``arena`` (an ``ArenaConfig``). Shape (N,) bool."""
+    """Per robot: touching another robot, a wall or an obstacle. Shape (N,) bool.
+
+    A robot collides when its centre is closer than ``min_distance_m`` to another robot's centre,
+    or closer than ``wall_margin_m`` to a wall of ``arena`` (an ``ArenaConfig``) or, given the
+    episode's ``layout``, to the surface of a box, decoy post or red decoy (see
+    :func:`obstacle_distances`). Walls and obstacles share the margin: both are rigid surfaces
+    the chassis stops against, so the same centre distance means the same contact.
+    """
     hit = (
         (pairwise_distances(xy) < min_distance_m).any(axis=1)
         if len(xy) > 1
@@ -50,6 +105,8 @@ def collisions(
     if arena is not None and wall_margin_m > 0:
         hx, hy = 0.5 * arena.width_m, 0.5 * arena.height_m
         hit |= (np.abs(xy[:, 0]) > hx - wall_margin_m) | (np.abs(xy[:, 1]) > hy - wall_margin_m)
+        if layout is not None:
+            hit |= (obstacle_distances(xy, layout, arena) < wall_margin_m).any(axis=1)
     return hit
 
 

@@ -22,24 +22,31 @@ agents' convex hull).
 
 Termination: never. Truncation: ``max_steps`` of the config.
 
-Task features (per agent): ``[r]``, and with ``beacon=True`` (default) also
-``[cos b, sin b, rho]``, the intruder's bearing and range in the agent's frame with Gaussian
-noise. This models the seed's setting, where every robot ranges the intruder by radio (seed
-``004``: "range (and bearing) to others by wireless"): a real intruder carrying no beacon could
-not be told apart from a teammate by anonymous lidar/camera detections, so without the beacon the
-PHD alone does not say which component to enclose. With ``beacon=False`` only ``[r]`` is given.
+Task features (per agent): ``[r]``, and with ``beacon=True`` (default)
+``[r, valid, cos b, sin b, rho]``: the intruder's bearing ``b`` (rad) and range ``rho`` (m) in the
+agent's frame with Gaussian noise, and ``valid`` = 1.0 when this reading exists. It is 0.0 (and
+``cos b, sin b, rho`` are 0) when the beacon cannot be computed: the beacon is simulated from
+the ground truth, so a real swarm without motion capture (``truth is None``) or a world without
+the intruder has none, and a bare ``rho = 0`` would read as "the intruder is right here". This
+models the seed's setting, where every robot ranges the intruder by radio (seed ``004``: "range
+(and bearing) to others by wireless"): a real intruder carrying no beacon could not be told apart
+from a teammate by anonymous lidar/camera detections, so without the beacon the PHD alone does not
+say which component to enclose. With ``beacon=False`` only ``[r]`` is given.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from swarm_env.tasks.base import Task
 from swarm_env.tasks.common import check_choice, check_param, max_angular_gap
 from swarm_env.world.base import GroundTruth
+
+if TYPE_CHECKING:
+    from swarm_env.world.arena import Layout
 
 PATHS = ("circle", "static")
 _MAX_RANGE_M = 20.0
@@ -60,7 +67,8 @@ class EncirclementTask(Task):
     path_radius_m : float or None
         Loop radius; default ``0.25 * min(arena width, height)``.
     beacon : bool
-        Give every agent the intruder's noisy range and bearing (default True).
+        Give every agent the intruder's noisy range and bearing, with a validity flag (default
+        True): features ``[r, valid, cos b, sin b, rho]`` instead of ``[r]``.
     beacon_range_std_m, beacon_bearing_std_deg : float
         Beacon noise (default 0.05 m, 5 deg).
     """
@@ -124,25 +132,33 @@ class EncirclementTask(Task):
 
     @property
     def n_features(self) -> int:
-        return 4 if self.beacon else 1
+        """``[r]`` (1), or ``[r, valid, cos b, sin b, rho]`` (5) with the beacon."""
+        return 5 if self.beacon else 1
 
     # -- observation ----------------------------------------------------------------------
     def feature_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         if not self.beacon:
             return np.zeros(1), np.array([self.radius_m])
         return (
-            np.array([0.0, -1.0, -1.0, 0.0]),
-            np.array([self.radius_m, 1.0, 1.0, _MAX_RANGE_M]),
+            np.array([0.0, 0.0, -1.0, -1.0, 0.0]),
+            np.array([self.radius_m, 1.0, 1.0, 1.0, _MAX_RANGE_M]),
         )
 
     def features(self, n_agents: int) -> np.ndarray:
+        """Task features, shape (N, F): ``[r]`` or ``[r, valid, cos b, sin b, rho]`` (m, -, -, -,
+        m). Without a current beacon reading, ``valid`` and the beacon values are 0."""
         if len(self._features) != n_agents:
             out = np.zeros((n_agents, self.n_features))
             out[:, 0] = self.radius_m
             return out
         return self._features.copy()
 
-    def _update_features(self, truth: GroundTruth) -> None:
+    def _update_features(self, truth: GroundTruth | None) -> None:
+        if truth is None:
+            # No ground truth, no beacon: drop the last reading so that features() reports
+            # it invalid instead of repeating a stale intruder position.
+            self._features = np.zeros((0, self.n_features))
+            return
         n = len(truth.poses)
         out = np.zeros((n, self.n_features))
         out[:, 0] = self.radius_m
@@ -154,12 +170,20 @@ class EncirclementTask(Task):
             bearing = np.arctan2(rel[:, 1], rel[:, 0]) + self._rng.normal(
                 0.0, self.beacon_bearing_std_rad, n
             )
-            out[:, 1], out[:, 2] = np.cos(bearing), np.sin(bearing)
-            out[:, 3] = np.clip(rho, 0.0, _MAX_RANGE_M)
+            out[:, 1] = 1.0
+            out[:, 2], out[:, 3] = np.cos(bearing), np.sin(bearing)
+            out[:, 4] = np.clip(rho, 0.0, _MAX_RANGE_M)
         self._features = out
 
     # -- episode --------------------------------------------------------------------------
-    def reset(self, truth: GroundTruth | None, rng: np.random.Generator, arena: Any) -> None:
+    def reset(
+        self,
+        truth: GroundTruth | None,
+        rng: np.random.Generator,
+        arena: Any,
+        *,
+        layout: Layout | None = None,
+    ) -> None:
         self._rng = rng
         self._loop_radius_m = (
             self.path_radius_m
@@ -170,8 +194,7 @@ class EncirclementTask(Task):
         self._prev_xy = None
         self._last_omega = 0.0
         self._errors, self._gaps = [], []
-        if truth is not None:
-            self._update_features(truth)
+        self._update_features(truth)
 
     def extra_commands(self, truth: GroundTruth | None, dt_s: float) -> np.ndarray | None:
         if truth is None or self.path == "static" or not len(truth.extra_xy):
@@ -201,6 +224,7 @@ class EncirclementTask(Task):
 
     def rewards(self, truth: GroundTruth | None, actions: np.ndarray) -> np.ndarray:
         if truth is None or not len(truth.extra_xy):
+            self._update_features(truth)  # beacon flagged invalid, not left stale
             return np.zeros(len(actions))
         xy = truth.poses[:, :2]
         radius_err, gap = self.errors(xy, truth.extra_xy[0])

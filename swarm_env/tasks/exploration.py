@@ -8,9 +8,18 @@ Reward (per agent i, per step), ``new`` = cells covered for the first time at th
     r_i = coverage_reward * new  -  collision_penalty * [i collides]
 
 The coverage term is shared (every agent gets the whole swarm's gain); the collision term is each
-robot's own. A robot "collides" while its centre is closer than ``collision_distance_m`` to
-another robot's centre or closer than ``wall_margin_m`` to a wall (ground truth; box obstacles are
-not in the ground truth and are not penalised — the lidar keeps robots off them anyway).
+robot's own. With ``p_i`` the true centre, ``W`` the walls and ``O`` the episode's obstacles
+(boxes, decoy posts, red decoys)::
+
+    [i collides] = min_{j != i} ||p_i - p_j|| < collision_distance_m
+                   or dist(p_i, W) < wall_margin_m
+                   or min_{o in O} dist(p_i, o) < wall_margin_m
+
+``dist(p, o)`` is the distance to the obstacle's surface: to the (rotated) rectangle of a box, or
+centre distance minus radius for a post. Walls and obstacles share ``wall_margin_m`` (0.16 m,
+just above the chassis' enclosing radius of 0.143 m): a robot pressed against either counts
+whatever its heading. The obstacles come from the World's ``layout`` at ``reset`` (the
+simulator's); without one (real robots) only robots and walls count.
 
 Termination: the whole swarm, once the covered fraction reaches ``target_coverage``.
 Truncation: ``max_steps`` of the config. No task features (F = 0): a robot cannot sense the
@@ -20,7 +29,7 @@ swarm's coverage map; what it can learn is to spread out and keep moving.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -28,9 +37,13 @@ from swarm_env.tasks.base import Task
 from swarm_env.tasks.common import check_param, collisions
 from swarm_env.world.base import GroundTruth
 
+if TYPE_CHECKING:
+    from swarm_env.world.arena import Layout
+
 
 class ExplorationTask(Task):
-    """Grid-cell coverage with a shared reward and a per-robot collision penalty.
+    """Grid-cell coverage with a shared reward and a per-robot collision penalty (robots, walls
+    and obstacles).
 
     Parameters
     ----------
@@ -45,7 +58,8 @@ class ExplorationTask(Task):
     collision_distance_m : float
         Robot-robot centre distance counted as a collision, default 0.3 m (about touching).
     wall_margin_m : float
-        Centre-to-wall distance counted as a collision, default 0.16 m.
+        Centre-to-wall and centre-to-obstacle-surface distance counted as a collision, default
+        0.16 m (the chassis' enclosing radius is 0.143 m).
     """
 
     name = "exploration"
@@ -74,13 +88,22 @@ class ExplorationTask(Task):
         )
         self.wall_margin_m = check_param(self.name, "wall_margin_m", wall_margin_m, 0.0, 5.0)
         self._arena: Any = None
+        self._layout: Layout | None = None
         self.covered = np.zeros((0, 0), dtype=bool)
         self._collision_steps = 0
         self._steps = 0
         self._robot_steps = 0
 
-    def reset(self, truth: GroundTruth | None, rng: np.random.Generator, arena: Any) -> None:
+    def reset(
+        self,
+        truth: GroundTruth | None,
+        rng: np.random.Generator,
+        arena: Any,
+        *,
+        layout: Layout | None = None,
+    ) -> None:
         self._arena = arena
+        self._layout = layout
         nx = math.ceil(arena.width_m / self.cell_m - 1e-9)
         ny = math.ceil(arena.height_m / self.cell_m - 1e-9)
         if nx * ny < 2:
@@ -119,7 +142,9 @@ class ExplorationTask(Task):
             return np.zeros(len(actions))
         xy = truth.poses[:, :2]
         new = self._cover(xy)
-        hit = collisions(xy, self.collision_distance_m, self._arena, self.wall_margin_m)
+        hit = collisions(
+            xy, self.collision_distance_m, self._arena, self.wall_margin_m, layout=self._layout
+        )
         self._collision_steps += int(hit.sum())
         self._steps += 1
         self._robot_steps += len(xy)

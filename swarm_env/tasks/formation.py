@@ -26,13 +26,16 @@ circle ``[r, s*]``, lattice ``[d]``.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from swarm_env.tasks.base import Task
 from swarm_env.tasks.common import check_choice, check_param, pairwise_distances
 from swarm_env.world.base import GroundTruth
+
+if TYPE_CHECKING:
+    from swarm_env.world.arena import Layout
 
 SHAPES = ("circle", "lattice")
 _NEIGHBOUR_FACTOR = 1.5
@@ -125,7 +128,14 @@ class FormationTask(Task):
         return np.tile(np.asarray(row, dtype=float), (n_agents, 1))
 
     # -- episode --------------------------------------------------------------------------
-    def reset(self, truth: GroundTruth | None, rng: np.random.Generator, arena: Any) -> None:
+    def reset(
+        self,
+        truth: GroundTruth | None,
+        rng: np.random.Generator,
+        arena: Any,
+        *,
+        layout: Layout | None = None,
+    ) -> None:
         self._errors = []
         self._spacing_errors = []
         self._previous = None

@@ -7,6 +7,7 @@ import pytest
 
 from agents.policies import SCRIPTED, load_policy, policy_observation
 from agents.scripted import (
+    EncirclementPolicy,
     FormationPolicy,
     expected_count,
     internal_minimum,
@@ -89,6 +90,20 @@ def test_encirclement_encloses_the_moving_intruder():
     m = env.task.metrics()
     assert m["final_enclosed_fraction"] == 1.0
     assert m["final_radius_error_m"] < 0.15
+
+
+def test_encirclement_controller_ignores_an_invalid_beacon():
+    """Beacon flag 0 (no reading): the zeros must not be read as "intruder at range 0", which
+    would make a teammate 0.3 m away (inside the 0.4 m gate) the intruder. The robot searches."""
+    policy = EncirclementPolicy(top_k=2)
+    table = np.zeros((2, 7))
+    table[0] = [1.0, 0.3, 0.0, 0.01, 0.0, 0.01, 1.0]  # one confident teammate at (0.3, 0)
+    invalid = np.array([0.6, 0.0, 0.0, 0.0, 0.0])
+    assert policy.desired_velocity("ugv_0", table, np.zeros(2), invalid) is None
+    # Valid reading, intruder 0.9 m ahead: close in to the 0.6 m circle at k_p * 0.3 m/s.
+    valid = np.array([0.6, 1.0, 1.0, 0.0, 0.9])
+    u = policy.desired_velocity("ugv_0", np.zeros((2, 7)), np.zeros(2), valid)
+    np.testing.assert_allclose(u, [0.8 * 0.3, 0.0])
 
 
 def _square_start(env):

@@ -11,9 +11,11 @@ from pettingzoo.test import parallel_api_test
 from swarm_env import parallel_env
 from swarm_env.config import ArenaConfig
 from swarm_env.tasks import TASKS, make_task
+from swarm_env.tasks.common import collisions, obstacle_distances
 from swarm_env.tasks.encirclement import EncirclementTask
 from swarm_env.tasks.exploration import ExplorationTask
 from swarm_env.tasks.formation import FormationTask
+from swarm_env.world.arena import Layout
 from swarm_env.world.base import GroundTruth
 
 
@@ -163,6 +165,86 @@ def test_exploration_rewards_new_cells_and_penalises_collisions():
     assert m["coverage"] == 1.0 and m["collision_rate"] == pytest.approx(3 / 6)
 
 
+def layout(boxes=(), posts=(), reds=()) -> Layout:
+    return Layout(
+        posts_xy=np.asarray(posts, dtype=float).reshape(-1, 2),
+        red_decoys_xy=np.asarray(reds, dtype=float).reshape(-1, 2),
+        boxes=np.asarray(boxes, dtype=float).reshape(-1, 5),
+    )
+
+
+def test_obstacle_distances_hand_computed():
+    # A 0.4 m square turned by 45 deg at the origin: its corners lie on the axes at 0.2 sqrt 2,
+    # its faces 0.2 m from the centre along the diagonals. Post r = 0.03 at (1, 1), red decoy
+    # r = 0.06 at (-1, 0).
+    arena = ArenaConfig(width_m=3.0, height_m=3.0, decoy_post_radius_m=0.03)
+    lay = layout(boxes=[[0, 0, 0.4, 0.4, math.pi / 4]], posts=[[1, 1]], reds=[[-1, 0]])
+    xy = np.array([[0.4, 0.0], [0.3, 0.3], [0.0, 0.0], [1.0, 1.2]])
+    d = obstacle_distances(xy, lay, arena)
+    assert d.shape == (4, 3)
+    # (1, 1.2) lies off the face whose normal is the diagonal: 2.2 / sqrt 2 along it.
+    box = [0.4 - 0.2 * math.sqrt(2), 0.3 * math.sqrt(2) - 0.2, -0.2, 2.2 / math.sqrt(2) - 0.2]
+    np.testing.assert_allclose(d[:, 0], box)
+    post = np.array([math.hypot(0.6, 1), 0.7 * math.sqrt(2), math.sqrt(2), 0.2]) - 0.03
+    np.testing.assert_allclose(d[:, 1], post)
+    red = np.array([1.4, math.hypot(1.3, 0.3), 1.0, math.hypot(2, 1.2)]) - 0.06
+    np.testing.assert_allclose(d[:, 2], red)
+    # An empty layout has no columns and flags nothing.
+    assert obstacle_distances(xy, layout(), arena).shape == (4, 0)
+    assert not collisions(xy[:1], 0.3, arena, 0.16, layout=layout()).any()
+
+
+def test_exploration_penalises_a_robot_against_a_box():
+    # Box 0.4 x 0.2 m turned by 90 deg at (0.5, 0.5): it spans x in [0.4, 0.6], y in [0.3, 0.7].
+    # Robot 0 is 0.1125 m (half a chassis length: pressed head-on) right of its face; robot 1 is
+    # 0.25 m above it (clear of the 0.16 m margin); both far from walls and from each other.
+    lay = layout(boxes=[[0.5, 0.5, 0.4, 0.2, math.pi / 2]])
+    t = truth([[0.7125, 0.5], [0.5, 0.95]])
+    np.testing.assert_allclose(
+        obstacle_distances(t.poses[:, :2], lay, ARENA)[:, 0], [0.1125, 0.25]
+    )
+    task = ExplorationTask(collision_penalty=0.1, wall_margin_m=0.16)
+    task.reset(t, RNG, ARENA, layout=lay)
+    np.testing.assert_allclose(task.rewards(t, np.zeros((2, 2))), [-0.1, 0.0])
+    assert task.metrics()["collision_rate"] == pytest.approx(1 / 2)
+    # A post (r = 0.03) 0.15 m from robot 1's centre is 0.12 m from its surface: also a contact.
+    task.reset(t, RNG, ARENA, layout=layout(posts=[[0.65, 0.95]]))
+    np.testing.assert_allclose(task.rewards(t, np.zeros((2, 2))), [0.0, -0.1])
+
+
+def test_exploration_collision_with_a_box_in_the_simulator():
+    """The env's own layout (rotated boxes from ``SimWorld.layout``, passed to the task by
+    ``env.reset``): a robot driven into a box until the physics stops it is penalised; 0.5 m
+    away it is not."""
+    env = parallel_env(
+        "seed-lab",
+        task="exploration",
+        n_robots=1,
+        observation="truth",
+        localize=False,
+        arena={"n_boxes": 1, "n_decoy_posts": 0, "n_red_decoys": 0},
+    )
+    env.reset(seed=0)
+    lay, arena = env.world.layout, env.config.arena
+    assert isinstance(lay, Layout) and lay.boxes.shape == (1, 5)
+    np.testing.assert_allclose(obstacle_distances(lay.box_corners()[0], lay, arena), 0, atol=1e-9)
+    # Start 0.5 m off the box face that looks most towards the arena centre, facing the box.
+    cx, cy, sx, sy, yaw = lay.boxes[0]
+    axes = [(yaw + k * math.pi / 2, (sx if k % 2 == 0 else sy) / 2) for k in range(4)]
+    angle, half = max(axes, key=lambda a: -(cx * math.cos(a[0]) + cy * math.sin(a[0])))
+    start = np.array([cx, cy]) + (half + 0.5) * np.array([math.cos(angle), math.sin(angle)])
+    body = env.world.bodies[0]
+    body.position, body.angle = tuple(start), angle + math.pi
+    t = env.world.ground_truth()
+    assert not collisions(t.poses[:, :2], 0.3, arena, env.task.wall_margin_m, layout=lay).any()
+    # No manual task.reset: the env's reset must have handed the world's layout to the task.
+    for _ in range(40):  # 4 s at 0.2 m/s: 0.8 m, more than the 0.5 m to the box
+        _, rewards, *_ = env.step({"ugv_0": np.array([0.2, 0.0], dtype=np.float32)})
+    gap = obstacle_distances(env.world.ground_truth().poses[:, :2], lay, arena)[0, 0]
+    assert 0.08 < gap < env.task.wall_margin_m  # pressed: about half a chassis length
+    assert rewards["ugv_0"] == pytest.approx(-env.task.collision_penalty)
+
+
 # ------------------------------------------------------------------ encirclement rewards
 def test_encirclement_reward_hand_computed():
     task = EncirclementTask(radius_m=0.6, gap_weight=0.5, path="static", beacon=False)
@@ -185,10 +267,33 @@ def test_encirclement_beacon_is_the_intruder_in_the_agent_frame():
     )
     t = truth([[1.0, 0.0]], yaw=[math.pi / 2], extra=[[0.0, 0.0]])
     task.reset(t, RNG, ARENA)
-    r, cos_b, sin_b, rho = task.features(1)[0]
+    r, valid, cos_b, sin_b, rho = task.features(1)[0]
     # The intruder is 1 m behind along world -x; the agent faces +y, so it is on its left.
-    assert (r, rho) == pytest.approx((0.6, 1.0))
+    assert (r, valid, rho) == pytest.approx((0.6, 1.0, 1.0))
     assert (cos_b, sin_b) == pytest.approx((0.0, 1.0), abs=1e-12)
+    # Range 0.3-4-5 triangle: intruder at (3.3, 4) seen from (0.3, 0) facing +x -> rho = 5 m.
+    t = truth([[0.3, 0.0]], extra=[[3.3, 4.0]])
+    task.rewards(t, np.zeros((1, 2)))
+    np.testing.assert_allclose(task.features(1), [[0.6, 1.0, 0.6, 0.8, 5.0]], atol=1e-12)
+    low, high = task.feature_bounds()
+    assert task.n_features == len(low) == len(high) == 5
+    assert np.all(task.features(1) >= low) and np.all(task.features(1) <= high)
+
+
+def test_encirclement_beacon_is_flagged_invalid_without_truth():
+    task = EncirclementTask(beacon=True, path="static")
+    task.reset(None, RNG, ARENA)  # real robots without motion capture
+    np.testing.assert_array_equal(task.features(3), [[0.6, 0.0, 0.0, 0.0, 0.0]] * 3)
+    # A valid reading, then the truth disappears: the stale reading is not repeated.
+    t = truth([[0.0, 0.0], [1.0, 0.0]], extra=[[0.5, 0.5]])
+    task.reset(t, RNG, ARENA)
+    assert np.all(task.features(2)[:, 1] == 1.0)
+    task.rewards(None, np.zeros((2, 2)))
+    np.testing.assert_array_equal(task.features(2), [[0.6, 0.0, 0.0, 0.0, 0.0]] * 2)
+    # Truth without the intruder (no extra robot): no reading either.
+    task.rewards(truth([[0.0, 0.0], [1.0, 0.0]]), np.zeros((2, 2)))
+    np.testing.assert_array_equal(task.features(2), [[0.6, 0.0, 0.0, 0.0, 0.0]] * 2)
+    assert EncirclementTask(beacon=False).features(2).shape == (2, 1)
 
 
 def test_intruder_moves_on_its_loop_and_static_stays():
