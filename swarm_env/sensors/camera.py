@@ -147,7 +147,9 @@ class CameraSensor:
             Scene circle indices of the red circles.
         visible : ndarray, shape (K, T), bool
         bearing_rad : ndarray, shape (K, T)
-            True bearing of each red circle in each observer's frame (also where not visible).
+            True bearing of each red circle in each observer's frame, also where not visible
+            (in a time-stacked scene: for the circles of the frame's own instant and the static
+            ones; 0 for other instants' circles).
         """
         cfg = self.config
         robots = np.asarray(robots, dtype=np.intp).reshape(-1)
@@ -207,9 +209,14 @@ class CameraSensor:
         n_obs = robots.size
         # Candidate targets of each frame, as positions in `target`: the static ones, then the
         # moving ones of the frame's instant.
+        n_instants = (
+            scene.robot_xy.shape[0] if scene.robot_xy.ndim == 3 else int(when.max(initial=0)) + 1
+        )
+        _check_instants(n_instants, time_index)
         t_static = np.flatnonzero(when[target] < 0)
-        t_grid = np.searchsorted(target, _instant_grid(target[when[target] >= 0], owner, when))
-        _check_instants(t_grid, time_index)
+        t_grid = np.searchsorted(
+            target, _instant_grid(target[when[target] >= 0], owner, when, n_instants)
+        )
         cand = np.concatenate(
             (np.broadcast_to(t_static, (n_obs, t_static.size)), t_grid[time_index]), axis=1
         )  # (K, T')
@@ -242,9 +249,9 @@ class CameraSensor:
             applies,
         )
         if timed.size:
-            o_grid = _instant_grid(timed, owner, when)
-            _check_instants(o_grid, time_index)
-            o_grid = o_grid[time_index]  # (K, n): the moving occluders of each frame's instant
+            o_grid = _instant_grid(timed, owner, when, n_instants)[
+                time_index
+            ]  # (K, n): the moving occluders of each frame's instant
             # Neither the observer's nor the target robot's own circles block the line.
             o_owner = owner[o_grid][pair_k]  # (P, n)
             p_owner = t_owner[pair_t][:, None]
@@ -344,21 +351,23 @@ class CameraSensor:
         )
 
 
-def _instant_grid(circles: np.ndarray, owner: np.ndarray, when: np.ndarray) -> np.ndarray:
+def _instant_grid(
+    circles: np.ndarray, owner: np.ndarray, when: np.ndarray, n_instants: int
+) -> np.ndarray:
     """Moving ``circles`` as an (instants, per instant) grid, each row in owner order."""
     circles = circles[np.lexsort((owner[circles], when[circles]))]
-    per_instant = np.bincount(when[circles])
-    if per_instant.size and per_instant.min() != per_instant.max():
+    per_instant = np.bincount(when[circles], minlength=n_instants)
+    if per_instant.size != n_instants or per_instant.min() != per_instant.max():
         raise ValueError(
-            "a time-stacked scene needs the same moving circles at every instant, got counts "
-            f"{per_instant.tolist()}"
+            "a time-stacked scene needs the same moving circles at each of its "
+            f"{n_instants} instants, got counts {per_instant.tolist()}"
         )
-    return circles.reshape(per_instant.size, -1)
+    return circles.reshape(n_instants, -1)
 
 
-def _check_instants(grid: np.ndarray, time_index: np.ndarray) -> None:
-    if time_index.size and time_index.max() >= grid.shape[0]:
+def _check_instants(n_instants: int, time_index: np.ndarray) -> None:
+    if time_index.size and (time_index.min() < 0 or time_index.max() >= n_instants):
         raise ValueError(
-            f"time_index must be < the scene's {grid.shape[0]} instants, got "
-            f"{int(time_index.max())}"
+            f"time_index must be in [0, {n_instants}) (the scene's instants), got "
+            f"{time_index.tolist()}"
         )

@@ -230,8 +230,8 @@ class LidarSensor:
         self._beam_uy = np.sin(angles)
         self.blind_mask = _readonly(blind_mask(angles, cfg))
         # Per-beam noise as table lookups (see noise.py): range offsets and intensity factors.
-        self._range_noise = TabulatedNormal(lambda z: cfg.range_noise_std_m * z)
-        self._intensity_noise = TabulatedNormal(lambda z: np.exp(cfg.intensity_noise_std * z))
+        self._range_noise = TabulatedNormal("normal", cfg.range_noise_std_m)
+        self._intensity_noise = TabulatedNormal("lognormal", cfg.intensity_noise_std)
         self.head_phase_rad = np.zeros(n_robots)
         self.rate_offset_hz = np.zeros(n_robots)
 

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from swarm_env.sensors.camera import CameraConfig, CameraSensor
+from swarm_env.world.scene import Scene
 from tests.swarm_env.scene_factory import SceneBuilder, make_arena_scene
 
 EXACT = CameraConfig(bearing_noise_std_deg=0.0, miss_probability=0.0, false_positive_rate=0.0)
@@ -207,3 +208,42 @@ def test_observe_rejects_unknown_robots():
 def test_empty_observers():
     batch = observe(make_arena_scene(np.random.default_rng(0)), robots=np.zeros(0, int))
     assert batch.bearings == [] and batch.visible.shape == (0, 20)
+
+
+def _stacked_scene_without_moving_red() -> Scene:
+    """Two robots at two instants whose circles occlude but are not red; one static red decoy."""
+    robot_xy = np.array([[[0.0, 0.0], [3.0, 0.0]], [[0.0, 0.5], [3.0, 0.5]]])  # (T=2, N=2, 2)
+    moving = robot_xy.reshape(-1, 2)
+    xy = np.vstack([[[1.5, 1.5]], moving])
+    n = 1 + len(moving)
+    return Scene(
+        robot_xy=robot_xy,
+        robot_yaw=np.zeros((2, 2)),
+        circle_xy=xy,
+        circle_radius_m=np.full(n, 0.05),
+        circle_owner=np.array([-1, 0, 1, 0, 1]),
+        circle_lidar=np.zeros(n, bool),
+        circle_camera_occluder=np.ones(n, bool),
+        circle_red=np.array([True, False, False, False, False]),
+        circle_intensity=np.ones(n),
+        segment_a=np.zeros((0, 2)),
+        segment_b=np.zeros((0, 2)),
+        segment_intensity=np.zeros(0),
+        circle_time=np.array([-1, 0, 0, 1, 1]),
+    )
+
+
+def test_time_stacked_scene_with_only_static_red_targets():
+    scene = _stacked_scene_without_moving_red()
+    target, visible, bearing = CameraSensor().visibility(scene, np.array([0, 1]), np.array([0, 1]))
+    assert target.tolist() == [0]
+    assert visible.tolist() == [[True], [True]]
+    # Robot 1 at instant 1 sits at (3, 0.5): the decoy at (1.5, 1.5) is up and to the left.
+    assert bearing[1, 0] == pytest.approx(math.atan2(1.0, -1.5))
+
+
+@pytest.mark.parametrize("bad", [-1, 2])
+def test_time_index_outside_the_scene_is_rejected(bad):
+    scene = _stacked_scene_without_moving_red()
+    with pytest.raises(ValueError, match="time_index"):
+        CameraSensor().visibility(scene, np.array([0]), np.array([bad]))

@@ -1,6 +1,9 @@
 """Tabulated normal draws (lidar noise) and batched encoder advance."""
 
+import pickle
+
 import numpy as np
+import pytest
 from scipy import stats
 
 from swarm_env.sensors.noise import TabulatedNormal
@@ -8,7 +11,7 @@ from swarm_env.sensors.odometry import OdometryConfig, WheelEncoders
 
 
 def test_tabulated_normal_is_standard_normal():
-    z = TabulatedNormal().draw(np.random.default_rng(0), 200_000).astype(np.float64)
+    z = TabulatedNormal("normal", 1.0).draw(np.random.default_rng(0), 200_000).astype(np.float64)
     assert abs(z.mean()) < 0.01
     assert abs(z.std() - 1.0) < 0.01
     # Kolmogorov-Smirnov against N(0, 1): quantisation and the 4.3-sigma truncation are
@@ -18,13 +21,21 @@ def test_tabulated_normal_is_standard_normal():
 
 
 def test_tabulated_transform_and_determinism():
-    lognormal = TabulatedNormal(lambda z: np.exp(0.05 * z))
+    lognormal = TabulatedNormal("lognormal", 0.05)
     a = lognormal.draw(np.random.default_rng(3), (2, 500))
     b = lognormal.draw(np.random.default_rng(3), (2, 500))
     assert a.dtype == np.float32 and a.shape == (2, 500)
     assert np.array_equal(a, b)
     assert (a > 0).all()
     assert abs(np.log(a).std() - 0.05) < 0.005
+    # Pickles as its parameters (envs stay small) and shares the table.
+    clone = pickle.loads(pickle.dumps(lognormal))
+    assert clone.table is lognormal.table
+    assert len(pickle.dumps(lognormal)) < 1000
+    with pytest.raises(ValueError, match="scale"):
+        TabulatedNormal("normal", -1.0)
+    with pytest.raises(ValueError, match="kind"):
+        TabulatedNormal("uniform", 1.0)
 
 
 def test_encoders_advance_many_substeps_equals_one_at_a_time():
