@@ -188,6 +188,22 @@ def _lines_cross_segments(origins, targets, pair_o, pair_t, o, d, a, b) -> np.nd
     return crosses.any(axis=0)
 
 
+def _segment_distance2(w2: np.ndarray, wd: np.ndarray, length2: np.ndarray) -> np.ndarray:
+    """Squared distance from a point to the segment ``0 -> d``, from ``|w|^2``, ``w.d`` and
+    ``|d|^2`` (``w``: the point relative to the segment's start; arrays broadcast).
+
+    Closest point ``s d`` with ``s = clip(w.d / |d|^2, 0, 1)``;
+    ``|w - s d|^2 = |w|^2 + s (s |d|^2 - 2 w.d)``. Overwrites ``w2`` and ``wd``.
+    """
+    s = wd / np.where(length2 > 0.0, length2, 1.0)
+    np.clip(s, 0.0, 1.0, out=s)
+    wd *= -2.0
+    wd += s * length2
+    wd *= s
+    w2 += wd
+    return w2
+
+
 def _lines_hit_circles(origins, pair_o, o, d, centre, radius, applies) -> np.ndarray:
     """P lines passing closer than ``radius`` to C circle centres: (P,) any."""
     # w = c - o: |w|^2 depends on the observer only; w.d = c.d - o.d.
@@ -196,15 +212,7 @@ def _lines_hit_circles(origins, pair_o, o, d, centre, radius, applies) -> np.nda
     wd = centre @ d.T  # (C, P)
     wd -= np.einsum("pj,pj->p", d, o)[None, :]
     length2 = np.einsum("pj,pj->p", d, d)[None, :]
-    # Closest point of the line segment: s = clip(w.d / L^2, 0, 1);
-    # dist^2 = |w - s d|^2 = |w|^2 + s (s L^2 - 2 w.d).
-    s = wd / np.where(length2 > 0.0, length2, 1.0)
-    np.clip(s, 0.0, 1.0, out=s)
-    wd *= -2.0
-    wd += s * length2
-    wd *= s
-    w2 += wd
-    hits = w2 < (radius * radius)[:, None]
+    hits = _segment_distance2(w2, wd, length2) < (radius * radius)[:, None]
     if applies is not None:
         hits &= applies.T
     return hits.any(axis=0)
@@ -247,11 +255,6 @@ def lines_hit_own_circles(
     wd += centres_y * dy
     w2 = np.square(centres_x)
     w2 += np.square(centres_y)
-    length2 = dx * dx + dy * dy
-    s = wd / np.where(length2 > 0.0, length2, 1.0)
-    np.clip(s, 0.0, 1.0, out=s)
-    # |w - s d|^2 = |w|^2 - 2 s w.d + s^2 |d|^2
-    w2 += s * (s * length2 - 2.0 * wd)
-    hit = w2 < radii2_m2
+    hit = _segment_distance2(w2, wd, dx * dx + dy * dy) < radii2_m2
     hit &= applies
     return hit.any(axis=1)

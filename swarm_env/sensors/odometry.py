@@ -104,11 +104,11 @@ class WheelEncoders:
     def advance(
         self, body_speeds: np.ndarray, dt_s: float, rng: np.random.Generator
     ) -> np.ndarray:
-        """Turn the wheels for one substep, or for S substeps at once.
+        """Turn the wheels for S consecutive substeps.
 
         Parameters
         ----------
-        body_speeds : ndarray, shape (N, 2) or (S, N, 2)
+        body_speeds : ndarray, shape (S, N, 2)
             The motor-driven ``[v_mps, omega_radps]`` (acceleration-limited command) of each
             substep.
         dt_s : float
@@ -118,17 +118,15 @@ class WheelEncoders:
 
         Returns
         -------
-        ndarray, shape (N, 2) or (S, N, 2)
+        ndarray, shape (S, N, 2)
             Shaft angles ``[left, right]`` (rad) after each substep; pass one to :meth:`sample`.
         """
         # [v_L, v_R] = [v - omega w/2, v + omega w/2], as one (..., 2) @ (2, 2) product.
         wheel_mps = body_speeds @ self._to_wheels
         slip = 1.0 + self.config.slip_noise_std * rng.standard_normal(wheel_mps.shape)
-        turn = wheel_mps * (dt_s / self.wheel_radius_m) * slip
-        if turn.ndim == 2:
-            self.wheel_angle_rad += turn
-            return self.wheel_angle_rad.copy()
-        angles = self.wheel_angle_rad + np.cumsum(turn, axis=0)
+        angles = self.wheel_angle_rad + np.cumsum(
+            wheel_mps * (dt_s / self.wheel_radius_m) * slip, 0
+        )
         self.wheel_angle_rad = angles[-1].copy()
         return angles
 

@@ -44,7 +44,7 @@ def test_encoders_advance_many_substeps_equals_one_at_a_time():
     one = WheelEncoders(cfg, 4, 0.03, 0.15)
     many = WheelEncoders(cfg, 4, 0.03, 0.15)
     rng_one, rng_many = np.random.default_rng(7), np.random.default_rng(7)
-    stepwise = np.stack([one.advance(s, 0.02, rng_one) for s in speeds])
+    stepwise = np.stack([one.advance(s[None], 0.02, rng_one)[0] for s in speeds])
     batched = many.advance(speeds, 0.02, rng_many)
     np.testing.assert_allclose(batched, stepwise, rtol=0, atol=1e-12)
     np.testing.assert_allclose(many.wheel_angle_rad, one.wheel_angle_rad, rtol=0, atol=1e-12)
