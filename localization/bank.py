@@ -1,17 +1,16 @@
-"""Many robots' GM-PHD filters advanced with vectorised calls: :class:`PHDBank`.
+"""Many robots' GM-PHD filters advanced together: :class:`PHDBank`.
 
-A swarm env runs one :class:`~localization.RobotCentricPHD` per robot, and at ~20 components
-each update is ~100 small numpy calls: per-call overhead, not arithmetic, sets the cost. The
-bank keeps the ``R`` mixtures in one padded array and advances a *batch* of robots with one
-set of numpy calls, using the very same pure functions (:mod:`localization.phd`,
-:mod:`localization.detection`, :mod:`localization.reducer`), which take an optional robot
-axis: a batched component table has shape ``(6, K, N)`` (rows ``w, x, y, Pxx, Pxy, Pyy``,
-``K`` robots, ``N`` columns of which robot ``k`` uses the first ``counts[k]``; the rest is
-padding with weight 0, which prunes away and explains nothing).
+A swarm env runs one robot-centric GM-PHD filter per robot and makes ~100 small filter calls
+per control step. The bank keeps the ``R`` mixtures in one padded table and runs a whole batch
+of calls in one compiled function (:func:`localization.kernels.apply_calls`), so the cost is the
+arithmetic, not ~100 numpy calls per filter update. The table has shape ``(6, R, C)``: rows
+``w, x, y, Pxx, Pxy, Pyy``, robot ``r`` uses the first ``counts[r]`` of its ``C =
+max_components`` columns and the rest is zero.
 
-Every robot gets exactly what its own ``RobotCentricPHD`` would compute for the same calls
-(same components; values equal up to floating-point summation order, ~1e-15 relative), which
-``tests/localization/test_bank.py`` checks on random call sequences.
+Every robot gets what its own :class:`~localization.RobotCentricPHD` (the pure-numpy reference)
+would compute for the same calls: the same components, values equal up to floating-point
+summation order (~1e-15 relative), which ``tests/localization/test_bank.py`` checks on random
+call sequences for every model option.
 
 >>> import numpy as np
 >>> from localization import PHDBank, PHDConfig
@@ -25,21 +24,21 @@ GaussianMixture(...)
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
-from . import phd
+from . import kernels
 from .config import PHDConfig
-from .detection import DetectionModel
 from .filter import RobotCentricPHD, _checked_angles, _checked_odometry, _checked_points
 from .mixture import N_ROWS, ROW_W, GaussianMixture
-from .reducer import reduce_batched
 
 __all__ = ["PHDBank", "PHDBankView"]
 
-_KINDS = ("predict", "lidar", "camera")
+_KIND_CODES = {"predict": kernels.PREDICT, "lidar": kernels.LIDAR, "camera": kernels.CAMERA}
+_F64 = np.dtype(np.float64)
 
 
 class PHDBank:
@@ -54,12 +53,14 @@ class PHDBank:
 
     Notes
     -----
-    State: ``table`` of shape ``(6, R, max_components)`` (zero padding beyond each robot's
-    count), ``counts (R,)``, and each robot's pending measurement births (``birth ==
-    "measurement"``). Each method takes ``robots``, an int array of distinct robot indices
-    ``(K,)``, and the per-robot inputs in the same order; robots not listed are untouched.
-    Every method validates all of its inputs before changing any state (``ValueError``
-    naming the argument). Per robot, the math is that of :class:`RobotCentricPHD`.
+    State: the padded ``(6, R, max_components)`` table, ``counts (R,)`` and each robot's
+    pending measurement births (``birth == "measurement"``). :meth:`predict`,
+    :meth:`update_lidar` and :meth:`update_camera` take ``robots``, an int array of distinct
+    robot indices ``(K,)``, and the per-robot inputs in the same order; :meth:`apply` takes
+    every robot's time-ordered call list at once (what the env does each step). Robots not
+    named are untouched. Every method validates all of its inputs before changing any state
+    (``ValueError`` naming the argument). Per robot, the math is that of
+    :class:`RobotCentricPHD`.
 
     ``views`` holds one :class:`PHDBankView` per robot: ``.mixture``, ``.table``,
     ``.estimate()``, ``.predict()``, ``.update_lidar()``, ``.update_camera()``, ``.reset()``...
@@ -75,17 +76,30 @@ class PHDBank:
             raise ValueError(f"n_robots must be an int >= 1, got {n_robots!r}")
         self.config = config
         self.n_robots = int(n_robots)
-        self._model = DetectionModel(config)
-        self._fixed_birth = phd.birth_components(
-            np.asarray([config.birth_mean_m], dtype=float),
-            config.birth_std_m**2,
-            config.birth_weight,
-        )
+        self._params = kernels.pack_params(config)
         self._table = np.zeros((N_ROWS, self.n_robots, config.max_components))
-        self._counts = np.zeros(self.n_robots, dtype=np.intp)
-        self._pending: list[np.ndarray] = [np.empty((0, 2))] * self.n_robots
+        self._counts = np.zeros(self.n_robots, dtype=np.int64)
+        self._pending = np.zeros((self.n_robots, 8, 2))
+        self._pending_counts = np.zeros(self.n_robots, dtype=np.int64)
         self._mixtures: list[GaussianMixture | None] = [None] * self.n_robots
         self.views = [PHDBankView(self, r) for r in range(self.n_robots)]
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {
+            "config": self.config,
+            "n_robots": self.n_robots,
+            "table": self._table,
+            "counts": self._counts,
+            "pending": self._pending,
+            "pending_counts": self._pending_counts,
+        }
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__init__(state["config"], state["n_robots"])  # type: ignore[misc]
+        self._table = np.array(state["table"], dtype=float)
+        self._counts = np.array(state["counts"], dtype=np.int64)
+        self._pending = np.array(state["pending"], dtype=float)
+        self._pending_counts = np.array(state["pending_counts"], dtype=np.int64)
 
     # ------------------------------------------------------------------ construction / export
     @classmethod
@@ -110,28 +124,34 @@ class PHDBank:
 
     def load_filter(self, robot: int, f: RobotCentricPHD) -> None:
         """Copy the state of ``f`` (same config) into robot ``robot``."""
-        r = self._checked_robots([robot])[0]
+        r = int(self._checked_robots([robot])[0])
         if not isinstance(f, RobotCentricPHD) or f.config != self.config:
             raise ValueError("f must be a RobotCentricPHD with the bank's config")
         state = f.__getstate__()
         table = np.asarray(state["table"], dtype=float)
-        if table.shape[1] > self.config.max_components:
+        n = table.shape[1]
+        if n > self.config.max_components:
             raise ValueError(
-                f"f has {table.shape[1]} components, more than max_components "
-                f"{self.config.max_components}"
+                f"f has {n} components, more than max_components {self.config.max_components}"
             )
-        self._store(np.array([r]), table[:, None, :], np.array([table.shape[1]]))
-        self._pending[r] = np.array(state["pending_births"], dtype=float).reshape(-1, 2)
+        births = np.asarray(state["pending_births"], dtype=float).reshape(-1, 2)
+        self._reserve_pending(births.shape[0])
+        self._table[:, r, :n] = table
+        self._table[:, r, n:] = 0.0
+        self._counts[r] = n
+        self._pending[r, : births.shape[0]] = births
+        self._pending_counts[r] = births.shape[0]
+        self._mixtures[r] = None
 
     def to_filter(self, robot: int) -> RobotCentricPHD:
         """An independent :class:`RobotCentricPHD` with robot ``robot``'s current state."""
-        r = self._checked_robots([robot])[0]
+        r = int(self._checked_robots([robot])[0])
         f = RobotCentricPHD(self.config)
         f.__setstate__(
             {
                 "config": self.config,
                 "table": self.table(r),
-                "pending_births": self._pending[r],
+                "pending_births": self.pending_births(r),
             }
         )
         return f
@@ -144,11 +164,11 @@ class PHDBank:
     @property
     def counts(self) -> np.ndarray:
         """Number of components per robot, shape ``(R,)`` (a copy)."""
-        return self._counts.copy()
+        return self._counts.astype(np.intp)
 
     def padded_tables(self) -> tuple[np.ndarray, np.ndarray]:
         """Every robot's table at once: a read-only view ``(6, R, max_components)`` (rows
-        ``w, x, y, pxx, pxy, pyy``; columns past ``counts[r]`` are padding) and ``counts (R,)``.
+        ``w, x, y, pxx, pxy, pyy``; columns past ``counts[r]`` are zero) and ``counts (R,)``.
         """
         view = self._table.view()
         view.setflags(write=False)
@@ -157,6 +177,10 @@ class PHDBank:
     def table(self, robot: int) -> np.ndarray:
         """Robot ``robot``'s component table, shape ``(6, N)`` (a new array)."""
         return self._table[:, robot, : self._counts[robot]].copy()
+
+    def pending_births(self, robot: int) -> np.ndarray:
+        """Robot ``robot``'s measurement births awaiting the next time update, ``(B, 2)`` m."""
+        return self._pending[robot, : self._pending_counts[robot]].copy()
 
     def mixture(self, robot: int) -> GaussianMixture:
         """Robot ``robot``'s PHD as a read-only :class:`GaussianMixture` (cached)."""
@@ -176,8 +200,8 @@ class PHDBank:
         rob = np.arange(self.n_robots) if robots is None else self._checked_robots(robots)
         self._table[:, rob] = 0.0
         self._counts[rob] = 0
+        self._pending_counts[rob] = 0
         for r in rob.tolist():
-            self._pending[r] = np.empty((0, 2))
             self._mixtures[r] = None
 
     # ------------------------------------------------------------------ steps
@@ -206,7 +230,10 @@ class PHDBank:
         if not np.isfinite(odo).all():
             bad = int(np.flatnonzero(~np.isfinite(odo).all(axis=1))[0])
             raise ValueError(f"odometry must be finite, got odometry[{bad}] = {odo[bad].tolist()}")
-        self._predict(rob, odo)
+        batch = _Batch()
+        for r, row in zip(rob.tolist(), odo, strict=True):
+            batch.predict(r, row)
+        self._run(batch)
 
     def update_lidar(self, robots: Any, points: Sequence[Any], null_bearings: Any = None) -> None:
         """Lidar update of ``robots`` (:meth:`RobotCentricPHD.update_lidar`), then reduce.
@@ -227,12 +254,15 @@ class PHDBank:
         """
         rob = self._checked_robots(robots)
         pts = _checked_list(points, "points", rob.shape[0], _checked_points)
-        nulls = None
+        nulls = [None] * rob.shape[0]
         if null_bearings is not None:
             nulls = _checked_list(
                 null_bearings, "null_bearings", rob.shape[0], _checked_nulls, allow_none=True
             )
-        self._update_lidar(rob, pts, nulls)
+        batch = _Batch()
+        for r, p, nb in zip(rob.tolist(), pts, nulls, strict=True):
+            batch.lidar(r, p, nb)
+        self._run(batch)
 
     def update_camera(self, robots: Any, bearings: Sequence[Any]) -> None:
         """Camera update of ``robots`` (:meth:`RobotCentricPHD.update_camera`), then reduce.
@@ -253,12 +283,13 @@ class PHDBank:
         """
         rob = self._checked_robots(robots)
         brg = _checked_list(bearings, "bearings", rob.shape[0], _checked_bearings)
-        if self.config.mode == "lidar-only":
-            return
-        self._update_camera(rob, brg)
+        batch = _Batch()
+        for r, b in zip(rob.tolist(), brg, strict=True):
+            batch.camera(r, b)
+        self._run(batch)
 
     def apply(self, calls: Sequence[Sequence[tuple]]) -> None:
-        """Run each robot's calls in order, batching robots whose next call is of one kind.
+        """Run each robot's calls in order, all robots in one compiled batch.
 
         Parameters
         ----------
@@ -266,60 +297,27 @@ class PHDBank:
             ``calls[r]`` is robot ``r``'s time-ordered list of ``("predict", odometry)``,
             ``("lidar", points, null_bearings_or_None)`` and ``("camera", bearings)``.
 
-        Notes
-        -----
-        Robots are independent, so only each robot's own order matters. The batches are
-        formed greedily: among the robots with calls left, the kind that is the next call of
-        the most robots runs for all of them. All calls are validated before any state
-        changes.
+        Raises
+        ------
+        ValueError
+            A malformed call (``calls[r]`` and the argument are named), or not one list per
+            robot. All calls are validated before any state changes.
         """
         calls = list(calls)
         if len(calls) != self.n_robots:
             raise ValueError(
                 f"calls must have one list per robot ({self.n_robots}), got {len(calls)}"
             )
-        queues = []
+        batch = _Batch()
         for r, seq in enumerate(calls):
-            queue = []
             for c in seq:
-                if not isinstance(c, tuple) or not c or c[0] not in _KINDS:
-                    raise ValueError(f"calls[{r}] has an invalid call {c!r}")
-                kind = c[0]
-                try:
-                    if kind == "predict":
-                        queue.append((kind, _checked_odometry(c[1])))
-                    elif kind == "lidar":
-                        nb = c[2] if len(c) > 2 else None
-                        queue.append(
-                            (
-                                kind,
-                                _checked_points(c[1]),
-                                None if nb is None else _checked_nulls(nb),
-                            )
-                        )
-                    else:
-                        queue.append((kind, _checked_bearings(c[1])))
-                except (ValueError, IndexError) as exc:
-                    raise ValueError(f"calls[{r}]: {exc}") from exc
-            queue.reverse()  # pop() from the end
-            queues.append(queue)
-        while True:
-            heads = [(q[-1][0] if q else None) for q in queues]
-            tally = {k: heads.count(k) for k in _KINDS}
-            kind = max(_KINDS, key=tally.__getitem__)
-            if tally[kind] == 0:
-                return
-            rob = np.array([r for r, h in enumerate(heads) if h == kind], dtype=np.intp)
-            items = [queues[r].pop() for r in rob.tolist()]
-            if kind == "predict":
-                self._predict(rob, np.array([it[1] for it in items]))
-            elif kind == "lidar":
-                nulls = [it[2] for it in items]
-                self._update_lidar(
-                    rob, [it[1] for it in items], None if all(x is None for x in nulls) else nulls
-                )
-            elif self.config.mode != "lidar-only":
-                self._update_camera(rob, [it[1] for it in items])
+                batch.add_call(r, c)
+        if not batch.all_finite():
+            # Slow path, only to name the culprit: re-check every call exactly.
+            for r, seq in enumerate(calls):
+                for c in seq:
+                    _Batch().add_call(r, c, exact=True)
+        self._run(batch)
 
     # ------------------------------------------------------------------ internals
     def _checked_robots(self, robots: Any) -> np.ndarray:
@@ -336,137 +334,137 @@ class PHDBank:
             raise ValueError(f"robots must be distinct, got {rob.tolist()}")
         return rob
 
-    def _gather(self, rob: np.ndarray, extra: np.ndarray | int) -> tuple[np.ndarray, np.ndarray]:
-        """Batched table ``(6, K, W)`` of ``rob`` with room for ``extra`` more columns."""
-        n = self._counts[rob]
-        used = int(n.max(initial=0))
-        width = max(int((n + extra).max(initial=0)), 1)
-        tab = np.zeros((N_ROWS, rob.shape[0], width))
-        tab[:, :, :used] = self._table[:, rob, :used]
-        return tab, n
+    def _reserve_pending(self, n_points: int) -> None:
+        """Room for ``n_points`` pending births per robot (a lidar call may leave that many)."""
+        if n_points > self._pending.shape[1]:
+            grown = np.zeros((self.n_robots, max(n_points, 2 * self._pending.shape[1]), 2))
+            grown[:, : self._pending.shape[1]] = self._pending
+            self._pending = grown
 
-    def _store(self, rob: np.ndarray, table: np.ndarray, counts: np.ndarray) -> None:
-        """Write a zero-padded batched table (width <= max_components) back."""
-        width = table.shape[2]
-        self._table[:, rob, :width] = table
-        self._table[:, rob, width:] = 0.0
-        self._counts[rob] = counts
+    def _run(self, batch: _Batch) -> None:
+        if not batch.robots:
+            return
+        encoded = batch.encode()
+        self._reserve_pending(batch.max_points)
+        fparams, iparams, sector_scaled, sector_inv_var = self._params
+        kernels.apply_calls(
+            self._table,
+            self._counts,
+            self._pending,
+            self._pending_counts,
+            *encoded,
+            fparams,
+            iparams,
+            sector_scaled,
+            sector_inv_var,
+        )
         mixtures = self._mixtures
-        for r in rob.tolist():
+        for r in set(batch.robots):
             mixtures[r] = None
 
-    def _reduce_store(self, rob: np.ndarray, table: np.ndarray) -> None:
-        cfg = self.config
-        out, counts = reduce_batched(
-            table, cfg.prune_threshold, cfg.merge_threshold, cfg.max_components
-        )
-        self._store(rob, out, counts)
 
-    def _predict(self, rob: np.ndarray, odo: np.ndarray) -> None:
-        if rob.shape[0] == 0:
-            return
-        cfg = self.config
-        pending = [self._pending[r] for r in rob.tolist()]
-        n_birth = np.array([p.shape[0] for p in pending], dtype=np.intp)
-        tab, n = self._gather(rob, n_birth)
-        survival = self._model.survival(tab)
-        total = n + n_birth
-        if n_birth.any():
-            # Adaptive births measured in the previous frame: appended after each robot's
-            # components, moved with the frame, no survival factor (as in RobotCentricPHD).
-            births = phd.birth_components(
-                np.concatenate(pending),
-                cfg.measurement_birth_cov_scale * cfg.lidar_noise_var_m2,
-                cfg.measurement_birth_weight,
-            )
-            rows = np.repeat(np.arange(rob.shape[0]), n_birth)
-            slots = np.arange(rows.shape[0]) - np.repeat(np.cumsum(n_birth) - n_birth, n_birth)
-            slots += n[rows]
-            tab[:, rows, slots] = births
-            survival[rows, slots] = 1.0
-            for r in rob.tolist():
-                self._pending[r] = np.empty((0, 2))
-        out = phd.predict(tab, odo, survival, cfg.process_noise_std_m**2)
-        out *= np.arange(out.shape[2]) < total[:, None]  # padding back to 0
-        over = total > cfg.max_components
-        if over.any():
-            self._reduce_store(rob[over], out[:, over])
-            keep = ~over
-            rob, out, total = rob[keep], out[:, keep], total[keep]
-        self._store(rob, out[:, :, : cfg.max_components], total)
+class _Batch:
+    """Validated filter calls, encoded as the flat arrays of :mod:`localization.kernels`."""
 
-    def _update_lidar(
-        self, rob: np.ndarray, pts: list[np.ndarray], nulls: list[np.ndarray | None] | None
-    ) -> None:
-        if rob.shape[0] == 0:
-            return
-        cfg = self.config
-        k = rob.shape[0]
-        m = np.array([p.shape[0] for p in pts], dtype=np.intp)
-        has = m > 0
-        fixed_birth = cfg.birth == "fixed" and bool(has.any())
-        tab, n = self._gather(rob, has.astype(np.intp) if fixed_birth else 0)
-        if fixed_birth:
-            # The fixed birth joins the prior of every lidar update with detections.
-            tab[:, has.nonzero()[0], n[has]] = self._fixed_birth
-        null_pad, null_valid = _pad_ragged(nulls, (), k) if nulls is not None else (None, None)
-        pd = self._model.lidar(tab, null_pad, null_valid)
-        if has.any():
-            pts_pad, valid = _pad_ragged(pts, (2,), k)
-            out, explained = phd.lidar_update(
-                tab, pts_pad, pd, cfg.lidar_noise_var_m2, cfg.lidar_clutter_intensity, valid
-            )
-            if fixed_birth:
-                out[ROW_W, has.nonzero()[0], n[has]] = 0.0  # drop the birth's missed copy
-            if not has.all():
-                # Robots without detections: the missed-detection factor only, written as
-                # RobotCentricPHD writes it (w * (1 - P_d)).
-                width = tab.shape[2]
-                out[ROW_W, ~has, :width] = tab[ROW_W, ~has] * (1.0 - pd[~has])
-        else:
-            out = tab
-            out[ROW_W] *= 1.0 - pd
-            explained = valid = None
-        if cfg.birth == "measurement":
-            if explained is None:
-                self._set_pending(rob, [np.empty((0, 2))] * k)
+    __slots__ = ("robots", "kinds", "odometry", "points", "bearings", "nulls", "max_points")
+
+    def __init__(self) -> None:
+        self.robots: list[int] = []
+        self.kinds: list[int] = []
+        self.odometry: list[np.ndarray] = []  # one row per call (zeros unless predict)
+        self.points: list[np.ndarray] = []  # one (M, 2) per call (empty unless lidar)
+        self.bearings: list[np.ndarray] = []  # one (M,) per call (empty unless camera)
+        self.nulls: list[np.ndarray] = []  # one (B,) per call (empty unless lidar)
+        self.max_points = 0
+
+    def _append(self, r: int, kind: int, odo=None, pts=None, brg=None, nulls=None) -> None:
+        self.robots.append(r)
+        self.kinds.append(kind)
+        self.odometry.append(_NO_ODOMETRY if odo is None else odo)
+        self.points.append(_NO_POINTS if pts is None else pts)
+        self.bearings.append(_NO_ANGLES if brg is None else brg)
+        self.nulls.append(_NO_ANGLES if nulls is None else nulls)
+
+    def predict(self, r: int, odo: np.ndarray) -> None:
+        self._append(r, kernels.PREDICT, odo=odo)
+
+    def lidar(self, r: int, pts: np.ndarray, nulls: np.ndarray | None) -> None:
+        self.max_points = max(self.max_points, pts.shape[0])
+        self._append(r, kernels.LIDAR, pts=pts, nulls=nulls)
+
+    def camera(self, r: int, brg: np.ndarray) -> None:
+        self._append(r, kernels.CAMERA, brg=brg)
+
+    def add_call(self, r: int, call: Any, exact: bool = False) -> None:
+        """Append ``calls[r]``'s tuple ``call``. Shapes are checked here; finiteness by
+        :meth:`all_finite` over the whole batch (or here, per array, when ``exact``)."""
+        if not isinstance(call, tuple) or not call or call[0] not in _KIND_CODES:
+            raise ValueError(f"calls[{r}] has an invalid call {call!r}")
+        kind = call[0]
+        try:
+            if kind == "predict":
+                odo = call[1]
+                if exact or not _is_f64(odo, 1) or odo.shape[0] != 3:
+                    odo = _checked_odometry(odo)
+                self.predict(r, odo)
+            elif kind == "lidar":
+                pts = call[1]
+                if exact or not _is_f64(pts, 2) or pts.shape[1] != 2:
+                    pts = _checked_points(pts)
+                nb = call[2] if len(call) > 2 else None
+                if nb is not None and (exact or not _is_f64(nb, 1)):
+                    nb = _checked_nulls(nb)
+                self.lidar(r, pts, nb)
             else:
-                born = valid & (explained < cfg.measurement_birth_max_explained)
-                flat = pts_pad[born]
-                split = np.cumsum(np.count_nonzero(born, axis=1))[:-1]
-                self._set_pending(rob, np.split(flat, split))
-        self._reduce_store(rob, out)
+                brg = call[1]
+                if exact or not _is_f64(brg, 1):
+                    brg = _checked_bearings(brg)
+                self.camera(r, brg)
+        except (ValueError, IndexError) as exc:
+            raise ValueError(f"calls[{r}]: {exc}") from exc
 
-    def _update_camera(self, rob: np.ndarray, brg: list[np.ndarray]) -> None:
-        if rob.shape[0] == 0:
-            return
-        cfg = self.config
-        tab, _ = self._gather(rob, 0)
-        pd = self._model.camera(tab)
-        m = np.array([b.shape[0] for b in brg], dtype=np.intp)
-        has = m > 0
-        if has.any():
-            brg_pad, valid = _pad_ragged(brg, (), rob.shape[0])
-            out, _ = phd.camera_update(
-                tab,
-                brg_pad,
-                pd,
-                cfg.camera_noise_var_rad2,
-                cfg.camera_clutter_intensity,
-                cfg.min_range_m,
-                valid,
-            )
-            if not has.all():
-                width = tab.shape[2]
-                out[ROW_W, ~has, :width] = tab[ROW_W, ~has] * (1.0 - pd[~has])
-        else:
-            out = tab
-            out[ROW_W] *= 1.0 - pd
-        self._reduce_store(rob, out)
+    def all_finite(self) -> bool:
+        # A finite sum means finite entries (an overflowing sum of huge finite values only
+        # sends us down the exact path, which then finds nothing to complain about).
+        return all(
+            math.isfinite(np.add.reduce(np.concatenate(arrays, axis=None)))
+            for arrays in (self.odometry, self.points, self.bearings, self.nulls)
+            if arrays
+        )
 
-    def _set_pending(self, rob: np.ndarray, births: list[np.ndarray]) -> None:
-        for r, b in zip(rob.tolist(), births, strict=False):
-            self._pending[r] = b
+    def encode(self) -> tuple[np.ndarray, ...]:
+        """``robots, kinds, odometry, data_start, data_stop, points, bearings, null_start,
+        null_stop, nulls`` as :func:`localization.kernels.apply_calls` takes them."""
+        n_pts = np.fromiter((p.shape[0] for p in self.points), np.int64, len(self.points))
+        n_brg = np.fromiter((b.shape[0] for b in self.bearings), np.int64, len(self.bearings))
+        n_null = np.fromiter((b.shape[0] for b in self.nulls), np.int64, len(self.nulls))
+        # A call's data rows: its points (lidar) or its bearings (camera); the other is empty.
+        lengths = n_pts + n_brg
+        kinds = np.array(self.kinds, dtype=np.int64)
+        stop = np.where(kinds == kernels.LIDAR, np.cumsum(n_pts), np.cumsum(n_brg))
+        start = stop - lengths
+        null_stop = np.cumsum(n_null)
+        return (
+            np.array(self.robots, dtype=np.int64),
+            kinds,
+            np.array(self.odometry, dtype=np.float64).reshape(-1, 3),
+            start,
+            stop,
+            np.concatenate(self.points).reshape(-1, 2),
+            np.concatenate(self.bearings),
+            null_stop - n_null,
+            null_stop,
+            np.concatenate(self.nulls),
+        )
+
+
+_NO_ODOMETRY = np.zeros(3)
+_NO_POINTS = np.empty((0, 2))
+_NO_ANGLES = np.empty(0)
+
+
+def _is_f64(value: Any, ndim: int) -> bool:
+    return type(value) is np.ndarray and value.dtype == _F64 and value.ndim == ndim
 
 
 class PHDBankView:
@@ -585,16 +583,3 @@ def _checked_list(
         except ValueError as exc:
             raise ValueError(f"{name}[{i}]: {exc}") from exc
     return out
-
-
-def _pad_ragged(
-    arrays: list[np.ndarray | None], tail: tuple[int, ...], k: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """Stack K ragged ``(M_k, *tail)`` arrays (None: empty) as ``(K, M, *tail)`` + mask."""
-    lengths = np.array([0 if a is None else a.shape[0] for a in arrays], dtype=np.intp)
-    width = int(lengths.max(initial=0))
-    valid = np.arange(width) < lengths[:, None]
-    out = np.zeros((k, width, *tail))
-    if width:
-        out[valid] = np.concatenate([a for a in arrays if a is not None and a.shape[0]])
-    return out, valid

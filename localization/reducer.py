@@ -41,11 +41,6 @@ __all__ = [
     "reduce",
     "greedy_clusters",
     "gate_distances",
-    "compact",
-    "greedy_clusters_batched",
-    "merge_batched",
-    "cap_batched",
-    "reduce_batched",
 ]
 
 
@@ -68,7 +63,10 @@ def prune(table: np.ndarray, threshold: float) -> np.ndarray:
 
 
 def cap(table: np.ndarray, max_components: int) -> np.ndarray:
-    """Keep the ``max_components`` largest-weight components (original order is not kept).
+    """Keep the ``max_components`` largest-weight components, in their original order.
+
+    Among equal weights at the boundary the lower index is kept, so the result is defined
+    exactly (the compiled bank keeps the same components).
 
     Parameters
     ----------
@@ -82,7 +80,7 @@ def cap(table: np.ndarray, max_components: int) -> np.ndarray:
     n = table.shape[1]
     if n <= max_components:
         return table
-    keep = np.argpartition(table[ROW_W], n - max_components)[n - max_components :]
+    keep = np.sort(np.argsort(-table[ROW_W], kind="stable")[:max_components])
     return table[:, keep]
 
 
@@ -292,179 +290,3 @@ def reduce(
     table = prune(table, prune_threshold)
     table = merge(table, merge_threshold)
     return cap(table, max_components)
-
-
-# ---------------------------------------------------------------------- batched over robots
-# The functions below reduce K independent mixtures at once. A batched table has shape
-# (6, K, N): robot k's components are the columns [:, k, :counts[k]], and the rest is padding
-# with weight 0 (any finite values). Each robot gets exactly the result of the single-mixture
-# function above: the same components in the same order, values equal up to floating-point
-# summation order.
-
-
-def compact(table: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Move each robot's kept components to the front, in their original order.
-
-    Parameters
-    ----------
-    table : ndarray, shape (6, K, N)
-    keep : ndarray of bool, shape (K, N)
-
-    Returns
-    -------
-    table : ndarray, shape (6, K, L)
-        ``L = max(counts)`` (at least 1); padding columns are all zero.
-    counts : ndarray of int, shape (K,)
-    """
-    counts = np.count_nonzero(keep, axis=1)
-    width = max(int(counts.max(initial=0)), 1)
-    rows, cols = keep.nonzero()  # row-major: robot by robot, columns in order
-    slot = np.cumsum(keep, axis=1)[rows, cols] - 1
-    out = np.zeros((N_ROWS, keep.shape[0], width))
-    out[:, rows, slot] = table[:, rows, cols]
-    return out, counts
-
-
-def greedy_clusters_batched(close: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """:func:`greedy_clusters` for ``K`` gate matrices at once.
-
-    Vo & Ma's loop, vectorised over robots: each pass takes every robot's heaviest remaining
-    component (ties: lowest index) as a leader and removes the remaining components inside its
-    gate. Passes = the largest number of clusters of any robot; each pass costs a few (K, N)
-    operations, so no (K, N, N) temporaries are built.
-
-    Parameters
-    ----------
-    close : ndarray of bool, shape (K, N, N)
-        ``close[k, j, i]``: component ``i`` is inside ``j``'s gate (robot ``k``). Entries
-        involving padding are ignored.
-    weights : ndarray, shape (K, N)
-        Real components have weight > 0; padding (weight 0) stays a singleton.
-
-    Returns
-    -------
-    ndarray of int, shape (K, N)
-        Leader index of each component's cluster (``labels[k, j] == j`` for leaders).
-    """
-    k, n = weights.shape
-    rows = np.arange(k)
-    labels = np.broadcast_to(np.arange(n), (k, n)).copy()
-    remaining = weights > 0.0
-    # Removed components get weight -1, below every real one, so argmax skips them.
-    w_left = np.where(remaining, weights, -1.0)
-    while True:
-        leader = w_left.argmax(axis=1)  # (K,); a robot with nothing left yields no members
-        members = close[rows, leader]  # (K, N): the leader's gate
-        members[rows, leader] = True  # the leader itself, whatever round-off did to q[j, j]
-        members &= remaining
-        if not members.any():
-            return labels
-        np.copyto(labels, leader[:, None], where=members)
-        np.copyto(w_left, -1.0, where=members)
-        remaining &= ~members
-
-
-def merge_batched(
-    table: np.ndarray, counts: np.ndarray, threshold: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`merge` of ``K`` mixtures at once.
-
-    Parameters
-    ----------
-    table : ndarray, shape (6, K, N)
-        Padded batched table (see :func:`compact`); real weights must be > 0.
-    counts : ndarray of int, shape (K,)
-    threshold : float
-
-    Returns
-    -------
-    table : ndarray, shape (6, K, L)
-        Per robot the clusters in increasing leader index, as :func:`merge`; a robot where
-        nothing merges keeps its components unchanged (bit for bit).
-    counts : ndarray of int, shape (K,)
-    """
-    k, n = table.shape[1:]
-    if n < 2:
-        return table, counts
-    w = table[ROW_W]
-    means = table[ROW_X : ROW_Y + 1]
-    covs = table[ROW_PXX:]
-    index = np.arange(n)
-    valid = index < counts[:, None]
-    # Padding entries of the gate matrix are never read: the greedy pass only takes real
-    # (weight > 0) components as leaders or members; padding stays singleton, dropped below.
-    close = gate_distances(means, covs) <= threshold
-    labels = greedy_clusters_batched(close, w)
-    is_leader = (labels == index) & valid
-    n_out = np.count_nonzero(is_leader, axis=1)
-    merged = n_out < counts
-    if not merged.any():
-        return table, counts
-    # Leaders to the front, in index order: slot l of robot k holds leader lead[k, l].
-    width = int(n_out.max())
-    lead = np.argsort(~is_leader, axis=1, kind="stable")[:, :width]  # (K, L)
-    lead_valid = index[:width] < n_out[:, None]
-    member = (labels[:, None, :] == lead[:, :, None]) & valid[:, None, :]
-    member &= lead_valid[:, :, None]
-    # Guard: as in merge (floored weights); an unused leader slot gets component 0 alone so
-    # that no cluster total is 0 (the slot is zeroed below).
-    member[:, :, 0] |= ~lead_valid
-    member_w = member * np.maximum(w, _WEIGHT_FLOOR)[:, None, :]  # (K, L, N)
-    ref = means[:, np.arange(k), w.argmax(axis=1)][:, :, None]
-    out = _moment_match(means, covs, member_w, ref)
-    out *= lead_valid
-    # Robots where nothing merged keep their input components.
-    keep_input = ~merged
-    out[:, keep_input] = table[:, keep_input, :width]
-    return out, n_out
-
-
-def cap_batched(
-    table: np.ndarray, counts: np.ndarray, max_components: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`cap` of ``K`` mixtures at once; robots within the cap are unchanged.
-
-    The (rare) robots over the cap go through :func:`cap` one by one, so that among equal
-    weights at the boundary they keep exactly the components the single filter keeps.
-
-    Parameters
-    ----------
-    table : ndarray, shape (6, K, N)
-    counts : ndarray of int, shape (K,)
-    max_components : int
-
-    Returns
-    -------
-    table : ndarray, shape (6, K, min(N, max_components))
-    counts : ndarray of int, shape (K,)
-    """
-    over = (counts > max_components).nonzero()[0]
-    if not over.shape[0]:
-        return table, counts
-    out = table[:, :, :max_components].copy()
-    for k in over.tolist():
-        out[:, k] = cap(table[:, k, : counts[k]], max_components)
-    return out, np.minimum(counts, max_components)
-
-
-def reduce_batched(
-    table: np.ndarray, prune_threshold: float, merge_threshold: float, max_components: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`reduce` (prune, merge, cap) of ``K`` mixtures at once.
-
-    Parameters
-    ----------
-    table : ndarray, shape (6, K, N)
-        Batched table; padding must have weight 0 (< ``prune_threshold``), so it is pruned.
-    prune_threshold, merge_threshold : float
-    max_components : int
-
-    Returns
-    -------
-    table : ndarray, shape (6, K, L), ``L <= max_components`` (at least 1)
-        Zero padding beyond each robot's count.
-    counts : ndarray of int, shape (K,)
-    """
-    out, counts = compact(table, table[ROW_W] >= prune_threshold)
-    out, counts = merge_batched(out, counts, merge_threshold)
-    return cap_batched(out, counts, max_components)

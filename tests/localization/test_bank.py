@@ -24,7 +24,7 @@ def assert_same(filters: list[RobotCentricPHD], bank: PHDBank, where: str) -> No
             f"{where}: robot {r} has {b.shape[1]} != {a.shape[1]} components"
         )
         assert np.allclose(a, b, rtol=0.0, atol=1e-10), f"{where}: robot {r} differs"
-        pa, pb = f.__getstate__()["pending_births"], bank._pending[r]
+        pa, pb = f.__getstate__()["pending_births"], bank.pending_births(r)
         assert pa.shape == pb.shape and np.allclose(pa, pb, rtol=0.0, atol=1e-10), where
 
 
@@ -99,31 +99,27 @@ def test_bank_matches_independent_filters(name, seed):
 
 
 def test_cap_and_covering_chains_are_exercised(monkeypatch):
-    """The equivalence runs hit the cap and covering chains (a best coverer itself absorbed)."""
+    """The equivalence runs hit the cap and covering chains (a best coverer itself absorbed),
+    counted on the reference filters, which the bank matches at every step."""
+    import localization.filter as filter_module
     import localization.reducer as reducer
 
-    seen = {"rounds": 0, "cap": 0}
-    original_cap = reducer.cap_batched
+    seen = {"chains": 0, "cap": 0}
 
-    def counting_cap(table, counts, max_components):
-        seen["cap"] += int((counts > max_components).any())
-        return original_cap(table, counts, max_components)
+    def counting_reduce(table, prune_threshold, merge_threshold, max_components):
+        pruned = reducer.prune(table, prune_threshold)
+        if pruned.shape[1] > 1:
+            means, covs = pruned[1:3], pruned[3:]
+            close = reducer.gate_distances(means, covs) <= merge_threshold
+            best = (close * (pruned[0] + 1.0)[:, None]).argmax(axis=0)
+            seen["chains"] += int(not (best == np.arange(best.size))[best].all())
+        merged = reducer.merge(pruned, merge_threshold)
+        seen["cap"] += int(merged.shape[1] > max_components)
+        return reducer.cap(merged, max_components)
 
-    original_clusters = reducer.greedy_clusters_batched
-
-    def counting_clusters(close, weights):
-        n = close.shape[-1]
-        best = (close * (weights + 1.0)[:, :, None]).argmax(axis=1)
-        seen["rounds"] += int(not np.take_along_axis(best == np.arange(n), best, axis=1).all())
-        return original_clusters(close, weights)
-
-    monkeypatch.setattr(reducer, "cap_batched", counting_cap)
-    monkeypatch.setattr(reducer, "greedy_clusters_batched", counting_clusters)
-    import localization.bank as bank_module
-
-    monkeypatch.setattr(bank_module, "reduce_batched", reducer.reduce_batched)
+    monkeypatch.setattr(filter_module, "reduce", counting_reduce)
     run_both(CONFIGS["lc-measurement-cap"], 3, steps=40)
-    assert seen["cap"] > 0 and seen["rounds"] > 0
+    assert seen["cap"] > 0 and seen["chains"] > 0
 
 
 def test_apply_schedules_per_robot_order():
@@ -180,7 +176,11 @@ def test_round_trip_and_views():
 
 
 def snapshot(bank: PHDBank):
-    return bank._table.copy(), bank._counts.copy(), [p.copy() for p in bank._pending]
+    return (
+        bank._table.copy(),
+        bank._counts.copy(),
+        [bank.pending_births(r) for r in range(bank.n_robots)],
+    )
 
 
 def assert_unchanged(bank: PHDBank, before) -> None:
@@ -238,25 +238,3 @@ def test_bad_constructor_and_apply():
     assert_unchanged(bank, before)
     with pytest.raises(ValueError, match="same config"):
         PHDBank.from_filters([RobotCentricPHD(), RobotCentricPHD(mode="lidar-only")])
-
-
-def test_batched_greedy_clusters_match_the_single_mixture_greedy():
-    """Random gates with long covering chains and ties; padding (weight 0) entries of the gate
-    matrix are arbitrary and must be ignored."""
-    from localization.reducer import greedy_clusters, greedy_clusters_batched
-
-    rng = np.random.default_rng(11)
-    k, n = 7, 30
-    counts = rng.integers(0, n + 1, size=k)
-    weights = np.round(rng.uniform(0.1, 1.0, size=(k, n)), 1)  # > 0, with many ties
-    close = rng.random((k, n, n)) < 0.15
-    valid = np.arange(n) < counts[:, None]
-    weights[~valid] = 0.0
-    close[:, np.arange(n), np.arange(n)] = True
-    labels = greedy_clusters_batched(close, weights)
-    for r in range(k):
-        c = counts[r]
-        np.testing.assert_array_equal(
-            labels[r, :c], greedy_clusters(close[r, :c, :c], weights[r, :c])
-        )
-        np.testing.assert_array_equal(labels[r, c:], np.arange(c, n))  # padding: singletons

@@ -1,0 +1,668 @@
+"""Compiled GM-PHD steps for many robots at once: the engine behind :class:`~localization.PHDBank`.
+
+A swarm env makes ~100 filter calls per 0.1 s step (20 robots x odometry, lidar and camera at
+their own rates), each on ~20 components. At that size numpy's per-call overhead, not the
+arithmetic, sets the cost, so the bank hands a whole step's calls to :func:`apply_calls`, one
+numba-compiled function that runs each robot's calls in order on its own slice of the padded
+``(6, R, C)`` table.
+
+The math is, formula for formula, that of the pure-numpy reference
+(:mod:`localization.gaussian`, :mod:`localization.detection`, :mod:`localization.phd`,
+:mod:`localization.reducer`, orchestrated by :class:`~localization.RobotCentricPHD`), written as
+scalar loops over components and measurements; ``tests/localization/test_bank.py`` checks that
+every robot of a bank ends each call with the components its own ``RobotCentricPHD`` holds
+(to 1e-10) on random call sequences for every model option. Where the reference's docstrings
+derive a formula or explain a guard, they are not repeated here.
+
+Encoding of a batch of ``Q`` calls (all arrays, built by :class:`~localization.PHDBank`):
+
+* ``robots (Q,)`` int, ``kinds (Q,)`` int (:data:`PREDICT`, :data:`LIDAR`, :data:`CAMERA`);
+  calls of one robot run in array order, robots are independent;
+* ``odometry (Q, 3)``: ``[dx_m, dy_m, dpsi_rad]`` of predict calls (other rows unused);
+* ``data_start, data_stop (Q,)``: the call's rows of ``points (P, 2)`` (lidar, m, robot frame)
+  or of ``bearings (Bc,)`` (camera, rad);
+* ``null_start, null_stop (Q,)``: a lidar call's rows of ``nulls (Bn,)`` (zero-intensity
+  return bearings, rad).
+
+Model parameters travel as one float vector ``fparams`` and one int vector ``iparams``
+indexed by the ``F_*`` and ``I_*`` constants below (see :func:`pack_params`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .config import PHDConfig
+from .mixture import N_ROWS
+
+__all__ = ["PREDICT", "LIDAR", "CAMERA", "pack_params", "apply_calls", "reduce_table"]
+
+PREDICT, LIDAR, CAMERA = 0, 1, 2
+
+# fparams indices
+F_PROCESS_VAR = 0
+F_PS_OFFSET, F_PS_SLOPE, F_PS_RANGE, F_PS_CONST = 1, 2, 3, 4
+F_BIRTH_W, F_BIRTH_X, F_BIRTH_Y, F_BIRTH_VAR = 5, 6, 7, 8
+F_MBIRTH_W, F_MBIRTH_VAR, F_MBIRTH_MAX_EXPLAINED = 9, 10, 11
+F_LIDAR_VAR, F_LPD_OFFSET, F_LPD_SLOPE, F_LPD_MID, F_LPD_CONST, F_LIDAR_RANGE = (
+    12,
+    13,
+    14,
+    15,
+    16,
+    17,
+)
+F_OCC_INV_VAR, F_OCC_SEPARATION, F_INT_DEPTH, F_INT_INV_VAR, F_KAPPA_L = 18, 19, 20, 21, 22
+F_CAMERA_VAR, F_CPD_OFFSET, F_CPD_SLOPE, F_CPD_MID, F_KAPPA_C = 23, 24, 25, 26, 27
+F_PRUNE, F_MERGE, F_MIN_RANGE = 28, 29, 30
+N_FPARAMS = 31
+# iparams indices (flags are 0 / 1)
+I_MAX_COMPONENTS, I_SURVIVAL_CONSTANT, I_BIRTH_FIXED, I_BIRTH_MEASUREMENT = 0, 1, 2, 3
+I_LIDAR_PD_CONSTANT, I_LIDAR_ONLY = 4, 5
+N_IPARAMS = 6
+
+_TINY = 1e-300  # as localization.gaussian.TINY: floor of every divisor
+_WEIGHT_FLOOR = 1e-150  # as localization.reducer: cluster weights never 0/0
+_MAX_EXP = 700.0  # as localization.detection: no exp overflow for absurd ranges
+# 1 - x == 1.0 exactly in float64 for 0 <= x < 2^-54 ~ 5.6e-17, and exp(-38) ~ 3.1e-17: a
+# bump factor with an exponent below this is skipped without changing a single bit.
+_NEGLIGIBLE_EXPONENT = -38.0
+_DROP_FRACTION = 1e-20  # see _negligible_exponent
+_TWO_PI = 2.0 * math.pi
+_INV_TWO_PI = 1.0 / _TWO_PI
+_INV_SQRT_TWO_PI = 1.0 / math.sqrt(_TWO_PI)
+
+
+def pack_params(config: PHDConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(fparams, iparams, sector_scaled (S, 2), sector_inv_var (S,))`` of ``config``.
+
+    The blind sectors are given as unit centre directions scaled by ``1 / sigma^2``
+    (``sigma = width / 2``), as :class:`~localization.detection.DetectionModel` keeps them.
+    """
+    c = config
+    f = np.zeros(N_FPARAMS)
+    f[F_PROCESS_VAR] = c.process_noise_std_m**2
+    f[F_PS_OFFSET], f[F_PS_SLOPE], f[F_PS_RANGE] = (
+        c.survival_offset,
+        c.survival_slope_per_m,
+        c.survival_range_m,
+    )
+    f[F_PS_CONST] = c.survival_probability
+    f[F_BIRTH_W] = c.birth_weight
+    f[F_BIRTH_X], f[F_BIRTH_Y] = c.birth_mean_m
+    f[F_BIRTH_VAR] = c.birth_std_m**2
+    f[F_MBIRTH_W] = c.measurement_birth_weight
+    f[F_MBIRTH_VAR] = c.measurement_birth_cov_scale * c.lidar_noise_var_m2
+    f[F_MBIRTH_MAX_EXPLAINED] = c.measurement_birth_max_explained
+    f[F_LIDAR_VAR] = c.lidar_noise_var_m2
+    f[F_LPD_OFFSET], f[F_LPD_SLOPE], f[F_LPD_MID] = (
+        c.lidar_pd_offset,
+        c.lidar_pd_slope_per_m,
+        c.lidar_pd_midpoint_m,
+    )
+    f[F_LPD_CONST] = c.lidar_detection_probability
+    f[F_LIDAR_RANGE] = c.lidar_range_m
+    f[F_OCC_INV_VAR] = 1.0 / math.radians(c.occlusion_std_deg) ** 2
+    f[F_OCC_SEPARATION] = c.occlusion_min_separation_m
+    f[F_INT_DEPTH] = c.interference_depth
+    f[F_INT_INV_VAR] = 1.0 / math.radians(c.interference_std_deg) ** 2
+    f[F_KAPPA_L] = c.lidar_clutter_intensity
+    f[F_CAMERA_VAR] = c.camera_noise_var_rad2
+    f[F_CPD_OFFSET], f[F_CPD_SLOPE], f[F_CPD_MID] = (
+        c.camera_pd_offset,
+        c.camera_pd_slope_per_m,
+        c.camera_pd_midpoint_m,
+    )
+    f[F_KAPPA_C] = c.camera_clutter_intensity
+    f[F_PRUNE] = c.prune_threshold
+    f[F_MERGE] = c.merge_threshold
+    f[F_MIN_RANGE] = c.min_range_m
+    i = np.zeros(N_IPARAMS, dtype=np.int64)
+    i[I_MAX_COMPONENTS] = c.max_components
+    i[I_SURVIVAL_CONSTANT] = c.survival_model == "constant"
+    i[I_BIRTH_FIXED] = c.birth == "fixed"
+    i[I_BIRTH_MEASUREMENT] = c.birth == "measurement"
+    i[I_LIDAR_PD_CONSTANT] = c.lidar_pd_model == "constant"
+    i[I_LIDAR_ONLY] = c.mode == "lidar-only"
+    centres = np.radians(np.asarray(c.blind_sector_centers_deg, dtype=float))
+    sigmas = 0.5 * np.radians(np.asarray(c.blind_sector_widths_deg, dtype=float))
+    inv_var = 1.0 / sigmas**2
+    scaled = np.stack((np.cos(centres), np.sin(centres)), axis=1) * inv_var[:, None]
+    return f, i, scaled.reshape(-1, 2), inv_var
+
+
+# ---------------------------------------------------------------------- detection factors
+@njit(cache=True)
+def _inverse_sigmoid(range_m, offset, slope, midpoint):
+    return 1.0 / (math.exp(min(range_m * slope - slope * midpoint, _MAX_EXP)) + offset)
+
+
+@njit(cache=True)
+def _units(tab, n, min_range):
+    """Ranges ``(n,)`` and unit bearing vectors ``(2, n)`` (zero vector at the origin)."""
+    ranges = np.empty(n)
+    units = np.empty((2, n))
+    for i in range(n):
+        x, y = tab[1, i], tab[2, i]
+        r = math.hypot(x, y)
+        ranges[i] = r
+        d = max(r, min_range)
+        units[0, i] = x / d
+        units[1, i] = y / d
+    return ranges, units
+
+
+@njit(cache=True)
+def _apply_occlusion(pd, tab, n, ranges, units, inv_var, separation):
+    """``pd[i] *= prod_j (1 - min(w_j, 1) bump(i, j))`` over components ``j`` nearer than ``i``."""
+    for i in range(n):
+        uxi = units[0, i] * inv_var
+        uyi = units[1, i] * inv_var
+        limit = ranges[i] - separation
+        factor = 1.0
+        for j in range(n):
+            if ranges[j] < limit:
+                exponent = uxi * units[0, j] + uyi * units[1, j] - inv_var
+                if exponent > _NEGLIGIBLE_EXPONENT:
+                    factor *= 1.0 - math.exp(exponent) * min(tab[0, j], 1.0)
+        pd[i] *= factor
+
+
+@njit(cache=True)
+def _lidar_pd(tab, n, nulls, fp, ip, sector_scaled, sector_inv_var):
+    pd = np.empty(n)
+    if ip[I_LIDAR_PD_CONSTANT]:
+        for i in range(n):
+            inside = math.hypot(tab[1, i], tab[2, i]) <= fp[F_LIDAR_RANGE]
+            pd[i] = fp[F_LPD_CONST] if inside else 0.0
+        return pd
+    ranges, units = _units(tab, n, fp[F_MIN_RANGE])
+    n_sectors = sector_inv_var.shape[0]
+    depth = fp[F_INT_DEPTH]
+    int_inv_var = fp[F_INT_INV_VAR]
+    for i in range(n):
+        p = _inverse_sigmoid(ranges[i], fp[F_LPD_OFFSET], fp[F_LPD_SLOPE], fp[F_LPD_MID])
+        if n_sectors:
+            blind = 1.0
+            for k in range(n_sectors):
+                exponent = (
+                    sector_scaled[k, 0] * units[0, i]
+                    + sector_scaled[k, 1] * units[1, i]
+                    - sector_inv_var[k]
+                )
+                if exponent > _NEGLIGIBLE_EXPONENT:
+                    blind *= 1.0 - math.exp(exponent)
+            p *= blind
+        pd[i] = p
+    if n > 1:
+        _apply_occlusion(pd, tab, n, ranges, units, fp[F_OCC_INV_VAR], fp[F_OCC_SEPARATION])
+    if nulls.shape[0]:
+        cos_b = np.cos(nulls) * int_inv_var
+        sin_b = np.sin(nulls) * int_inv_var
+        for i in range(n):
+            factor = 1.0
+            for b in range(nulls.shape[0]):
+                exponent = cos_b[b] * units[0, i] + sin_b[b] * units[1, i] - int_inv_var
+                if exponent > _NEGLIGIBLE_EXPONENT:  # depth <= 1
+                    factor *= 1.0 - depth * math.exp(exponent)
+            pd[i] *= factor
+    return pd
+
+
+@njit(cache=True)
+def _camera_pd(tab, n, fp):
+    min_range = fp[F_MIN_RANGE]
+    ranges, units = _units(tab, n, min_range)
+    pd = np.empty(n)
+    for i in range(n):
+        p = _inverse_sigmoid(ranges[i], fp[F_CPD_OFFSET], fp[F_CPD_SLOPE], fp[F_CPD_MID])
+        # bearing undefined inside our own body
+        pd[i] = p if ranges[i] >= min_range else 0.0
+    if n > 1:
+        _apply_occlusion(pd, tab, n, ranges, units, fp[F_OCC_INV_VAR], fp[F_OCC_SEPARATION])
+    return pd
+
+
+# ---------------------------------------------------------------------- time update
+@njit(cache=True)
+def _predict(tab, n, births, n_births, odo, fp, ip):
+    """Frame change + Q + survival; pending births join with ``P_s = 1``. Returns (table, n)."""
+    total = n + n_births
+    out = np.empty((N_ROWS, total))
+    out[:, :n] = tab[:, :n]
+    for b in range(n_births):
+        col = n + b
+        out[0, col] = fp[F_MBIRTH_W]
+        out[1, col] = births[b, 0]
+        out[2, col] = births[b, 1]
+        out[3, col] = fp[F_MBIRTH_VAR]
+        out[4, col] = 0.0
+        out[5, col] = fp[F_MBIRTH_VAR]
+    dx, dy, dpsi = odo[0], odo[1], odo[2]
+    c, s = math.cos(dpsi), math.sin(dpsi)
+    cc, ss, cs = c * c, s * s, c * s
+    off_x = -(c * dx + s * dy)
+    off_y = s * dx - c * dy
+    q = fp[F_PROCESS_VAR]
+    constant = ip[I_SURVIVAL_CONSTANT]
+    for i in range(total):
+        x, y = out[1, i], out[2, i]
+        pxx, pxy, pyy = out[3, i], out[4, i], out[5, i]
+        if i >= n:
+            ps = 1.0
+        elif constant:
+            ps = fp[F_PS_CONST]
+        else:
+            ps = _inverse_sigmoid(
+                math.hypot(x, y), fp[F_PS_OFFSET], fp[F_PS_SLOPE], fp[F_PS_RANGE]
+            )
+        out[0, i] *= ps
+        # m' = R(dpsi)^T (m - d); P' = R^T P R + Q (see gaussian.frame_change_matrix)
+        out[1, i] = c * x + s * y + off_x
+        out[2, i] = -s * x + c * y + off_y
+        out[3, i] = cc * pxx + 2.0 * cs * pxy + ss * pyy + q
+        out[4, i] = -cs * pxx + (cc - ss) * pxy + cs * pyy
+        out[5, i] = ss * pxx - 2.0 * cs * pxy + cc * pyy + q
+    if total > ip[I_MAX_COMPONENTS]:
+        return reduce_table(out, total, fp[F_PRUNE], fp[F_MERGE], ip[I_MAX_COMPONENTS])
+    return out, total
+
+
+# ---------------------------------------------------------------------- measurement updates
+@njit(cache=True)
+def _negligible_exponent(pd_w, norm, kappa):
+    """Likelihood exponent below which a (component, measurement) pair is dropped.
+
+    A dropped pair's term ``P_d w N`` is below ``1e-20 kappa`` (``norm`` is ``N``'s peak), so it
+    changes no normaliser (``kappa + sum >= kappa``) beyond round-off, and its copy would be
+    pruned anyway. With ``kappa = 0`` nothing is dropped; with ``P_d w = 0`` every term is 0.
+    """
+    if pd_w <= 0.0:
+        return np.inf
+    if kappa <= 0.0:
+        return -np.inf
+    return math.log(_DROP_FRACTION * kappa / (pd_w * norm))
+
+
+@njit(cache=True)
+def _posterior(tab, n, pd, detected, post_means, post_covs, kappa, prune, dropped_missed):
+    """GM-PHD weights (Vo & Ma Table I), pruned: the kept missed copies, then the kept
+    detected copies in component-major order (the reference's column order, minus the pruned).
+
+    ``detected (n, M)`` holds ``P_d w N`` per pair, ``post_means (2, n, M)`` (read only where
+    ``detected > 0``), ``post_covs (3, n)``; ``dropped_missed`` is a component whose missed
+    copy is not kept (-1: none). Returns the ``(6, k)`` table, ``k`` and ``explained (M,)``.
+    """
+    m = detected.shape[1]
+    sums = np.zeros(m)
+    for i in range(n):
+        for h in range(m):
+            sums[h] += detected[i, h]
+    explained = np.empty(m)
+    inv_denom = np.empty(m)
+    for h in range(m):
+        # Guard: zero clutter and underflowed likelihoods give weights 0, not 0/0.
+        inv_denom[h] = 1.0 / max(sums[h] + kappa, _TINY)
+        explained[h] = sums[h] * inv_denom[h]
+    weights = np.empty(n + n * m)
+    k = 0
+    for i in range(n):
+        w = tab[0, i] - pd[i] * tab[0, i]  # (1 - P_d) w
+        weights[i] = 0.0 if i == dropped_missed else w
+        k += weights[i] >= prune
+        for h in range(m):
+            w = detected[i, h] * inv_denom[h]
+            weights[n + i * m + h] = w
+            k += w >= prune
+    out = np.empty((N_ROWS, k))
+    col = 0
+    for i in range(n):
+        if weights[i] >= prune:
+            out[0, col] = weights[i]
+            for r in range(1, N_ROWS):
+                out[r, col] = tab[r, i]
+            col += 1
+    for i in range(n):
+        for h in range(m):
+            w = weights[n + i * m + h]
+            if w >= prune:
+                out[0, col] = w
+                out[1, col] = post_means[0, i, h]
+                out[2, col] = post_means[1, i, h]
+                out[3, col] = post_covs[0, i]
+                out[4, col] = post_covs[1, i]
+                out[5, col] = post_covs[2, i]
+                col += 1
+    return out, k, explained
+
+
+@njit(cache=True)
+def _missed_only(tab, n, pd, prune):
+    """An update without measurements: ``w *= 1 - P_d``, pruned. Returns (table, k)."""
+    out = tab[:, :n].copy()
+    for i in range(n):
+        out[0, i] *= 1.0 - pd[i]
+    return _prune(out, n, prune)
+
+
+@njit(cache=True)
+def _lidar_update(tab, n, pts, nulls, fp, ip, sector_scaled, sector_inv_var):
+    """Lidar GM-PHD update (H = I), pruned. Returns (table, k, explained (M,))."""
+    m = pts.shape[0]
+    prune = fp[F_PRUNE]
+    if m == 0:
+        pd = _lidar_pd(tab, n, nulls, fp, ip, sector_scaled, sector_inv_var)
+        out, k = _missed_only(tab, n, pd, prune)
+        return out, k, np.empty(0)
+    fixed_birth = ip[I_BIRTH_FIXED]
+    n1 = n + 1 if fixed_birth else n
+    prior = np.empty((N_ROWS, n1))
+    prior[:, :n] = tab[:, :n]
+    if fixed_birth:  # the seed's birth component joins the prior of every lidar update
+        prior[0, n] = fp[F_BIRTH_W]
+        prior[1, n] = fp[F_BIRTH_X]
+        prior[2, n] = fp[F_BIRTH_Y]
+        prior[3, n] = fp[F_BIRTH_VAR]
+        prior[4, n] = 0.0
+        prior[5, n] = fp[F_BIRTH_VAR]
+    pd = _lidar_pd(prior, n1, nulls, fp, ip, sector_scaled, sector_inv_var)
+    r = fp[F_LIDAR_VAR]
+    kappa = fp[F_KAPPA_L]
+    detected = np.empty((n1, m))
+    post_means = np.empty((2, n1, m))
+    post_covs = np.empty((3, n1))
+    for i in range(n1):
+        pxx, pxy, pyy = prior[3, i], prior[4, i], prior[5, i]
+        mx, my = prior[1, i], prior[2, i]
+        pxy2 = pxy * pxy
+        det_p = pxx * pyy - pxy2
+        inv_det_s = 1.0 / max((pxx + r) * (pyy + r) - pxy2, _TINY)
+        # -S^-1 / 2 (see gaussian.position_update)
+        h_xx = (pyy + r) * (-0.5 * inv_det_s)
+        h_xy = pxy * (0.5 * inv_det_s)
+        h_yy = (pxx + r) * (-0.5 * inv_det_s)
+        # Joseph form reduced to r S^-1 P: all terms non-negative
+        scale = r * inv_det_s
+        post_covs[0, i] = (pxx * r + det_p) * scale
+        post_covs[1, i] = (pxy * r) * scale
+        post_covs[2, i] = (pyy * r + det_p) * scale
+        norm = math.sqrt(inv_det_s) * _INV_TWO_PI
+        pd_w = pd[i] * prior[0, i]
+        floor = _negligible_exponent(pd_w, norm, kappa)
+        for h in range(m):
+            d0 = pts[h, 0] - mx
+            d1 = pts[h, 1] - my
+            e0 = h_xx * d0 + h_xy * d1
+            e1 = h_xy * d0 + h_yy * d1
+            exponent = d0 * e0 + d1 * e1  # <= 0: far pairs underflow to exactly 0
+            if exponent < floor:
+                detected[i, h] = 0.0
+                continue
+            detected[i, h] = math.exp(exponent) * norm * pd_w
+            post_means[0, i, h] = pts[h, 0] + (2.0 * r) * e0
+            post_means[1, i, h] = pts[h, 1] + (2.0 * r) * e1
+    # the fixed birth's missed copy is dropped (see RobotCentricPHD.update_lidar)
+    return _posterior(
+        prior, n1, pd, detected, post_means, post_covs, kappa, prune, n if fixed_birth else -1
+    )
+
+
+@njit(cache=True)
+def _camera_update(tab, n, brg, fp):
+    """Camera EKF bearing GM-PHD update, pruned. Returns (table, k)."""
+    m = brg.shape[0]
+    prune = fp[F_PRUNE]
+    pd = _camera_pd(tab, n, fp)
+    if m == 0:
+        return _missed_only(tab, n, pd, prune)
+    noise = fp[F_CAMERA_VAR]
+    kappa = fp[F_KAPPA_C]
+    min_r2 = fp[F_MIN_RANGE] * fp[F_MIN_RANGE]
+    detected = np.empty((n, m))
+    post_means = np.empty((2, n, m))
+    post_covs = np.empty((3, n))
+    for i in range(n):
+        x, y = tab[1, i], tab[2, i]
+        pxx, pxy, pyy = tab[3, i], tab[4, i], tab[5, i]
+        # Guard: ||m||^2 floored so the atan2 Jacobian [-y, x] / r^2 stays finite.
+        inv_r2 = 1.0 / max(x * x + y * y, min_r2)
+        j0, j1 = -y * inv_r2, x * inv_r2
+        u0 = pxx * j0 + pxy * j1
+        u1 = pxy * j0 + pyy * j1
+        inv_s = 1.0 / (j0 * u0 + j1 * u1 + noise)  # S >= R_C > 0
+        g0, g1 = u0 * inv_s, u1 * inv_s
+        # Joseph form (I - K H) P (I - K H)^T + K R K^T: a sum of PSD terms.
+        b00, b01 = 1.0 - g0 * j0, -g0 * j1
+        b10, b11 = -g1 * j0, 1.0 - g1 * j1
+        bp00 = b00 * pxx + b01 * pxy
+        bp01 = b00 * pxy + b01 * pyy
+        bp10 = b10 * pxx + b11 * pxy
+        bp11 = b10 * pxy + b11 * pyy
+        post_covs[0, i] = bp00 * b00 + bp01 * b01 + g0 * noise * g0
+        post_covs[1, i] = bp00 * b10 + bp01 * b11 + g0 * noise * g1
+        post_covs[2, i] = bp10 * b10 + bp11 * b11 + g1 * noise * g1
+        predicted = math.atan2(y, x)
+        norm = math.sqrt(inv_s) * _INV_SQRT_TWO_PI
+        half_inv_s = -0.5 * inv_s
+        pd_w = pd[i] * tab[0, i]
+        floor = _negligible_exponent(pd_w, norm, kappa)
+        for h in range(m):
+            innov = brg[h] - predicted
+            if innov >= math.pi or innov < -math.pi:  # wrapped to [-pi, pi)
+                innov = (innov + math.pi) % _TWO_PI - math.pi
+            exponent = (innov * innov) * half_inv_s
+            if exponent < floor:
+                detected[i, h] = 0.0
+                continue
+            detected[i, h] = math.exp(exponent) * norm * pd_w
+            post_means[0, i, h] = x + g0 * innov
+            post_means[1, i, h] = y + g1 * innov
+    out, k, _ = _posterior(tab, n, pd, detected, post_means, post_covs, kappa, prune, -1)
+    return out, k
+
+
+# ---------------------------------------------------------------------- reduction
+@njit(cache=True)
+def _prune(tab, n, threshold):
+    """The components with ``w >= threshold``, in order (a new array). Returns (table, k)."""
+    k = 0
+    for i in range(n):
+        k += tab[0, i] >= threshold
+    out = np.empty((N_ROWS, k))
+    col = 0
+    for i in range(n):
+        if tab[0, i] >= threshold:
+            out[:, col] = tab[:, i]
+            col += 1
+    return out, k
+
+
+@njit(cache=True)
+def _merge_cap(tab, n, merge_threshold, max_components):
+    """Greedy merge then cap of a pruned table. Returns (table, k)."""
+    cur, k = _merge(tab, n, merge_threshold)
+    if k <= max_components:
+        return cur, k
+    # cap: the max_components heaviest (ties: lower index), in their original order
+    order = np.argsort(-cur[0, :k], kind="mergesort")
+    kept = np.sort(order[:max_components])
+    return cur[:, kept].copy(), max_components
+
+
+@njit(cache=True)
+def reduce_table(tab, n, prune_threshold, merge_threshold, max_components):
+    """Prune, greedy merge (Vo & Ma Table II), cap: :func:`localization.reducer.reduce`.
+
+    Parameters
+    ----------
+    tab : ndarray, shape (6, >= n)
+        Component table; only the first ``n`` columns are read.
+    n : int
+    prune_threshold, merge_threshold : float
+    max_components : int
+
+    Returns
+    -------
+    table : ndarray, shape (6, n')
+        A new array, ``n' <= max_components``.
+    n' : int
+    """
+    cur, k = _prune(tab, n, prune_threshold)
+    return _merge_cap(cur, k, merge_threshold, max_components)
+
+
+@njit(cache=True)
+def _merge(tab, n, threshold):
+    if n < 2:
+        return tab, n
+    # inverse covariances of the candidates (Vo & Ma's gate uses the candidate's P)
+    a_xx = np.empty(n)
+    a_xy = np.empty(n)
+    a_yy = np.empty(n)
+    for i in range(n):
+        # Guard: a singular covariance gets a tiny positive determinant.
+        inv_det = 1.0 / max(tab[3, i] * tab[5, i] - tab[4, i] * tab[4, i], _TINY)
+        a_xx[i] = tab[5, i] * inv_det
+        a_xy[i] = -tab[4, i] * inv_det
+        a_yy[i] = tab[3, i] * inv_det
+    # Leaders in decreasing weight (ties: lower index): a stable sort once, then each round
+    # takes the first unassigned one and scans only the still-unassigned candidates.
+    order = np.argsort(-tab[0, :n], kind="mergesort")
+    labels = np.full(n, -1)
+    remaining = np.arange(n)
+    n_remaining = n
+    n_clusters = 0
+    for leader in order:
+        if labels[leader] >= 0:
+            continue
+        n_clusters += 1
+        lx, ly = tab[1, leader], tab[2, leader]
+        labels[leader] = leader
+        kept = 0
+        for t in range(n_remaining):
+            i = remaining[t]
+            if i == leader:
+                continue
+            dx = tab[1, i] - lx
+            dy = tab[2, i] - ly
+            if a_xx[i] * dx * dx + 2.0 * a_xy[i] * dx * dy + a_yy[i] * dy * dy <= threshold:
+                labels[i] = leader
+            else:
+                remaining[kept] = i
+                kept += 1
+        n_remaining = kept
+    if n_clusters == n:
+        return tab, n
+    # Moments about the heaviest mean (no cancellation far from the origin), clusters in
+    # increasing leader index, as reducer.merge.
+    heaviest = order[0]
+    rx, ry = tab[1, heaviest], tab[2, heaviest]
+    out = np.empty((N_ROWS, n_clusters))
+    slot = np.full(n, -1)
+    k = 0
+    for i in range(n):
+        if labels[i] == i:
+            slot[i] = k
+            k += 1
+    sums = np.zeros((N_ROWS, n_clusters))
+    for i in range(n):
+        s = slot[labels[i]]
+        # Guard: floored weights, so an all-zero cluster still has a defined mean.
+        w = max(tab[0, i], _WEIGHT_FLOOR)
+        dx, dy = tab[1, i] - rx, tab[2, i] - ry
+        sums[0, s] += w
+        sums[1, s] += w * dx
+        sums[2, s] += w * dy
+        sums[3, s] += w * (tab[3, i] + dx * dx)
+        sums[4, s] += w * (tab[4, i] + dx * dy)
+        sums[5, s] += w * (tab[5, i] + dy * dy)
+    for s in range(n_clusters):
+        inv_total = 1.0 / sums[0, s]
+        mx, my = sums[1, s] * inv_total, sums[2, s] * inv_total
+        out[0, s] = sums[0, s]
+        out[1, s] = mx + rx
+        out[2, s] = my + ry
+        out[3, s] = sums[3, s] * inv_total - mx * mx
+        out[4, s] = sums[4, s] * inv_total - my * mx
+        out[5, s] = sums[5, s] * inv_total - my * my
+    return out, n_clusters
+
+
+# ---------------------------------------------------------------------- driver
+@njit(cache=True)
+def apply_calls(
+    table,
+    counts,
+    pending,
+    pending_counts,
+    robots,
+    kinds,
+    odometry,
+    data_start,
+    data_stop,
+    points,
+    bearings,
+    null_start,
+    null_stop,
+    nulls,
+    fp,
+    ip,
+    sector_scaled,
+    sector_inv_var,
+):
+    """Run ``Q`` encoded calls (module docstring) on the bank state, in place.
+
+    Parameters
+    ----------
+    table : ndarray, shape (6, R, C)
+        Rows ``w, x, y, Pxx, Pxy, Pyy``; robot ``r`` uses columns ``[:counts[r]]``, the rest
+        is kept at 0. ``C = max_components``.
+    counts : ndarray of int, shape (R,)
+    pending : ndarray, shape (R, Pmax, 2)
+        Measurement births awaiting the next time update (``birth == "measurement"``);
+        ``Pmax`` must be at least the largest lidar call's point count.
+    pending_counts : ndarray of int, shape (R,)
+    """
+    max_components = ip[I_MAX_COMPONENTS]
+    measurement_birth = ip[I_BIRTH_MEASUREMENT]
+    max_explained = fp[F_MBIRTH_MAX_EXPLAINED]
+    for q in range(robots.shape[0]):
+        r = robots[q]
+        kind = kinds[q]
+        n = counts[r]
+        tab = table[:, r, :n]
+        if kind == PREDICT:
+            out, n_out = _predict(tab, n, pending[r], pending_counts[r], odometry[q], fp, ip)
+            pending_counts[r] = 0
+        elif kind == LIDAR:
+            pts = points[data_start[q] : data_stop[q]]
+            cand, n_cand, explained = _lidar_update(
+                tab,
+                n,
+                pts,
+                nulls[null_start[q] : null_stop[q]],
+                fp,
+                ip,
+                sector_scaled,
+                sector_inv_var,
+            )
+            if measurement_birth:
+                b = 0
+                for h in range(explained.shape[0]):
+                    if explained[h] < max_explained:
+                        pending[r, b, 0] = pts[h, 0]
+                        pending[r, b, 1] = pts[h, 1]
+                        b += 1
+                pending_counts[r] = b
+            out, n_out = _merge_cap(cand, n_cand, fp[F_MERGE], max_components)
+        else:
+            if ip[I_LIDAR_ONLY]:
+                continue
+            cand, n_cand = _camera_update(tab, n, bearings[data_start[q] : data_stop[q]], fp)
+            out, n_out = _merge_cap(cand, n_cand, fp[F_MERGE], max_components)
+        table[:, r, :n_out] = out[:, :n_out]
+        table[:, r, n_out:] = 0.0
+        counts[r] = n_out
