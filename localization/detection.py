@@ -159,12 +159,11 @@ def occlusion_factor(
 
     Parameters
     ----------
-    units : ndarray, shape (2, N) or (2, K, N)
-        Unit bearing vectors (the optional middle axis batches ``K`` robots; components only
-        occlude components of the same robot, zero-weight padding occludes nothing).
-    ranges : ndarray, shape (N,) or (K, N)
+    units : ndarray, shape (2, N)
+        Unit bearing vectors.
+    ranges : ndarray, shape (N,)
         Component ranges (m).
-    weights : ndarray, shape (N,) or (K, N)
+    weights : ndarray, shape (N,)
         Component weights.
     inv_var : float
         ``1 / sigma^2`` of the occlusion bump (rad^-2).
@@ -173,18 +172,14 @@ def occlusion_factor(
 
     Returns
     -------
-    ndarray, shape (N,) or (K, N)
+    ndarray, shape (N,)
         Factor in ``[0, 1]``.
     """
-    if units.ndim == 2:
-        bump = np.exp((units.T * inv_var).dot(units) - inv_var)  # (N, N) [i, j], symmetric
-    else:  # ([K,] N, N)
-        cos_d = np.matmul(units.transpose(1, 2, 0) * inv_var, units.transpose(1, 0, 2))
-        bump = np.exp(cos_d - inv_var)
-    nearer = ranges[..., None, :] < (ranges - min_separation_m)[..., None]  # [i, j]: j nearer
+    bump = np.exp((units.T * inv_var).dot(units) - inv_var)  # (N, N) [i, j], symmetric
+    nearer = ranges[None, :] < (ranges - min_separation_m)[:, None]  # [i, j]: j nearer
     # Guard: weights clipped at 1 so each factor 1 - w_j bump stays >= 0 (merged weights
     # can exceed 1).
-    blockers = nearer * np.minimum(weights, 1.0)[..., None, :]
+    blockers = nearer * np.minimum(weights, 1.0)[None, :]
     return np.multiply.reduce(1.0 - bump * blockers, axis=-1)
 
 
@@ -193,38 +188,30 @@ def interference_factor(
     null_bearings_rad: np.ndarray,
     inv_var: float,
     depth: float,
-    valid: np.ndarray | None = None,
 ) -> np.ndarray:
     """Seed eq. 23 as a product over null-return bearings ``b`` of ``1 - depth * bump``.
 
     Parameters
     ----------
-    units : ndarray, shape (2, N) or (2, K, N)
-        Unit bearing vectors (the optional middle axis batches ``K`` robots).
-    null_bearings_rad : ndarray, shape (B,) or (K, B)
-        Bearings of zero-intensity returns (rad, robot frame), padded per robot if batched.
+    units : ndarray, shape (2, N)
+        Unit bearing vectors.
+    null_bearings_rad : ndarray, shape (B,)
+        Bearings of zero-intensity returns (rad, robot frame).
     inv_var : float
         ``1 / c^2`` (rad^-2).
     depth : float
         Notch depth in ``[0, 1]`` (seed: 0.6).
-    valid : ndarray of bool, shape (K, B), optional
-        Which (padded) null bearings are real; padding gives a factor of exactly 1.
 
     Returns
     -------
-    ndarray, shape (N,) or (K, N)
+    ndarray, shape (N,)
         Product of per-null factors, each in ``[1 - depth, 1]``.
     """
-    dirs = np.empty((*null_bearings_rad.shape, 2))
-    dirs[..., 0] = np.cos(null_bearings_rad)
-    dirs[..., 1] = np.sin(null_bearings_rad)
-    if units.ndim == 2:
-        bump = np.exp((dirs * inv_var).dot(units) - inv_var)  # (B, N)
-    else:
-        bump = np.exp(np.matmul(dirs * inv_var, units.transpose(1, 0, 2)) - inv_var)  # (K, B, N)
-    if valid is not None:
-        depth = (depth * valid)[..., None]
-    return np.multiply.reduce(1.0 - depth * bump, axis=-2)
+    dirs = np.empty((null_bearings_rad.shape[0], 2))
+    dirs[:, 0] = np.cos(null_bearings_rad)
+    dirs[:, 1] = np.sin(null_bearings_rad)
+    bump = np.exp((dirs * inv_var).dot(units) - inv_var)  # (B, N)
+    return np.multiply.reduce(1.0 - depth * bump, axis=0)
 
 
 class DetectionModel:
@@ -265,10 +252,7 @@ class DetectionModel:
         self.__init__(config)  # type: ignore[misc]
 
     def survival(self, table: np.ndarray) -> np.ndarray:
-        """``P_s`` per component (seed eq. 10 or constant), shape (N,) or (K, N).
-
-        ``table`` is ``(6, N)``, or ``(6, K, N)`` for ``K`` robots at once.
-        """
+        """``P_s`` per component (seed eq. 10 or constant), shape (N,), of a ``(6, N)`` table."""
         cfg = self.config
         if cfg.survival_model == "constant":
             return np.full(table.shape[1:], cfg.survival_probability)
@@ -279,28 +263,20 @@ class DetectionModel:
             cfg.survival_range_m,
         )
 
-    def lidar(
-        self,
-        table: np.ndarray,
-        null_bearings_rad: np.ndarray | None,
-        null_valid: np.ndarray | None = None,
-    ) -> np.ndarray:
+    def lidar(self, table: np.ndarray, null_bearings_rad: np.ndarray | None) -> np.ndarray:
         """Lidar ``P_d`` per component (seed eq. 18 or constant), in ``[0, 1]``.
 
         Parameters
         ----------
-        table : ndarray, shape (6, N) or (6, K, N)
-            Prior component table; the optional middle axis batches ``K`` robots (padding
-            components must have weight 0).
-        null_bearings_rad : ndarray, shape (B,) or (K, B), or None
+        table : ndarray, shape (6, N)
+            Prior component table.
+        null_bearings_rad : ndarray, shape (B,), or None
             Bearings of zero-intensity returns (interference factor); ``None`` or empty
             disables the factor.
-        null_valid : ndarray of bool, shape (K, B), optional
-            Which padded null bearings are real (batched tables only).
 
         Returns
         -------
-        ndarray, shape (N,) or (K, N)
+        ndarray, shape (N,)
         """
         cfg = self.config
         if cfg.lidar_pd_model == "constant":
@@ -311,11 +287,10 @@ class DetectionModel:
             ranges, cfg.lidar_pd_offset, cfg.lidar_pd_slope_per_m, cfg.lidar_pd_midpoint_m
         )
         if self._sector_dirs.shape[0]:
-            # per component: batched tables use the flattened (K * N) component axis
             pd *= blind_sector_factor(
-                units.reshape(2, -1), self._sector_dirs, self._sector_inv_var, self._sector_scaled
-            ).reshape(pd.shape)
-        if table.shape[-1] > 1:
+                units, self._sector_dirs, self._sector_inv_var, self._sector_scaled
+            )
+        if table.shape[1] > 1:
             pd *= occlusion_factor(
                 units,
                 ranges,
@@ -323,13 +298,9 @@ class DetectionModel:
                 self._occlusion_inv_var,
                 cfg.occlusion_min_separation_m,
             )
-        if null_bearings_rad is not None and null_bearings_rad.shape[-1]:
+        if null_bearings_rad is not None and null_bearings_rad.shape[0]:
             pd *= interference_factor(
-                units,
-                null_bearings_rad,
-                self._interference_inv_var,
-                cfg.interference_depth,
-                null_valid,
+                units, null_bearings_rad, self._interference_inv_var, cfg.interference_depth
             )
         # Every factor is in [0, 1] by construction, so the product needs no final clip.
         return pd
@@ -337,9 +308,8 @@ class DetectionModel:
     def camera(self, table: np.ndarray) -> np.ndarray:
         """Camera ``P_d`` per component (seed eqs. 29-30), in ``[0, 1]``.
 
-        ``table`` is ``(6, N)`` or ``(6, K, N)`` (``K`` robots, zero-weight padding); the
-        result has shape ``(N,)`` or ``(K, N)``. Components closer than ``min_range_m`` get
-        0: their bearing is undefined.
+        ``table`` is ``(6, N)``; the result has shape ``(N,)``. Components closer than
+        ``min_range_m`` get 0: their bearing is undefined.
         """
         cfg = self.config
         ranges, units = unit_bearings(table[ROW_X : ROW_Y + 1], cfg.min_range_m)

@@ -59,10 +59,6 @@ _EYE3 = np.array([[1.0], [0.0], [1.0]])  # identity in (xx, xy, yy) layout
 _INV_SIGN3 = np.array([[1.0], [-1.0], [1.0]])  # adj([[a, b], [b, c]]) = [c, -b, a]
 _JAC_SIGN = np.array([[-1.0], [1.0]])  # d atan2(y, x) / d(x, y) = [-y, x] / r^2
 _EYE22 = np.eye(2)[:, :, None]
-# The same columns with one more trailing axis, for tables batched over robots, (rows, K, N).
-_EYE3_B = _EYE3[:, :, None]
-_INV_SIGN3_B = _INV_SIGN3[:, :, None]
-_JAC_SIGN_B = _JAC_SIGN[:, :, None]
 _FULL_FROM_SYM = np.array([0, 1, 1, 2])  # (xx, xy, yy) -> (xx, xy, yx, yy)
 _SYM_FROM_FULL = np.array([0, 1, 3])
 _FRAME_TEMPLATE = np.zeros((6, 7))
@@ -79,20 +75,20 @@ def sym_inverse(covs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
     Parameters
     ----------
-    covs : ndarray, shape (3, N) or (3, K, N)
+    covs : ndarray, shape (3, N)
         Rows ``Pxx, Pxy, Pyy``.
 
     Returns
     -------
-    inverse : ndarray, same shape as ``covs``
+    inverse : ndarray, shape (3, N)
         Rows of ``P^-1`` in the same layout.
-    det : ndarray, shape (N,) or (K, N)
+    det : ndarray, shape (N,)
         ``det P``, floored at :data:`TINY`.
     """
     # Guard: a singular or (by round-off) indefinite matrix gets a tiny positive determinant
     # instead of a division by zero.
     det = np.maximum(covs[0] * covs[2] - covs[1] * covs[1], TINY)
-    return covs[::-1] * ((_INV_SIGN3 if covs.ndim == 2 else _INV_SIGN3_B) / det), det
+    return covs[::-1] * (_INV_SIGN3 / det), det
 
 
 def frame_change_matrix(dx: float, dy: float, dpsi: float, process_var: float) -> np.ndarray:
@@ -107,27 +103,22 @@ def frame_change_matrix(dx: float, dy: float, dpsi: float, process_var: float) -
 
     Parameters
     ----------
-    dx, dy : float or ndarray, shape (K,)
+    dx, dy : float
         Observer translation (m) in its frame at the start of the interval.
-    dpsi : float or ndarray, shape (K,)
-        Observer rotation (rad, counter-clockwise). Arrays give one matrix per robot.
+    dpsi : float
+        Observer rotation (rad, counter-clockwise).
     process_var : float
         Process-noise variance (m^2) added to ``Pxx`` and ``Pyy``.
 
     Returns
     -------
-    ndarray, shape (6, 7), or (K, 6, 7) for array inputs
+    ndarray, shape (6, 7)
         ``A`` with ``table' = A[:, :6] @ table + A[:, 6:]`` for a ``(6, N)`` table with rows
         ``w, x, y, Pxx, Pxy, Pyy`` (the weight row is copied unchanged).
     """
-    if isinstance(dpsi, np.ndarray):
-        c = np.cos(dpsi)
-        s = np.sin(dpsi)
-        a = np.broadcast_to(_FRAME_TEMPLATE, dpsi.shape + _FRAME_TEMPLATE.shape).copy()
-    else:
-        c = math.cos(dpsi)
-        s = math.sin(dpsi)
-        a = _FRAME_TEMPLATE.copy()
+    c = math.cos(dpsi)
+    s = math.sin(dpsi)
+    a = _FRAME_TEMPLATE.copy()
     cc, ss, cs = c * c, s * s, c * s
     # Means: R^T = [[c, s], [-s, c]], offset -R^T d.
     a[..., 1, 1] = c
@@ -160,29 +151,29 @@ def position_update(
 
     Parameters
     ----------
-    means : ndarray, shape (2, N) or (2, K, N)
-        Prior means (m); the optional middle axis batches ``K`` independent robots.
-    covs : ndarray, shape (3, N) or (3, K, N)
+    means : ndarray, shape (2, N)
+        Prior means (m).
+    covs : ndarray, shape (3, N)
         Prior covariances (m^2).
-    points : ndarray, shape (2, M) or (2, K, M)
-        Measurements as columns (m), per robot when batched.
+    points : ndarray, shape (2, M)
+        Measurements as columns (m).
     noise_var : float
         Measurement noise variance ``r`` (m^2).
 
     Returns
     -------
-    post_means : ndarray, shape (2, N, M) or (2, K, N, M)
+    post_means : ndarray, shape (2, N, M)
         ``m + K (z - m)``, written as ``z - r S^-1 (z - m)`` (the same thing: ``I - K = r S^-1``).
-    post_covs : ndarray, shape (3, N) or (3, K, N)
+    post_covs : ndarray, shape (3, N)
         Posterior covariance (independent of ``z``). The Joseph form
         ``(I - K) P (I - K)^T + K R K^T`` reduces exactly, for ``H = I`` and ``R = r I``, to
         ``r S^-1 P = r (det(P) I + r P) / det(S)``; we evaluate that expression, whose terms are
         all non-negative, so it keeps Joseph's guarantee (no cancellation, PSD under
         round-off) at a fraction of the cost (tested against the explicit Joseph product).
-    likelihood : ndarray, shape (N, M) or (K, N, M)
+    likelihood : ndarray, shape (N, M)
         ``N(z; m, S)`` (1/m^2); far pairs underflow to exactly 0.
     """
-    eye3, sign3 = (_EYE3, _INV_SIGN3) if covs.ndim == 2 else (_EYE3_B, _INV_SIGN3_B)
+    eye3, sign3 = _EYE3, _INV_SIGN3
     r = noise_var
     pxx, pxy, pyy = covs
     pxy2 = pxy * pxy
@@ -193,12 +184,12 @@ def position_update(
     # -S^-1 / 2, rows xx, xy, yy (the -1/2 of the exponent folded in once per component).
     half_inv = s[::-1] * (sign3 * (-0.5 * inv_det_s))
     post_covs = (covs * r + eye3 * det_p) * (r * inv_det_s)
-    pts = points[..., None, :]
-    diff = pts - means[..., None]  # (2, [K,] N, M): z - m
+    pts = points[:, None, :]
+    diff = pts - means[:, :, None]  # (2, N, M): z - m
     # e = -S^-1 (z - m) / 2, row by row.
-    e = half_inv[0:2, ..., None] * diff[0] + half_inv[1:3, ..., None] * diff[1]
+    e = half_inv[0:2, :, None] * diff[0] + half_inv[1:3, :, None] * diff[1]
     likelihood = np.exp(diff[0] * e[0] + diff[1] * e[1])
-    likelihood *= (np.sqrt(inv_det_s) * _INV_TWO_PI)[..., None]
+    likelihood *= (np.sqrt(inv_det_s) * _INV_TWO_PI)[:, None]
     post_means = pts + (2.0 * r) * e  # z - r S^-1 (z - m)
     return post_means, post_covs, likelihood
 
@@ -248,12 +239,12 @@ def bearing_update(
 
     Parameters
     ----------
-    means : ndarray, shape (2, N) or (2, K, N)
-        Prior means (m); the optional middle axis batches ``K`` independent robots.
-    covs : ndarray, shape (3, N) or (3, K, N)
+    means : ndarray, shape (2, N)
+        Prior means (m).
+    covs : ndarray, shape (3, N)
         Prior covariances (m^2).
-    bearings : ndarray, shape (M,) or (K, M)
-        Measured bearings (rad), per robot when batched.
+    bearings : ndarray, shape (M,)
+        Measured bearings (rad).
     noise_var : float
         Bearing noise variance ``R_C`` (rad^2).
     min_range : float
@@ -261,32 +252,25 @@ def bearing_update(
 
     Returns
     -------
-    post_means : ndarray, shape (2, N, M) or (2, K, N, M)
+    post_means : ndarray, shape (2, N, M)
         ``m + K * wrap(theta - atan2(y, x))``.
-    post_covs : ndarray, shape (3, N) or (3, K, N)
+    post_covs : ndarray, shape (3, N)
         Joseph-form posterior covariance (independent of the measured value).
-    likelihood : ndarray, shape (N, M) or (K, N, M)
+    likelihood : ndarray, shape (N, M)
         ``N(innovation; 0, S)`` with ``S = H P H^T + R_C`` (1/rad).
     """
     # Guard: ||m||^2 floored so the Jacobian stays finite for components at the origin.
     sq = means * means
     inv_r2 = 1.0 / np.maximum(sq[0] + sq[1], min_range * min_range)
-    batched = means.ndim == 3
-    jac = means[::-1] * ((_JAC_SIGN_B if batched else _JAC_SIGN) * inv_r2)  # (2, N): [-y, x] / r^2
+    jac = means[::-1] * (_JAC_SIGN * inv_r2)  # (2, N): [-y, x] / r^2
     u = covs[0:2] * jac[0] + covs[1:3] * jac[1]  # P H^T
     hu = jac * u
     inv_s = 1.0 / (hu[0] + hu[1] + noise_var)  # S >= R_C > 0
     gain = u * inv_s
     # Joseph form: a sum of two PSD products (round-off cannot make it indefinite).
-    if batched:  # the Joseph product is per component: run it on the flattened (K * N) axis
-        post_covs = joseph_update(
-            covs.reshape(3, -1), gain.reshape(2, -1), jac.reshape(2, -1), noise_var
-        ).reshape(covs.shape)
-    else:
-        post_covs = joseph_update(covs, gain, jac, noise_var)
-    # ([K,] N, M)
-    innov = wrap_angle(bearings[..., None, :] - np.arctan2(means[1], means[0])[..., None])
-    post_means = means[..., None] + gain[..., None] * innov
-    likelihood = np.exp((innov * innov) * (-0.5 * inv_s)[..., None])
-    likelihood *= (np.sqrt(inv_s) * _INV_SQRT_TWO_PI)[..., None]
+    post_covs = joseph_update(covs, gain, jac, noise_var)
+    innov = wrap_angle(bearings[None, :] - np.arctan2(means[1], means[0])[:, None])  # (N, M)
+    post_means = means[:, :, None] + gain[:, :, None] * innov
+    likelihood = np.exp((innov * innov) * (-0.5 * inv_s)[:, None])
+    likelihood *= (np.sqrt(inv_s) * _INV_SQRT_TWO_PI)[:, None]
     return post_means, post_covs, likelihood

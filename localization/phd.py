@@ -38,34 +38,26 @@ def predict(
 
     Parameters
     ----------
-    table : ndarray, shape (6, N) or (6, K, N)
-        Posterior component table at ``k-1``; the optional middle axis batches ``K``
-        robots (each with its own odometry).
-    odometry : ndarray, shape (3,) or (K, 3)
+    table : ndarray, shape (6, N)
+        Posterior component table at ``k-1``.
+    odometry : ndarray, shape (3,)
         ``[dx_m, dy_m, dpsi_rad]``: the observer's motion over the interval, expressed in
         its frame at the start of the interval.
-    survival : ndarray, shape (N,) or (K, N)
+    survival : ndarray, shape (N,)
         ``P_s`` per component, evaluated at the prior means.
     process_var : float
         ``Q = process_var * I`` (m^2) added to every covariance.
 
     Returns
     -------
-    ndarray, shape (6, N) or (6, K, N)
+    ndarray, shape (6, N)
         Predicted table: ``m' = R(dpsi)^T (m - d)``, ``P' = R^T P R + Q``, ``w' = P_s w``.
-        The batched result may be a non-contiguous view.
     """
-    if table.ndim == 3:
-        affine = frame_change_matrix(odometry[:, 0], odometry[:, 1], odometry[:, 2], process_var)
-        out = np.matmul(affine[:, :, :N_ROWS], table.transpose(1, 0, 2))  # (K, 6, N)
-        out += affine[:, :, N_ROWS:]
-        out = out.transpose(1, 0, 2)
-    else:
-        affine = frame_change_matrix(
-            float(odometry[0]), float(odometry[1]), float(odometry[2]), process_var
-        )
-        out = affine[:, :N_ROWS].dot(table)
-        out += affine[:, N_ROWS:]
+    affine = frame_change_matrix(
+        float(odometry[0]), float(odometry[1]), float(odometry[2]), process_var
+    )
+    out = affine[:, :N_ROWS].dot(table)
+    out += affine[:, N_ROWS:]
     out[ROW_W] *= survival
     return out
 
@@ -110,45 +102,44 @@ def _posterior_table(
 
     Parameters
     ----------
-    table : ndarray, shape (6, N) or (6, K, N)
-        Prior table (the optional middle axis batches ``K`` robots).
-    detection_prob : ndarray, shape (N,) or (K, N)
+    table : ndarray, shape (6, N)
+        Prior table.
+    detection_prob : ndarray, shape (N,)
         ``P_d`` per component.
-    post_means : ndarray, shape (2, N, M) or (2, K, N, M)
+    post_means : ndarray, shape (2, N, M)
         Updated means per (component, measurement).
-    post_covs : ndarray, shape (3, N) or (3, K, N)
+    post_covs : ndarray, shape (3, N)
         Updated covariances per component.
-    likelihood : ndarray, shape (N, M) or (K, N, M)
+    likelihood : ndarray, shape (N, M)
         Measurement likelihood per (component, measurement).
     clutter_intensity : float
         ``kappa`` in the measurement's units.
 
     Returns
     -------
-    table : ndarray, shape (6, N + N*M) or (6, K, N + N*M)
+    table : ndarray, shape (6, N + N*M)
         Missed copies first (weight ``(1 - P_d) w``), then detected copies, component-major,
         with weight ``P_d w g / (kappa + sum_i P_d w_i g_i)``.
-    explained : ndarray, shape (M,) or (K, M)
+    explained : ndarray, shape (M,)
         ``sum_i P_d w_i g_i / (kappa + sum_i ...)`` per measurement, in ``[0, 1]``.
     """
-    n, m = likelihood.shape[-2:]
-    batch = likelihood.shape[:-2]
+    n, m = likelihood.shape
     weights = table[ROW_W]
     pd_w = detection_prob * weights
-    detected = likelihood * pd_w[..., None]
-    # column sums (a dot is cheaper than .sum(axis=-2); it sums over the component axis)
+    detected = likelihood * pd_w[:, None]
+    # column sums (a dot is cheaper than .sum(axis=0))
     sums = np.ones(n).dot(detected)
     # Guard: with zero clutter and every likelihood underflowed, 0/0 would give NaN; the
     # floor turns it into weights of exactly 0 (nothing explains that measurement).
     inv_denom = 1.0 / np.maximum(sums + clutter_intensity, TINY)
-    out = np.empty((N_ROWS, *batch, n + n * m))
-    np.subtract(weights, pd_w, out=out[ROW_W, ..., :n])  # (1 - P_d) w
-    out[ROW_X:, ..., :n] = table[ROW_X:]
+    out = np.empty((N_ROWS, n + n * m))
+    np.subtract(weights, pd_w, out=out[ROW_W, :n])  # (1 - P_d) w
+    out[ROW_X:, :n] = table[ROW_X:]
     # a view: component-major (i, h) blocks
-    blocks = out[..., n:].reshape(N_ROWS, *batch, n, m)
-    np.multiply(detected, inv_denom[..., None, :], out=blocks[ROW_W])
+    blocks = out[:, n:].reshape(N_ROWS, n, m)
+    np.multiply(detected, inv_denom[None, :], out=blocks[ROW_W])
     blocks[ROW_X : ROW_Y + 1] = post_means
-    blocks[ROW_PXX:] = post_covs[..., None]
+    blocks[ROW_PXX:] = post_covs[:, :, None]
     return out, sums * inv_denom
 
 
@@ -158,42 +149,34 @@ def lidar_update(
     detection_prob: np.ndarray,
     noise_var: float,
     clutter_intensity: float,
-    valid: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """GM-PHD update with lidar position measurements (seed eqs. 12-17, ``H = I``).
 
     Parameters
     ----------
-    table : ndarray, shape (6, N) or (6, K, N)
-        Prior component table (the optional middle axis batches ``K`` robots, padded with
-        zero-weight components).
-    points : ndarray, shape (M, 2) or (K, M, 2)
-        Detections ``[x_m, y_m]`` in the robot frame (padded per robot when batched).
-    detection_prob : ndarray, shape (N,) or (K, N)
+    table : ndarray, shape (6, N)
+        Prior component table.
+    points : ndarray, shape (M, 2)
+        Detections ``[x_m, y_m]`` in the robot frame.
+    detection_prob : ndarray, shape (N,)
         Lidar ``P_d`` per prior component, in ``[0, 1]``.
     noise_var : float
         ``R_L = noise_var * I`` (m^2).
     clutter_intensity : float
         ``kappa_L`` (1/m^2).
-    valid : ndarray of bool, shape (K, M), optional
-        Which (padded) measurements are real; a padding measurement gets likelihood 0, so
-        its detected copies have weight 0 and it changes no other weight.
 
     Returns
     -------
-    table : ndarray, shape (6, N + N*M) or (6, K, N + N*M)
+    table : ndarray, shape (6, N + N*M)
         Posterior table: missed copies with weight ``(1 - P_d) w``, then detected copies
         ``P_d w N(z; m, P + R) / (kappa + sum_i P_d w_i N(z; m_i, P_i + R))``.
-    explained : ndarray, shape (M,) or (K, M)
+    explained : ndarray, shape (M,)
         Fraction of each measurement explained by the components,
         ``sum_i / (kappa + sum_i)`` in ``[0, 1]``.
     """
-    pts = points.T if points.ndim == 2 else points.transpose(2, 0, 1)  # (2, [K,] M)
     post_means, post_covs, likelihood = position_update(
-        table[ROW_X : ROW_Y + 1], table[ROW_PXX:], pts, noise_var
+        table[ROW_X : ROW_Y + 1], table[ROW_PXX:], points.T, noise_var
     )
-    if valid is not None:
-        likelihood *= valid[:, None, :]
     return _posterior_table(
         table, detection_prob, post_means, post_covs, likelihood, clutter_intensity
     )
@@ -206,17 +189,16 @@ def camera_update(
     noise_var: float,
     clutter_intensity: float,
     min_range_m: float,
-    valid: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """GM-PHD update with camera bearings, one EKF step per component (seed eqs. 24-30).
 
     Parameters
     ----------
-    table : ndarray, shape (6, N) or (6, K, N)
-        Prior component table (batched and padded as in :func:`lidar_update`).
-    bearings : ndarray, shape (M,) or (K, M)
+    table : ndarray, shape (6, N)
+        Prior component table.
+    bearings : ndarray, shape (M,)
         Measured bearings (rad, robot frame).
-    detection_prob : ndarray, shape (N,) or (K, N)
+    detection_prob : ndarray, shape (N,)
         Camera ``P_d`` per prior component, in ``[0, 1]``.
     noise_var : float
         ``R_C`` (rad^2).
@@ -224,22 +206,18 @@ def camera_update(
         ``kappa_C`` (1/rad).
     min_range_m : float
         Floor on ``||m||`` for the bearing Jacobian (m).
-    valid : ndarray of bool, shape (K, M), optional
-        Which (padded) bearings are real (as in :func:`lidar_update`).
 
     Returns
     -------
-    table : ndarray, shape (6, N + N*M) or (6, K, N + N*M)
+    table : ndarray, shape (6, N + N*M)
         Posterior table (layout as :func:`lidar_update`); the innovation is wrapped to
         ``[-pi, pi)`` and the weight factor is ``N(innovation; 0, H P H^T + R_C)``.
-    explained : ndarray, shape (M,) or (K, M)
+    explained : ndarray, shape (M,)
         As in :func:`lidar_update`.
     """
     post_means, post_covs, likelihood = bearing_update(
         table[ROW_X : ROW_Y + 1], table[ROW_PXX:], bearings, noise_var, min_range_m
     )
-    if valid is not None:
-        likelihood *= valid[:, None, :]
     return _posterior_table(
         table, detection_prob, post_means, post_covs, likelihood, clutter_intensity
     )

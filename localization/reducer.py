@@ -95,26 +95,24 @@ def gate_distances(means: np.ndarray, covs: np.ndarray) -> np.ndarray:
 
     Parameters
     ----------
-    means : ndarray, shape (2, N) or (2, K, N)
-    covs : ndarray, shape (3, N) or (3, K, N)
-        The optional middle axis batches ``K`` independent mixtures.
+    means : ndarray, shape (2, N)
+    covs : ndarray, shape (3, N)
 
     Returns
     -------
-    ndarray, shape (N, N) or (K, N, N)
+    ndarray, shape (N, N)
         ``q[j, i]`` uses the covariance of the *candidate* ``i`` (Vo & Ma 2006, Table II).
     """
-    n = means.shape[-1]
-    batch = means.shape[1:-1]
+    n = means.shape[1]
     x = means[0]
     inv, _ = sym_inverse(covs)  # rows A_xx, A_xy, A_yy
-    lhs = np.empty((6, *batch, n))  # terms of m_j
+    lhs = np.empty((6, n))  # terms of m_j
     np.multiply(means, x, out=lhs[0:2])  # x_j^2, x_j y_j
     lhs[1] *= 2.0
     np.multiply(means[1], means[1], out=lhs[2])
     np.multiply(means, -2.0, out=lhs[3:5])
     lhs[5] = 1.0
-    rhs = np.empty((6, *batch, n))  # terms of candidate i
+    rhs = np.empty((6, n))  # terms of candidate i
     rhs[0:3] = inv
     v = rhs[3:5]
     np.multiply(inv[0:2], x, out=v)  # A_i m_i
@@ -122,15 +120,8 @@ def gate_distances(means: np.ndarray, covs: np.ndarray) -> np.ndarray:
     mv = means * v
     np.add(mv[0], mv[1], out=rhs[5])  # m_i^T A_i m_i
     # Guard: the expansion leaves ~1e-13 round-off on the diagonal, which is exactly 0.
-    if batch:
-        # computed as [k, i, j] (contiguous along the coverer j, which the batched greedy
-        # merge reduces over) and returned as the [k, j, i] view
-        q = np.matmul(rhs.transpose(1, 2, 0), lhs.transpose(1, 0, 2)).transpose(0, 2, 1)
-        diag = np.arange(n)
-        q[:, diag, diag] = 0.0
-    else:
-        q = lhs.T.dot(rhs)
-        q.flat[:: n + 1] = 0.0
+    q = lhs.T.dot(rhs)
+    q.flat[:: n + 1] = 0.0
     return q
 
 
@@ -232,33 +223,30 @@ def _moment_match(
 
     Parameters
     ----------
-    means : ndarray, shape (2, N) or (2, K, N)
-    covs : ndarray, shape (3, N) or (3, K, N)
-    member_w : ndarray, shape (L, N) or (K, L, N)
+    means : ndarray, shape (2, N)
+    covs : ndarray, shape (3, N)
+    member_w : ndarray, shape (L, N)
         ``member_w[l, i]``: weight of component ``i`` in cluster ``l`` (0 if not a member).
         Every cluster must have a positive total.
-    ref : ndarray, shape (2, 1) or (2, K, 1)
+    ref : ndarray, shape (2, 1)
         Reference point (the heaviest mean): moments are taken about it, so no cancellation
         even for a mixture far from the origin.
 
     Returns
     -------
-    ndarray, shape (6, L) or (6, K, L)
+    ndarray, shape (6, L)
         Weight ``W = sum w_i``, mean ``sum w_i m_i / W``, covariance
         ``sum w_i (P_i + (m - m_i)(m - m_i)^T) / W``.
     """
     # Weighted sums per cluster of [1, d, P + d d^T], d = m - ref.
-    rows = np.empty((N_ROWS, *means.shape[1:]))
+    rows = np.empty((N_ROWS, means.shape[1]))
     rows[0] = 1.0
     d = rows[1:3]
     np.subtract(means, ref, out=d)
     np.multiply(d, d[0], out=rows[3:5])
     np.multiply(d[1], d[1], out=rows[5])
     rows[3:] += covs
-    if member_w.ndim == 2:
-        sums = rows.dot(member_w.T)  # (6, L)
-    else:
-        sums = np.matmul(rows.transpose(1, 0, 2), member_w.transpose(0, 2, 1)).transpose(1, 0, 2)
+    sums = rows.dot(member_w.T)  # (6, L)
     inv_total = 1.0 / sums[0]
     out = np.empty(sums.shape)
     out[ROW_W] = sums[0]
