@@ -27,6 +27,7 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(VENV)/bin/swarm-phd bench --json runs/bench/env.json
 	$(PY) benchmarks/bench_sensors.py
+	$(PY) benchmarks/bench_bank.py --json runs/bench/bank.json
 	$(PY) benchmarks/bench_phd_vs_stonesoup.py --json runs/bench/phd_vs_stonesoup.json
 
 lint: $(STAMP)
