@@ -312,12 +312,13 @@ class PHDBank:
         for r, seq in enumerate(calls):
             for c in seq:
                 batch.add_call(r, c)
-        if not batch.all_finite():
+        encoded = batch.encode()
+        if not all_finite(encoded):
             # Slow path, only to name the culprit: re-check every call exactly.
             for r, seq in enumerate(calls):
                 for c in seq:
                     _Batch().add_call(r, c, exact=True)
-        self._run(batch)
+        self._run(batch, encoded)
 
     # ------------------------------------------------------------------ internals
     def _checked_robots(self, robots: Any) -> np.ndarray:
@@ -341,10 +342,12 @@ class PHDBank:
             grown[:, : self._pending.shape[1]] = self._pending
             self._pending = grown
 
-    def _run(self, batch: _Batch) -> None:
+    def _run(self, batch: _Batch, encoded: tuple[np.ndarray, ...] | None = None) -> None:
+        """Run the calls of a validated ``batch`` (``encoded``: its :meth:`_Batch.encode`)."""
         if not batch.robots:
             return
-        encoded = batch.encode()
+        if encoded is None:
+            encoded = batch.encode()
         self._reserve_pending(batch.max_points)
         fparams, iparams, sector_scaled, sector_inv_var = self._params
         kernels.apply_calls(
@@ -366,34 +369,39 @@ class PHDBank:
 class _Batch:
     """Validated filter calls, encoded as the flat arrays of :mod:`localization.kernels`."""
 
-    __slots__ = ("robots", "kinds", "odometry", "points", "bearings", "nulls", "max_points")
+    __slots__ = ("robots", "kinds", "index", "odometry", "points", "nulls", "bearings")
 
     def __init__(self) -> None:
         self.robots: list[int] = []
         self.kinds: list[int] = []
-        self.odometry: list[np.ndarray] = []  # one row per call (zeros unless predict)
-        self.points: list[np.ndarray] = []  # one (M, 2) per call (empty unless lidar)
-        self.bearings: list[np.ndarray] = []  # one (M,) per call (empty unless camera)
-        self.nulls: list[np.ndarray] = []  # one (B,) per call (empty unless lidar)
-        self.max_points = 0
+        self.index: list[int] = []  # rank of the call among those of its kind
+        self.odometry: list[np.ndarray] = []  # (3,) per predict
+        self.points: list[np.ndarray] = []  # (M, 2) per lidar call
+        self.nulls: list[np.ndarray] = []  # (B,) per lidar call
+        self.bearings: list[np.ndarray] = []  # (M,) per camera call
 
-    def _append(self, r: int, kind: int, odo=None, pts=None, brg=None, nulls=None) -> None:
-        self.robots.append(r)
-        self.kinds.append(kind)
-        self.odometry.append(_NO_ODOMETRY if odo is None else odo)
-        self.points.append(_NO_POINTS if pts is None else pts)
-        self.bearings.append(_NO_ANGLES if brg is None else brg)
-        self.nulls.append(_NO_ANGLES if nulls is None else nulls)
+    @property
+    def max_points(self) -> int:
+        return max((p.shape[0] for p in self.points), default=0)
 
     def predict(self, r: int, odo: np.ndarray) -> None:
-        self._append(r, kernels.PREDICT, odo=odo)
+        self.robots.append(r)
+        self.kinds.append(kernels.PREDICT)
+        self.index.append(len(self.odometry))
+        self.odometry.append(odo)
 
     def lidar(self, r: int, pts: np.ndarray, nulls: np.ndarray | None) -> None:
-        self.max_points = max(self.max_points, pts.shape[0])
-        self._append(r, kernels.LIDAR, pts=pts, nulls=nulls)
+        self.robots.append(r)
+        self.kinds.append(kernels.LIDAR)
+        self.index.append(len(self.points))
+        self.points.append(pts)
+        self.nulls.append(_NO_ANGLES if nulls is None else nulls)
 
     def camera(self, r: int, brg: np.ndarray) -> None:
-        self._append(r, kernels.CAMERA, brg=brg)
+        self.robots.append(r)
+        self.kinds.append(kernels.CAMERA)
+        self.index.append(len(self.bearings))
+        self.bearings.append(brg)
 
     def add_call(self, r: int, call: Any, exact: bool = False) -> None:
         """Append ``calls[r]``'s tuple ``call``. Shapes are checked here; finiteness by
@@ -402,12 +410,17 @@ class _Batch:
             raise ValueError(f"calls[{r}] has an invalid call {call!r}")
         kind = call[0]
         try:
-            if kind == "predict":
+            if kind == "camera":
+                brg = call[1]
+                if exact or not _is_f64(brg, 1):
+                    brg = _checked_bearings(brg)
+                self.camera(r, brg)
+            elif kind == "predict":
                 odo = call[1]
                 if exact or not _is_f64(odo, 1) or odo.shape[0] != 3:
                     odo = _checked_odometry(odo)
                 self.predict(r, odo)
-            elif kind == "lidar":
+            else:
                 pts = call[1]
                 if exact or not _is_f64(pts, 2) or pts.shape[1] != 2:
                     pts = _checked_points(pts)
@@ -415,51 +428,49 @@ class _Batch:
                 if nb is not None and (exact or not _is_f64(nb, 1)):
                     nb = _checked_nulls(nb)
                 self.lidar(r, pts, nb)
-            else:
-                brg = call[1]
-                if exact or not _is_f64(brg, 1):
-                    brg = _checked_bearings(brg)
-                self.camera(r, brg)
         except (ValueError, IndexError) as exc:
             raise ValueError(f"calls[{r}]: {exc}") from exc
 
-    def all_finite(self) -> bool:
-        # A finite sum means finite entries (an overflowing sum of huge finite values only
-        # sends us down the exact path, which then finds nothing to complain about).
-        return all(
-            math.isfinite(np.add.reduce(np.concatenate(arrays, axis=None)))
-            for arrays in (self.odometry, self.points, self.bearings, self.nulls)
-            if arrays
-        )
-
     def encode(self) -> tuple[np.ndarray, ...]:
-        """``robots, kinds, odometry, data_start, data_stop, points, bearings, null_start,
-        null_stop, nulls`` as :func:`localization.kernels.apply_calls` takes them."""
-        n_pts = np.fromiter((p.shape[0] for p in self.points), np.int64, len(self.points))
-        n_brg = np.fromiter((b.shape[0] for b in self.bearings), np.int64, len(self.bearings))
-        n_null = np.fromiter((b.shape[0] for b in self.nulls), np.int64, len(self.nulls))
-        # A call's data rows: its points (lidar) or its bearings (camera); the other is empty.
-        lengths = n_pts + n_brg
-        kinds = np.array(self.kinds, dtype=np.int64)
-        stop = np.where(kinds == kernels.LIDAR, np.cumsum(n_pts), np.cumsum(n_brg))
-        start = stop - lengths
-        null_stop = np.cumsum(n_null)
+        """``robots, kinds, index, odometry, lidar_start, lidar_stop, points, null_start,
+        null_stop, nulls, camera_start, camera_stop, bearings``, as
+        :func:`localization.kernels.apply_calls` takes them."""
+        lidar_stop = np.cumsum([p.shape[0] for p in self.points], dtype=np.int64)
+        null_stop = np.cumsum([b.shape[0] for b in self.nulls], dtype=np.int64)
+        camera_stop = np.cumsum([b.shape[0] for b in self.bearings], dtype=np.int64)
         return (
             np.array(self.robots, dtype=np.int64),
-            kinds,
-            np.array(self.odometry, dtype=np.float64).reshape(-1, 3),
-            start,
-            stop,
-            np.concatenate(self.points).reshape(-1, 2),
-            np.concatenate(self.bearings),
-            null_stop - n_null,
+            np.array(self.kinds, dtype=np.int64),
+            np.array(self.index, dtype=np.int64),
+            _joined(self.odometry, (3,)),
+            np.concatenate(([0], lidar_stop[:-1])).astype(np.int64),
+            lidar_stop,
+            _joined(self.points, (2,)),
+            np.concatenate(([0], null_stop[:-1])).astype(np.int64),
             null_stop,
-            np.concatenate(self.nulls),
+            _joined(self.nulls, ()),
+            np.concatenate(([0], camera_stop[:-1])).astype(np.int64),
+            camera_stop,
+            _joined(self.bearings, ()),
         )
 
 
-_NO_ODOMETRY = np.zeros(3)
-_NO_POINTS = np.empty((0, 2))
+def all_finite(encoded: tuple[np.ndarray, ...]) -> bool:
+    """Whether the float buffers of an encoded batch hold only finite values."""
+    # A finite sum means finite entries (an overflowing sum of huge finite values only sends
+    # the caller down its exact per-call check, which then finds nothing to complain about).
+    return all(math.isfinite(np.add.reduce(a, axis=None)) for a in encoded if a.dtype == _F64)
+
+
+def _joined(arrays: list[np.ndarray], tail: tuple[int, ...]) -> np.ndarray:
+    """``arrays`` stacked along their first axis; ``(0, *tail)`` when there are none."""
+    if not arrays:
+        return np.zeros((0, *tail))
+    if not tail:
+        return np.concatenate(arrays)
+    return np.concatenate(arrays).reshape(-1, *tail)
+
+
 _NO_ANGLES = np.empty(0)
 
 

@@ -16,13 +16,13 @@ derive a formula or explain a guard, they are not repeated here.
 
 Encoding of a batch of ``Q`` calls (all arrays, built by :class:`~localization.PHDBank`):
 
-* ``robots (Q,)`` int, ``kinds (Q,)`` int (:data:`PREDICT`, :data:`LIDAR`, :data:`CAMERA`);
-  calls of one robot run in array order, robots are independent;
-* ``odometry (Q, 3)``: ``[dx_m, dy_m, dpsi_rad]`` of predict calls (other rows unused);
-* ``data_start, data_stop (Q,)``: the call's rows of ``points (P, 2)`` (lidar, m, robot frame)
-  or of ``bearings (Bc,)`` (camera, rad);
-* ``null_start, null_stop (Q,)``: a lidar call's rows of ``nulls (Bn,)`` (zero-intensity
-  return bearings, rad).
+* ``robots (Q,)``, ``kinds (Q,)`` (:data:`PREDICT`, :data:`LIDAR`, :data:`CAMERA`) and
+  ``index (Q,)``, the call's rank among the calls of its kind; calls of one robot run in array
+  order, robots are independent;
+* predict ``j``: ``odometry[j]``, ``[dx_m, dy_m, dpsi_rad]``;
+* lidar ``j``: rows ``lidar_start[j]:lidar_stop[j]`` of ``points (P, 2)`` (m, robot frame)
+  and ``null_start[j]:null_stop[j]`` of ``nulls (B,)`` (zero-intensity return bearings, rad);
+* camera ``j``: rows ``camera_start[j]:camera_stop[j]`` of ``bearings (M,)`` (rad).
 
 Model parameters travel as one float vector ``fparams`` and one int vector ``iparams``
 indexed by the ``F_*`` and ``I_*`` constants below (see :func:`pack_params`).
@@ -600,14 +600,17 @@ def apply_calls(
     pending_counts,
     robots,
     kinds,
+    index,
     odometry,
-    data_start,
-    data_stop,
+    lidar_start,
+    lidar_stop,
     points,
-    bearings,
     null_start,
     null_stop,
     nulls,
+    camera_start,
+    camera_stop,
+    bearings,
     fp,
     ip,
     sector_scaled,
@@ -632,18 +635,19 @@ def apply_calls(
     for q in range(robots.shape[0]):
         r = robots[q]
         kind = kinds[q]
+        j = index[q]
         n = counts[r]
         tab = table[:, r, :n]
         if kind == PREDICT:
-            out, n_out = _predict(tab, n, pending[r], pending_counts[r], odometry[q], fp, ip)
+            out, n_out = _predict(tab, n, pending[r], pending_counts[r], odometry[j], fp, ip)
             pending_counts[r] = 0
         elif kind == LIDAR:
-            pts = points[data_start[q] : data_stop[q]]
+            pts = points[lidar_start[j] : lidar_stop[j]]
             cand, n_cand, explained = _lidar_update(
                 tab,
                 n,
                 pts,
-                nulls[null_start[q] : null_stop[q]],
+                nulls[null_start[j] : null_stop[j]],
                 fp,
                 ip,
                 sector_scaled,
@@ -661,7 +665,8 @@ def apply_calls(
         else:
             if ip[I_LIDAR_ONLY]:
                 continue
-            cand, n_cand = _camera_update(tab, n, bearings[data_start[q] : data_stop[q]], fp)
+            brg = bearings[camera_start[j] : camera_stop[j]]
+            cand, n_cand = _camera_update(tab, n, brg, fp)
             out, n_out = _merge_cap(cand, n_cand, fp[F_MERGE], max_components)
         table[:, r, :n_out] = out[:, :n_out]
         table[:, r, n_out:] = 0.0
