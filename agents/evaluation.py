@@ -1,7 +1,9 @@
 """``swarm-phd evaluate``: the seed's localization experiment, under scripted or learned motion.
 
 Every robot runs its own filter, for each requested localizer at once (``phd-lc``: Lidar+Camera,
-``phd-lo``: Lidar-Only), fed with the same records, so the comparison is paired: same motion,
+``phd-lo``: Lidar-Only, ``id-phd``: ID-PHD on the lidar with every teammate's odometry as radio
+messages, ``ukf`` / ``pf``: the seed ``003`` / ``004`` baselines on identified range-bearing
+detections), fed with the same records, so the comparison is paired: same motion,
 same measurements. The motion comes from ``--policy`` (default ``scripted:wander``, the seed's
 pseudo-random motion with obstacle avoidance; or ``random``, or a trained ``model.zip``).
 
@@ -14,6 +16,13 @@ every (step, neighbour within ``localization_range_m``) pair:
 - ``gospa_mean``: mean GOSPA (c = 1 m, p = 2, alpha = 2) between the neighbours in range and the
   extracted estimates (weight >= 0.5) within the same range;
 - ``cardinality_mae``: mean |sum of weights within range - true count in range| (Fig. 8).
+
+The identity-aware localizers (``id-phd``, ``ukf``, ``pf``) also get an ``identity`` block: per
+observer, over the same pairs, the error of *that neighbour's own ID estimate*
+(:class:`IdentityScorer`). Their records: each robot's odometry records of the step stand for
+the radio messages (every teammate's own increment with its ID); ``ukf`` and ``pf`` get each
+lidar detection with the identity of the true robot within 0.2 m of it (an oracle standing in
+for seed ``003``'s / ``004``'s identifying sensors; other detections are dropped).
 """
 
 from __future__ import annotations
@@ -21,18 +30,30 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from localization import PHDBank
-from localization.metrics import LocalizationScorer
+from localization import IDPHD, IDPHDConfig, PHDBank, PHDConfig
+from localization.baselines import ParticleFilterTracker, UKFTracker
+from localization.metrics import LocalizationScorer, extract_estimates
 from swarm_env import parallel_env
 from swarm_env.env import SwarmEnv, localizer_calls
+from swarm_env.records import LidarRecord, OdometryRecord
 
-LOCALIZERS = {"phd-lc": "lidar-camera", "phd-lo": "lidar-only"}
+#: PHD localizers: the ``PHDConfig.mode`` each runs in (one ``PHDBank`` per localizer).
+PHD_MODES = {"phd-lc": "lidar-camera", "phd-lo": "lidar-only"}
+#: Identity-aware localizers: one instance per robot, fed by :class:`IdentityLocalizers`.
+IDENTITY_LOCALIZERS = ("id-phd", "ukf", "pf")
+LOCALIZERS = {
+    **PHD_MODES,
+    "id-phd": "ID-PHD (lidar + teammates' odometry)",
+    "ukf": "seed 003 UKF (identified range-bearing)",
+    "pf": "seed 004 particle filter (identified range-bearing)",
+}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -190,6 +211,11 @@ def evaluate_localization(
     base_phd = env.config.phd
     n_agents = len(env.possible_agents)
     scorers = {name: LocalizationScorer(env.config.n_robots) for name in localizers}
+    id_scorers = {
+        name: IdentityScorer(env.config.n_robots)
+        for name in localizers
+        if name in IDENTITY_LOCALIZERS
+    }
     trace = {
         name: {"time_s": [], "weight_sum": [], "true_count": [], "gospa": []}
         for name in localizers
@@ -200,7 +226,9 @@ def evaluate_localization(
     for seed in seeds:
         # One filter per robot and localizer, fed the same records (a paired comparison).
         banks = {
-            name: PHDBank(dataclasses.replace(base_phd, mode=LOCALIZERS[name]), n_agents)
+            name: PHDBank(dataclasses.replace(base_phd, mode=PHD_MODES[name]), n_agents)
+            if name in PHD_MODES
+            else IdentityLocalizers(name, n_agents, base_phd, seed)
             for name in localizers
         }
         act = load_policy(policy, env)
@@ -218,8 +246,12 @@ def evaluate_localization(
                 for agent in env.possible_agents
             ]
             for name in localizers:
-                banks[name].apply(calls)
-                views = banks[name].views
+                bank = banks[name]
+                if name in PHD_MODES:
+                    bank.apply(calls)
+                else:
+                    bank.apply_step(step, env.possible_agents)
+                views = bank.views
                 for i in range(n_agents):
                     mask = truth.in_range["lidar"][i]
                     scorers[name].add(
@@ -228,6 +260,8 @@ def evaluate_localization(
                         views[i].mixture,
                         range_m=env.config.localization_range_m,
                     )
+                    if name in id_scorers:
+                        id_scorers[name].add(i, truth, mask, views[i].identities())
                 if seed == seeds[0]:
                     _trace_step(trace[name], step, views, env.config.localization_range_m)
                     estimates[name].append(_world_estimates(views[0], truth.poses[0]))
@@ -247,6 +281,11 @@ def evaluate_localization(
             "localization_range_m": env.config.localization_range_m,
         },
         "localizers": {name: scorers[name].summary() for name in localizers},
+        **(
+            {"identity": {name: sc.summary() for name, sc in id_scorers.items()}}
+            if id_scorers
+            else {}
+        ),
         "task": _mean_dicts(task_metrics),
         "wall_time_s": time.perf_counter() - start,
     }
@@ -340,6 +379,200 @@ def print_table(results: dict[str, Any]) -> None:
             f"{m['pct_time_within_10cm']['median']:.1f} | {m['gospa_mean']:.3f} | "
             f"{m['cardinality_mae']:.2f} |"
         )
+    print_identity_table(results)
     if results.get("task"):
         print("  task: " + ", ".join(f"{k} = {v:.3f}" for k, v in results["task"].items()))
     print(f"  wall time {results['wall_time_s']:.1f} s")
+
+
+# ---------------------------------------------------------------------- identity localizers
+#: A lidar detection within this distance of a true robot is attributed to it (oracle IDs).
+ORACLE_GATE_M = 0.2
+#: ``id-phd``'s lidar range ``P_d`` matched to the simulated lidar (docs/localization.md, "Notes
+#: for the simulator"): with the seed's eq. 19 (``P_d ~ 0`` beyond 1.8 m, while the simulator
+#: detects teammates to 3.5 m) and no camera update to pull them back, the weights of teammates
+#: at 1.5-3 m grow towards ``1 / P_d`` (seed-sim, 40 s: weight sum 20.1 against 5.7 in range).
+IDPHD_DETECTION_OVERRIDES = {"lidar_pd_midpoint_m": 3.0, "lidar_pd_slope_per_m": 4.0}
+
+
+class _IdentityView:
+    """What the scorer, the trace and the figures read of one robot's identity localizer."""
+
+    __slots__ = ("localizer",)
+
+    def __init__(self, localizer: Any) -> None:
+        self.localizer = localizer
+
+    @property
+    def mixture(self):
+        return self.localizer.mixture
+
+    def estimate(self, threshold: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+        return extract_estimates(self.mixture, threshold), np.empty(0)
+
+    def identities(self) -> dict[int, np.ndarray]:
+        """``{robot index: (x, y[, psi])}`` in the observer frame (ID-PHD: the mean of each
+        ID's highest-weight component, whatever its weight, as seed ``002`` defines the
+        estimate; static class left out)."""
+        loc = self.localizer
+        if isinstance(loc, IDPHD):
+            return {i: p for i, p in loc.estimate(min_weight=0.0).items() if i >= 0}
+        return loc.estimate()
+
+
+class IdentityLocalizers:
+    """One identity-aware localizer per robot (``id-phd``, ``ukf`` or ``pf``), fed per step.
+
+    Robot ``r``'s odometry records drive ``predict(own, {j: teammate j's record})`` (the
+    simulated robots sample odometry in lockstep, so the k-th records of a step share a stamp);
+    a robot whose odometry is stale sends no message. Lidar records go to ``update_lidar``
+    (ID-PHD, anonymous) or, with oracle identities, to ``update({j: (range, bearing)})``.
+    Camera records are not used.
+    """
+
+    def __init__(self, name: str, n_robots: int, phd: PHDConfig, seed: int = 0) -> None:
+        if name not in IDENTITY_LOCALIZERS:
+            raise ValueError(f"unknown identity localizer {name!r}")
+        self.name = name
+        if name == "id-phd":
+            cfg = IDPHDConfig(
+                detection=dataclasses.replace(phd, **IDPHD_DETECTION_OVERRIDES),
+                lidar_noise_std_m=phd.lidar_noise_std_m,
+                lidar_clutter_intensity_per_m2=phd.lidar_clutter_intensity,
+            )
+            self.localizers = [IDPHD(cfg) for _ in range(n_robots)]
+        elif name == "ukf":
+            self.localizers = [UKFTracker() for _ in range(n_robots)]
+        else:
+            self.localizers = [
+                ParticleFilterTracker(seed=seed * 1000 + r) for r in range(n_robots)
+            ]
+        self.views = [_IdentityView(loc) for loc in self.localizers]
+
+    def apply_step(self, step, agents: tuple[str, ...] | list[str]) -> None:
+        records = [step.measurements[a] for a in agents]
+        stale = [step.stale.get(a, ()) for a in agents]
+        odometry = [
+            [] if "odometry" in stale[r] else [rec.delta for rec in records[r].odometry]
+            for r in range(len(agents))
+        ]
+        identified = self.name != "id-phd"
+        for r, loc in enumerate(self.localizers):
+            k_odo = 0
+            for rec in records[r].in_time_order():
+                if isinstance(rec, OdometryRecord):
+                    if "odometry" in stale[r]:
+                        continue
+                    team = {
+                        j: odometry[j][k_odo]
+                        for j in range(len(agents))
+                        if j != r and k_odo < len(odometry[j])
+                    }
+                    loc.predict(rec.delta, team)
+                    k_odo += 1
+                elif isinstance(rec, LidarRecord) and "lidar" not in stale[r]:
+                    if identified:
+                        loc.update(_oracle_range_bearing(rec.detections, step.truth, r))
+                    else:
+                        loc.update_lidar(rec.detections, rec.null_bearings_rad)
+
+
+def _oracle_range_bearing(detections: np.ndarray, truth, observer: int) -> dict[int, np.ndarray]:
+    """Each detection within :data:`ORACLE_GATE_M` of a true robot, as ``{id: (r, bearing)}``
+    (one-to-one, by the Hungarian assignment on distance)."""
+    from scipy.optimize import linear_sum_assignment
+
+    det = np.asarray(detections, dtype=float).reshape(-1, 2)
+    if not det.shape[0] or truth is None:
+        return {}
+    rel = truth.relative_xy[observer]
+    dist = np.hypot(det[:, None, 0] - rel[None, :, 0], det[:, None, 1] - rel[None, :, 1])
+    dist[:, observer] = np.inf
+    cost = np.where(np.isfinite(dist), dist, 1e6)
+    rows, cols = linear_sum_assignment(cost)
+    return {
+        int(j): np.array([math.hypot(*det[i]), math.atan2(det[i, 1], det[i, 0])])
+        for i, j in zip(rows, cols, strict=True)
+        if dist[i, j] <= ORACLE_GATE_M
+    }
+
+
+class IdentityScorer:
+    """Per observer: errors of each in-range neighbour's *own ID* estimate.
+
+    For neighbour ``j`` of observer ``i`` the error is ``|est_i[j] - truth|`` (``inf`` if
+    ``i`` holds no estimate for ``j``); with a heading estimate, also the wrapped heading error.
+    """
+
+    def __init__(self, n_observers: int, error_threshold_m: float = 0.30) -> None:
+        self.n_observers = n_observers
+        self.error_threshold_m = error_threshold_m
+        self.pairs = np.zeros(n_observers)
+        self.large = np.zeros(n_observers)
+        self.accurate = np.zeros(n_observers)
+        self.errors: list[float] = []
+        self.heading_errors: list[float] = []
+
+    def add(self, observer: int, truth, mask: np.ndarray, identities: dict) -> None:
+        for j in np.flatnonzero(mask).tolist():
+            est = identities.get(j)
+            if est is None:
+                err = math.inf
+            else:
+                err = math.hypot(*(est[:2] - truth.relative_xy[observer, j]))
+                if len(est) > 2:
+                    true_psi = truth.poses[j, 2] - truth.poses[observer, 2]
+                    d = (est[2] - true_psi + math.pi) % (2 * math.pi) - math.pi
+                    self.heading_errors.append(abs(math.degrees(d)))
+            self.pairs[observer] += 1
+            self.large[observer] += not err <= self.error_threshold_m
+            self.accurate[observer] += err <= 0.10
+            self.errors.append(err)
+
+    def summary(self) -> dict[str, Any]:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            pct = 100.0 * self.large / self.pairs
+            acc = 100.0 * self.accurate / self.pairs
+        finite = [e for e in self.errors if math.isfinite(e)]
+        nan = float("nan")
+
+        def dist(values: np.ndarray) -> dict[str, Any]:
+            ok = values[np.isfinite(values)]
+            return {
+                "per_robot": [float(v) for v in values],
+                "median": float(np.median(ok)) if ok.size else nan,
+                "max": float(ok.max()) if ok.size else nan,
+            }
+
+        total = float(self.pairs.sum())
+        return {
+            "id_pct_time_err_gt_30cm": dist(pct),
+            "id_pct_time_within_10cm": dist(acc),
+            "id_percent_large_error": 100.0 * float(self.large.sum()) / total if total else nan,
+            "id_percent_missing": 100.0 * (len(self.errors) - len(finite)) / total
+            if total
+            else nan,
+            "id_median_error_m": float(np.median(finite)) if finite else nan,
+            "id_median_heading_error_deg": float(np.median(self.heading_errors))
+            if self.heading_errors
+            else nan,
+        }
+
+
+def print_identity_table(results: dict[str, Any]) -> None:
+    """The ``identity`` block (ID-aware localizers), if any, as a markdown table."""
+    ident = results.get("identity")
+    if not ident:
+        return
+    print(
+        "  | localizer (own-ID estimate) | % time err > 30 cm (median robot) | pooled | "
+        "% time < 10 cm | no estimate % | median err m | median heading err deg |"
+    )
+    print("  |---|---|---|---|---|---|---|")
+    for name, m in ident.items():
+        print(
+            f"  | {name} | {m['id_pct_time_err_gt_30cm']['median']:.1f} | "
+            f"{m['id_percent_large_error']:.1f} | {m['id_pct_time_within_10cm']['median']:.1f} | "
+            f"{m['id_percent_missing']:.1f} | {m['id_median_error_m']:.3f} | "
+            f"{m['id_median_heading_error_deg']:.1f} |"
+        )

@@ -13,6 +13,9 @@ math), :mod:`~localization.detection` (``P_s``, ``P_d``), :mod:`~localization.ph
 measurement updates), :mod:`~localization.reducer` (prune/merge/cap),
 :mod:`~localization.filter` (the orchestrator), :mod:`~localization.bank` (``PHDBank``: many
 robots' filters advanced in vectorised batches) and :mod:`~localization.metrics`.
+:mod:`~localization.id_phd` (``IDPHD``: teammate identities from communicated odometry, seed
+``002``) and :mod:`~localization.baselines` (the seed ``003`` UKF and seed ``004`` particle
+filter, on identified range-bearing measurements) are the identity-aware localizers.
 
 References
 ----------
@@ -28,6 +31,15 @@ from . import metrics
 from .bank import PHDBank
 from .config import PHDConfig
 from .filter import RobotCentricPHD
+from .id_phd import IDPHD, IDPHDConfig
 from .mixture import GaussianMixture
 
-__all__ = ["PHDConfig", "RobotCentricPHD", "PHDBank", "GaussianMixture", "metrics"]
+__all__ = [
+    "PHDConfig",
+    "RobotCentricPHD",
+    "PHDBank",
+    "GaussianMixture",
+    "metrics",
+    "IDPHD",
+    "IDPHDConfig",
+]

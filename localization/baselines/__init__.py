@@ -1,1 +1,27 @@
-"""TODO"""
+"""Baselines from the seed documents, for comparison with the (ID-)PHD filters.
+
+Both assume what their source's sensors give and this project's lidar does not: **identified**
+range-bearing measurements (seed ``003``: per-robot IR modulation frequencies; seed ``004``:
+signatures). In ``swarm-phd evaluate`` they get the identity of each lidar detection from the
+simulator's ground truth (an oracle standing in for that hardware); the PHD filters get the
+same detections anonymously. Each is a small class with the shape of the other localizers:
+``predict(own_odometry, teammate_odometry)``, ``update({id: (range_m, bearing_rad)})``,
+``estimate() -> {id: pose}`` and ``mixture`` (one unit-weight component per tracked teammate).
+
+- :class:`UKFTracker` (:mod:`~localization.baselines.ukf`, seed ``003``): one unscented Kalman
+  filter per teammate, state ``(x, y, psi)`` in the observer frame, differential-drive motion
+  from the teammate's communicated odometry composed with the observer's own, range-bearing
+  measurement with a wrapped angle residual.
+- :class:`ParticleFilterTracker` (:mod:`~localization.baselines.particle`, seed ``004``): one
+  particle cloud per teammate, damped constant-velocity drift, range-bearing likelihood,
+  resample 90 % with replacement, re-seed 10 % uniformly, diffuse.
+
+``docs/localization.md`` ("ID-PHD and baselines") lists what was adapted from the seeds.
+"""
+
+from __future__ import annotations
+
+from .particle import ParticleConfig, ParticleFilterTracker
+from .ukf import UKFConfig, UKFTracker
+
+__all__ = ["ParticleConfig", "ParticleFilterTracker", "UKFConfig", "UKFTracker"]

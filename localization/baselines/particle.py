@@ -1,0 +1,218 @@
+"""Seed ``004``'s baseline: particle-filter mutual localization from range and bearing.
+
+Seed ``004`` (Lee et al. 2012) localises each teammate with a particle filter fed with the
+range and bearing its sensor measures to that (identified) teammate, cycling through:
+
+1. *deterministic drift*: a damped constant-velocity model;
+2. *weights*: the measurement likelihood of every particle;
+3. *resampling*: 90 % of the particles drawn with replacement in proportion to their weights,
+   the other 10 % re-seeded uniformly over the state space;
+4. *diffusion*: every particle moved by a small Brownian step.
+
+Here each particle is ``(x_m, y_m, vx_mps, vy_mps)`` of one teammate in the observer's body
+frame, and the observer's own odometry moves every particle with the frame
+(``p <- R(dpsi)^T (p - d)``, velocities rotated by ``R(dpsi)^T``). Seed ``004`` exchanges no
+odometry, so neither does this filter (``teammate_odometry`` is accepted and ignored, to share
+the call shape of the other localizers). "The state space" for re-seeding is the sensing disc
+(``reseed_range_m``) and the speed box ``|v| <= max_speed_mps``. The likelihood is Gaussian in
+range and in the wrapped bearing residual. Steps 2-3 run only for teammates measured in that
+update; the estimate is the mean of the resampled (non re-seeded) particles. All teammates'
+particles are one ``(T, N, 4)`` array: no Python loop over teammates or particles.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.special import logsumexp
+
+from localization.gaussian import wrap_angle
+from localization.mixture import GaussianMixture
+
+from ._common import (
+    check_int,
+    check_real,
+    checked_odometry,
+    checked_range_bearing,
+    extract,
+    frame_change,
+    track_mixture,
+)
+
+__all__ = ["ParticleConfig", "ParticleFilterTracker"]
+
+
+@dataclass(frozen=True, slots=True)
+class ParticleConfig:
+    """Particle-filter parameters (units in the names), validated on construction."""
+
+    n_particles: int = 500
+    resample_fraction: float = 0.9
+    reseed_range_m: float = 3.5
+    max_speed_mps: float = 0.3
+    velocity_damping: float = 0.9
+    diffusion_std_m: float = 0.01
+    velocity_diffusion_std_mps: float = 0.03
+    range_std_m: float = 0.05
+    bearing_std_rad: float = 0.05
+    period_s: float = 0.1
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        check_int("n_particles", self.n_particles, 10)
+        check_int("seed", self.seed, 0)
+        rf = self.resample_fraction
+        if isinstance(rf, bool) or not isinstance(rf, (int, float)) or not 0.0 < rf <= 1.0:
+            raise ValueError(f"resample_fraction must be in (0, 1], got {rf!r}")
+        vd = self.velocity_damping
+        if isinstance(vd, bool) or not isinstance(vd, (int, float)) or not 0.0 <= vd <= 1.0:
+            raise ValueError(f"velocity_damping must be in [0, 1], got {vd!r}")
+        for name in ("reseed_range_m", "range_std_m", "bearing_std_rad", "period_s"):
+            check_real(name, getattr(self, name))
+        for name in ("max_speed_mps", "diffusion_std_m", "velocity_diffusion_std_mps"):
+            check_real(name, getattr(self, name), low_open=False)
+
+    @property
+    def n_resampled(self) -> int:
+        return max(1, int(round(self.resample_fraction * self.n_particles)))
+
+
+class ParticleFilterTracker:
+    """One particle cloud per identified teammate, in the observer frame (seed ``004``)."""
+
+    def __init__(self, config: ParticleConfig | None = None, **overrides: Any) -> None:
+        if config is None:
+            config = ParticleConfig()
+        elif not isinstance(config, ParticleConfig):
+            raise ValueError(f"config must be a ParticleConfig, got {type(config).__name__}")
+        if overrides:
+            unknown = sorted(set(overrides) - {f.name for f in dataclasses.fields(ParticleConfig)})
+            if unknown:
+                raise ValueError(f"unknown ParticleConfig field(s) {unknown}")
+            config = dataclasses.replace(config, **overrides)
+        self.config = config
+        self.reset()
+
+    def reset(self) -> None:
+        self._rng = np.random.default_rng(self.config.seed)
+        self._ids = np.empty(0, dtype=np.int64)
+        self._particles = np.empty((0, self.config.n_particles, 4))
+        self._mixture: GaussianMixture | None = None
+
+    @property
+    def ids(self) -> tuple[int, ...]:
+        return tuple(int(i) for i in self._ids)
+
+    @property
+    def particles(self) -> np.ndarray:
+        """``(T, N, 4)`` particles ``(x, y, vx, vy)`` per track (a copy)."""
+        return self._particles.copy()
+
+    def _uniform(self, shape: tuple[int, ...]) -> np.ndarray:
+        cfg = self.config
+        r = cfg.reseed_range_m * np.sqrt(self._rng.random(shape))
+        a = self._rng.uniform(-math.pi, math.pi, shape)
+        v = self._rng.uniform(-cfg.max_speed_mps, cfg.max_speed_mps, (*shape, 2))
+        return np.concatenate((np.stack((r * np.cos(a), r * np.sin(a)), -1), v), axis=-1)
+
+    def predict(
+        self,
+        own_odometry: np.ndarray,
+        teammate_odometry: dict[int, np.ndarray] | None = None,
+        dt_s: float | None = None,
+    ) -> None:
+        """Drift (damped constant velocity), frame change with own odometry, diffusion."""
+        own, _ = checked_odometry(own_odometry, teammate_odometry)
+        cfg = self.config
+        dt = cfg.period_s if dt_s is None else float(dt_s)
+        if not (math.isfinite(dt) and dt > 0):
+            raise ValueError(f"dt_s must be a finite number > 0, got {dt_s!r}")
+        if not self._ids.shape[0]:
+            return
+        p = self._particles
+        xy = p[..., :2] + dt * p[..., 2:]
+        v = cfg.velocity_damping * p[..., 2:]
+        new = np.empty_like(p)
+        new[..., :2] = frame_change(xy, own)
+        new[..., 2:] = frame_change(v, np.array([0.0, 0.0, own[2]]))
+        new[..., :2] += self._rng.normal(0.0, cfg.diffusion_std_m, new[..., :2].shape)
+        new[..., 2:] += self._rng.normal(0.0, cfg.velocity_diffusion_std_mps, new[..., 2:].shape)
+        speed = np.hypot(new[..., 2], new[..., 3])
+        new[..., 2:] *= np.minimum(1.0, cfg.max_speed_mps / np.maximum(speed, 1e-12))[..., None]
+        self._particles = new
+        self._mixture = None
+
+    def update(self, measurements: dict[int, np.ndarray] | None) -> None:
+        """Weight, resample 90 % / re-seed 10 %, diffuse, for each measured teammate.
+
+        A teammate measured for the first time starts with particles uniform over the state
+        space (seed ``004``), weighted at once by this measurement.
+        """
+        meas = checked_range_bearing(measurements)
+        cfg = self.config
+        if not meas:
+            return
+        ids = np.array(sorted(meas), dtype=np.int64)
+        new_ids = ids[~np.isin(ids, self._ids)]
+        if new_ids.shape[0]:
+            self._ids = np.concatenate((self._ids, new_ids))
+            self._particles = np.concatenate(
+                (self._particles, self._uniform((new_ids.shape[0], cfg.n_particles)))
+            )
+        order = np.argsort(self._ids)
+        rows = order[np.searchsorted(self._ids[order], ids)]
+        z = np.array([meas[int(i)] for i in ids])  # (K, 2)
+        p = self._particles[rows]  # (K, N, 4)
+        rng_pred = np.hypot(p[..., 0], p[..., 1])
+        brg_pred = np.arctan2(p[..., 1], p[..., 0])
+        loglik = -0.5 * (
+            ((z[:, 0:1] - rng_pred) / cfg.range_std_m) ** 2
+            + (wrap_angle(z[:, 1:2] - brg_pred) / cfg.bearing_std_rad) ** 2
+        )
+        # Normalised weights from log-likelihoods (no underflow to an all-zero set).
+        w = np.exp(loglik - logsumexp(loglik, axis=1, keepdims=True))
+        k, n = w.shape
+        n_res = cfg.n_resampled
+        # Multinomial resampling of every cloud at once: row offsets make one searchsorted.
+        cum = np.cumsum(w, axis=1)
+        cum[:, -1] = 1.0
+        u = self._rng.random((k, n_res)) + np.arange(k)[:, None]
+        flat = (cum + np.arange(k)[:, None]).ravel()
+        idx = np.minimum(
+            np.searchsorted(flat, u.ravel()).reshape(k, n_res) - np.arange(k)[:, None] * n, n - 1
+        )
+        resampled = np.take_along_axis(p, idx[..., None], axis=1)
+        reseeded = self._uniform((k, n - n_res))
+        cloud = np.concatenate((resampled, reseeded), axis=1)
+        cloud[..., :2] += self._rng.normal(0.0, cfg.diffusion_std_m, cloud[..., :2].shape)
+        self._particles[rows] = cloud
+        self._mixture = None
+
+    def _moments(self) -> tuple[np.ndarray, np.ndarray]:
+        core = self._particles[:, : self.config.n_resampled, :2]
+        mean = core.mean(axis=1)
+        d = core - mean[:, None, :]
+        cov = np.einsum("tni,tnj->tij", d, d) / core.shape[1]
+        cov[:, 0, 0] += 1e-8
+        cov[:, 1, 1] += 1e-8
+        return mean, cov
+
+    def estimate(self) -> dict[int, np.ndarray]:
+        """``{id: (x_m, y_m)}``: the mean of each cloud's resampled particles."""
+        mean, _ = self._moments()
+        return {int(i): mean[k].copy() for k, i in enumerate(self._ids)}
+
+    @property
+    def mixture(self) -> GaussianMixture:
+        """One unit-weight component per teammate: mean and covariance of its cloud."""
+        if self._mixture is None:
+            mean, cov = self._moments()
+            self._mixture = track_mixture(mean, cov)
+        return self._mixture
+
+    def extract(self, threshold: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+        return extract(self.mixture, threshold)
