@@ -15,10 +15,19 @@ References
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, fields
+from typing import Any, TypeVar
 
-__all__ = ["PHDConfig", "MODES", "BIRTH_MODELS", "LIDAR_PD_MODELS", "SURVIVAL_MODELS"]
+__all__ = [
+    "PHDConfig",
+    "config_with_overrides",
+    "MODES",
+    "BIRTH_MODELS",
+    "LIDAR_PD_MODELS",
+    "SURVIVAL_MODELS",
+]
 
 #: Sensor sets: lidar and camera (LC), or lidar only (LO: camera updates are no-ops).
 MODES = ("lidar-camera", "lidar-only")
@@ -283,3 +292,29 @@ def _check_angles(name: str, value: object) -> None:
     )
     if not ok:
         raise ValueError(f"PHDConfig.{name} must be a tuple of finite numbers, got {value!r}")
+
+
+_Config = TypeVar("_Config")
+
+
+def config_with_overrides(config: Any, cls: type[_Config], overrides: dict[str, Any]) -> _Config:
+    """``config`` (default: ``cls()``) with the fields in ``overrides`` replaced.
+
+    The constructor idiom of every filter here: ``Filter(config=None, **overrides)``.
+
+    Raises
+    ------
+    ValueError
+        If ``config`` is not a ``cls``, or ``overrides`` names a field ``cls`` lacks (the
+        dataclass's own validation then checks the values).
+    """
+    if config is None:
+        config = cls()
+    elif not isinstance(config, cls):
+        raise ValueError(f"config must be a {cls.__name__}, got {type(config).__name__}")
+    if overrides:
+        unknown = sorted(set(overrides) - {f.name for f in dataclasses.fields(cls)})
+        if unknown:
+            raise ValueError(f"unknown {cls.__name__} field(s) {unknown}")
+        config = dataclasses.replace(config, **overrides)
+    return config

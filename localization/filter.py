@@ -24,14 +24,13 @@ References
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from typing import Any
 
 import numpy as np
 
 from . import phd
-from .config import PHDConfig
+from .config import PHDConfig, config_with_overrides
 from .detection import DetectionModel
 from .mixture import ROW_PXX, ROW_W, ROW_X, ROW_Y, GaussianMixture, empty_table
 from .reducer import reduce
@@ -69,16 +68,7 @@ class RobotCentricPHD:
     __slots__ = ("config", "_model", "_table", "_pending_births", "_mixture", "_fixed_birth")
 
     def __init__(self, config: PHDConfig | None = None, **overrides: Any) -> None:
-        if config is None:
-            config = PHDConfig()
-        elif not isinstance(config, PHDConfig):
-            raise ValueError(f"config must be a PHDConfig, got {type(config).__name__}")
-        if overrides:
-            unknown = sorted(set(overrides) - {f.name for f in dataclasses.fields(PHDConfig)})
-            if unknown:
-                raise ValueError(f"unknown PHDConfig field(s) {unknown}")
-            config = dataclasses.replace(config, **overrides)
-        self.config = config
+        self.config = config = config_with_overrides(config, PHDConfig, overrides)
         self._model = DetectionModel(config)
         self._fixed_birth = phd.birth_components(
             np.asarray([config.birth_mean_m], dtype=float),

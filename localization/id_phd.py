@@ -43,7 +43,6 @@ Estimate: per ID, the mean of its highest-weight component.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -51,7 +50,7 @@ from typing import Any
 import numpy as np
 
 from . import phd
-from .config import PHDConfig
+from .config import PHDConfig, config_with_overrides
 from .detection import DetectionModel
 from .gaussian import wrap_angle
 from .mixture import N_ROWS, ROW_PXX, ROW_PXY, ROW_PYY, ROW_W, ROW_X, ROW_Y, GaussianMixture
@@ -468,16 +467,7 @@ class IDPHD:
     )
 
     def __init__(self, config: IDPHDConfig | None = None, **overrides: Any) -> None:
-        if config is None:
-            config = IDPHDConfig()
-        elif not isinstance(config, IDPHDConfig):
-            raise ValueError(f"config must be an IDPHDConfig, got {type(config).__name__}")
-        if overrides:
-            unknown = sorted(set(overrides) - {f.name for f in dataclasses.fields(IDPHDConfig)})
-            if unknown:
-                raise ValueError(f"unknown IDPHDConfig field(s) {unknown}")
-            config = dataclasses.replace(config, **overrides)
-        self.config = config
+        self.config = config = config_with_overrides(config, IDPHDConfig, overrides)
         self._model = DetectionModel(config.detection)
         self.reset()
 

@@ -22,7 +22,6 @@ particles are one ``(T, N, 4)`` array: no Python loop over teammates or particle
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -33,6 +32,7 @@ from scipy.special import logsumexp
 from localization.gaussian import wrap_angle
 from localization.mixture import GaussianMixture
 
+from ..config import config_with_overrides
 from ._common import (
     check_int,
     check_real,
@@ -85,16 +85,7 @@ class ParticleFilterTracker:
     """One particle cloud per identified teammate, in the observer frame (seed ``004``)."""
 
     def __init__(self, config: ParticleConfig | None = None, **overrides: Any) -> None:
-        if config is None:
-            config = ParticleConfig()
-        elif not isinstance(config, ParticleConfig):
-            raise ValueError(f"config must be a ParticleConfig, got {type(config).__name__}")
-        if overrides:
-            unknown = sorted(set(overrides) - {f.name for f in dataclasses.fields(ParticleConfig)})
-            if unknown:
-                raise ValueError(f"unknown ParticleConfig field(s) {unknown}")
-            config = dataclasses.replace(config, **overrides)
-        self.config = config
+        self.config = config = config_with_overrides(config, ParticleConfig, overrides)
         self.reset()
 
     def reset(self) -> None:

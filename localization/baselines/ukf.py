@@ -35,6 +35,7 @@ import numpy as np
 from localization.gaussian import wrap_angle
 from localization.mixture import GaussianMixture
 
+from ..config import config_with_overrides
 from ._common import (
     check_int,
     check_real,
@@ -128,16 +129,7 @@ class UKFTracker:
     """
 
     def __init__(self, config: UKFConfig | None = None, **overrides: Any) -> None:
-        if config is None:
-            config = UKFConfig()
-        elif not isinstance(config, UKFConfig):
-            raise ValueError(f"config must be a UKFConfig, got {type(config).__name__}")
-        if overrides:
-            unknown = sorted(set(overrides) - {f.name for f in dataclasses.fields(UKFConfig)})
-            if unknown:
-                raise ValueError(f"unknown UKFConfig field(s) {unknown}")
-            config = dataclasses.replace(config, **overrides)
-        self.config = config
+        self.config = config = config_with_overrides(config, UKFConfig, overrides)
         self._wm, self._wc, self._lam = merwe_weights(3, config.alpha, config.beta, config.kappa)
         self.reset()
 
