@@ -22,6 +22,9 @@ from __future__ import annotations
 
 import numpy as np
 from gymnasium import spaces
+from numba import njit
+
+from swarm_env.sensors.kernels import stable_order
 
 PHD_COLUMNS = ("w", "x_m", "y_m", "sxx_m2", "sxy_m2", "syy_m2", "valid")
 MAX_POSITION_M = 20.0
@@ -114,32 +117,52 @@ def measurement_tables(
     """Each robot's lidar detections (M_r, 2), nearest first, and camera bearings (B_r,),
     ascending, as padded rows ``[x, y, valid]`` and ``[cos b, sin b, valid]``: (R, 6 top_k)."""
     n = len(detections)
-    lidar = np.zeros((n, top_k, 3))
-    cam = np.zeros((n, top_k, 3))
-    counts = np.fromiter(map(len, detections), dtype=np.intp, count=n)
-    if counts.any():
-        pts = np.concatenate(detections)
-        owner, rank = _owner_and_rank(counts)
-        order = np.lexsort((np.hypot(pts[:, 0], pts[:, 1]), owner))  # by robot, then range
-        keep = rank < top_k  # the lexsort keeps robots' runs where they were
-        lidar[owner[keep], rank[keep], 0:2] = pts[order[keep]]
-        lidar[owner[keep], rank[keep], 2] = 1.0
-    counts = np.fromiter(map(len, bearings), dtype=np.intp, count=n)
-    if counts.any():
-        b = np.concatenate(bearings)
-        owner, rank = _owner_and_rank(counts)
-        order = np.lexsort((b, owner))
-        keep = rank < top_k
-        rows, slots, b = owner[keep], rank[keep], b[order[keep]]
-        cam[rows, slots, 0], cam[rows, slots, 1], cam[rows, slots, 2] = np.cos(b), np.sin(b), 1.0
-    return np.concatenate([lidar.reshape(n, -1), cam.reshape(n, -1)], axis=1)
+    det_counts = np.fromiter(map(len, detections), dtype=np.intp, count=n)
+    cam_counts = np.fromiter(map(len, bearings), dtype=np.intp, count=n)
+    pts = np.concatenate(detections).reshape(-1, 2) if det_counts.any() else np.zeros((0, 2))
+    b = np.concatenate(bearings) if cam_counts.any() else np.zeros(0)
+    out = np.zeros((n, 2, top_k, 3))
+    _fill_measurement_tables(
+        np.ascontiguousarray(pts, dtype=np.float64),
+        np.hypot(pts[:, 0], pts[:, 1]),
+        det_counts,
+        np.asarray(b, dtype=np.float64),
+        cam_counts,
+        out,
+    )
+    # cos and sin in numpy, on the few filled slots (padding stays 0).
+    cam = out[:, 1]
+    filled = cam[..., 2] > 0.0
+    angles = cam[..., 0][filled]
+    cam[..., 0][filled] = np.cos(angles)
+    cam[..., 1][filled] = np.sin(angles)
+    return out.reshape(n, -1)
 
 
-def _owner_and_rank(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Owner and position within its owner of each element of runs of ``counts`` elements."""
-    owner = np.repeat(np.arange(counts.size), counts)
-    first = np.cumsum(counts) - counts
-    return owner, np.arange(owner.size) - first[owner]
+@njit(cache=True)
+def _fill_measurement_tables(pts, ranges, det_counts, bearings, cam_counts, out):
+    """Fill ``out`` (R, 2, K, 3): ``out[r, 0]`` robot r's detections ``pts`` (its run of
+    ``det_counts[r]`` rows, (M, 2) m) nearest first by ``ranges`` (M,) (stable), as
+    ``[x, y, 1]``; ``out[r, 1]`` its bearings (run of ``cam_counts[r]``, rad) ascending, as
+    ``[b, 0, 1]`` (the caller turns b into cos b, sin b)."""
+    top_k = out.shape[2]
+    start = 0
+    for r in range(det_counts.shape[0]):
+        m = det_counts[r]
+        order = stable_order(ranges[start : start + m])
+        for j in range(min(m, top_k)):
+            out[r, 0, j, 0] = pts[start + order[j], 0]
+            out[r, 0, j, 1] = pts[start + order[j], 1]
+            out[r, 0, j, 2] = 1.0
+        start += m
+    start = 0
+    for r in range(cam_counts.shape[0]):
+        m = cam_counts[r]
+        order = stable_order(bearings[start : start + m])
+        for j in range(min(m, top_k)):
+            out[r, 1, j, 0] = bearings[start + order[j]]
+            out[r, 1, j, 2] = 1.0
+        start += m
 
 
 def assemble(
@@ -147,4 +170,15 @@ def assemble(
 ) -> np.ndarray:
     """Concatenate and clip into ``space``; returns float32 of ``space.shape``."""
     obs = np.concatenate([table.ravel(), velocity, features]).astype(np.float32)
+    return np.minimum(np.maximum(obs, space.low, out=obs), space.high, out=obs)
+
+
+def assemble_rows(
+    space: spaces.Box, tables: np.ndarray, velocity: np.ndarray, features: np.ndarray
+) -> np.ndarray:
+    """:func:`assemble` for R agents at once: tables (R, X), velocity (R, 2), features (R, F);
+    returns float32 (R, *space.shape), row r equal to ``assemble`` of agent r's parts."""
+    obs = np.concatenate([tables.reshape(tables.shape[0], -1), velocity, features], axis=1).astype(
+        np.float32
+    )
     return np.minimum(np.maximum(obs, space.low, out=obs), space.high, out=obs)

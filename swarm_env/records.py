@@ -4,7 +4,8 @@ Every record is stamped in seconds of the World's clock (sim time, or the robots
 ROS time) and expressed in the measuring robot's body frame (REP-103: x forward, y left, yaw
 counter-clockwise, metres, radians). Records are immutable; arrays inside them are read-only
 views of what the producer passed in (no copy), so a producer must not write to an array after
-making a record of it.
+making a record of it. ``Record._make(...)`` skips the checks, for producers (the simulator) that
+already hold read-only float64 arrays of the documented shapes.
 """
 
 from __future__ import annotations
@@ -13,18 +14,23 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+_F64 = np.dtype(np.float64)
+_new = object.__new__
+_set = object.__setattr__
+
 
 def _frozen(array: np.ndarray, shape: tuple[int, ...] | None = None, ndim: int = 0) -> np.ndarray:
     """A read-only float64 view of ``array`` (reshaped to ``shape``, or flattened if ``ndim``
     is 1). Not a copy: records are made on the hot path (about a hundred per env step), and
     producers hand over arrays they no longer write to."""
-    if type(array) is np.ndarray and array.dtype == np.float64 and not array.flags.writeable:
+    if array.__class__ is np.ndarray and array.dtype is _F64 and not array.flags.writeable:
         # Fast path: already a read-only view (e.g. a row of a frozen batch) of the right shape.
         if shape is None:
             if ndim != 1 or array.ndim == 1:
                 return array
-        elif len(shape) == array.ndim and all(
-            s in (-1, a) for s, a in zip(shape, array.shape, strict=True)
+        elif array.shape == shape or (
+            len(shape) == array.ndim
+            and all(s in (-1, a) for s, a in zip(shape, array.shape, strict=True))
         ):
             return array
     if type(array) is not np.ndarray or array.dtype != np.float64:
@@ -62,6 +68,16 @@ class OdometryRecord:
         object.__setattr__(self, "delta", _frozen(self.delta, shape=(3,)))
         object.__setattr__(self, "velocity", _frozen(self.velocity, shape=(2,)))
 
+    @classmethod
+    def _make(cls, stamp_s: float, delta: np.ndarray, velocity: np.ndarray) -> OdometryRecord:
+        """Unchecked constructor (see :func:`_frozen`): the arrays must already be read-only
+        float64 of the documented shapes."""
+        record = _new(cls)
+        _set(record, "stamp_s", stamp_s)
+        _set(record, "delta", delta)
+        _set(record, "velocity", velocity)
+        return record
+
 
 @dataclass(frozen=True, slots=True)
 class LidarRecord:
@@ -95,6 +111,26 @@ class LidarRecord:
             object.__setattr__(self, name, _frozen(getattr(self, name), ndim=1))
         object.__setattr__(self, "detections", _frozen(self.detections, shape=(-1, 2)))
 
+    @classmethod
+    def _make(
+        cls,
+        stamp_s: float,
+        angles_rad: np.ndarray,
+        ranges_m: np.ndarray,
+        intensities: np.ndarray,
+        detections: np.ndarray,
+        null_bearings_rad: np.ndarray,
+    ) -> LidarRecord:
+        """Unchecked constructor (see :meth:`OdometryRecord._make`)."""
+        record = _new(cls)
+        _set(record, "stamp_s", stamp_s)
+        _set(record, "angles_rad", angles_rad)
+        _set(record, "ranges_m", ranges_m)
+        _set(record, "intensities", intensities)
+        _set(record, "detections", detections)
+        _set(record, "null_bearings_rad", null_bearings_rad)
+        return record
+
 
 @dataclass(frozen=True, slots=True)
 class CameraRecord:
@@ -114,6 +150,14 @@ class CameraRecord:
     def __post_init__(self) -> None:
         object.__setattr__(self, "bearings_rad", _frozen(self.bearings_rad, ndim=1))
 
+    @classmethod
+    def _make(cls, stamp_s: float, bearings_rad: np.ndarray) -> CameraRecord:
+        """Unchecked constructor (see :meth:`OdometryRecord._make`)."""
+        record = _new(cls)
+        _set(record, "stamp_s", stamp_s)
+        _set(record, "bearings_rad", bearings_rad)
+        return record
+
 
 @dataclass(frozen=True, slots=True)
 class RobotMeasurements:
@@ -122,6 +166,15 @@ class RobotMeasurements:
     odometry: list[OdometryRecord] = field(default_factory=list)
     lidar: list[LidarRecord] = field(default_factory=list)
     camera: list[CameraRecord] = field(default_factory=list)
+
+    @classmethod
+    def _make(cls, odometry: list, lidar: list, camera: list) -> RobotMeasurements:
+        """Constructor without the dataclass machinery (the simulator makes 20 per step)."""
+        record = _new(cls)
+        _set(record, "odometry", odometry)
+        _set(record, "lidar", lidar)
+        _set(record, "camera", camera)
+        return record
 
     def in_time_order(self) -> list[OdometryRecord | LidarRecord | CameraRecord]:
         """All records merged by stamp; on equal stamps odometry comes first (predict first)."""

@@ -21,16 +21,13 @@ and every red circle is one blob.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
-from swarm_env.sensors.geometry import (
-    lines_hit_own_circles,
-    sight_lines_blocked,
-    to_body_frame,
-    wrap_angle,
-)
+from swarm_env.sensors.kernels import segment_distance2, stable_order, wrap
 from swarm_env.world.scene import Scene
 
 
@@ -153,130 +150,48 @@ class CameraSensor:
         """
         cfg = self.config
         robots = np.asarray(robots, dtype=np.intp).reshape(-1)
+        n_circles = scene.circle_xy.shape[0]
         if scene.circle_time is not None and time_index is not None:
-            return self._visibility_by_instant(scene, robots, time_index)
-        owner = np.asarray(scene.circle_owner, dtype=np.intp)
-        target = np.flatnonzero(np.asarray(scene.circle_red, dtype=bool))
-        origin, yaw = scene.observer_poses(robots)
-        tx, ty = to_body_frame(scene.circle_xy[target], origin, yaw)
-        dist2 = tx * tx + ty * ty
-        t_owner = owner[target]
-        visible = (t_owner[None, :] != robots[:, None]) & (dist2 >= cfg.range_min_m**2)
-        visible &= dist2 <= cfg.range_max_m**2
-
-        # Line-of-sight tests only for the (observer, target) pairs still in play.
-        pair_k, pair_t = np.nonzero(visible)
-        occ = np.flatnonzero(np.asarray(scene.circle_camera_occluder, dtype=bool))
-        o_owner = owner[occ]
-        # A circle may block a sight line unless it belongs to the observer or to the target
-        # (its own strip, or any circle of the same robot; a static target excludes only itself).
-        by_observer = o_owner[None, :] != robots[:, None]  # (K, O)
-        by_target = occ[None, :] != target[:, None]  # (T, O)
-        by_target &= (o_owner[None, :] != t_owner[:, None]) | (t_owner[:, None] < 0)
-        applies = by_observer[pair_k]
-        applies &= by_target[pair_t]
-        blocked = sight_lines_blocked(
-            origin,
-            scene.circle_xy[target],
-            pair_k,
-            pair_t,
-            scene.segment_a,
-            scene.segment_b,
-            scene.circle_xy[occ],
-            np.asarray(scene.circle_radius_m, dtype=np.float64)[occ],
-            applies,
-        )
-        visible[pair_k[blocked], pair_t[blocked]] = False
-        return target, visible, np.arctan2(ty, tx)
-
-    def _visibility_by_instant(
-        self, scene: Scene, robots: np.ndarray, time_index: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """:meth:`visibility` of a time-stacked scene, in one pass.
-
-        A frame only involves the circles of its own instant, so each observer gets just the
-        targets and moving occluders of its instant, gathered from per-instant grids: the work
-        does not grow with the number of instants. Static occluders and segments are tested as
-        in a single-instant scene. ``bearing_rad`` is filled for the static targets and those
-        of the frame's own instant (0 elsewhere).
-        """
-        cfg = self.config
-        time_index = np.asarray(time_index, dtype=np.intp).reshape(-1)
-        owner = np.asarray(scene.circle_owner, dtype=np.intp)
-        when = np.asarray(scene.circle_time, dtype=np.intp)
-        radius = np.asarray(scene.circle_radius_m, dtype=np.float64)
-        target = np.flatnonzero(np.asarray(scene.circle_red, dtype=bool))
-        n_obs = robots.size
-        # Candidate targets of each frame, as positions in `target`: the static ones, then the
-        # moving ones of the frame's instant.
-        n_instants = (
-            scene.robot_xy.shape[0] if scene.robot_xy.ndim == 3 else int(when.max(initial=0)) + 1
-        )
-        _check_instants(n_instants, time_index)
-        t_static = np.flatnonzero(when[target] < 0)
-        t_grid = np.searchsorted(
-            target, _instant_grid(target[when[target] >= 0], owner, when, n_instants)
-        )
-        cand = np.concatenate(
-            (np.broadcast_to(t_static, (n_obs, t_static.size)), t_grid[time_index]), axis=1
-        )  # (K, T')
-        origin, yaw = scene.observer_poses(robots, time_index)
-        cand_xy = scene.circle_xy[target[cand]]  # (K, T', 2)
-        rx = cand_xy[..., 0] - origin[:, 0:1]
-        ry = cand_xy[..., 1] - origin[:, 1:2]
-        dist2 = rx * rx + ry * ry
-        t_owner = owner[target]
-        in_range = t_owner[cand] != robots[:, None]
-        in_range &= dist2 >= cfg.range_min_m**2
-        in_range &= dist2 <= cfg.range_max_m**2
-        pair_k, pair_j = np.nonzero(in_range)
-        pair_t = cand[pair_k, pair_j]
-
-        occ = np.flatnonzero(np.asarray(scene.circle_camera_occluder, dtype=bool))
-        static, timed = occ[when[occ] < 0], occ[when[occ] >= 0]
-        # Static occluders exclude only the target itself (and the observer's own circles).
-        applies = owner[static][None, :] != robots[pair_k][:, None]
-        applies &= static[None, :] != target[pair_t][:, None]
-        blocked = sight_lines_blocked(
-            origin,
-            scene.circle_xy[target],
-            pair_k,
-            pair_t,
-            scene.segment_a,
-            scene.segment_b,
-            scene.circle_xy[static],
-            radius[static],
-            applies,
-        )
-        if timed.size:
-            o_grid = _instant_grid(timed, owner, when, n_instants)[
-                time_index
-            ]  # (K, n): the moving occluders of each frame's instant
-            # Neither the observer's nor the target robot's own circles block the line.
-            o_owner = owner[o_grid][pair_k]  # (P, n)
-            p_owner = t_owner[pair_t][:, None]
-            applies = o_owner != robots[pair_k][:, None]
-            applies &= (o_owner != p_owner) | (p_owner < 0)
-            applies &= o_grid[pair_k] != target[pair_t][:, None]
-            # Occluders relative to their observer, float32: the (P, n) temporaries are the
-            # cost, and sub-millimetre precision is plenty for occlusion.
-            f32 = np.float32
-            o_xy = np.empty((2, n_obs, o_grid.shape[1]), dtype=f32)
-            np.subtract(scene.circle_xy[o_grid, 0], origin[:, 0:1], out=o_xy[0], casting="unsafe")
-            np.subtract(scene.circle_xy[o_grid, 1], origin[:, 1:2], out=o_xy[1], casting="unsafe")
-            blocked |= lines_hit_own_circles(
-                np.stack((rx[pair_k, pair_j], ry[pair_k, pair_j]), axis=1),
-                o_xy[0][pair_k],
-                o_xy[1][pair_k],
-                np.square(radius[o_grid], dtype=f32)[pair_k],
-                applies,
+            time_index = np.asarray(time_index, dtype=np.intp).reshape(-1)
+            when = np.asarray(scene.circle_time, dtype=np.intp)
+            n_instants = (
+                scene.robot_xy.shape[0]
+                if scene.robot_xy.ndim == 3
+                else int(when.max(initial=0)) + 1
             )
-        visible = np.zeros((n_obs, target.size), dtype=bool)
-        clear = ~blocked
-        visible[pair_k[clear], pair_t[clear]] = True
-        bearing = np.zeros((n_obs, target.size))
-        # Body-frame bearing = world bearing - yaw.
-        bearing[np.arange(n_obs)[:, None], cand] = wrap_angle(np.arctan2(ry, rx) - yaw[:, None])
+            _check_instants(n_instants, time_index)
+            frame_time = time_index
+        else:
+            # Every circle exists at every instant (the observers' poses are at instant 0).
+            when = np.full(n_circles, -1, dtype=np.intp)
+            n_instants, frame_time = 0, np.full(robots.size, -1, dtype=np.intp)
+        target = np.flatnonzero(np.asarray(scene.circle_red, dtype=bool))
+        # Occluders grouped by instant: static ones first, then instant 0, 1, ...
+        occ = np.flatnonzero(np.asarray(scene.circle_camera_occluder, dtype=bool))
+        occ = occ[np.argsort(when[occ], kind="stable")]
+        groups = np.searchsorted(when[occ], np.arange(-1, n_instants + 1))
+        origin, yaw = scene.observer_poses(robots, time_index)
+        visible = np.empty((robots.size, target.size), dtype=bool)
+        bearing = np.empty((robots.size, target.size))
+        _visibility_kernel(
+            np.ascontiguousarray(origin, dtype=np.float64),
+            np.ascontiguousarray(yaw, dtype=np.float64),
+            robots,
+            frame_time,
+            np.ascontiguousarray(scene.circle_xy, dtype=np.float64),
+            np.asarray(scene.circle_radius_m, dtype=np.float64),
+            np.asarray(scene.circle_owner, dtype=np.intp),
+            when,
+            target,
+            occ,
+            groups,
+            np.ascontiguousarray(scene.segment_a, dtype=np.float64).reshape(-1, 2),
+            np.ascontiguousarray(scene.segment_b, dtype=np.float64).reshape(-1, 2),
+            cfg.range_min_m**2,
+            cfg.range_max_m**2,
+            visible,
+            bearing,
+        )
         return target, visible, bearing
 
     def observe(
@@ -318,28 +233,27 @@ class CameraSensor:
         target, visible, bearing = self.visibility(scene, robots, time_index)
 
         # Draws only for the visible (observer, target) pairs, in row-major order.
-        vis_obs, vis_t = np.nonzero(visible)
-        hit = rng.random(vis_obs.size) >= cfg.miss_probability
-        noise = rng.standard_normal(vis_obs.size) * np.deg2rad(cfg.bearing_noise_std_deg)
+        n_visible = int(np.count_nonzero(visible))
+        hit = rng.random(n_visible) >= cfg.miss_probability
+        noise = rng.standard_normal(n_visible) * np.deg2rad(cfg.bearing_noise_std_deg)
         n_clutter = rng.poisson(cfg.false_positive_rate, size=n_obs)
         clutter = rng.uniform(-np.pi, np.pi, size=int(n_clutter.sum()))
 
-        det_obs, det_t = vis_obs[hit], vis_t[hit]
-        obs_index = np.concatenate((det_obs, np.repeat(np.arange(n_obs), n_clutter)))
-        values = np.concatenate((wrap_angle(bearing[det_obs, det_t] + noise[hit]), clutter))
-        source = np.concatenate((target[det_t], np.full(clutter.size, -1, dtype=np.intp)))
-        # Sort by observer, then bearing: bearings lie in [-pi, pi), so one float key does it.
-        order = np.argsort(obs_index * 8.0 + values, kind="stable")
-        bounds = np.searchsorted(obs_index[order], np.arange(n_obs + 1)).tolist()
-        values, source = values[order], source[order]
-        values.setflags(write=False)  # the per-frame slices become read-only views
-
         owner = np.asarray(scene.circle_owner, dtype=np.intp)
         n_owners = max(scene.n_robots, int(owner.max()) + 1 if owner.size else 0)
-        robot_visible = np.zeros((n_obs, n_owners), dtype=bool)
-        t_owner = owner[target[vis_t]]
-        is_robot = t_owner >= 0
-        robot_visible[vis_obs[is_robot], t_owner[is_robot]] = True
+        values, source, bounds, robot_visible = _frames_kernel(
+            visible,
+            bearing,
+            target,
+            owner,
+            hit,
+            noise,
+            n_clutter.astype(np.intp),
+            clutter,
+            n_owners,
+        )
+        values.setflags(write=False)  # the per-frame slices become read-only views
+        bounds = bounds.tolist()
         return CameraBatch(
             robots=robots,
             # Slicing, not np.split: np.split costs ~3 us per piece.
@@ -351,18 +265,157 @@ class CameraSensor:
         )
 
 
-def _instant_grid(
-    circles: np.ndarray, owner: np.ndarray, when: np.ndarray, n_instants: int
-) -> np.ndarray:
-    """Moving ``circles`` as an (instants, per instant) grid, each row in owner order."""
-    circles = circles[np.lexsort((owner[circles], when[circles]))]
-    per_instant = np.bincount(when[circles], minlength=n_instants)
-    if per_instant.size != n_instants or per_instant.min() != per_instant.max():
-        raise ValueError(
-            "a time-stacked scene needs the same moving circles at each of its "
-            f"{n_instants} instants, got counts {per_instant.tolist()}"
-        )
-    return circles.reshape(n_instants, -1)
+@njit(cache=True)
+def _frames_kernel(
+    visible, bearing, target, circle_owner, hit, noise, n_clutter, clutter, n_owners
+):
+    """Assemble K frames from the geometry and the draws.
+
+    ``visible``, ``bearing`` (K, T) from :meth:`CameraSensor.visibility`; ``target`` (T,)
+    circle indices; ``hit``, ``noise`` (V,) rad for the V visible pairs in row-major order;
+    ``n_clutter`` (K,) and ``clutter`` (sum,) rad. Returns the bearings (M,) rad and their
+    sources (M,) (circle index, -1 for clutter), sorted by bearing within each frame,
+    ``bounds`` (K + 1,) of the frames, and ``robot_visible`` (K, n_owners).
+    """
+    n_obs, n_targets = visible.shape
+    total = n_clutter.sum()
+    for v in range(hit.shape[0]):
+        total += hit[v]
+    values = np.empty(total)
+    source = np.empty(total, dtype=np.intp)
+    bounds = np.empty(n_obs + 1, dtype=np.intp)
+    robot_visible = np.zeros((n_obs, n_owners), dtype=np.bool_)
+    v = c = pos = 0
+    for k in range(n_obs):
+        start = bounds[k] = pos
+        for j in range(n_targets):
+            if not visible[k, j]:
+                continue
+            owner = circle_owner[target[j]]
+            if owner >= 0:
+                robot_visible[k, owner] = True
+            if hit[v]:
+                values[pos] = wrap(bearing[k, j] + noise[v])
+                source[pos] = target[j]
+                pos += 1
+            v += 1
+        for _ in range(n_clutter[k]):
+            values[pos] = clutter[c]
+            source[pos] = -1
+            pos += 1
+            c += 1
+        # Bearings in order, so their order says nothing about identities (stable sort).
+        order = stable_order(values[start:pos])
+        values[start:pos] = values[start:pos][order]
+        source[start:pos] = source[start:pos][order]
+    bounds[n_obs] = pos
+    return values, source, bounds, robot_visible
+
+
+@njit(cache=True)
+def _visibility_kernel(
+    origin,
+    yaw,
+    robots,
+    frame_time,
+    circle_xy,
+    circle_radius,
+    circle_owner,
+    circle_time,
+    target,
+    occ,
+    groups,
+    seg_a,
+    seg_b,
+    range_min2,
+    range_max2,
+    visible,
+    bearing,
+):
+    """Line of sight from K observers to T red circles.
+
+    ``origin`` (K, 2) m, ``yaw`` (K,) rad, ``robots`` (K,) and ``frame_time`` (K,) (-1: every
+    circle is present) describe the frames; ``circle_*`` (C,) the scene; ``target`` (T,) and
+    ``occ`` (O,) are circle indices, ``occ`` sorted by instant with ``groups`` (instants + 2,)
+    its bounds: static occluders ``groups[0]:groups[1]``, instant t's
+    ``groups[t + 1]:groups[t + 2]``. ``seg_a``, ``seg_b`` (S, 2) m. Writes ``visible`` (K, T)
+    and ``bearing`` (K, T) rad (0 for targets absent at the frame's instant).
+
+    A line is blocked when it properly crosses a segment, or passes closer than a circle's
+    radius to its centre (closest point of the line segment) for a circle other than the
+    observer's own and the target's own (the target circle, and every circle of the same robot).
+    """
+    n_obs, n_targets = visible.shape
+    n_seg = seg_a.shape[0]
+    # Segment lines as p . q = pa, with p = perp(b - a): cross(b - a, q - a) = p . q - pa.
+    seg_px = seg_a[:, 1] - seg_b[:, 1]
+    seg_py = seg_b[:, 0] - seg_a[:, 0]
+    seg_pa = seg_px * seg_a[:, 0] + seg_py * seg_a[:, 1]
+    side_o = np.empty(n_seg)
+    for k in range(n_obs):
+        ox, oy = origin[k, 0], origin[k, 1]
+        me, when = robots[k], frame_time[k]
+        for s in range(n_seg):
+            side_o[s] = seg_px[s] * ox + seg_py[s] * oy - seg_pa[s]  # observer's side, per frame
+        for j in range(n_targets):
+            c = target[j]
+            if circle_time[c] >= 0 and circle_time[c] != when:
+                visible[k, j] = False
+                bearing[k, j] = 0.0
+                continue
+            dx, dy = circle_xy[c, 0] - ox, circle_xy[c, 1] - oy
+            bearing[k, j] = wrap(math.atan2(dy, dx) - yaw[k])
+            d2 = dx * dx + dy * dy
+            t_owner = circle_owner[c]
+            if t_owner == me or d2 < range_min2 or d2 > range_max2:
+                visible[k, j] = False
+                continue
+            tx, ty = circle_xy[c, 0], circle_xy[c, 1]
+            blocked = False
+            do = -dy * ox + dx * oy
+            for s in range(n_seg):
+                # Observer and target strictly on opposite sides of the segment's line ...
+                if side_o[s] * (seg_px[s] * tx + seg_py[s] * ty - seg_pa[s]) >= 0.0:
+                    continue
+                # ... and the segment's end points strictly on opposite sides of the sight line.
+                side_a = -dy * seg_a[s, 0] + dx * seg_a[s, 1] - do
+                side_b = -dy * seg_b[s, 0] + dx * seg_b[s, 1] - do
+                if side_a * side_b < 0.0:
+                    blocked = True
+                    break
+            # Static occluders, then the moving ones of the frame's own instant.
+            if not blocked:
+                blocked = _circles_block(
+                    occ, groups[0], groups[1], c, me, t_owner, ox, oy, dx, dy,
+                    circle_xy, circle_radius, circle_owner,
+                )  # fmt: skip
+            if not blocked and when >= 0:
+                blocked = _circles_block(
+                    occ, groups[when + 1], groups[when + 2], c, me, t_owner, ox, oy, dx, dy,
+                    circle_xy, circle_radius, circle_owner,
+                )  # fmt: skip
+            visible[k, j] = not blocked
+
+
+@njit(cache=True, inline="always")
+def _circles_block(
+    occ, lo, hi, c, me, t_owner, ox, oy, dx, dy, circle_xy, circle_radius, circle_owner
+):
+    """Whether occluders ``occ[lo:hi]`` block the sight line ``o -> o + d`` to circle ``c``."""
+    for g in range(lo, hi):
+        o = occ[g]
+        o_owner = circle_owner[o]
+        if o == c or o_owner == me or (t_owner >= 0 and o_owner == t_owner):
+            continue
+        r2 = circle_radius[o] * circle_radius[o]
+        wx, wy = circle_xy[o, 0] - ox, circle_xy[o, 1] - oy
+        # Cheap reject first: the line itself passes at least r away (cross^2 >= r^2 |d|^2).
+        cross = wx * dy - wy * dx
+        if cross * cross >= r2 * (dx * dx + dy * dy):
+            continue
+        if segment_distance2(wx, wy, dx, dy) < r2:
+            return True
+    return False
 
 
 def _check_instants(n_instants: int, time_index: np.ndarray) -> None:

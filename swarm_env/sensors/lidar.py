@@ -1,11 +1,11 @@
-"""YDLidar X4 model: vectorised ray casting over a :class:`~swarm_env.world.scene.Scene`.
+"""YDLidar X4 model: compiled ray casting over a :class:`~swarm_env.world.scene.Scene`.
 
-One call to :meth:`LidarSensor.scan` casts every beam of K scans at once. It never builds the
-dense (scans x beams x shapes) product: for each (scan, shape) pair it computes the bearing
-interval the shape subtends from the sensor, expands the interval into the beam indices it
-covers, intersects only those rays, and keeps the nearest hit per beam with
-``np.minimum.at``. Walls subtend wide intervals, but in a closed arena their intervals tile
-the circle about once, so the total work stays ~ (K x B + small shapes' beams).
+One call to :meth:`LidarSensor.scan` casts every beam of K scans at once in one numba kernel
+(``_scan_kernel``). It never tests every (beam, shape) pair: for each (scan, shape) pair it
+computes the bearing interval the shape subtends from the sensor, intersects only the beams in
+that interval, and keeps the nearest hit per beam in place. Walls subtend wide intervals, but in
+a closed arena their intervals tile the circle about once, so the work stays
+~ (K x B + small shapes' beams).
 
 Model (seed 000, section "Lidar"; defaults from the YDLidar X4 data sheet the seed quotes):
 
@@ -29,18 +29,15 @@ the interference phase.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
-from swarm_env.sensors.geometry import (
-    TWO_PI,
-    expand_intervals,
-    point_segment_distance,
-    to_body_frame,
-    wrap_angle,
-)
-from swarm_env.sensors.noise import TabulatedNormal
+from swarm_env.sensors.geometry import TWO_PI, wrap_angle
+from swarm_env.sensors.kernels import segment_distance2, stable_order, wrap
+from swarm_env.sensors.noise import TabulatedNormal, table_indices, tabulated
 from swarm_env.world.scene import Scene
 
 # Bearing intervals are widened by this much so rounding never loses a beam through an end point.
@@ -192,13 +189,7 @@ class LidarScanBatch:
             ``counts[k, j]`` beams of scan k hit robot j. ``counts > 0`` is a ground-truth
             "visible to the lidar" (before clustering).
         """
-        hit = self.hit_owner >= 0
-        if after_interference:
-            hit &= ~self.interfered
-        rows, cols = np.nonzero(hit)
-        flat = rows * n_robots + self.hit_owner[rows, cols]
-        counts = np.bincount(flat, minlength=self.n_scans * n_robots)
-        return counts.reshape(self.n_scans, n_robots)
+        return _owner_counts(self.hit_owner, self.interfered, n_robots, after_interference)
 
 
 class LidarSensor:
@@ -270,19 +261,7 @@ class LidarSensor:
         stamps_s : ndarray, shape (K,)
             Sorted by stamp (ties by robot index).
         """
-        rates = self.rates_hz
-        # End of revolution: phase + 2 pi rate t = -pi (mod 2 pi)  =>  t = t0 + n / rate.
-        t0 = np.mod(-np.pi - self.head_phase_rad, TWO_PI) / (TWO_PI * rates)
-        n_first = np.floor((t_start_s - t0) * rates) + 1.0
-        n_last = np.floor((t_end_s - t0) * rates)
-        counts = np.maximum(n_last - n_first + 1.0, 0.0).astype(np.intp)
-        robots, n = expand_intervals(n_first.astype(np.intp), counts)
-        stamps = t0[robots] + n / rates[robots]
-        # Guard the floor() boundaries against rounding.
-        keep = (stamps > t_start_s) & (stamps <= t_end_s)
-        robots, stamps = robots[keep], stamps[keep]
-        order = np.lexsort((robots, stamps))
-        return robots[order], stamps[order]
+        return _scan_stamps(self.head_phase_rad, self.rates_hz, float(t_start_s), float(t_end_s))
 
     def head_angle_rad(self, robots: np.ndarray, times_s: np.ndarray) -> np.ndarray:
         """Robot-frame head angles of ``robots`` at ``times_s`` (broadcast), wrapped."""
@@ -339,50 +318,70 @@ class LidarSensor:
         if time_index is not None:
             time_index = np.asarray(time_index, dtype=np.intp).reshape(-1)
         origin, yaw = scene.observer_poses(robots, time_index)
+        origin = np.ascontiguousarray(origin, dtype=np.float64)
+        yaw = np.ascontiguousarray(yaw, dtype=np.float64)
 
-        flat, dist, code = self._cast(scene, origin, yaw, robots, time_index)
-        best = np.full(n_scans * n_beams, np.inf)
-        np.minimum.at(best, flat, dist)
-        winner = dist == best[flat]
-        hit_code = np.full(n_scans * n_beams, -1, dtype=np.intp)
-        hit_code[flat[winner]] = code[winner]
-
-        ranges = best + self._range_noise.draw(rng, n_scans * n_beams)  # inf (no hit) stays inf
-        valid = np.tile(~self.blind_mask, n_scans)
-        valid &= ranges >= cfg.range_min_m
-        valid &= ranges <= cfg.range_max_m
-        hit_code[~valid] = -1
-        # Per-surface tables over [circles, segments, "no hit"]: code -1 reads the sentinel.
-        n_circles, n_segments = scene.circle_xy.shape[0], scene.segment_a.shape[0]
-        table_kind = np.concatenate(
-            (np.full(n_circles, HIT_CIRCLE), np.full(n_segments, HIT_SEGMENT), [HIT_NONE])
-        ).astype(np.int8)
-        table_index = np.concatenate((np.arange(n_circles), np.arange(n_segments), [-1]))
-        table_owner = np.concatenate(
-            (np.asarray(scene.circle_owner, dtype=np.intp), np.full(n_segments + 1, -1))
-        )
-        table_intensity = np.concatenate(
-            (
-                np.asarray(scene.circle_intensity, dtype=np.float64),
-                np.asarray(scene.segment_intensity, dtype=np.float64),
-                [0.0],
-            )
-        )
+        # Circles with their instants (-1: static, or every circle present).
+        n_circles = scene.circle_xy.shape[0]
+        if scene.circle_time is None or time_index is None:
+            c_time = np.full(n_circles, -1, dtype=np.intp)
+            scan_time = np.full(n_scans, -1, dtype=np.intp)
+        else:
+            c_time = np.asarray(scene.circle_time, dtype=np.intp)
+            scan_time = time_index
+        # Interference reads the other robot's heading at the scan's instant.
+        robot_yaw = np.asarray(scene.robot_yaw, dtype=np.float64)
+        if robot_yaw.ndim == 1:
+            robot_yaw = robot_yaw[None]
+        pose_time = np.zeros(n_scans, dtype=np.intp) if time_index is None else time_index
+        n_heads = min(self.n_robots, n_scene)
+        if cfg.interference_tolerance_deg <= 0.0:
+            n_heads = 0
         shape = (n_scans, n_beams)
-        hit_kind = table_kind[hit_code].reshape(shape)
-        hit_index = table_index[hit_code].reshape(shape)
-        hit_owner = table_owner[hit_code].reshape(shape)
-        falloff = 1.0 / (1.0 + np.square(ranges * (1.0 / cfg.intensity_falloff_m)))
-        intensities = (
-            table_intensity[hit_code]
-            * falloff
-            * self._intensity_noise.draw(rng, n_scans * n_beams)
+        ranges = np.empty(shape)
+        intensities = np.empty(shape)
+        hit_owner = np.empty(shape, dtype=np.intp)
+        hit_kind = np.empty(shape, dtype=np.int8)
+        hit_index = np.empty(shape, dtype=np.intp)
+        interfered = np.empty(shape, dtype=bool)
+        _scan_kernel(
+            origin,
+            yaw,
+            robots,
+            scan_time,
+            pose_time,
+            stamps,
+            np.ascontiguousarray(scene.circle_xy, dtype=np.float64),
+            np.asarray(scene.circle_radius_m, dtype=np.float64),
+            np.asarray(scene.circle_owner, dtype=np.intp),
+            c_time,
+            np.asarray(scene.circle_lidar, dtype=np.bool_),
+            np.asarray(scene.circle_intensity, dtype=np.float64),
+            np.ascontiguousarray(scene.segment_a, dtype=np.float64).reshape(-1, 2),
+            np.ascontiguousarray(scene.segment_b, dtype=np.float64).reshape(-1, 2),
+            np.asarray(scene.segment_intensity, dtype=np.float64).reshape(-1),
+            self._beam_ux,
+            self._beam_uy,
+            self.blind_mask,
+            cfg.range_min_m,
+            cfg.range_max_m,
+            cfg.range_max_m + 6.0 * cfg.range_noise_std_m,
+            1.0 / cfg.intensity_falloff_m,
+            table_indices(rng, 2 * n_scans * n_beams),
+            self._range_noise.table,
+            self._intensity_noise.table,
+            robot_yaw,
+            n_heads,
+            self.rates_hz,
+            self.head_phase_rad,
+            np.deg2rad(cfg.interference_tolerance_deg),
+            ranges,
+            intensities,
+            hit_owner,
+            hit_kind,
+            hit_index,
+            interfered,
         )
-
-        interfered = self._interference(scene, robots, stamps, hit_owner, hit_index, time_index)
-        valid &= ~interfered.reshape(-1)
-        ranges = np.where(valid, ranges, 0.0).reshape(shape)
-        intensities = np.where(valid, intensities, 0.0).reshape(shape)
         return LidarScanBatch(
             robots=robots,
             stamps_s=stamps,
@@ -395,136 +394,236 @@ class LidarSensor:
             interfered=interfered,
         )
 
-    # -- internals -----------------------------------------------------------------------
 
-    def _cast(
-        self,
-        scene: Scene,
-        origin: np.ndarray,
-        yaw: np.ndarray,
-        robots: np.ndarray,
-        time_index: np.ndarray | None = None,
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Candidate hits ``(flat beam index k*B + b, distance, surface code)``.
+@njit(cache=True)
+def _scan_kernel(
+    origin,
+    yaw,
+    robots,
+    scan_time,
+    pose_time,
+    stamps,
+    c_xy,
+    c_radius,
+    c_owner,
+    c_time,
+    c_lidar,
+    c_intensity,
+    seg_a,
+    seg_b,
+    seg_intensity,
+    beam_ux,
+    beam_uy,
+    blind,
+    range_min,
+    range_max,
+    reach,
+    inv_falloff,
+    noise_index,
+    range_table,
+    intensity_table,
+    robot_yaw,
+    n_heads,
+    rates,
+    phases,
+    tolerance,
+    ranges,
+    intensities,
+    hit_owner,
+    hit_kind,
+    hit_index,
+    interfered,
+):
+    """K full revolutions: ray casting, noise, range limits, blind sectors and interference.
 
-        Surface code: circle index, or ``C + segment index``. Only the beams inside each
-        shape's subtended bearing interval are intersected. Inside that interval a beam is
-        known to hit the shape, so each candidate costs a handful of flops: for a circle the
-        near root of the ray-circle quadratic, for a segment ``p / cos(theta - alpha)`` with
-        ``(p, alpha)`` the normal form of its line. The interval is widened by ``_EDGE_RAD`` so
-        a beam exactly through an end point (e.g. a corner) is never lost to rounding.
-        """
-        cfg = self.config
-        n_beams = cfg.n_beams
-        inv_spacing = 1.0 / cfg.beam_spacing_rad
-        # Shapes whose nearest point is beyond this cannot return (noise margin included).
-        reach = cfg.range_max_m + 6.0 * cfg.range_noise_std_m
-        flats, dists, codes = [], [], []
+    Shapes: K scans, B beams, C circles (``c_*``; only ``c_lidar`` ones are seen), S segments.
+    ``origin`` (K, 2) m and ``yaw`` (K,) rad are the scanners' poses; ``scan_time`` (K,) is
+    each scan's instant (-1: every circle is present), ``c_time`` (C',) each circle's (-1:
+    static); ``pose_time`` (K,) indexes ``robot_yaw`` (T, N). ``noise_index`` (2 K B,) uint16:
+    the range-noise indices of beam (k, b) at ``k B + b``, the intensity-noise ones after
+    them.
+    Writes the (K, B) outputs of :class:`LidarScanBatch`.
 
-        lidar_idx = np.flatnonzero(np.asarray(scene.circle_lidar, dtype=bool))
-        if lidar_idx.size and robots.size:
-            radius = np.asarray(scene.circle_radius_m, dtype=np.float64)[lidar_idx]
-            owner = np.asarray(scene.circle_owner, dtype=np.intp)[lidar_idx]
-            cx, cy = to_body_frame(scene.circle_xy[lidar_idx], origin, yaw)  # (K, C)
-            d2 = cx * cx + cy * cy
-            near = (
-                (owner[None, :] != robots[:, None])
-                & (d2 > radius * radius)
-                & (d2 < (reach + radius) ** 2)
-            )
-            present = scene.circles_present(lidar_idx, time_index, robots.size)
-            if present is not None:
-                near &= present
-            scan_i, circ_i = np.nonzero(near)
-            px, py, r = cx[scan_i, circ_i], cy[scan_i, circ_i], radius[circ_i]
-            dd = d2[scan_i, circ_i]
-            half = np.arcsin(r / np.sqrt(dd)) + _EDGE_RAD
-            bearing = np.arctan2(py, px) + np.pi
-            lo = np.ceil((bearing - half) * inv_spacing).astype(np.intp)
-            hi = np.floor((bearing + half) * inv_spacing).astype(np.intp)
-            count, beam = _expand(lo, hi, n_beams)
-            ux, uy = self._beam_ux[beam], self._beam_uy[beam]
-            t_closest = ux * np.repeat(px, count) + uy * np.repeat(py, count)
-            disc = t_closest * t_closest + np.repeat(r * r - dd, count)
-            # Within the tangent bearings disc >= 0 up to rounding: clamp (a grazing hit).
-            flats.append(np.repeat(scan_i * n_beams, count) + beam)
-            dists.append(t_closest - np.sqrt(np.maximum(disc, 0.0)))
-            codes.append(np.repeat(lidar_idx[circ_i], count))
-
-        if scene.segment_a.shape[0] and robots.size:
-            ax, ay = to_body_frame(scene.segment_a, origin, yaw)  # (K, S)
-            bx, by = to_body_frame(scene.segment_b, origin, yaw)
+    Per (scan, shape) pair only the beams inside the shape's subtended bearing interval are
+    intersected, and there a closed form without a validity test is exact (the beam is known to
+    hit); the nearest hit is kept in place, so the cost is ~K x (B + small shapes' beams).
+    """
+    n_scans, n_beams = ranges.shape
+    spacing = TWO_PI / n_beams
+    inv_spacing = 1.0 / spacing
+    n_c, n_s = c_xy.shape[0], seg_a.shape[0]
+    best = np.empty(n_beams)
+    code = np.empty(n_beams, dtype=np.intp)
+    # Bearing from each housing to the scanner, computed on first use in each scan.
+    to_me = np.empty(n_c)
+    to_me_scan = np.full(n_c, -1, dtype=np.intp)
+    for k in range(n_scans):
+        best[:] = np.inf
+        code[:] = -1
+        ox, oy = origin[k, 0], origin[k, 1]
+        cos_y, sin_y = math.cos(yaw[k]), math.sin(yaw[k])
+        me, when = robots[k], scan_time[k]
+        for i in range(n_c):
+            if not c_lidar[i] or c_owner[i] == me:
+                continue
+            if c_time[i] >= 0 and when >= 0 and c_time[i] != when:
+                continue
+            dx, dy = c_xy[i, 0] - ox, c_xy[i, 1] - oy
+            px, py = cos_y * dx + sin_y * dy, cos_y * dy - sin_y * dx
+            r = c_radius[i]
+            d2 = px * px + py * py
+            # Inside the circle (no outer surface) or out of reach.
+            if not (d2 > r * r and d2 < (reach + r) * (reach + r)):
+                continue
+            half = math.asin(r / math.sqrt(d2)) + _EDGE_RAD
+            bearing = math.atan2(py, px) + math.pi
+            lo = int(math.ceil((bearing - half) * inv_spacing))
+            hi = int(math.floor((bearing + half) * inv_spacing))
+            rr_dd = r * r - d2
+            # The interval as two runs of beam indices (one may be empty): no modulo per beam.
+            runs = _runs(lo, hi, n_beams)
+            for part in range(2):
+                for b in range(runs[2 * part], runs[2 * part + 1] + 1):
+                    t_closest = beam_ux[b] * px + beam_uy[b] * py
+                    # Within the tangent bearings disc >= 0 up to rounding: clamp (grazing hit).
+                    disc = max(t_closest * t_closest + rr_dd, 0.0)
+                    t = t_closest - math.sqrt(disc)
+                    if t <= best[b]:  # ties: the later shape wins (as np.minimum.at did)
+                        best[b] = t
+                        code[b] = i
+        for s in range(n_s):
+            dx, dy = seg_a[s, 0] - ox, seg_a[s, 1] - oy
+            ax, ay = cos_y * dx + sin_y * dy, cos_y * dy - sin_y * dx
+            dx, dy = seg_b[s, 0] - ox, seg_b[s, 1] - oy
+            bx, by = cos_y * dx + sin_y * dy, cos_y * dy - sin_y * dx
             ex, ey = bx - ax, by - ay
-            length = np.hypot(ex, ey)
+            length = math.hypot(ex, ey)
             # Normal form of the supporting line: n . x = p, with p >= 0.
-            nx = ey / np.where(length > 0.0, length, 1.0)
-            ny = -ex / np.where(length > 0.0, length, 1.0)
+            inv_len = 1.0 / length if length > 0.0 else 1.0
+            nx, ny = ey * inv_len, -ex * inv_len
             p = nx * ax + ny * ay
-            flip = p < 0.0
-            nx, ny, p = np.where(flip, -nx, nx), np.where(flip, -ny, ny), np.abs(p)
+            if p < 0.0:
+                nx, ny, p = -nx, -ny, -p
             # A sensor on the line sees the segment edge-on: no return.
-            near = (p > 1e-9) & (point_segment_distance(0.0, 0.0, ax, ay, bx, by) < reach)
-            scan_i, seg_i = np.nonzero(near)
-            phi_a = np.arctan2(ay[scan_i, seg_i], ax[scan_i, seg_i])
-            sweep = wrap_angle(np.arctan2(by[scan_i, seg_i], bx[scan_i, seg_i]) - phi_a)
+            if not p > 1e-9 or segment_distance2(-ax, -ay, ex, ey) >= reach * reach:
+                continue
+            phi_a = math.atan2(ay, ax)
+            sweep = wrap(math.atan2(by, bx) - phi_a)
             # The segment subtends the shorter arc between its end-point bearings.
-            start = np.where(sweep >= 0.0, phi_a, phi_a + sweep) + np.pi
-            lo = np.ceil((start - _EDGE_RAD) * inv_spacing).astype(np.intp)
-            hi = np.floor((start + np.abs(sweep) + _EDGE_RAD) * inv_spacing).astype(np.intp)
-            count, beam = _expand(lo, hi, n_beams)
-            cos_rel = self._beam_ux[beam] * np.repeat(nx[scan_i, seg_i], count)
-            cos_rel += self._beam_uy[beam] * np.repeat(ny[scan_i, seg_i], count)
-            t = np.repeat(p[scan_i, seg_i], count) / np.maximum(cos_rel, 1e-12)
-            flats.append(np.repeat(scan_i * n_beams, count) + beam)
-            dists.append(t)
-            codes.append(np.repeat(scene.circle_xy.shape[0] + seg_i, count))
+            start = (phi_a if sweep >= 0.0 else phi_a + sweep) + math.pi
+            lo = int(math.ceil((start - _EDGE_RAD) * inv_spacing))
+            hi = int(math.floor((start + abs(sweep) + _EDGE_RAD) * inv_spacing))
+            runs = _runs(lo, hi, n_beams)
+            for part in range(2):
+                for b in range(runs[2 * part], runs[2 * part + 1] + 1):
+                    cos_rel = beam_ux[b] * nx + beam_uy[b] * ny
+                    t = p / max(cos_rel, 1e-12)
+                    if t <= best[b]:
+                        best[b] = t
+                        code[b] = n_c + s
 
-        if not flats:
-            empty = np.zeros(0, dtype=np.intp)
-            return empty, np.zeros(0), empty
-        return np.concatenate(flats), np.concatenate(dists), np.concatenate(codes)
+        rate_me = rates[me]
+        base = k * n_beams
+        for b in range(n_beams):
+            r = best[b] + tabulated(range_table, noise_index[base + b])  # inf stays inf
+            c = code[b]
+            if blind[b] or not (r >= range_min and r <= range_max) or c < 0:
+                ranges[k, b] = 0.0
+                intensities[k, b] = 0.0
+                hit_owner[k, b] = -1
+                hit_kind[k, b] = HIT_NONE
+                hit_index[k, b] = -1
+                interfered[k, b] = False
+                continue
+            if c < n_c:
+                owner, kind, index, surface = c_owner[c], HIT_CIRCLE, c, c_intensity[c]
+            else:
+                owner, kind, index = -1, HIT_SEGMENT, c - n_c
+                surface = seg_intensity[index]
+            hit_owner[k, b] = owner
+            hit_kind[k, b] = kind
+            hit_index[k, b] = index
+            nulled = False
+            if 0 <= owner < n_heads:
+                # Beam b is fired at this time; robot `owner`'s head sits at its housing centre.
+                beam_time = stamps[k] - 1.0 / rate_me + (b / n_beams) / rate_me
+                turns = rates[owner] * beam_time
+                head_body = wrap(phases[owner] + TWO_PI * (turns - math.floor(turns)))
+                head_world = robot_yaw[pose_time[k], owner] + head_body
+                if to_me_scan[c] != k:  # one atan2 per (scan, housing), not per beam
+                    to_me[c] = math.atan2(oy - c_xy[c, 1], ox - c_xy[c, 0])
+                    to_me_scan[c] = k
+                if abs(wrap(head_world - to_me[c])) <= tolerance:
+                    # A head pointing into its own pillar emits nothing towards us.
+                    head_beam = int(np.rint((head_body + math.pi) / spacing)) % n_beams
+                    nulled = not blind[head_beam]
+            interfered[k, b] = nulled
+            if nulled:
+                ranges[k, b] = 0.0
+                intensities[k, b] = 0.0
+                continue
+            ranges[k, b] = r
+            scaled = r * inv_falloff
+            falloff = 1.0 / (1.0 + scaled * scaled)
+            factor = tabulated(intensity_table, noise_index[(n_scans + k) * n_beams + b])
+            intensities[k, b] = surface * falloff * factor
 
-    def _interference(
-        self,
-        scene: Scene,
-        robots: np.ndarray,
-        stamps: np.ndarray,
-        hit_owner: np.ndarray,
-        hit_index: np.ndarray,
-        time_index: np.ndarray | None = None,
-    ) -> np.ndarray:
-        """Beams hitting robot j's housing while j's head points back at the scanner.
 
-        Only owners with a modelled head (index < both ``n_robots`` and ``scene.n_robots``)
-        interfere: circles of sensorless robots (e.g. an intruder) never null a beam.
-        """
-        cfg = self.config
-        interfered = np.zeros(hit_owner.shape, dtype=bool)
-        if cfg.interference_tolerance_deg <= 0.0:
-            return interfered
-        n_heads = min(self.n_robots, scene.n_robots)
-        scan_i, beam = np.nonzero((hit_owner >= 0) & (hit_owner < n_heads))
-        if not scan_i.size:
-            return interfered
-        other = hit_owner[scan_i, beam]
-        me = robots[scan_i]
-        rate = self.rates_hz[me]
-        beam_time = stamps[scan_i] - 1.0 / rate + (beam / cfg.n_beams) / rate
-        head_body = self.head_angle_rad(other, beam_time)
-        when = None if time_index is None else time_index[scan_i]
-        my_xy, _ = scene.observer_poses(me, when)
-        _, other_yaw = scene.observer_poses(other, when)
-        head_world = other_yaw + head_body
-        # The head sits at the centre of the housing the beam hit.
-        to_me = my_xy - scene.circle_xy[hit_index[scan_i, beam]]
-        bearing_to_me = np.arctan2(to_me[:, 1], to_me[:, 0])
-        tolerance = np.deg2rad(cfg.interference_tolerance_deg)
-        aligned = np.abs(wrap_angle(head_world - bearing_to_me)) <= tolerance
-        # A head pointing into its own pillar emits nothing towards us.
-        head_beam = np.rint((head_body + np.pi) / cfg.beam_spacing_rad).astype(np.intp)
-        aligned &= ~self.blind_mask[head_beam % cfg.n_beams]
-        interfered[scan_i, beam] = aligned
-        return interfered
+@njit(cache=True)
+def _scan_stamps(phase, rates, t_start, t_end):
+    """Revolution ends in ``(t_start, t_end]`` s of heads with ``phase`` (N,) rad and ``rates``
+    (N,) Hz: ``robots`` (K,) and ``stamps`` (K,) s, sorted by stamp, ties by robot."""
+    n = phase.shape[0]
+    t0 = np.empty(n)
+    first = np.empty(n)
+    last = np.empty(n)
+    total = 0
+    for i in range(n):
+        # End of revolution: phase + 2 pi rate t = -pi (mod 2 pi)  =>  t = t0 + n / rate.
+        t0[i] = ((-math.pi - phase[i]) % TWO_PI) / (TWO_PI * rates[i])
+        first[i] = math.floor((t_start - t0[i]) * rates[i]) + 1.0
+        last[i] = math.floor((t_end - t0[i]) * rates[i])
+        total += max(int(last[i] - first[i]) + 1, 0)
+    robots = np.empty(total, dtype=np.intp)
+    stamps = np.empty(total)
+    k = 0
+    for i in range(n):
+        m = first[i]
+        while m <= last[i]:
+            stamp = t0[i] + m / rates[i]
+            if t_start < stamp <= t_end:  # guard the floor() boundaries against rounding
+                robots[k] = i
+                stamps[k] = stamp
+                k += 1
+            m += 1.0
+    order = stable_order(stamps[:k])  # equal stamps keep robot order
+    return robots[:k][order], stamps[:k][order]
+
+
+@njit(cache=True)
+def _owner_counts(hit_owner, interfered, n_robots, after_interference):
+    """(K, n_robots) counts of the beams of ``hit_owner`` (K, B) per owner (owners outside
+    ``[0, n_robots)`` are not counted), optionally skipping the ``interfered`` (K, B) ones."""
+    n_scans, n_beams = hit_owner.shape
+    counts = np.zeros((n_scans, n_robots), dtype=np.intp)
+    for k in range(n_scans):
+        for b in range(n_beams):
+            j = hit_owner[k, b]
+            if 0 <= j < n_robots and not (after_interference and interfered[k, b]):
+                counts[k, j] += 1
+    return counts
+
+
+@njit(cache=True, inline="always")
+def _runs(lo, hi, n_beams):
+    """Beam indices ``lo..hi`` (an interval narrower than the circle, ``lo`` in
+    ``[-n_beams, n_beams]``) wrapped to ``[0, n_beams)`` as two runs ``(a0, z0, a1, z1)``, each
+    inclusive and possibly empty: the hot loops then index beams without a modulo."""
+    if lo < 0:
+        return lo + n_beams, n_beams - 1, 0, hi
+    if hi >= n_beams:
+        return lo, n_beams - 1, 0, hi - n_beams
+    return lo, hi, 0, -1
 
 
 def blind_mask(angles_rad: np.ndarray, config: LidarConfig) -> np.ndarray:
@@ -539,16 +638,6 @@ def blind_mask(angles_rad: np.ndarray, config: LidarConfig) -> np.ndarray:
         return np.zeros(np.shape(angles_rad), dtype=bool)
     offset = np.abs(wrap_angle(np.asarray(angles_rad)[..., None] - centers))
     return (offset <= half).any(axis=-1)
-
-
-def _expand(lo: np.ndarray, hi: np.ndarray, n_beams: int) -> tuple[np.ndarray, np.ndarray]:
-    """Beam indices ``lo..hi`` of every interval, wrapped to ``[0, n_beams)``; and the counts."""
-    count = np.maximum(hi - lo + 1, 0)
-    total = int(count.sum())
-    # Element e of interval i is lo_i + (e - first_i); np.repeat beats fancy indexing here.
-    first = np.cumsum(count) - count
-    beam = np.repeat(lo - first, count) + np.arange(total)
-    return count, beam % n_beams
 
 
 def _readonly(array: np.ndarray) -> np.ndarray:

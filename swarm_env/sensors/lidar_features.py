@@ -11,15 +11,17 @@ scanner's body frame. By construction:
   seed's 2 m tracking range);
 * two robots touching side by side merge into one wide cluster: both are missed.
 
-Everything is vectorised over (scans x beams): clusters are labelled with a cumulative sum of
-cluster starts and reduced with ``np.bincount``; no Python loop over beams or clusters.
+All K scans are segmented in one compiled pass (``_cluster_kernel``): each scan is walked once,
+from its first cluster start, so a cluster through the +/-pi seam needs no special case.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from swarm_env.sensors.geometry import wrap_angle
 
@@ -140,94 +142,146 @@ def extract_clusters(
         the circular-mean bearing and mean range, plus ``housing_radius_m`` along that bearing.
     """
     cfg = config if config is not None else LidarFeatureConfig()
-    ranges = np.atleast_2d(np.asarray(ranges_m, dtype=np.float64))
+    ranges = np.ascontiguousarray(np.atleast_2d(np.asarray(ranges_m, dtype=np.float64)))
     angles = np.asarray(angles_rad, dtype=np.float64).reshape(-1)
     n_scans, n_beams = ranges.shape
     if angles.shape[0] != n_beams:
         raise ValueError(
             f"extract_clusters: {angles.shape[0]} angles for ranges of shape {ranges.shape}"
         )
-    valid = ranges > 0.0
-    prev = _roll_beams(ranges, 1)
-    threshold = np.minimum(ranges, prev)
-    threshold *= cfg.jump_range_gain
-    threshold += cfg.jump_threshold_m
+    cos_a, sin_a = _directions(angles)
+    xy, scan, width, count = _cluster_kernel(
+        ranges,
+        cos_a,
+        sin_a,
+        cfg.jump_threshold_m,
+        cfg.jump_range_gain,
+        cfg.max_width_m,
+        int(cfg.min_beams),
+        cfg.housing_radius_m,
+        cfg.tracking_range_m,
+        bool(cfg.foreground_only),
+    )
+    return LidarDetections(xy_m=xy, scan_index=scan, width_m=width, n_beams=count, n_scans=n_scans)
+
+
+_DIRECTIONS: list = [None, None, None]  # angles, cos, sin of the last call (a copy)
+
+
+def _directions(angles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """cos and sin of the beam bearings; a scanner passes the same bearings every call."""
+    cached, cos_a, sin_a = _DIRECTIONS
+    if cached is None or not np.array_equal(angles, cached):
+        cos_a, sin_a = np.cos(angles), np.sin(angles)
+        _DIRECTIONS[:] = angles.copy(), cos_a, sin_a
+    return cos_a, sin_a
+
+
+@njit(cache=True)
+def _cluster_kernel(
+    ranges,
+    cos_a,
+    sin_a,
+    jump_threshold,
+    jump_gain,
+    max_width,
+    min_beams,
+    housing_radius,
+    tracking_range,
+    foreground_only,
+):
+    """Robot-like clusters of K scans: ``ranges`` (K, B) m (0 = no return), beam directions
+    ``cos_a``, ``sin_a`` (B,).
+
+    Returns ``xy`` (M, 2) m, ``scan`` (M,), ``width`` (M,) m and ``count`` (M,) beams, sorted
+    by scan then bearing. Each scan is walked once from its first cluster start (a valid beam
+    not linked to its predecessor), so a cluster through the +/-pi seam is one piece.
+    """
+    n_scans, n_beams = ranges.shape
     # link[k, b]: beam b continues the cluster of beam b-1 (b = 0 links to B-1: the seam).
-    prev -= ranges
-    link = np.abs(prev, out=prev) <= threshold
-    link &= valid
-    link &= _roll_beams(valid, 1)
-    start = valid & ~link
-    end = valid & ~_roll_beams(link, -1)
-    # A scan whose valid returns all link around the full circle has no start: call it one
-    # cluster from beam 0 to beam B-1 (as wide as the room, so it is rejected below).
-    ring = valid.any(axis=1) & ~start.any(axis=1)
-    start[ring, 0] = True
-    end[ring, n_beams - 1] = True
-
-    # Pair every cluster's first and last beam. Within a scan, starts and ends alternate in
-    # column order, except that a cluster through the seam ends (at a small column) before
-    # its start: unwrap such an end by +B, then sort the ends back into start order.
-    s_rows, s_cols = np.divmod(np.flatnonzero(start), n_beams)
-    e_rows, e_cols = np.divmod(np.flatnonzero(end), n_beams)
-    first_start = np.full(n_scans, n_beams, dtype=np.intp)
-    first_start[s_rows[::-1]] = s_cols[::-1]  # reversed: the smallest column is written last
-    e_cols += n_beams * (e_cols < first_start[e_rows])
-    # Row-major order of (row, unwrapped column): one integer sort.
-    e_cols = np.sort(e_rows * (2 * n_beams) + e_cols) % (2 * n_beams)
-    count = e_cols - s_cols + 1
-    e_wrapped = e_cols % n_beams
-    r_s, r_e = ranges[s_rows, s_cols], ranges[s_rows, e_wrapped]
-    cos_a, sin_a = np.cos(angles), np.sin(angles)
-    width = np.hypot(
-        r_e * cos_a[e_wrapped] - r_s * cos_a[s_cols], r_e * sin_a[e_wrapped] - r_s * sin_a[s_cols]
-    )
-    keep = (count >= cfg.min_beams) & (width <= cfg.max_width_m) & (count < n_beams)
-    if cfg.foreground_only:
-        # Neighbours just outside the cluster: farther, or no return, for a standalone object.
-        before = ranges[s_rows, s_cols - 1]  # column -1 wraps to B-1: the seam
-        after = ranges[s_rows, (e_wrapped + 1) % n_beams]
-        keep &= (before == 0.0) | (before > r_s)
-        keep &= (after == 0.0) | (after > r_e)
-
-    # Range and bearing means over the (few) surviving clusters only.
-    s_rows, s_cols, count, width = s_rows[keep], s_cols[keep], count[keep], width[keep]
-    offsets = np.cumsum(count) - count
-    beam = np.repeat(s_cols - offsets, count) + np.arange(int(count.sum()))
-    beam %= n_beams
-    r = ranges[np.repeat(s_rows, count), beam]
-    if count.size:
-        mean_r = np.add.reduceat(r, offsets) / count
-        bearing = np.arctan2(
-            np.add.reduceat(sin_a[beam], offsets), np.add.reduceat(cos_a[beam], offsets)
-        )
-    else:
-        mean_r = bearing = np.zeros(0)
-    centre_r = mean_r + cfg.housing_radius_m
-    near = centre_r <= cfg.tracking_range_m
-    xy = np.stack((centre_r * np.cos(bearing), centre_r * np.sin(bearing)), axis=1)[near]
-    scan, width, count = s_rows[near], width[near], count[near]
-    # Sort by scan then bearing (a seam cluster is found first but may belong last).
-    order = np.lexsort((bearing[near], scan))
-    return LidarDetections(
-        xy_m=xy[order],
-        scan_index=scan[order],
-        width_m=width[order],
-        n_beams=count[order],
-        n_scans=n_scans,
-    )
-
-
-def _roll_beams(a: np.ndarray, shift: int) -> np.ndarray:
-    """``np.roll(a, shift, axis=1)`` for shift +-1, as two slice copies (np.roll is ~5x slower)."""
-    out = np.empty_like(a)
-    if shift == 1:
-        out[:, 1:] = a[:, :-1]
-        out[:, 0] = a[:, -1]
-    else:
-        out[:, :-1] = a[:, 1:]
-        out[:, -1] = a[:, 0]
-    return out
+    # Branch-free (`&` on the comparisons): returns and gaps alternate unpredictably.
+    link = np.empty((n_scans, n_beams), dtype=np.bool_)
+    n_starts = 0  # every cluster starts at a valid beam not linked to its predecessor
+    for k in range(n_scans):
+        r = ranges[k]
+        prev = r[n_beams - 1]
+        for b in range(n_beams):
+            cur = r[b]
+            link[k, b] = (
+                (cur > 0.0)
+                & (prev > 0.0)
+                & (abs(prev - cur) <= min(cur, prev) * jump_gain + jump_threshold)
+            )
+            n_starts += (cur > 0.0) & ~link[k, b]
+            prev = cur
+    xy = np.empty((n_starts, 2))
+    scan = np.empty(n_starts, dtype=np.intp)
+    width = np.empty(n_starts)
+    count = np.empty(n_starts, dtype=np.intp)
+    bearing = np.empty(n_beams)
+    m = 0
+    for k in range(n_scans):
+        r = ranges[k]
+        first = -1
+        for b in range(n_beams):
+            if r[b] > 0.0 and not link[k, b]:
+                first = b
+                break
+        if first < 0:
+            # No return, or returns linked all around (one room-wide cluster): nothing kept.
+            continue
+        m_scan = m
+        b = first
+        done = 0
+        while done < n_beams:
+            if not r[b] > 0.0:
+                b = b + 1 if b + 1 < n_beams else 0
+                done += 1
+                continue
+            # A cluster starts at b (not linked to b-1); extend it while the next beam links.
+            s = e = b
+            n = 1
+            sum_r, sum_s, sum_c = r[b], sin_a[b], cos_a[b]
+            nxt = b + 1 if b + 1 < n_beams else 0
+            while done + n < n_beams and link[k, nxt]:
+                e = nxt
+                n += 1
+                sum_r += r[e]
+                sum_s += sin_a[e]
+                sum_c += cos_a[e]
+                nxt = e + 1 if e + 1 < n_beams else 0
+            done += n
+            b = nxt
+            r_s, r_e = r[s], r[e]
+            w = math.hypot(r_e * cos_a[e] - r_s * cos_a[s], r_e * sin_a[e] - r_s * sin_a[s])
+            if n < min_beams or not w <= max_width:
+                continue
+            if foreground_only:
+                # Neighbours just outside: farther, or no return, for a standalone object.
+                before, after = r[s - 1], r[nxt]
+                if not (before == 0.0 or before > r_s) or not (after == 0.0 or after > r_e):
+                    continue
+            centre_r = sum_r / n + housing_radius
+            if not centre_r <= tracking_range:
+                continue
+            phi = math.atan2(sum_s, sum_c)
+            # Insert in bearing order (stable; a seam cluster is walked last but may be first).
+            j = m - m_scan
+            while j > 0 and bearing[j - 1] > phi:
+                bearing[j] = bearing[j - 1]
+                xy[m_scan + j, 0] = xy[m_scan + j - 1, 0]
+                xy[m_scan + j, 1] = xy[m_scan + j - 1, 1]
+                width[m_scan + j] = width[m_scan + j - 1]
+                count[m_scan + j] = count[m_scan + j - 1]
+                j -= 1
+            bearing[j] = phi
+            xy[m_scan + j, 0] = centre_r * math.cos(phi)
+            xy[m_scan + j, 1] = centre_r * math.sin(phi)
+            width[m_scan + j] = w
+            count[m_scan + j] = n
+            scan[m] = k
+            m += 1
+    return xy[:m].copy(), scan[:m].copy(), width[:m].copy(), count[:m].copy()
 
 
 def extract_detections(

@@ -13,9 +13,11 @@ wheel travelling further, so ``dpsi = 2 pi r_w (P_R - P_L) / (1920 w_ax)``.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from swarm_env.validation import check_positive
 
@@ -63,13 +65,25 @@ def pulses_to_delta(
         ``[dx_m, dy_m, dpsi_rad]`` in the body frame at the start of the interval. The chord of a
         constant-curvature arc of length D turning by theta points at theta/2.
     """
-    pulses = np.asarray(pulses, dtype=np.float64)
+    pulses = np.ascontiguousarray(pulses, dtype=np.float64).reshape(-1, 2)
     metres_per_pulse = 2.0 * np.pi * wheel_radius_m / pulses_per_revolution
-    distance = metres_per_pulse * 0.5 * (pulses[:, 0] + pulses[:, 1])
-    dpsi = metres_per_pulse * (pulses[:, 1] - pulses[:, 0]) / axle_width_m
-    # Chord length of the arc: D * sinc(theta/2); sinc -> 1 for straight motion.
-    chord = distance * np.sinc(dpsi / (2.0 * np.pi))
-    return np.stack([chord * np.cos(dpsi / 2.0), chord * np.sin(dpsi / 2.0), dpsi], axis=1)
+    return _pulses_to_delta(pulses, metres_per_pulse, float(axle_width_m))
+
+
+@njit(cache=True)
+def _pulses_to_delta(pulses, metres_per_pulse, axle_width_m):
+    """:func:`pulses_to_delta` for ``pulses`` (N, 2) float: (N, 3) ``[dx_m, dy_m, dpsi_rad]``."""
+    out = np.empty((pulses.shape[0], 3))
+    for i in range(pulses.shape[0]):
+        distance = metres_per_pulse * 0.5 * (pulses[i, 0] + pulses[i, 1])
+        dpsi = metres_per_pulse * (pulses[i, 1] - pulses[i, 0]) / axle_width_m
+        # Chord length of the arc: D * sinc(theta/2); sinc -> 1 for straight motion.
+        half = 0.5 * dpsi
+        chord = distance * (math.sin(half) / half if half != 0.0 else 1.0)
+        out[i, 0] = chord * math.cos(half)
+        out[i, 1] = chord * math.sin(half)
+        out[i, 2] = dpsi
+    return out
 
 
 class WheelEncoders:
@@ -147,6 +161,8 @@ class WheelEncoders:
         )
         dt = max(time_s - self._last_stamp_s, 1e-9)
         self._last_stamp_s = time_s
-        distance = self.wheel_radius_m * self._rad_per_pulse * 0.5 * pulses.sum(axis=1)
-        velocity = np.stack([distance / dt, delta[:, 2] / dt], axis=1)
+        velocity = np.empty((pulses.shape[0], 2))
+        velocity[:, 0] = self.wheel_radius_m * self._rad_per_pulse * 0.5 * pulses.sum(axis=1)
+        velocity[:, 0] /= dt
+        velocity[:, 1] = delta[:, 2] / dt
         return delta, velocity

@@ -82,9 +82,13 @@ def relative_positions(observers: np.ndarray, targets_xy: np.ndarray) -> np.ndar
     ndarray, shape (N, M, 2)
         ``out[i, j] = R(yaw_i)^T (p_j - p_i)``.
     """
-    d = targets_xy[None, :, :2] - observers[:, None, :2]
+    dx = targets_xy[None, :, 0] - observers[:, None, 0]
+    dy = targets_xy[None, :, 1] - observers[:, None, 1]
     c, s = np.cos(observers[:, 2])[:, None], np.sin(observers[:, 2])[:, None]
-    return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], axis=-1)
+    out = np.empty(dx.shape + (2,))
+    out[..., 0] = c * dx + s * dy
+    out[..., 1] = c * dy - s * dx
+    return out
 
 
 @dataclass(frozen=True, slots=True)

@@ -20,6 +20,7 @@ import time
 import numpy as np
 import pymunk
 import pymunk.batch
+from numba import njit
 
 from swarm_env.config import SwarmConfig
 from swarm_env.records import CameraRecord, LidarRecord, OdometryRecord, RobotMeasurements
@@ -82,6 +83,7 @@ class SimWorld:
         self._camera_visible = np.zeros((self.n_agents, n_total), dtype=bool)
         self.last_lidar: dict[int, LidarRecord] = {}
         self.last_camera: dict[int, CameraRecord] = {}
+        self._scene_cache = {}  # Scene constants of this layout (see _scene_constants)
         self.stats = self._new_stats()
         # Wall-clock seconds spent per part and lidar scans run (for the benchmark).
         self.timing = {"physics_s": 0.0, "lidar_s": 0.0, "camera_s": 0.0, "lidar_scans": 0}
@@ -119,6 +121,7 @@ class SimWorld:
         self.last_camera.clear()
         self.stats = self._new_stats()
         self._static_scene = self._static_geometry()
+        self._scene_cache = {}  # Scene constants of this layout (see _scene_constants)
         empty = {rid: RobotMeasurements() for rid in self.robot_ids}
         return WorldStep(time_s=0.0, measurements=empty, truth=self.ground_truth())
 
@@ -211,7 +214,6 @@ class SimWorld:
         stamps = np.empty(n_sub)
         odometry: list[list[OdometryRecord]] = [[] for _ in range(self.n_agents)]
         start_s = self.time_s
-        camera_due: list[np.ndarray] = []
         t0 = time.perf_counter()
         # The motors slew towards the (constant) command at the acceleration limits, so the
         # speed after substep s is in closed form: all substeps at once, encoders included.
@@ -221,14 +223,9 @@ class SimWorld:
         wheel_angles = self.encoders.advance(speeds, dt, self._rng)  # (n_sub, R, 2)
         state = self._body_state()
         for sub in range(n_sub):
-            v, omega = speeds[sub, :, 0], speeds[sub, :, 1]
-            # Chord direction of this substep's arc: the heading half a substep ahead.
-            heading = state[self._robot_rows, 2] + 0.5 * omega * dt
-            velocities = state[:, 3:6].copy()
-            velocities[self._drive_rows, 0] = v * np.cos(heading)
-            velocities[self._drive_rows, 1] = v * np.sin(heading)
-            velocities[self._drive_rows, 2] = omega
-            self._set_body_velocities(velocities)
+            self._set_body_velocities(
+                _drive_velocities(state, self._robot_rows, self._drive_rows, speeds[sub], dt)
+            )
             self.space.step(dt)
             self.time_s += dt
             state = self._body_state()
@@ -239,10 +236,16 @@ class SimWorld:
                 delta, velocity = self.encoders.sample(t, wheel_angles[sub])
                 delta.setflags(write=False)  # records hold row views (see records.py)
                 velocity.setflags(write=False)
-                for i in range(self.n_agents):
-                    odometry[i].append(OdometryRecord(t, delta[i], velocity[i]))
+                make = OdometryRecord._make
+                # Iterating the rows yields read-only row views, faster than indexing them.
+                # The agents' rows come first (extras have no records): zip stops there.
+                for rows, d, v in zip(odometry, delta, velocity, strict=False):
+                    rows.append(make(t, d, v))
                 self._next_odometry_s += 1.0 / cfg.odometry.rate_hz
-            camera_due.append(self._due(self._next_camera_s, t, cfg.camera.rate_hz))
+        # Camera frames fall due on substep boundaries, each robot with its own phase.
+        cam_robots, cam_substep = _due_readings(
+            self._next_camera_s, stamps, 1.0 / cfg.camera.rate_hz, _EPS_S
+        )
         self.timing["physics_s"] += time.perf_counter() - t0
 
         # A scan is due when a head completes a revolution (its own phase and spin rate, which
@@ -251,10 +254,11 @@ class SimWorld:
         scan_substep = np.minimum(np.searchsorted(stamps, scan_stamps - _EPS_S), n_sub - 1)
         scene = self.scene(poses)  # one time-stacked scene serves every reading of the period
         lidar = self._read_lidars(scene, poses, scanners, scan_substep, scan_stamps)
-        camera = self._read_cameras(scene, poses, stamps, camera_due)
+        camera = self._read_cameras(scene, poses, stamps, cam_robots, cam_substep)
+        make = RobotMeasurements._make
         measurements = {
-            rid: RobotMeasurements(odometry[i], lidar[i], camera[i])
-            for i, rid in enumerate(self.robot_ids)
+            rid: make(o, li, c)
+            for rid, o, li, c in zip(self.robot_ids, odometry, lidar, camera, strict=True)
         }
         truth = self.ground_truth(poses[-1])
         return WorldStep(time_s=self.time_s, measurements=measurements, truth=truth)
@@ -282,20 +286,6 @@ class SimWorld:
         buffer.set_float_buf(np.ascontiguousarray(velocities, dtype=np.float64).ravel())
         pymunk.batch.set_space_bodies(self.space, self._VELOCITY_FIELDS, buffer)
 
-    @staticmethod
-    def _due(next_s: np.ndarray, t: float, rate_hz: float) -> np.ndarray:
-        """Robots whose next reading is due at ``t``; advances their schedule in place."""
-        due = np.flatnonzero(next_s <= t + _EPS_S)
-        next_s[due] += 1.0 / rate_hz
-        return due
-
-    @staticmethod
-    def _flatten_due(due: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-        """Per-substep robot lists -> (robots (K,), substep index (K,)), in time order."""
-        robots = np.concatenate(due) if due else np.zeros(0, dtype=np.intp)
-        when = np.repeat(np.arange(len(due)), [d.size for d in due])
-        return robots.astype(np.intp), when
-
     def _read_lidars(self, scene, poses, robots, when, scan_stamps) -> list[list[LidarRecord]]:
         """All scans of the period in one call: ``robots``, their substeps ``when`` and the
         revolution ends ``scan_stamps``, each (K,) in time order."""
@@ -307,23 +297,33 @@ class SimWorld:
         detections = extract_detections(
             batch.angles_rad, batch.ranges_m, self.config.lidar_features
         )
-        null = (batch.ranges_m == 0.0) & (batch.intensities == 0.0) & ~self.lidar.blind_mask
+        # Null bearings of every scan in one pass, then sliced per scan.
+        null = batch.ranges_m == 0.0
+        null &= batch.intensities == 0.0
+        null &= ~self.lidar.blind_mask
+        null_scan, null_beam = np.nonzero(null)
+        null_bearings = batch.angles_rad[null_beam]
+        null_bearings.setflags(write=False)
+        bounds = np.searchsorted(null_scan, np.arange(robots.size + 1)).tolist()
         # Records keep read-only views: freezing the batch once makes every row view read-only.
         batch.ranges_m.setflags(write=False)
         batch.intensities.setflags(write=False)
         n_total = self.n_agents + self.n_extra
-        counts = batch.owner_beam_counts(n_total, after_interference=True)
-        for k, i in enumerate(robots.tolist()):
-            record = LidarRecord(
-                stamp_s=float(scan_stamps[k]),
-                angles_rad=batch.angles_rad,
-                ranges_m=batch.ranges_m[k],
-                intensities=batch.intensities[k],
-                detections=detections[k],
-                null_bearings_rad=batch.angles_rad[null[k]],
+        # Later scans of a robot overwrite earlier ones: the mask is the last scan's.
+        self._lidar_visible[robots] = batch.owner_beam_counts(n_total) > 0
+        make, angles = LidarRecord._make, batch.angles_rad
+        stamps = scan_stamps.tolist()
+        rows = zip(robots.tolist(), stamps, batch.ranges_m, batch.intensities, strict=True)
+        for k, (i, stamp, ranges, intensities) in enumerate(rows):
+            record = make(
+                stamp,
+                angles,
+                ranges,
+                intensities,
+                detections[k],
+                null_bearings[bounds[k] : bounds[k + 1]],
             )
             out[i].append(record)
-            self._lidar_visible[i] = counts[k] > 0
             self.last_lidar[i] = record
         self.timing["lidar_s"] += time.perf_counter() - t0
         self.timing["lidar_scans"] += int(robots.size)
@@ -333,15 +333,17 @@ class SimWorld:
                 self.stats["lidar"].add_points(detections[k], _others(rel[sub], i))
         return out
 
-    def _read_cameras(self, scene, poses, stamps, due) -> list[list[CameraRecord]]:
+    def _read_cameras(self, scene, poses, stamps, robots, when) -> list[list[CameraRecord]]:
+        """All frames of the period in one call: ``robots`` and their substeps ``when`` (K,)."""
         out: list[list[CameraRecord]] = [[] for _ in range(self.n_agents)]
-        robots, when = self._flatten_due(due)
         if robots.size == 0:
             return out
         t0 = time.perf_counter()
         batch = self.camera.observe(scene, robots, self._rng, time_index=when)
-        for k, (i, sub) in enumerate(zip(robots.tolist(), when.tolist(), strict=True)):
-            record = CameraRecord(float(stamps[sub]), batch.bearings[k])
+        make = CameraRecord._make
+        frame_stamps = stamps[when].tolist()
+        for i, stamp, bearings in zip(robots.tolist(), frame_stamps, batch.bearings, strict=True):
+            record = make(stamp, bearings)
             out[i].append(record)
             self.last_camera[i] = record
         # Later frames of a robot overwrite earlier ones: the mask is the last frame's.
@@ -398,42 +400,55 @@ class SimWorld:
             Body poses at one instant (default: now) or at T instants (a time-stacked scene in
             which each robot's circles exist once per instant).
         """
-        robot = self.config.robot
         poses = self.poses() if poses is None else poses
         stacked = poses.ndim == 3
         p = poses if stacked else poses[None]
-        n_time, n = p.shape[0], p.shape[1]
-        static = self._static_scene
-        n_static = len(static["circle_xy"])
-        ids = np.tile(np.arange(n), n_time)
         xy = p[:, :, :2].reshape(-1, 2)
-        m = n * n_time
+        fixed = self._scene_constants(p.shape[0], p.shape[1], stacked)
         return Scene(
             robot_xy=p[:, : self.n_agents, :2] if stacked else poses[: self.n_agents, :2],
             robot_yaw=p[:, : self.n_agents, 2] if stacked else poses[: self.n_agents, 2],
-            circle_xy=np.concatenate([static["circle_xy"], xy, xy]),
-            circle_radius_m=np.concatenate(
+            circle_xy=np.concatenate([self._static_scene["circle_xy"], xy, xy]),
+            **fixed,
+        )
+
+    def _scene_constants(self, n_time: int, n: int, stacked: bool) -> dict[str, np.ndarray]:
+        """Every Scene field but the poses, for ``n`` bodies at ``n_time`` instants: the same
+        at every step, so built once per layout and shape (read-only: scenes share them)."""
+        key = (n_time, n, stacked)
+        cache = self._scene_cache
+        if key in cache:
+            return cache[key]
+        robot = self.config.robot
+        static = self._static_scene
+        n_static = len(static["circle_xy"])
+        ids = np.tile(np.arange(n), n_time)
+        m = n * n_time
+        fixed = {
+            "circle_radius_m": np.concatenate(
                 [
                     static["circle_radius_m"],
                     np.full(m, robot.housing_radius_m),
                     np.full(m, robot.camera_holder_radius_m),
                 ]
             ),
-            circle_owner=np.concatenate([np.full(n_static, -1), ids, ids]),
-            circle_lidar=np.concatenate(
+            "circle_owner": np.concatenate([np.full(n_static, -1), ids, ids]),
+            "circle_lidar": np.concatenate(
                 [static["circle_lidar"], np.ones(m, bool), np.zeros(m, bool)]
             ),
-            circle_camera_occluder=np.concatenate(
+            "circle_camera_occluder": np.concatenate(
                 [static["circle_camera_occluder"], np.zeros(m, bool), np.ones(m, bool)]
             ),
-            circle_red=np.concatenate([static["circle_red"], np.zeros(m, bool), np.ones(m, bool)]),
-            circle_intensity=np.concatenate(
+            "circle_red": np.concatenate(
+                [static["circle_red"], np.zeros(m, bool), np.ones(m, bool)]
+            ),
+            "circle_intensity": np.concatenate(
                 [static["circle_intensity"], np.full(2 * m, _INTENSITY_HOUSING)]
             ),
-            segment_a=static["segment_a"],
-            segment_b=static["segment_b"],
-            segment_intensity=static["segment_intensity"],
-            circle_time=(
+            "segment_a": static["segment_a"],
+            "segment_b": static["segment_b"],
+            "segment_intensity": static["segment_intensity"],
+            "circle_time": (
                 np.concatenate(
                     [
                         np.full(n_static, -1),
@@ -444,7 +459,12 @@ class SimWorld:
                 if stacked
                 else None
             ),
-        )
+        }
+        for value in fixed.values():
+            if value is not None:
+                value.setflags(write=False)
+        cache[key] = fixed
+        return fixed
 
     def ground_truth(self, poses: np.ndarray | None = None) -> GroundTruth:
         """True poses, relative positions, and per-sensor range and visibility masks.
@@ -462,6 +482,45 @@ class SimWorld:
             },
             extra_xy=poses[self.n_agents :, :2].copy(),
         )
+
+
+@njit(cache=True)
+def _drive_velocities(state, robot_rows, drive_rows, speeds, dt):
+    """Body velocities ``[vx, vy, omega]`` (B, 3) for one substep: every body keeps its own,
+    except the drive bodies, which move at the commanded ``speeds`` (R, 2) ``[v, omega]``
+    along the chord of the substep's arc (the heading half a substep ahead). ``state`` is
+    ``_body_state()`` (B, 6); ``dt`` in seconds."""
+    out = state[:, 3:6].copy()
+    for r in range(robot_rows.shape[0]):
+        v, omega = speeds[r, 0], speeds[r, 1]
+        heading = state[robot_rows[r], 2] + 0.5 * omega * dt
+        d = drive_rows[r]
+        out[d, 0] = v * np.cos(heading)
+        out[d, 1] = v * np.sin(heading)
+        out[d, 2] = omega
+    return out
+
+
+@njit(cache=True)
+def _due_readings(next_s, stamps, period_s, eps_s):
+    """Readings due at the substep ends ``stamps`` (S,), s: robot i reads when
+    ``next_s[i] <= t + eps_s``, which then advances by ``period_s`` (in place).
+
+    Returns ``robots`` (K,) and their substep indices (K,), in time order, robots ascending
+    within a substep.
+    """
+    n = next_s.shape[0]
+    robots = np.empty(n * stamps.shape[0], dtype=np.intp)
+    substep = np.empty(n * stamps.shape[0], dtype=np.intp)
+    k = 0
+    for s in range(stamps.shape[0]):
+        for i in range(n):
+            if next_s[i] <= stamps[s] + eps_s:
+                next_s[i] += period_s
+                robots[k] = i
+                substep[k] = s
+                k += 1
+    return robots[:k].copy(), substep[:k].copy()
 
 
 def _others(rel: np.ndarray, i: int) -> np.ndarray:
