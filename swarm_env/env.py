@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import copy
+import math
 from typing import Any
 
 import numpy as np
@@ -313,23 +314,29 @@ class SwarmEnv(ParallelEnv):
     def _observations(self, step: WorldStep) -> dict[str, np.ndarray]:
         cfg = self.config
         features = self.task.features(len(self.possible_agents))
+        rows = [self._index[a] for a in self.agents]
         if cfg.observation == "phd":
-            tables = obs_lib.phd_tables(*self._bank.padded_tables(), cfg.top_k)
+            tables = obs_lib.phd_tables(*self._bank.padded_tables(), cfg.top_k)[rows]
         elif cfg.observation == "measurements":
             tables = obs_lib.measurement_tables(
                 self._last_detections, self._last_bearings, cfg.top_k
+            )[rows]
+        else:
+            tables = np.array(
+                [
+                    obs_lib.truth_table(self._neighbours_in_range(step.truth, i), cfg.top_k)
+                    for i in rows
+                ]
             )
-        out = {}
-        for agent in self.agents:
-            i = self._index[agent]
-            if cfg.observation == "truth":
-                table = obs_lib.truth_table(self._neighbours_in_range(step.truth, i), cfg.top_k)
-            else:
-                table = tables[i]
-            out[agent] = obs_lib.assemble(
-                self.observation_spaces[agent], table, self._velocity[i], features[i]
-            )
-        return out
+        # One (agents, D) array for everyone (identical spaces); each agent gets its row.
+        space = self.observation_spaces[self.possible_agents[0]]
+        obs = obs_lib.assemble_rows(
+            space,
+            tables.reshape(len(rows), -1),
+            self._velocity[rows],
+            np.asarray(features)[rows].reshape(len(rows), -1),
+        )
+        return dict(zip(self.agents, obs, strict=True))
 
     def _neighbours_in_range(self, truth: GroundTruth | None, i: int) -> np.ndarray:
         if truth is None:
@@ -340,14 +347,13 @@ class SwarmEnv(ParallelEnv):
     def _infos(self, step: WorldStep) -> dict[str, dict[str, Any]]:
         infos = {}
         truth = step.truth
+        measurements, stale, empty = step.measurements, step.stale, RobotMeasurements()
         for agent in self.agents:
             i = self._index[agent]
             info: dict[str, Any] = {
                 "time_s": step.time_s,
-                "measurements": measurements_as_dict(
-                    step.measurements.get(agent, RobotMeasurements())
-                ),
-                "stale": tuple(step.stale.get(agent, ())),
+                "measurements": measurements_as_dict(measurements.get(agent, empty)),
+                "stale": tuple(stale.get(agent, ())),
             }
             if truth is not None:
                 # Views, not copies: every step's GroundTruth is new and never written to.
@@ -382,23 +388,85 @@ def measurements_as_dict(m: RobotMeasurements) -> dict[str, list[dict[str, Any]]
     }
 
 
-def localizer_calls(records: RobotMeasurements, stale=()) -> list[tuple]:
+def localizer_calls(
+    records: RobotMeasurements, stale=(), compensate_motion: bool = True
+) -> list[tuple]:
     """One robot's records as time-ordered filter calls, skipping ``stale`` sensors.
 
     ``("predict", delta)`` for odometry, ``("lidar", detections, null_bearings)`` and
     ``("camera", bearings)``, as :meth:`localization.PHDBank.apply` takes them.
+
+    The filter's frame is the robot's pose at its **last odometry sample**, but a scan or a
+    frame is taken up to one odometry period (0.1 s) later, from wherever the robot has moved
+    and turned since (at 1.5 rad/s, 0.15 rad: 0.3 m at 2 m). With ``compensate_motion`` (the
+    default) each lidar / camera record that has a later odometry sample in ``records`` is
+    re-expressed in the frame of the last sample, with the robot's own motion up to its stamp:
+    the next sample's motion ``delta`` minus its constant-velocity remainder ``velocity * tau``
+    over the ``tau`` seconds from the stamp to that sample (see :func:`_motion_since_sample`).
+    Detections are moved exactly; bearings are rotated (the parallax of the <= 3 cm
+    translation is not, since a bearing has no range). Only the robot's own odometry is used,
+    at the cost of one odometry period of latency on a real robot.
     """
+    ordered = records.in_time_order()
+    use_odometry = "odometry" not in stale
+    # The next odometry record after each position (None after the last one).
+    next_odometry: list[OdometryRecord | None] = [None] * len(ordered)
+    upcoming = None
+    for k in range(len(ordered) - 1, -1, -1):
+        next_odometry[k] = upcoming
+        if isinstance(ordered[k], OdometryRecord):
+            upcoming = ordered[k]
     calls: list[tuple] = []
-    for record in records.in_time_order():
+    for record, odo in zip(ordered, next_odometry, strict=True):
         if isinstance(record, OdometryRecord):
-            if "odometry" not in stale:
+            if use_odometry:
                 calls.append(("predict", record.delta))
-        elif isinstance(record, LidarRecord):
+            continue
+        pose = None
+        if compensate_motion and use_odometry and odo is not None and odo.stamp_s > record.stamp_s:
+            pose = _motion_since_sample(odo, odo.stamp_s - record.stamp_s)
+        if isinstance(record, LidarRecord):
             if "lidar" not in stale:
-                calls.append(("lidar", record.detections, record.null_bearings_rad))
+                points, nulls = record.detections, record.null_bearings_rad
+                if pose is not None:
+                    c, s = math.cos(pose[2]), math.sin(pose[2])
+                    rot = np.array([[c, s], [-s, c]])  # row vectors: p @ rot = (R p^T)^T
+                    points = points @ rot + pose[:2]
+                    nulls = _wrap(nulls + pose[2])
+                calls.append(("lidar", points, nulls))
         elif "camera" not in stale:
-            calls.append(("camera", record.bearings_rad))
+            bearings = record.bearings_rad
+            if pose is not None:
+                bearings = _wrap(bearings + pose[2])
+            calls.append(("camera", bearings))
     return calls
+
+
+def _motion_since_sample(odo: OdometryRecord, tau_s: float) -> np.ndarray:
+    """Pose ``(x, y, psi)`` of the robot ``tau_s`` seconds before odometry sample ``odo``,
+    in the frame of the previous sample.
+
+    ``odo.delta`` is the motion from the previous sample to ``odo``; the last ``tau_s`` of it
+    is taken at the interval's mean speed ``odo.velocity = (v, omega)``: turn
+    ``psi_r = omega tau``, chord ``t_r = v tau (cos(psi_r / 2), sin(psi_r / 2))`` in the frame
+    at the measurement. Removing it: ``psi = dpsi - psi_r``, ``t = d - R(psi) t_r``.
+    """
+    dx, dy, dpsi = (float(v) for v in odo.delta)
+    v, omega = (float(u) for u in odo.velocity)
+    # Never remove more than the whole interval's motion when tau exceeds it (irregular rates).
+    psi_r = omega * tau_s
+    if abs(psi_r) > abs(dpsi):
+        psi_r = dpsi
+    chord = v * tau_s
+    psi = dpsi - psi_r
+    tx, ty = chord * math.cos(0.5 * psi_r), chord * math.sin(0.5 * psi_r)
+    c, s = math.cos(psi), math.sin(psi)
+    return np.array([dx - (c * tx - s * ty), dy - (s * tx + c * ty), psi])
+
+
+def _wrap(angles: np.ndarray) -> np.ndarray:
+    """Angles wrapped to ``[-pi, pi)``."""
+    return (angles + np.pi) % (2.0 * np.pi) - np.pi
 
 
 def _check_action(agent: str, action: Any) -> None:

@@ -75,11 +75,12 @@ def run_both(config: PHDConfig, seed: int, steps: int = 60):
 
 
 CONFIGS = {
-    "lc-fixed": PHDConfig(),
+    "lc-fixed": PHDConfig(birth="fixed"),
     "lc-measurement": PHDConfig(birth="measurement"),
-    "lo-fixed": PHDConfig(mode="lidar-only"),
+    "lo-fixed": PHDConfig(mode="lidar-only", birth="fixed"),
     "lo-measurement": PHDConfig(mode="lidar-only", birth="measurement"),
-    "lc-fixed-cap": PHDConfig(max_components=6),
+    "lc-fixed-cap": PHDConfig(birth="fixed", max_components=6),
+    "seed-fixed": PHDConfig.seed(),
     "lc-measurement-cap": PHDConfig(birth="measurement", max_components=5),
     "constant-models": PHDConfig(
         lidar_pd_model="constant", survival_model="constant", occlusion_min_separation_m=0.0

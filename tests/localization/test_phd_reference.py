@@ -196,7 +196,7 @@ def test_lidar_pd_matches_reference(seed):
 
 
 def test_blind_sector_pd_vanishes_at_centre_and_recovers():
-    cfg = PHDConfig(occlusion_min_separation_m=0.0)
+    cfg = PHDConfig.seed(occlusion_min_separation_m=0.0)
     model = DetectionModel(cfg)
     angles = np.radians([45.0, 47.5, 50.0, 60.0, 90.0])
     means = 1.0 * np.stack((np.cos(angles), np.sin(angles)), axis=1)
@@ -322,7 +322,9 @@ def test_merge_preserves_total_weight_exactly_and_prune_loses_exactly_the_pruned
 def test_filter_step_matches_reference_pipeline(seed):
     """predict -> lidar -> camera through the public API vs the reference step by step."""
     rng = np.random.default_rng(400 + seed)
-    cfg = PHDConfig(prune_threshold=1e-5, merge_threshold=1e-300, max_components=10_000)
+    cfg = PHDConfig(
+        birth="fixed", prune_threshold=1e-5, merge_threshold=1e-300, max_components=10_000
+    )
     w, m, c = random_mixture(rng, int(rng.integers(1, 8)), spread=1.5)
     f = RobotCentricPHD(cfg)
     f.set_mixture(GaussianMixture(w, m, c))
