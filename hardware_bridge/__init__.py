@@ -72,6 +72,8 @@ def real_env(
         Watchdog, staleness, limits, geofence, queues.
     **overrides
         SwarmConfig fields (``control_period_s=0.1``, ``phd={"mode": "lidar-only"}``...).
+        The filter defaults to the seed's own model, ``PHDConfig()`` (the seed's hardware),
+        not the simulator presets' :data:`swarm_env.config.SIMULATOR_PHD`.
 
     The returned env refuses pickling, copying and vectorisation (it drives real robots).
     """
@@ -79,12 +81,16 @@ def real_env(
     from hardware_bridge.config import make_bridge_config
     from hardware_bridge.transport import check_host
     from hardware_bridge.world import RealWorld
+    from localization.config import PHDConfig, config_with_overrides
     from swarm_env.config import make_config
     from swarm_env.env import SwarmEnv
     from swarm_env.tasks import make_task
 
     check_host(host, allow_remote)
     bridge_cfg = make_bridge_config(bridge)
+    phd = overrides.get("phd")
+    if phd is None or isinstance(phd, dict):  # the seed's model, with any dict overrides
+        overrides["phd"] = config_with_overrides(None, PHDConfig, phd or {})
     if robots is None:
         n = make_config(preset, **overrides).n_robots
         robots = [f"ugv_{i}" for i in range(n)]

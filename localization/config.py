@@ -1,10 +1,10 @@
 """Configuration of the robot-centric GM-PHD filter.
 
 One frozen dataclass, :class:`PHDConfig`, holds every model parameter. Defaults are the seed
-thesis' values (Perera 2021, chapter 3) wherever the seed gives one, except two re-measured on
-the simulator (the birth model and the lidar range factor; :meth:`PHDConfig.seed` restores
-the seed's); the places where we had to choose (process noise, clutter, pruning, merging,
-guards) say so in the field description.
+thesis' values (Perera 2021, chapter 3, the seed's hardware) wherever the seed gives one; the
+places where we had to choose (process noise, clutter, pruning, merging, guards) say so in the
+field description. The simulator's presets use :data:`swarm_env.config.SIMULATOR_PHD`, the
+same model with the birth and the lidar range factor matched to the simulated sensors.
 Units are in the field names (``_m``, ``_deg``, ``_per_m``, ``_per_m2``, ``_per_rad``).
 
 References
@@ -45,7 +45,7 @@ SURVIVAL_MODELS = ("seed", "constant")
 
 @dataclass(frozen=True, slots=True)
 class PHDConfig:
-    """Parameters of :class:`~localization.RobotCentricPHD` (``PHDConfig.seed()``: the seed's).
+    """Parameters of :class:`~localization.RobotCentricPHD` (defaults: the seed's).
 
     Attributes
     ----------
@@ -64,12 +64,12 @@ class PHDConfig:
     survival_probability : float
         Constant ``P_s`` when ``survival_model == "constant"``.
     birth : str
-        ``"measurement"`` (default: adaptive births, see below) or ``"fixed"`` (seed eq. 11).
+        ``"fixed"`` (default, seed eq. 11) or ``"measurement"`` (adaptive births, see below).
         Measured in ``seed-sim`` (wander, 20 robots): teammates enter an observer's 2 m disc
         0.085 times per lidar scan, and the seed's fixed birth (weight 0.001 spread over
         ``N(0, 4 I)``) gives a first detection a weight of ~5e-4, so a newcomer needs two or
         three more scans (0.3-0.4 s) to pass 0.1; adaptive births confirm it at the next
-        time update.
+        time update (the simulator presets use them).
         The fixed birth component joins the prior of every *lidar* update (the only sensor
         that can initialise a position) and only its detected copies are kept, as in Stone
         Soup; the seed adds it at every time update, where its lingering missed-detection
@@ -83,7 +83,8 @@ class PHDConfig:
         Seed: 2 m (``cov = diag(4, 4)``).
     measurement_birth_weight : float
         Weight of each adaptive birth component (``birth == "measurement"``): the expected
-        number of new teammates behind one unexplained detection. Default 0.25, measured in
+        number of new teammates behind one unexplained detection (not in the seed). Default
+        0.25, measured in
         ``seed-sim``: of the detections that spawn a birth, 22 % lie at a teammate with lidar +
         camera (the camera removes the decoy-post tracks, whose detections then spawn births
         again at every scan) and 63 % with the lidar only.
@@ -101,17 +102,17 @@ class PHDConfig:
         Range factor ``1 / (offset + exp(slope * (||m|| - midpoint)))``. Seed eq. 19 (1.02, 8,
         1.5: ``P_d`` = 0.5 at 1.5 m, 0.05 at 1.9 m) describes the seed's hardware. The
         simulator's lidar does not fade with range but the feature extractor drops every
-        detection beyond ``LidarFeatureConfig.tracking_range_m`` = 2 m, so the defaults are
-        1.0, 20, 2.0: ~1 up to 1.8 m, 0.5 at 2 m, 0.12 at 2.1 m (the slope spreads the edge
-        over about two lidar-noise standard deviations of a component mean). Measured in
-        ``seed-sim`` (60 s, all neighbour-scans): the simulator's detection rate per 0.25 m
-        bin from 0.25 to 2 m is 0.98, 0.92, 0.88, 0.83, 0.81, 0.78, 0.71 (0.001 beyond), and
-        the product of the other factors (blind sectors x occlusion by the true neighbours x
-        interference) is 0.84, 0.83, 0.82, 0.79, 0.77, 0.76, 0.73: the range factor of the
-        simulator is 1.0 up to 2 m, then 0. With the seed's factor the filter inflates the
-        weight of every teammate at 1.5-2 m towards ``1/P_d`` (lidar-only weight sum within
-        2 m: 2.3x the truth; 1.06x with the matched factor). ``PHDConfig.seed()`` gives the
-        seed's values, for the hardware.
+        detection beyond ``LidarFeatureConfig.tracking_range_m`` = 2 m, so the simulator
+        presets use 1.0, 20, 2.0: ~1 up to 1.8 m, 0.5 at 2 m, 0.12 at 2.1 m (the slope
+        spreads the edge over about two lidar-noise standard deviations of a component
+        mean). Measured in ``seed-sim`` (60 s, all neighbour-scans): the simulator's
+        detection rate per 0.25 m bin from 0.25 to 2 m is 0.98, 0.92, 0.88, 0.83, 0.81,
+        0.78, 0.71 (0.001 beyond), and the product of the other factors (blind sectors x
+        occlusion by the true neighbours x interference) is 0.84, 0.83, 0.82, 0.79, 0.77,
+        0.76, 0.73: the range factor of the simulator is 1.0 up to 2 m, then 0. With the
+        seed's factor the filter inflates the weight of every teammate at 1.5-2 m towards
+        ``1/P_d`` (lidar-only weight sum within 2 m: 2.3x the truth; 1.06x with the matched
+        factor).
     lidar_detection_probability : float
         Constant ``P_d`` used by ``lidar_pd_model == "constant"``.
     lidar_range_m : float
@@ -163,7 +164,7 @@ class PHDConfig:
     survival_slope_per_m: float = 4.0
     survival_range_m: float = 4.0
     survival_probability: float = 0.99
-    birth: str = "measurement"
+    birth: str = "fixed"
     birth_weight: float = 0.001
     birth_mean_m: tuple[float, float] = (0.0, 0.0)
     birth_std_m: float = 2.0
@@ -172,9 +173,9 @@ class PHDConfig:
     measurement_birth_max_explained: float = 0.5
     lidar_noise_std_m: float = 0.05
     lidar_pd_model: str = "seed"
-    lidar_pd_offset: float = 1.0
-    lidar_pd_slope_per_m: float = 20.0
-    lidar_pd_midpoint_m: float = 2.0
+    lidar_pd_offset: float = 1.02
+    lidar_pd_slope_per_m: float = 8.0
+    lidar_pd_midpoint_m: float = 1.5
     lidar_detection_probability: float = 0.9
     lidar_range_m: float = 2.0
     blind_sector_centers_deg: tuple[float, ...] = (45.0, 135.0, -135.0, -45.0)
@@ -275,20 +276,6 @@ class PHDConfig:
                 raise ValueError(
                     f"PHDConfig.blind_sector_widths_deg must be in (0, 360), got {width!r}"
                 )
-
-    @classmethod
-    def seed(cls, **overrides: object) -> PHDConfig:
-        """The seed thesis' own choices where the defaults were re-measured on the simulator:
-        the fixed birth (eq. 11) and the hardware lidar's range factor (eq. 19: 1.02, 8,
-        1.5 m). Keyword arguments override any field."""
-        values: dict[str, object] = {
-            "birth": "fixed",
-            "lidar_pd_offset": 1.02,
-            "lidar_pd_slope_per_m": 8.0,
-            "lidar_pd_midpoint_m": 1.5,
-        }
-        values.update(overrides)
-        return cls(**values)  # type: ignore[arg-type]
 
     @property
     def lidar_noise_var_m2(self) -> float:

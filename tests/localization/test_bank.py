@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from localization import GaussianMixture, PHDBank, PHDConfig, RobotCentricPHD
+from swarm_env.config import SIMULATOR_PHD
 
 R = 20
 
@@ -80,7 +81,8 @@ CONFIGS = {
     "lo-fixed": PHDConfig(mode="lidar-only", birth="fixed"),
     "lo-measurement": PHDConfig(mode="lidar-only", birth="measurement"),
     "lc-fixed-cap": PHDConfig(birth="fixed", max_components=6),
-    "seed-fixed": PHDConfig.seed(),
+    "seed-defaults": PHDConfig(),
+    "simulator": SIMULATOR_PHD,
     "lc-measurement-cap": PHDConfig(birth="measurement", max_components=5),
     "constant-models": PHDConfig(
         lidar_pd_model="constant", survival_model="constant", occlusion_min_separation_m=0.0

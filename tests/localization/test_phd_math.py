@@ -213,7 +213,7 @@ def test_filter_predict_moves_the_estimate_with_seed_survival():
 
 
 def test_fixed_birth_enters_lidar_updates_through_its_detected_copies_only():
-    cfg = PHDConfig.seed()
+    cfg = PHDConfig()
     f = RobotCentricPHD(cfg)
     z = np.array([[1.0, -0.5]])
     f.update_lidar(z)

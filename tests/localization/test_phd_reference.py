@@ -196,7 +196,7 @@ def test_lidar_pd_matches_reference(seed):
 
 
 def test_blind_sector_pd_vanishes_at_centre_and_recovers():
-    cfg = PHDConfig.seed(occlusion_min_separation_m=0.0)
+    cfg = PHDConfig(occlusion_min_separation_m=0.0)
     model = DetectionModel(cfg)
     angles = np.radians([45.0, 47.5, 50.0, 60.0, 90.0])
     means = 1.0 * np.stack((np.cos(angles), np.sin(angles)), axis=1)

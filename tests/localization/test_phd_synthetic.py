@@ -10,13 +10,13 @@ from tests.localization.scenario import run_scenario
 
 def test_lidar_camera_beats_lidar_only_on_the_seed_metric():
     # The synthetic sensors follow the seed's models (eq. 19 lidar range factor, fixed
-    # births), so the filters run with them: PHDConfig.seed().
+    # births), so the filters run with them: PHDConfig().
     lc = [
-        run_scenario("lidar-camera", seed=s, steps=400, config=PHDConfig.seed(mode="lidar-camera"))
+        run_scenario("lidar-camera", seed=s, steps=400, config=PHDConfig(mode="lidar-camera"))
         for s in (0, 1)
     ]
     lo = [
-        run_scenario("lidar-only", seed=s, steps=400, config=PHDConfig.seed(mode="lidar-only"))
+        run_scenario("lidar-only", seed=s, steps=400, config=PHDConfig(mode="lidar-only"))
         for s in (0, 1)
     ]
     for c, o in zip(lc, lo, strict=True):
