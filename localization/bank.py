@@ -295,7 +295,10 @@ class PHDBank:
         ----------
         calls : sequence of R sequences
             ``calls[r]`` is robot ``r``'s time-ordered list of ``("predict", odometry)``,
-            ``("lidar", points, null_bearings_or_None)`` and ``("camera", bearings)``.
+            ``("lidar", points, null_bearings_or_None[, sensor_pose])`` and
+            ``("camera", bearings[, sensor_pose])``. The optional ``sensor_pose`` ``(3,)``
+            ``[x_m, y_m, psi_rad]`` (or None) is where the robot measured from, in the
+            filter's frame: the measurement is moved into it first (:mod:`localization.frames`).
 
         Raises
         ------
@@ -369,7 +372,17 @@ class PHDBank:
 class _Batch:
     """Validated filter calls, encoded as the flat arrays of :mod:`localization.kernels`."""
 
-    __slots__ = ("robots", "kinds", "index", "odometry", "points", "nulls", "bearings")
+    __slots__ = (
+        "robots",
+        "kinds",
+        "index",
+        "odometry",
+        "points",
+        "nulls",
+        "bearings",
+        "lidar_poses",
+        "camera_poses",
+    )
 
     def __init__(self) -> None:
         self.robots: list[int] = []
@@ -379,6 +392,8 @@ class _Batch:
         self.points: list[np.ndarray] = []  # (M, 2) per lidar call
         self.nulls: list[np.ndarray] = []  # (B,) per lidar call
         self.bearings: list[np.ndarray] = []  # (M,) per camera call
+        self.lidar_poses: list[np.ndarray | None] = []  # sensor pose (3,) per lidar call
+        self.camera_poses: list[np.ndarray | None] = []  # sensor pose (3,) per camera call
 
     @property
     def max_points(self) -> int:
@@ -390,18 +405,22 @@ class _Batch:
         self.index.append(len(self.odometry))
         self.odometry.append(odo)
 
-    def lidar(self, r: int, pts: np.ndarray, nulls: np.ndarray | None) -> None:
+    def lidar(
+        self, r: int, pts: np.ndarray, nulls: np.ndarray | None, pose: np.ndarray | None = None
+    ) -> None:
         self.robots.append(r)
         self.kinds.append(kernels.LIDAR)
         self.index.append(len(self.points))
         self.points.append(pts)
         self.nulls.append(_NO_ANGLES if nulls is None else nulls)
+        self.lidar_poses.append(pose)
 
-    def camera(self, r: int, brg: np.ndarray) -> None:
+    def camera(self, r: int, brg: np.ndarray, pose: np.ndarray | None = None) -> None:
         self.robots.append(r)
         self.kinds.append(kernels.CAMERA)
         self.index.append(len(self.bearings))
         self.bearings.append(brg)
+        self.camera_poses.append(pose)
 
     def add_call(self, r: int, call: Any, exact: bool = False) -> None:
         """Append ``calls[r]``'s tuple ``call``. Shapes are checked here; finiteness by
@@ -414,7 +433,7 @@ class _Batch:
                 brg = call[1]
                 if exact or not _is_f64(brg, 1):
                     brg = _checked_bearings(brg)
-                self.camera(r, brg)
+                self.camera(r, brg, _checked_pose(call[2], exact) if len(call) > 2 else None)
             elif kind == "predict":
                 odo = call[1]
                 if exact or not _is_f64(odo, 1) or odo.shape[0] != 3:
@@ -427,14 +446,15 @@ class _Batch:
                 nb = call[2] if len(call) > 2 else None
                 if nb is not None and (exact or not _is_f64(nb, 1)):
                     nb = _checked_nulls(nb)
-                self.lidar(r, pts, nb)
+                self.lidar(r, pts, nb, _checked_pose(call[3], exact) if len(call) > 3 else None)
         except (ValueError, IndexError) as exc:
             raise ValueError(f"calls[{r}]: {exc}") from exc
 
     def encode(self) -> tuple[np.ndarray, ...]:
         """``robots, kinds, index, odometry, lidar_start, lidar_stop, points, null_start,
-        null_stop, nulls, camera_start, camera_stop, bearings``, as
-        :func:`localization.kernels.apply_calls` takes them."""
+        null_stop, nulls, camera_start, camera_stop, bearings, lidar_pose, lidar_has_pose,
+        camera_pose, camera_has_pose``, as :func:`localization.kernels.apply_calls` takes
+        them."""
         lidar_stop = np.cumsum([p.shape[0] for p in self.points], dtype=np.int64)
         null_stop = np.cumsum([b.shape[0] for b in self.nulls], dtype=np.int64)
         camera_stop = np.cumsum([b.shape[0] for b in self.bearings], dtype=np.int64)
@@ -452,6 +472,8 @@ class _Batch:
             np.concatenate(([0], camera_stop[:-1])).astype(np.int64),
             camera_stop,
             _joined(self.bearings, ()),
+            *_poses(self.lidar_poses),
+            *_poses(self.camera_poses),
         )
 
 
@@ -469,6 +491,31 @@ def _joined(arrays: list[np.ndarray], tail: tuple[int, ...]) -> np.ndarray:
     if not tail:
         return np.concatenate(arrays)
     return np.concatenate(arrays).reshape(-1, *tail)
+
+
+def _poses(poses: list[np.ndarray | None]) -> tuple[np.ndarray, np.ndarray]:
+    """Sensor poses ``(N, 3)`` (zeros where None) and their flags ``(N,)``."""
+    flags = np.array([p is not None for p in poses], dtype=np.int64)
+    out = np.zeros((len(poses), 3))
+    if flags.any():
+        out[flags.astype(bool)] = [p for p in poses if p is not None]
+    return out, flags
+
+
+def _checked_pose(value: Any, exact: bool) -> np.ndarray | None:
+    """A call's optional sensor pose ``[x_m, y_m, psi_rad]`` (finiteness: see all_finite)."""
+    if value is None:
+        return None
+    if not exact and _is_f64(value, 1) and value.shape[0] == 3:
+        return value
+    pose = _as_float(value, "sensor_pose")
+    if pose.shape != (3,):
+        raise ValueError(
+            f"sensor_pose must have shape (3,) [x_m, y_m, psi_rad], got shape {pose.shape}"
+        )
+    if not np.isfinite(pose).all():
+        raise ValueError(f"sensor_pose must be finite, got {pose.tolist()}")
+    return pose
 
 
 _NO_ANGLES = np.empty(0)

@@ -22,7 +22,10 @@ Encoding of a batch of ``Q`` calls (all arrays, built by :class:`~localization.P
 * predict ``j``: ``odometry[j]``, ``[dx_m, dy_m, dpsi_rad]``;
 * lidar ``j``: rows ``lidar_start[j]:lidar_stop[j]`` of ``points (P, 2)`` (m, robot frame)
   and ``null_start[j]:null_stop[j]`` of ``nulls (B,)`` (zero-intensity return bearings, rad);
-* camera ``j``: rows ``camera_start[j]:camera_stop[j]`` of ``bearings (M,)`` (rad).
+* camera ``j``: rows ``camera_start[j]:camera_stop[j]`` of ``bearings (M,)`` (rad);
+* ``lidar_pose (L, 3)`` / ``camera_pose (C, 3)`` with flags ``lidar_has_pose (L,)`` /
+  ``camera_has_pose (C,)``: the sensor pose ``(x_m, y_m, psi_rad)`` in the filter's frame of
+  a measurement taken away from it (:mod:`localization.frames`; flag 0: taken in it).
 
 Model parameters travel as one float vector ``fparams`` and one int vector ``iparams``
 indexed by the ``F_*`` and ``I_*`` constants below (see :func:`pack_params`).
@@ -593,6 +596,20 @@ def _merge(tab, n, threshold):
 
 # ---------------------------------------------------------------------- driver
 @njit(cache=True)
+def _to_filter_frame(points, bearings, pose):
+    """:mod:`localization.frames`: points moved rigidly, bearings rotated (new arrays)."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    out = np.empty((points.shape[0], 2))
+    for h in range(points.shape[0]):
+        out[h, 0] = c * points[h, 0] - s * points[h, 1] + pose[0]
+        out[h, 1] = s * points[h, 0] + c * points[h, 1] + pose[1]
+    rotated = np.empty(bearings.shape[0])
+    for h in range(bearings.shape[0]):
+        rotated[h] = (bearings[h] + pose[2] + math.pi) % _TWO_PI - math.pi
+    return out, rotated
+
+
+@njit(cache=True)
 def apply_calls(
     table,
     counts,
@@ -611,6 +628,10 @@ def apply_calls(
     camera_start,
     camera_stop,
     bearings,
+    lidar_pose,
+    lidar_has_pose,
+    camera_pose,
+    camera_has_pose,
     fp,
     ip,
     sector_scaled,
@@ -643,11 +664,14 @@ def apply_calls(
             pending_counts[r] = 0
         elif kind == LIDAR:
             pts = points[lidar_start[j] : lidar_stop[j]]
+            nul = nulls[null_start[j] : null_stop[j]]
+            if lidar_has_pose[j]:
+                pts, nul = _to_filter_frame(pts, nul, lidar_pose[j])
             cand, n_cand, explained = _lidar_update(
                 tab,
                 n,
                 pts,
-                nulls[null_start[j] : null_stop[j]],
+                nul,
                 fp,
                 ip,
                 sector_scaled,
@@ -666,6 +690,8 @@ def apply_calls(
             if ip[I_LIDAR_ONLY]:
                 continue
             brg = bearings[camera_start[j] : camera_stop[j]]
+            if camera_has_pose[j]:
+                _, brg = _to_filter_frame(np.empty((0, 2)), brg, camera_pose[j])
             cand, n_cand = _camera_update(tab, n, brg, fp)
             out, n_out = _merge_cap(cand, n_cand, fp[F_MERGE], max_components)
         table[:, r, :n_out] = out[:, :n_out]

@@ -399,46 +399,39 @@ def localizer_calls(
     The filter's frame is the robot's pose at its **last odometry sample**, but a scan or a
     frame is taken up to one odometry period (0.1 s) later, from wherever the robot has moved
     and turned since (at 1.5 rad/s, 0.15 rad: 0.3 m at 2 m). With ``compensate_motion`` (the
-    default) each lidar / camera record that has a later odometry sample in ``records`` is
-    re-expressed in the frame of the last sample, with the robot's own motion up to its stamp:
-    the next sample's motion ``delta`` minus its constant-velocity remainder ``velocity * tau``
-    over the ``tau`` seconds from the stamp to that sample (see :func:`_motion_since_sample`).
-    Detections are moved exactly; bearings are rotated (the parallax of the <= 3 cm
-    translation is not, since a bearing has no range). Only the robot's own odometry is used,
-    at the cost of one odometry period of latency on a real robot.
+    default) each lidar / camera record that has a later odometry sample in ``records`` gets
+    its **sensor pose** in the frame of the last sample, from the robot's own motion up to its
+    stamp: the next sample's motion ``delta`` minus its constant-velocity remainder
+    ``velocity * tau`` over the ``tau`` seconds from the stamp to that sample (see
+    :func:`_motion_since_sample`). The filter moves detections exactly and rotates bearings
+    (:mod:`localization.frames`). Only the robot's own odometry is used, at the cost of one
+    odometry period of latency on a real robot.
+
+    Calls: ``("predict", delta)``, ``("lidar", detections, null_bearings, sensor_pose)`` and
+    ``("camera", bearings, sensor_pose)``, ``sensor_pose`` a ``(3,)`` array or None.
     """
     ordered = records.in_time_order()
     use_odometry = "odometry" not in stale
-    # The next odometry record after each position (None after the last one).
-    next_odometry: list[OdometryRecord | None] = [None] * len(ordered)
-    upcoming = None
-    for k in range(len(ordered) - 1, -1, -1):
-        next_odometry[k] = upcoming
-        if isinstance(ordered[k], OdometryRecord):
-            upcoming = ordered[k]
+    use_lidar, use_camera = "lidar" not in stale, "camera" not in stale
+    compensate = compensate_motion and use_odometry
     calls: list[tuple] = []
-    for record, odo in zip(ordered, next_odometry, strict=True):
+    # Walk backwards so each measurement knows the next odometry sample (None after the last).
+    upcoming: OdometryRecord | None = None
+    for record in reversed(ordered):
         if isinstance(record, OdometryRecord):
+            upcoming = record
             if use_odometry:
                 calls.append(("predict", record.delta))
             continue
         pose = None
-        if compensate_motion and use_odometry and odo is not None and odo.stamp_s > record.stamp_s:
-            pose = _motion_since_sample(odo, odo.stamp_s - record.stamp_s)
+        if compensate and upcoming is not None and upcoming.stamp_s > record.stamp_s:
+            pose = _motion_since_sample(upcoming, upcoming.stamp_s - record.stamp_s)
         if isinstance(record, LidarRecord):
-            if "lidar" not in stale:
-                points, nulls = record.detections, record.null_bearings_rad
-                if pose is not None:
-                    c, s = math.cos(pose[2]), math.sin(pose[2])
-                    rot = np.array([[c, s], [-s, c]])  # row vectors: p @ rot = (R p^T)^T
-                    points = points @ rot + pose[:2]
-                    nulls = _wrap(nulls + pose[2])
-                calls.append(("lidar", points, nulls))
-        elif "camera" not in stale:
-            bearings = record.bearings_rad
-            if pose is not None:
-                bearings = _wrap(bearings + pose[2])
-            calls.append(("camera", bearings))
+            if use_lidar:
+                calls.append(("lidar", record.detections, record.null_bearings_rad, pose))
+        elif use_camera:
+            calls.append(("camera", record.bearings_rad, pose))
+    calls.reverse()
     return calls
 
 
@@ -451,8 +444,8 @@ def _motion_since_sample(odo: OdometryRecord, tau_s: float) -> np.ndarray:
     ``psi_r = omega tau``, chord ``t_r = v tau (cos(psi_r / 2), sin(psi_r / 2))`` in the frame
     at the measurement. Removing it: ``psi = dpsi - psi_r``, ``t = d - R(psi) t_r``.
     """
-    dx, dy, dpsi = (float(v) for v in odo.delta)
-    v, omega = (float(u) for u in odo.velocity)
+    dx, dy, dpsi = odo.delta.tolist()
+    v, omega = odo.velocity.tolist()
     # Never remove more than the whole interval's motion when tau exceeds it (irregular rates).
     psi_r = omega * tau_s
     if abs(psi_r) > abs(dpsi):
@@ -462,11 +455,6 @@ def _motion_since_sample(odo: OdometryRecord, tau_s: float) -> np.ndarray:
     tx, ty = chord * math.cos(0.5 * psi_r), chord * math.sin(0.5 * psi_r)
     c, s = math.cos(psi), math.sin(psi)
     return np.array([dx - (c * tx - s * ty), dy - (s * tx + c * ty), psi])
-
-
-def _wrap(angles: np.ndarray) -> np.ndarray:
-    """Angles wrapped to ``[-pi, pi)``."""
-    return (angles + np.pi) % (2.0 * np.pi) - np.pi
 
 
 def _check_action(agent: str, action: Any) -> None:

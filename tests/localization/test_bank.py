@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from localization import GaussianMixture, PHDBank, PHDConfig, RobotCentricPHD
+from localization.frames import bearings_to_filter_frame, points_to_filter_frame
 from swarm_env.config import SIMULATOR_PHD
 
 R = 20
@@ -125,24 +126,39 @@ def test_cap_and_covering_chains_are_exercised(monkeypatch):
     assert seen["cap"] > 0 and seen["chains"] > 0
 
 
-def test_apply_schedules_per_robot_order():
+@pytest.mark.parametrize("with_poses", [False, True])
+def test_apply_schedules_per_robot_order(with_poses):
+    """``apply`` runs each robot's calls in order; sensor poses move the measurements into the
+    filter's frame exactly as :mod:`localization.frames` does before the reference updates."""
     config = PHDConfig(birth="measurement")
     rng = np.random.default_rng(5)
     calls = [[] for _ in range(R)]
     for kind, robots, args in random_calls(rng, 40):
         for i, r in enumerate(robots):
+            pose = (
+                rng.normal(0.0, [0.03, 0.01, 0.1]) if with_poses and rng.random() < 0.7 else None
+            )
             if kind == "predict":
                 calls[r].append(("predict", args[0][i]))
             elif kind == "lidar":
-                calls[r].append(("lidar", args[0][i], None if args[1] is None else args[1][i]))
+                nulls = None if args[1] is None else args[1][i]
+                calls[r].append(("lidar", args[0][i], nulls, pose))
             else:
-                calls[r].append(("camera", args[0][i]))
+                calls[r].append(("camera", args[0][i], pose))
     filters = [RobotCentricPHD(config) for _ in range(R)]
-    for f, seq in zip(filters, calls, strict=False):
+    for f, seq in zip(filters, calls, strict=True):
         for c in seq:
-            {"predict": f.predict, "lidar": f.update_lidar, "camera": f.update_camera}[c[0]](
-                *c[1:]
-            )
+            if c[0] == "predict":
+                f.predict(c[1])
+            elif c[0] == "lidar":
+                pts, nulls, pose = c[1:]
+                if pose is not None:
+                    pts = points_to_filter_frame(pts, pose)
+                    nulls = None if nulls is None else bearings_to_filter_frame(nulls, pose)
+                f.update_lidar(pts, nulls)
+            else:
+                brg, pose = c[1:]
+                f.update_camera(brg if pose is None else bearings_to_filter_frame(brg, pose))
     bank = PHDBank(config, R)
     bank.apply(calls)
     assert_same(filters, bank, "apply")
@@ -238,6 +254,10 @@ def test_bad_constructor_and_apply():
         bank.apply([[("camera", [0.1])], [("predict", [0.0, np.nan, 0.0])]])
     with pytest.raises(ValueError, match="calls"):
         bank.apply([[("teleport", 1.0)], []])
+    with pytest.raises(ValueError, match="sensor_pose"):
+        bank.apply([[("camera", [0.1], [0.0, 0.0])], []])
+    with pytest.raises(ValueError, match="sensor_pose"):
+        bank.apply([[], [("lidar", [[1.0, 0.0]], None, [0.0, np.inf, 0.0])]])
     assert_unchanged(bank, before)
     with pytest.raises(ValueError, match="same config"):
         PHDBank.from_filters([RobotCentricPHD(), RobotCentricPHD(mode="lidar-only")])

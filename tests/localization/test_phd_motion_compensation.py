@@ -8,6 +8,8 @@ import math
 import numpy as np
 import pytest
 
+from localization import PHDBank, PHDConfig, RobotCentricPHD
+from localization.frames import bearings_to_filter_frame, points_to_filter_frame
 from swarm_env.env import localizer_calls
 from swarm_env.records import CameraRecord, LidarRecord, OdometryRecord, RobotMeasurements
 
@@ -54,14 +56,30 @@ def test_measurements_are_moved_to_the_last_odometry_frame(v, omega):
     for call in calls[:-1]:
         if call[0] == "lidar":
             # exact up to the chord approximation of the remaining arc (< 0.1 mm here)
-            assert np.allclose(call[1], teammate[None, :], atol=1e-4)
-            assert np.allclose(call[2], [0.3], atol=1e-9)
+            assert np.allclose(points_to_filter_frame(call[1], call[3]), teammate, atol=1e-4)
+            assert np.allclose(bearings_to_filter_frame(call[2], call[3]), [0.3], atol=1e-9)
         else:
             # rotation removed exactly; the parallax of the < 3 cm translation remains
             true = math.atan2(teammate[1], teammate[0])
-            assert abs(call[1][0] - true) <= math.atan2(v * period, 1.0) + 1e-12
+            moved = bearings_to_filter_frame(call[1], call[2])
+            assert abs(moved[0] - true) <= math.atan2(v * period, 1.0) + 1e-12
     raw = localizer_calls(records, compensate_motion=False)
-    assert np.allclose(raw[0][1], lidar_records[0].detections)
+    assert raw[0][3] is None and np.array_equal(raw[0][1], lidar_records[0].detections)
+    # The bank applies the pose as the reference does.
+    bank = PHDBank(PHDConfig(), 1)
+    bank.apply([calls])
+    f = RobotCentricPHD(PHDConfig())
+    for call in calls:
+        if call[0] == "predict":
+            f.predict(call[1])
+        elif call[0] == "lidar":
+            f.update_lidar(
+                points_to_filter_frame(call[1], call[3]),
+                bearings_to_filter_frame(call[2], call[3]),
+            )
+        else:
+            f.update_camera(bearings_to_filter_frame(call[1], call[2]))
+    assert len(f) > 0 and np.allclose(bank.table(0), f.table, atol=1e-12)
 
 
 def test_records_without_a_later_sample_are_unchanged():
@@ -70,12 +88,12 @@ def test_records_without_a_later_sample_are_unchanged():
     camera = CameraRecord(1.0, np.array([0.4]))  # same stamp as the sample: already in frame
     calls = localizer_calls(RobotMeasurements([odo], [lidar], [camera]))
     assert [c[0] for c in calls] == ["predict", "camera", "lidar"]
-    assert np.array_equal(calls[1][1], camera.bearings_rad)
-    assert np.array_equal(calls[2][1], lidar.detections)
+    assert calls[1][2] is None and np.array_equal(calls[1][1], camera.bearings_rad)
+    assert calls[2][3] is None and np.array_equal(calls[2][1], lidar.detections)
 
 
 def test_stale_odometry_disables_compensation():
     odo = OdometryRecord(1.1, np.array([0.03, 0.0, 0.15]), np.array([0.3, 1.5]))
     camera = CameraRecord(1.05, np.array([0.4]))
     calls = localizer_calls(RobotMeasurements([odo], [], [camera]), stale=("odometry",))
-    assert calls == [("camera", camera.bearings_rad)]
+    assert calls == [("camera", camera.bearings_rad, None)]
