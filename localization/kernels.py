@@ -17,8 +17,9 @@ derive a formula or explain a guard, they are not repeated here.
 Encoding of a batch of ``Q`` calls (all arrays, built by :class:`~localization.PHDBank`):
 
 * ``robots (Q,)``, ``kinds (Q,)`` (:data:`PREDICT`, :data:`LIDAR`, :data:`CAMERA`) and
-  ``index (Q,)``, the call's rank among the calls of its kind; calls of one robot run in array
-  order, robots are independent;
+  ``index (Q,)``, the call's rank among the calls of its kind; each robot's calls are
+  **contiguous** and run in array order; robots are independent and run in parallel threads
+  (``NUMBA_NUM_THREADS``), each writing only its own robot's slice of the state;
 * predict ``j``: ``odometry[j]``, ``[dx_m, dy_m, dpsi_rad]``;
 * lidar ``j``: rows ``lidar_start[j]:lidar_stop[j]`` of ``points (P, 2)`` (m, robot frame)
   and ``null_start[j]:null_stop[j]`` of ``nulls (B,)`` (zero-intensity return bearings, rad);
@@ -36,7 +37,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from .config import PHDConfig
 from .mixture import N_ROWS
@@ -609,7 +610,7 @@ def _to_filter_frame(points, bearings, pose):
     return out, rotated
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def apply_calls(
     table,
     counts,
@@ -650,50 +651,120 @@ def apply_calls(
         ``Pmax`` must be at least the largest lidar call's point count.
     pending_counts : ndarray of int, shape (R,)
     """
-    max_components = ip[I_MAX_COMPONENTS]
-    measurement_birth = ip[I_BIRTH_MEASUREMENT]
-    max_explained = fp[F_MBIRTH_MAX_EXPLAINED]
-    for q in range(robots.shape[0]):
-        r = robots[q]
-        kind = kinds[q]
-        j = index[q]
-        n = counts[r]
-        tab = table[:, r, :n]
-        if kind == PREDICT:
-            out, n_out = _predict(tab, n, pending[r], pending_counts[r], odometry[j], fp, ip)
-            pending_counts[r] = 0
-        elif kind == LIDAR:
-            pts = points[lidar_start[j] : lidar_stop[j]]
-            nul = nulls[null_start[j] : null_stop[j]]
-            if lidar_has_pose[j]:
-                pts, nul = _to_filter_frame(pts, nul, lidar_pose[j])
-            cand, n_cand, explained = _lidar_update(
-                tab,
-                n,
-                pts,
-                nul,
+    # Robots are independent: each thread takes whole robots, and runs their calls in order.
+    n_calls = robots.shape[0]
+    starts = np.empty(n_calls + 1, dtype=np.int64)
+    n_groups = 0
+    for q in range(n_calls):
+        if q == 0 or robots[q] != robots[q - 1]:
+            starts[n_groups] = q
+            n_groups += 1
+    starts[n_groups] = n_calls
+    for g in prange(n_groups):
+        for q in range(starts[g], starts[g + 1]):
+            _apply_call(
+                q,
+                table,
+                counts,
+                pending,
+                pending_counts,
+                robots,
+                kinds,
+                index,
+                odometry,
+                lidar_start,
+                lidar_stop,
+                points,
+                null_start,
+                null_stop,
+                nulls,
+                camera_start,
+                camera_stop,
+                bearings,
+                lidar_pose,
+                lidar_has_pose,
+                camera_pose,
+                camera_has_pose,
                 fp,
                 ip,
                 sector_scaled,
                 sector_inv_var,
             )
-            if measurement_birth:
-                b = 0
-                for h in range(explained.shape[0]):
-                    if explained[h] < max_explained:
-                        pending[r, b, 0] = pts[h, 0]
-                        pending[r, b, 1] = pts[h, 1]
-                        b += 1
-                pending_counts[r] = b
-            out, n_out = _merge_cap(cand, n_cand, fp[F_MERGE], max_components)
-        else:
-            if ip[I_LIDAR_ONLY]:
-                continue
-            brg = bearings[camera_start[j] : camera_stop[j]]
-            if camera_has_pose[j]:
-                _, brg = _to_filter_frame(np.empty((0, 2)), brg, camera_pose[j])
-            cand, n_cand = _camera_update(tab, n, brg, fp)
-            out, n_out = _merge_cap(cand, n_cand, fp[F_MERGE], max_components)
-        table[:, r, :n_out] = out[:, :n_out]
-        table[:, r, n_out:] = 0.0
-        counts[r] = n_out
+
+
+@njit(cache=True)
+def _apply_call(
+    q,
+    table,
+    counts,
+    pending,
+    pending_counts,
+    robots,
+    kinds,
+    index,
+    odometry,
+    lidar_start,
+    lidar_stop,
+    points,
+    null_start,
+    null_stop,
+    nulls,
+    camera_start,
+    camera_stop,
+    bearings,
+    lidar_pose,
+    lidar_has_pose,
+    camera_pose,
+    camera_has_pose,
+    fp,
+    ip,
+    sector_scaled,
+    sector_inv_var,
+):
+    """Call ``q`` of :func:`apply_calls` on its robot's slice of the state."""
+    max_components = ip[I_MAX_COMPONENTS]
+    measurement_birth = ip[I_BIRTH_MEASUREMENT]
+    max_explained = fp[F_MBIRTH_MAX_EXPLAINED]
+    r = robots[q]
+    kind = kinds[q]
+    j = index[q]
+    n = counts[r]
+    tab = table[:, r, :n]
+    if kind == PREDICT:
+        out, n_out = _predict(tab, n, pending[r], pending_counts[r], odometry[j], fp, ip)
+        pending_counts[r] = 0
+    elif kind == LIDAR:
+        pts = points[lidar_start[j] : lidar_stop[j]]
+        nul = nulls[null_start[j] : null_stop[j]]
+        if lidar_has_pose[j]:
+            pts, nul = _to_filter_frame(pts, nul, lidar_pose[j])
+        cand, n_cand, explained = _lidar_update(
+            tab,
+            n,
+            pts,
+            nul,
+            fp,
+            ip,
+            sector_scaled,
+            sector_inv_var,
+        )
+        if measurement_birth:
+            b = 0
+            for h in range(explained.shape[0]):
+                if explained[h] < max_explained:
+                    pending[r, b, 0] = pts[h, 0]
+                    pending[r, b, 1] = pts[h, 1]
+                    b += 1
+            pending_counts[r] = b
+        out, n_out = _merge_cap(cand, n_cand, fp[F_MERGE], max_components)
+    else:
+        if ip[I_LIDAR_ONLY]:
+            return
+        brg = bearings[camera_start[j] : camera_stop[j]]
+        if camera_has_pose[j]:
+            _, brg = _to_filter_frame(np.empty((0, 2)), brg, camera_pose[j])
+        cand, n_cand = _camera_update(tab, n, brg, fp)
+        out, n_out = _merge_cap(cand, n_cand, fp[F_MERGE], max_components)
+    table[:, r, :n_out] = out[:, :n_out]
+    table[:, r, n_out:] = 0.0
+    counts[r] = n_out
