@@ -17,6 +17,7 @@ and per filter call, and the share of real time (0.1 s per step) the filters tak
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import platform
 import time
@@ -25,7 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from localization import PHDBank, PHDConfig, RobotCentricPHD
+from localization.frames import bearings_to_filter_frame, points_to_filter_frame
 from swarm_env import parallel_env
+from swarm_env.config import SIMULATOR_PHD
 from swarm_env.env import localizer_calls
 from swarm_env.runner import random_policy
 
@@ -49,14 +52,20 @@ def record_calls(preset: str, duration_s: float, seed: int) -> tuple[list, float
 
 
 def run_filters(filters: list[RobotCentricPHD], calls: list) -> None:
+    """The calls on reference filters, measurements moved by their sensor poses first."""
     for f, seq in zip(filters, calls, strict=True):
         for c in seq:
             if c[0] == "predict":
                 f.predict(c[1])
             elif c[0] == "lidar":
-                f.update_lidar(c[1], c[2])
+                pts, nulls, pose = c[1], c[2], c[3] if len(c) > 3 else None
+                if pose is not None:
+                    pts = points_to_filter_frame(pts, pose)
+                    nulls = None if nulls is None else bearings_to_filter_frame(nulls, pose)
+                f.update_lidar(pts, nulls)
             else:
-                f.update_camera(c[1])
+                brg, pose = c[1], c[2] if len(c) > 2 else None
+                f.update_camera(brg if pose is None else bearings_to_filter_frame(brg, pose))
 
 
 def main() -> None:
@@ -66,11 +75,18 @@ def main() -> None:
     parser.add_argument("--warmup", type=float, default=10.0, help="untimed seconds first")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--mode", default="lidar-camera")
+    parser.add_argument(
+        "--config",
+        choices=("simulator", "seed"),
+        default="simulator",
+        help="the env's SIMULATOR_PHD (default) or the seed's PHDConfig()",
+    )
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
     steps, period = record_calls(args.preset, args.duration, args.seed)
     n_warm = int(round(args.warmup / period))
-    config = PHDConfig(mode=args.mode)
+    base = SIMULATOR_PHD if args.config == "simulator" else PHDConfig()
+    config = dataclasses.replace(base, mode=args.mode)
     n_robots = len(steps[0])
     bank = PHDBank(config, n_robots)
     filters = [RobotCentricPHD(config) for _ in range(n_robots)]
@@ -98,7 +114,8 @@ def main() -> None:
         "filters": np.array(filt_s),
     }
     print(
-        f"bench_bank: {args.preset}, mode {args.mode}, {len(timed)} steps timed after "
+        f"bench_bank: {args.preset}, {args.config} config, mode {args.mode}, {len(timed)} steps "
+        f"timed after "
         f"{n_warm} warm-up, {n_calls:.0f} filter calls/step, {comps:.1f} components/robot, "
         f"{platform.machine()}, {time.strftime('%Y-%m-%d')}"
     )

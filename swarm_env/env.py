@@ -37,9 +37,10 @@ class SwarmEnv(ParallelEnv):
     positives), red decoys (camera false positives) and box obstacles (occluders). Each robot has
     wheel odometry (1920 pulses/rev, 10 Hz), a 720-beam 7 Hz lidar with four blind sectors and
     inter-lidar interference, and a 360-degree colour-blob camera (30 Hz, bearings only). Every
-    robot runs its own GM-PHD filter (:class:`localization.RobotCentricPHD`) on its own anonymous
-    measurements, at their own rates and timestamps, and *that estimate is the agent's
-    observation*. Frames follow REP-103: x forward, y left, yaw counter-clockwise, SI units.
+    robot runs its own GM-PHD filter (the model of :class:`localization.RobotCentricPHD`; all
+    robots' filters advance in one compiled :class:`localization.PHDBank` call per step) on its
+    own anonymous measurements, at their own rates and timestamps, and *that estimate is the
+    agent's observation*. Frames follow REP-103: x forward, y left, yaw counter-clockwise, SI units.
 
     ## Action Space
     ``Box([-v_max, -w_max], [v_max, w_max], float32)`` per agent:
