@@ -358,7 +358,7 @@ class PHDBank:
             self._counts,
             self._pending,
             self._pending_counts,
-            *encoded,
+            encoded,
             fparams,
             iparams,
             sector_scaled,

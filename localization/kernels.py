@@ -612,31 +612,7 @@ def _to_filter_frame(points, bearings, pose):
 
 @njit(cache=True, parallel=True)
 def apply_calls(
-    table,
-    counts,
-    pending,
-    pending_counts,
-    robots,
-    kinds,
-    index,
-    odometry,
-    lidar_start,
-    lidar_stop,
-    points,
-    null_start,
-    null_stop,
-    nulls,
-    camera_start,
-    camera_stop,
-    bearings,
-    lidar_pose,
-    lidar_has_pose,
-    camera_pose,
-    camera_has_pose,
-    fp,
-    ip,
-    sector_scaled,
-    sector_inv_var,
+    table, counts, pending, pending_counts, calls, fp, ip, sector_scaled, sector_inv_var
 ):
     """Run ``Q`` encoded calls (module docstring) on the bank state, in place.
 
@@ -650,8 +626,13 @@ def apply_calls(
         Measurement births awaiting the next time update (``birth == "measurement"``);
         ``Pmax`` must be at least the largest lidar call's point count.
     pending_counts : ndarray of int, shape (R,)
+    calls : tuple of ndarray
+        ``robots, kinds, index, odometry, lidar_start, lidar_stop, points, null_start,
+        null_stop, nulls, camera_start, camera_stop, bearings, lidar_pose, lidar_has_pose,
+        camera_pose, camera_has_pose`` (module docstring).
     """
     # Robots are independent: each thread takes whole robots, and runs their calls in order.
+    robots = calls[0]
     n_calls = robots.shape[0]
     starts = np.empty(n_calls + 1, dtype=np.int64)
     n_groups = 0
@@ -668,23 +649,7 @@ def apply_calls(
                 counts,
                 pending,
                 pending_counts,
-                robots,
-                kinds,
-                index,
-                odometry,
-                lidar_start,
-                lidar_stop,
-                points,
-                null_start,
-                null_stop,
-                nulls,
-                camera_start,
-                camera_stop,
-                bearings,
-                lidar_pose,
-                lidar_has_pose,
-                camera_pose,
-                camera_has_pose,
+                calls,
                 fp,
                 ip,
                 sector_scaled,
@@ -694,34 +659,28 @@ def apply_calls(
 
 @njit(cache=True)
 def _apply_call(
-    q,
-    table,
-    counts,
-    pending,
-    pending_counts,
-    robots,
-    kinds,
-    index,
-    odometry,
-    lidar_start,
-    lidar_stop,
-    points,
-    null_start,
-    null_stop,
-    nulls,
-    camera_start,
-    camera_stop,
-    bearings,
-    lidar_pose,
-    lidar_has_pose,
-    camera_pose,
-    camera_has_pose,
-    fp,
-    ip,
-    sector_scaled,
-    sector_inv_var,
+    q, table, counts, pending, pending_counts, calls, fp, ip, sector_scaled, sector_inv_var
 ):
     """Call ``q`` of :func:`apply_calls` on its robot's slice of the state."""
+    (
+        robots,
+        kinds,
+        index,
+        odometry,
+        lidar_start,
+        lidar_stop,
+        points,
+        null_start,
+        null_stop,
+        nulls,
+        camera_start,
+        camera_stop,
+        bearings,
+        lidar_pose,
+        lidar_has_pose,
+        camera_pose,
+        camera_has_pose,
+    ) = calls
     max_components = ip[I_MAX_COMPONENTS]
     measurement_birth = ip[I_BIRTH_MEASUREMENT]
     max_explained = fp[F_MBIRTH_MAX_EXPLAINED]
