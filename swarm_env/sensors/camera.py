@@ -25,7 +25,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from swarm_env.sensors.kernels import segment_distance2, stable_order, wrap
 from swarm_env.world.scene import Scene
@@ -312,7 +312,7 @@ def _frames_kernel(
     return values, source, bounds, robot_visible
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _visibility_kernel(
     origin,
     yaw,
@@ -351,8 +351,9 @@ def _visibility_kernel(
     seg_px = seg_a[:, 1] - seg_b[:, 1]
     seg_py = seg_b[:, 0] - seg_a[:, 0]
     seg_pa = seg_px * seg_a[:, 0] + seg_py * seg_a[:, 1]
-    side_o = np.empty(n_seg)
-    for k in range(n_obs):
+    # Frames are independent (each writes only its own output rows): parallel threads.
+    for k in prange(n_obs):
+        side_o = np.empty(n_seg)
         ox, oy = origin[k, 0], origin[k, 1]
         me, when = robots[k], frame_time[k]
         for s in range(n_seg):

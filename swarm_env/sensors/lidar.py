@@ -33,7 +33,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from swarm_env.sensors.geometry import TWO_PI, wrap_angle
 from swarm_env.sensors.kernels import segment_distance2, stable_order, wrap
@@ -395,7 +395,7 @@ class LidarSensor:
         )
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _scan_kernel(
     origin,
     yaw,
@@ -452,14 +452,13 @@ def _scan_kernel(
     spacing = TWO_PI / n_beams
     inv_spacing = 1.0 / spacing
     n_c, n_s = c_xy.shape[0], seg_a.shape[0]
-    best = np.empty(n_beams)
-    code = np.empty(n_beams, dtype=np.intp)
-    # Bearing from each housing to the scanner, computed on first use in each scan.
-    to_me = np.empty(n_c)
-    to_me_scan = np.full(n_c, -1, dtype=np.intp)
-    for k in range(n_scans):
-        best[:] = np.inf
-        code[:] = -1
+    # Scans are independent (each writes only its own output rows): parallel threads.
+    for k in prange(n_scans):
+        best = np.full(n_beams, np.inf)
+        code = np.full(n_beams, -1, dtype=np.intp)
+        # Bearing from each housing to the scanner, computed on first use in this scan.
+        to_me = np.empty(n_c)
+        to_me_scan = np.full(n_c, -1, dtype=np.intp)
         ox, oy = origin[k, 0], origin[k, 1]
         cos_y, sin_y = math.cos(yaw[k]), math.sin(yaw[k])
         me, when = robots[k], scan_time[k]
