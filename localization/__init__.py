@@ -1,4 +1,4 @@
-"""Robot-centric GM-PHD relative localization (pure numpy).
+"""Robot-centric GM-PHD relative localization (numpy reference, numba-compiled swarm bank).
 
 Each robot runs its own :class:`RobotCentricPHD` on its own anonymous measurements (wheel
 odometry, lidar detections, camera bearings) and estimates, in its own body frame, how many
@@ -11,8 +11,10 @@ Modules: :mod:`~localization.config` (``PHDConfig``), :mod:`~localization.mixtur
 (``GaussianMixture`` and the component table), :mod:`~localization.gaussian` (Kalman/EKF
 math), :mod:`~localization.detection` (``P_s``, ``P_d``), :mod:`~localization.phd` (time and
 measurement updates), :mod:`~localization.reducer` (prune/merge/cap),
-:mod:`~localization.filter` (the orchestrator), :mod:`~localization.bank` (``PHDBank``: many
-robots' filters advanced in vectorised batches) and :mod:`~localization.metrics`.
+:mod:`~localization.filter` (the orchestrator), :mod:`~localization.bank` (``PHDBank``: every
+robot's filter advanced in one compiled call, :mod:`~localization.kernels`),
+:mod:`~localization.frames` (measurements moved into the filter's frame) and
+:mod:`~localization.metrics`.
 :mod:`~localization.id_phd` (``IDPHD``: teammate identities from communicated odometry, seed
 ``002``) and :mod:`~localization.baselines` (the seed ``003`` UKF and seed ``004`` particle
 filter, on identified range-bearing measurements) are the identity-aware localizers.

@@ -9,8 +9,8 @@ max_components`` columns and the rest is zero.
 
 Every robot gets what its own :class:`~localization.RobotCentricPHD` (the pure-numpy reference)
 would compute for the same calls: the same components, values equal up to floating-point
-summation order (~1e-15 relative), which ``tests/localization/test_bank.py`` checks on random
-call sequences for every model option.
+summation order, which ``tests/localization/test_bank.py`` checks (to 1e-10) on random call
+sequences for every model option.
 
 >>> import numpy as np
 >>> from localization import PHDBank, PHDConfig
@@ -38,6 +38,8 @@ from .mixture import N_ROWS, ROW_W, GaussianMixture
 __all__ = ["PHDBank", "PHDBankView"]
 
 _KIND_CODES = {"predict": kernels.PREDICT, "lidar": kernels.LIDAR, "camera": kernels.CAMERA}
+# ("predict", odometry), ("lidar", points, nulls, sensor_pose), ("camera", bearings, sensor_pose)
+_MAX_CALL_LEN = {"predict": 2, "lidar": 4, "camera": 3}
 _F64 = np.dtype(np.float64)
 
 
@@ -313,6 +315,8 @@ class PHDBank:
             )
         batch = _Batch()
         for r, seq in enumerate(calls):
+            if isinstance(seq, (str, bytes)) or not isinstance(seq, Sequence):
+                raise ValueError(f"calls[{r}] must be a list of call tuples, got {seq!r}")
             for c in seq:
                 batch.add_call(r, c)
         encoded = batch.encode()
@@ -425,7 +429,13 @@ class _Batch:
     def add_call(self, r: int, call: Any, exact: bool = False) -> None:
         """Append ``calls[r]``'s tuple ``call``. Shapes are checked here; finiteness by
         :meth:`all_finite` over the whole batch (or here, per array, when ``exact``)."""
-        if not isinstance(call, tuple) or not call or call[0] not in _KIND_CODES:
+        if (
+            not isinstance(call, tuple)
+            or not call
+            or not isinstance(call[0], str)
+            or call[0] not in _KIND_CODES
+            or len(call) > _MAX_CALL_LEN[call[0]]
+        ):
             raise ValueError(f"calls[{r}] has an invalid call {call!r}")
         kind = call[0]
         try:

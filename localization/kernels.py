@@ -35,9 +35,17 @@ indexed by the ``F_*`` and ``I_*`` constants below (see :func:`pack_params`).
 from __future__ import annotations
 
 import math
+import os
 
+import numba
 import numpy as np
 from numba import njit, prange
+
+# The parallel kernels here and in swarm_env.sensors run on numba's thread pool. Its GNU OpenMP
+# layer kills a fork()ed child of a process that has used it (SuperSuit / multiprocessing
+# workers), so pick a fork-safe layer unless the user chose one (NUMBA_THREADING_LAYER).
+if "NUMBA_THREADING_LAYER" not in os.environ:
+    numba.config.THREADING_LAYER = "forksafe"
 
 from .config import PHDConfig
 from .mixture import N_ROWS
@@ -74,7 +82,7 @@ _MAX_EXP = 700.0  # as localization.detection: no exp overflow for absurd ranges
 # 1 - x == 1.0 exactly in float64 for 0 <= x < 2^-54 ~ 5.6e-17, and exp(-38) ~ 3.1e-17: a
 # bump factor with an exponent below this is skipped without changing a single bit.
 _NEGLIGIBLE_EXPONENT = -38.0
-_DROP_FRACTION = 1e-20  # see _negligible_exponent
+_DROP_FRACTION = 1e-20  # see _negligible_exponent (or the prune threshold, if lower)
 _TWO_PI = 2.0 * math.pi
 _INV_TWO_PI = 1.0 / _TWO_PI
 _INV_SQRT_TWO_PI = 1.0 / math.sqrt(_TWO_PI)
@@ -277,18 +285,19 @@ def _predict(tab, n, births, n_births, odo, fp, ip):
 
 # ---------------------------------------------------------------------- measurement updates
 @njit(cache=True)
-def _negligible_exponent(pd_w, norm, kappa):
+def _negligible_exponent(pd_w, norm, kappa, prune):
     """Likelihood exponent below which a (component, measurement) pair is dropped.
 
-    A dropped pair's term ``P_d w N`` is below ``1e-20 kappa`` (``norm`` is ``N``'s peak), so it
-    changes no normaliser (``kappa + sum >= kappa``) beyond round-off, and its copy would be
-    pruned anyway. With ``kappa = 0`` nothing is dropped; with ``P_d w = 0`` every term is 0.
+    A dropped pair's term ``P_d w N`` is below ``f kappa`` with ``f = min(1e-20, prune)``
+    (``norm`` is ``N``'s peak), so it changes no normaliser (``kappa + sum >= kappa``) beyond
+    round-off, and its copy's weight (``< f``) is pruned anyway. With ``kappa = 0`` nothing is
+    dropped; with ``P_d w = 0`` every term is 0.
     """
     if pd_w <= 0.0:
         return np.inf
     if kappa <= 0.0:
         return -np.inf
-    return math.log(_DROP_FRACTION * kappa / (pd_w * norm))
+    return math.log(min(_DROP_FRACTION, prune) * kappa / (pd_w * norm))
 
 
 @njit(cache=True)
@@ -395,7 +404,7 @@ def _lidar_update(tab, n, pts, nulls, fp, ip, sector_scaled, sector_inv_var):
         post_covs[2, i] = (pyy * r + det_p) * scale
         norm = math.sqrt(inv_det_s) * _INV_TWO_PI
         pd_w = pd[i] * prior[0, i]
-        floor = _negligible_exponent(pd_w, norm, kappa)
+        floor = _negligible_exponent(pd_w, norm, kappa, prune)
         for h in range(m):
             d0 = pts[h, 0] - mx
             d1 = pts[h, 1] - my
@@ -452,7 +461,7 @@ def _camera_update(tab, n, brg, fp):
         norm = math.sqrt(inv_s) * _INV_SQRT_TWO_PI
         half_inv_s = -0.5 * inv_s
         pd_w = pd[i] * tab[0, i]
-        floor = _negligible_exponent(pd_w, norm, kappa)
+        floor = _negligible_exponent(pd_w, norm, kappa, prune)
         for h in range(m):
             innov = brg[h] - predicted
             if innov >= math.pi or innov < -math.pi:  # wrapped to [-pi, pi)

@@ -148,9 +148,13 @@ def greedy_clusters(close: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """
     n = close.shape[0]
     index = np.arange(n)
-    # weight + 1 > 0 keeps the weight order and makes any coverer beat a non-coverer (0);
-    # argmax breaks ties towards the lower index, which is our rank tie-break.
-    score = close * (weights + 1.0)[:, None]  # [j, i]
+    order = np.lexsort((index, -weights))  # rank order, ties: lower index first
+    # Score = n - rank (> 0): any coverer beats a non-coverer (0) and the highest-ranked one
+    # wins. (Not ``weight + 1``: below ~1e-16 every weight + 1 rounds to 1.0, and the lowest
+    # index would win instead of the heaviest.)
+    rank_score = np.empty(n)
+    rank_score[order] = np.arange(n, 0, -1)
+    score = close * rank_score[:, None]  # [j, i]
     best = score.argmax(axis=0)  # highest-ranked component whose gate holds i (maybe i)
     certain = best == index  # nobody ranked above covers it: certainly a leader
     certain_best = certain[best]
@@ -162,7 +166,6 @@ def greedy_clusters(close: np.ndarray, weights: np.ndarray) -> np.ndarray:
     # the gate matrix in rank order, the next leader is the lowest set bit of the remaining
     # set, and absorbing its gate is one AND-NOT. The rows are packed to bytes once; a row
     # becomes an int only for a leader.
-    order = np.lexsort((index, -weights))  # rank order, ties: lower index first
     packed = np.packbits(close[np.ix_(order, order)], axis=1, bitorder="little")
     row_bytes = packed.shape[1]
     buf = packed.tobytes()

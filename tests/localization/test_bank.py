@@ -89,6 +89,8 @@ CONFIGS = {
         lidar_pd_model="constant", survival_model="constant", occlusion_min_separation_m=0.0
     ),
     "wide-merge": PHDConfig(birth="measurement", merge_threshold=30.0),
+    # below the compiled engine's likelihood-skip fraction: nothing may be skipped that survives
+    "tiny-prune": PHDConfig(birth="measurement", prune_threshold=1e-30, max_components=40),
 }
 
 
@@ -256,8 +258,39 @@ def test_bad_constructor_and_apply():
         bank.apply([[("teleport", 1.0)], []])
     with pytest.raises(ValueError, match="sensor_pose"):
         bank.apply([[("camera", [0.1], [0.0, 0.0])], []])
+    with pytest.raises(ValueError, match=r"calls\[0\]"):
+        bank.apply([None, []])
+    with pytest.raises(ValueError, match="invalid call"):
+        bank.apply([[([1], 2.0)], []])
+    with pytest.raises(ValueError, match="invalid call"):
+        bank.apply([[("camera", np.zeros(1), None, "extra")], []])
+    # NaN / inf inside float64 arrays pass the per-call shape checks and are caught by the one
+    # finiteness check over the joined buffers, which then names the culprit.
+    bad_arrays = [
+        [[("predict", np.array([0.0, np.nan, 0.0]))], []],
+        [[], [("lidar", np.array([[1.0, np.inf]]), None)]],
+        [[], [("lidar", np.array([[1.0, 0.0]]), np.array([np.nan]))]],
+        [[("camera", np.array([0.1, np.nan]))], []],
+        [[("camera", np.array([0.1]), np.array([0.0, np.nan, 0.0]))], []],
+    ]
+    for calls, name in zip(
+        bad_arrays, ["odometry", "points", "null_bearings", "bearings", "sensor_pose"], strict=True
+    ):
+        with pytest.raises(ValueError, match=name):
+            bank.apply(calls)
     with pytest.raises(ValueError, match="sensor_pose"):
         bank.apply([[], [("lidar", [[1.0, 0.0]], None, [0.0, np.inf, 0.0])]])
     assert_unchanged(bank, before)
     with pytest.raises(ValueError, match="same config"):
         PHDBank.from_filters([RobotCentricPHD(), RobotCentricPHD(mode="lidar-only")])
+
+
+def test_greedy_merge_ranks_tiny_weights_by_weight():
+    """Component 2 is in the gates of 0 and 1; it must join the heavier, 1, even when all
+    weights are far below 1e-16 (where ``w + 1`` rounds to 1 and loses the order)."""
+    from localization.reducer import greedy_clusters
+
+    for scale in (1.0, 1e-28):
+        weights = np.array([1.0, 3.0, 2.0]) * scale
+        close = np.array([[True, False, True], [False, True, True], [False, False, True]])
+        np.testing.assert_array_equal(greedy_clusters(close, weights), [0, 1, 1])
