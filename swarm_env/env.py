@@ -405,8 +405,9 @@ def localizer_calls(
     stamp: the next sample's motion ``delta`` minus its constant-velocity remainder
     ``velocity * tau`` over the ``tau`` seconds from the stamp to that sample (see
     :func:`_motion_since_sample`). The filter moves detections exactly and rotates bearings
-    (:mod:`localization.frames`). Only the robot's own odometry is used, at the cost of one
-    odometry period of latency on a real robot.
+    (:mod:`localization.frames`). Only the robot's own odometry is used. A record after the
+    step's last odometry sample goes in uncompensated (in the simulator none is: odometry
+    samples fall on step ends; on a real robot with unsynchronised odometry some are).
 
     Calls: ``("predict", delta)``, ``("lidar", detections, null_bearings, sensor_pose)`` and
     ``("camera", bearings, sensor_pose)``, ``sensor_pose`` a ``(3,)`` array or None.
