@@ -39,6 +39,8 @@ def write_localization_figures(
         )
         ax.bar(np.arange(len(per_robot)) + k * width, np.nan_to_num(per_robot), width, label=name)
     ax.axhline(25, color="k", ls=":", lw=1)
+    n_robots = len(results["localizers"][names[0]]["pct_time_err_gt_30cm"]["per_robot"])
+    ax.set_xticks(np.arange(n_robots) + 0.4 - width / 2, [str(r) for r in range(n_robots)])
     ax.set_xlabel("robot")
     ax.set_ylabel("% time error > 0.30 m (in range)")
     ax.legend()
