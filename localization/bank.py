@@ -178,14 +178,17 @@ class PHDBank:
 
     def table(self, robot: int) -> np.ndarray:
         """Robot ``robot``'s component table, shape ``(6, N)`` (a new array)."""
+        robot = self._robot(robot)
         return self._table[:, robot, : self._counts[robot]].copy()
 
     def pending_births(self, robot: int) -> np.ndarray:
         """Robot ``robot``'s measurement births awaiting the next time update, ``(B, 2)`` m."""
+        robot = self._robot(robot)
         return self._pending[robot, : self._pending_counts[robot]].copy()
 
     def mixture(self, robot: int) -> GaussianMixture:
         """Robot ``robot``'s PHD as a read-only :class:`GaussianMixture` (cached)."""
+        robot = self._robot(robot)
         mix = self._mixtures[robot]
         if mix is None:
             mix = GaussianMixture.from_table(self._table[:, robot, : self._counts[robot]])
@@ -194,6 +197,7 @@ class PHDBank:
 
     def estimate(self, robot: int, threshold: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`RobotCentricPHD.estimate` of one robot: ``positions (K, 2), weights (K,)``."""
+        robot = self._robot(robot)
         holder = _TableHolder(self._table[:, robot, : self._counts[robot]])
         return RobotCentricPHD.estimate(holder, threshold)  # type: ignore[arg-type]
 
@@ -328,6 +332,14 @@ class PHDBank:
         self._run(batch, encoded)
 
     # ------------------------------------------------------------------ internals
+    def _robot(self, robot: Any) -> int:
+        """One robot index, checked (no negative wrap-around)."""
+        if isinstance(robot, bool) or not isinstance(robot, (int, np.integer)):
+            raise ValueError(f"robot must be an int index, got {robot!r}")
+        if not 0 <= robot < self.n_robots:
+            raise ValueError(f"robot must be in [0, {self.n_robots}), got {robot}")
+        return int(robot)
+
     def _checked_robots(self, robots: Any) -> np.ndarray:
         try:
             rob = np.asarray(robots)

@@ -40,7 +40,8 @@ class SwarmEnv(ParallelEnv):
     robot runs its own GM-PHD filter (the model of :class:`localization.RobotCentricPHD`; all
     robots' filters advance in one compiled :class:`localization.PHDBank` call per step) on its
     own anonymous measurements, at their own rates and timestamps, and *that estimate is the
-    agent's observation*. Frames follow REP-103: x forward, y left, yaw counter-clockwise, SI units.
+    agent's observation*. Frames follow REP-103: x forward, y left, yaw counter-clockwise, SI
+    units.
 
     ## Action Space
     ``Box([-v_max, -w_max], [v_max, w_max], float32)`` per agent:

@@ -281,6 +281,11 @@ def test_bad_constructor_and_apply():
     with pytest.raises(ValueError, match="sensor_pose"):
         bank.apply([[], [("lidar", [[1.0, 0.0]], None, [0.0, np.inf, 0.0])]])
     assert_unchanged(bank, before)
+    for bad in (-1, 2, 0.5):
+        with pytest.raises(ValueError, match="robot"):
+            bank.table(bad)
+        with pytest.raises(ValueError, match="robot"):
+            bank.estimate(bad)
     with pytest.raises(ValueError, match="same config"):
         PHDBank.from_filters([RobotCentricPHD(), RobotCentricPHD(mode="lidar-only")])
 
