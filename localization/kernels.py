@@ -35,17 +35,9 @@ indexed by the ``F_*`` and ``I_*`` constants below (see :func:`pack_params`).
 from __future__ import annotations
 
 import math
-import os
 
-import numba
 import numpy as np
 from numba import njit, prange
-
-# The parallel kernels here and in swarm_env.sensors run on numba's thread pool. Its GNU OpenMP
-# layer kills a fork()ed child of a process that has used it (SuperSuit / multiprocessing
-# workers), so pick a fork-safe layer unless the user chose one (NUMBA_THREADING_LAYER).
-if "NUMBA_THREADING_LAYER" not in os.environ:
-    numba.config.THREADING_LAYER = "forksafe"
 
 from .config import PHDConfig
 from .mixture import N_ROWS
