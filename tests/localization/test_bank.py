@@ -117,7 +117,10 @@ def test_cap_and_covering_chains_are_exercised(monkeypatch):
         if pruned.shape[1] > 1:
             means, covs = pruned[1:3], pruned[3:]
             close = reducer.gate_distances(means, covs) <= merge_threshold
-            best = (close * (pruned[0] + 1.0)[:, None]).argmax(axis=0)
+            n = pruned.shape[1]
+            rank_score = np.empty(n)  # n - rank: the heaviest coverer wins, even at 1e-30
+            rank_score[np.lexsort((np.arange(n), -pruned[0]))] = np.arange(n, 0, -1)
+            best = (close * rank_score[:, None]).argmax(axis=0)
             seen["chains"] += int(not (best == np.arange(best.size))[best].all())
         merged = reducer.merge(pruned, merge_threshold)
         seen["cap"] += int(merged.shape[1] > max_components)

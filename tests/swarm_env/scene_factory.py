@@ -19,7 +19,33 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from swarm_env.sensors.lidar import LidarConfig
 from swarm_env.world.scene import Scene
+
+# Exact lidar geometry: no noise, no blind sectors, no interference.
+EXACT_LIDAR = LidarConfig(
+    range_noise_std_m=0.0,
+    intensity_noise_std=0.0,
+    blind_sector_centers_deg=(),
+    blind_sector_widths_deg=(),
+    interference_tolerance_deg=0.0,
+)
+
+
+def sight_line_crosses_segments(scene: Scene, origin: np.ndarray, d: np.ndarray) -> bool:
+    """Whether the sight line ``origin -> origin + d`` properly crosses a wall or box segment
+    of ``scene`` (a per-segment reference for the compiled camera kernel)."""
+    for s in range(scene.segment_a.shape[0]):
+        a, e = scene.segment_a[s], scene.segment_b[s] - scene.segment_a[s]
+        den = d[0] * e[1] - d[1] * e[0]
+        if den == 0:
+            continue
+        u = ((a - origin)[0] * e[1] - (a - origin)[1] * e[0]) / den
+        v = ((a - origin)[0] * d[1] - (a - origin)[1] * d[0]) / den
+        if 0 < u < 1 and 0 < v < 1:
+            return True
+    return False
+
 
 HOUSING_RADIUS_M = 0.0325  # YDLidar X4 housing, 65 mm diameter (seed 000)
 STRIP_RADIUS_M = 0.045  # red strip around the camera holder

@@ -10,7 +10,11 @@ import pytest
 
 from swarm_env.sensors.camera import CameraConfig, CameraSensor
 from swarm_env.world.scene import Scene
-from tests.swarm_env.scene_factory import SceneBuilder, make_arena_scene
+from tests.swarm_env.scene_factory import (
+    SceneBuilder,
+    make_arena_scene,
+    sight_line_crosses_segments,
+)
 
 EXACT = CameraConfig(bearing_noise_std_deg=0.0, miss_probability=0.0, false_positive_rate=0.0)
 DEG = math.pi / 180.0
@@ -121,15 +125,8 @@ def test_vectorised_visibility_matches_a_loop():
             if not ok:
                 assert not visible[k, ti]
                 continue
-            for s in range(scene.segment_a.shape[0]):
-                a, e = scene.segment_a[s], scene.segment_b[s] - scene.segment_a[s]
-                den = d[0] * e[1] - d[1] * e[0]
-                if den == 0:
-                    continue
-                u = ((a - o)[0] * e[1] - (a - o)[1] * e[0]) / den
-                v = ((a - o)[0] * d[1] - (a - o)[1] * d[0]) / den
-                if 0 < u < 1 and 0 < v < 1:
-                    ok = False
+            if sight_line_crosses_segments(scene, o, d):
+                ok = False
             for j in occ:
                 if j == c or scene.circle_owner[j] == k:
                     continue

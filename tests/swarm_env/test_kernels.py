@@ -29,16 +29,14 @@ from swarm_env.sensors.lidar_features import LidarFeatureConfig, extract_cluster
 from swarm_env.sensors.odometry import pulses_to_delta
 from swarm_env.world.scene import Scene
 from swarm_env.world.sim import _drive_velocities, _due_readings
-from tests.swarm_env.scene_factory import SceneBuilder, make_arena_scene
-
-EXACT = LidarConfig(
-    range_noise_std_m=0.0,
-    intensity_noise_std=0.0,
-    blind_sector_centers_deg=(),
-    blind_sector_widths_deg=(),
-    interference_tolerance_deg=0.0,
+from tests.swarm_env.scene_factory import (
+    EXACT_LIDAR as EXACT,
 )
-
+from tests.swarm_env.scene_factory import (
+    SceneBuilder,
+    make_arena_scene,
+    sight_line_crosses_segments,
+)
 
 # --------------------------------------------------------------------------- references
 
@@ -432,15 +430,8 @@ def reference_visibility(scene, robots, time_index, config):
             if owner == me or not config.range_min_m <= dist <= config.range_max_m:
                 continue
             ok = True
-            for s in range(scene.segment_a.shape[0]):
-                a, e = scene.segment_a[s], scene.segment_b[s] - scene.segment_a[s]
-                den = d[0] * e[1] - d[1] * e[0]
-                if den == 0:
-                    continue
-                u = ((a - o)[0] * e[1] - (a - o)[1] * e[0]) / den
-                v = ((a - o)[0] * d[1] - (a - o)[1] * d[0]) / den
-                if 0 < u < 1 and 0 < v < 1:
-                    ok = False
+            if sight_line_crosses_segments(scene, o, d):
+                ok = False
             for i in np.flatnonzero(scene.circle_camera_occluder):
                 if when is not None and t is not None and when[i] not in (-1, t):
                     continue

@@ -21,6 +21,7 @@ from swarm_env.sensors.lidar_features import (
     extract_detections,
     null_bearings,
 )
+from tests.swarm_env.scene_factory import EXACT_LIDAR as EXACT
 from tests.swarm_env.scene_factory import (
     HOUSING_RADIUS_M,
     POST_RADIUS_M,
@@ -28,14 +29,6 @@ from tests.swarm_env.scene_factory import (
     make_arena_scene,
 )
 
-# Exact geometry: no noise, no blind sectors, no interference.
-EXACT = LidarConfig(
-    range_noise_std_m=0.0,
-    intensity_noise_std=0.0,
-    blind_sector_centers_deg=(),
-    blind_sector_widths_deg=(),
-    interference_tolerance_deg=0.0,
-)
 DEG = math.pi / 180.0
 
 
