@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from agents import scripted
-from swarm_env.runner import random_policy
+from swarm_phd.runner import random_policy
 
 SCRIPTED: dict[str, Callable[..., scripted.ScriptedPolicy]] = {
     "wander": scripted.WanderPolicy.for_env,

@@ -31,7 +31,7 @@ from localization.frames import bearings_to_filter_frame, points_to_filter_frame
 from swarm_env import parallel_env
 from swarm_env.config import SIMULATOR_PHD
 from swarm_env.env import localizer_calls
-from swarm_env.runner import random_policy
+from swarm_phd.runner import random_policy
 
 
 def record_calls(preset: str, duration_s: float, seed: int) -> tuple[list, float]:

@@ -34,7 +34,6 @@ __all__ = [
     "LoopbackServer",
     "FaultConfig",
     "RobotsSilentError",
-    "export_sim_episode",
 ]
 
 
@@ -146,7 +145,7 @@ def __getattr__(name: str) -> Any:
         from hardware_bridge import world
 
         return getattr(world, name)
-    if name in ("ReplayWorld", "BagRecorder", "replay_env", "export_sim_episode"):
+    if name in ("ReplayWorld", "BagRecorder", "replay_env"):
         from hardware_bridge import bag
 
         return getattr(bag, name)

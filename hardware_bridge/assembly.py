@@ -25,12 +25,12 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 
 from hardware_bridge.messages import Bearings, Odom, Pose, Scan, ns_to_s
+from swarm_core.geometry import wrap_angle
+from swarm_core.records import CameraRecord, LidarRecord, OdometryRecord, RobotMeasurements
+from swarm_core.world import GroundTruth, truth_from_poses
 from swarm_env.config import SwarmConfig
-from swarm_env.records import CameraRecord, LidarRecord, OdometryRecord, RobotMeasurements
-from swarm_env.sensors.geometry import wrap_angle
 from swarm_env.sensors.lidar import blind_mask
 from swarm_env.sensors.lidar_features import extract_detections, null_bearings
-from swarm_env.world.base import GroundTruth, truth_from_poses
 
 
 def odometry_increment(prev: Odom, cur: Odom) -> np.ndarray:

@@ -56,8 +56,8 @@ from hardware_bridge.messages import (
     topics,
     twist_msg,
 )
+from swarm_core.world import WorldStep, reject_extra_commands
 from swarm_env.config import SwarmConfig, make_config
-from swarm_env.world.base import WorldStep
 
 META_KEY = "swarm_phd"
 STEP_TOPIC = "/bridge/step"
@@ -410,6 +410,8 @@ class ReplayWorld:
     recorded step and raises ``EOFError`` past the end of the episode.
     """
 
+    layout = None  # obstacle geometry is not known off the simulator
+
     def __init__(self, path: str | Path, config: SwarmConfig | None = None) -> None:
         from rosbags.rosbag2 import Reader
 
@@ -540,7 +542,8 @@ class ReplayWorld:
         self._cursor = 0
         return self._world_step(self._episodes[self._episode][0])
 
-    def step(self, commands: np.ndarray) -> WorldStep:
+    def step(self, commands: np.ndarray, extra_commands: np.ndarray | None = None) -> WorldStep:
+        reject_extra_commands("ReplayWorld", extra_commands)
         if self._episode < 0:
             raise RuntimeError("ReplayWorld.step() before reset()")
         episode = self._episodes[self._episode]
@@ -583,149 +586,3 @@ def replay_env(
 
 
 # ---------------------------------------------------------------------------- export
-def export_sim_episode(
-    path: str | Path,
-    *,
-    preset: str = "seed-lab",
-    duration_s: float = 10.0,
-    seed: int = 0,
-    start_stamp_s: float = 1.7e9,
-    **overrides: Any,
-) -> dict[str, Any]:
-    """Run the simulator with the scripted wander policy for ``duration_s`` and write the episode
-    as a bag, exactly as the bridge would have recorded it from robots (odometry as integrated
-    odom poses, scans as ``LaserScan``, bearings, mocap = the sim's truth, commands).
-
-    Stamps are ``start_stamp_s`` + sim time (a fixed epoch keeps the file reproducible).
-    Returns a summary with the number of steps and messages and, per step, each agent's PHD
-    mixture in the simulator (``weights``, ``means``) for comparison with a replay.
-    """
-    from agents.scripted import WanderPolicy
-    from hardware_bridge.messages import (
-        bearings_msg,
-        laser_scan_msg,
-        odometry_msg,
-        pose_stamped_msg,
-    )
-    from swarm_env.env import SwarmEnv
-
-    if not duration_s > 0:
-        raise ValueError(f"duration_s must be > 0, got {duration_s!r}")
-    config = make_config(preset, **overrides)
-    n_steps = max(1, int(round(duration_s / config.control_period_s)))
-    config = dataclasses.replace(config, max_steps=max(config.max_steps, n_steps))
-    env = SwarmEnv(config=config)
-    agents = list(env.possible_agents)
-    policy = WanderPolicy.for_env(env, seed=seed)
-    recorder = BagRecorder(path, agents, config, source="sim")
-    base_ns = int(round(start_stamp_s * 1e9))
-    high = np.array([config.robot.max_speed_mps, config.robot.max_turn_rate_radps])
-    odom = {a: np.zeros(3) for a in agents}
-    trace: list[dict[str, tuple[np.ndarray, np.ndarray]]] = []
-
-    def stamp(t_s: float) -> int:
-        return base_ns + int(round(t_s * 1e9))
-
-    def snapshot() -> dict[str, tuple[np.ndarray, np.ndarray]]:
-        return {
-            a: (env.localizers[i].mixture.weights.copy(), env.localizers[i].mixture.means.copy())
-            for i, a in enumerate(agents)
-        }
-
-    try:
-        obs, infos = env.reset(seed=seed)
-        for a in agents:
-            names = topics(a)
-            recorder.write(
-                names["odometry"],
-                "odometry",
-                base_ns,
-                odometry_msg(
-                    base_ns,
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.0,
-                    frame_id=f"{a}/odom",
-                    child_frame_id=f"{a}/base_link",
-                ),
-            )
-            pose = infos[a]["truth"]["pose"]
-            recorder.write(names["mocap"], "mocap", base_ns, pose_stamped_msg(base_ns, *pose))
-        recorder.write_marker("reset", 0, base_ns, {})
-        trace.append(snapshot())
-        scan_time = 1.0 / config.lidar.rate_hz
-        for k in range(1, n_steps + 1):
-            actions = policy(obs, infos)
-            commands = np.array(
-                [np.clip(np.asarray(actions[a], dtype=np.float64), -high, high) for a in agents]
-            )
-            recorder.write_commands(stamp(env.time_s) + 1, commands)
-            obs, _, _, _, infos = env.step(actions)
-            end_ns = stamp(env.time_s)
-            for a in agents:
-                names = topics(a)
-                m = infos[a]["measurements"]
-                for r in m["odometry"]:
-                    x, y, yaw = odom[a]
-                    dx, dy, dpsi = r["delta"]
-                    c, s = np.cos(yaw), np.sin(yaw)
-                    odom[a] = np.array(
-                        [
-                            x + c * dx - s * dy,
-                            y + s * dx + c * dy,
-                            np.remainder(yaw + dpsi + np.pi, 2 * np.pi) - np.pi,
-                        ]
-                    )
-                    t = stamp(r["stamp_s"])
-                    recorder.write(
-                        names["odometry"],
-                        "odometry",
-                        t,
-                        odometry_msg(
-                            t,
-                            *odom[a],
-                            *r["velocity"],
-                            frame_id=f"{a}/odom",
-                            child_frame_id=f"{a}/base_link",
-                        ),
-                    )
-                for r in m["lidar"]:
-                    t = stamp(r["stamp_s"])
-                    recorder.write(
-                        names["lidar"],
-                        "lidar",
-                        t,
-                        laser_scan_msg(
-                            t,
-                            r["angles_rad"],
-                            r["ranges_m"],
-                            r["intensities"],
-                            range_min_m=config.lidar.range_min_m,
-                            range_max_m=config.lidar.range_max_m,
-                            scan_time_s=scan_time,
-                            frame_id=f"{a}/laser",
-                        ),
-                    )
-                for r in m["camera"]:
-                    recorder.write(
-                        names["camera"],
-                        "camera",
-                        stamp(r["stamp_s"]),
-                        bearings_msg(r["bearings_rad"]),
-                    )
-                pose = infos[a]["truth"]["pose"]
-                recorder.write(names["mocap"], "mocap", end_ns, pose_stamped_msg(end_ns, *pose))
-            recorder.write_marker("step", k, end_ns, {})
-            trace.append(snapshot())
-    finally:
-        recorder.close()
-        env.close()
-    return {
-        "path": str(path),
-        "robots": agents,
-        "steps": n_steps,
-        "messages": recorder.messages_written,
-        "trace": trace,
-    }

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from swarm_env.sensors.geometry import wrap_angle
+from swarm_core.geometry import wrap_angle
 
 LOGGER = logging.getLogger("hardware_bridge")
 TWO_PI = 2.0 * math.pi

@@ -1,4 +1,4 @@
-"""RealWorld: the :class:`swarm_env.world.base.World` of a real swarm behind a rosbridge server.
+"""RealWorld: the :class:`swarm_core.world.World` of a real swarm behind a rosbridge server.
 
 Timing (honest by construction):
 
@@ -52,8 +52,8 @@ from hardware_bridge.messages import (
 from hardware_bridge.safety import CommandLimiter
 from hardware_bridge.transport import RosbridgeClient, Subscription, check_host
 from hardware_bridge.watchdog import Watchdog
+from swarm_core.world import WorldStep, reject_extra_commands
 from swarm_env.config import SwarmConfig
-from swarm_env.world.base import WorldStep
 
 LOGGER = logging.getLogger("hardware_bridge")
 
@@ -102,7 +102,7 @@ class _Buffer:
 
 
 class RealWorld:
-    """Real robots as a :class:`~swarm_env.world.base.World` (see the module docstring).
+    """Real robots as a :class:`~swarm_core.world.World` (see the module docstring).
 
     Parameters
     ----------
@@ -117,6 +117,8 @@ class RealWorld:
     clock_ns : callable, optional
         ROS time in integer nanoseconds (default ``time.time_ns``).
     """
+
+    layout = None  # obstacle geometry is not known off the simulator
 
     def __init__(
         self,
@@ -287,7 +289,8 @@ class RealWorld:
             time_s=ns_to_s(end_ns), measurements=measurements, truth=truth, stale=stale
         )
 
-    def step(self, commands: np.ndarray) -> WorldStep:
+    def step(self, commands: np.ndarray, extra_commands: np.ndarray | None = None) -> WorldStep:
+        reject_extra_commands("RealWorld", extra_commands)
         if self._closed:
             raise RuntimeError("RealWorld.step() after close()")
         self.watchdog.step_started()

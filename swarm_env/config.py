@@ -14,15 +14,15 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from localization import PHDConfig
-from swarm_env.sensors.camera import CameraConfig
-from swarm_env.sensors.lidar import LidarConfig
-from swarm_env.sensors.lidar_features import LidarFeatureConfig
-from swarm_env.sensors.odometry import OdometryConfig
-from swarm_env.validation import (
+from swarm_core.validation import (
     check_int_range,
     check_non_negative,
     check_positive,
 )
+from swarm_env.sensors.camera import CameraConfig
+from swarm_env.sensors.lidar import LidarConfig
+from swarm_env.sensors.lidar_features import LidarFeatureConfig
+from swarm_env.sensors.odometry import OdometryConfig
 
 MAX_ROBOTS = 200
 OBSERVATION_MODES = ("phd", "truth", "measurements")

@@ -21,11 +21,11 @@ from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
 from localization import PHDBank
+from swarm_core.records import LidarRecord, OdometryRecord, RobotMeasurements
+from swarm_core.world import GroundTruth, World, WorldStep
 from swarm_env import observation as obs_lib
 from swarm_env.config import SwarmConfig, make_config
-from swarm_env.records import LidarRecord, OdometryRecord, RobotMeasurements
 from swarm_env.tasks import Task, make_task
-from swarm_env.world.base import GroundTruth, World, WorldStep
 from swarm_env.world.sim import SimWorld
 
 

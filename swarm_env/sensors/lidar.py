@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
-from swarm_env.sensors.geometry import TWO_PI, wrap_angle
+from swarm_core.geometry import TWO_PI, wrap_angle
 from swarm_env.sensors.kernels import segment_distance2, stable_order, wrap
 from swarm_env.sensors.noise import TabulatedNormal, table_indices, tabulated
 from swarm_env.world.scene import Scene

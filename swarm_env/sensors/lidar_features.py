@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from swarm_env.sensors.geometry import wrap_angle
+from swarm_core.geometry import wrap_angle
 
 
 @dataclass(frozen=True, slots=True)

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from swarm_env.validation import check_positive
+from swarm_core.validation import check_positive
 
 
 @dataclass(frozen=True, slots=True)

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from swarm_env.world.base import GroundTruth
+from swarm_core.world import GroundTruth
 
 if TYPE_CHECKING:
     from swarm_env.world.arena import Layout

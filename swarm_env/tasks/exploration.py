@@ -33,9 +33,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from swarm_core.world import GroundTruth
 from swarm_env.tasks.base import Task
 from swarm_env.tasks.common import check_param, collisions
-from swarm_env.world.base import GroundTruth
 
 if TYPE_CHECKING:
     from swarm_env.world.arena import Layout

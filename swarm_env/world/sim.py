@@ -22,14 +22,14 @@ import pymunk
 import pymunk.batch
 from numba import njit
 
+from swarm_core.records import CameraRecord, LidarRecord, OdometryRecord, RobotMeasurements
+from swarm_core.world import GroundTruth, WorldStep, relative_positions, truth_from_poses
 from swarm_env.config import SwarmConfig
-from swarm_env.records import CameraRecord, LidarRecord, OdometryRecord, RobotMeasurements
 from swarm_env.sensors.camera import CameraSensor
 from swarm_env.sensors.lidar import LidarSensor
 from swarm_env.sensors.lidar_features import extract_detections
 from swarm_env.sensors.odometry import WheelEncoders
 from swarm_env.world.arena import Layout, sample_layout, wall_segments
-from swarm_env.world.base import GroundTruth, WorldStep, relative_positions, truth_from_poses
 from swarm_env.world.diagnostics import SensorStats
 from swarm_env.world.scene import Scene
 
@@ -50,7 +50,7 @@ def robot_names(n: int) -> tuple[str, ...]:
 
 
 class SimWorld:
-    """The simulated World (see :class:`swarm_env.world.base.World`).
+    """The simulated World (see :class:`swarm_core.world.World`).
 
     Parameters
     ----------

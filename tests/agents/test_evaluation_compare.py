@@ -6,8 +6,8 @@ import json
 
 import pytest
 
-from agents.evaluation import _make_env, shared_env_kwargs
 from agents.sb3.policy import write_metadata
+from swarm_phd.evaluate import _make_env, shared_env_kwargs
 
 
 @pytest.fixture
@@ -63,7 +63,7 @@ def test_compare_shares_everything_but_the_observation(fake_model):
 
 
 def test_evaluate_compare_end_to_end(tmp_path):
-    from swarm_env.cli import main
+    from swarm_phd.cli import main
 
     out = tmp_path / "eval"
     code = main(

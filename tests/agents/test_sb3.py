@@ -14,7 +14,7 @@ from agents.policies import load_policy  # noqa: E402
 from agents.sb3.adapter import make_vec_env, scale_actions  # noqa: E402
 from agents.sb3.policy import env_kwargs_for_model, read_metadata  # noqa: E402
 from swarm_env import parallel_env  # noqa: E402
-from swarm_env.cli import main  # noqa: E402
+from swarm_phd.cli import main  # noqa: E402
 
 
 @pytest.fixture(scope="module")

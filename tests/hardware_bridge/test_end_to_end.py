@@ -11,12 +11,13 @@ import pytest
 
 from agents.scripted import WanderPolicy
 from hardware_bridge import real_env
-from hardware_bridge.bag import ReplayWorld, export_sim_episode, replay_env
-from hardware_bridge.evaluate import run_episode
+from hardware_bridge.bag import ReplayWorld, replay_env
 from hardware_bridge.loopback import LoopbackServer
 from swarm_env.config import make_config
 from swarm_env.env import SwarmEnv
 from swarm_env.world.sim import SimWorld
+from swarm_phd.episode import run_episode
+from swarm_phd.export_bag import export_sim_episode
 
 SEED = 0
 N_STEPS = 80  # 8 s of real time, 4 robots (seed-lab)
@@ -143,7 +144,7 @@ def test_exported_sim_episode_replays_through_the_env_api(tmp_path):
 
 @pytest.mark.timeout(60)
 def test_cli_export_replay_and_loopback_bridge(tmp_path, capsys):
-    from swarm_env.cli import main
+    from swarm_phd.cli import main
 
     bag = tmp_path / "cli_bag"
     assert main(["export-bag", "--out", str(bag), "--duration", "1.0", "--seed", "2"]) == 0

@@ -10,9 +10,9 @@ import pytest
 
 from agents.scripted import WanderPolicy
 from hardware_bridge import real_env
-from hardware_bridge.evaluate import run_episode
 from hardware_bridge.loopback import FaultConfig
 from hardware_bridge.world import RobotsSilentError
+from swarm_phd.episode import run_episode
 from tests.hardware_bridge.conftest import wait_until
 
 STAMPED = ("lidar", "odometry", "mocap")

@@ -30,9 +30,9 @@ from hardware_bridge.messages import (
 )
 from hardware_bridge.safety import CommandLimiter
 from hardware_bridge.transport import check_host
+from swarm_core.world import relative_positions
 from swarm_env.config import RobotConfig, make_config
 from swarm_env.sensors.lidar import LidarSensor
-from swarm_env.world.base import relative_positions
 
 STAMP = 1_700_000_000_123_456_789
 

@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from agents.evaluation import (
+from swarm_phd.evaluate import (
     LOCALIZERS,
     IdentityScorer,
     _oracle_range_bearing,

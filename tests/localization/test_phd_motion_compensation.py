@@ -10,8 +10,8 @@ import pytest
 
 from localization import PHDBank, PHDConfig, RobotCentricPHD
 from localization.frames import bearings_to_filter_frame, points_to_filter_frame
+from swarm_core.records import CameraRecord, LidarRecord, OdometryRecord, RobotMeasurements
 from swarm_env.env import localizer_calls
-from swarm_env.records import CameraRecord, LidarRecord, OdometryRecord, RobotMeasurements
 
 
 def _pose_after(v: float, omega: float, t: float) -> np.ndarray:

@@ -13,9 +13,9 @@ import math
 import numpy as np
 import pytest
 
+from swarm_core.geometry import wrap_angle
 from swarm_env.sensors import noise
 from swarm_env.sensors.camera import CameraConfig, CameraSensor
-from swarm_env.sensors.geometry import wrap_angle
 from swarm_env.sensors.kernels import wrap
 from swarm_env.sensors.lidar import (
     HIT_CIRCLE,

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from swarm_core.world import relative_positions
 from swarm_env import make_config
 from swarm_env.sensors.odometry import pulses_to_delta
-from swarm_env.world.base import relative_positions
 from swarm_env.world.sim import SimWorld
 
 EMPTY = {"n_decoy_posts": 0, "n_red_decoys": 0, "n_boxes": 0}

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from pettingzoo.test import parallel_api_test
 
+from swarm_core.world import GroundTruth
 from swarm_env import parallel_env
 from swarm_env.config import ArenaConfig
 from swarm_env.tasks import TASKS, make_task
@@ -16,7 +17,6 @@ from swarm_env.tasks.encirclement import EncirclementTask
 from swarm_env.tasks.exploration import ExplorationTask
 from swarm_env.tasks.formation import FormationTask
 from swarm_env.world.arena import Layout
-from swarm_env.world.base import GroundTruth
 
 
 def truth(xy, yaw=None, extra=None) -> GroundTruth:

@@ -40,9 +40,9 @@ import numpy as np
 from localization import IDPHD, IDPHDConfig, PHDBank, PHDConfig
 from localization.baselines import ParticleFilterTracker, UKFTracker
 from localization.metrics import LocalizationScorer, extract_estimates
+from swarm_core.records import LidarRecord, OdometryRecord
 from swarm_env import parallel_env
 from swarm_env.env import SwarmEnv, localizer_calls
-from swarm_env.records import LidarRecord, OdometryRecord
 
 #: PHD localizers: the ``PHDConfig.mode`` each runs in (one ``PHDBank`` per localizer).
 PHD_MODES = {"phd-lc": "lidar-camera", "phd-lo": "lidar-only"}
@@ -293,7 +293,7 @@ def evaluate_localization(
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
         (out_dir / "metrics.json").write_text(json.dumps(results, indent=2))
-        from agents.figures import write_localization_figures
+        from swarm_phd.figures import write_localization_figures
 
         write_localization_figures(out_dir, results, trace, np.array(paths), estimates)
     return results

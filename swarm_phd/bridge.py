@@ -84,7 +84,7 @@ def _faults(text: str | None):
 def run(args: argparse.Namespace) -> int:
     from agents.scripted import WanderPolicy
     from hardware_bridge import real_env
-    from hardware_bridge.evaluate import format_metrics, run_episode
+    from swarm_phd.episode import format_metrics, run_episode
 
     if args.steps < 1:
         raise ValueError(f"--steps must be >= 1, got {args.steps}")

@@ -17,7 +17,7 @@ import numpy as np
 
 from agents.scripted import WanderPolicy
 from swarm_env import parallel_env
-from swarm_env.runner import rollout
+from swarm_phd.runner import rollout
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -80,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"  wrote {out / 'demo.gif'} ({len(frames)} frames) and {out / 'snapshot.png'}")
     env.close()
     if args.eval_duration > 0:
-        from agents.evaluation import evaluate_localization, print_table
+        from swarm_phd.evaluate import evaluate_localization, print_table
 
         print(
             f"\nLocalization, Lidar+Camera (LC) vs Lidar-Only (LO), {args.eval_duration:.0f} s, "

@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 
 from swarm_env import parallel_env
-from swarm_env.runner import random_policy, rollout
+from swarm_phd.runner import random_policy, rollout
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -1,18 +1,18 @@
 """The World protocol: the only thing that differs between simulation, replay and real robots.
 
 A World accepts one velocity command per robot, advances by one control period, and returns the
-measurement records each robot produced in that period (see :mod:`swarm_env.records`) plus ground
+measurement records each robot produced in that period (see :mod:`swarm_core.records`) plus ground
 truth when it exists (the simulator always; motion capture on real robots, optionally).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from swarm_env.records import RobotMeasurements
+from swarm_core.records import RobotMeasurements
 
 
 @dataclass(frozen=True, slots=True)
@@ -105,14 +105,31 @@ class WorldStep:
 class World(Protocol):
     """Anything the env can drive: :class:`~swarm_env.world.sim.SimWorld`, replay, real robots."""
 
+    #: Agent ids, in the order of the rows of ``commands`` and of ground truth.
     robot_ids: tuple[str, ...]
+    #: The episode's obstacle geometry (:class:`swarm_env.world.arena.Layout`) when the World
+    #: knows it (the simulator), else ``None`` (real robots, replay). Tasks may use it for
+    #: rewards, never for observations.
+    layout: Any | None
 
     def reset(self, rng: np.random.Generator) -> WorldStep:
         """Place the robots (sim) or wait for fresh data (real), and return the first records."""
 
-    def step(self, commands: np.ndarray) -> WorldStep:
+    def step(self, commands: np.ndarray, extra_commands: np.ndarray | None = None) -> WorldStep:
         """Apply ``commands`` (shape (N, 2), ``[v_mps, omega_radps]``, already validated and
-        clipped) for one control period and return what was measured during it."""
+        clipped) for one control period and return what was measured during it.
+
+        ``extra_commands`` (shape (E, 2)) drives the World's non-agent bodies (a task's
+        intruder); a World that has none must raise ``ValueError`` when given any."""
 
     def close(self) -> None:
         """Release resources; a real World stops every robot here."""
+
+
+def reject_extra_commands(world: str, extra_commands: np.ndarray | None) -> None:
+    """For Worlds without non-agent bodies: raise ``ValueError`` if ``extra_commands`` has rows."""
+    if extra_commands is not None and np.asarray(extra_commands).size:
+        raise ValueError(
+            f"{world} has no non-agent bodies to drive, got extra_commands of shape "
+            f"{np.shape(extra_commands)} (a task with an intruder needs the simulator)"
+        )

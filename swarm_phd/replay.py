@@ -20,7 +20,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from hardware_bridge.bag import replay_env
-    from hardware_bridge.evaluate import format_metrics, run_episode
+    from swarm_phd.episode import format_metrics, run_episode
 
     overrides = {}
     if args.mode is not None:

@@ -22,26 +22,24 @@ def _add(name: str, help_text: str, module: str):
     _REGISTRY.append((name, help_text, configure, module))
 
 
-_add("demo", "run the seed's swarm for 60 s and show sensors and localization", "swarm_env.demo")
-_add("bench", "measure env throughput (steps/s, real-time factor, lidar cost)", "swarm_env.bench")
+_add("demo", "run the seed's swarm for 60 s and show sensors and localization", "swarm_phd.demo")
+_add("bench", "measure env throughput (steps/s, real-time factor, lidar cost)", "swarm_phd.bench")
 _add(
     "evaluate",
     "reproduce the seed's localization experiment / evaluate a policy",
-    "agents.evaluation",
+    "swarm_phd.evaluate",
 )
 _add(
     "bridge",
     "drive robots (or --loopback simulated ones) over rosbridge",
-    "hardware_bridge.commands.bridge",
+    "swarm_phd.bridge",
 )
 _add(
     "replay",
     "rerun localization and metrics offline on a recorded bag",
-    "hardware_bridge.commands.replay",
+    "swarm_phd.replay",
 )
-_add(
-    "export-bag", "write a simulated episode as a ROS 2 bag", "hardware_bridge.commands.export_bag"
-)
+_add("export-bag", "write a simulated episode as a ROS 2 bag", "swarm_phd.export_bag")
 _add(
     "train",
     "train a PPO policy shared by all agents on a task (stable-baselines3)",

@@ -1,1 +1,0 @@
-"""``swarm-phd`` subcommands of the hardware bridge: ``bridge``, ``replay``, ``export-bag``."""
