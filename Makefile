@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet torch==2.13.0
-	$(PY) -m pip install --quiet -e ".[rl,bridge,render,bench,dev]"
+	$(PY) -m pip install --quiet -e ".[rl,bridge,render,bench,dev,ray]"
 	touch $(STAMP)
 
 demo: $(STAMP)
@@ -27,6 +27,7 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(VENV)/bin/swarm-phd bench --json runs/bench/env.json
 	$(PY) benchmarks/bench_sensors.py
+	$(PY) benchmarks/bench_detection_curves.py --json runs/bench/detection_curves.json
 	$(PY) benchmarks/bench_bank.py --json runs/bench/bank.json
 	$(PY) benchmarks/bench_phd_vs_stonesoup.py --json runs/bench/phd_vs_stonesoup.json
 

@@ -27,3 +27,48 @@ def check_probability(name: str, value: float) -> None:
     """Raise ``ValueError`` unless ``value`` is in [0, 1]."""
     if not isinstance(value, (int, float)) or not 0.0 <= value <= 1.0:
         raise ValueError(f"{name} must be a probability in [0, 1], got {value!r}")
+
+
+def check_blind_sectors(owner: str, centers_deg: object, widths_deg: object) -> None:
+    """Raise ``ValueError`` unless the blind sectors ``centers_deg`` / ``widths_deg`` are valid.
+
+    One rule for every user of the camera-pillar sectors (the simulated lidar, the filter's
+    blind-sector factor, the perception code on real robots), so a value accepted by one is
+    accepted by all: two tuples of finite numbers (degrees, robot frame) of equal length, each
+    width in ``(0, 360)``. A width of 0 is rejected (the filter's factor divides by it); no
+    sectors at all is written as two empty tuples. ``owner`` prefixes the field names in the
+    message, e.g. ``"LidarConfig"``.
+    """
+    for name, value in (
+        ("blind_sector_centers_deg", centers_deg),
+        ("blind_sector_widths_deg", widths_deg),
+    ):
+        ok = isinstance(value, tuple) and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+            for v in value
+        )
+        if not ok:
+            raise ValueError(f"{owner}.{name} must be a tuple of finite numbers, got {value!r}")
+    if len(centers_deg) != len(widths_deg):  # type: ignore[arg-type]
+        raise ValueError(
+            f"{owner}.blind_sector_widths_deg must have one width per centre, got "
+            f"{widths_deg!r} for centres {centers_deg!r}"
+        )
+    for width in widths_deg:  # type: ignore[union-attr]
+        if not 0.0 < width < 360.0:
+            raise ValueError(f"{owner}.blind_sector_widths_deg must be in (0, 360), got {width!r}")
+
+
+import numpy as np  # noqa: E402  (appended helper; the checks above need no numpy)
+
+
+def as_float_array(value: object, name: str) -> np.ndarray:
+    """``value`` as a float64 ndarray (no copy if it already is one).
+
+    Raises ``ValueError`` naming ``name`` and the value when it is not numeric. Shape and
+    finiteness are the caller's to check (they differ per field).
+    """
+    try:
+        return np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be numeric, got {value!r}") from exc

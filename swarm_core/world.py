@@ -122,6 +122,11 @@ class World(Protocol):
         ``extra_commands`` (shape (E, 2)) drives the World's non-agent bodies (a task's
         intruder); a World that has none must raise ``ValueError`` when given any."""
 
+    def halt(self) -> None:
+        """Stop every robot now (a zero command each). Idempotent and never raises: the env
+        calls it on any exception in ``step()`` / ``reset()`` before the exception propagates.
+        The simulator has nothing to stop."""
+
     def close(self) -> None:
         """Release resources; a real World stops every robot here."""
 

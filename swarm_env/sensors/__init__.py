@@ -1,1 +1,14 @@
-"""TODO"""
+"""Simulated sensor models of the Cherokey UGV, each with its noise, rate and failure modes.
+
+- :mod:`~swarm_env.sensors.odometry`: wheel encoders (pulse quantisation, slip) to
+  ``[dx, dy, dpsi]`` increments.
+- :mod:`~swarm_env.sensors.lidar`: the YDLidar X4 scan (beams, noise, blind sectors from the
+  camera pillars, inter-lidar interference).
+- :mod:`~swarm_env.sensors.camera`: the two fisheye cameras' red-blob bearings (range-limited
+  detection, occlusion, red decoys as false positives).
+- :mod:`~swarm_env.sensors.noise`: seeded noise tables; :mod:`~swarm_env.sensors.kernels`: the
+  compiled casting kernels.
+
+What runs on real robots too (lidar feature extraction, null bearings) lives in
+:mod:`swarm_core.perception`.
+"""

@@ -5,18 +5,32 @@ the colour-blob detector reports the bearing of each red blob in the robot frame
 identity. A red circle ``t`` (a robot's strip or a red decoy) is *visible* to observer ``k`` when
 
 * it is not the observer's own strip,
-* its centre is within ``[range_min_m, range_max_m]`` (seed: ~3-4 m),
+* its centre is at least ``range_min_m`` away and no farther than the range at which a fully
+  lit band of its radius can still pass the blob-area test (``detectable_range_m``, capped at
+  ``range_max_m``),
 * the straight line between the two centres crosses no wall/box segment and passes outside
   every camera-occluding circle except the observer's own and the target's own.
 
-A visible blob is detected with probability ``1 - miss_probability`` and reported at its true
-bearing plus Gaussian noise (sigma 5 deg: the seed's "25 deg" R_C read as a variance). Each frame
-also has ``Poisson(false_positive_rate)`` clutter bearings, uniform on the circle. Bearings of a
-frame are sorted, so their order says nothing about which robot produced them.
+Blob detection (physical, seed 000 "Camera measurements": 1920x1080 fisheyes covering 180 deg,
+red colour threshold, blobs). A red strip of radius R and height ``strip_height_m`` at range d
+covers ``A(d) = f^2 x 2 asin(R / d) x strip_height_m / d`` pixels, ``f = pixels_per_rad``
+(equidistant fisheye). In each frame a fraction ``u ~ U(fill_min, 1)`` of it passes the colour
+threshold, as one contiguous sub-arc at a uniform position within the strip (the lit part of a
+curved strip). The blob is detected when ``u A(d) >= min_blob_area_px`` and it is not lost
+(``miss_probability``), so the detection probability falls with range:
+``P_d(d) = (1 - miss) clip((1 - min_area / A(d)) / (1 - fill_min), 0, 1)``
+(:meth:`CameraSensor.detection_probability`; 0.95 to 3.3 m, 0.5 at 4.1 m, 0 from 4.7 m for a
+robot's 5 cm strip). The bearing is the blob centroid's: the true bearing plus the sub-arc's
+offset ``(s - 1/2)(1 - u) x 2 asin(R / d)``, ``s ~ U(0, 1)`` (a few tenths of a degree at 1 m,
+more when closer), plus pixel quantisation ``U(-1/2, 1/2) / f``, plus optional Gaussian
+``bearing_noise_std_deg``. Each frame also has ``Poisson(false_positive_rate)`` clutter
+bearings, uniform on the circle; red decoys are detected like strips (false positives). Bearings
+of a frame are sorted, so their order says nothing about which robot produced them.
 
-Simplified: blobs are points (no partial occlusion, no size-dependent detection, no lens
-distortion or seam between the two fisheyes), all of a frame's blobs are seen at one instant,
-and every red circle is one blob.
+Simplified: no partial occlusion, no lens distortion (the fisheye is equidistant and the strip
+is seen side-on at the horizon), no seam between the two fisheyes, all of a frame's blobs are
+seen at one instant, every red circle is one blob, and the fill fractions are independent per
+frame (real lighting is correlated over time).
 """
 
 from __future__ import annotations
@@ -28,6 +42,7 @@ import numpy as np
 from numba import njit, prange
 
 from swarm_env.sensors.kernels import segment_distance2, stable_order, wrap
+from swarm_env.sensors.noise import table_indices
 from swarm_env.world.scene import Scene
 
 
@@ -40,21 +55,43 @@ class CameraConfig:
     rate_hz : float
         Frame rate (seed: 30 fps).
     range_max_m : float
-        Farthest detectable blob (seed: "~3-4 m").
+        Blobs farther than this are not tested at all: a computational bound, beyond the
+        range where the area test can pass (4.7 m for a 5 cm strip, 5.2 m for a 6 cm red decoy
+        at full fill). The detection probability itself falls with range through the area test.
     range_min_m : float
         Nearer blobs are out of the fisheyes' view (below the lens).
+    pixels_per_rad : float
+        Equidistant fisheye scale: 1920 px across 180 deg (seed: 1920x1080, 180-deg lens).
+    strip_height_m : float
+        Height of the red strip (and of a red decoy's red band). The seed does not give it:
+        15 mm (a roll of tape), our choice, which puts the 50 % detection range at 4.1 m,
+        matching the seed's "~3-4 m" camera range.
+    min_blob_area_px : float
+        Smallest blob the detector keeps, in pixels (OpenCV ``SimpleBlobDetector``'s default
+        ``minArea`` = 25).
+    fill_min : float
+        The fraction of a strip's pixels that pass the colour threshold in a frame is uniform
+        in ``[fill_min, 1]`` (shading of the curved strip, lighting; our choice 0.5). 1 gives
+        ideal blobs: centroid at the strip's centre, detected wherever the area suffices.
     bearing_noise_std_deg : float
-        Gaussian bearing noise (seed: R_C = 25 deg^2).
+        Extra Gaussian bearing noise beyond the centroid and quantisation terms (lens
+        calibration, timing). Default 0: the simulated lens is ideal. The seed's hardware
+        reports R_C = "25 deg" (5 deg std read as a variance), which includes such errors.
     miss_probability : float
-        Chance a visible blob is not detected in a frame.
+        Chance a blob that passes the area test is still lost in a frame (motion blur,
+        glare); our choice.
     false_positive_rate : float
         Mean number of clutter bearings per frame (Poisson), uniform on the circle.
     """
 
     rate_hz: float = 30.0
-    range_max_m: float = 4.0
+    range_max_m: float = 5.5
     range_min_m: float = 0.1
-    bearing_noise_std_deg: float = 5.0
+    pixels_per_rad: float = 1920.0 / math.pi
+    strip_height_m: float = 0.015
+    min_blob_area_px: float = 25.0
+    fill_min: float = 0.5
+    bearing_noise_std_deg: float = 0.0
     miss_probability: float = 0.05
     false_positive_rate: float = 0.1
 
@@ -73,6 +110,12 @@ class CameraConfig:
                 "CameraConfig.bearing_noise_std_deg must be >= 0, got "
                 f"{self.bearing_noise_std_deg!r}"
             )
+        for name in ("pixels_per_rad", "strip_height_m", "min_blob_area_px"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"CameraConfig.{name} must be finite and > 0, got {value!r}")
+        if not 0.0 <= self.fill_min <= 1.0:
+            raise ValueError(f"CameraConfig.fill_min must be in [0, 1], got {self.fill_min!r}")
         if not 0.0 <= self.miss_probability <= 1.0:
             raise ValueError(
                 f"CameraConfig.miss_probability must be in [0, 1], got {self.miss_probability!r}"
@@ -98,7 +141,8 @@ class CameraBatch:
         K int arrays aligned with ``bearings``: the scene circle index of the red blob behind
         each bearing, -1 for clutter (ground truth, for diagnostics and tests).
     visible : ndarray, shape (K, N), bool
-        Robot j's strip had line of sight and range from observer k (before miss and noise).
+        Robot j's strip had line of sight and was within its detectable range
+        (``CameraSensor.detectable_range_m``) from observer k (before fill, miss and noise).
         N = number of circle owners (``scene.n_robots``, or more if sensorless robots such as an
         intruder own circles).
     target_index : ndarray, shape (T,), int
@@ -125,6 +169,41 @@ class CameraSensor:
 
     def __init__(self, config: CameraConfig | None = None) -> None:
         self.config = config if config is not None else CameraConfig()
+        self._reach_cache: tuple[bytes | None, np.ndarray] = (None, np.empty(0))
+
+    def blob_area_px(self, range_m: np.ndarray | float, radius_m: np.ndarray | float):
+        """Pixels of a fully lit red band of radius ``radius_m`` at ``range_m`` (broadcast)."""
+        cfg = self.config
+        d = np.asarray(range_m, dtype=np.float64)
+        width = 2.0 * np.arcsin(np.minimum(np.asarray(radius_m, dtype=np.float64) / d, 1.0))
+        return cfg.pixels_per_rad**2 * width * (cfg.strip_height_m / d)
+
+    def detectable_range_m(self, radius_m: np.ndarray | float) -> np.ndarray:
+        """Range beyond which a red band of radius ``radius_m`` cannot pass the area test (even
+        fully lit), capped at ``range_max_m``: the visibility test's reach, m.
+
+        An upper bound of the exact root of ``A(d) = min_blob_area_px``: with
+        ``d0 = f sqrt(2 R h / min_area)`` (the small-angle root) and ``asin(x) <= x /
+        sqrt(1 - x^2)``, ``A(d0 (1 - (R / d0)^2)^(-1/4)) <= min_area``.
+        """
+        cfg = self.config
+        radius = np.asarray(radius_m, dtype=np.float64)
+        d0 = cfg.pixels_per_rad * np.sqrt(2.0 * radius * cfg.strip_height_m / cfg.min_blob_area_px)
+        x2 = np.minimum((radius / np.maximum(d0, 1e-12)) ** 2, 0.99)
+        bound = np.where(x2 < 0.5, d0 / (1.0 - x2) ** 0.25 * (1.0 + 1e-9), np.inf)
+        return np.minimum(bound, cfg.range_max_m)
+
+    def detection_probability(self, range_m: np.ndarray | float, radius_m: np.ndarray | float):
+        """Probability that a visible red band of radius ``radius_m`` at ``range_m`` (m,
+        broadcast) is detected in a frame: ``(1 - miss) P(u A >= min_area)``, ``u ~
+        U(fill_min, 1)``. The analytic curve the simulated detections follow."""
+        cfg = self.config
+        need = cfg.min_blob_area_px / self.blob_area_px(range_m, radius_m)
+        if cfg.fill_min == 1.0:
+            passed = (need <= 1.0).astype(np.float64)
+        else:
+            passed = np.clip((1.0 - need) / (1.0 - cfg.fill_min), 0.0, 1.0)
+        return (1.0 - cfg.miss_probability) * passed
 
     def visibility(
         self, scene: Scene, robots: np.ndarray, time_index: np.ndarray | None = None
@@ -148,6 +227,11 @@ class CameraSensor:
             (in a time-stacked scene: for the circles of the frame's own instant and the static
             ones; 0 for other instants' circles).
         """
+        return self._geometry(scene, robots, time_index)[:3]
+
+    def _geometry(self, scene, robots, time_index):
+        """:meth:`visibility` plus the (K, T) observer-to-circle distances, m (valid where
+        visible)."""
         cfg = self.config
         robots = np.asarray(robots, dtype=np.intp).reshape(-1)
         n_circles = scene.circle_xy.shape[0]
@@ -173,6 +257,7 @@ class CameraSensor:
         origin, yaw = scene.observer_poses(robots, time_index)
         visible = np.empty((robots.size, target.size), dtype=bool)
         bearing = np.empty((robots.size, target.size))
+        dist = np.empty((robots.size, target.size))
         _visibility_kernel(
             np.ascontiguousarray(origin, dtype=np.float64),
             np.ascontiguousarray(yaw, dtype=np.float64),
@@ -188,11 +273,20 @@ class CameraSensor:
             np.ascontiguousarray(scene.segment_a, dtype=np.float64).reshape(-1, 2),
             np.ascontiguousarray(scene.segment_b, dtype=np.float64).reshape(-1, 2),
             cfg.range_min_m**2,
-            cfg.range_max_m**2,
+            self._reach2(np.asarray(scene.circle_radius_m, dtype=np.float64)[target]),
             visible,
             bearing,
+            dist,
         )
-        return target, visible, bearing
+        return target, visible, bearing, dist
+
+    def _reach2(self, radius: np.ndarray) -> np.ndarray:
+        """Squared :meth:`detectable_range_m` of ``radius``; the radii of a layout do not
+        change from call to call, so the last answer is kept."""
+        key = radius.tobytes()
+        if self._reach_cache[0] != key:
+            self._reach_cache = (key, self.detectable_range_m(radius) ** 2)
+        return self._reach_cache[1]
 
     def observe(
         self,
@@ -210,9 +304,10 @@ class CameraSensor:
         robots : ndarray, shape (K,), int
             Observers (indices into ``scene.robot_xy``).
         rng : numpy.random.Generator
-            Draws, in this order: V miss uniforms and V bearing normals for the V visible
-            (observer, target) pairs in row-major order, K Poisson clutter counts, then the
-            clutter bearings.
+            Draws, in this order: 4 V 16-bit uniforms (``noise.table_indices``: fill fraction,
+            sub-arc position, pixel quantisation, miss) and, if ``bearing_noise_std_deg > 0``,
+            V bearing normals, for the V visible (observer, target) pairs in row-major order;
+            K Poisson clutter counts, then the clutter bearings.
         time_index : ndarray, shape (K,), int, optional
             Instant of each frame in a time-stacked scene (see :class:`Scene`).
 
@@ -230,12 +325,17 @@ class CameraSensor:
         n_obs = robots.size
         if time_index is not None:
             time_index = np.asarray(time_index, dtype=np.intp).reshape(-1)
-        target, visible, bearing = self.visibility(scene, robots, time_index)
+        target, visible, bearing, dist = self._geometry(scene, robots, time_index)
 
         # Draws only for the visible (observer, target) pairs, in row-major order.
         n_visible = int(np.count_nonzero(visible))
-        hit = rng.random(n_visible) >= cfg.miss_probability
-        noise = rng.standard_normal(n_visible) * np.deg2rad(cfg.bearing_noise_std_deg)
+        # 16-bit uniforms, four per raw 64-bit draw (noise.table_indices): ~4x cheaper than
+        # Generator.random and fine enough for a fill fraction, a position and a miss.
+        draws = table_indices(rng, 4 * n_visible).reshape(4, n_visible)
+        if cfg.bearing_noise_std_deg > 0.0:
+            extra = rng.standard_normal(n_visible) * np.deg2rad(cfg.bearing_noise_std_deg)
+        else:
+            extra = np.zeros(n_visible)  # no draws: the ideal lens costs nothing
         n_clutter = rng.poisson(cfg.false_positive_rate, size=n_obs)
         clutter = rng.uniform(-np.pi, np.pi, size=int(n_clutter.sum()))
 
@@ -246,8 +346,15 @@ class CameraSensor:
             bearing,
             target,
             owner,
-            hit,
-            noise,
+            dist,
+            np.asarray(scene.circle_radius_m, dtype=np.float64),
+            draws,
+            extra,
+            cfg.pixels_per_rad,
+            cfg.strip_height_m,
+            cfg.min_blob_area_px,
+            cfg.fill_min,
+            cfg.miss_probability,
             n_clutter.astype(np.intp),
             clutter,
             n_owners,
@@ -267,20 +374,63 @@ class CameraSensor:
 
 @njit(cache=True)
 def _frames_kernel(
-    visible, bearing, target, circle_owner, hit, noise, n_clutter, clutter, n_owners
+    visible,
+    bearing,
+    target,
+    circle_owner,
+    dist,
+    circle_radius,
+    draws,
+    extra,
+    pixels_per_rad,
+    strip_height,
+    min_area,
+    fill_min,
+    miss,
+    n_clutter,
+    clutter,
+    n_owners,
 ):
     """Assemble K frames from the geometry and the draws.
 
     ``visible``, ``bearing`` (K, T) from :meth:`CameraSensor.visibility`; ``target`` (T,)
-    circle indices; ``hit``, ``noise`` (V,) rad for the V visible pairs in row-major order;
+    circle indices; ``dist`` (K, T) m observer-to-circle distances; ``circle_radius`` (C,)
+    m; ``draws`` (4, V) uint16 levels of uniforms ``(i + 1/2) / 2^16`` (fill, sub-arc
+    position, pixel rounding, miss) and
+    ``extra`` (V,) rad Gaussian noise for the V visible pairs in row-major order; the blob
+    model's scalars (see :class:`CameraConfig`);
     ``n_clutter`` (K,) and ``clutter`` (sum,) rad. Returns the bearings (M,) rad and their
     sources (M,) (circle index, -1 for clutter), sorted by bearing within each frame,
     ``bounds`` (K + 1,) of the frames, and ``robot_visible`` (K, n_owners).
     """
     n_obs, n_targets = visible.shape
+    n_visible = draws.shape[1]
+    # Blob-area test and centroid offset per visible pair, in row-major order.
+    hit = np.empty(n_visible, dtype=np.bool_)
+    noise = np.empty(n_visible)
+    f2h = pixels_per_rad * pixels_per_rad * strip_height
+    level = 1.0 / 65536.0
+    v = 0
     total = n_clutter.sum()
-    for v in range(hit.shape[0]):
-        total += hit[v]
+    for k in range(n_obs):
+        for j in range(n_targets):
+            if not visible[k, j]:
+                continue
+            d = dist[k, j]
+            width = 2.0 * math.asin(min(circle_radius[target[j]] / d, 1.0))  # strip's extent
+            u_fill, u_pos, u_pix, u_miss = (
+                (draws[0, v] + 0.5) * level,
+                (draws[1, v] + 0.5) * level,
+                (draws[2, v] + 0.5) * level,
+                (draws[3, v] + 0.5) * level,
+            )
+            fill = fill_min + (1.0 - fill_min) * u_fill
+            hit[v] = fill * f2h * width / d >= min_area and u_miss >= miss
+            # Centroid of the lit sub-arc (fraction `fill`, uniform position), to a pixel.
+            noise[v] = (u_pos - 0.5) * (1.0 - fill) * width
+            noise[v] += (u_pix - 0.5) / pixels_per_rad + extra[v]
+            total += hit[v]
+            v += 1
     values = np.empty(total)
     source = np.empty(total, dtype=np.intp)
     bounds = np.empty(n_obs + 1, dtype=np.intp)
@@ -328,9 +478,10 @@ def _visibility_kernel(
     seg_a,
     seg_b,
     range_min2,
-    range_max2,
+    reach2,
     visible,
     bearing,
+    dist,
 ):
     """Line of sight from K observers to T red circles.
 
@@ -338,8 +489,9 @@ def _visibility_kernel(
     circle is present) describe the frames; ``circle_*`` (C,) the scene; ``target`` (T,) and
     ``occ`` (O,) are circle indices, ``occ`` sorted by instant with ``groups`` (instants + 2,)
     its bounds: static occluders ``groups[0]:groups[1]``, instant t's
-    ``groups[t + 1]:groups[t + 2]``. ``seg_a``, ``seg_b`` (S, 2) m. Writes ``visible`` (K, T)
-    and ``bearing`` (K, T) rad (0 for targets absent at the frame's instant).
+    ``groups[t + 1]:groups[t + 2]``. ``seg_a``, ``seg_b`` (S, 2) m. ``reach2`` (T,) m^2: each
+    target's squared detectable range. Writes ``visible`` (K, T), ``bearing`` (K, T) rad (0 for
+    targets absent at the frame's instant) and ``dist`` (K, T) m (set where present).
 
     A line is blocked when it properly crosses a segment, or passes closer than a circle's
     radius to its centre (closest point of the line segment) for a circle other than the
@@ -367,8 +519,9 @@ def _visibility_kernel(
             dx, dy = circle_xy[c, 0] - ox, circle_xy[c, 1] - oy
             bearing[k, j] = wrap(math.atan2(dy, dx) - yaw[k])
             d2 = dx * dx + dy * dy
+            dist[k, j] = math.sqrt(d2)
             t_owner = circle_owner[c]
-            if t_owner == me or d2 < range_min2 or d2 > range_max2:
+            if t_owner == me or d2 < range_min2 or d2 > reach2[j]:
                 visible[k, j] = False
                 continue
             tx, ty = circle_xy[c, 0], circle_xy[c, 1]

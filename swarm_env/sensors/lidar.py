@@ -11,8 +11,14 @@ Model (seed 000, section "Lidar"; defaults from the YDLidar X4 data sheet the se
 
 * 720 beams per revolution (0.5 deg), beam k at robot-frame angle ``-pi + k 2 pi / B``;
   7 Hz; returns between ``range_min_m`` and ``range_max_m``, else range 0 ("no return").
-* Additive Gaussian range noise on valid returns; the return is dropped (range 0) if the noisy
-  range falls outside ``[range_min_m, range_max_m]``.
+* Each sample integrates over ``beam_footprint_deg`` (the head sweeps one beam spacing while it
+  measures): a beam returns from a small round target (housing, post) only when its whole
+  footprint is on it; a footprint straddling the edge is a mixed return that the cluster
+  extractor splits off, modelled as passing to whatever is behind. A 65 mm housing at range r
+  thus gives ``2 asin(0.0325 / r) / 0.5 deg - 1`` returns (6.4 at 1 m, 2.7 at 2 m).
+* Additive Gaussian range noise ``sigma(r) = range_noise_std_m + range_noise_quadratic_per_m
+  r^2`` (triangulation) on valid returns; the return is dropped (range 0) if the noisy range
+  falls outside ``[range_min_m, range_max_m]``.
 * Intensity = surface intensity x ``1 / (1 + (r / intensity_falloff_m)^2)`` x log-normal noise,
   so a valid return always has intensity > 0 and range 0 + intensity 0 marks a null.
 * Four blind sectors where the camera pillars sit inside ``range_min_m``: range 0, intensity 0.
@@ -36,6 +42,8 @@ import numpy as np
 from numba import njit, prange
 
 from swarm_core.geometry import TWO_PI, wrap_angle
+from swarm_core.perception.blind_sectors import blind_mask
+from swarm_core.validation import check_blind_sectors
 from swarm_env.sensors.kernels import segment_distance2, stable_order, wrap
 from swarm_env.sensors.noise import TabulatedNormal, table_indices, tabulated
 from swarm_env.world.scene import Scene
@@ -62,9 +70,20 @@ class LidarConfig:
     range_max_m, range_min_m : float
         Valid return interval (X4 data sheet: 0.12 m - 10 m).
     range_noise_std_m : float
-        Standard deviation of the additive Gaussian range noise (X4: ~1 % at short range; we
-        use a flat 1 cm, which matches the seed filter's R_L = diag(0.0025) being dominated by
-        the centre-estimate error, not the range noise).
+        Range-independent part of the Gaussian range noise standard deviation (1 cm: our
+        choice, X4 data sheet order of magnitude).
+    range_noise_quadratic_per_m : float
+        The X4 is a triangulation lidar: its depth error grows as r^2 (a fixed error in the
+        laser spot's position on the sensor maps to ``r^2 / (focal x baseline)``). The noise
+        standard deviation is ``range_noise_std_m + range_noise_quadratic_per_m * r^2``; the
+        default 0.0025 /m gives 1.25 cm at 1 m, 2 cm at 2 m (1 % of the distance, the data
+        sheet's figure from 2 m on) and 5 cm at 4 m.
+    beam_footprint_deg : float
+        Angular width of one sample on a target: the head turns ``360 rate_hz / 5000 Hz`` =
+        0.50 deg during each of the X4's 5 kHz samples (the laser spot's own divergence is not
+        in the data sheet and is left out). A beam whose footprint reaches past the edge of a
+        circle does not return from it (mixed pixel, see the module notes). 0 gives ideal thin
+        beams. Segments (walls, boxes) are not affected.
     intensity_noise_std : float
         Sigma of the multiplicative log-normal intensity noise (dimensionless).
     intensity_falloff_m : float
@@ -84,6 +103,8 @@ class LidarConfig:
     range_max_m: float = 10.0
     range_min_m: float = 0.12
     range_noise_std_m: float = 0.01
+    range_noise_quadratic_per_m: float = 0.0025
+    beam_footprint_deg: float = 0.5
     intensity_noise_std: float = 0.05
     intensity_falloff_m: float = 4.0
     blind_sector_centers_deg: tuple[float, ...] = (45.0, 135.0, -135.0, -45.0)
@@ -102,18 +123,17 @@ class LidarConfig:
                 f"got {self.range_max_m!r}"
             )
         _non_negative("range_noise_std_m", self.range_noise_std_m)
+        _non_negative("range_noise_quadratic_per_m", self.range_noise_quadratic_per_m)
+        if not 0.0 <= self.beam_footprint_deg < 10.0:
+            raise ValueError(
+                "LidarConfig.beam_footprint_deg must be in [0, 10), got "
+                f"{self.beam_footprint_deg!r}"
+            )
         _non_negative("intensity_noise_std", self.intensity_noise_std)
         _positive("intensity_falloff_m", self.intensity_falloff_m)
-        if len(self.blind_sector_centers_deg) != len(self.blind_sector_widths_deg):
-            raise ValueError(
-                "LidarConfig.blind_sector_widths_deg must have one width per centre, got "
-                f"{self.blind_sector_widths_deg!r} for centres {self.blind_sector_centers_deg!r}"
-            )
-        for width in self.blind_sector_widths_deg:
-            if not 0.0 <= width < 360.0:
-                raise ValueError(
-                    f"LidarConfig.blind_sector_widths_deg must be in [0, 360), got {width!r}"
-                )
+        check_blind_sectors(
+            "LidarConfig", self.blind_sector_centers_deg, self.blind_sector_widths_deg
+        )
         if not 0.0 <= self.interference_tolerance_deg <= 180.0:
             raise ValueError(
                 "LidarConfig.interference_tolerance_deg must be in [0, 180], got "
@@ -129,6 +149,11 @@ class LidarConfig:
     def beam_spacing_rad(self) -> float:
         """Angle between consecutive beams, rad."""
         return TWO_PI / self.n_beams
+
+    def range_noise_std_at(self, range_m: np.ndarray | float) -> np.ndarray:
+        """Range noise standard deviation at ``range_m`` (any shape), metres."""
+        r = np.asarray(range_m, dtype=np.float64)
+        return self.range_noise_std_m + self.range_noise_quadratic_per_m * r * r
 
 
 @dataclass(frozen=True, slots=True)
@@ -221,7 +246,8 @@ class LidarSensor:
         self._beam_uy = np.sin(angles)
         self.blind_mask = _readonly(blind_mask(angles, cfg))
         # Per-beam noise as table lookups (see noise.py): range offsets and intensity factors.
-        self._range_noise = TabulatedNormal("normal", cfg.range_noise_std_m)
+        # Unit normals: the kernel scales them by the range-dependent sigma.
+        self._range_noise = TabulatedNormal("normal", 1.0)
         self._intensity_noise = TabulatedNormal("lognormal", cfg.intensity_noise_std)
         self.head_phase_rad = np.zeros(n_robots)
         self.rate_offset_hz = np.zeros(n_robots)
@@ -365,7 +391,10 @@ class LidarSensor:
             self.blind_mask,
             cfg.range_min_m,
             cfg.range_max_m,
-            cfg.range_max_m + 6.0 * cfg.range_noise_std_m,
+            cfg.range_max_m + 6.0 * float(cfg.range_noise_std_at(cfg.range_max_m)),
+            cfg.range_noise_std_m,
+            cfg.range_noise_quadratic_per_m,
+            0.5 * np.deg2rad(cfg.beam_footprint_deg),
             1.0 / cfg.intensity_falloff_m,
             table_indices(rng, 2 * n_scans * n_beams),
             self._range_noise.table,
@@ -418,6 +447,9 @@ def _scan_kernel(
     range_min,
     range_max,
     reach,
+    noise_std,
+    noise_quadratic,
+    footprint_half,
     inv_falloff,
     noise_index,
     range_table,
@@ -474,7 +506,11 @@ def _scan_kernel(
             # Inside the circle (no outer surface) or out of reach.
             if not (d2 > r * r and d2 < (reach + r) * (reach + r)):
                 continue
-            half = math.asin(r / math.sqrt(d2)) + _EDGE_RAD
+            # Beams whose whole footprint lies on the circle (none: the circle returns nothing).
+            half = math.asin(r / math.sqrt(d2)) - footprint_half
+            if half < 0.0:
+                continue
+            half += _EDGE_RAD
             bearing = math.atan2(py, px) + math.pi
             lo = int(math.ceil((bearing - half) * inv_spacing))
             hi = int(math.floor((bearing + half) * inv_spacing))
@@ -524,7 +560,12 @@ def _scan_kernel(
         rate_me = rates[me]
         base = k * n_beams
         for b in range(n_beams):
-            r = best[b] + tabulated(range_table, noise_index[base + b])  # inf stays inf
+            d = best[b]
+            r = d  # no hit: inf stays inf
+            if d < np.inf:
+                # sigma(d) = noise_std + noise_quadratic d^2 (triangulation).
+                sigma = noise_std + noise_quadratic * d * d
+                r += sigma * tabulated(range_table, noise_index[base + b])
             c = code[b]
             if blind[b] or not (r >= range_min and r <= range_max) or c < 0:
                 ranges[k, b] = 0.0
@@ -623,20 +664,6 @@ def _runs(lo, hi, n_beams):
     if hi >= n_beams:
         return lo, n_beams - 1, 0, hi - n_beams
     return lo, hi, 0, -1
-
-
-def blind_mask(angles_rad: np.ndarray, config: LidarConfig) -> np.ndarray:
-    """Beams inside the camera-pillar blind sectors of ``config``, shape like ``angles_rad``.
-
-    Shared by the simulator and the hardware bridge, so that a beam's side of a sector edge is
-    the same everywhere (their null returns are not interference: the filter has a blind factor).
-    """
-    centers = np.deg2rad(np.asarray(config.blind_sector_centers_deg, dtype=np.float64))
-    half = 0.5 * np.deg2rad(np.asarray(config.blind_sector_widths_deg, dtype=np.float64))
-    if centers.size == 0:
-        return np.zeros(np.shape(angles_rad), dtype=bool)
-    offset = np.abs(wrap_angle(np.asarray(angles_rad)[..., None] - centers))
-    return (offset <= half).any(axis=-1)
 
 
 def _readonly(array: np.ndarray) -> np.ndarray:

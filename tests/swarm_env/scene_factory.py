@@ -1,30 +1,29 @@
-"""Build :class:`~swarm_env.world.scene.Scene` snapshots with numpy, for tests and benchmarks.
+"""Test helpers around :mod:`swarm_env.world.scene_builder` (re-exported here).
 
-Usage::
-
-    b = SceneBuilder()
-    i = b.add_robot(0.0, 0.0, yaw_rad=0.0)      # housing (lidar) + red strip (camera) circles
-    b.add_post(1.0, 0.5)                         # lidar-height decoy post, r = 30 mm
-    b.add_red_decoy(2.0, -1.0)                   # red blob, camera only
-    b.add_box(3.0, 0.0, 0.4, 0.3)                # 4 segments
-    b.add_walls(6.0, 6.0)                        # arena walls centred on the origin
-    scene = b.build()
-
-``make_arena_scene(rng, ...)`` draws a random arena like the seed's (6 m x 6 m, 20 robots).
+``EXACT_LIDAR`` is the noise-free lidar of the analytic tests; ``sight_line_crosses_segments``
+a per-segment reference for the compiled camera kernel.
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from swarm_env.sensors.lidar import LidarConfig
 from swarm_env.world.scene import Scene
+from swarm_env.world.scene_builder import (  # noqa: F401  (re-exported for the tests)
+    HOUSING_RADIUS_M,
+    POST_RADIUS_M,
+    RED_DECOY_RADIUS_M,
+    STRIP_RADIUS_M,
+    SceneBuilder,
+    make_arena_scene,
+)
 
-# Exact lidar geometry: no noise, no blind sectors, no interference.
+# Exact lidar geometry: no noise, thin beams, no blind sectors, no interference.
 EXACT_LIDAR = LidarConfig(
     range_noise_std_m=0.0,
+    range_noise_quadratic_per_m=0.0,
+    beam_footprint_deg=0.0,
     intensity_noise_std=0.0,
     blind_sector_centers_deg=(),
     blind_sector_widths_deg=(),
@@ -45,150 +44,3 @@ def sight_line_crosses_segments(scene: Scene, origin: np.ndarray, d: np.ndarray)
         if 0 < u < 1 and 0 < v < 1:
             return True
     return False
-
-
-HOUSING_RADIUS_M = 0.0325  # YDLidar X4 housing, 65 mm diameter (seed 000)
-STRIP_RADIUS_M = 0.045  # red strip around the camera holder
-POST_RADIUS_M = 0.03  # decoy post: slimmer than a housing, so the lidar extractor accepts it
-RED_DECOY_RADIUS_M = 0.05
-
-
-@dataclass
-class SceneBuilder:
-    """Accumulates robots, circles and segments; :meth:`build` freezes them into a Scene."""
-
-    robot_xy: list = field(default_factory=list)
-    robot_yaw: list = field(default_factory=list)
-    circles: list = field(default_factory=list)  # (x, y, r, owner, lidar, occluder, red, intens.)
-    segments: list = field(default_factory=list)  # (ax, ay, bx, by, intensity)
-
-    def add_robot(
-        self,
-        x: float,
-        y: float,
-        yaw_rad: float = 0.0,
-        housing: bool = True,
-        strip: bool = True,
-        intensity: float = 1.0,
-    ) -> int:
-        """Add a robot: a lidar housing and a red camera-holder strip, both at its centre."""
-        idx = len(self.robot_xy)
-        self.robot_xy.append((x, y))
-        self.robot_yaw.append(yaw_rad)
-        if housing:
-            self.add_circle(x, y, HOUSING_RADIUS_M, owner=idx, lidar=True, intensity=intensity)
-        if strip:
-            self.add_circle(x, y, STRIP_RADIUS_M, owner=idx, lidar=False, occluder=True, red=True)
-        return idx
-
-    def add_circle(
-        self,
-        x: float,
-        y: float,
-        radius_m: float,
-        owner: int = -1,
-        lidar: bool = True,
-        occluder: bool = False,
-        red: bool = False,
-        intensity: float = 1.0,
-    ) -> int:
-        self.circles.append((x, y, radius_m, owner, lidar, occluder, red, intensity))
-        return len(self.circles) - 1
-
-    def add_post(self, x: float, y: float, radius_m: float = POST_RADIUS_M) -> int:
-        """A decoy post at lidar height that also blocks the camera."""
-        return self.add_circle(x, y, radius_m, lidar=True, occluder=True, intensity=0.8)
-
-    def add_red_decoy(self, x: float, y: float, radius_m: float = RED_DECOY_RADIUS_M) -> int:
-        """A red object above lidar height: a camera false positive."""
-        return self.add_circle(x, y, radius_m, lidar=False, occluder=True, red=True)
-
-    def add_segment(self, ax: float, ay: float, bx: float, by: float, intensity=0.5) -> int:
-        self.segments.append((ax, ay, bx, by, intensity))
-        return len(self.segments) - 1
-
-    def add_box(self, cx: float, cy: float, width_m: float, height_m: float, yaw_rad=0.0) -> None:
-        hx, hy = 0.5 * width_m, 0.5 * height_m
-        corners = np.array([(-hx, -hy), (hx, -hy), (hx, hy), (-hx, hy)])
-        c, s = np.cos(yaw_rad), np.sin(yaw_rad)
-        corners = corners @ np.array([[c, s], [-s, c]]) + (cx, cy)
-        for k in range(4):
-            a, b = corners[k], corners[(k + 1) % 4]
-            self.add_segment(a[0], a[1], b[0], b[1], intensity=0.6)
-
-    def add_walls(self, width_m: float, height_m: float) -> None:
-        """Arena walls: a rectangle centred on the world origin."""
-        hx, hy = 0.5 * width_m, 0.5 * height_m
-        corners = [(-hx, -hy), (hx, -hy), (hx, hy), (-hx, hy)]
-        for k in range(4):
-            a, b = corners[k], corners[(k + 1) % 4]
-            self.add_segment(a[0], a[1], b[0], b[1], intensity=0.5)
-
-    def build(self) -> Scene:
-        circles = np.array(self.circles, dtype=np.float64).reshape(-1, 8)
-        segments = np.array(self.segments, dtype=np.float64).reshape(-1, 5)
-        return Scene(
-            robot_xy=np.array(self.robot_xy, dtype=np.float64).reshape(-1, 2),
-            robot_yaw=np.array(self.robot_yaw, dtype=np.float64).reshape(-1),
-            circle_xy=circles[:, 0:2].copy(),
-            circle_radius_m=circles[:, 2].copy(),
-            circle_owner=circles[:, 3].astype(np.intp),
-            circle_lidar=circles[:, 4].astype(bool),
-            circle_camera_occluder=circles[:, 5].astype(bool),
-            circle_red=circles[:, 6].astype(bool),
-            circle_intensity=circles[:, 7].copy(),
-            segment_a=segments[:, 0:2].copy(),
-            segment_b=segments[:, 2:4].copy(),
-            segment_intensity=segments[:, 4].copy(),
-        )
-
-
-def make_arena_scene(
-    rng: np.random.Generator,
-    n_robots: int = 20,
-    n_posts: int = 10,
-    n_red_decoys: int = 5,
-    n_boxes: int = 4,
-    size_m: float = 6.0,
-    clearance_m: float = 0.25,
-) -> Scene:
-    """A random walled arena like the seed's (6 m x 6 m, 20 robots), objects non-overlapping.
-
-    Boxes (0.3-0.6 m sides) are placed first, then robots, posts and red decoys by rejection
-    sampling with ``clearance_m`` between centres and from walls and boxes.
-    """
-    b = SceneBuilder()
-    b.add_walls(size_m, size_m)
-    half = 0.5 * size_m - clearance_m
-    boxes = []
-    while len(boxes) < n_boxes:
-        cx, cy = rng.uniform(-half + 0.4, half - 0.4, size=2)
-        w, h = rng.uniform(0.3, 0.6, size=2)
-        if all(
-            abs(cx - bx) > 0.5 * (w + bw) + 0.3 or abs(cy - by) > 0.5 * (h + bh) + 0.3
-            for bx, by, bw, bh in boxes
-        ):
-            boxes.append((cx, cy, w, h))
-            b.add_box(cx, cy, w, h)
-    points: list[tuple[float, float]] = []
-
-    def free_point() -> tuple[float, float]:
-        while True:
-            x, y = rng.uniform(-half, half, size=2)
-            if any(
-                abs(x - bx) < 0.5 * bw + clearance_m and abs(y - by) < 0.5 * bh + clearance_m
-                for bx, by, bw, bh in boxes
-            ):
-                continue
-            if all((x - px) ** 2 + (y - py) ** 2 > clearance_m**2 for px, py in points):
-                points.append((x, y))
-                return x, y
-
-    for _ in range(n_robots):
-        x, y = free_point()
-        b.add_robot(x, y, yaw_rad=rng.uniform(-np.pi, np.pi))
-    for _ in range(n_posts):
-        b.add_post(*free_point())
-    for _ in range(n_red_decoys):
-        b.add_red_decoy(*free_point())
-    return b.build()

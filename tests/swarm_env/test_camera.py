@@ -10,13 +10,21 @@ import pytest
 
 from swarm_env.sensors.camera import CameraConfig, CameraSensor
 from swarm_env.world.scene import Scene
+from swarm_env.world.scene_builder import make_pair_scene
 from tests.swarm_env.scene_factory import (
     SceneBuilder,
     make_arena_scene,
     sight_line_crosses_segments,
 )
 
-EXACT = CameraConfig(bearing_noise_std_deg=0.0, miss_probability=0.0, false_positive_rate=0.0)
+# Ideal blobs: always fully lit (centroid at the centre), pixel rounding below 1e-12 rad.
+EXACT = CameraConfig(
+    bearing_noise_std_deg=0.0,
+    miss_probability=0.0,
+    false_positive_rate=0.0,
+    fill_min=1.0,
+    pixels_per_rad=1e12,
+)
 DEG = math.pi / 180.0
 
 
@@ -66,8 +74,8 @@ def test_bearings_in_a_rotated_observer_frame():
 def test_out_of_range_and_too_close_are_not_seen():
     b = SceneBuilder()
     b.add_robot(0.0, 0.0)
-    b.add_robot(3.9, 0.0)
-    b.add_robot(0.0, 4.1)
+    b.add_robot(5.4, 0.0)
+    b.add_robot(0.0, 5.6)
     b.add_robot(-0.05, 0.0, housing=False)  # closer than range_min (geometry only)
     batch = observe(b.build())
     np.testing.assert_array_equal(batch.visible, [[False, True, False, False]])
@@ -244,3 +252,80 @@ def test_time_index_outside_the_scene_is_rejected(bad):
     scene = _stacked_scene_without_moving_red()
     with pytest.raises(ValueError, match="time_index"):
         CameraSensor().visibility(scene, np.array([0]), np.array([bad]))
+
+
+# --------------------------------------------------------------------------- detection vs range
+
+
+def test_blob_area_is_the_strip_in_pixels_of_the_fisheye():
+    cam = CameraSensor(CameraConfig())
+    f = 1920.0 / math.pi  # 1920 px across 180 deg
+    # A 5 cm-radius, 15 mm-high strip at 2 m: 2 asin(0.025) rad wide, 0.0075 rad high.
+    expected = (f * 2.0 * math.asin(0.025)) * (f * 0.015 / 2.0)
+    assert cam.blob_area_px(2.0, 0.05) == pytest.approx(expected, rel=1e-12)
+    assert expected == pytest.approx(140.1, abs=0.1)
+    # ~1 / d^2: four times smaller at twice the range.
+    assert cam.blob_area_px(4.0, 0.05) == pytest.approx(expected / 4.0, rel=0.001)
+
+
+def pair_frames(r, radius=0.05, n_pairs=2000, config=None, seed=0):
+    rng = np.random.default_rng(seed)
+    scene, bearings = make_pair_scene(rng, r, n_pairs, strip_radius_m=radius)
+    cam = CameraSensor(config or CameraConfig(false_positive_rate=0.0))
+    observers = np.arange(0, scene.n_robots, 2)
+    batch = cam.observe(scene, observers, rng)
+    return cam, batch, bearings
+
+
+@pytest.mark.parametrize("r", [1.0, 3.0, 3.8, 4.1, 4.4, 4.8])
+def test_detection_probability_follows_the_blob_area_model(r):
+    cam, batch, _ = pair_frames(r)
+    found = np.array([b.size for b in batch.bearings])
+    assert set(np.unique(found).tolist()) <= {0, 1}
+    expected = float(cam.detection_probability(r, 0.05))
+    # Hand-derived: need = 25 px / A(r); P = 0.95 clip((1 - need) / 0.5, 0, 1).
+    need = 25.0 / float(cam.blob_area_px(r, 0.05))
+    assert expected == pytest.approx(0.95 * min(max((1 - need) / 0.5, 0.0), 1.0))
+    tol = 3.0 * math.sqrt(max(expected * (1 - expected), 0.01) / found.size) + 0.01
+    assert found.mean() == pytest.approx(expected, abs=tol)
+
+
+def test_detection_falls_from_3_to_5_m_like_the_seed():
+    cam = CameraSensor(CameraConfig())
+    pd = cam.detection_probability(np.array([1.0, 3.0, 3.5, 4.0, 4.5, 5.0]), 0.05)
+    assert pd[0] == pytest.approx(0.95) and pd[1] == pytest.approx(0.95)
+    assert 0.8 < pd[2] < 0.95 and 0.4 < pd[3] < 0.7 and 0.1 < pd[4] < 0.3 and pd[5] == 0.0
+    # A wider red decoy (6 cm) is seen a little farther: a false positive out to ~5.2 m.
+    assert cam.detection_probability(5.0, 0.06) > 0.0 == cam.detection_probability(5.3, 0.06)
+    # range_max_m is only a computational bound: nothing passes the area test beyond it.
+    assert cam.detection_probability(CameraConfig().range_max_m, 0.06) == 0.0
+
+
+@pytest.mark.parametrize("r", [0.5, 1.0, 2.5])
+def test_bearing_noise_is_blob_centroid_plus_pixel_rounding(r):
+    """Offset (s - 1/2)(1 - u) w with s ~ U(0, 1), 1 - u ~ U(0, 1/2), w = 2 asin(R / r); plus
+    U(-1/2, 1/2) / f: variance w^2 (1/12)(1/12) + 1 / (12 f^2)."""
+    cam, batch, bearings = pair_frames(
+        r, config=CameraConfig(miss_probability=0.0, false_positive_rate=0.0)
+    )
+    err = np.array(
+        [
+            (b[0] - t + math.pi) % (2 * math.pi) - math.pi
+            for b, t in zip(batch.bearings, bearings, strict=True)
+        ]
+    )
+    w = 2.0 * math.asin(0.05 / r)
+    f = CameraConfig().pixels_per_rad
+    sigma = math.sqrt(w * w / 144.0 + 1.0 / (12.0 * f * f))
+    assert err.std() == pytest.approx(sigma, rel=0.06)
+    assert abs(err.mean()) < 4.0 * sigma / math.sqrt(err.size)
+    assert np.abs(err).max() <= 0.25 * w + 0.5 / f + 1e-12  # the centroid stays on the strip
+
+
+@pytest.mark.parametrize("radius", [0.03, 0.05, 0.06, 0.5])
+def test_detectable_range_is_a_tight_upper_bound_of_the_area_root(radius):
+    cam = CameraSensor(CameraConfig(range_max_m=100.0))
+    reach = float(cam.detectable_range_m(radius))
+    assert float(cam.blob_area_px(reach, radius)) <= 25.0  # nothing passes beyond it
+    assert float(cam.blob_area_px(0.999 * reach, radius)) > 25.0  # and it is tight
+    assert float(CameraSensor().detectable_range_m(radius)) <= CameraConfig().range_max_m

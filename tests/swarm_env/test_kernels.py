@@ -14,6 +14,12 @@ import numpy as np
 import pytest
 
 from swarm_core.geometry import wrap_angle
+from swarm_core.perception.lidar_features import (
+    LidarFeatureConfig,
+    extract_clusters,
+    null_beams,
+    null_bearings,
+)
 from swarm_env.sensors import noise
 from swarm_env.sensors.camera import CameraConfig, CameraSensor
 from swarm_env.sensors.kernels import wrap
@@ -25,7 +31,6 @@ from swarm_env.sensors.lidar import (
     LidarSensor,
     blind_mask,
 )
-from swarm_env.sensors.lidar_features import LidarFeatureConfig, extract_clusters
 from swarm_env.sensors.odometry import pulses_to_delta
 from swarm_env.world.scene import Scene
 from swarm_env.world.sim import _drive_velocities, _due_readings
@@ -200,7 +205,8 @@ def test_noise_limits_and_blind_sectors_with_the_noisy_default_config():
     config = LidarConfig(interference_tolerance_deg=0.0)
     sensor = LidarSensor(config, scene.n_robots)
     batch = sensor.scan(scene, np.arange(6), np.ones(6), np.random.default_rng(2))
-    exact = LidarSensor(dataclasses.replace(EXACT), scene.n_robots).scan(
+    thick = dataclasses.replace(EXACT, beam_footprint_deg=config.beam_footprint_deg)
+    exact = LidarSensor(thick, scene.n_robots).scan(
         scene, np.arange(6), np.ones(6), np.random.default_rng(2)
     )
     valid = batch.ranges_m > 0
@@ -208,8 +214,12 @@ def test_noise_limits_and_blind_sectors_with_the_noisy_default_config():
     assert np.all((batch.ranges_m[valid] >= config.range_min_m) & (batch.ranges_m[valid] <= 10))
     assert np.all(batch.intensities[valid] > 0) and not batch.intensities[~valid].any()
     both = valid & (exact.ranges_m > 0)
-    err = batch.ranges_m[both] - exact.ranges_m[both]
-    assert abs(err.std() - config.range_noise_std_m) < 0.001 and abs(err.mean()) < 0.001
+    # Same hits (the footprint rule does not depend on the noise); sigma(r) = 0.01 + 0.0025 r^2.
+    assert (batch.hit_index[both] == exact.hit_index[both]).all()
+    z = (batch.ranges_m[both] - exact.ranges_m[both]) / config.range_noise_std_at(
+        exact.ranges_m[both]
+    )
+    assert abs(z.std() - 1.0) < 0.02 and abs(z.mean()) < 0.02
 
 
 def reference_interference(sensor, scene, robots, stamps, batch, time_index=None):
@@ -342,7 +352,15 @@ def reference_clusters(angles, ranges, cfg):
     width = np.hypot(
         r_e * cos_a[e_wrapped] - r_s * cos_a[s_cols], r_e * sin_a[e_wrapped] - r_s * sin_a[s_cols]
     )
-    keep = (count >= cfg.min_beams) & (width <= cfg.max_width_m) & (count < n_beams)
+    mean_r = np.array(
+        [
+            ranges[r, (c + np.arange(n)) % n_beams].mean()
+            for r, c, n in zip(s_rows, s_cols, count, strict=True)
+        ]
+    ).reshape(-1)
+    sigma = cfg.range_noise_std_m + cfg.range_noise_quadratic_per_m * mean_r**2
+    limit = cfg.max_width_m + cfg.width_noise_sigmas * math.sqrt(2.0) * sigma
+    keep = (count >= cfg.min_beams) & (width <= limit) & (count < n_beams)
     if cfg.foreground_only:
         before = ranges[s_rows, s_cols - 1]
         after = ranges[s_rows, (e_wrapped + 1) % n_beams]
@@ -363,7 +381,8 @@ def reference_clusters(angles, ranges, cfg):
 FEATURE_CONFIGS = [
     LidarFeatureConfig(),
     LidarFeatureConfig(foreground_only=False, jump_range_gain=0.0),
-    LidarFeatureConfig(min_beams=2, max_width_m=0.2, tracking_range_m=10.0),
+    LidarFeatureConfig(min_beams=2, max_width_m=0.2, tracking_range_m=2.0),
+    LidarFeatureConfig(min_beams=1, width_noise_sigmas=0.0, max_width_m=0.078),
 ]
 
 
@@ -427,7 +446,8 @@ def reference_visibility(scene, robots, time_index, config):
             d = scene.circle_xy[c] - o
             dist = math.hypot(*d)
             owner = scene.circle_owner[c]
-            if owner == me or not config.range_min_m <= dist <= config.range_max_m:
+            reach = CameraSensor(config).detectable_range_m(scene.circle_radius_m[c])
+            if owner == me or not config.range_min_m <= dist <= reach:
                 continue
             ok = True
             if sight_line_crosses_segments(scene, o, d):
@@ -480,7 +500,7 @@ def test_visibility_edge_cases_grazing_occluder_and_no_shapes():
 
 def test_frames_kernel_matches_the_vectorised_assembly():
     scene = make_arena_scene(np.random.default_rng(41))
-    config = CameraConfig(false_positive_rate=2.0, miss_probability=0.3)
+    config = CameraConfig(false_positive_rate=2.0, miss_probability=0.3, bearing_noise_std_deg=2.0)
     cam = CameraSensor(config)
     robots = np.array([3, 0, 7, 7, 12, 19])
     batch = cam.observe(scene, robots, np.random.default_rng(5))
@@ -488,8 +508,21 @@ def test_frames_kernel_matches_the_vectorised_assembly():
     rng = np.random.default_rng(5)
     target, visible, bearing = cam.visibility(scene, robots)
     vis_obs, vis_t = np.nonzero(visible)
-    hit = rng.random(vis_obs.size) >= config.miss_probability
-    noise_rad = rng.standard_normal(vis_obs.size) * np.deg2rad(config.bearing_noise_std_deg)
+    draws = (noise.table_indices(rng, 4 * vis_obs.size).reshape(4, -1) + 0.5) / 65536.0
+    extra = rng.standard_normal(vis_obs.size) * np.deg2rad(config.bearing_noise_std_deg)
+    # Per visible pair, one at a time: blob area, fill, centroid offset, pixel rounding.
+    noise_rad = np.empty(vis_obs.size)
+    hit = np.empty(vis_obs.size, dtype=bool)
+    f = config.pixels_per_rad
+    for v, (k, t) in enumerate(zip(vis_obs, vis_t, strict=True)):
+        c = target[t]
+        d = math.dist(scene.circle_xy[c], scene.robot_xy[robots[k]])
+        width = 2.0 * math.asin(scene.circle_radius_m[c] / d)
+        fill = config.fill_min + (1.0 - config.fill_min) * draws[0, v]
+        area = f * width * f * config.strip_height_m / d
+        hit[v] = fill * area >= config.min_blob_area_px and draws[3, v] >= config.miss_probability
+        centroid = (draws[1, v] - 0.5) * (1 - fill) * width
+        noise_rad[v] = centroid + (draws[2, v] - 0.5) / f + extra[v]
     n_clutter = rng.poisson(config.false_positive_rate, size=robots.size)
     clutter = rng.uniform(-np.pi, np.pi, size=int(n_clutter.sum()))
     for k in range(robots.size):
@@ -551,3 +584,22 @@ def test_blind_mask_unchanged_by_the_kernel_path():
     cfg = LidarConfig()
     sensor = LidarSensor(cfg)
     np.testing.assert_array_equal(sensor.blind_mask, blind_mask(sensor.angles_rad, cfg))
+
+
+def test_null_beams_kernel_matches_null_bearings_scan_by_scan():
+    rng = np.random.default_rng(8)
+    ranges = rng.choice([0.0, 1.0, 2.5], size=(9, 720), p=[0.3, 0.4, 0.3])
+    intens = np.where(ranges > 0, 1.0, rng.choice([0.0, 0.7], size=ranges.shape))
+    exclude = rng.random(720) < 0.1
+    angles = -np.pi + np.arange(720) * (2 * np.pi / 720)
+    bounds, beams = null_beams(ranges, intens, exclude)
+    assert bounds[0] == 0 and bounds[-1] == beams.size
+    for k in range(9):
+        np.testing.assert_array_equal(
+            wrap_angle(angles[beams[bounds[k] : bounds[k + 1]]]),
+            null_bearings(angles, ranges[k], intens[k], exclude),
+        )
+    bounds, beams = null_beams(ranges[:0], intens[:0])
+    assert bounds.tolist() == [0] and beams.size == 0
+    with pytest.raises(ValueError, match="null_beams"):
+        null_beams(ranges, intens[:, :10])

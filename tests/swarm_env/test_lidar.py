@@ -8,6 +8,13 @@ import math
 import numpy as np
 import pytest
 
+from swarm_core.perception.lidar_features import (
+    LidarFeatureConfig,
+    extract_clusters,
+    extract_detections,
+    null_bearings,
+)
+from swarm_core.validation import check_blind_sectors
 from swarm_env.sensors.lidar import (
     HIT_CIRCLE,
     HIT_NONE,
@@ -15,12 +22,7 @@ from swarm_env.sensors.lidar import (
     LidarConfig,
     LidarSensor,
 )
-from swarm_env.sensors.lidar_features import (
-    LidarFeatureConfig,
-    extract_clusters,
-    extract_detections,
-    null_bearings,
-)
+from swarm_env.world.scene_builder import make_pair_scene
 from tests.swarm_env.scene_factory import EXACT_LIDAR as EXACT
 from tests.swarm_env.scene_factory import (
     HOUSING_RADIUS_M,
@@ -486,18 +488,41 @@ def test_extractor_on_synthetic_ranges():
     assert [len(p) for p in per_scan] == [1, 0, 1]
 
 
-def test_extractor_width_and_range_gates():
+def test_extractor_width_range_and_count_gates():
     angles = -math.pi + np.arange(720) * (2 * math.pi / 720)
     ranges = np.zeros((1, 720))
     ranges[0, 10:30] = 1.0  # 20 beams at 1 m: ~0.17 m wide
-    ranges[0, 200:202] = 6.0  # narrow but beyond a 5 m tracking range
-    far = LidarFeatureConfig(tracking_range_m=10.0)
-    assert extract_detections(angles, ranges, far)[0].shape == (1, 2)  # only the narrow one
+    ranges[0, 200:203] = 6.0  # 3 beams: narrow, at 6 m
+    ranges[0, 400:402] = 1.0  # 2 beams: fewer than min_beams = 3
+    assert extract_detections(angles, ranges)[0].shape == (1, 2)  # only the 3-beam one, 6 m
     clusters = extract_clusters(angles, ranges, LidarFeatureConfig(tracking_range_m=5.0))
     assert clusters.xy_m.shape == (0, 2)
-    assert extract_clusters(angles, ranges).xy_m.shape == (0, 2)  # the seed's 2 m default
-    clusters = extract_clusters(angles, ranges, LidarFeatureConfig(max_width_m=0.2))
-    assert clusters.xy_m.shape == (1, 2)  # the wide one; the narrow one is beyond 2 m
+    clusters = extract_clusters(angles, ranges, LidarFeatureConfig(min_beams=2))
+    assert clusters.n_beams.tolist() == [3, 2]
+    clusters = extract_clusters(
+        angles, ranges, LidarFeatureConfig(max_width_m=0.2, tracking_range_m=5.0)
+    )
+    assert clusters.n_beams.tolist() == [20]  # the wide one; the narrow one is beyond 5 m
+
+
+def test_width_tolerance_grows_with_the_range_noise():
+    """Width limit = 65 mm + 2 sqrt(2) sigma(r), sigma(r) = 0.01 + 0.0025 r^2 (defaults)."""
+    angles = -math.pi + np.arange(720) * (2 * math.pi / 720)
+    cfg = LidarFeatureConfig()
+    for r in (1.0, 2.0, 3.0):
+        limit = 0.065 + 2.0 * math.sqrt(2.0) * (0.01 + 0.0025 * r * r)
+        for dr, kept in ((0.98 * limit, 1), (1.02 * limit, 0)):
+            # 3 beams: first and last returns dr apart in range (chord ~1 cm at these ranges)
+            ranges = np.zeros((1, 720))
+            ranges[0, 100:103] = [r, r, r + dr]
+            chord = math.hypot(
+                (r + dr) * math.cos(angles[102]) - r * math.cos(angles[100]),
+                (r + dr) * math.sin(angles[102]) - r * math.sin(angles[100]),
+            )
+            mean_r = r + dr / 3
+            tol = 0.065 + 2.0 * math.sqrt(2.0) * (0.01 + 0.0025 * mean_r**2)
+            got = extract_clusters(angles, ranges, dataclasses.replace(cfg, jump_range_gain=1.0))
+            assert got.xy_m.shape[0] == int(chord <= tol), (r, dr, kept)
 
 
 def test_oblique_walls_shatter_only_without_the_breakpoint_and_foreground_tests():
@@ -505,12 +530,17 @@ def test_oblique_walls_shatter_only_without_the_breakpoint_and_foreground_tests(
     b.add_robot(0.0, -2.7)  # 0.3 m from the bottom wall: long oblique stretches
     b.add_walls(6.0, 6.0)
     scene = b.build()
-    reach = {"tracking_range_m": 10.0}  # the whole wall, not only its first 2 m
-    seed_like = LidarFeatureConfig(jump_range_gain=0.0, foreground_only=False, **reach)
-    adaptive_only = LidarFeatureConfig(foreground_only=False, **reach)
+    # The previous round's rules: one return suffices, a fixed 78 mm width limit.
+    old = {"min_beams": 1, "width_noise_sigmas": 0.0, "max_width_m": 0.078}
+    seed_like = LidarFeatureConfig(jump_range_gain=0.0, foreground_only=False, **old)
+    adaptive_only = LidarFeatureConfig(foreground_only=False, **old)
     assert detect(scene, features=seed_like).shape[0] > 20
     assert 0 < detect(scene, features=adaptive_only).shape[0] < 10  # beyond 80 deg incidence
-    assert detect(scene, features=LidarFeatureConfig(**reach)).shape[0] == 0
+    assert detect(scene, features=LidarFeatureConfig(**old)).shape[0] == 0
+    # Three returns per cluster alone remove the grazing slivers too.
+    no_foreground = LidarFeatureConfig(foreground_only=False)
+    assert detect(scene, features=no_foreground).shape[0] == 0
+    assert detect(scene).shape[0] == 0
 
 
 def test_null_bearings_exclude_mask():
@@ -529,3 +559,136 @@ def test_null_bearings_exclude_mask():
 def test_feature_config_validation(field, value):
     with pytest.raises(ValueError, match=field):
         LidarFeatureConfig(**{field: value})
+
+
+# --------------------------------------------------------------------------- detection vs range
+
+
+def housing_scans(r, n_pairs=300, seed=0, config=None):
+    """Scans of ``n_pairs`` isolated (scanner, housing at range r) pairs, the whole housing
+    outside the blind sectors, without interference."""
+    cfg = config or LidarConfig(interference_tolerance_deg=0.0)
+    margin = math.degrees(math.asin(HOUSING_RADIUS_M / r)) + 1.0
+    half = tuple(0.5 * w + margin for w in cfg.blind_sector_widths_deg)
+    rng = np.random.default_rng(seed)
+    scene, bearings = make_pair_scene(
+        rng, r, n_pairs, avoid_centers_deg=cfg.blind_sector_centers_deg, avoid_half_widths_deg=half
+    )
+    sensor = LidarSensor(cfg, scene.n_robots)
+    observers = np.arange(0, scene.n_robots, 2)
+    batch = sensor.scan(scene, observers, np.ones(observers.size), rng)
+    counts = batch.owner_beam_counts(scene.n_robots)[np.arange(observers.size), observers + 1]
+    return batch, bearings, counts
+
+
+DEFAULT_LIDAR = LidarConfig()
+
+
+def clean_returns(r, cfg=DEFAULT_LIDAR):
+    """Expected returns on a 65 mm housing at range r: beams whose 0.5 deg footprint lies on it,
+    ``2 asin(R / r) / 0.5 deg - 1`` (~ 65 mm / (r x 0.5 deg) - 1)."""
+    return (2.0 * math.asin(HOUSING_RADIUS_M / r) - math.radians(cfg.beam_footprint_deg)) / (
+        cfg.beam_spacing_rad
+    )
+
+
+@pytest.mark.parametrize("r", [0.5, 1.0, 1.5, 2.0, 3.0])
+def test_housing_return_count_matches_the_beam_geometry(r):
+    _, _, counts = housing_scans(r)
+    n = clean_returns(r)
+    assert abs(n - (0.065 / (r * math.radians(0.5)) - 1.0)) < 0.01 * n + 0.01  # small angles
+    # Each scan gets floor(n) or ceil(n) returns (the beam grid's phase is uniform) ...
+    assert set(np.unique(counts).tolist()) <= {math.floor(n), math.ceil(n)}
+    # ... and ceil(n) with probability frac(n): the mean is n.
+    assert counts.mean() == pytest.approx(n, abs=3.0 * 0.5 / math.sqrt(counts.size) + 0.02)
+
+
+@pytest.mark.parametrize("r", [1.0, 1.7, 2.0, 2.2, 2.6, 3.5])
+def test_detection_probability_falls_as_the_return_count_predicts(r):
+    """A cluster needs 3 returns: P_d = P(returns >= 3) = clip(n - 2, 0, 1), times the width
+    test's pass rate (>= 95 % by construction, ~99 % measured)."""
+    batch, bearings, _ = housing_scans(r, n_pairs=400, seed=1)
+    dets = extract_clusters(batch.angles_rad, batch.ranges_m)
+    truth = r * np.stack([np.cos(bearings), np.sin(bearings)], axis=1)
+    ok = np.linalg.norm(dets.xy_m - truth[dets.scan_index], axis=1) <= 0.15
+    found = np.zeros(bearings.size, dtype=bool)
+    found[dets.scan_index[ok]] = True
+    expected = min(max(clean_returns(r) - 2.0, 0.0), 1.0)
+    tol = 3.0 * math.sqrt(max(expected * (1 - expected), 0.01) / bearings.size) + 0.02
+    assert found.mean() == pytest.approx(expected, abs=tol)
+    assert found.mean() <= expected + 0.01  # never better than the geometry allows
+
+
+def test_centre_error_grows_with_range_but_stays_below_the_filter_noise():
+    errs = []
+    for r in (0.5, 1.5):
+        batch, bearings, _ = housing_scans(r, n_pairs=200, seed=2)
+        dets = extract_clusters(batch.angles_rad, batch.ranges_m)
+        truth = r * np.stack([np.cos(bearings), np.sin(bearings)], axis=1)
+        errs.append(np.sqrt(np.mean(np.sum((dets.xy_m - truth[dets.scan_index]) ** 2, axis=1))))
+    assert errs[0] < errs[1] < 0.05  # the seed filter's R_L sigma is 5 cm
+
+
+@pytest.mark.parametrize("r", [1.0, 3.0, 5.0])
+def test_range_noise_grows_quadratically_with_range(r):
+    b = SceneBuilder()
+    b.add_robot(0.0, 0.0)
+    b.add_segment(r, -2.0, r, 2.0)  # a wall at x = r
+    config = LidarConfig(interference_tolerance_deg=0.0)
+    sensor = LidarSensor(config, 1)
+    batch = sensor.scan(b.build(), np.zeros(400, int), np.ones(400), np.random.default_rng(4))
+    front = np.abs(batch.angles_rad) < math.radians(2.0)  # within 2 deg: range ~ r
+    exact = r / np.cos(batch.angles_rad[front])
+    z = batch.ranges_m[:, front] - exact
+    sigma = 0.01 + 0.0025 * r * r
+    assert float(config.range_noise_std_at(r)) == pytest.approx(sigma)
+    assert z.std() == pytest.approx(sigma, rel=0.03)
+    assert abs(z.mean()) < 0.01 * sigma + 1e-4
+
+
+def test_footprint_drops_the_edge_beams_of_a_circle_only():
+    """With a footprint, a circle returns only the beams wholly on it; walls are unchanged."""
+    b = SceneBuilder()
+    b.add_robot(0.0, 0.0)
+    b.add_robot(1.0, 0.0)
+    b.add_walls(6.0, 6.0)
+    scene = b.build()
+    thin = scan_one(scene, config=EXACT)[1]
+    thick = scan_one(scene, config=dataclasses.replace(EXACT, beam_footprint_deg=0.5))[1]
+    half = math.asin(HOUSING_RADIUS_M / 1.0)
+    on_thin = np.abs(thin.angles_rad) <= half
+    on_thick = np.abs(thick.angles_rad) <= half - math.radians(0.25)
+    np.testing.assert_array_equal(thin.hit_owner[0] == 1, on_thin)
+    np.testing.assert_array_equal(thick.hit_owner[0] == 1, on_thick)
+    walls = thin.hit_kind[0] == HIT_SEGMENT
+    np.testing.assert_array_equal(thick.ranges_m[0, walls], thin.ranges_m[0, walls])
+    # A housing narrower than one footprint returns nothing.
+    far = SceneBuilder()
+    far.add_robot(0.0, 0.0)
+    far.add_robot(8.0, 0.0)  # subtends 0.47 deg < 0.5 deg
+    assert not (
+        scan_one(far.build(), config=dataclasses.replace(EXACT, beam_footprint_deg=0.5))[
+            1
+        ].hit_owner
+        == 1
+    ).any()
+
+
+@pytest.mark.parametrize(
+    ("centers", "widths", "match"),
+    [
+        ((45.0,), (0.0,), r"LidarConfig.blind_sector_widths_deg must be in \(0, 360\)"),
+        ((45.0,), (360.0,), "blind_sector_widths_deg"),
+        ((45.0, 90.0), (10.0,), "one width per centre"),
+        ([45.0], [10.0], "blind_sector_centers_deg must be a tuple"),
+        ((float("nan"),), (10.0,), "blind_sector_centers_deg must be a tuple of finite"),
+    ],
+)
+def test_blind_sectors_share_one_validation_rule(centers, widths, match):
+    """swarm_core.validation.check_blind_sectors: the rule of the lidar and of the filter."""
+    with pytest.raises(ValueError, match=match):
+        LidarConfig(blind_sector_centers_deg=centers, blind_sector_widths_deg=widths)
+    with pytest.raises(ValueError, match=match.replace("LidarConfig", "Owner")):
+        check_blind_sectors("Owner", centers, widths)
+    check_blind_sectors("Owner", (), ())  # no sectors at all
+    check_blind_sectors("Owner", (45.0, -135.0), (10.0, 0.5))

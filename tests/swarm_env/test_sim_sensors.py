@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from swarm_env import make_config
+from swarm_env.sensors.camera import CameraSensor
 from swarm_env.world.sim import SimWorld
 
 EMPTY = {"n_decoy_posts": 0, "n_red_decoys": 0, "n_boxes": 0}
@@ -76,11 +78,17 @@ def test_time_stacked_scene_matches_single_instant_scenes():
     world = SimWorld(
         make_config(
             "seed-sim",
-            lidar={"range_noise_std_m": 0.0, "intensity_noise_std": 0.0},
+            lidar={
+                "range_noise_std_m": 0.0,
+                "range_noise_quadratic_per_m": 0.0,
+                "intensity_noise_std": 0.0,
+            },
             camera={
                 "bearing_noise_std_deg": 0.0,
                 "miss_probability": 0.0,
                 "false_positive_rate": 0.0,
+                "fill_min": 1.0,
+                "pixels_per_rad": 1e12,
             },
         )
     )
@@ -144,3 +152,32 @@ def test_filters_track_static_neighbours_while_the_observer_spins_and_drives():
             errors += d.min(axis=1).tolist()
     assert len(errors) > 50
     assert np.median(errors) < 0.06  # ~0.04 m; the 10 Hz odometry frame lag adds the rest
+
+
+def test_simulator_filter_range_factors_follow_the_sensor_geometry():
+    """SIMULATOR_PHD's range factors were fitted to the measured detection curves
+    (benchmarks/bench_detection_curves.py); here they are checked against the curves the
+    sensor geometry predicts, so a sensor change that invalidates them fails."""
+    cfg = make_config("seed-sim")
+    phd = cfg.phd
+    r = np.arange(0.25, 5.51, 0.05)
+    lidar = cfg.lidar
+    footprint = np.deg2rad(lidar.beam_footprint_deg)
+    clean = (2.0 * np.arcsin(cfg.robot.housing_radius_m / r) - footprint) / lidar.beam_spacing_rad
+    lidar_geometry = np.clip(clean - (cfg.lidar_features.min_beams - 1), 0.0, 1.0)
+    lidar_filter = 1.0 / (
+        phd.lidar_pd_offset + np.exp(phd.lidar_pd_slope_per_m * (r - phd.lidar_pd_midpoint_m))
+    )
+    # A sigmoid cannot follow the ramp's corners exactly: max 0.1, RMS 0.03.
+    assert np.abs(lidar_filter - lidar_geometry).max() < 0.1
+    assert np.sqrt(np.mean((lidar_filter - lidar_geometry) ** 2)) < 0.03
+    # 50 % where the housing spans 2.5 clean returns plus the footprint: 2.13 m.
+    r50 = cfg.robot.housing_radius_m / np.sin(0.5 * (2.5 * lidar.beam_spacing_rad + footprint))
+    assert abs(np.interp(0.5, lidar_filter[::-1], r[::-1]) - r50) < 0.03
+    camera = CameraSensor(cfg.camera).detection_probability(r, cfg.robot.camera_holder_radius_m)
+    camera_filter = 1.0 / (
+        phd.camera_pd_offset + np.exp(phd.camera_pd_slope_per_m * (r - phd.camera_pd_midpoint_m))
+    )
+    assert np.abs(camera_filter - camera).max() < 0.1
+    assert np.sqrt(np.mean((camera_filter - camera) ** 2)) < 0.03
+    assert phd.camera_pd_offset == pytest.approx(1.0 / (1.0 - cfg.camera.miss_probability), 0.01)

@@ -1,8 +1,17 @@
 """Lidar feature extractor: robot-sized clusters of a scan become position measurements.
 
+Shared perception: the simulator, the hardware bridge and the replay run this same code on
+simulated and real YDLidar X4 scans.
+
 The seed (000, "Lidar measurements") segments each scan into clusters of consecutive returns and
 keeps the objects narrower than the 65 mm lidar housing of a teammate, reported as a point in the
-scanner's body frame. By construction:
+scanner's body frame. The cluster rules come from the sensor's geometry and noise, with no range
+cut: a cluster needs ``min_beams`` = 3 returns (the fewest that define an arc), and its width may
+exceed the housing diameter by ``width_noise_sigmas`` standard deviations of the difference of
+two returns' range noise at its range. A housing at range r spans about
+``2 asin(0.0325 / r) / 0.5 deg - 1`` clean returns (see ``LidarConfig.beam_footprint_deg``), so
+the detection probability falls from 1 at 1.86 m to 0 at 2.48 m; measured in
+``benchmarks/bench_detection_curves.py``. By construction:
 
 * decoy posts (radius <= 32.5 mm) pass: lidar false positives;
 * occluded robots, robots in a blind sector or interfered robots return nothing: false negatives;
@@ -44,18 +53,28 @@ class LidarFeatureConfig:
         & Aldon (2004) with lambda = 10 deg: surfaces up to 80 deg incidence stay connected.
         Set 0 for the plain fixed threshold.
     max_width_m : float
-        Keep clusters whose end-to-end width is at most this: the 65 mm housing diameter with a
-        20 % tolerance for range noise at the cluster edges (seed: "arc length below 65 mm").
+        Noise-free width limit: the 65 mm housing diameter (seed: "arc length below 65 mm").
+        A cluster is kept when its end-to-end width is at most
+        ``max_width_m + width_noise_sigmas * sqrt(2) * sigma(r)``, with ``sigma(r)`` the range
+        noise at the cluster's mean range ``r``. The chord between two returns on a housing is
+        at most the diameter, and their range difference is ``N(0, 2 sigma^2)``, so a housing
+        passes with probability >= 95 % at 2 sigmas, at every range.
+    width_noise_sigmas : float
+        Width tolerance in standard deviations of the two edge returns' range difference.
+    range_noise_std_m, range_noise_quadratic_per_m : float
+        The scanner's range noise ``sigma(r) = std + quadratic * r^2`` (defaults: the simulated
+        X4, :class:`swarm_env.sensors.lidar.LidarConfig`; on real robots, the real X4's).
     min_beams : int
-        Minimum returns in a kept cluster.
+        Minimum returns in a kept cluster. Default 3: three points define a circle, so three
+        returns are the fewest whose arc shape can be told from a wall edge, a range spike or a
+        mixed pixel (the seed recognises teammates as "a small set of points, which has a shape
+        of an arch"). With one or two returns any surface edge would pass the width test.
     housing_radius_m : float
         The centre estimate is pushed this far behind the mean return, along the beam.
     tracking_range_m : float
-        Detections whose centre is farther are dropped. The seed limits the lidar to 2 m for
-        teammate detection ("the range of the lidar is limited to 2m", sec. 3.2), and its
-        filter's range P_d (eq. 19) is built for that limit; beyond it a 65 mm housing returns
-        only one or two beams and most clusters there are fragments. Raise it together with
-        ``PHDConfig.lidar_pd_midpoint_m``.
+        Detections whose centre is farther are dropped. Default 10 m, the X4's maximum range:
+        no cut. The seed's "range of the lidar is limited to 2m" (sec. 3.2) follows from the
+        rules above (fewer returns at longer range), not from a threshold.
     foreground_only : bool
         Keep only clusters standing in front of both neighbouring returns (or next to invalid
         returns). A free-standing post or housing always does; a one-beam sliver of a wall
@@ -67,15 +86,25 @@ class LidarFeatureConfig:
 
     jump_threshold_m: float = 0.05
     jump_range_gain: float = float(np.sin(np.deg2rad(0.5)) / np.sin(np.deg2rad(9.5)))
-    max_width_m: float = 0.065 * 1.2
-    min_beams: int = 1
+    max_width_m: float = 0.065
+    width_noise_sigmas: float = 2.0
+    range_noise_std_m: float = 0.01
+    range_noise_quadratic_per_m: float = 0.0025
+    min_beams: int = 3
     housing_radius_m: float = 0.0325
-    tracking_range_m: float = 2.0
+    tracking_range_m: float = 10.0
     foreground_only: bool = True
 
     def __post_init__(self) -> None:
-        for name in ("jump_threshold_m", "jump_range_gain", "housing_radius_m"):
-            if not getattr(self, name) >= 0.0:
+        for name in (
+            "jump_threshold_m",
+            "jump_range_gain",
+            "housing_radius_m",
+            "width_noise_sigmas",
+            "range_noise_std_m",
+            "range_noise_quadratic_per_m",
+        ):
+            if not math.isfinite(getattr(self, name)) or not getattr(self, name) >= 0.0:
                 raise ValueError(
                     f"LidarFeatureConfig.{name} must be >= 0, got {getattr(self, name)!r}"
                 )
@@ -157,6 +186,8 @@ def extract_clusters(
         cfg.jump_threshold_m,
         cfg.jump_range_gain,
         cfg.max_width_m,
+        cfg.width_noise_sigmas * math.sqrt(2.0) * cfg.range_noise_std_m,
+        cfg.width_noise_sigmas * math.sqrt(2.0) * cfg.range_noise_quadratic_per_m,
         int(cfg.min_beams),
         cfg.housing_radius_m,
         cfg.tracking_range_m,
@@ -185,13 +216,16 @@ def _cluster_kernel(
     jump_threshold,
     jump_gain,
     max_width,
+    width_tol_const,
+    width_tol_quadratic,
     min_beams,
     housing_radius,
     tracking_range,
     foreground_only,
 ):
     """Robot-like clusters of K scans: ``ranges`` (K, B) m (0 = no return), beam directions
-    ``cos_a``, ``sin_a`` (B,).
+    ``cos_a``, ``sin_a`` (B,). A cluster of mean range r is kept when its width is at most
+    ``max_width + width_tol_const + width_tol_quadratic r^2``.
 
     Returns ``xy`` (M, 2) m, ``scan`` (M,), ``width`` (M,) m and ``count`` (M,) beams, sorted
     by scan then bearing. Each scan is walked once from its first cluster start (a valid beam
@@ -254,14 +288,17 @@ def _cluster_kernel(
             b = nxt
             r_s, r_e = r[s], r[e]
             w = math.hypot(r_e * cos_a[e] - r_s * cos_a[s], r_e * sin_a[e] - r_s * sin_a[s])
-            if n < min_beams or not w <= max_width:
+            if n < min_beams:
+                continue
+            mean_r = sum_r / n
+            if not w <= max_width + width_tol_const + width_tol_quadratic * mean_r * mean_r:
                 continue
             if foreground_only:
                 # Neighbours just outside: farther, or no return, for a standalone object.
                 before, after = r[s - 1], r[nxt]
                 if not (before == 0.0 or before > r_s) or not (after == 0.0 or after > r_e):
                     continue
-            centre_r = sum_r / n + housing_radius
+            centre_r = mean_r + housing_radius
             if not centre_r <= tracking_range:
                 continue
             phi = math.atan2(sum_s, sum_c)
@@ -320,3 +357,50 @@ def null_bearings(
     if exclude is not None:
         null &= ~np.asarray(exclude, dtype=bool)
     return wrap_angle(np.asarray(angles_rad, dtype=np.float64)[null])
+
+
+def null_beams(
+    ranges_m: np.ndarray, intensities: np.ndarray, exclude: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Null returns of K scans at once (the batched :func:`null_bearings`, one compiled pass).
+
+    Parameters
+    ----------
+    ranges_m, intensities : ndarray, shape (K, B)
+    exclude : ndarray, shape (B,), bool, optional
+        Beams never to report (the blind sectors).
+
+    Returns
+    -------
+    bounds : ndarray, shape (K + 1,), int
+        Scan k's nulls are ``beams[bounds[k]:bounds[k + 1]]``.
+    beams : ndarray, shape (M,), int
+        Beam indices of the nulls (range 0 and intensity 0), increasing within each scan.
+    """
+    ranges = np.ascontiguousarray(np.atleast_2d(ranges_m), dtype=np.float64)
+    intens = np.ascontiguousarray(np.atleast_2d(intensities), dtype=np.float64)
+    if ranges.shape != intens.shape:
+        raise ValueError(
+            f"null_beams: intensities of shape {intens.shape} for ranges of shape {ranges.shape}"
+        )
+    if exclude is None:
+        exclude = np.zeros(ranges.shape[1], dtype=np.bool_)
+    return _null_kernel(ranges, intens, np.asarray(exclude, dtype=np.bool_))
+
+
+@njit(cache=True)
+def _null_kernel(ranges, intensities, exclude):
+    """``bounds`` (K + 1,) and ``beams`` (M,) of the beams with range 0 and intensity 0 that
+    are not ``exclude``d, scan by scan."""
+    n_scans, n_beams = ranges.shape
+    beams = np.empty(n_scans * n_beams, dtype=np.intp)
+    bounds = np.empty(n_scans + 1, dtype=np.intp)
+    m = 0
+    for k in range(n_scans):
+        bounds[k] = m
+        for b in range(n_beams):
+            if ranges[k, b] == 0.0 and intensities[k, b] == 0.0 and not exclude[b]:
+                beams[m] = b
+                m += 1
+    bounds[n_scans] = m
+    return bounds, beams[:m].copy()

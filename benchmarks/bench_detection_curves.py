@@ -1,0 +1,317 @@
+"""Measured detection curves of the simulated sensors, and the filter models fitted to them.
+
+What it measures (no timing; every figure is a statistic of the simulated sensors):
+
+* **Lidar** ``P_d(r)``: a teammate's housing at range ``r`` from a scanner, in free space, at a
+  random bearing outside the blind sectors, random head phase, no interference (the filter
+  has separate blind-sector, occlusion and interference factors, so this is its *range*
+  factor). Detected = the feature extractor reports a point within 0.15 m of the housing.
+  Also the returns per housing (against ``65 mm / (r x 0.5 deg)``) and the centre error.
+* **Camera** ``P_d(r)``: a teammate's red strip (the simulator's ``camera_holder_radius_m``)
+  at range ``r``, free line of sight; detected = a blob from that strip. Also the bearing
+  error of the detected blobs.
+* **Camera clutter** per radian in ``seed-sim`` (the simulator itself: 20 robots wandering in
+  random arenas with their red decoys): bearings from red decoys, random false blobs, and
+  teammates beyond the lidar's 50 % range (bearings the lidar-initialised filter does not
+  track), per frame and per radian.
+
+Then fits the seed's sigmoid ``1 / (offset + exp(slope (r - midpoint)))`` (eqs. 19 and 30,
+``offset >= 1``) to both measured curves by least squares, and prints them beside the seed's
+eq. 19 / eq. 30. Writes a JSON (``--json``) and a figure (``--figure``).
+
+Run: ``.venv/bin/python benchmarks/bench_detection_curves.py`` (about a minute).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from scipy.optimize import curve_fit  # noqa: E402
+
+from swarm_core.perception.lidar_features import extract_clusters  # noqa: E402
+from swarm_env.config import make_config  # noqa: E402
+from swarm_env.sensors.camera import CameraSensor  # noqa: E402
+from swarm_env.sensors.lidar import LidarSensor  # noqa: E402
+from swarm_env.world.scene_builder import make_pair_scene  # noqa: E402
+from swarm_env.world.sim import SimWorld  # noqa: E402
+
+RANGES_M = np.round(np.arange(0.25, 5.51, 0.125), 3)
+MATCH_GATE_M = 0.15
+
+
+def seed_sigmoid(r, offset, slope, midpoint):
+    """The seed's range factor, eqs. (19) and (30)."""
+    return 1.0 / (offset + np.exp(slope * (np.asarray(r) - midpoint)))
+
+
+SEED_EQ19 = (1.02, 8.0, 1.5)
+SEED_EQ30 = (1.1, 5.0, 4.0)
+
+
+def fit_sigmoid(r: np.ndarray, pd: np.ndarray, guess: tuple[float, float, float]):
+    """Least-squares ``(offset, slope, midpoint)`` with ``offset >= 1``; returns also the RMS
+    residual."""
+    popt, _ = curve_fit(
+        seed_sigmoid, r, pd, p0=guess, bounds=([1.0, 0.1, 0.0], [2.0, 100.0, 10.0])
+    )
+    rms = float(np.sqrt(np.mean((seed_sigmoid(r, *popt) - pd) ** 2)))
+    return tuple(float(v) for v in popt), rms
+
+
+def margin_deg(r: float) -> float:
+    """Bearing margin that keeps a whole housing at range r (plus a footprint) out of a blind
+    sector: the sector is the filter's blind factor, not its range factor."""
+    return math.degrees(math.asin(0.0325 / r)) + 1.0
+
+
+def lidar_curve(cfg, rng, n_pairs: int) -> dict:
+    """Lidar P_d, returns per housing and centre error per range."""
+    lidar_cfg = dataclasses.replace(cfg.lidar, interference_tolerance_deg=0.0)
+    out = {"range_m": [], "pd": [], "returns_mean": [], "returns_expected": [], "centre_err": []}
+    for r in RANGES_M:
+        scene, bearings = make_pair_scene(
+            rng,
+            float(r),
+            n_pairs,
+            cfg.robot.camera_holder_radius_m,
+            lidar_cfg.blind_sector_centers_deg,
+            tuple(0.5 * w + margin_deg(r) for w in lidar_cfg.blind_sector_widths_deg),
+        )
+        sensor = LidarSensor(lidar_cfg, scene.n_robots)
+        observers = np.arange(0, scene.n_robots, 2)
+        batch = sensor.scan(scene, observers, np.ones(observers.size), rng)
+        counts = batch.owner_beam_counts(scene.n_robots)[np.arange(observers.size), observers + 1]
+        dets = extract_clusters(batch.angles_rad, batch.ranges_m, cfg.lidar_features)
+        truth = float(r) * np.stack([np.cos(bearings), np.sin(bearings)], axis=1)
+        err = np.linalg.norm(dets.xy_m - truth[dets.scan_index], axis=1)
+        ok = err <= MATCH_GATE_M
+        found = np.zeros(observers.size, dtype=bool)
+        found[dets.scan_index[ok]] = True
+        expected = 2.0 * math.asin(0.0325 / r) / lidar_cfg.beam_spacing_rad - (
+            lidar_cfg.beam_footprint_deg / math.degrees(lidar_cfg.beam_spacing_rad)
+        )
+        out["range_m"].append(float(r))
+        out["pd"].append(float(found.mean()))
+        out["returns_mean"].append(float(counts.mean()))
+        out["returns_expected"].append(max(expected, 0.0))
+        out["centre_err"].append(float(np.sqrt(np.mean(err[ok] ** 2))) if ok.any() else None)
+    return out
+
+
+def camera_curve(cfg, rng, n_pairs: int) -> dict:
+    """Camera P_d and bearing error per range, for the simulator's strip radius."""
+    camera = CameraSensor(cfg.camera)
+    radius = cfg.robot.camera_holder_radius_m
+    out = {"range_m": [], "pd": [], "pd_model": [], "bearing_std_deg": []}
+    for r in RANGES_M:
+        scene, bearings = make_pair_scene(rng, float(r), n_pairs, radius)
+        observers = np.arange(0, scene.n_robots, 2)
+        batch = camera.observe(scene, observers, rng)
+        strip = np.flatnonzero(scene.circle_red)  # strips in robot order
+        errs = []
+        found = 0
+        for k, (bear, src) in enumerate(zip(batch.bearings, batch.sources, strict=True)):
+            mine = src == strip[2 * k + 1]
+            if mine.any():
+                found += 1
+                errs.append((bear[mine][0] - bearings[k] + np.pi) % (2 * np.pi) - np.pi)
+        out["range_m"].append(float(r))
+        out["pd"].append(found / observers.size)
+        out["pd_model"].append(float(camera.detection_probability(r, radius)))
+        out["bearing_std_deg"].append(
+            float(np.degrees(np.sqrt(np.mean(np.square(errs))))) if errs else None
+        )
+    return out
+
+
+def camera_clutter(cfg, seed: int, episodes: int, steps: int, lidar_r50_m: float) -> dict:
+    """Non-teammate camera bearings per frame in ``seed-sim`` (the simulator's own arenas)."""
+    world = SimWorld(cfg)
+    counts = {"frames": 0, "red_decoy": 0, "random": 0, "teammate": 0, "teammate_beyond": 0}
+    errs = []
+    for ep in range(episodes):
+        rng = np.random.default_rng(seed + ep)
+        world.reset(rng)
+        cmd = np.tile([0.2, 0.0], (world.n_agents, 1))
+        for _ in range(steps):
+            cmd[:, 1] = np.clip(cmd[:, 1] + rng.normal(0.0, 0.3, world.n_agents), -1.0, 1.0)
+            world.step(cmd)
+            poses = world.poses()
+            scene = world.scene(poses)
+            robots = np.arange(world.n_agents)
+            batch = world.camera.observe(scene, robots, rng)
+            owner = np.asarray(scene.circle_owner)
+            for k, (bear, src) in enumerate(zip(batch.bearings, batch.sources, strict=True)):
+                counts["frames"] += 1
+                counts["random"] += int((src < 0).sum())
+                blobs = src[src >= 0]
+                counts["red_decoy"] += int((owner[blobs] < 0).sum())
+                mates = blobs[owner[blobs] >= 0]
+                counts["teammate"] += mates.size
+                d = np.hypot(*(scene.circle_xy[mates] - poses[k, :2]).T)
+                counts["teammate_beyond"] += int((d > lidar_r50_m).sum())
+                # Bearing error of teammates' blobs at the ranges the arena produces.
+                true = np.arctan2(*(scene.circle_xy[mates] - poses[k, :2]).T[::-1]) - poses[k, 2]
+                sel = np.isin(src, mates)
+                errs.extend(((bear[sel] - true + np.pi) % (2 * np.pi) - np.pi).tolist())
+    frames = counts["frames"]
+    per_frame = {k: v / frames for k, v in counts.items() if k != "frames"}
+    return {
+        "frames": frames,
+        "per_frame": per_frame,
+        "per_rad_false": (per_frame["red_decoy"] + per_frame["random"]) / (2 * np.pi),
+        "per_rad_with_untracked": (
+            per_frame["red_decoy"] + per_frame["random"] + per_frame["teammate_beyond"]
+        )
+        / (2 * np.pi),
+        "bearing_std_deg_seed_sim": float(np.degrees(np.sqrt(np.mean(np.square(errs))))),
+        "lidar_r50_m": lidar_r50_m,
+    }
+
+
+def crossing(r: np.ndarray, pd: np.ndarray, level: float) -> float:
+    """First range where the (decreasing) curve drops below ``level``, linear interpolation."""
+    below = np.flatnonzero(pd < level)
+    if below.size == 0 or below[0] == 0:
+        return float("nan")
+    i = below[0]
+    return float(r[i - 1] + (pd[i - 1] - level) / (pd[i - 1] - pd[i]) * (r[i] - r[i - 1]))
+
+
+def _fit_label(fit: tuple[float, float, float]) -> str:
+    offset, slope, mid = fit
+    return f"fit: 1 / ({offset:.3f} + exp({slope:.2f} (r - {mid:.2f})))"
+
+
+def plot(lidar, camera, lidar_fit, camera_fit, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fine = np.linspace(0.0, 5.5, 400)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
+    ax = axes[0]
+    ax.plot(lidar["range_m"], lidar["pd"], "o", ms=4, label="simulated (measured)")
+    ax.plot(fine, seed_sigmoid(fine, *lidar_fit), "-", label=_fit_label(lidar_fit))
+    ax.plot(fine, seed_sigmoid(fine, *SEED_EQ19), "--", label="seed eq. 19 (real X4)")
+    ax.set_title("Lidar: teammate housing (range factor)")
+    ax.set_xlabel("range (m)")
+    ax.set_ylabel("detection probability")
+    ax.legend(fontsize=8)
+    ax = axes[1]
+    ax.plot(camera["range_m"], camera["pd"], "o", ms=4, label="simulated (measured)")
+    ax.plot(camera["range_m"], camera["pd_model"], ":", label="blob-area model (analytic)")
+    ax.plot(fine, seed_sigmoid(fine, *camera_fit), "-", label=_fit_label(camera_fit))
+    ax.plot(fine, seed_sigmoid(fine, *SEED_EQ30), "--", label="seed eq. 30 (real cameras)")
+    ax.set_title("Camera: teammate red strip")
+    ax.set_xlabel("range (m)")
+    ax.legend(fontsize=8)
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        ax.set_ylim(-0.02, 1.05)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--pairs", type=int, default=1500, help="scanner-target pairs per range")
+    parser.add_argument("--episodes", type=int, default=5, help="seed-sim episodes (clutter)")
+    parser.add_argument("--steps", type=int, default=150, help="env steps per episode")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--figure", type=Path, default=ROOT / "docs/figures/detection_curves.png")
+    args = parser.parse_args(argv)
+    cfg = make_config("seed-sim")
+    rng = np.random.default_rng(args.seed)
+    t0 = time.perf_counter()
+    lidar = lidar_curve(cfg, rng, args.pairs)
+    camera = camera_curve(cfg, rng, args.pairs)
+    r = np.asarray(lidar["range_m"])
+    lidar_fit, lidar_rms = fit_sigmoid(r, np.asarray(lidar["pd"]), (1.0, 8.0, 2.0))
+    camera_fit, camera_rms = fit_sigmoid(r, np.asarray(camera["pd"]), (1.05, 5.0, 4.0))
+    r50 = crossing(r, np.asarray(lidar["pd"]), 0.5)
+    clutter = camera_clutter(cfg, args.seed, args.episodes, args.steps, r50)
+
+    print(
+        f"bench_detection_curves: seed-sim sensors, {args.pairs} pairs per range, "
+        f"{platform.machine()}, {time.strftime('%Y-%m-%d')}, {time.perf_counter() - t0:.0f} s"
+    )
+    print(
+        "| range (m) | lidar P_d | seed eq. 19 | fit | returns (sim / geometry) "
+        "| centre RMS (cm) | camera P_d | blob model | seed eq. 30 | fit | bearing RMS (deg) |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for i, rr in enumerate(r):
+        if abs(rr * 2 - round(rr * 2)) > 1e-9:  # the table at 0.5 m steps
+            continue
+        ce = lidar["centre_err"][i]
+        bs = camera["bearing_std_deg"][i]
+        print(
+            f"| {rr:.1f} | {lidar['pd'][i]:.3f} | {seed_sigmoid(rr, *SEED_EQ19):.3f} "
+            f"| {seed_sigmoid(rr, *lidar_fit):.3f} "
+            f"| {lidar['returns_mean'][i]:.2f} / {lidar['returns_expected'][i]:.2f} "
+            f"| {'-' if ce is None else f'{100 * ce:.1f}'} "
+            f"| {camera['pd'][i]:.3f} | {camera['pd_model'][i]:.3f} "
+            f"| {seed_sigmoid(rr, *SEED_EQ30):.3f} | {seed_sigmoid(rr, *camera_fit):.3f} "
+            f"| {'-' if bs is None else f'{bs:.2f}'} |"
+        )
+    print(
+        "lidar range factor fit (offset, slope /m, midpoint m) = "
+        f"({lidar_fit[0]:.4f}, {lidar_fit[1]:.3f}, {lidar_fit[2]:.3f}), RMS residual "
+        f"{lidar_rms:.3f}; measured 50 % range {r50:.2f} m"
+    )
+    print(
+        "camera range factor fit (offset, slope /m, midpoint m) = "
+        f"({camera_fit[0]:.4f}, {camera_fit[1]:.3f}, {camera_fit[2]:.3f}), RMS residual "
+        f"{camera_rms:.3f}"
+    )
+    pf = clutter["per_frame"]
+    print(
+        f"camera in seed-sim ({clutter['frames']} frames): per frame {pf['red_decoy']:.3f} red "
+        f"decoys + {pf['random']:.3f} random = {clutter['per_rad_false']:.4f} /rad false; "
+        f"{pf['teammate']:.2f} teammates, {pf['teammate_beyond']:.2f} beyond the lidar's "
+        f"{r50:.2f} m -> {clutter['per_rad_with_untracked']:.4f} /rad with them; teammate "
+        f"bearing RMS error {clutter['bearing_std_deg_seed_sim']:.3f} deg"
+    )
+    if args.figure:
+        plot(lidar, camera, lidar_fit, camera_fit, args.figure)
+        print(f"figure: {args.figure}")
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(
+            json.dumps(
+                {
+                    "lidar": lidar,
+                    "camera": camera,
+                    "lidar_fit": lidar_fit,
+                    "lidar_fit_rms": lidar_rms,
+                    "lidar_r50_m": r50,
+                    "camera_fit": camera_fit,
+                    "camera_fit_rms": camera_rms,
+                    "camera_clutter": clutter,
+                },
+                indent=1,
+            )
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

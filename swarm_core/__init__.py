@@ -1,0 +1,16 @@
+"""swarm_core: the contract every part of swarm-phd shares, and nothing else.
+
+- :mod:`swarm_core.records`: the stamped measurement records a World hands to the localizers
+  (odometry, lidar scans with their detections, camera bearings), robot body frame (REP-103).
+- :mod:`swarm_core.world`: the World protocol (simulator, real robots, bag replay), a step's
+  output (``WorldStep``) and ground truth.
+- :mod:`swarm_core.geometry`: angles and planar frames.
+- :mod:`swarm_core.validation`: argument checks whose errors name the field and the value.
+- :mod:`swarm_core.threads`: the compiled kernels' threading defaults (set on import).
+
+It imports no simulator, filter, ROS or RL code, so the simulator (``swarm_env``), the
+localizers (``localization``) and the bridge (``hardware_bridge``) all build on it without
+importing each other.
+"""
+
+from swarm_core import threads as _threads  # noqa: F401  (OpenMP wait policy, before numba)
