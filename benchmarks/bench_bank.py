@@ -2,7 +2,7 @@
 
 The workload is the env's own: the ``seed-sim`` preset (20 robots, odometry 10 Hz, lidar 7 Hz,
 camera 30 Hz) is run with random actions and every step's per-robot filter calls are recorded
-(``swarm_env.env.localizer_calls``, ~94 calls per 0.1 s step). The first ``--warmup`` seconds
+(``localization.feed.localizer_calls``, ~94 calls per 0.1 s step). The first ``--warmup`` seconds
 bring the mixtures to their working size; the rest is replayed, step by step, through
 
 * ``PHDBank.apply`` (one compiled call per step, what the env runs), and
@@ -13,6 +13,7 @@ median and mean wall time per env step and per filter call, and the share of rea
 per step) the filters take.
 
     .venv/bin/python benchmarks/bench_bank.py [--duration 40] [--warmup 10] [--json PATH]
+        [--phd FIELD=VALUE ...]
 """
 
 from __future__ import annotations
@@ -27,10 +28,10 @@ from pathlib import Path
 import numpy as np
 
 from localization import PHDBank, PHDConfig, RobotCentricPHD
+from localization.feed import localizer_calls
 from localization.frames import bearings_to_filter_frame, points_to_filter_frame
 from swarm_env import parallel_env
 from swarm_env.config import SIMULATOR_PHD
-from swarm_env.env import localizer_calls
 from swarm_phd.runner import random_policy
 
 
@@ -69,6 +70,20 @@ def run_filters(filters: list[RobotCentricPHD], calls: list) -> None:
                 f.update_camera(brg if pose is None else bearings_to_filter_frame(brg, pose))
 
 
+def _overrides(items: list[str]) -> dict:
+    """``["camera_birth=ray", "camera_birth_weight=0.5"]`` -> a dict of PHDConfig fields."""
+    out = {}
+    for item in items:
+        name, sep, text = item.partition("=")
+        if not sep:
+            raise SystemExit(f"--phd must be FIELD=VALUE, got {item!r}")
+        try:
+            out[name] = json.loads(text)
+        except json.JSONDecodeError:
+            out[name] = text
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--preset", default="seed-sim")
@@ -82,12 +97,20 @@ def main() -> None:
         default="simulator",
         help="the env's SIMULATOR_PHD (default) or the seed's PHDConfig()",
     )
+    parser.add_argument(
+        "--phd",
+        action="append",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="PHDConfig field override, repeatable (e.g. --phd camera_birth=ray); VALUE is "
+        "parsed as JSON, else taken as a string",
+    )
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
     steps, period = record_calls(args.preset, args.duration, args.seed)
     n_warm = int(round(args.warmup / period))
     base = SIMULATOR_PHD if args.config == "simulator" else PHDConfig()
-    config = dataclasses.replace(base, mode=args.mode)
+    config = dataclasses.replace(base, mode=args.mode, **_overrides(args.phd))
     n_robots = len(steps[0])
     bank = PHDBank(config, n_robots)
     filters = [RobotCentricPHD(config) for _ in range(n_robots)]
@@ -119,7 +142,8 @@ def main() -> None:
         "filters": np.array(filt_s),
     }
     print(
-        f"bench_bank: {args.preset}, {args.config} config, mode {args.mode}, {len(timed)} steps "
+        f"bench_bank: {args.preset}, {args.config} config {_overrides(args.phd) or ''}, "
+        f"mode {args.mode}, {len(timed)} steps "
         f"timed after "
         f"{n_warm} warm-up, {n_calls:.0f} filter calls/step, {comps:.1f} components/robot, "
         f"{platform.machine()}, {time.strftime('%Y-%m-%d')}"

@@ -29,6 +29,8 @@ References
 
 from __future__ import annotations
 
+import swarm_core  # noqa: F401  (kernel threading defaults, before numba loads OpenMP)
+
 from . import metrics
 from .bank import PHDBank
 from .config import PHDConfig

@@ -30,6 +30,8 @@ from typing import Any
 
 import numpy as np
 
+from swarm_core.validation import as_float_array
+
 from . import kernels
 from .config import PHDConfig
 from .filter import RobotCentricPHD, _checked_angles, _checked_odometry, _checked_points
@@ -227,7 +229,7 @@ class PHDBank:
             Bad ``robots`` or ``odometry`` (shape or non-finite values); nothing changes.
         """
         rob = self._checked_robots(robots)
-        odo = _as_float(odometry, "odometry")
+        odo = as_float_array(odometry, "odometry")
         if odo.shape != (rob.shape[0], 3):
             raise ValueError(
                 f"odometry must have shape ({rob.shape[0]}, 3) [dx_m, dy_m, dpsi_rad] to "
@@ -530,7 +532,7 @@ def _checked_pose(value: Any, exact: bool) -> np.ndarray | None:
         return None
     if not exact and _is_f64(value, 1) and value.shape[0] == 3:
         return value
-    pose = _as_float(value, "sensor_pose")
+    pose = as_float_array(value, "sensor_pose")
     if pose.shape != (3,):
         raise ValueError(
             f"sensor_pose must have shape (3,) [x_m, y_m, psi_rad], got shape {pose.shape}"
@@ -626,13 +628,6 @@ class _TableHolder:
 
     def __init__(self, table: np.ndarray) -> None:
         self._table = table
-
-
-def _as_float(value: Any, name: str) -> np.ndarray:
-    try:
-        return np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be numeric, got {value!r}") from exc
 
 
 def _checked_bearings(value: Any) -> np.ndarray:

@@ -18,9 +18,14 @@ References
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass, fields
 from typing import Any, TypeVar
+
+import numpy as np
+
+from swarm_core.validation import check_blind_sectors
 
 __all__ = [
     "PHDConfig",
@@ -29,6 +34,9 @@ __all__ = [
     "BIRTH_MODELS",
     "LIDAR_PD_MODELS",
     "SURVIVAL_MODELS",
+    "CAMERA_BIRTH_MODELS",
+    "MISSED_DETECTION_MODELS",
+    "CAMERA_BIRTH_RADIAL_STD_FRACTION",
 ]
 
 #: Sensor sets: lidar and camera (LC), or lidar only (LO: camera updates are no-ops).
@@ -41,6 +49,17 @@ BIRTH_MODELS = ("fixed", "measurement")
 LIDAR_PD_MODELS = ("seed", "constant")
 #: ``"seed"``: inverse sigmoid of range (eq. 10). ``"constant"``: ``survival_probability``.
 SURVIVAL_MODELS = ("seed", "constant")
+#: ``"none"``: only the lidar starts tracks (the seed). ``"ray"``: an unexplained camera
+#: bearing spawns components along its ray (bearing-only measurement-driven birth).
+CAMERA_BIRTH_MODELS = ("none", "ray")
+#: ``"phd"``: missed copy ``(1 - P_d) w`` (Vo & Ma, the seed). ``"bernoulli"``: each component's
+#: missed copy gets the exact Bernoulli missed-detection weight (see ``PHDConfig``).
+MISSED_DETECTION_MODELS = ("phd", "bernoulli")
+#: Radial standard deviation of a ray-birth component, as a fraction of the spacing ``d``
+#: between component centres: below ``1 / sqrt(merge_threshold) = 0.5`` so that neighbours
+#: stay apart under the default merge gate (``d^2 / sigma^2 = 4.9 > 4``), and close to it so
+#: the sum of the components is flat along the ray (ripple ``+- 2 exp(-2 pi^2 0.45^2) = 3.7 %``).
+CAMERA_BIRTH_RADIAL_STD_FRACTION = 0.45
 
 
 @dataclass(frozen=True, slots=True)
@@ -144,7 +163,57 @@ class PHDConfig:
         must account for the bearings of teammates the camera sees but the filter does not
         track (the camera sees to ~4 m, the lidar-initialised mixture only holds teammates
         within ~2 m); without it those bearings inflate the weights of tracked components at
-        similar bearings. Default 0.5 /rad (about 3 such bearings per frame).
+        similar bearings. Default 0.5 /rad (about 3 such bearings per frame). This is the part
+        that does not depend on the tracked disc; :attr:`camera_clutter_total_per_rad` adds
+        the untracked-teammate term below.
+    camera_untracked_density_per_m2 : float
+        Density ``rho`` of teammates the filter does not track (per m^2), counted from
+        ``camera_untracked_min_range_m`` outwards. Their bearings are Poisson clutter of
+        intensity ``rho * integral_{r_in}^{inf} P_dC(r) r dr`` per radian (a ring of radius
+        ``r``, width ``dr`` and angle ``dtheta`` holds ``rho r dr dtheta`` teammates, each
+        reported with the camera's range factor ``P_dC(r)``), added to
+        ``camera_clutter_intensity``. Default 0 (the seed's model). Leave it 0 with
+        ``camera_birth="ray"``: the camera then tracks those teammates itself.
+    camera_untracked_min_range_m : float
+        Inner radius ``r_in`` of the untracked band (m): the tracked disc (the lidar's 2 m).
+    camera_birth : str
+        ``"none"`` (the seed: only lidar detections start tracks) or ``"ray"``: a bearing
+        whose explained fraction ``sum_i P_d w_i g_i / (kappa_C + sum_i ...)`` after the
+        camera update is below ``camera_birth_max_explained`` adds
+        ``camera_birth_components`` components along its ray, at the centres ``r_k`` of equal
+        range cells over ``[camera_birth_min_range_m, camera_birth_max_range_m]``, radial std
+        ``CAMERA_BIRTH_RADIAL_STD_FRACTION`` x the cell width, cross-range std ``r_k`` x the
+        bearing noise, weights ``camera_birth_weight * r_k P_dC(r_k) / sum_j r_j P_dC(r_j)``
+        (a bearing from a uniform teammate density comes from range ``r`` with a probability
+        proportional to ``r P_dC(r)``). They join the posterior of the frame that spawned them
+        (it is their own update, so it is not applied twice) and the next frames and lidar
+        scans confirm them: the lidar removes the near part of the ray where it sees nothing
+        and parallax from the observer's motion sharpens the range.
+    camera_birth_weight : float
+        Total weight of one ray birth: the expected number of new teammates behind one
+        unexplained bearing. Default 0.25, as ``measurement_birth_weight``.
+    camera_birth_components : int
+        Components per ray birth (default 6: 0.62 m cells over 0.3-4 m).
+    camera_birth_min_range_m, camera_birth_max_range_m : float
+        Range band of a ray birth (m). Defaults 0.3 (two robot radii: nearer than that is
+        our own body) and 4 (the camera's range, seed eq. 30's midpoint).
+    camera_birth_max_explained : float
+        Threshold on a bearing's explained fraction below which it spawns a ray (as
+        ``measurement_birth_max_explained`` for the lidar).
+    missed_detection : str
+        ``"phd"`` (Vo & Ma, the seed): a component's missed-detection copy keeps
+        ``(1 - P_d) w``. ``"bernoulli"``: it keeps the exact Bernoulli filter's missed
+        posterior ``w (1 - P_d) / (1 - r P_d + r Lambda)``, the component read as
+        ``n = max(1, ceil(w))`` targets of existence ``r = w / n``, and
+        ``Lambda = sum_h P_d g_h / (kappa + sum_{j != i} P_d w_j g_jh)``, the evidence that
+        the component was detected, against clutter plus every other component. The PHD's
+        ``(1 - P_d) w`` is its first-order (Poisson) approximation, exact only for ``r << 1``;
+        at ``r ~ 1`` it takes an established track to ``1 - P_d`` after one missed frame
+        (0.09 with the seed's camera), while the exact missed posterior of a target that was
+        certainly there is still ``r (1 - P_d) / (1 - r P_d)`` (0.64 after a time update with
+        ``P_s = 0.95``): one dropped blob does not kill the track, three in a row do. With a
+        gated measurement ``Lambda`` is large and the missed copy vanishes, so a detected
+        track is not inflated towards ``1 / P_d``. Detected copies keep the PHD weights.
     prune_threshold : float
         Components with a lower weight are dropped after each update (mass is lost).
         Must be > 0 (zero-weight components are always dropped).
@@ -190,6 +259,15 @@ class PHDConfig:
     camera_pd_slope_per_m: float = 5.0
     camera_pd_midpoint_m: float = 4.0
     camera_clutter_intensity: float = 0.5
+    camera_untracked_density_per_m2: float = 0.0
+    camera_untracked_min_range_m: float = 2.0
+    camera_birth: str = "none"
+    camera_birth_weight: float = 0.25
+    camera_birth_components: int = 6
+    camera_birth_min_range_m: float = 0.3
+    camera_birth_max_range_m: float = 4.0
+    camera_birth_max_explained: float = 0.5
+    missed_detection: str = "phd"
     prune_threshold: float = 1e-4
     merge_threshold: float = 4.0
     max_components: int = 64
@@ -200,6 +278,8 @@ class PHDConfig:
         _check_choice("survival_model", self.survival_model, SURVIVAL_MODELS)
         _check_choice("birth", self.birth, BIRTH_MODELS)
         _check_choice("lidar_pd_model", self.lidar_pd_model, LIDAR_PD_MODELS)
+        _check_choice("camera_birth", self.camera_birth, CAMERA_BIRTH_MODELS)
+        _check_choice("missed_detection", self.missed_detection, MISSED_DETECTION_MODELS)
         # Every float field must be a finite real number (bool is rejected: it is an int).
         for f in fields(self):
             value = getattr(self, f.name)
@@ -222,6 +302,7 @@ class PHDConfig:
             "camera_pd_slope_per_m",
             "merge_threshold",
             "min_range_m",
+            "camera_birth_min_range_m",
         ):
             _check_positive(name, getattr(self, name))
         for name in (
@@ -231,6 +312,8 @@ class PHDConfig:
             "occlusion_min_separation_m",
             "lidar_clutter_intensity",
             "camera_clutter_intensity",
+            "camera_untracked_density_per_m2",
+            "camera_untracked_min_range_m",
         ):
             if getattr(self, name) < 0.0:
                 raise ValueError(f"PHDConfig.{name} must be >= 0, got {getattr(self, name)!r}")
@@ -243,11 +326,12 @@ class PHDConfig:
             "lidar_detection_probability",
             "interference_depth",
             "measurement_birth_max_explained",
+            "camera_birth_max_explained",
         ):
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:
                 raise ValueError(f"PHDConfig.{name} must be in [0, 1], got {value!r}")
-        for name in ("birth_weight", "measurement_birth_weight"):
+        for name in ("birth_weight", "measurement_birth_weight", "camera_birth_weight"):
             value = getattr(self, name)
             if not 0.0 <= value < 1e3:
                 raise ValueError(f"PHDConfig.{name} must be in [0, 1000), got {value!r}")
@@ -263,19 +347,21 @@ class PHDConfig:
             raise ValueError(
                 f"PHDConfig.max_components must be an int >= 1, got {self.max_components!r}"
             )
-        _check_pair("birth_mean_m", self.birth_mean_m)
-        _check_angles("blind_sector_centers_deg", self.blind_sector_centers_deg)
-        _check_angles("blind_sector_widths_deg", self.blind_sector_widths_deg)
-        if len(self.blind_sector_centers_deg) != len(self.blind_sector_widths_deg):
+        value = self.camera_birth_components
+        if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 64:
             raise ValueError(
-                "PHDConfig.blind_sector_widths_deg must have one width per centre, got "
-                f"{self.blind_sector_widths_deg!r} for centres {self.blind_sector_centers_deg!r}"
+                f"PHDConfig.camera_birth_components must be an int in [1, 64], got {value!r}"
             )
-        for width in self.blind_sector_widths_deg:
-            if not 0.0 < width < 360.0:
-                raise ValueError(
-                    f"PHDConfig.blind_sector_widths_deg must be in (0, 360), got {width!r}"
-                )
+        if not self.camera_birth_max_range_m > self.camera_birth_min_range_m:
+            raise ValueError(
+                "PHDConfig.camera_birth_max_range_m must be > camera_birth_min_range_m "
+                f"({self.camera_birth_min_range_m!r}), got {self.camera_birth_max_range_m!r}"
+            )
+        _check_pair("birth_mean_m", self.birth_mean_m)
+        # One rule for the lidar, the filter and the bridge (swarm_core.validation).
+        check_blind_sectors(
+            "PHDConfig", self.blind_sector_centers_deg, self.blind_sector_widths_deg
+        )
 
     @property
     def lidar_noise_var_m2(self) -> float:
@@ -286,6 +372,32 @@ class PHDConfig:
     def camera_noise_var_rad2(self) -> float:
         """Camera bearing noise variance ``R_C`` in rad^2."""
         return math.radians(self.camera_noise_std_deg) ** 2
+
+    @property
+    def camera_clutter_total_per_rad(self) -> float:
+        """Camera clutter ``kappa_C`` used by the update (1/rad): false blobs plus untracked
+        teammates, ``camera_clutter_intensity + rho * int_{r_in}^inf P_dC(r) r dr``."""
+        rho = self.camera_untracked_density_per_m2
+        if rho == 0.0:
+            return float(self.camera_clutter_intensity)
+        moment = _range_moment(
+            self.camera_untracked_min_range_m,
+            self.camera_pd_offset,
+            self.camera_pd_slope_per_m,
+            self.camera_pd_midpoint_m,
+        )
+        return float(self.camera_clutter_intensity + rho * moment)
+
+
+@functools.lru_cache(maxsize=64)
+def _range_moment(r_in: float, offset: float, slope: float, mid: float) -> float:
+    """``int_{r_in}^inf r / (offset + exp(slope (r - mid))) dr`` (m^2): the trapezoidal rule
+    with 0.5 mm steps up to where the integrand is below ``exp(-40)`` of its peak."""
+    r_out = max(r_in, mid + 40.0 / slope)
+    n = max(2, int(math.ceil((r_out - r_in) / 5e-4)) + 1)
+    r = np.linspace(r_in, r_out, n)
+    f = r / (offset + np.exp(np.minimum(slope * (r - mid), 700.0)))
+    return float((r[1] - r[0]) * (f.sum() - 0.5 * (f[0] + f[-1])))
 
 
 def _check_choice(name: str, value: object, choices: tuple[str, ...]) -> None:

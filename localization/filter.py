@@ -10,7 +10,9 @@ Each step reads like Stone Soup's tracker loop::
     predict:       P_s -> frame change + Q (+ pending measurement births)
     update_lidar:  (+ fixed birth) -> P_d (range x blind x occlusion x interference)
                    -> GM-PHD update (birth keeps detected copies only) -> reduce
-    update_camera: P_d (range x occlusion) -> EKF bearing GM-PHD update -> reduce
+    update_camera: P_d (range x occlusion) -> EKF bearing GM-PHD update
+                   (+ ray births from unexplained bearings) -> reduce
+    missed copies: (1 - P_d) w, or the exact Bernoulli weight (missed_detection)
     estimate:      components with weight >= threshold
 
 References
@@ -20,6 +22,9 @@ References
 .. [2] Perera 2021, seed ``000`` of this project, chapter 3.
 .. [3] B. Ristic, D. Clark, B.-N. Vo, B.-T. Vo, "Adaptive target birth intensity for PHD and
    CPHD filters", IEEE Trans. Aerospace and Electronic Systems, 48(2), 2012 (measurement births).
+.. [4] B. Ristic, B.-T. Vo, B.-N. Vo, A. Farina, "A tutorial on Bernoulli filters: theory,
+   implementation and applications", IEEE Trans. Signal Processing, 61(13), 2013 (the
+   Bernoulli missed-detection weight).
 """
 
 from __future__ import annotations
@@ -29,8 +34,10 @@ from typing import Any
 
 import numpy as np
 
+from swarm_core.validation import as_float_array
+
 from . import phd
-from .config import PHDConfig, config_with_overrides
+from .config import CAMERA_BIRTH_RADIAL_STD_FRACTION, PHDConfig, config_with_overrides
 from .detection import DetectionModel
 from .mixture import ROW_PXX, ROW_W, ROW_X, ROW_Y, GaussianMixture, empty_table
 from .reducer import reduce
@@ -232,9 +239,10 @@ class RobotCentricPHD:
         nulls = None if null_bearings is None else _checked_angles(null_bearings, "null_bearings")
         cfg = self.config
         table = self._table
+        bernoulli = cfg.missed_detection == "bernoulli"
         if pts.shape[0] == 0:
             out = table.copy()
-            out[ROW_W] *= 1.0 - self._model.lidar(table, nulls)
+            out[ROW_W] = self._missed_only(table, self._model.lidar(table, nulls))
             explained = np.empty(0)
         else:
             n = table.shape[1]
@@ -248,6 +256,7 @@ class RobotCentricPHD:
                 self._model.lidar(table, nulls),
                 cfg.lidar_noise_var_m2,
                 cfg.lidar_clutter_intensity,
+                bernoulli,
             )
             if fixed_birth:
                 # Its missed-detection copy is dropped (weight 0, pruned): kept, a 2 m-wide
@@ -282,16 +291,35 @@ class RobotCentricPHD:
         detection_prob = self._model.camera(table)
         if brg.shape[0] == 0:
             out = table.copy()
-            out[ROW_W] *= 1.0 - detection_prob
+            out[ROW_W] = self._missed_only(table, detection_prob)
         else:
-            out, _ = phd.camera_update(
+            out, explained = phd.camera_update(
                 table,
                 brg,
                 detection_prob,
                 cfg.camera_noise_var_rad2,
-                cfg.camera_clutter_intensity,
+                cfg.camera_clutter_total_per_rad,
                 cfg.min_range_m,
+                cfg.missed_detection == "bernoulli",
             )
+            if cfg.camera_birth == "ray":
+                # Bearings the mixture does not explain start tracks along their rays; they
+                # join this frame's posterior (the bearing is their own update).
+                unexplained = brg[explained < cfg.camera_birth_max_explained]
+                if unexplained.shape[0]:
+                    births = phd.ray_births(
+                        unexplained,
+                        cfg.camera_birth_weight,
+                        cfg.camera_birth_components,
+                        cfg.camera_birth_min_range_m,
+                        cfg.camera_birth_max_range_m,
+                        CAMERA_BIRTH_RADIAL_STD_FRACTION,
+                        cfg.camera_noise_var_rad2,
+                        cfg.camera_pd_offset,
+                        cfg.camera_pd_slope_per_m,
+                        cfg.camera_pd_midpoint_m,
+                    )
+                    out = np.concatenate((out, births), axis=1)
         self._table = self._reduce(out)
         self._mixture = None
 
@@ -325,21 +353,20 @@ class RobotCentricPHD:
         positions = np.repeat(table[ROW_X : ROW_Y + 1, keep].T, counts, axis=0)
         return positions, np.repeat(wk / counts, counts)
 
+    def _missed_only(self, table: np.ndarray, detection_prob: np.ndarray) -> np.ndarray:
+        """Weights after a scan or frame without measurements, shape ``(N,)``."""
+        if self.config.missed_detection == "bernoulli":
+            return phd.missed_weights(table[ROW_W], detection_prob)
+        return table[ROW_W] * (1.0 - detection_prob)
+
     def _reduce(self, table: np.ndarray) -> np.ndarray:
         cfg = self.config
         return reduce(table, cfg.prune_threshold, cfg.merge_threshold, cfg.max_components)
 
 
 # ---------------------------------------------------------------------- input checks
-def _as_float(value: Any, name: str) -> np.ndarray:
-    try:
-        return np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be numeric, got {value!r}") from exc
-
-
 def _checked_odometry(odometry: Any) -> np.ndarray:
-    odo = _as_float(odometry, "odometry")
+    odo = as_float_array(odometry, "odometry")
     if odo.shape != (3,):
         raise ValueError(
             f"odometry must have shape (3,) [dx_m, dy_m, dpsi_rad], got shape {odo.shape}"
@@ -350,7 +377,7 @@ def _checked_odometry(odometry: Any) -> np.ndarray:
 
 
 def _checked_points(points: Any) -> np.ndarray:
-    pts = _as_float(points, "points")
+    pts = as_float_array(points, "points")
     if pts.ndim != 2 or pts.shape[1] != 2:
         if pts.size == 0:
             return np.empty((0, 2))
@@ -366,7 +393,7 @@ def _checked_points(points: Any) -> np.ndarray:
 
 
 def _checked_angles(angles: Any, name: str) -> np.ndarray:
-    arr = _as_float(angles, name)
+    arr = as_float_array(angles, name)
     if arr.ndim != 1:
         if arr.size == 0:
             return np.empty(0)

@@ -39,6 +39,9 @@ import math
 
 import numpy as np
 
+# The project's one wrap_angle (re-exported here for localization's modules).
+from swarm_core.geometry import wrap_angle
+
 __all__ = [
     "TINY",
     "wrap_angle",
@@ -63,11 +66,6 @@ _FULL_FROM_SYM = np.array([0, 1, 1, 2])  # (xx, xy, yy) -> (xx, xy, yx, yy)
 _SYM_FROM_FULL = np.array([0, 1, 3])
 _FRAME_TEMPLATE = np.zeros((6, 7))
 _FRAME_TEMPLATE[0, 0] = 1.0
-
-
-def wrap_angle(angle: np.ndarray) -> np.ndarray:
-    """Wrap angles (rad) to ``[-pi, pi)``."""
-    return (angle + math.pi) % _TWO_PI - math.pi
 
 
 def sym_inverse(covs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

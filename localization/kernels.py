@@ -29,7 +29,8 @@ Encoding of a batch of ``Q`` calls (all arrays, built by :class:`~localization.P
   a measurement taken away from it (:mod:`localization.frames`; flag 0: taken in it).
 
 Model parameters travel as one float vector ``fparams`` and one int vector ``iparams``
-indexed by the ``F_*`` and ``I_*`` constants below (see :func:`pack_params`).
+indexed by the ``F_*`` and ``I_*`` constants below, each declared once with its transform of
+the config (``_Slots``; :func:`pack_params` packs them).
 """
 
 from __future__ import annotations
@@ -39,34 +40,87 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .config import PHDConfig
+from .config import CAMERA_BIRTH_RADIAL_STD_FRACTION, PHDConfig
 from .mixture import N_ROWS
 
 __all__ = ["PREDICT", "LIDAR", "CAMERA", "pack_params", "apply_calls", "reduce_table"]
 
 PREDICT, LIDAR, CAMERA = 0, 1, 2
 
-# fparams indices
-F_PROCESS_VAR = 0
-F_PS_OFFSET, F_PS_SLOPE, F_PS_RANGE, F_PS_CONST = 1, 2, 3, 4
-F_BIRTH_W, F_BIRTH_X, F_BIRTH_Y, F_BIRTH_VAR = 5, 6, 7, 8
-F_MBIRTH_W, F_MBIRTH_VAR, F_MBIRTH_MAX_EXPLAINED = 9, 10, 11
-F_LIDAR_VAR, F_LPD_OFFSET, F_LPD_SLOPE, F_LPD_MID, F_LPD_CONST, F_LIDAR_RANGE = (
-    12,
-    13,
-    14,
-    15,
-    16,
-    17,
-)
-F_OCC_INV_VAR, F_OCC_SEPARATION, F_INT_DEPTH, F_INT_INV_VAR, F_KAPPA_L = 18, 19, 20, 21, 22
-F_CAMERA_VAR, F_CPD_OFFSET, F_CPD_SLOPE, F_CPD_MID, F_KAPPA_C = 23, 24, 25, 26, 27
-F_PRUNE, F_MERGE, F_MIN_RANGE = 28, 29, 30
-N_FPARAMS = 31
-# iparams indices (flags are 0 / 1)
-I_MAX_COMPONENTS, I_SURVIVAL_CONSTANT, I_BIRTH_FIXED, I_BIRTH_MEASUREMENT = 0, 1, 2, 3
-I_LIDAR_PD_CONSTANT, I_LIDAR_ONLY = 4, 5
-N_IPARAMS = 6
+
+class _Slots:
+    """One declarative table of kernel parameters: each slot is written once, as
+    ``F_NAME = _F.slot(transform)`` with ``transform(config) -> value``. The slot index is a
+    plain module-level int (numba freezes it as a compile-time constant, so indexing costs
+    what a literal would) and :func:`pack_params` fills the vector from the same table."""
+
+    def __init__(self, dtype: type) -> None:
+        self.dtype = dtype
+        self.transforms: list = []
+
+    def slot(self, transform) -> int:
+        self.transforms.append(transform)
+        return len(self.transforms) - 1
+
+    def pack(self, config: PHDConfig) -> np.ndarray:
+        return np.array([t(config) for t in self.transforms], dtype=self.dtype)
+
+
+def _inv_var_deg(std_deg: float) -> float:
+    return 1.0 / math.radians(std_deg) ** 2
+
+
+_F = _Slots(np.float64)  # fparams
+F_PROCESS_VAR = _F.slot(lambda c: c.process_noise_std_m**2)
+F_PS_OFFSET = _F.slot(lambda c: c.survival_offset)
+F_PS_SLOPE = _F.slot(lambda c: c.survival_slope_per_m)
+F_PS_RANGE = _F.slot(lambda c: c.survival_range_m)
+F_PS_CONST = _F.slot(lambda c: c.survival_probability)
+F_BIRTH_W = _F.slot(lambda c: c.birth_weight)
+F_BIRTH_X = _F.slot(lambda c: c.birth_mean_m[0])
+F_BIRTH_Y = _F.slot(lambda c: c.birth_mean_m[1])
+F_BIRTH_VAR = _F.slot(lambda c: c.birth_std_m**2)
+F_MBIRTH_W = _F.slot(lambda c: c.measurement_birth_weight)
+F_MBIRTH_VAR = _F.slot(lambda c: c.measurement_birth_cov_scale * c.lidar_noise_var_m2)
+F_MBIRTH_MAX_EXPLAINED = _F.slot(lambda c: c.measurement_birth_max_explained)
+F_LIDAR_VAR = _F.slot(lambda c: c.lidar_noise_var_m2)
+F_LPD_OFFSET = _F.slot(lambda c: c.lidar_pd_offset)
+F_LPD_SLOPE = _F.slot(lambda c: c.lidar_pd_slope_per_m)
+F_LPD_MID = _F.slot(lambda c: c.lidar_pd_midpoint_m)
+F_LPD_CONST = _F.slot(lambda c: c.lidar_detection_probability)
+F_LIDAR_RANGE = _F.slot(lambda c: c.lidar_range_m)
+F_OCC_INV_VAR = _F.slot(lambda c: _inv_var_deg(c.occlusion_std_deg))
+F_OCC_SEPARATION = _F.slot(lambda c: c.occlusion_min_separation_m)
+F_INT_DEPTH = _F.slot(lambda c: c.interference_depth)
+F_INT_INV_VAR = _F.slot(lambda c: _inv_var_deg(c.interference_std_deg))
+F_KAPPA_L = _F.slot(lambda c: c.lidar_clutter_intensity)
+F_CAMERA_VAR = _F.slot(lambda c: c.camera_noise_var_rad2)
+F_CPD_OFFSET = _F.slot(lambda c: c.camera_pd_offset)
+F_CPD_SLOPE = _F.slot(lambda c: c.camera_pd_slope_per_m)
+F_CPD_MID = _F.slot(lambda c: c.camera_pd_midpoint_m)
+# false blobs + untracked teammates (PHDConfig.camera_clutter_total_per_rad)
+F_KAPPA_C = _F.slot(lambda c: c.camera_clutter_total_per_rad)
+F_PRUNE = _F.slot(lambda c: c.prune_threshold)
+F_MERGE = _F.slot(lambda c: c.merge_threshold)
+F_MIN_RANGE = _F.slot(lambda c: c.min_range_m)
+F_CBIRTH_W = _F.slot(lambda c: c.camera_birth_weight)
+F_CBIRTH_MIN_RANGE = _F.slot(lambda c: c.camera_birth_min_range_m)
+F_CBIRTH_MAX_RANGE = _F.slot(lambda c: c.camera_birth_max_range_m)
+F_CBIRTH_MAX_EXPLAINED = _F.slot(lambda c: c.camera_birth_max_explained)
+F_CBIRTH_RADIAL_FRACTION = _F.slot(lambda c: CAMERA_BIRTH_RADIAL_STD_FRACTION)
+N_FPARAMS = len(_F.transforms)
+
+_I = _Slots(np.int64)  # iparams (flags are 0 / 1)
+I_MAX_COMPONENTS = _I.slot(lambda c: c.max_components)
+I_SURVIVAL_CONSTANT = _I.slot(lambda c: c.survival_model == "constant")
+I_BIRTH_FIXED = _I.slot(lambda c: c.birth == "fixed")
+I_BIRTH_MEASUREMENT = _I.slot(lambda c: c.birth == "measurement")
+I_LIDAR_PD_CONSTANT = _I.slot(lambda c: c.lidar_pd_model == "constant")
+I_LIDAR_ONLY = _I.slot(lambda c: c.mode == "lidar-only")
+I_CAMERA_BIRTH = _I.slot(lambda c: c.camera_birth == "ray")
+I_CBIRTH_COMPONENTS = _I.slot(lambda c: c.camera_birth_components)
+I_MISSED_BERNOULLI = _I.slot(lambda c: c.missed_detection == "bernoulli")
+N_IPARAMS = len(_I.transforms)
 
 _TINY = 1e-300  # as localization.gaussian.TINY: floor of every divisor
 _WEIGHT_FLOOR = 1e-150  # as localization.reducer: cluster weights never 0/0
@@ -87,50 +141,8 @@ def pack_params(config: PHDConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
     (``sigma = width / 2``), as :class:`~localization.detection.DetectionModel` keeps them.
     """
     c = config
-    f = np.zeros(N_FPARAMS)
-    f[F_PROCESS_VAR] = c.process_noise_std_m**2
-    f[F_PS_OFFSET], f[F_PS_SLOPE], f[F_PS_RANGE] = (
-        c.survival_offset,
-        c.survival_slope_per_m,
-        c.survival_range_m,
-    )
-    f[F_PS_CONST] = c.survival_probability
-    f[F_BIRTH_W] = c.birth_weight
-    f[F_BIRTH_X], f[F_BIRTH_Y] = c.birth_mean_m
-    f[F_BIRTH_VAR] = c.birth_std_m**2
-    f[F_MBIRTH_W] = c.measurement_birth_weight
-    f[F_MBIRTH_VAR] = c.measurement_birth_cov_scale * c.lidar_noise_var_m2
-    f[F_MBIRTH_MAX_EXPLAINED] = c.measurement_birth_max_explained
-    f[F_LIDAR_VAR] = c.lidar_noise_var_m2
-    f[F_LPD_OFFSET], f[F_LPD_SLOPE], f[F_LPD_MID] = (
-        c.lidar_pd_offset,
-        c.lidar_pd_slope_per_m,
-        c.lidar_pd_midpoint_m,
-    )
-    f[F_LPD_CONST] = c.lidar_detection_probability
-    f[F_LIDAR_RANGE] = c.lidar_range_m
-    f[F_OCC_INV_VAR] = 1.0 / math.radians(c.occlusion_std_deg) ** 2
-    f[F_OCC_SEPARATION] = c.occlusion_min_separation_m
-    f[F_INT_DEPTH] = c.interference_depth
-    f[F_INT_INV_VAR] = 1.0 / math.radians(c.interference_std_deg) ** 2
-    f[F_KAPPA_L] = c.lidar_clutter_intensity
-    f[F_CAMERA_VAR] = c.camera_noise_var_rad2
-    f[F_CPD_OFFSET], f[F_CPD_SLOPE], f[F_CPD_MID] = (
-        c.camera_pd_offset,
-        c.camera_pd_slope_per_m,
-        c.camera_pd_midpoint_m,
-    )
-    f[F_KAPPA_C] = c.camera_clutter_intensity
-    f[F_PRUNE] = c.prune_threshold
-    f[F_MERGE] = c.merge_threshold
-    f[F_MIN_RANGE] = c.min_range_m
-    i = np.zeros(N_IPARAMS, dtype=np.int64)
-    i[I_MAX_COMPONENTS] = c.max_components
-    i[I_SURVIVAL_CONSTANT] = c.survival_model == "constant"
-    i[I_BIRTH_FIXED] = c.birth == "fixed"
-    i[I_BIRTH_MEASUREMENT] = c.birth == "measurement"
-    i[I_LIDAR_PD_CONSTANT] = c.lidar_pd_model == "constant"
-    i[I_LIDAR_ONLY] = c.mode == "lidar-only"
+    f = _F.pack(c)
+    i = _I.pack(c)
     centres = np.radians(np.asarray(c.blind_sector_centers_deg, dtype=float))
     sigmas = 0.5 * np.radians(np.asarray(c.blind_sector_widths_deg, dtype=float))
     inv_var = 1.0 / sigmas**2
@@ -139,6 +151,14 @@ def pack_params(config: PHDConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
 
 
 # ---------------------------------------------------------------------- detection factors
+@njit(cache=True)
+def _wrap(angle):
+    """:func:`swarm_core.geometry.wrap_angle` of one angle: ``[-pi, pi)``."""
+    wrapped = (angle + math.pi) % _TWO_PI - math.pi
+    # the modulo can round a tiny negative input up to exactly 2 pi, which would give +pi
+    return wrapped - _TWO_PI if wrapped >= math.pi else wrapped
+
+
 @njit(cache=True)
 def _inverse_sigmoid(range_m, offset, slope, midpoint):
     return 1.0 / (math.exp(min(range_m * slope - slope * midpoint, _MAX_EXP)) + offset)
@@ -232,6 +252,38 @@ def _camera_pd(tab, n, fp):
 
 # ---------------------------------------------------------------------- time update
 @njit(cache=True)
+def frame_change(out, total, n_survive, odo, fp, ip):
+    """The time update of ``out``'s first ``total`` columns, in place: weights (or existences)
+    times ``P_s`` (columns ``>= n_survive`` are new births: 1), and the ego-motion
+    ``m' = R(dpsi)^T (m - d)``, ``P' = R^T P R + Q`` (localization.gaussian.frame_change_matrix).
+    Shared by the GM-PHD and the PMB kernels."""
+    dx, dy, dpsi = odo[0], odo[1], odo[2]
+    c, s = math.cos(dpsi), math.sin(dpsi)
+    cc, ss, cs = c * c, s * s, c * s
+    off_x = -(c * dx + s * dy)
+    off_y = s * dx - c * dy
+    q = fp[F_PROCESS_VAR]
+    constant = ip[I_SURVIVAL_CONSTANT]
+    for i in range(total):
+        x, y = out[1, i], out[2, i]
+        pxx, pxy, pyy = out[3, i], out[4, i], out[5, i]
+        if i >= n_survive:
+            ps = 1.0
+        elif constant:
+            ps = fp[F_PS_CONST]
+        else:
+            ps = _inverse_sigmoid(
+                math.hypot(x, y), fp[F_PS_OFFSET], fp[F_PS_SLOPE], fp[F_PS_RANGE]
+            )
+        out[0, i] *= ps
+        out[1, i] = c * x + s * y + off_x
+        out[2, i] = -s * x + c * y + off_y
+        out[3, i] = cc * pxx + 2.0 * cs * pxy + ss * pyy + q
+        out[4, i] = -cs * pxx + (cc - ss) * pxy + cs * pyy
+        out[5, i] = ss * pxx - 2.0 * cs * pxy + cc * pyy + q
+
+
+@njit(cache=True)
 def _predict(tab, n, births, n_births, odo, fp, ip):
     """Frame change + Q + survival; pending births join with ``P_s = 1``. Returns (table, n)."""
     total = n + n_births
@@ -245,31 +297,7 @@ def _predict(tab, n, births, n_births, odo, fp, ip):
         out[3, col] = fp[F_MBIRTH_VAR]
         out[4, col] = 0.0
         out[5, col] = fp[F_MBIRTH_VAR]
-    dx, dy, dpsi = odo[0], odo[1], odo[2]
-    c, s = math.cos(dpsi), math.sin(dpsi)
-    cc, ss, cs = c * c, s * s, c * s
-    off_x = -(c * dx + s * dy)
-    off_y = s * dx - c * dy
-    q = fp[F_PROCESS_VAR]
-    constant = ip[I_SURVIVAL_CONSTANT]
-    for i in range(total):
-        x, y = out[1, i], out[2, i]
-        pxx, pxy, pyy = out[3, i], out[4, i], out[5, i]
-        if i >= n:
-            ps = 1.0
-        elif constant:
-            ps = fp[F_PS_CONST]
-        else:
-            ps = _inverse_sigmoid(
-                math.hypot(x, y), fp[F_PS_OFFSET], fp[F_PS_SLOPE], fp[F_PS_RANGE]
-            )
-        out[0, i] *= ps
-        # m' = R(dpsi)^T (m - d); P' = R^T P R + Q (see gaussian.frame_change_matrix)
-        out[1, i] = c * x + s * y + off_x
-        out[2, i] = -s * x + c * y + off_y
-        out[3, i] = cc * pxx + 2.0 * cs * pxy + ss * pyy + q
-        out[4, i] = -cs * pxx + (cc - ss) * pxy + cs * pyy
-        out[5, i] = ss * pxx - 2.0 * cs * pxy + cc * pyy + q
+    frame_change(out, total, n, odo, fp, ip)
     if total > ip[I_MAX_COMPONENTS]:
         return reduce_table(out, total, fp[F_PRUNE], fp[F_MERGE], ip[I_MAX_COMPONENTS])
     return out, total
@@ -293,13 +321,17 @@ def _negligible_exponent(pd_w, norm, kappa, prune):
 
 
 @njit(cache=True)
-def _posterior(tab, n, pd, detected, post_means, post_covs, kappa, prune, dropped_missed):
+def _posterior(
+    tab, n, pd, detected, post_means, post_covs, kappa, prune, dropped_missed, bernoulli
+):
     """GM-PHD weights (Vo & Ma Table I), pruned: the kept missed copies, then the kept
     detected copies in component-major order (the reference's column order, minus the pruned).
 
     ``detected (n, M)`` holds ``P_d w N`` per pair, ``post_means (2, n, M)`` (read only where
     ``detected > 0``), ``post_covs (3, n)``; ``dropped_missed`` is a component whose missed
-    copy is not kept (-1: none). Returns the ``(6, k)`` table, ``k`` and ``explained (M,)``.
+    copy is not kept (-1: none); ``bernoulli``: missed copies get
+    :func:`localization.phd.missed_weights`. Returns the ``(6, k)`` table, ``k`` and
+    ``explained (M,)``.
     """
     m = detected.shape[1]
     sums = np.zeros(m)
@@ -316,6 +348,12 @@ def _posterior(tab, n, pd, detected, post_means, post_covs, kappa, prune, droppe
     k = 0
     for i in range(n):
         w = tab[0, i] - pd[i] * tab[0, i]  # (1 - P_d) w
+        if bernoulli:
+            evidence = 0.0  # w_i Lambda_i
+            for h in range(m):
+                others = max(sums[h] - detected[i, h], 0.0) + kappa
+                evidence += detected[i, h] / max(others, _TINY)
+            w = _bernoulli_missed(tab[0, i], pd[i], evidence)
         weights[i] = 0.0 if i == dropped_missed else w
         k += weights[i] >= prune
         for h in range(m):
@@ -345,11 +383,23 @@ def _posterior(tab, n, pd, detected, post_means, post_covs, kappa, prune, droppe
 
 
 @njit(cache=True)
-def _missed_only(tab, n, pd, prune):
-    """An update without measurements: ``w *= 1 - P_d``, pruned. Returns (table, k)."""
+def _bernoulli_missed(w, pd, evidence):
+    """:func:`localization.phd.missed_weights` of one component."""
+    scale = 1.0 / max(math.ceil(w), 1.0)  # r / w = 1 / n
+    denom = 1.0 - (w * scale) * pd + scale * evidence
+    return (w - w * pd) / max(denom, _TINY)
+
+
+@njit(cache=True)
+def _missed_only(tab, n, pd, prune, bernoulli):
+    """An update without measurements: ``w *= 1 - P_d`` (or the Bernoulli missed weight),
+    pruned. Returns (table, k)."""
     out = tab[:, :n].copy()
     for i in range(n):
-        out[0, i] *= 1.0 - pd[i]
+        if bernoulli:
+            out[0, i] = _bernoulli_missed(out[0, i], pd[i], 0.0)
+        else:
+            out[0, i] *= 1.0 - pd[i]
     return _prune(out, n, prune)
 
 
@@ -360,7 +410,7 @@ def _lidar_update(tab, n, pts, nulls, fp, ip, sector_scaled, sector_inv_var):
     prune = fp[F_PRUNE]
     if m == 0:
         pd = _lidar_pd(tab, n, nulls, fp, ip, sector_scaled, sector_inv_var)
-        out, k = _missed_only(tab, n, pd, prune)
+        out, k = _missed_only(tab, n, pd, prune, ip[I_MISSED_BERNOULLI])
         return out, k, np.empty(0)
     fixed_birth = ip[I_BIRTH_FIXED]
     n1 = n + 1 if fixed_birth else n
@@ -411,18 +461,27 @@ def _lidar_update(tab, n, pts, nulls, fp, ip, sector_scaled, sector_inv_var):
             post_means[1, i, h] = pts[h, 1] + (2.0 * r) * e1
     # the fixed birth's missed copy is dropped (see RobotCentricPHD.update_lidar)
     return _posterior(
-        prior, n1, pd, detected, post_means, post_covs, kappa, prune, n if fixed_birth else -1
+        prior,
+        n1,
+        pd,
+        detected,
+        post_means,
+        post_covs,
+        kappa,
+        prune,
+        n if fixed_birth else -1,
+        ip[I_MISSED_BERNOULLI],
     )
 
 
 @njit(cache=True)
-def _camera_update(tab, n, brg, fp):
-    """Camera EKF bearing GM-PHD update, pruned. Returns (table, k)."""
+def _camera_update(tab, n, brg, fp, ip):
+    """Camera EKF bearing GM-PHD update (+ ray births), pruned. Returns (table, k)."""
     m = brg.shape[0]
     prune = fp[F_PRUNE]
     pd = _camera_pd(tab, n, fp)
     if m == 0:
-        return _missed_only(tab, n, pd, prune)
+        return _missed_only(tab, n, pd, prune, ip[I_MISSED_BERNOULLI])
     noise = fp[F_CAMERA_VAR]
     kappa = fp[F_KAPPA_C]
     min_r2 = fp[F_MIN_RANGE] * fp[F_MIN_RANGE]
@@ -457,7 +516,7 @@ def _camera_update(tab, n, brg, fp):
         for h in range(m):
             innov = brg[h] - predicted
             if innov >= math.pi or innov < -math.pi:  # wrapped to [-pi, pi)
-                innov = (innov + math.pi) % _TWO_PI - math.pi
+                innov = _wrap(innov)
             exponent = (innov * innov) * half_inv_s
             if exponent < floor:
                 detected[i, h] = 0.0
@@ -465,8 +524,63 @@ def _camera_update(tab, n, brg, fp):
             detected[i, h] = math.exp(exponent) * norm * pd_w
             post_means[0, i, h] = x + g0 * innov
             post_means[1, i, h] = y + g1 * innov
-    out, k, _ = _posterior(tab, n, pd, detected, post_means, post_covs, kappa, prune, -1)
+    out, k, explained = _posterior(
+        tab, n, pd, detected, post_means, post_covs, kappa, prune, -1, ip[I_MISSED_BERNOULLI]
+    )
+    if ip[I_CAMERA_BIRTH]:
+        return _with_ray_births(out, k, brg, explained, fp, ip)
     return out, k
+
+
+@njit(cache=True)
+def _with_ray_births(tab, n, brg, explained, fp, ip):
+    """``tab`` plus :func:`localization.phd.ray_births` of the bearings explained less than
+    ``camera_birth_max_explained``, those above the prune threshold. Returns (table, k)."""
+    n_cells = ip[I_CBIRTH_COMPONENTS]
+    r_min = fp[F_CBIRTH_MIN_RANGE]
+    step = (fp[F_CBIRTH_MAX_RANGE] - r_min) / n_cells
+    ranges = np.empty(n_cells)
+    share = np.empty(n_cells)
+    total = 0.0
+    for c in range(n_cells):
+        r = r_min + (c + 0.5) * step
+        ranges[c] = r
+        share[c] = r * _inverse_sigmoid(r, fp[F_CPD_OFFSET], fp[F_CPD_SLOPE], fp[F_CPD_MID])
+        total += share[c]
+    scale = fp[F_CBIRTH_W] / total
+    prune = fp[F_PRUNE]
+    n_kept = 0
+    for c in range(n_cells):
+        share[c] *= scale  # now the cell's weight
+        n_kept += share[c] >= prune
+    threshold = fp[F_CBIRTH_MAX_EXPLAINED]
+    n_rays = 0
+    for h in range(brg.shape[0]):
+        n_rays += explained[h] < threshold
+    if n_rays == 0 or n_kept == 0:
+        return tab, n
+    radial_var = (fp[F_CBIRTH_RADIAL_FRACTION] * step) ** 2
+    bearing_var = fp[F_CAMERA_VAR]
+    out = np.empty((N_ROWS, n + n_rays * n_kept))
+    out[:, :n] = tab[:, :n]
+    col = n
+    for h in range(brg.shape[0]):
+        if explained[h] >= threshold:
+            continue
+        co, si = math.cos(brg[h]), math.sin(brg[h])
+        for c in range(n_cells):
+            if share[c] < prune:
+                continue
+            r = ranges[c]
+            cross_var = r * r * bearing_var
+            out[0, col] = share[c]
+            out[1, col] = r * co
+            out[2, col] = r * si
+            out[3, col] = radial_var * (co * co) + cross_var * (si * si)
+            out[4, col] = (radial_var - cross_var) * (co * si)
+            out[5, col] = radial_var * (si * si) + cross_var * (co * co)
+            col += 1
+    return out, col
 
 
 # ---------------------------------------------------------------------- reduction
@@ -607,7 +721,7 @@ def _to_filter_frame(points, bearings, pose):
         out[h, 1] = s * points[h, 0] + c * points[h, 1] + pose[1]
     rotated = np.empty(bearings.shape[0])
     for h in range(bearings.shape[0]):
-        rotated[h] = (bearings[h] + pose[2] + math.pi) % _TWO_PI - math.pi
+        rotated[h] = _wrap(bearings[h] + pose[2])
     return out, rotated
 
 
@@ -723,7 +837,7 @@ def _apply_call(
         brg = bearings[camera_start[j] : camera_stop[j]]
         if camera_has_pose[j]:
             _, brg = _to_filter_frame(np.empty((0, 2)), brg, camera_pose[j])
-        cand, n_cand = _camera_update(tab, n, brg, fp)
+        cand, n_cand = _camera_update(tab, n, brg, fp, ip)
         out, n_out = _merge_cap(cand, n_cand, fp[F_MERGE], max_components)
     table[:, r, :n_out] = out[:, :n_out]
     table[:, r, n_out:] = 0.0

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .detection import inverse_sigmoid
 from .gaussian import TINY, bearing_update, frame_change_matrix, position_update
 from .mixture import N_ROWS, ROW_PXX, ROW_PXY, ROW_PYY, ROW_W, ROW_X, ROW_Y
 
@@ -28,6 +29,8 @@ __all__ = [
     "birth_components",
     "lidar_update",
     "camera_update",
+    "missed_weights",
+    "ray_births",
 ]
 
 
@@ -97,6 +100,7 @@ def _posterior_table(
     post_covs: np.ndarray,
     likelihood: np.ndarray,
     clutter_intensity: float,
+    bernoulli: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """GM-PHD weights (Vo & Ma 2006, Table I, step 4) and the stacked posterior table.
 
@@ -114,6 +118,8 @@ def _posterior_table(
         Measurement likelihood per (component, measurement).
     clutter_intensity : float
         ``kappa`` in the measurement's units.
+    bernoulli : bool
+        Missed copies with :func:`missed_weights`' Bernoulli weights instead of the PHD's.
 
     Returns
     -------
@@ -133,7 +139,13 @@ def _posterior_table(
     # floor turns it into weights of exactly 0 (nothing explains that measurement).
     inv_denom = 1.0 / np.maximum(sums + clutter_intensity, TINY)
     out = np.empty((N_ROWS, n + n * m))
-    np.subtract(weights, pd_w, out=out[ROW_W, :n])  # (1 - P_d) w
+    if bernoulli:
+        # Lambda_i w_i = sum_h P_d w_i g_ih / (kappa + sum_{j != i} P_d w_j g_jh)
+        others = np.maximum(sums[None, :] - detected, 0.0) + clutter_intensity
+        evidence = (detected / np.maximum(others, TINY)).dot(np.ones(m))
+        out[ROW_W, :n] = missed_weights(weights, detection_prob, evidence)
+    else:
+        np.subtract(weights, pd_w, out=out[ROW_W, :n])  # (1 - P_d) w
     out[ROW_X:, :n] = table[ROW_X:]
     # a view: component-major (i, h) blocks
     blocks = out[:, n:].reshape(N_ROWS, n, m)
@@ -143,12 +155,103 @@ def _posterior_table(
     return out, sums * inv_denom
 
 
+def missed_weights(
+    weights: np.ndarray, detection_prob: np.ndarray, evidence: np.ndarray | None = None
+) -> np.ndarray:
+    """Bernoulli missed-detection weights ``w (1 - P_d) / (1 - r P_d + r Lambda)``.
+
+    Each component is read as ``n = max(1, ceil(w))`` Bernoulli targets of existence
+    ``r = w / n`` (``r = w`` for ``w <= 1``; a merged component of weight 1.3 as two targets
+    of existence 0.65, the split that claims no more certainty than the weight holds),
+    updated exactly against
+    a Poisson background (clutter plus every other component): the Bernoulli filter's
+    missed-detection posterior (Ristic et al. 2013, "A tutorial on Bernoulli filters",
+    eq. 40). The PHD's ``(1 - P_d) w`` is its limit for ``r -> 0``.
+
+    Parameters
+    ----------
+    weights : ndarray, shape (N,)
+    detection_prob : ndarray, shape (N,)
+        ``P_d`` per component.
+    evidence : ndarray, shape (N,), optional
+        ``w_i Lambda_i = sum_h P_d w_i g_ih / (kappa + sum_{j != i} P_d w_j g_jh)``; omitted
+        for a scan or frame without measurements (``Lambda = 0``).
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        Missed-copy weights, ``<= w``.
+    """
+    scale = 1.0 / np.maximum(np.ceil(weights), 1.0)  # r / w = 1 / n
+    r = weights * scale
+    denom = 1.0 - r * detection_prob
+    if evidence is not None:
+        denom += scale * evidence
+    # Guard: r = P_d = 1 and no evidence gives 0 / 0; the numerator is then 0.
+    return (weights - weights * detection_prob) / np.maximum(denom, TINY)
+
+
+def ray_births(
+    bearings: np.ndarray,
+    weight: float,
+    n_components: int,
+    min_range_m: float,
+    max_range_m: float,
+    radial_std_fraction: float,
+    bearing_var: float,
+    pd_offset: float,
+    pd_slope_per_m: float,
+    pd_midpoint_m: float,
+) -> np.ndarray:
+    """Bearing-only measurement-driven birth: components along each bearing's ray.
+
+    The range band ``[min_range_m, max_range_m]`` is cut into ``K = n_components`` equal
+    cells of width ``d``; cell ``k`` gets a component at range ``r_k`` (its centre) with
+    radial std ``radial_std_fraction * d``, cross-range std ``r_k sqrt(bearing_var)`` and
+    weight ``weight * r_k P(r_k) / sum_j r_j P(r_j)``, ``P`` the camera's range factor
+    (a uniform teammate density seen through ``P``).
+
+    Parameters
+    ----------
+    bearings : ndarray, shape (M,)
+        Bearings (rad, robot frame).
+    weight : float
+        Total weight per bearing.
+    n_components : int
+    min_range_m, max_range_m, radial_std_fraction, bearing_var : float
+    pd_offset, pd_slope_per_m, pd_midpoint_m : float
+        Camera range factor (:func:`localization.detection.inverse_sigmoid`).
+
+    Returns
+    -------
+    ndarray, shape (6, M * K)
+        Bearing-major: column ``h * K + k`` is cell ``k`` of bearing ``h``.
+    """
+    step = (max_range_m - min_range_m) / n_components
+    ranges = min_range_m + (np.arange(n_components) + 0.5) * step
+    share = ranges * inverse_sigmoid(ranges, pd_offset, pd_slope_per_m, pd_midpoint_m)
+    weights = share * (weight / share.sum())
+    radial_var = (radial_std_fraction * step) ** 2
+    cross_var = ranges * ranges * bearing_var
+    c = np.cos(bearings)[:, None]
+    s = np.sin(bearings)[:, None]
+    out = np.empty((N_ROWS, bearings.shape[0], n_components))
+    out[ROW_W] = weights
+    out[ROW_X] = ranges * c
+    out[ROW_Y] = ranges * s
+    out[ROW_PXX] = radial_var * (c * c) + cross_var * (s * s)
+    out[ROW_PXY] = (radial_var - cross_var) * (c * s)
+    out[ROW_PYY] = radial_var * (s * s) + cross_var * (c * c)
+    return out.reshape(N_ROWS, -1)
+
+
 def lidar_update(
     table: np.ndarray,
     points: np.ndarray,
     detection_prob: np.ndarray,
     noise_var: float,
     clutter_intensity: float,
+    bernoulli: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """GM-PHD update with lidar position measurements (seed eqs. 12-17, ``H = I``).
 
@@ -164,6 +267,8 @@ def lidar_update(
         ``R_L = noise_var * I`` (m^2).
     clutter_intensity : float
         ``kappa_L`` (1/m^2).
+    bernoulli : bool
+        Bernoulli missed-copy weights (:func:`missed_weights`).
 
     Returns
     -------
@@ -178,7 +283,7 @@ def lidar_update(
         table[ROW_X : ROW_Y + 1], table[ROW_PXX:], points.T, noise_var
     )
     return _posterior_table(
-        table, detection_prob, post_means, post_covs, likelihood, clutter_intensity
+        table, detection_prob, post_means, post_covs, likelihood, clutter_intensity, bernoulli
     )
 
 
@@ -189,6 +294,7 @@ def camera_update(
     noise_var: float,
     clutter_intensity: float,
     min_range_m: float,
+    bernoulli: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """GM-PHD update with camera bearings, one EKF step per component (seed eqs. 24-30).
 
@@ -206,6 +312,8 @@ def camera_update(
         ``kappa_C`` (1/rad).
     min_range_m : float
         Floor on ``||m||`` for the bearing Jacobian (m).
+    bernoulli : bool
+        Bernoulli missed-copy weights (:func:`missed_weights`).
 
     Returns
     -------
@@ -219,5 +327,5 @@ def camera_update(
         table[ROW_X : ROW_Y + 1], table[ROW_PXX:], bearings, noise_var, min_range_m
     )
     return _posterior_table(
-        table, detection_prob, post_means, post_covs, likelihood, clutter_intensity
+        table, detection_prob, post_means, post_covs, likelihood, clutter_intensity, bernoulli
     )
