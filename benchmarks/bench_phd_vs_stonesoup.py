@@ -12,9 +12,18 @@ Both filters run in one process on identical data with matched models:
   components with weight >= 0.5 (the same extraction rule is applied to both mixtures).
 
 Reported per filter: median wall time per scan (predict + update + reduce), mean GOSPA
-(c = 1, p = 2, alpha = 2) between the targets and the estimates inside the 2 m disc, and the
-speed-up. Two extra rows show our filter with its range-aware detection model (P_d = 0.9
-inside 2 m, 0 outside) and with measurement-driven births instead of the fixed birth.
+(c = 1, p = 2, alpha = 2) between the targets and the estimates inside the 2 m disc, its split
+(mean localisation part, mean missed and false targets per scan), the cardinality error
+(mean |number of estimates - number of targets| inside the disc) and the speed-up. Two extra
+rows show our filter with its range-aware detection model (P_d = 0.9 inside 2 m, 0 outside)
+and with measurement-driven births instead of the fixed birth.
+
+The Poisson multi-Bernoulli filter (:mod:`localization.pmb`, issue 12) runs on the same data
+with the same models (``PMBConfig(phd=<the matched PHDConfig>)``, PMB defaults for the rest):
+its estimates are the tracks with existence ``r >= 0.5`` inside the disc (one target each).
+Its cost is given for the numpy reference (``RobotCentricPMB``, against ``RobotCentricPHD``)
+and for the compiled engines (``PMBBank`` against ``PHDBank``, one robot, one ``apply`` per
+scan: what the env runs).
 
 Known differences that remain (Stone Soup's design, not ours): its hypothesiser gates
 pairs beyond Mahalanobis distance 5 (a pair at 5 sigma carries < 4e-6 of the weight; we set
@@ -24,11 +33,13 @@ redistribute the removed weight over the survivors.
 
 Usage::
 
-    python benchmarks/bench_phd_vs_stonesoup.py [--quick] [--calls] [--json PATH]
+    python benchmarks/bench_phd_vs_stonesoup.py [--quick] [--calls] [--env SECONDS] [--json PATH]
 
 ``--quick`` runs 60 scans and skips the 50-target case (a smoke test, ~10 s). ``--calls``
 also times single calls of the seed-configured filter (``PHDConfig()``, all detection
 factors on) from recorded states with ~20 components and 5 measurements: the env's hot path.
+``--env SECONDS`` replays that many seconds of the env's own filter calls (seed-sim, 20 robots)
+through ``PHDBank`` and ``PMBBank`` and reports the cost per env step.
 """
 
 from __future__ import annotations
@@ -47,8 +58,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from localization import PHDConfig, RobotCentricPHD  # noqa: E402
+from localization import PHDBank, PHDConfig, RobotCentricPHD  # noqa: E402
 from localization.metrics import gospa  # noqa: E402
+from localization.pmb import PMBBank, PMBConfig, RobotCentricPMB  # noqa: E402
 
 RATE_HZ = 7.0
 ARENA_HALF_M = 3.0
@@ -134,7 +146,13 @@ def our_config(pd_range_m: float = 1e6, birth: str = "fixed") -> PHDConfig:
     )
 
 
-def run_ours(scenario: Scenario, config: PHDConfig) -> tuple[list[float], list[float]]:
+def extract_tracks(r: np.ndarray, means: np.ndarray) -> np.ndarray:
+    """PMB extraction: tracks with ``r >= 0.5`` inside the sensor disc, one target each."""
+    keep = (r >= EXTRACT) & (np.hypot(means[:, 0], means[:, 1]) <= SENSOR_RANGE_M)
+    return means[keep]
+
+
+def run_ours(scenario: Scenario, config: PHDConfig) -> tuple[list[float], list]:
     f = RobotCentricPHD(config)
     still = np.zeros(3)
     times, errors = [], []
@@ -144,8 +162,54 @@ def run_ours(scenario: Scenario, config: PHDConfig) -> tuple[list[float], list[f
         f.update_lidar(scan)
         times.append(time.perf_counter() - t0)
         mix = f.mixture
-        errors.append(gospa(truth, extract(mix.weights, mix.means)).distance)
+        errors.append(scored(truth, extract(mix.weights, mix.means)))
     return times, errors
+
+
+def run_pmb(scenario: Scenario, config: PMBConfig) -> tuple[list[float], list]:
+    f = RobotCentricPMB(config)
+    still = np.zeros(3)
+    times, errors = [], []
+    for scan, truth in zip(scenario.scans, scenario.truth, strict=True):
+        t0 = time.perf_counter()
+        f.predict(still)
+        f.update_lidar(scan)
+        times.append(time.perf_counter() - t0)
+        mix = f.mixture
+        errors.append(scored(truth, extract_tracks(mix.weights, mix.means)))
+    return times, errors
+
+
+def run_banks(scenario: Scenario, banks: list[PHDBank | PMBBank]) -> list[list[float]]:
+    """Wall time per scan of compiled banks of one robot (one ``apply`` per scan each).
+
+    The banks take turns on every scan, so a load change on the shared machine hits them alike.
+    """
+    still = np.zeros(3)
+    for bank in banks:  # compile / load, then start from the empty prior
+        bank.apply([[("predict", still), ("lidar", scenario.scans[0], None)]])
+        bank.reset()
+    times: list[list[float]] = [[] for _ in banks]
+    for scan in scenario.scans:
+        calls = [[("predict", still), ("lidar", scan, None)]]
+        for bank, t in zip(banks, times, strict=True):
+            t0 = time.perf_counter()
+            bank.apply(calls)
+            t.append(time.perf_counter() - t0)
+    return times
+
+
+def scored(truth: np.ndarray, estimates: np.ndarray) -> tuple[float, float, int, int, int]:
+    """GOSPA (c = 1, p = 2, alpha = 2): distance, localisation part, missed, false, and the
+    cardinality error ``|#estimates - #truth|``."""
+    g = gospa(truth, estimates, c=1.0, p=2, alpha=2)
+    return (
+        g.distance,
+        g.localisation,
+        g.missed,
+        g.false,
+        abs(estimates.shape[0] - truth.shape[0]),
+    )
 
 
 def run_stonesoup(scenario: Scenario) -> tuple[list[float], list[float]]:
@@ -217,7 +281,7 @@ def run_stonesoup(scenario: Scenario) -> tuple[list[float], list[float]]:
             means = np.array([np.asarray(c.state_vector, dtype=float).ravel() for c in components])
         else:
             weights, means = np.empty(0), np.empty((0, 2))
-        errors.append(gospa(truth, extract(weights, means)).distance)
+        errors.append(scored(truth, extract(weights, means)))
     return times, errors
 
 
@@ -282,13 +346,61 @@ def per_call_timings(repeats: int = 30) -> dict:
     return result
 
 
-def row(name: str, n: int, times: list[float], errors: list[float]) -> dict:
+def row(name: str, n: int, times: list[float], errors: list) -> dict:
+    # (scans, 5): see scored(); no errors (timing-only rows): NaN
+    e = np.asarray(errors, dtype=float) if errors else np.full((1, 5), np.nan)
     return {
         "filter": name,
         "targets": n,
         "median_ms_per_scan": 1e3 * float(np.median(times)),
-        "mean_gospa": float(np.mean(errors)),
+        "mean_gospa": float(e[:, 0].mean()),
+        "mean_localisation": float(e[:, 1].mean()),
+        "mean_missed": float(e[:, 2].mean()),
+        "mean_false": float(e[:, 3].mean()),
+        "cardinality_error": float(e[:, 4].mean()),
     }
+
+
+def env_stream_costs(duration_s: float, seed: int = 0) -> dict:
+    """Cost per env step of ``PHDBank`` and ``PMBBank`` (``SIMULATOR_PHD`` models, 20 robots)
+    on the env's own call stream (``bench_bank.record_calls``: seed-sim, random actions), and
+    the largest bank-vs-reference difference of the PMB over the first 20 steps."""
+    from bench_bank import record_calls
+
+    from swarm_env.config import SIMULATOR_PHD
+
+    steps, _ = record_calls("seed-sim", duration_s, seed)
+    n_robots = len(steps[0])
+    pmb_cfg = PMBConfig(phd=SIMULATOR_PHD)
+    banks = {"PHDBank": PHDBank(SIMULATOR_PHD, n_robots), "PMBBank": PMBBank(pmb_cfg, n_robots)}
+    refs = [RobotCentricPMB(pmb_cfg) for _ in range(n_robots)]
+    times: dict[str, list[float]] = {name: [] for name in banks}
+    worst = 0.0
+    for k, calls in enumerate(steps):
+        for name, bank in banks.items():
+            t0 = time.perf_counter()
+            bank.apply(calls)
+            times[name].append(time.perf_counter() - t0)
+        if k < 20:
+            for f, seq in zip(refs, calls, strict=True):
+                for c in seq:
+                    if c[0] == "predict":
+                        f.predict(c[1])
+                    elif c[0] == "lidar":
+                        f.update_lidar(c[1], c[2], sensor_pose=c[3] if len(c) > 3 else None)
+                    else:
+                        f.update_camera(c[1], sensor_pose=c[2] if len(c) > 2 else None)
+            for r, f in enumerate(refs):
+                a, b = f.table, banks["PMBBank"].table(r)
+                worst = max(
+                    worst, math.inf if a.shape != b.shape else np.abs(a - b).max(initial=0)
+                )
+    out = {f"{name}_ms_per_step": 1e3 * float(np.median(t[5:])) for name, t in times.items()}
+    out["steps"] = len(steps)
+    out["calls_per_step"] = sum(len(c) for s in steps for c in s) / len(steps)
+    out["pmb_bank_vs_reference_max_abs_diff"] = worst
+    out["pmb_tracks_per_robot_final"] = banks["PMBBank"].counts.tolist()
+    return out
 
 
 def main(argv: list[str] | None = None) -> list[dict]:
@@ -299,12 +411,22 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument(
         "--calls", action="store_true", help="also time single filter calls (seed config)"
     )
+    parser.add_argument(
+        "--env",
+        type=float,
+        default=0.0,
+        metavar="SECONDS",
+        help="also time PHDBank and PMBBank on SECONDS of the env's own call stream",
+    )
     args = parser.parse_args(argv)
     n_scans = 60 if args.quick else 300
     cases = (5, 19) if args.quick else (5, 19, 50)
     results = []
     print(
-        "| targets | filter | median ms/scan | mean GOSPA | speed-up |\n|---:|---|---:|---:|---:|"
+        "GOSPA: c = 1 m, p = 2, alpha = 2, inside the 2 m disc; missed / false: mean targets per "
+        "scan; card. err: mean |#estimates - #targets|\n\n"
+        "| targets | filter | median ms/scan | mean GOSPA | localisation | missed | false | "
+        "card. err | speed-up |\n|---:|---|---:|---:|---:|---:|---:|---:|---:|"
     )
     for n in cases:
         scenario = make_scenario(n, n_scans, seed=args.seed + n)
@@ -314,13 +436,36 @@ def main(argv: list[str] | None = None) -> list[dict]:
         ours_meas = row(
             "ours, measurement births", n, *run_ours(scenario, our_config(2.0, "measurement"))
         )
-        for r in (ss, ours, ours_range, ours_meas):
+        pmb = row("PMB (matched)", n, *run_pmb(scenario, PMBConfig(phd=our_config())))
+        pmb_meas = row(
+            "PMB, measurement births",
+            n,
+            *run_pmb(scenario, PMBConfig(phd=our_config(2.0, "measurement"))),
+        )
+        phd_times, pmb_times = run_banks(
+            scenario, [PHDBank(our_config(), 1), PMBBank(PMBConfig(phd=our_config()), 1)]
+        )
+        phd_bank = row("ours (matched), PHDBank", n, phd_times, [])
+        pmb_bank = row("PMB (matched), PMBBank", n, pmb_times, [])
+        for r in (ss, ours, ours_range, ours_meas, pmb, pmb_meas, phd_bank, pmb_bank):
             r["speedup_vs_stonesoup"] = ss["median_ms_per_scan"] / r["median_ms_per_scan"]
             results.append(r)
+            if math.isnan(r["mean_gospa"]):
+                quality = "| (same as the reference) | | | | "
+            else:
+                quality = (
+                    f"| {r['mean_gospa']:.3f} | {r['mean_localisation']:.3f} | "
+                    f"{r['mean_missed']:.2f} | {r['mean_false']:.2f} | "
+                    f"{r['cardinality_error']:.2f} "
+                )
             print(
-                f"| {n} | {r['filter']} | {r['median_ms_per_scan']:.3f} | "
-                f"{r['mean_gospa']:.3f} | {r['speedup_vs_stonesoup']:.0f}x |"
+                f"| {n} | {r['filter']} | {r['median_ms_per_scan']:.3f} {quality}"
+                f"| {r['speedup_vs_stonesoup']:.0f}x |"
             )
+        print(
+            f"| {n} | PMB vs Stone Soup GM-PHD: mean GOSPA "
+            f"{100 * (pmb['mean_gospa'] / ss['mean_gospa'] - 1):+.1f} % | | | | | | | |"
+        )
     calls = None
     if args.calls:
         calls = per_call_timings()
@@ -333,6 +478,16 @@ def main(argv: list[str] | None = None) -> list[dict]:
             f"| update_lidar (+ reduce) | {calls['update_lidar_us']:.1f} |\n"
             f"| update_camera (+ reduce) | {calls['update_camera_us']:.1f} |"
         )
+    env = None
+    if args.env > 0:
+        env = env_stream_costs(args.env, args.seed)
+        print(
+            f"\nEnv call stream (seed-sim, {env['steps']} steps, "
+            f"{env['calls_per_step']:.0f} calls per step, 20 robots, SIMULATOR_PHD), median ms "
+            f"per step: PHDBank {env['PHDBank_ms_per_step']:.2f}, "
+            f"PMBBank {env['PMBBank_ms_per_step']:.2f}; PMB bank vs reference (first 20 "
+            f"steps): max |diff| {env['pmb_bank_vs_reference_max_abs_diff']:.1e}"
+        )
     if args.json:
         payload = {
             "scans": n_scans,
@@ -342,6 +497,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
             "machine": platform.machine(),
             "results": results,
             "per_call": calls,
+            "env_stream": env,
         }
         args.json.write_text(json.dumps(payload, indent=2))
     return results

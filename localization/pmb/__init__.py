@@ -1,0 +1,30 @@
+"""Robot-centric Poisson multi-Bernoulli (PMB) localizer, beside the GM-PHD.
+
+:class:`RobotCentricPMB` is the numpy reference (one filter); :class:`PMBBank` runs every
+robot's filter in one numba-compiled call, with the interface of :class:`localization.PHDBank`.
+Both take a :class:`PMBConfig` (whose ``phd`` field holds the sensor models shared with the
+GM-PHD) or a plain :class:`~localization.PHDConfig` (PMB defaults for the rest).
+
+References
+----------
+.. [1] J. L. Williams, "Marginal multi-Bernoulli filters: RFS derivation of MHT, JIPDA and
+   association-based MeMBer", IEEE TAES 51(3), 2015.
+.. [2] J. L. Williams and R. A. Lau, "Approximate evaluation of marginal association
+   probabilities with belief propagation", IEEE TAES 50(4), 2014.
+"""
+
+from __future__ import annotations
+
+from .config import PMBConfig, pmb_config
+from .filter import RobotCentricPMB, Tracks
+
+__all__ = ["PMBConfig", "pmb_config", "RobotCentricPMB", "Tracks", "PMBBank", "PMBBankView"]
+
+
+def __getattr__(name: str):
+    # The bank imports numba; load it only when asked for.
+    if name in ("PMBBank", "PMBBankView"):
+        from . import bank
+
+        return getattr(bank, name)
+    raise AttributeError(name)
