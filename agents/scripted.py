@@ -11,6 +11,9 @@ from typing import Any
 
 import numpy as np
 
+from swarm_core.geometry import wrap_angle
+from swarm_env.observation import ESTIMATE_COLUMNS
+
 
 class ScriptedPolicy:
     """Base class: per-agent state is kept in dicts keyed by agent name."""
@@ -124,7 +127,8 @@ class WanderPolicy(ScriptedPolicy):
 # Controllers on the agent's own PHD estimate (the observation table), lidar and odometry.
 # ---------------------------------------------------------------------------------------------
 
-TABLE_COLUMNS = 7  # [w, x, y, sxx, sxy, syy, valid], see swarm_env.observation
+TABLE_COLUMNS = len(ESTIMATE_COLUMNS)  # [w, x, y, sxx, sxy, syy, valid]
+_W, _X, _Y, _SXX, _SXY, _SYY, _VALID = (ESTIMATE_COLUMNS.index(c) for c in ESTIMATE_COLUMNS)
 
 
 def split_observation(obs: np.ndarray, top_k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -154,14 +158,14 @@ def estimated_neighbours(
     drifting) then counts little next to a lidar-confirmed one.
     """
     keep = (
-        (table[:, 6] > 0.5)
-        & (table[:, 0] >= min_weight)
-        & (np.maximum(table[:, 3], table[:, 5]) <= max_variance_m2)
+        (table[:, _VALID] > 0.5)
+        & (table[:, _W] >= min_weight)
+        & (np.maximum(table[:, _SXX], table[:, _SYY]) <= max_variance_m2)
     )
-    weights = table[keep, 0].copy()
+    weights = table[keep, _W].copy()
     if reference_variance_m2 is not None:
-        weights /= 1.0 + (table[keep, 3] + table[keep, 5]) / reference_variance_m2
-    return table[keep, 1:3].copy(), weights
+        weights /= 1.0 + (table[keep, _SXX] + table[keep, _SYY]) / reference_variance_m2
+    return table[keep][:, [_X, _Y]], weights
 
 
 def lidar_points(scan: tuple[np.ndarray, np.ndarray] | None, max_range_m: float) -> np.ndarray:
@@ -173,10 +177,6 @@ def lidar_points(scan: tuple[np.ndarray, np.ndarray] | None, max_range_m: float)
     return np.stack(
         [ranges[keep] * np.cos(angles[keep]), ranges[keep] * np.sin(angles[keep])], axis=-1
     )
-
-
-def wrap_angle(a: float) -> float:
-    return float(np.arctan2(np.sin(a), np.cos(a)))
 
 
 class VectorFieldPolicy(ScriptedPolicy):
@@ -281,7 +281,7 @@ class VectorFieldPolicy(ScriptedPolicy):
         if speed < self.deadband_mps:
             return np.zeros(2, dtype=np.float32)
         angle = float(np.arctan2(u[1], u[0]))
-        turn = angle if abs(angle) <= np.pi / 2 else wrap_angle(angle - np.pi)
+        turn = angle if abs(angle) <= np.pi / 2 else float(wrap_angle(angle - np.pi))
         v = np.clip(u[0], -self.max_speed_mps, self.max_speed_mps)
         omega = np.clip(
             self.heading_gain * turn, -self.max_turn_rate_radps, self.max_turn_rate_radps
@@ -385,19 +385,33 @@ def expected_count(radius_m: float, chord_m: float) -> int:
 class EncirclementPolicy(VectorFieldPolicy):
     """Enclose the intruder (task ``encirclement``) on a circle of radius ``r``, evenly spread.
 
-    The intruder's position ``q`` comes from the beacon features ``[r, valid, cos b, sin b, rho]``
-    and is refined by the nearest confident PHD component within ``gate_m`` of it (the PHD is more
-    precise; the beacon says which component is the intruder). While ``valid`` is 0 (no beacon
-    reading, e.g. real robots without motion capture) nothing says which component is the
-    intruder, so the robot ignores the beacon values and random-walks, as with nobody in sight.
-    Radial term:
-    ``k_p (||q|| - r) q / ||q||``. Tangential term: with ``g+``/``g-`` the angular gaps (seen from
-    ``q``) to the nearest estimated teammates counter-clockwise and clockwise,
+    Where the intruder's position ``q`` (body frame) comes from is the task's
+    ``intruder_source`` (seed ``004``; :mod:`swarm_env.tasks.encirclement`):
+
+    - ``"beacon"`` (ablation): the beacon features ``[r, valid, cos b, sin b, rho]`` of this
+      step, refined by the nearest confident PHD component within ``gate_m`` (the PHD is more
+      precise; the beacon says which component is the intruder). While ``valid`` is 0 (no
+      reading, e.g. real robots without motion capture) nothing says where the intruder is: the
+      robot random-walks, as with nobody in sight.
+    - ``"particle"``: seed ``004``'s particle filter
+      (:class:`localization.baselines.particle.ParticleFilterTracker`, one per robot, in its body
+      frame), predicted every step with the robot's own odometry ``[v, omega]`` and updated with
+      each range-bearing reading when one arrives (``valid`` = 1); ``q`` is its estimate. The
+      filter starts at the first reading (the seed's uniform cloud weighted by it).
+    - ``"estimate"``: the robot's own PHD estimate. The first reading (the task gives one, at
+      reset) picks the component; after that ``q`` is propagated with the robot's odometry and
+      snapped to the nearest confident component within ``gate_m``; after ``lost_after_s``
+      without one the track is dropped and the robot random-walks.
+
+    Radial term: ``k_p (||q|| - r) q / ||q||``. Tangential term: with ``g+``/``g-`` the angular
+    gaps (seen from ``q``) to the nearest estimated teammates counter-clockwise and clockwise,
     ``k_t r (g+ - g-) / 2`` along the counter-clockwise tangent, which evens the gaps out (the
-    classic cyclic spreading law).
+    classic cyclic spreading law). Teammates are the confident PHD components, less the one
+    within ``gate_m`` of ``q`` (the intruder).
     """
 
     name = "encirclement"
+    sources = ("beacon", "particle", "estimate")
 
     def __init__(
         self,
@@ -406,34 +420,135 @@ class EncirclementPolicy(VectorFieldPolicy):
         k_p: float = 0.8,
         k_t: float = 0.4,
         gate_m: float = 0.4,
+        intruder_source: str = "beacon",
+        control_period_s: float = 0.1,
+        reading_range_std_m: float = 0.05,
+        reading_bearing_std_rad: float = float(np.radians(5.0)),
+        n_particles: int = 300,
+        lost_after_s: float = 3.0,
         **kwargs: Any,
     ) -> None:
+        if intruder_source not in self.sources:
+            raise ValueError(
+                f"intruder_source must be one of {self.sources}, got {intruder_source!r}"
+            )
+        if not (np.isfinite(control_period_s) and control_period_s > 0):
+            raise ValueError(f"control_period_s must be > 0, got {control_period_s!r}")
         self.k_p = k_p
         self.k_t = k_t
         self.gate_m = gate_m
+        self.intruder_source = intruder_source
+        self.control_period_s = float(control_period_s)
+        self.reading_range_std_m = reading_range_std_m
+        self.reading_bearing_std_rad = reading_bearing_std_rad
+        self.n_particles = n_particles
+        self.lost_after_s = lost_after_s
         super().__init__(max_speed_mps, max_turn_rate_radps, **kwargs)
 
     @classmethod
     def for_env(cls, env: Any, **kwargs: Any) -> ScriptedPolicy:
-        if env.task.name != "encirclement" or not env.task.beacon:
+        task = env.task
+        if task.name != "encirclement" or not task.beacon:
             raise ValueError(
                 "scripted:encirclement needs task='encirclement' with beacon=True "
                 "(anonymous detections alone do not say which robot is the "
                 "intruder)"
             )
+        kwargs.setdefault("intruder_source", getattr(task, "intruder_source", "beacon"))
+        kwargs.setdefault("control_period_s", env.config.control_period_s)
+        kwargs.setdefault("reading_range_std_m", max(task.beacon_range_std_m, 1e-3))
+        kwargs.setdefault("reading_bearing_std_rad", max(task.beacon_bearing_std_rad, 1e-3))
         return super().for_env(env, **kwargs)
 
-    def desired_velocity(self, agent, table, odometry, features):
-        radius, valid, cos_b, sin_b, rho = (float(x) for x in features[:5])
-        if valid < 0.5:
-            return None  # no beacon reading: rho = 0 would put the intruder on this robot
-        q = rho * np.array([cos_b, sin_b])
-        pts, w = estimated_neighbours(table, self.min_weight)
+    def reset(self, seed: int | None = None) -> None:
+        super().reset(seed)
+        self._episode_seed = int((self._seed if seed is None else seed) or 0)
+        self._filters: dict[str, Any] = {}  # "particle": agent -> ParticleFilterTracker
+        self._track: dict[str, np.ndarray] = {}  # "estimate": agent -> q (2,)
+        self._unseen_s: dict[str, float] = {}
+
+    def intruder_estimate(self, agent: str) -> np.ndarray | None:
+        """The intruder's position (2,) in ``agent``'s body frame the controller last used for
+        ``"particle"`` / ``"estimate"``, or ``None`` (no track)."""
+        if self.intruder_source == "particle":
+            pf = self._filters.get(agent)
+            return None if pf is None or not pf.ids else pf.estimate()[0]
+        q = self._track.get(agent)
+        return None if q is None else q.copy()
+
+    def _increment(self, odometry: np.ndarray) -> np.ndarray:
+        """Own motion ``(dx, dy, dpsi)`` over one control period from ``[v, omega]`` (an arc)."""
+        v, w = float(odometry[0]), float(odometry[1])
+        dt = self.control_period_s
+        if abs(w) < 1e-9:
+            return np.array([v * dt, 0.0, 0.0])
+        return np.array([v * np.sin(w * dt) / w, v * (1.0 - np.cos(w * dt)) / w, w * dt])
+
+    def _particle_q(self, agent: str, odometry, valid: bool, reading) -> np.ndarray | None:
+        from localization.baselines.particle import ParticleFilterTracker
+
+        pf = self._filters.get(agent)
+        if pf is None:
+            if not valid:
+                return None  # no reading yet: nothing to start the filter from
+            seed = abs(self._episode_seed) * 1000 + len(self._filters)  # one stream per robot
+            pf = self._filters[agent] = ParticleFilterTracker(
+                n_particles=self.n_particles,
+                range_std_m=self.reading_range_std_m,
+                bearing_std_rad=self.reading_bearing_std_rad,
+                period_s=self.control_period_s,
+                seed=seed,
+            )
+        else:
+            pf.predict(self._increment(odometry))
+        if valid:
+            pf.update({0: reading})
+        return pf.estimate()[0]
+
+    def _estimate_q(self, agent: str, odometry, valid: bool, q_cue, pts) -> np.ndarray | None:
+        q = self._track.get(agent)
+        if valid:
+            q = q_cue
+        elif q is not None:
+            inc = self._increment(odometry)
+            c, s = np.cos(inc[2]), np.sin(inc[2])
+            d = q - inc[:2]
+            q = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1]])
+        if q is None:
+            return None
         if len(pts):
             gap = np.linalg.norm(pts - q, axis=1)
             k = int(np.argmin(gap))
             if gap[k] < self.gate_m:
-                q = pts[k]
+                self._unseen_s[agent] = 0.0
+                self._track[agent] = pts[k].copy()
+                return pts[k].copy()
+        self._unseen_s[agent] = self._unseen_s.get(agent, 0.0) + self.control_period_s
+        if self._unseen_s[agent] > self.lost_after_s:
+            self._track.pop(agent, None)
+            return None
+        self._track[agent] = q
+        return q
+
+    def desired_velocity(self, agent, table, odometry, features):
+        radius, valid, cos_b, sin_b, rho = (float(x) for x in features[:5])
+        has_reading = valid >= 0.5
+        pts, w = estimated_neighbours(table, self.min_weight)
+        if self.intruder_source == "particle":
+            q = self._particle_q(agent, odometry, has_reading, (rho, np.arctan2(sin_b, cos_b)))
+        elif self.intruder_source == "estimate":
+            q = self._estimate_q(agent, odometry, has_reading, rho * np.array([cos_b, sin_b]), pts)
+        else:
+            # no beacon reading: rho = 0 would put the intruder on this robot
+            q = rho * np.array([cos_b, sin_b]) if has_reading else None
+        if q is None:
+            return None
+        if len(pts):
+            gap = np.linalg.norm(pts - q, axis=1)
+            k = int(np.argmin(gap))
+            if gap[k] < self.gate_m:
+                if self.intruder_source == "beacon":
+                    q = pts[k]
                 pts = np.delete(pts, k, axis=0)
         dq = float(np.linalg.norm(q))
         if dq < 1e-6:

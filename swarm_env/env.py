@@ -11,8 +11,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import copy
-import math
+import warnings
 from typing import Any
 
 import numpy as np
@@ -20,9 +21,11 @@ from gymnasium import spaces
 from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
-from localization import PHDBank
-from swarm_core.records import LidarRecord, OdometryRecord, RobotMeasurements
-from swarm_core.world import GroundTruth, World, WorldStep
+from localization.feed import SwarmFeed
+from localization.protocol import Localizer
+from localization.registry import make_localizer
+from swarm_core.records import RobotMeasurements
+from swarm_core.world import World, WorldStep
 from swarm_env import observation as obs_lib
 from swarm_env.config import SwarmConfig, make_config
 from swarm_env.tasks import Task, make_task
@@ -100,6 +103,8 @@ class SwarmEnv(ParallelEnv):
     | render_mode   | str         | None         | "rgb_array" or "human"                        |
     | render_agent  | str         | "ugv_0"      | whose sensors the renderer draws              |
     | world         | World       | None         | another World (real robots, replay)           |
+    | localizer     | str / Loc.  | "phd"        | a family name (``swarm-phd list``) or a built |
+    |               |             |              | Localizer of ``n_robots`` robots              |
     | **overrides   |             |              | any ``SwarmConfig`` field, e.g. ``n_robots=8``|
 
     ``infos[agent]`` holds ``time_s``, ``truth`` (pose, neighbours in the agent's frame, range and
@@ -127,8 +132,11 @@ class SwarmEnv(ParallelEnv):
         render_mode: str | None = None,
         render_agent: str = "ugv_0",
         world: World | None = None,
+        localizer: str | Localizer | None = None,
         **overrides: Any,
     ) -> None:
+        if isinstance(localizer, str):  # a family name: the config field of that name
+            overrides["localizer"], localizer = localizer, None
         self.config = make_config(preset, config, **overrides)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
@@ -158,6 +166,10 @@ class SwarmEnv(ParallelEnv):
             dtype=np.float32,
         )
         feature_low, feature_high = self.task.feature_bounds()
+        #: What each agent observes (``config.observation``), with its named columns.
+        self.encoder = obs_lib.make_encoder(
+            self.config.observation, self.config.top_k, int(np.size(feature_low))
+        )
         observation_space = obs_lib.build_space(
             self.config.observation,
             self.config.top_k,
@@ -170,17 +182,39 @@ class SwarmEnv(ParallelEnv):
         self.action_spaces = {a: copy.deepcopy(action_space) for a in self.possible_agents}
         self.observation_spaces = {a: observation_space for a in self.possible_agents}
 
-        # Every robot's own filter, advanced in batches over robots (same math per robot as
-        # RobotCentricPHD); ``localizers[i]`` reads robot i's mixture and estimates.
-        self._bank = PHDBank(self.config.phd, len(self.possible_agents))
-        self.localizers = self._bank.views
+        # Every robot's own filter (the family ``config.localizer``), advanced once per step
+        # for the whole swarm; ``localizers[i]`` reads robot i's mixture and estimates.
+        if localizer is None:
+            localizer = make_localizer(
+                self.config.localizer, len(self.possible_agents), self.config.phd
+            )
+        elif not isinstance(localizer, Localizer) or localizer.n_robots != self.config.n_robots:
+            raise ValueError(
+                f"localizer must be a Localizer of {self.config.n_robots} robots, got "
+                f"{localizer!r}"
+            )
+        self.localizer: Localizer = localizer
+        self.localizers = self.localizer.views
+        #: Global ground-truth state for centralised critics (:meth:`state`): per robot
+        #: ``[x_m, y_m, cos yaw, sin yaw, ...]`` then its ``[v_mps, omega_radps]`` odometry.
+        self.state_space = spaces.Box(
+            -np.inf, np.inf, shape=(len(self.possible_agents) * 6,), dtype=np.float32
+        )
         self._rng: np.random.Generator | None = None
         self._step_count = 0
         self._last_step: WorldStep | None = None
         self._velocity = np.zeros((self.config.n_robots, 2))
-        self._last_detections = [np.zeros((0, 2)) for _ in self.possible_agents]
-        self._last_bearings = [np.zeros(0) for _ in self.possible_agents]
+        # The last lidar detections / camera bearings of every robot (``measurements`` obs).
+        self.last_detections = [np.zeros((0, 2)) for _ in self.possible_agents]
+        self.last_bearings = [np.zeros(0) for _ in self.possible_agents]
         self._renderer = None
+        self._closed = False
+        self._last_commands = np.zeros((len(self.possible_agents), 2))
+        # The first env of a process whose kernels are not cached yet says it will compile
+        # (the first step() then takes about a minute; see swarm_env.kernel_cache).
+        from swarm_env.kernel_cache import first_use_note
+
+        first_use_note()
 
     # ------------------------------------------------------------------ PettingZoo API
     def observation_space(self, agent: str) -> spaces.Box:
@@ -199,60 +233,132 @@ class SwarmEnv(ParallelEnv):
         return self._last_step.time_s if self._last_step is not None else 0.0
 
     def reset(self, seed: int | None = None, options: dict | None = None):
-        if seed is not None or self._rng is None:
-            self._rng, seed = seeding.np_random(seed)
-            for i, agent in enumerate(self.possible_agents):
-                self.action_spaces[agent].seed(None if seed is None else seed + i)
-        # One generator per env; the world and the task get their own child streams.
-        world_rng, task_rng = self._rng.spawn(2)
-        self.agents = list(self.possible_agents)
-        self._step_count = 0
-        self._bank.reset()
-        self._velocity[:] = 0.0
-        for i in range(len(self.possible_agents)):
-            self._last_detections[i] = np.zeros((0, 2))
-            self._last_bearings[i] = np.zeros(0)
-        step = self.world.reset(world_rng)
-        # The sim knows where its obstacles are (exploration penalises them); real robots do not.
-        layout = getattr(self.world, "layout", None)
-        self.task.reset(step.truth, task_rng, self.config.arena, layout=layout)
-        self._absorb(step)
-        obs = self._observations(step)
-        infos = self._infos(step)
-        if self.render_mode == "human":
-            self.render()
-        return obs, infos
+        feed = self.reset_world(seed, options)
+        with self._halting_on_error():
+            if feed is not None:
+                self.localizer.step(feed)
+        return self.finish_reset()
 
     def step(self, actions: dict[str, Any]):
+        feed = self.step_world(actions)
+        with self._halting_on_error():
+            if feed is not None:
+                self.localizer.step(feed)
+        return self.finish_step()
+
+    # A step in three phases, so that a batch of env copies can share one localizer call
+    # (``agents.sb3.batched``): the World moves (``step_world``), the localizer consumes the
+    # returned feed, then rewards and observations are made (``finish_step``). ``step()`` is
+    # the three in a row; so is ``reset()``.
+    def reset_world(self, seed: int | None = None, options: dict | None = None):
+        """Phase 1 of :meth:`reset`: validate, reseed, reset the World, the task and this env's
+        robots in the localizer. Returns the first :class:`~localization.feed.SwarmFeed` (or
+        ``None`` with ``localize=False``) for the localizer to consume before
+        :meth:`finish_reset`."""
+        if self._closed:
+            raise RuntimeError("reset() called after close()")
+        if seed is not None and (
+            isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0
+        ):
+            raise ValueError(f"seed must be None or an int >= 0, got {seed!r}")
+        if options is not None and not isinstance(options, dict):
+            raise ValueError(f"options must be None or a dict, got {options!r}")
+        if options:  # the API passes options through; this env has none, so say so
+            warnings.warn(f"reset() ignores options {sorted(map(str, options))}", stacklevel=3)
+        with self._halting_on_error():
+            if seed is not None or self._rng is None:
+                self._rng, seed = seeding.np_random(None if seed is None else int(seed))
+                for i, agent in enumerate(self.possible_agents):
+                    self.action_spaces[agent].seed(None if seed is None else seed + i)
+            # One generator per env; the world and the task get their own child streams.
+            world_rng, task_rng = self._rng.spawn(2)
+            self.agents = list(self.possible_agents)
+            self._step_count = 0
+            self.localizer.reset()
+            self._velocity[:] = 0.0
+            for i in range(len(self.possible_agents)):
+                self.last_detections[i] = np.zeros((0, 2))
+                self.last_bearings[i] = np.zeros(0)
+            step = self.world.reset(world_rng)
+            # Obstacle geometry, where the World knows it (the sim), for task rewards only.
+            self.task.reset(step.truth, task_rng, self.config.arena, layout=self.world.layout)
+            return self._absorb(step)
+
+    def finish_reset(self):
+        """Phase 2 of :meth:`reset`: ``(observations, infos)``."""
+        with self._halting_on_error():
+            step = self._last_step
+            obs = self._observations(step)
+            infos = self._infos(step)
+            if self.render_mode == "human":
+                self.render()
+        return obs, infos
+
+    def step_world(self, actions: dict[str, Any]):
+        """Phase 1 of :meth:`step`: validate ``actions`` (nothing changes on bad input), move
+        the World one control period. Returns the step's feed for the localizer (``None``
+        with ``localize=False``); :meth:`finish_step` completes the step."""
+        if self._closed:
+            raise RuntimeError("step() called after close()")
         if not self.agents:
             raise RuntimeError("step() called on a finished episode: call reset() first")
-        commands = self._validate_actions(actions)
-        extra = self.task.extra_commands(
-            self._last_step.truth if self._last_step else None, self.config.control_period_s
-        )
-        if extra is not None and isinstance(self.world, SimWorld):
+        with self._halting_on_error():
+            # Bad actions raise before the env changes, and stop real robots (halt) first.
+            commands = self._validate_actions(actions)
+            extra = self.task.extra_commands(
+                self._last_step.truth if self._last_step else None, self.config.control_period_s
+            )
             step = self.world.step(commands, extra_commands=extra)
-        else:
-            step = self.world.step(commands)
-        self._step_count += 1
-        self._absorb(step)
-        rewards_arr = self.task.rewards(step.truth, commands)
-        term = np.broadcast_to(
-            np.asarray(self.task.terminated(step.truth), dtype=bool), (len(self.possible_agents),)
-        )
-        truncated = self._step_count >= self.config.max_steps
-        obs = self._observations(step)
-        infos = self._infos(step)
-        rewards = {a: float(rewards_arr[self._index[a]]) for a in self.agents}
-        terminations = {a: bool(term[self._index[a]]) for a in self.agents}
-        truncations = {a: truncated for a in self.agents}
-        self.agents = [a for a in self.agents if not (terminations[a] or truncations[a])]
-        if self.render_mode == "human":
-            self.render()
+            self._step_count += 1
+            self._last_commands = commands
+            return self._absorb(step)
+
+    def finish_step(self):
+        """Phase 2 of :meth:`step`: ``(observations, rewards, terminations, truncations,
+        infos)`` of the step :meth:`step_world` made."""
+        with self._halting_on_error():
+            step = self._last_step
+            rewards_arr = self.task.rewards(step.truth, self._last_commands)
+            term = np.broadcast_to(
+                np.asarray(self.task.terminated(step.truth), dtype=bool),
+                (len(self.possible_agents),),
+            )
+            truncated = self._step_count >= self.config.max_steps
+            obs = self._observations(step)
+            infos = self._infos(step)
+            rewards = {a: float(rewards_arr[self._index[a]]) for a in self.agents}
+            terminations = {a: bool(term[self._index[a]]) for a in self.agents}
+            truncations = {a: truncated for a in self.agents}
+            self.agents = [a for a in self.agents if not (terminations[a] or truncations[a])]
+            if self.render_mode == "human":
+                self.render()
         return obs, rewards, terminations, truncations, infos
+
+    def state(self) -> np.ndarray:
+        """The global ground-truth state, for centralised critics (MAPPO-style training).
+
+        Per robot, in agent order: ``[x_m, y_m, cos yaw, sin yaw, v_mps, omega_radps]`` (world
+        frame; speeds from odometry), flattened to ``state_space.shape`` (float32). Raises
+        ``ValueError`` on a World without ground truth (real robots without motion capture).
+        """
+        step = self._last_step
+        if step is None:
+            raise RuntimeError("state() called before reset()")
+        if step.truth is None:
+            raise ValueError("state() needs ground truth, which this World lacks")
+        poses = step.truth.poses[: len(self.possible_agents)]
+        out = np.column_stack(
+            [poses[:, :2], np.cos(poses[:, 2]), np.sin(poses[:, 2]), self._velocity]
+        )
+        return out.astype(np.float32).ravel()
 
     def render(self):
         if self.render_mode is None:
+            warnings.warn(
+                "render() called without a render_mode: pass render_mode='rgb_array' or "
+                "'human' to the env's constructor",
+                stacklevel=2,
+            )
             return None
         if self._renderer is None:
             from swarm_env.render import Renderer
@@ -261,10 +367,13 @@ class SwarmEnv(ParallelEnv):
         return self._renderer.draw()
 
     def close(self) -> None:
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
-        self.world.close()
+        self._closed = True
+        try:
+            if self._renderer is not None:
+                self._renderer.close()
+                self._renderer = None
+        finally:
+            self.world.close()
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
@@ -272,20 +381,32 @@ class SwarmEnv(ParallelEnv):
         return state
 
     # ------------------------------------------------------------------ internals
+    @contextlib.contextmanager
+    def _halting_on_error(self):
+        """Stop every robot (``World.halt``) on any exception before it propagates: on real
+        robots a failure in the task, filter or observation code must not leave them moving."""
+        try:
+            yield
+        except BaseException:
+            self.world.halt()
+            raise
+
     def _validate_actions(self, actions: dict[str, Any]) -> np.ndarray:
         """Check every action before anything changes; return clipped commands (N, 2)."""
         if not isinstance(actions, dict):
             raise ValueError(f"actions must be a dict agent -> (2,) array, got {type(actions)}")
-        unknown = sorted(set(actions) - set(self.agents))
+        unknown = sorted(map(repr, set(actions) - set(self.agents)))
         if unknown:
             raise ValueError(f"unknown or finished agent(s) {unknown}; live agents: {self.agents}")
         missing = sorted(set(self.agents) - set(actions))
         if missing:
             raise ValueError(f"missing action for agent(s) {missing}")
         agents = list(actions)
+        for agent in agents:  # cheap type gate: no strings, bools, complex or autograd tensors
+            _check_action_type(agent, actions[agent])
         try:
             values = np.asarray([actions[a] for a in agents], dtype=np.float64)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             values = None  # ragged or non-numeric: find the culprit below
         if values is None or values.shape != (len(agents), 2) or not np.isfinite(values).all():
             for agent in agents:  # slow path, only to name the agent and the value
@@ -295,56 +416,36 @@ class SwarmEnv(ParallelEnv):
         commands[rows] = np.clip(values, -self._action_high, self._action_high)
         return commands
 
-    def _absorb(self, step: WorldStep) -> None:
-        """Feed every robot's records to its own filter, in time order (one batched call)."""
+    def _absorb(self, step: WorldStep) -> SwarmFeed | None:
+        """Keep the step's last readings; the whole swarm's records as the localizer's feed."""
         self._last_step = step
-        calls = []
+        empty = RobotMeasurements()
         for i, agent in enumerate(self.possible_agents):
-            records = step.measurements.get(agent, RobotMeasurements())
+            records = step.measurements.get(agent, empty)
             stale = step.stale.get(agent, ())
             if records.odometry and "odometry" not in stale:
                 self._velocity[i] = records.odometry[-1].velocity
             if records.lidar and "lidar" not in stale:
-                self._last_detections[i] = records.lidar[-1].detections
+                self.last_detections[i] = records.lidar[-1].detections
             if records.camera and "camera" not in stale:
-                self._last_bearings[i] = records.camera[-1].bearings_rad
-            if self.config.localize:
-                calls.append(localizer_calls(records, stale))
-        if self.config.localize:
-            self._bank.apply(calls)
+                self.last_bearings[i] = records.camera[-1].bearings_rad
+        if not self.config.localize:
+            return None
+        return SwarmFeed.from_world_step(step, self.possible_agents)
 
     def _observations(self, step: WorldStep) -> dict[str, np.ndarray]:
-        cfg = self.config
         features = self.task.features(len(self.possible_agents))
         rows = [self._index[a] for a in self.agents]
-        if cfg.observation == "phd":
-            tables = obs_lib.phd_tables(*self._bank.padded_tables(), cfg.top_k)[rows]
-        elif cfg.observation == "measurements":
-            tables = obs_lib.measurement_tables(
-                self._last_detections, self._last_bearings, cfg.top_k
-            )[rows]
-        else:
-            tables = np.array(
-                [
-                    obs_lib.truth_table(self._neighbours_in_range(step.truth, i), cfg.top_k)
-                    for i in rows
-                ]
-            )
+        tables = self.encoder.tables(self, step, rows)
         # One (agents, D) array for everyone (identical spaces); each agent gets its row.
         space = self.observation_spaces[self.possible_agents[0]]
         obs = obs_lib.assemble_rows(
             space,
-            tables.reshape(len(rows), -1),
+            tables,
             self._velocity[rows],
             np.asarray(features)[rows].reshape(len(rows), -1),
         )
         return dict(zip(self.agents, obs, strict=True))
-
-    def _neighbours_in_range(self, truth: GroundTruth | None, i: int) -> np.ndarray:
-        if truth is None:
-            raise ValueError('observation="truth" needs ground truth, which this World lacks')
-        mask = truth.in_range["lidar"][i]
-        return truth.relative_xy[i][mask]
 
     def _infos(self, step: WorldStep) -> dict[str, dict[str, Any]]:
         infos = {}
@@ -390,82 +491,12 @@ def measurements_as_dict(m: RobotMeasurements) -> dict[str, list[dict[str, Any]]
     }
 
 
-def localizer_calls(
-    records: RobotMeasurements, stale=(), compensate_motion: bool = True
-) -> list[tuple]:
-    """One robot's records as time-ordered filter calls, skipping ``stale`` sensors.
-
-    ``("predict", delta)`` for odometry, ``("lidar", detections, null_bearings)`` and
-    ``("camera", bearings)``, as :meth:`localization.PHDBank.apply` takes them.
-
-    The filter's frame is the robot's pose at its **last odometry sample**, but a scan or a
-    frame is taken up to one odometry period (0.1 s) later, from wherever the robot has moved
-    and turned since (at 1.5 rad/s, 0.15 rad: 0.3 m at 2 m). With ``compensate_motion`` (the
-    default) each lidar / camera record that has a later odometry sample in ``records`` gets
-    its **sensor pose** in the frame of the last sample, from the robot's own motion up to its
-    stamp: the next sample's motion ``delta`` minus its constant-velocity remainder
-    ``velocity * tau`` over the ``tau`` seconds from the stamp to that sample (see
-    :func:`_motion_since_sample`). The filter moves detections exactly and rotates bearings
-    (:mod:`localization.frames`). Only the robot's own odometry is used. A record after the
-    step's last odometry sample goes in uncompensated (in the simulator none is: odometry
-    samples fall on step ends; on a real robot with unsynchronised odometry some are).
-
-    Calls: ``("predict", delta)``, ``("lidar", detections, null_bearings, sensor_pose)`` and
-    ``("camera", bearings, sensor_pose)``, ``sensor_pose`` a ``(3,)`` array or None.
-    """
-    ordered = records.in_time_order()
-    use_odometry = "odometry" not in stale
-    use_lidar, use_camera = "lidar" not in stale, "camera" not in stale
-    compensate = compensate_motion and use_odometry
-    calls: list[tuple] = []
-    # Walk backwards so each measurement knows the next odometry sample (None after the last).
-    upcoming: OdometryRecord | None = None
-    for record in reversed(ordered):
-        if isinstance(record, OdometryRecord):
-            upcoming = record
-            if use_odometry:
-                calls.append(("predict", record.delta))
-            continue
-        pose = None
-        if compensate and upcoming is not None and upcoming.stamp_s > record.stamp_s:
-            pose = _motion_since_sample(upcoming, upcoming.stamp_s - record.stamp_s)
-        if isinstance(record, LidarRecord):
-            if use_lidar:
-                calls.append(("lidar", record.detections, record.null_bearings_rad, pose))
-        elif use_camera:
-            calls.append(("camera", record.bearings_rad, pose))
-    calls.reverse()
-    return calls
-
-
-def _motion_since_sample(odo: OdometryRecord, tau_s: float) -> np.ndarray:
-    """Pose ``(x, y, psi)`` of the robot ``tau_s`` seconds before odometry sample ``odo``,
-    in the frame of the previous sample.
-
-    ``odo.delta`` is the motion from the previous sample to ``odo``; the last ``tau_s`` of it
-    is taken at the interval's mean speed ``odo.velocity = (v, omega)``: turn
-    ``psi_r = omega tau``, chord ``t_r = v tau (cos(psi_r / 2), sin(psi_r / 2))`` in the frame
-    at the measurement. Removing it: ``psi = dpsi - psi_r``, ``t = d - R(psi) t_r``.
-    """
-    dx, dy, dpsi = odo.delta.tolist()
-    v, omega = odo.velocity.tolist()
-    # Never remove more than the whole interval's motion when tau exceeds it (irregular rates).
-    psi_r = omega * tau_s
-    if abs(psi_r) > abs(dpsi):
-        psi_r = dpsi
-    chord = v * tau_s
-    psi = dpsi - psi_r
-    tx, ty = chord * math.cos(0.5 * psi_r), chord * math.sin(0.5 * psi_r)
-    c, s = math.cos(psi), math.sin(psi)
-    return np.array([dx - (c * tx - s * ty), dy - (s * tx + c * ty), psi])
-
-
 def _check_action(agent: str, action: Any) -> None:
     """Raise ``ValueError`` naming ``agent`` and the value unless ``action`` is a finite (2,)."""
     try:
         value = np.asarray(action, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"action of {agent} is not numeric: {action!r}") from exc
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise ValueError(f"action of {agent} is not a finite number pair: {action!r}") from exc
     if value.shape != (2,):
         raise ValueError(
             f"action of {agent} must have shape (2,) [v_mps, omega_radps], got shape "
@@ -473,3 +504,28 @@ def _check_action(agent: str, action: Any) -> None:
         )
     if not np.all(np.isfinite(value)):
         raise ValueError(f"action of {agent} must be finite, got {value.tolist()}")
+
+
+def _check_action_type(agent: str, action: Any) -> None:
+    """Raise ``ValueError`` naming ``agent`` unless ``action`` holds real numbers (no silent
+    coercion of strings, bools or complex numbers; no autograd tensor, whose graph would be
+    dropped)."""
+    if isinstance(action, np.ndarray):
+        if action.dtype.kind not in "iuf":
+            raise ValueError(
+                f"action of {agent} must hold real numbers, got dtype {action.dtype}: {action!r}"
+            )
+        return
+    if isinstance(action, (list, tuple)):
+        for value in action:
+            if isinstance(value, (bool, np.bool_)) or not isinstance(
+                value, (int, float, np.integer, np.floating)
+            ):
+                raise ValueError(
+                    f"action of {agent} must hold real numbers, got {value!r} in {action!r}"
+                )
+        return
+    if getattr(action, "requires_grad", False):
+        raise ValueError(f"action of {agent} is a tensor that requires grad: detach() it first")
+    if isinstance(action, (str, bytes, bool, complex)) or np.iscomplexobj(action):
+        raise ValueError(f"action of {agent} must hold real numbers, got {action!r}")

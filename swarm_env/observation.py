@@ -1,5 +1,11 @@
 """Observation encoders: what each agent sees, as one flat float32 vector.
 
+An encoder object is chosen at construction (``SwarmConfig.observation``, see :data:`ENCODERS`):
+:class:`EstimateEncoder` (``"phd"``: the agent's own localizer estimate), :class:`TruthEncoder`
+(``"truth"``) and :class:`MeasurementEncoder` (``"measurements"``). Each has a
+:class:`ObservationLayout` naming its table columns, which scripted controllers and the SB3
+feature extractor read instead of column numbers (``layout.column("x_m")``).
+
 Layout (``observation="phd"`` and ``"truth"``)::
 
     [ K rows x (w, x_m, y_m, sxx_m2, sxy_m2, syy_m2, valid) | v_mps, omega_radps | task features ]
@@ -20,13 +26,22 @@ the observation space's bounds so that ``space.contains(obs)`` always holds.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from gymnasium import spaces
 from numba import njit
 
 from swarm_env.sensors.kernels import stable_order
 
-PHD_COLUMNS = ("w", "x_m", "y_m", "sxx_m2", "sxy_m2", "syy_m2", "valid")
+#: Columns of a row of the estimate / truth table. ``w``: the component's weight (GM-PHD: its
+#: expected number of teammates) or the track's existence probability (multi-Bernoulli
+#: localizers); covariances in m^2; ``valid``: 1 for a real row, 0 for padding.
+ESTIMATE_COLUMNS = ("w", "x_m", "y_m", "sxx_m2", "sxy_m2", "syy_m2", "valid")
+PHD_COLUMNS = ESTIMATE_COLUMNS  # the name before the multi-Bernoulli localizers
+#: Columns of the measurement tables: lidar detections, then camera bearings.
+LIDAR_COLUMNS = ("x_m", "y_m", "valid")
+CAMERA_COLUMNS = ("cos_bearing", "sin_bearing", "valid")
 MAX_POSITION_M = 20.0
 MAX_WEIGHT = 10.0
 MAX_VARIANCE_M2 = 25.0
@@ -182,3 +197,134 @@ def assemble_rows(
         np.float32
     )
     return np.minimum(np.maximum(obs, space.low, out=obs), space.high, out=obs)
+
+
+# ---------------------------------------------------------------------- encoder objects
+@dataclass(frozen=True)
+class ObservationLayout:
+    """Where everything sits in the flat observation vector.
+
+    ``tables`` lists the neighbour tables in order as ``(name, rows, columns)``; each is stored
+    row-major (``rows x len(columns)``). Then ``[v_mps, omega_radps]`` (own odometry speed),
+    then ``n_features`` task features.
+    """
+
+    tables: tuple[tuple[str, int, tuple[str, ...]], ...]
+    n_features: int
+
+    @property
+    def table_size(self) -> int:
+        return sum(rows * len(cols) for _, rows, cols in self.tables)
+
+    @property
+    def odometry_slice(self) -> slice:
+        return slice(self.table_size, self.table_size + 2)
+
+    @property
+    def features_slice(self) -> slice:
+        return slice(self.table_size + 2, self.table_size + 2 + self.n_features)
+
+    @property
+    def size(self) -> int:
+        return self.table_size + 2 + self.n_features
+
+    def column(self, name: str, table: str | None = None) -> int:
+        """Index of column ``name`` within a row of ``table`` (default: the first table)."""
+        _, _, cols = self._table(table)
+        if name not in cols:
+            raise ValueError(f"column must be one of {cols}, got {name!r}")
+        return cols.index(name)
+
+    def table(self, obs: np.ndarray, table: str | None = None) -> np.ndarray:
+        """Table ``table`` of observation(s) ``obs`` ``(..., D)`` as ``(..., rows, cols)``."""
+        start = 0
+        name = self.tables[0][0] if table is None else table
+        for tname, rows, cols in self.tables:
+            size = rows * len(cols)
+            if tname == name:
+                return obs[..., start : start + size].reshape(*obs.shape[:-1], rows, len(cols))
+            start += size
+        raise ValueError(f"table must be one of {[t[0] for t in self.tables]}, got {table!r}")
+
+    def _table(self, table: str | None) -> tuple[str, int, tuple[str, ...]]:
+        if table is None:
+            return self.tables[0]
+        for entry in self.tables:
+            if entry[0] == table:
+                return entry
+        raise ValueError(f"table must be one of {[t[0] for t in self.tables]}, got {table!r}")
+
+
+class ObservationEncoder:
+    """Builds every agent's neighbour table(s) from one env step (subclasses below)."""
+
+    name = ""
+
+    def __init__(self, top_k: int, n_features: int) -> None:
+        self.top_k = top_k
+        self.layout = self._layout(top_k, n_features)
+
+    def _layout(self, top_k: int, n_features: int) -> ObservationLayout:
+        return ObservationLayout((("estimate", top_k, ESTIMATE_COLUMNS),), n_features)
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Low and high of the flattened table(s)."""
+        return table_bounds(self.top_k)
+
+    def tables(self, env, step, rows: list[int]) -> np.ndarray:
+        """``(len(rows), layout.table_size)`` tables of the agents at robot indices ``rows``."""
+        raise NotImplementedError
+
+
+class EstimateEncoder(ObservationEncoder):
+    """``"phd"``: the agent's own localizer estimate, the K heaviest rows, largest first."""
+
+    name = "phd"
+
+    def tables(self, env, step, rows: list[int]) -> np.ndarray:
+        return phd_tables(*env.localizer.padded_tables(), self.top_k)[rows].reshape(len(rows), -1)
+
+
+class TruthEncoder(ObservationEncoder):
+    """``"truth"``: the true neighbours within ``localization_range_m``, nearest first."""
+
+    name = "truth"
+
+    def tables(self, env, step, rows: list[int]) -> np.ndarray:
+        truth = step.truth
+        if truth is None:
+            raise ValueError('observation="truth" needs ground truth, which this World lacks')
+        mask = truth.in_range["lidar"]
+        return np.array(
+            [truth_table(truth.relative_xy[i][mask[i]], self.top_k).ravel() for i in rows]
+        ).reshape(len(rows), -1)
+
+
+class MeasurementEncoder(ObservationEncoder):
+    """``"measurements"``: the last scan's lidar detections and the last frame's bearings."""
+
+    name = "measurements"
+
+    def _layout(self, top_k: int, n_features: int) -> ObservationLayout:
+        return ObservationLayout(
+            (("lidar", top_k, LIDAR_COLUMNS), ("camera", top_k, CAMERA_COLUMNS)), n_features
+        )
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        return measurement_bounds(self.top_k)
+
+    def tables(self, env, step, rows: list[int]) -> np.ndarray:
+        return measurement_tables(env.last_detections, env.last_bearings, self.top_k)[rows]
+
+
+#: ``SwarmConfig.observation`` -> encoder class.
+ENCODERS: dict[str, type[ObservationEncoder]] = {
+    cls.name: cls for cls in (EstimateEncoder, TruthEncoder, MeasurementEncoder)
+}
+
+
+def make_encoder(name: str, top_k: int, n_features: int) -> ObservationEncoder:
+    """The encoder ``name`` (a key of :data:`ENCODERS`)."""
+    if name not in ENCODERS:
+        raise ValueError(f"observation must be one of {sorted(ENCODERS)}, got {name!r}")
+    return ENCODERS[name](top_k, n_features)

@@ -23,11 +23,6 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     a real-time test (the bridge's loopback, the watchdog) or a test with a timeout. Done here,
     outside every test, no per-test timeout applies.
     """
-    from swarm_env import parallel_env
+    from swarm_phd.warmup import warmup
 
-    for mode in ("lidar-camera", "lidar-only"):
-        env = parallel_env("seed-lab", max_steps=10, phd={"mode": mode})
-        env.reset(seed=0)
-        for _ in range(5):
-            env.step({a: np.zeros(2) for a in env.agents})
-        env.close()
+    warmup("lab-3m-4")  # every localizer family's kernels, both sensor modes

@@ -18,7 +18,10 @@ import torch
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
-ROW = 7
+from swarm_env.observation import ESTIMATE_COLUMNS
+
+ROW = len(ESTIMATE_COLUMNS)
+_COL = {name: i for i, name in enumerate(ESTIMATE_COLUMNS)}
 
 
 class NeighbourSetExtractor(BaseFeaturesExtractor):
@@ -44,8 +47,10 @@ class NeighbourSetExtractor(BaseFeaturesExtractor):
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         b = obs.shape[0]
         rows = obs[:, : ROW * self.top_k].reshape(b, self.top_k, ROW)
-        w, x, y = rows[..., 0], rows[..., 1], rows[..., 2]
-        sxx, sxy, syy, valid = rows[..., 3], rows[..., 4], rows[..., 5], rows[..., 6]
+        w, x, y = (rows[..., _COL[c]] for c in ("w", "x_m", "y_m"))
+        sxx, sxy, syy, valid = (
+            rows[..., _COL[c]] for c in ("sxx_m2", "sxy_m2", "syy_m2", "valid")
+        )
         rho = torch.sqrt(x * x + y * y + 1e-9)
         inputs = torch.stack(
             [

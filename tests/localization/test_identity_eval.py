@@ -8,12 +8,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from swarm_phd.evaluate import (
-    LOCALIZERS,
-    IdentityScorer,
-    _oracle_range_bearing,
-    evaluate_localization,
-)
+from localization.registry import LOCALIZERS
+from localization.registry import oracle_range_bearing as _oracle_range_bearing
+from swarm_phd.evaluate import IdentityScorer, evaluate_localization
 
 
 def test_oracle_identities_match_detections_one_to_one():

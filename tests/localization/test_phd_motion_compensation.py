@@ -1,5 +1,5 @@
 """The env's filter calls re-express each scan and frame in the frame of the last odometry sample
-(``swarm_env.env.localizer_calls``): the robot's own motion up to the stamp is removed."""
+(``localization.feed.localizer_calls``): the robot's own motion up to the stamp is removed."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from localization import PHDBank, PHDConfig, RobotCentricPHD
+from localization.feed import localizer_calls
 from localization.frames import bearings_to_filter_frame, points_to_filter_frame
 from swarm_core.records import CameraRecord, LidarRecord, OdometryRecord, RobotMeasurements
-from swarm_env.env import localizer_calls
 
 
 def _pose_after(v: float, omega: float, t: float) -> np.ndarray:

@@ -31,7 +31,12 @@ def _state(env):
         (np.array([np.nan, 0.0]), "ugv_2.*finite"),
         (np.array([0.1, np.inf]), "ugv_2.*finite"),
         (np.array([0.1, 0.0, 0.0]), r"ugv_2.*shape \(2,\)"),
-        ("fast", "ugv_2.*numeric"),
+        ("fast", "ugv_2.*real numbers"),
+        (np.array([True, False]), "ugv_2.*real numbers"),
+        ([True, 0.0], "ugv_2.*real numbers"),
+        (["0.1", "0.2"], "ugv_2.*real numbers"),
+        (np.array([0.1 + 1j, 0.0]), "ugv_2.*real numbers"),
+        ([10**400, 0.0], "ugv_2.*finite"),
     ],
 )
 def test_bad_action_raises_before_state_changes(env, bad, match):
@@ -45,6 +50,21 @@ def test_bad_action_raises_before_state_changes(env, bad, match):
     assert np.array_equal(before[0], after[0]) and before[1] == after[1]
     assert np.array_equal(before[2], after[2]) and np.array_equal(before[3], after[3])
     assert before[4] == after[4]  # no random draw either
+
+
+def test_autograd_tensor_action_is_refused(env):
+    torch = pytest.importorskip("torch")
+    actions = {a: np.zeros(2) for a in env.agents}
+    actions["ugv_1"] = torch.zeros(2, requires_grad=True)
+    with pytest.raises(ValueError, match="ugv_1.*requires grad"):
+        env.step(actions)
+    assert env.time_s == 0.0
+
+
+@pytest.mark.parametrize("seed", [True, -1, 1.5, "0"])
+def test_bad_reset_seed(env, seed):
+    with pytest.raises(ValueError, match="seed"):
+        env.reset(seed=seed)
 
 
 def test_unknown_and_missing_agents(env):

@@ -123,7 +123,7 @@ def test_batched_phd_tables_match_the_per_robot_encoder():
     env.reset(seed=2)
     for _ in range(30):
         env.step({a: env.action_space(a).sample() for a in env.agents})
-    tables, counts = env._bank.padded_tables()
+    tables, counts = env.localizer.padded_tables()
     for top_k in (3, 16, 80):
         batched = phd_tables(tables, counts, top_k)
         for i, view in enumerate(env.localizers):

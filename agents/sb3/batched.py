@@ -1,0 +1,198 @@
+"""K env copies in one process as one native SB3 ``VecEnv``, with one localizer call per step.
+
+:func:`agents.sb3.adapter.make_vec_env` goes through SuperSuit: every copy runs its own
+filter call per step (or its own worker process). Here the ``K`` copies of an ``R``-robot env
+share **one** localizer of ``K x R`` robots (each copy holds a
+:class:`~localization.protocol.LocalizerSlice` of it), and a step is made in the env's three
+phases: every copy's World moves (``SwarmEnv.step_world``), the shared localizer consumes all
+``K`` feeds in one compiled call, then every copy makes its rewards and observations
+(``finish_step``). The VecEnv's entries are agents x copies (entry ``k R + i`` is agent ``i``
+of copy ``k``): one policy shared by all agents, as with SuperSuit.
+
+Per robot the filter math is the same as in a lone env, so a batched copy's rollout is
+bit-identical to the same env run alone (``tests/agents/test_batched_vec_env.py``).
+
+As :class:`~agents.sb3.adapter.TrainingWrapper` does, it rescales the policy's ``[-1, 1]^2``
+actions to ``[v_max, omega_max]``, flags time-limit truncation (``TimeLimit.truncated``) so
+PPO bootstraps from ``terminal_observation``, and drops the env's heavy ``infos``. A copy whose
+episode ends is reset at once (SB3's auto-reset); tasks must end all agents of a copy together
+(every task of :mod:`swarm_env.tasks` does).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.vec_env import VecEnv
+
+from agents.sb3.adapter import UNIT_ACTION_SPACE, scale_actions
+from localization.feed import SwarmFeed
+from localization.protocol import LocalizerSlice
+from localization.registry import make_localizer
+from swarm_env.config import make_config
+from swarm_env.env import SwarmEnv
+
+__all__ = ["BatchedSwarmVecEnv", "make_batched_vec_env"]
+
+
+class BatchedSwarmVecEnv(VecEnv):
+    """``n_copies`` :class:`~swarm_env.env.SwarmEnv` copies as one SB3 VecEnv (module doc).
+
+    Parameters
+    ----------
+    env_kwargs : dict
+        Keyword arguments of :func:`swarm_env.parallel_env` (``preset``, ``task``, overrides).
+    n_copies : int
+        Env copies ``K`` (>= 1); the VecEnv has ``K x n_robots`` entries.
+    seed : int or None
+        Copy ``k`` is reset with ``seed + k`` at the first :meth:`reset`.
+    """
+
+    def __init__(self, env_kwargs: dict[str, Any], n_copies: int, seed: int | None = 0) -> None:
+        if isinstance(n_copies, bool) or not isinstance(n_copies, int) or n_copies < 1:
+            raise ValueError(f"n_copies must be an int >= 1, got {n_copies!r}")
+        kwargs = dict(env_kwargs)
+        preset = kwargs.pop("preset", "sim-6m-20")
+        config = make_config(preset, kwargs.pop("config", None), **_config_overrides(kwargs))
+        n = config.n_robots
+        self.shared = make_localizer(config.localizer, n * n_copies, config.phd)
+        self.envs = [
+            SwarmEnv(config=config, localizer=LocalizerSlice(self.shared, k * n, n), **kwargs)
+            for k in range(n_copies)
+        ]
+        first = self.envs[0]
+        self.agents_per_copy = n
+        self._high = np.array(first.action_space(first.possible_agents[0]).high, np.float64)
+        super().__init__(
+            n * n_copies, first.observation_space(first.possible_agents[0]), UNIT_ACTION_SPACE
+        )
+        self._actions: np.ndarray | None = None
+        self._next_seed = seed
+
+    # ------------------------------------------------------------------ VecEnv API
+    def reset(self) -> np.ndarray:
+        seeds = [None if self._next_seed is None else self._next_seed + k for k in self._copies]
+        if any(s is not None for s in self._seeds):  # VecEnv.seed() was called: per entry
+            seeds = [self._seeds[k * self.agents_per_copy] for k in self._copies]
+        self._next_seed = None
+        obs = self._reset_copies(self._copies, seeds)
+        self._reset_seeds()
+        return np.concatenate([obs[k] for k in self._copies])
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = np.asarray(actions)
+
+    def step_wait(self):
+        if self._actions is None:
+            raise RuntimeError("step_wait() without step_async()")
+        n, actions = self.agents_per_copy, self._actions
+        self._actions = None
+        feeds = []
+        for k, env in enumerate(self.envs):
+            commands = {
+                a: scale_actions(actions[k * n + i], self._high)
+                for i, a in enumerate(env.possible_agents)
+            }
+            feed = env.step_world(commands)
+            feeds.append(feed if feed is not None else SwarmFeed.empty(n))
+        self.shared.step(SwarmFeed.concat(feeds))
+        obs = np.zeros((self.num_envs, *self.observation_space.shape), np.float32)
+        rewards = np.zeros(self.num_envs, np.float32)
+        dones = np.zeros(self.num_envs, bool)
+        infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
+        ended = []
+        for k, env in enumerate(self.envs):
+            o, r, term, trunc, _ = env.finish_step()
+            for i, a in enumerate(env.possible_agents):
+                j = k * n + i
+                obs[j], rewards[j] = o[a], r[a]
+                dones[j] = term[a] or trunc[a]
+                infos[j]["TimeLimit.truncated"] = bool(trunc[a] and not term[a])
+            if env.agents:
+                if dones[k * n : (k + 1) * n].any():
+                    raise ValueError(
+                        f"task {env.task.name!r} ended some agents of a copy but not all: "
+                        "batched training needs tasks that end all agents together"
+                    )
+                continue
+            for i in range(n):
+                infos[k * n + i]["terminal_observation"] = obs[k * n + i].copy()
+            ended.append(k)
+        if ended:
+            fresh = self._reset_copies(ended, [None] * len(ended))
+            for k in ended:
+                obs[k * n : (k + 1) * n] = fresh[k]
+        return obs, rewards, dones, infos
+
+    def close(self) -> None:
+        for env in self.envs:
+            env.close()
+
+    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+        return [getattr(self.envs[k], attr_name) for k in self._copies_of(indices)]
+
+    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+        for k in self._copies_of(indices):
+            setattr(self.envs[k], attr_name, value)
+
+    def env_method(self, method_name: str, *args, indices=None, **kwargs) -> list[Any]:
+        return [
+            getattr(self.envs[k], method_name)(*args, **kwargs) for k in self._copies_of(indices)
+        ]
+
+    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+        return [False for _ in self._indices(indices)]
+
+    def get_images(self) -> Sequence[np.ndarray | None]:
+        return [None for _ in self.envs]
+
+    # ------------------------------------------------------------------ internals
+    @property
+    def _copies(self) -> range:
+        return range(len(self.envs))
+
+    def _copies_of(self, indices) -> list[int]:
+        """The copies holding the VecEnv entries ``indices`` (each copy once, in order)."""
+        return sorted({i // self.agents_per_copy for i in self._indices(indices)})
+
+    def _indices(self, indices) -> list[int]:
+        if indices is None:
+            return list(range(self.num_envs))
+        if isinstance(indices, int):
+            return [indices]
+        return list(indices)
+
+    def _reset_copies(self, copies: Sequence[int], seeds: Sequence[int | None]) -> dict:
+        """Reset ``copies`` (their robots' filters in one shared call); their obs per copy."""
+        n = self.agents_per_copy
+        feeds = {k: self.envs[k].reset_world(seed=s) for k, s in zip(copies, seeds, strict=True)}
+        self.shared.step(
+            SwarmFeed.concat(
+                [feeds.get(k) or SwarmFeed.empty(n) for k in self._copies]  # others: no-op
+            )
+        )
+        out = {}
+        for k in copies:
+            obs, _ = self.envs[k].finish_reset()
+            out[k] = np.stack([obs[a] for a in self.envs[k].possible_agents])
+        return out
+
+
+def _config_overrides(kwargs: dict[str, Any]) -> dict[str, Any]:
+    """Split the env kwargs that are SwarmConfig overrides from the SwarmEnv arguments."""
+    env_args = {"task", "task_params", "render_mode", "render_agent", "world"}
+    return {k: kwargs.pop(k) for k in list(kwargs) if k not in env_args}
+
+
+def make_batched_vec_env(
+    env_kwargs: dict[str, Any],
+    n_copies: int = 4,
+    seed: int | None = 0,
+    monitor_file: str | None = None,
+):
+    """:class:`BatchedSwarmVecEnv` wrapped in SB3's ``VecMonitor`` (episode statistics)."""
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    return VecMonitor(BatchedSwarmVecEnv(env_kwargs, n_copies, seed), filename=monitor_file)

@@ -1,0 +1,68 @@
+"""The batched SB3 VecEnv: K env copies sharing one localizer call per step."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("stable_baselines3")
+
+from agents.sb3.adapter import scale_actions  # noqa: E402
+from agents.sb3.batched import BatchedSwarmVecEnv  # noqa: E402
+from swarm_env import parallel_env  # noqa: E402
+
+KWARGS = {"preset": "lab-3m-4", "task": "formation", "max_steps": 12}
+
+
+def test_batched_copies_equal_lone_envs_bit_for_bit():
+    """Each copy of the batch gives exactly what the same env run alone gives (same seed,
+    same actions): sharing the localizer call changes nothing per robot."""
+    k_copies, steps = 3, 20  # crosses an episode end (max_steps 12): auto-reset included
+    vec = BatchedSwarmVecEnv(KWARGS, k_copies, seed=7)
+    n = vec.agents_per_copy
+    lone = [parallel_env(**KWARGS) for _ in range(k_copies)]
+    lone_obs = [env.reset(seed=7 + k)[0] for k, env in enumerate(lone)]
+    obs = vec.reset()
+    rng = np.random.default_rng(0)
+    # As TrainingWrapper: the policy's [-1, 1] scaled by the (float32) action-space bounds.
+    high = np.array(lone[0].action_space("ugv_0").high, dtype=np.float64)
+    for t in range(steps):
+        for k, env in enumerate(lone):
+            expected = np.stack([lone_obs[k][a] for a in env.possible_agents])
+            np.testing.assert_array_equal(obs[k * n : (k + 1) * n], expected, err_msg=f"t={t}")
+        actions = rng.uniform(-1, 1, (vec.num_envs, 2)).astype(np.float32)
+        obs, rewards, dones, infos = vec.step(actions)
+        for k, env in enumerate(lone):
+            cmds = {
+                a: scale_actions(actions[k * n + i], high)
+                for i, a in enumerate(env.possible_agents)
+            }
+            o, r, term, trunc, _ = env.step(cmds)
+            for i, a in enumerate(env.possible_agents):
+                assert rewards[k * n + i] == np.float32(r[a])
+                assert dones[k * n + i] == (term[a] or trunc[a])
+            if not env.agents:
+                for i, a in enumerate(env.possible_agents):
+                    np.testing.assert_array_equal(infos[k * n + i]["terminal_observation"], o[a])
+                    assert infos[k * n + i]["TimeLimit.truncated"] is True
+                o, _ = env.reset()
+            lone_obs[k] = o
+    vec.close()
+
+
+def test_ppo_learns_a_few_steps_on_the_batched_env(tmp_path):
+    from stable_baselines3 import PPO
+
+    from agents.sb3.batched import make_batched_vec_env
+
+    vec = make_batched_vec_env(KWARGS, n_copies=2, seed=0)
+    model = PPO("MlpPolicy", vec, n_steps=16, batch_size=32, n_epochs=1, seed=0, device="cpu")
+    model.learn(total_timesteps=2 * 4 * 16 * 2)
+    model.save(tmp_path / "model.zip")
+    assert (tmp_path / "model.zip").exists()
+    vec.close()
+
+
+def test_bad_copy_count():
+    with pytest.raises(ValueError, match="n_copies"):
+        BatchedSwarmVecEnv(KWARGS, 0)
