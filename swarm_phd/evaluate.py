@@ -7,15 +7,25 @@ detections), fed with the same records, so the comparison is paired: same motion
 same measurements. The motion comes from ``--policy`` (default ``scripted:wander``, the seed's
 pseudo-random motion with obstacle avoidance; or ``random``, or a trained ``model.zip``).
 
-Metrics (see :mod:`localization.metrics` and ``docs/localization.md``), per observer robot, over
-every (step, neighbour within ``localization_range_m``) pair:
+Metrics (:class:`localization.metrics.SeedScorer`; definitions in ``docs/localization.md``,
+"Metrics"), every robot being an observer, "in range" = within ``localization_range_m`` (the
+lidar tracking range, 2 m) for every localizer, and also within 3 m (the seed's camera range,
+``at_camera_range``) for the localizers that use the camera:
 
-- ``pct_time_err_gt_30cm``: % of those pairs where the distance from the neighbour to the closest
-  component with weight > 0.1 exceeds 0.30 m (the seed's Fig. 7);
-- ``pct_time_within_10cm``: % within 0.10 m (the seed's ``001`` tables);
-- ``gospa_mean``: mean GOSPA (c = 1 m, p = 2, alpha = 2) between the neighbours in range and the
-  extracted estimates (weight >= 0.5) within the same range;
-- ``cardinality_mae``: mean |sum of weights within range - true count in range| (Fig. 8).
+- ``seed_fig7``: the seed's Fig. 7, one bar per tracked teammate (in range at least once): the %
+  of the teammate's in-range time during which the observer's closest component with weight
+  > 0.1 is more than 0.30 m away; for ``observer_ugv_0`` (as the seed) and ``all_observers``
+  (every tracked pair), with the count above 25 % and the median;
+- ``pooled_per_observer``: the same % over all of an observer's (step, teammate) pairs
+  together (the statistic reported before; lower and not comparable with the seed's count);
+- ``seed001``: % of in-range time with position error < 0.1 m and bearing error < 7 deg;
+  ``rmse_m`` / ``rmse_bearing_deg`` of the matched component;
+- ``gospa``: mean GOSPA (c = 1 m, p = 2, alpha = 2) between the teammates in range and the
+  extracted estimates (weight >= 0.5) within the same range, with its localisation / missed /
+  false split;
+- ``cardinality``: weight sum within range vs the true in-range count, and the whole
+  mixture's weight sum vs the true number of teammates (Fig. 8);
+- ``large_error_causes_pct_of_pair_steps`` and ``by_range``: why and where errors > 0.30 m.
 
 The identity-aware localizers (``id-phd``, ``ukf``, ``pf``) also get an ``identity`` block: per
 observer, over the same pairs, the error of *that neighbour's own ID estimate*
@@ -28,7 +38,6 @@ for seed ``003``'s / ``004``'s identifying sensors; other detections are dropped
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import math
 import time
@@ -37,23 +46,12 @@ from typing import Any
 
 import numpy as np
 
-from localization import IDPHD, IDPHDConfig, PHDBank, PHDConfig
-from localization.baselines import ParticleFilterTracker, UKFTracker
-from localization.metrics import LocalizationScorer, extract_estimates
-from swarm_core.records import LidarRecord, OdometryRecord
+from localization.feed import SwarmFeed
+from localization.metrics import SeedScorer, in_range_pairs, weights_means_from_table
+from localization.registry import LOCALIZERS, make_localizer
 from swarm_env import parallel_env
-from swarm_env.env import SwarmEnv, localizer_calls
-
-#: PHD localizers: the ``PHDConfig.mode`` each runs in (one ``PHDBank`` per localizer).
-PHD_MODES = {"phd-lc": "lidar-camera", "phd-lo": "lidar-only"}
-#: Identity-aware localizers: one instance per robot, fed by :class:`IdentityLocalizers`.
-IDENTITY_LOCALIZERS = ("id-phd", "ukf", "pf")
-LOCALIZERS = {
-    **PHD_MODES,
-    "id-phd": "ID-PHD (lidar + teammates' odometry)",
-    "ukf": "seed 003 UKF (identified range-bearing)",
-    "pf": "seed 004 particle filter (identified range-bearing)",
-}
+from swarm_env.env import SwarmEnv
+from swarm_phd import progress
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -62,7 +60,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--duration", type=float, default=300.0, help="simulated seconds")
     parser.add_argument(
-        "--localizer", default="phd-lc,phd-lo", help=f"comma-separated, from {sorted(LOCALIZERS)}"
+        "--localizer",
+        default="phd-lc,phd-lo",
+        help=f"comma-separated, from {sorted(LOCALIZERS)} (`swarm-phd list` describes them)",
     )
     parser.add_argument("--seeds", default="0", help="comma-separated integers")
     parser.add_argument(
@@ -85,9 +85,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "side (e.g. --policy runs/X/model.zip --compare scripted:formation)",
     )
     parser.add_argument("--out", default=None, help="write metrics.json and figures here")
+    parser.add_argument(
+        "--ray",
+        action="store_true",
+        help="one Ray task per seed (swarm_phd/sweep.py): per-seed metrics, as the serial "
+        "run of each seed; writes <--out>/sweep.json, no figures",
+    )
+    from swarm_phd.sweep import add_ray_arguments
+
+    add_ray_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
+    if getattr(args, "ray", False):
+        from swarm_phd.sweep import run_evaluate_ray
+
+        return run_evaluate_ray(args)
     localizers = [s.strip() for s in args.localizer.split(",") if s.strip()]
     try:
         seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
@@ -194,9 +207,9 @@ def evaluate_localization(
     Returns
     -------
     dict
-        ``{"config": ..., "localizers": {name: {"pct_time_err_gt_30cm": {"per_robot": [...],
-        "median": m, "max": M}, "pct_time_within_10cm": ..., "gospa_mean": g,
-        "cardinality_mae": c}}, "task": {...}, "wall_time_s": ...}``
+        ``{"config": ..., "localizers": {name: SeedScorer.summary() (+ "at_camera_range":
+        the same at 3 m for camera localizers)}, "identity": {...} (identity-aware
+        localizers), "task": {...}, "wall_time_s": ...}``
     """
     from agents.policies import load_policy
 
@@ -210,60 +223,66 @@ def evaluate_localization(
     n_steps = int(round(duration_s / env.config.control_period_s))
     base_phd = env.config.phd
     n_agents = len(env.possible_agents)
-    scorers = {name: LocalizationScorer(env.config.n_robots) for name in localizers}
-    id_scorers = {
-        name: IdentityScorer(env.config.n_robots)
-        for name in localizers
-        if name in IDENTITY_LOCALIZERS
-    }
-    trace = {
-        name: {"time_s": [], "weight_sum": [], "true_count": [], "gospa": []}
-        for name in localizers
-    }
+    range_m = env.config.localization_range_m
+    # The seed's scoring per (observer, teammate); in range = the lidar tracking range for
+    # every localizer (paired), and also the seed's camera range for those using the camera.
+    scorers = {name: SeedScorer(n_agents, range_m) for name in localizers}
+    camera_scorers: dict[str, SeedScorer] = {}
+    id_scorers: dict[str, IdentityScorer] = {}
     paths: list[np.ndarray] = []
     estimates: dict[str, list[np.ndarray]] = {name: [] for name in localizers}
     task_metrics: list[dict[str, float]] = []
-    for seed in seeds:
-        # One filter per robot and localizer, fed the same records (a paired comparison).
-        banks = {
-            name: PHDBank(dataclasses.replace(base_phd, mode=PHD_MODES[name]), n_agents)
-            if name in PHD_MODES
-            else IdentityLocalizers(name, n_agents, base_phd, seed)
-            for name in localizers
-        }
+    for seed in progress.over(seeds, "evaluate", unit="seed"):
+        # One localizer (every robot's filter) per name, fed the same records: a paired
+        # comparison, same motion, same measurements.
+        built = {name: make_localizer(name, n_agents, base_phd, seed) for name in localizers}
+        for name, loc in built.items():
+            if loc.has_identities and name not in id_scorers:
+                id_scorers[name] = IdentityScorer(env.config.n_robots)
+            if _uses_camera(loc) and name not in camera_scorers:
+                camera_scorers[name] = SeedScorer(
+                    n_agents, CAMERA_SCORING_RANGE_M, trace_observer=None
+                )
         act = load_policy(policy, env)
         if hasattr(act, "reset"):
             act.reset(seed)
         obs, infos = env.reset(seed=seed)
-        for _ in range(n_steps):
+        for _ in progress.sim_steps(
+            n_steps, env.config.control_period_s, f"seed {seed}", leave=False
+        ):
             if not env.agents:
                 break
             obs, _, _, _, infos = env.step(act(obs, infos))
             step = env.last_world_step
             truth = step.truth
-            calls = [
-                localizer_calls(step.measurements[agent], step.stale.get(agent, ()))
-                for agent in env.possible_agents
-            ]
-            for name in localizers:
-                bank = banks[name]
-                if name in PHD_MODES:
-                    bank.apply(calls)
-                else:
-                    bank.apply_step(step, env.possible_agents)
-                views = bank.views
-                for i in range(n_agents):
-                    mask = truth.in_range["lidar"][i]
-                    scorers[name].add(
-                        i,
-                        truth.relative_xy[i][mask],
-                        views[i].mixture,
-                        range_m=env.config.localization_range_m,
+            feed = SwarmFeed.from_world_step(step, env.possible_agents)
+            for name, loc in built.items():
+                loc.step(feed)
+                views = loc.views
+                weights, means = weights_means_from_table(*loc.padded_tables())
+                visible = _visible(truth, name in camera_scorers)
+                scorers[name].update(
+                    truth.relative_xy,
+                    truth.in_range["lidar"],
+                    weights,
+                    means,
+                    visible=visible,
+                    time_s=step.time_s if seed == seeds[0] else None,  # Fig. 8: first seed
+                )
+                if name in camera_scorers:
+                    camera_scorers[name].update(
+                        truth.relative_xy,
+                        in_range_pairs(truth.relative_xy, CAMERA_SCORING_RANGE_M),
+                        weights,
+                        means,
+                        visible=visible,
                     )
-                    if name in id_scorers:
-                        id_scorers[name].add(i, truth, mask, views[i].identities())
+                if name in id_scorers:
+                    for i in range(n_agents):
+                        id_scorers[name].add(
+                            i, truth, truth.in_range["lidar"][i], views[i].identities()
+                        )
                 if seed == seeds[0]:
-                    _trace_step(trace[name], step, views, env.config.localization_range_m)
                     estimates[name].append(_world_estimates(views[0], truth.poses[0]))
             if seed == seeds[0]:
                 paths.append(truth.poses[:, :2].copy())
@@ -280,7 +299,17 @@ def evaluate_localization(
             "n_robots": env.config.n_robots,
             "localization_range_m": env.config.localization_range_m,
         },
-        "localizers": {name: scorers[name].summary() for name in localizers},
+        "localizers": {
+            name: {
+                **scorers[name].summary(),
+                **(
+                    {"at_camera_range": camera_scorers[name].summary()}
+                    if name in camera_scorers
+                    else {}
+                ),
+            }
+            for name in localizers
+        },
         **(
             {"identity": {name: sc.summary() for name, sc in id_scorers.items()}}
             if id_scorers
@@ -295,7 +324,8 @@ def evaluate_localization(
         (out_dir / "metrics.json").write_text(json.dumps(results, indent=2))
         from swarm_phd.figures import write_localization_figures
 
-        write_localization_figures(out_dir, results, trace, np.array(paths), estimates)
+        traces = {name: scorers[name].trace for name in localizers}
+        write_localization_figures(out_dir, results, traces, np.array(paths), estimates)
     return results
 
 
@@ -311,9 +341,19 @@ def comparison_rows(all_results: list[dict[str, Any]]) -> list[dict[str, Any]]:
     for res in all_results:
         row: dict[str, Any] = {"policy": res["config"]["policy"], **res.get("task", {})}
         for name, m in res["localizers"].items():
-            row[f"{name} % err>30cm (median)"] = m["pct_time_err_gt_30cm"]["median"]
-            row[f"{name} GOSPA"] = m["gospa_mean"]
-            row[f"{name} card. MAE"] = m["cardinality_mae"]
+            one = m["seed_fig7"]["observer_ugv_0"]
+            row[f"{name} ugv_0 teammates > 25 %"] = (
+                f"{one['teammates_above_25pct']} of {one['tracked_teammates']}"
+            )
+            row[f"{name} ugv_0 median teammate % err>30cm"] = one["median"]
+            row[f"{name} all observers median pair % err>30cm"] = m["seed_fig7"]["all_observers"][
+                "median"
+            ]
+            row[f"{name} pooled per observer % err>30cm (median)"] = m["pooled_per_observer"][
+                "median"
+            ]
+            row[f"{name} GOSPA"] = m["gospa"]["mean_m"]
+            row[f"{name} card. MAE"] = m["cardinality"]["in_range_mae"]
         rows.append(row)
     return rows
 
@@ -332,20 +372,26 @@ def print_comparison(all_results: list[dict[str, Any]]) -> None:
         print(f"  | {key} | " + " | ".join(cells) + " |")
 
 
-def _trace_step(trace: dict[str, list], step, bank, range_m: float):
-    """Fig. 8 / GOSPA-over-time data for observer ugv_0."""
-    from localization.metrics import gospa
+#: The seed's camera range (seed 000, sec. 4: "2 meters was considered as the lidar sensor
+#: range and 3m for the camera sensor"): the second scoring range of camera localizers (m).
+CAMERA_SCORING_RANGE_M = 3.0
 
-    truth = step.truth
-    mask = truth.in_range["lidar"][0]
-    mixture = bank[0].mixture
-    near = np.hypot(mixture.means[:, 0], mixture.means[:, 1]) <= range_m
-    est, _ = bank[0].estimate(threshold=0.5)
-    est = est[np.hypot(est[:, 0], est[:, 1]) <= range_m] if len(est) else est
-    trace["time_s"].append(step.time_s)
-    trace["weight_sum"].append(float(mixture.weights[near].sum()))
-    trace["true_count"].append(int(mask.sum()))
-    trace["gospa"].append(float(gospa(truth.relative_xy[0][mask], est).distance))
+
+def _uses_camera(localizer: Any) -> bool:
+    """Whether ``localizer`` runs camera updates (its PHD config's mode is lidar-camera)."""
+    config = getattr(localizer, "config", None) or getattr(
+        getattr(localizer, "bank", None), "config", None
+    )
+    return getattr(config, "mode", None) == "lidar-camera"
+
+
+def _visible(truth: Any, camera: bool) -> np.ndarray | None:
+    """Pairs the localizer's sensors could detect at their last reading (lidar, or lidar or
+    camera), for the scorer's ``not_visible`` count; None without visibility truth."""
+    vis = truth.visible
+    if "lidar" not in vis:
+        return None
+    return vis["lidar"] | vis["camera"] if camera and "camera" in vis else vis["lidar"]
 
 
 def _world_estimates(localizer, pose: np.ndarray) -> np.ndarray:
@@ -360,6 +406,7 @@ def _mean_dicts(items: list[dict[str, float]]) -> dict[str, float]:
 
 
 def print_table(results: dict[str, Any]) -> None:
+    """The seed's Fig. 7 statistic (per tracked teammate), then the other metrics (markdown)."""
     cfg = results["config"]
     print(
         f"  {cfg['preset']}, {cfg['n_robots']} robots, {cfg['duration_s']:.0f} s x "
@@ -367,17 +414,57 @@ def print_table(results: dict[str, Any]) -> None:
         f"{cfg['localization_range_m']:.1f} m"
     )
     print(
-        "  | localizer | % time err > 30 cm (median robot) | worst robot | robots > 25 % | "
-        "% time < 10 cm | GOSPA mean | cardinality MAE |"
+        "  | localizer | ugv_0: teammates > 25 % | ugv_0: median teammate % > 0.30 m | "
+        "all observers: pairs > 25 % | median pair % | pooled per observer, median % |"
     )
-    print("  |---|---|---|---|---|---|---|")
+    print("  |---|---|---|---|---|---|")
     for name, m in results["localizers"].items():
-        per_robot = np.asarray(m["pct_time_err_gt_30cm"]["per_robot"], dtype=float)
+        for label, s in (("", m), (" at camera range", m.get("at_camera_range"))):
+            if s is None:
+                continue
+            one = s["seed_fig7"]["observer_ugv_0"]
+            every = s["seed_fig7"]["all_observers"]
+            print(
+                f"  | {name}{label} ({s['definition']['in_range_m']:g} m) | "
+                f"{one['teammates_above_25pct']} of {one['tracked_teammates']} | "
+                f"{one['median']:.1f} | {every['pairs_above_25pct']} of "
+                f"{every['tracked_pairs']} | {every['median']:.1f} | "
+                f"{s['pooled_per_observer']['median']:.1f} |"
+            )
+    print(
+        "  | localizer | % < 0.1 m | % bearing < 7 deg | RMSE m | RMSE deg | GOSPA m "
+        "(loc / missed / false m^2) | card. MAE in range (bias) | whole mixture (bias) |"
+    )
+    print("  |---|---|---|---|---|---|---|---|")
+    for name, m in results["localizers"].items():
+        s1, g, c = m["seed001"], m["gospa"], m["cardinality"]
         print(
-            f"  | {name} | {m['pct_time_err_gt_30cm']['median']:.1f} | "
-            f"{m['pct_time_err_gt_30cm']['max']:.1f} | {int((per_robot > 25).sum())} | "
-            f"{m['pct_time_within_10cm']['median']:.1f} | {m['gospa_mean']:.3f} | "
-            f"{m['cardinality_mae']:.2f} |"
+            f"  | {name} | {s1['pct_time_position_err_lt_10cm']:.1f} | "
+            f"{s1['pct_time_bearing_err_lt_7deg']:.1f} | {m['rmse_m']:.3f} | "
+            f"{m['rmse_bearing_deg']:.2f} | {g['mean_m']:.3f} ({g['mean_localisation_m2']:.3f}"
+            f" / {g['mean_missed_m2']:.3f} / {g['mean_false_m2']:.3f}) | "
+            f"{c['in_range_mae']:.2f} ({c['in_range_bias']:+.2f}) | "
+            f"{c['total_mae']:.2f} ({c['total_bias']:+.2f}) |"
+        )
+    for name, m in results["localizers"].items():
+        causes = m["large_error_causes_pct_of_pair_steps"]
+        by = m["by_range"]
+        bins = ", ".join(
+            f"{lo:g}-{hi:g} m {p:.1f}"
+            for lo, hi, p, n in zip(
+                by["edges_m"][:-1],
+                by["edges_m"][1:],
+                by["pct_err_gt_30cm"],
+                by["pair_steps"],
+                strict=True,
+            )
+            if n
+        )
+        print(
+            f"  {name}: error > 0.30 m in {m['pct_pair_steps_err_gt_30cm']:.1f} % of pair-steps "
+            + "("
+            + ", ".join(f"{k} {v:.1f}" for k, v in causes.items())
+            + f"); by range: {bins}"
         )
     print_identity_table(results)
     if results.get("task"):
@@ -385,118 +472,7 @@ def print_table(results: dict[str, Any]) -> None:
     print(f"  wall time {results['wall_time_s']:.1f} s")
 
 
-# ---------------------------------------------------------------------- identity localizers
-#: A lidar detection within this distance of a true robot is attributed to it (oracle IDs).
-ORACLE_GATE_M = 0.2
-#: ``id-phd``'s lidar range ``P_d`` matched to the simulated lidar (docs/localization.md, "Notes
-#: for the simulator"): with the seed's eq. 19 (``P_d ~ 0`` beyond 1.8 m, while the simulator
-#: detects teammates to 3.5 m) and no camera update to pull them back, the weights of teammates
-#: at 1.5-3 m grow towards ``1 / P_d`` (seed-sim, 40 s: weight sum 20.1 against 5.7 in range).
-IDPHD_DETECTION_OVERRIDES = {"lidar_pd_midpoint_m": 3.0, "lidar_pd_slope_per_m": 4.0}
-
-
-class _IdentityView:
-    """What the scorer, the trace and the figures read of one robot's identity localizer."""
-
-    __slots__ = ("localizer",)
-
-    def __init__(self, localizer: Any) -> None:
-        self.localizer = localizer
-
-    @property
-    def mixture(self):
-        return self.localizer.mixture
-
-    def estimate(self, threshold: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
-        return extract_estimates(self.mixture, threshold), np.empty(0)
-
-    def identities(self) -> dict[int, np.ndarray]:
-        """``{robot index: (x, y[, psi])}`` in the observer frame (ID-PHD: the mean of each
-        ID's highest-weight component, whatever its weight, as seed ``002`` defines the
-        estimate; static class left out)."""
-        loc = self.localizer
-        if isinstance(loc, IDPHD):
-            return {i: p for i, p in loc.estimate(min_weight=0.0).items() if i >= 0}
-        return loc.estimate()
-
-
-class IdentityLocalizers:
-    """One identity-aware localizer per robot (``id-phd``, ``ukf`` or ``pf``), fed per step.
-
-    Robot ``r``'s odometry records drive ``predict(own, {j: teammate j's record})`` (the
-    simulated robots sample odometry in lockstep, so the k-th records of a step share a stamp);
-    a robot whose odometry is stale sends no message. Lidar records go to ``update_lidar``
-    (ID-PHD, anonymous) or, with oracle identities, to ``update({j: (range, bearing)})``.
-    Camera records are not used.
-    """
-
-    def __init__(self, name: str, n_robots: int, phd: PHDConfig, seed: int = 0) -> None:
-        if name not in IDENTITY_LOCALIZERS:
-            raise ValueError(f"unknown identity localizer {name!r}")
-        self.name = name
-        if name == "id-phd":
-            cfg = IDPHDConfig(
-                detection=dataclasses.replace(phd, **IDPHD_DETECTION_OVERRIDES),
-                lidar_noise_std_m=phd.lidar_noise_std_m,
-                lidar_clutter_intensity_per_m2=phd.lidar_clutter_intensity,
-            )
-            self.localizers = [IDPHD(cfg) for _ in range(n_robots)]
-        elif name == "ukf":
-            self.localizers = [UKFTracker() for _ in range(n_robots)]
-        else:
-            self.localizers = [
-                ParticleFilterTracker(seed=seed * 1000 + r) for r in range(n_robots)
-            ]
-        self.views = [_IdentityView(loc) for loc in self.localizers]
-
-    def apply_step(self, step, agents: tuple[str, ...] | list[str]) -> None:
-        records = [step.measurements[a] for a in agents]
-        stale = [step.stale.get(a, ()) for a in agents]
-        odometry = [
-            [] if "odometry" in stale[r] else [rec.delta for rec in records[r].odometry]
-            for r in range(len(agents))
-        ]
-        identified = self.name != "id-phd"
-        for r, loc in enumerate(self.localizers):
-            k_odo = 0
-            for rec in records[r].in_time_order():
-                if isinstance(rec, OdometryRecord):
-                    if "odometry" in stale[r]:
-                        continue
-                    team = {
-                        j: odometry[j][k_odo]
-                        for j in range(len(agents))
-                        if j != r and k_odo < len(odometry[j])
-                    }
-                    loc.predict(rec.delta, team)
-                    k_odo += 1
-                elif isinstance(rec, LidarRecord) and "lidar" not in stale[r]:
-                    if identified:
-                        loc.update(_oracle_range_bearing(rec.detections, step.truth, r))
-                    else:
-                        loc.update_lidar(rec.detections, rec.null_bearings_rad)
-
-
-def _oracle_range_bearing(detections: np.ndarray, truth, observer: int) -> dict[int, np.ndarray]:
-    """Each detection within :data:`ORACLE_GATE_M` of a true robot, as ``{id: (r, bearing)}``
-    (one-to-one, by the Hungarian assignment on distance)."""
-    from scipy.optimize import linear_sum_assignment
-
-    det = np.asarray(detections, dtype=float).reshape(-1, 2)
-    if not det.shape[0] or truth is None:
-        return {}
-    rel = truth.relative_xy[observer]
-    dist = np.hypot(det[:, None, 0] - rel[None, :, 0], det[:, None, 1] - rel[None, :, 1])
-    dist[:, observer] = np.inf
-    cost = np.where(np.isfinite(dist), dist, 1e6)
-    rows, cols = linear_sum_assignment(cost)
-    return {
-        int(j): np.array([math.hypot(*det[i]), math.atan2(det[i, 1], det[i, 0])])
-        for i, j in zip(rows, cols, strict=True)
-        if dist[i, j] <= ORACLE_GATE_M
-    }
-
-
+# ---------------------------------------------------------------------- identity scoring
 class IdentityScorer:
     """Per observer: errors of each in-range neighbour's *own ID* estimate.
 

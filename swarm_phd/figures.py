@@ -1,4 +1,9 @@
-"""Figures of the localization experiment, the seed's Figs. 7-9 plus GOSPA over time."""
+"""Figures of the localization experiment: the seed's Figs. 7-9, plus GOSPA over time.
+
+Inputs are what :func:`swarm_phd.evaluate.evaluate_localization` collects: the per-localizer
+:meth:`localization.metrics.SeedScorer.summary` dicts, the scorers' traces of observer
+``ugv_0`` (first seed) and the world paths and ``ugv_0``'s estimates (first seed).
+"""
 
 from __future__ import annotations
 
@@ -7,6 +12,13 @@ from typing import Any
 
 import numpy as np
 
+#: Bar colours per localizer (others take matplotlib's cycle).
+COLOURS = {"phd-lc": "tab:red", "phd-lo": "tab:blue"}
+
+
+def _colour(name: str, k: int) -> str:
+    return COLOURS.get(name, f"C{k + 2}")
+
 
 def write_localization_figures(
     out_dir: Path,
@@ -14,82 +26,184 @@ def write_localization_figures(
     trace: dict[str, dict],
     paths: np.ndarray,
     estimates: dict[str, list[np.ndarray]],
-) -> None:
+) -> list[Path]:
     """Write fig7_error_time.png, fig8_weight_sum.png, fig9_paths.png and gospa.png.
 
     Parameters
     ----------
-    trace : per localizer, lists ``time_s``, ``weight_sum``, ``true_count``, ``gospa`` of ugv_0.
+    out_dir : Path
+    results : dict
+        ``results["localizers"][name]`` is a :meth:`SeedScorer.summary` (``seed_fig7``,
+        ``definition``, ...); ``results["config"]`` the run's configuration.
+    trace : dict
+        Per localizer, :attr:`SeedScorer.trace` of observer ``ugv_0``: lists ``time_s``,
+        ``weight_sum_in_range``, ``true_count_in_range``, ``weight_sum_total``,
+        ``true_count_total``, ``gospa`` (first seed).
     paths : ndarray, shape (T, N, 2)
-        World positions of every robot over the first seed.
-    estimates : per localizer, T arrays (K_t, 2) of ugv_0's estimates in the world frame.
+        World positions (m) of every robot over the first seed.
+    estimates : dict
+        Per localizer, T arrays (K_t, 2): ``ugv_0``'s extracted estimates in the world frame (m).
+
+    Returns
+    -------
+    list of Path
+        The files written.
     """
     import matplotlib
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
+    out_dir = Path(out_dir)
     names = list(results["localizers"])
-    # Fig. 7: per-robot % of time with error > 30 cm, LC vs LO side by side.
-    fig, ax = plt.subplots(figsize=(9, 3.5))
+    cfg = results.get("config", {})
+    run = (
+        f"{cfg.get('preset', '?')}, {cfg.get('n_robots', '?')} robots, "
+        f"{cfg.get('duration_s', 0):.0f} s x {len(cfg.get('seeds', [0]))} seed(s)"
+    )
+    written = []
+
+    # Fig. 7: one bar per tracked teammate of ugv_0, localizers side by side; on the right,
+    # every observer's bars together (the same statistic over the whole swarm).
+    fig, (ax, ax_all) = plt.subplots(
+        1, 2, figsize=(13, 4.2), gridspec_kw={"width_ratios": [3.2, 1]}
+    )
+    n_robots = len(results["localizers"][names[0]]["seed_fig7"]["observer_ugv_0"]["per_teammate"])
+    teammates = np.arange(1, n_robots)
     width = 0.8 / len(names)
     for k, name in enumerate(names):
-        per_robot = np.asarray(
-            results["localizers"][name]["pct_time_err_gt_30cm"]["per_robot"], dtype=float
+        m = results["localizers"][name]
+        bars = m["seed_fig7"]["observer_ugv_0"]
+        pct = np.asarray(bars["per_teammate"], dtype=float)[teammates]
+        x = np.arange(len(teammates)) + (k - (len(names) - 1) / 2) * width
+        label = (
+            f"{name}: {bars['teammates_above_25pct']} of {bars['tracked_teammates']} tracked "
+            f"above 25 %, median {bars['median']:.1f} %"
         )
-        ax.bar(np.arange(len(per_robot)) + k * width, np.nan_to_num(per_robot), width, label=name)
-    ax.axhline(25, color="k", ls=":", lw=1)
-    n_robots = len(results["localizers"][names[0]]["pct_time_err_gt_30cm"]["per_robot"])
-    ax.set_xticks(np.arange(n_robots) + 0.4 - width / 2, [str(r) for r in range(n_robots)])
-    ax.set_xlabel("robot")
-    ax.set_ylabel("% time error > 0.30 m (in range)")
-    ax.legend()
+        ax.bar(x, np.nan_to_num(pct), width, color=_colour(name, k), label=label)
+        untracked = ~np.isfinite(pct)
+        if untracked.any():  # never in range: no bar, marked on the axis
+            ax.plot(x[untracked], np.zeros(untracked.sum()), "x", color="k", ms=5)
+    ax.axhline(25, color="k", ls=":", lw=1, label="25 % (the seed's count threshold)")
+    ax.set_xticks(np.arange(len(teammates)), [f"{j}" for j in teammates])
+    ax.set_xlabel("teammate ugv_j of observer ugv_0 (x: never in range; no x, no bar: 0 %)")
+    ax.set_ylabel("% of in-range time with error > 0.30 m")
+    range_m = results["localizers"][names[0]]["definition"]["in_range_m"]
+    ax.set_title(
+        f"Fig. 7: ugv_0's error > 0.30 m per teammate (closest component with w > 0.1; "
+        f"in range = within {range_m:.1f} m)\n{run}",
+        fontsize=10,
+    )
+    ax.set_ylim(0, 100)
+    ax.legend(fontsize=8, loc="upper right")
+    edges = np.linspace(0, 100, 21)
+    for k, name in enumerate(names):
+        m = results["localizers"][name]["seed_fig7"]["all_observers"]
+        ax_all.hist(
+            np.asarray(m["per_pair"], dtype=float),
+            bins=edges,
+            histtype="step",
+            lw=1.5,
+            color=_colour(name, k),
+            label=f"{name}: {m['pairs_above_25pct']} of {m['tracked_pairs']} > 25 %, "
+            f"median {m['median']:.1f} %",
+        )
+    ax_all.axvline(25, color="k", ls=":", lw=1)
+    ax_all.set_yscale("log")
+    ax_all.set_xlabel("% of in-range time with error > 0.30 m")
+    ax_all.set_ylabel("tracked (observer, teammate) pairs")
+    ax_all.set_title("every observer's bars", fontsize=10)
+    ax_all.legend(fontsize=7, loc="upper right")
     fig.tight_layout()
-    fig.savefig(out_dir / "fig7_error_time.png", dpi=120)
+    written.append(out_dir / "fig7_error_time.png")
+    fig.savefig(written[-1], dpi=120)
     plt.close(fig)
 
-    # Fig. 8: sum of weights vs true number of neighbours in range (observer ugv_0).
-    fig, ax = plt.subplots(figsize=(9, 3))
+    # Fig. 8: weight sums against true counts, whole mixture and within range (ugv_0).
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(10, 5.5), sharex=True)
     first = trace[names[0]]
-    ax.step(first["time_s"], first["true_count"], where="post", color="k", label="true count")
-    for name in names:
-        ax.plot(trace[name]["time_s"], trace[name]["weight_sum"], lw=1, label=f"{name} sum of w")
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("neighbours within range")
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(out_dir / "fig8_weight_sum.png", dpi=120)
-    plt.close(fig)
-
-    # Fig. 9: robot paths and ugv_0's estimates (world frame) for the first localizer.
-    fig, ax = plt.subplots(figsize=(6, 6))
-    for j in range(paths.shape[1]):
-        ax.plot(paths[:, j, 0], paths[:, j, 1], lw=0.8, color="tab:blue" if j else "tab:red")
-    pts = [e for e in estimates[names[0]] if len(e)]
-    if pts:
-        pts = np.concatenate(pts)
-        ax.scatter(
-            pts[:, 0],
-            pts[:, 1],
-            marker="x",
-            s=4,
-            color="k",
-            alpha=0.3,
-            label=f"ugv_0 estimates ({names[0]})",
+    top.step(
+        first["time_s"], first["true_count_total"], where="post", color="k", label="true teammates"
+    )
+    bottom.step(
+        first["time_s"],
+        first["true_count_in_range"],
+        where="post",
+        color="k",
+        label=f"true teammates within {range_m:.1f} m",
+    )
+    for k, name in enumerate(names):
+        t = trace[name]
+        top.plot(t["time_s"], t["weight_sum_total"], lw=0.8, color=_colour(name, k), label=name)
+        bottom.plot(
+            t["time_s"], t["weight_sum_in_range"], lw=0.8, color=_colour(name, k), label=name
         )
-        ax.legend(loc="upper right")
-    ax.set_aspect("equal")
-    ax.set_title("paths (ugv_0 red) and ugv_0's estimates")
+    top.set_ylabel("whole-mixture sum of w\n(teammates)")
+    bottom.set_ylabel(f"sum of w within {range_m:.1f} m\n(teammates)")
+    bottom.set_xlabel("time (s)")
+    top.set_title(
+        f"Fig. 8: ugv_0's expected number of teammates (sum of weights) vs truth, "
+        f"first seed\n{run}",
+        fontsize=10,
+    )
+    top.legend(fontsize=8, loc="upper right")
+    bottom.legend(fontsize=8, loc="upper right")
     fig.tight_layout()
-    fig.savefig(out_dir / "fig9_paths.png", dpi=120)
+    written.append(out_dir / "fig8_weight_sum.png")
+    fig.savefig(written[-1], dpi=120)
     plt.close(fig)
 
-    fig, ax = plt.subplots(figsize=(9, 3))
-    for name in names:
-        ax.plot(trace[name]["time_s"], trace[name]["gospa"], lw=1, label=name)
+    # Fig. 9: paths and ugv_0's estimates in the world frame, one panel per localizer.
+    fig, axes = plt.subplots(1, len(names), figsize=(5.5 * len(names), 5.5), squeeze=False)
+    for ax, name in zip(axes[0], names, strict=True):
+        for j in range(paths.shape[1]):
+            ax.plot(
+                paths[:, j, 0],
+                paths[:, j, 1],
+                lw=1.2 if j == 0 else 0.6,
+                color="tab:red" if j == 0 else "tab:blue",
+                alpha=1.0 if j == 0 else 0.6,
+                label="ugv_0 (observer)" if j == 0 else ("teammates" if j == 1 else None),
+            )
+        pts = [e for e in estimates[name] if len(e)]
+        if pts:
+            pts = np.concatenate(pts)
+            ax.scatter(
+                pts[:, 0], pts[:, 1], marker="x", s=3, color="k", alpha=0.25, lw=0.5,
+                label="ugv_0's estimates (w >= 0.5)",
+            )  # fmt: skip
+        ax.set_aspect("equal")
+        ax.set_xlabel("x (m, world)")
+        ax.set_ylabel("y (m, world)")
+        ax.set_title(f"Fig. 9: paths and ugv_0's estimates, {name}", fontsize=10)
+        ax.legend(fontsize=7, loc="upper right")
+    fig.tight_layout()
+    written.append(out_dir / "fig9_paths.png")
+    fig.savefig(written[-1], dpi=120)
+    plt.close(fig)
+
+    # GOSPA of ugv_0 over time.
+    fig, ax = plt.subplots(figsize=(10, 3))
+    for k, name in enumerate(names):
+        g = results["localizers"][name]["gospa"]
+        ax.plot(
+            trace[name]["time_s"],
+            trace[name]["gospa"],
+            lw=0.8,
+            color=_colour(name, k),
+            label=f"{name} (all observers' mean {g['mean_m']:.3f} m)",
+        )
     ax.set_xlabel("time (s)")
     ax.set_ylabel("GOSPA of ugv_0 (m)")
-    ax.legend()
+    g = results["localizers"][names[0]]["gospa"]
+    ax.set_title(
+        f"GOSPA (c = {g['c_m']:g} m, p = {g['p']:g}, alpha = {g['alpha']:g}) of ugv_0, "
+        f"teammates within {range_m:.1f} m vs estimates (w >= 0.5) within {range_m:.1f} m",
+        fontsize=10,
+    )
+    ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(out_dir / "gospa.png", dpi=120)
+    written.append(out_dir / "gospa.png")
+    fig.savefig(written[-1], dpi=120)
     plt.close(fig)
+    return written

@@ -89,3 +89,22 @@ def test_evaluate_compare_end_to_end(tmp_path):
     rows = json.loads((out / "comparison.json").read_text())
     assert [r["policy"] for r in rows] == ["scripted:formation", "random"]
     assert all("formation_error_m" in r and "phd-lc GOSPA" in r for r in rows)
+    assert all("phd-lc ugv_0 teammates > 25 %" in r for r in rows)
+    # The seed's scoring, per tracked teammate of ugv_0 and over all observers, and the
+    # pooled per-observer figure, under their own names.
+    metrics = json.loads((out / "metrics.json").read_text())
+    lc = metrics["localizers"]["phd-lc"]
+    n = metrics["config"]["n_robots"]
+    one = lc["seed_fig7"]["observer_ugv_0"]
+    assert len(one["per_teammate"]) == n and one["in_range_steps"][0] == 0
+    tracked = sum(s > 0 for s in one["in_range_steps"])
+    assert one["tracked_teammates"] == tracked
+    assert lc["seed_fig7"]["all_observers"]["tracked_pairs"] >= tracked
+    assert len(lc["pooled_per_observer"]["per_robot"]) == n
+    assert lc["definition"]["in_range_m"] == metrics["config"]["localization_range_m"]
+    assert lc["at_camera_range"]["definition"]["in_range_m"] == 3.0
+    assert (lc["gospa"]["c_m"], lc["gospa"]["p"], lc["gospa"]["alpha"]) == (1.0, 2.0, 2.0)
+    assert {"in_range_mae", "total_mae"} <= set(lc["cardinality"])
+    assert {"pct_time_position_err_lt_10cm", "pct_time_bearing_err_lt_7deg"} <= set(lc["seed001"])
+    for name in ("fig7_error_time.png", "fig8_weight_sum.png", "fig9_paths.png", "gospa.png"):
+        assert (out / name).stat().st_size > 10_000
