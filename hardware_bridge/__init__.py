@@ -13,8 +13,11 @@ See ``docs/hardware.md`` for running it on robots.
 Modules: :mod:`~hardware_bridge.config` (``BridgeConfig``), :mod:`~hardware_bridge.messages`
 (validation and builders), :mod:`~hardware_bridge.transport` (rosbridge client),
 :mod:`~hardware_bridge.world` (``RealWorld``), :mod:`~hardware_bridge.watchdog`,
+:mod:`~hardware_bridge.guard` (the watchdog process), :mod:`~hardware_bridge.signals`,
 :mod:`~hardware_bridge.safety` (limits, geofence), :mod:`~hardware_bridge.bag` (record,
-``ReplayWorld``, export), :mod:`~hardware_bridge.loopback` (a rosbridge server over the sim).
+``ReplayWorld``), :mod:`~hardware_bridge.emit` (sim records to robot messages),
+:mod:`~hardware_bridge.loopback` (a rosbridge server over the sim),
+:mod:`~hardware_bridge.faults` (corruption catalog). Reliability figures: ``docs/reliability.md``.
 Twisted (roslibpy) is imported only when a RealWorld is created.
 """
 
@@ -34,6 +37,8 @@ __all__ = [
     "LoopbackServer",
     "FaultConfig",
     "RobotsSilentError",
+    "TransportLostError",
+    "BagError",
 ]
 
 
@@ -141,11 +146,11 @@ def real_env(
 
 
 def __getattr__(name: str) -> Any:
-    if name in ("RealWorld", "RobotsSilentError"):
+    if name in ("RealWorld", "RobotsSilentError", "TransportLostError"):
         from hardware_bridge import world
 
         return getattr(world, name)
-    if name in ("ReplayWorld", "BagRecorder", "replay_env"):
+    if name in ("ReplayWorld", "BagRecorder", "replay_env", "BagError"):
         from hardware_bridge import bag
 
         return getattr(bag, name)

@@ -9,12 +9,15 @@ exactly what the live run fed them.
   ``dpsi = wrap(yaw - yaw_prev)``: robot frame at the start of the interval, as the sim's
   encoders report it. The first message after a reset only sets the baseline.
 * Lidar: the simulator's own feature extractor
-  (:func:`swarm_env.sensors.lidar_features.extract_detections` and ``null_bearings``, with the
+  (:func:`swarm_core.perception.lidar_features.extract_detections` and ``null_bearings``, with the
   configured blind sectors excluded as in the simulator) runs on the scan, batched over all
   scans that share a beam layout.
 * Camera: bearings wrapped to ``[-pi, pi)``.
-* Ground truth: from motion capture poses when every robot has one; relative positions and
-  in-range masks as in the simulator; visibility is unknown on real robots (left empty).
+* Ground truth: from motion capture poses when every robot has one no older than the mocap
+  stale age at the end of the step (:meth:`RecordAssembler.truth_from_mocap`); relative
+  positions and in-range masks as in the simulator; visibility is unknown on real robots.
+* Reset: the newest scan and bearing frame of each robot become the reset's records; the newest
+  odometry pose only sets the baseline (:meth:`RecordAssembler.reset_selection`).
 """
 
 from __future__ import annotations
@@ -26,11 +29,11 @@ import numpy as np
 
 from hardware_bridge.messages import Bearings, Odom, Pose, Scan, ns_to_s
 from swarm_core.geometry import wrap_angle
+from swarm_core.perception.blind_sectors import blind_mask
+from swarm_core.perception.lidar_features import extract_detections, null_bearings
 from swarm_core.records import CameraRecord, LidarRecord, OdometryRecord, RobotMeasurements
 from swarm_core.world import GroundTruth, truth_from_poses
 from swarm_env.config import SwarmConfig
-from swarm_env.sensors.lidar import blind_mask
-from swarm_env.sensors.lidar_features import extract_detections, null_bearings
 
 
 def odometry_increment(prev: Odom, cur: Odom) -> np.ndarray:
@@ -41,17 +44,103 @@ def odometry_increment(prev: Odom, cur: Odom) -> np.ndarray:
     return np.array([c * dx + s * dy, -s * dx + c * dy, dpsi])
 
 
-class RecordAssembler:
-    """Per-robot odometry baselines plus the stateless lidar and camera conversions."""
+def integrate_odometry(pose: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """The inverse of :func:`odometry_increment`: the odom pose ``[x, y, yaw]`` after a
+    body-frame increment ``[dx, dy, dpsi]`` (the loopback robots and ``export-bag`` publish
+    odometry poses built this way). Yaw wrapped to ``[-pi, pi)``."""
+    x, y, yaw = (float(v) for v in pose)
+    dx, dy, dpsi = (float(v) for v in delta)
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([x + c * dx - s * dy, y + s * dx + c * dy, float(wrap_angle(yaw + dpsi))])
 
-    def __init__(self, robot_ids: Sequence[str], config: SwarmConfig) -> None:
+
+class RecordAssembler:
+    """Per-robot odometry baselines and mocap truth poses, plus the stateless lidar and camera
+    conversions.
+
+    Parameters
+    ----------
+    robot_ids, config : the robots (agent order) and the env config.
+    jump_factor : float
+        Odometry plausibility: a pose further from the baseline than
+        ``jump_factor * max_speed * dt + 0.05 m`` (or turned more than
+        ``jump_factor * max_turn_rate * dt + 0.1 rad``) is a jump and is not integrated.
+    counters : :class:`~hardware_bridge.messages.Counters`, optional
+        Receives ``odometry.implausible``.
+    """
+
+    JUMP_SLACK_M = 0.05
+    JUMP_SLACK_RAD = 0.1
+    MAX_BACKSTEP_NS = 1_000_000_000
+
+    def __init__(
+        self,
+        robot_ids: Sequence[str],
+        config: SwarmConfig,
+        *,
+        jump_factor: float = 3.0,
+        counters=None,
+    ) -> None:
         self.robot_ids = tuple(robot_ids)
         self.config = config
+        self.jump_factor = float(jump_factor)
+        self.counters = counters
         self._baseline: dict[str, Odom | None] = {r: None for r in self.robot_ids}
+        self._truth_pose: dict[str, Pose | None] = {r: None for r in self.robot_ids}
 
     def reset(self) -> None:
         for robot in self.robot_ids:
             self._baseline[robot] = None
+            self._truth_pose[robot] = None
+
+    def _plausible(self, prev: Odom, cur: Odom) -> bool:
+        dt = (cur.stamp_ns - prev.stamp_ns) * 1e-9
+        robot = self.config.robot
+        reach = self.jump_factor * robot.max_speed_mps * dt + self.JUMP_SLACK_M
+        turn = self.jump_factor * robot.max_turn_rate_radps * dt + self.JUMP_SLACK_RAD
+        moved = math.hypot(cur.x_m - prev.x_m, cur.y_m - prev.y_m)
+        turned = abs(float(wrap_angle(cur.yaw_rad - prev.yaw_rad)))
+        return moved <= reach and turned <= turn
+
+    @staticmethod
+    def reset_selection(taken: dict[str, dict[str, list]]) -> dict[str, dict[str, list]]:
+        """What a reset uses of the messages it waited for: the newest of each sensor per robot
+        (items sorted oldest first; any item type, so the live bridge keeps the raw messages)."""
+        return {
+            robot: {s: list(items)[-1:] for s, items in sensors.items()}
+            for robot, sensors in taken.items()
+        }
+
+    def reset_measurements(
+        self, selected: dict[str, dict[str, list]]
+    ) -> dict[str, RobotMeasurements]:
+        """Records of a reset from parsed messages chosen by :meth:`reset_selection`: the
+        odometry pose only sets the baseline, the scan and bearings are the first records."""
+        for robot in self.robot_ids:
+            self.odometry(robot, selected.get(robot, {}).get("odometry", []))
+        return self.measurements(
+            {
+                r: {s: selected.get(r, {}).get(s, []) for s in ("lidar", "camera")}
+                for r in self.robot_ids
+            }
+        )
+
+    def truth_from_mocap(
+        self, mocap: dict[str, list[Pose]], end_ns: int, stale_s: float
+    ) -> GroundTruth | None:
+        """Ground truth at ``end_ns`` from the newest mocap pose of each robot seen so far (this
+        step's ``mocap[robot]``, sorted, or an earlier one), if every robot has one no older
+        than ``stale_s``. The live bridge and the replay apply this same rule."""
+        for robot in self.robot_ids:
+            poses = mocap.get(robot, [])
+            if poses:
+                self._truth_pose[robot] = poses[-1]
+        limit_ns = stale_s * 1e9
+        fresh = {
+            r: (p if p is not None and end_ns - p.stamp_ns <= limit_ns else None)
+            for r, p in self._truth_pose.items()
+        }
+        return self.truth(fresh)
 
     def has_baseline(self, robot: str) -> bool:
         return self._baseline[robot] is not None
@@ -61,9 +150,21 @@ class RecordAssembler:
         for msg in sorted(messages, key=lambda m: m.stamp_ns):
             prev = self._baseline[robot]
             if prev is not None and msg.stamp_ns <= prev.stamp_ns:
+                if prev.stamp_ns - msg.stamp_ns > self.MAX_BACKSTEP_NS:
+                    # The baseline is far ahead of the sensor (its clock was stepped back): a
+                    # baseline from the "future" would refuse every later pose; start anew.
+                    self._baseline[robot] = msg
+                    if self.counters is not None:
+                        self.counters.incr("odometry.rebaselined")
                 continue  # out of order: keep the newer baseline, never count motion twice
             self._baseline[robot] = msg
             if prev is None:
+                continue
+            if not self._plausible(prev, msg):
+                # A jump (driver restart, glitch): never integrate it; the pose is the new
+                # baseline, so a reset odom frame costs one interval of motion, not a teleport.
+                if self.counters is not None:
+                    self.counters.incr("odometry.implausible")
                 continue
             out.append(
                 OdometryRecord(

@@ -3,15 +3,17 @@ simulated episode. Uses the ``rosbags`` library (pure Python; sqlite3 storage, b
 
 Bag layout
 ----------
-Per robot, standard message types, each at its message stamp (header stamp; arrival stamp for
-the header-less bearings):
+Per robot, standard message types (plus the two-field ``BearingsStamped``, whose definition is
+stored in the bag), each at its message stamp (header stamp; arrival stamp for the legacy
+header-less bearings):
 
 =============================  ==============================  ===============================
 topic                          type                            what
 =============================  ==============================  ===============================
 ``/<robot>/scan``              ``sensor_msgs/msg/LaserScan``    scans the bridge used
 ``/<robot>/odom``              ``nav_msgs/msg/Odometry``        odometry poses it used
-``/<robot>/camera/bearings``   ``std_msgs/msg/Float32MultiArray`` bearings it used
+``/<robot>/camera/bearings_stamped`` ``swarm_phd_msgs/msg/BearingsStamped`` bearings it used
+``/<robot>/camera/bearings``   ``std_msgs/msg/Float32MultiArray`` (legacy header-less robots)
 ``/mocap/<robot>/pose``        ``geometry_msgs/msg/PoseStamped`` motion capture
 ``/<robot>/cmd_vel``           ``geometry_msgs/msg/Twist``      commands sent (incl. stops)
 ``/bridge/step``               ``std_msgs/msg/String``          one JSON marker per reset/step
@@ -19,8 +21,16 @@ topic                          type                            what
 
 A marker ``{"kind": "reset"|"step", "index": k, "stale": {...}}`` is written at the end of each
 reset/step, at the step's end time; the messages of step k are those stamped after marker k-1 and
-up to marker k. The bag's ``custom_data["swarm_phd"]`` holds JSON metadata (robot ids, the env
-config, the bridge's mocap freshness rule). Everything read back is parsed with
+up to marker k. A step's rows and its marker are written inside a signal-deferring critical
+section and committed together, so a recording ended by SIGINT, SIGTERM, SIGHUP or an exception
+holds whole steps, and its ``metadata.yaml`` is written by :meth:`BagRecorder.close` in the
+``finally`` that the signal unwinds through.
+
+Replay validates everything it reads (:class:`BagError`, one line naming the file and the
+problem, for a bag it cannot replay; counted and reported skips for the parts it can).
+
+The bag's ``custom_data["swarm_phd"]`` holds JSON metadata (robot ids, the env config, the
+bridge's mocap freshness rule). Everything read back is parsed with
 :func:`json.loads` and validated exactly as live messages are: never pickle or eval.
 
 :class:`ReplayWorld` rebuilds each step's records from these messages with the same
@@ -44,18 +54,17 @@ from hardware_bridge.assembly import RecordAssembler
 from hardware_bridge.config import FEED_SENSORS
 from hardware_bridge.messages import (
     BAG_TYPES,
+    BEARINGS_STAMPED_MSG,
+    SENSOR_OF_KIND,
     Counters,
     InvalidMessage,
-    Pose,
     check_robot_id,
     ns_to_s,
-    parse_bearings,
-    parse_laser_scan,
-    parse_odometry,
-    parse_pose_stamped,
+    parse_message,
     topics,
     twist_msg,
 )
+from hardware_bridge.signals import critical
 from swarm_core.world import WorldStep, reject_extra_commands
 from swarm_env.config import SwarmConfig, make_config
 
@@ -66,10 +75,22 @@ BAG_VERSION = 8
 SENSORS = ("lidar", "odometry", "camera", "mocap")
 
 
-def _typestore():
-    from rosbags.typesys import Stores, get_typestore
+class BagError(ValueError):
+    """A bag that cannot be replayed: one line naming the file and the problem."""
 
-    return get_typestore(Stores.ROS2_HUMBLE)
+    def __init__(self, path: str | Path, problem: str) -> None:
+        text = " ".join(str(problem).split())  # one line, whatever the library said
+        super().__init__(f"{path}: {text[:400]}")
+        self.path = str(path)
+        self.problem = text
+
+
+def _typestore():
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    ts.register(get_types_from_msg(BEARINGS_STAMPED_MSG, BAG_TYPES["camera_stamped"]))
+    return ts
 
 
 # ---------------------------------------------------------------------------- config <-> JSON
@@ -174,6 +195,11 @@ def to_rosbags(ts, sensor: str, msg: dict):
                 covariance=_cov(msg["twist"]),
             ),
         )
+    if sensor == "camera_stamped":
+        return t[BAG_TYPES["camera_stamped"]](
+            header=_header(ts, msg["header"]),
+            bearings=np.asarray(msg["bearings"], dtype=np.float32),
+        )
     if sensor == "camera":
         data = msg["data"]
         dims = [
@@ -247,6 +273,11 @@ def from_rosbags(sensor: str, m) -> dict:
                 "covariance": m.twist.covariance.tolist(),
             },
         }
+    if sensor == "camera_stamped":
+        return {
+            "header": _header_dict(m.header),
+            "bearings": m.bearings.astype(np.float64).tolist(),
+        }
     if sensor == "camera":
         return {
             "layout": {
@@ -303,11 +334,11 @@ class BagRecorder:
         self._connections: dict[str, Any] = {}
         self._lock = threading.Lock()
         self._closed = False
+        # sqlite3 objects work only in the thread that made them: rows from other threads (the
+        # watchdog's stop commands) wait here and are written by the owner's next write.
+        self._owner = threading.get_ident()
+        self._pending: list[tuple[str, str, int, bytes]] = []
         self.messages_written = 0
-        self._sensor_of = {}
-        for robot in self.robot_ids:
-            for sensor, topic in topics(robot).items():
-                self._sensor_of[topic] = sensor
 
     def _connection(self, topic: str, msgtype: str):
         conn = self._connections.get(topic)
@@ -317,13 +348,22 @@ class BagRecorder:
         return conn
 
     def write(self, topic: str, sensor: str, stamp_ns: int, msg: dict) -> None:
-        """Write one message dict (``sensor`` in lidar/odometry/camera/mocap/cmd_vel)."""
+        """Write one message dict of a message kind (``lidar``, ``odometry``, ``camera``,
+        ``camera_stamped``, ``mocap``, ``cmd_vel``)."""
         obj = to_rosbags(self._ts, sensor, msg)
-        data = self._ts.serialize_cdr(obj, BAG_TYPES[sensor])
+        data = bytes(self._ts.serialize_cdr(obj, BAG_TYPES[sensor]))
         with self._lock:
             if self._closed:
                 return
-            self._writer.write(self._connection(topic, BAG_TYPES[sensor]), int(stamp_ns), data)
+            self._pending.append((topic, BAG_TYPES[sensor], int(stamp_ns), data))
+            if threading.get_ident() == self._owner:
+                self._flush_pending()
+
+    def _flush_pending(self) -> None:
+        """Write the queued rows (owner thread, lock held)."""
+        pending, self._pending = self._pending, []
+        for topic, msgtype, stamp_ns, data in pending:
+            self._writer.write(self._connection(topic, msgtype), stamp_ns, data)
             self.messages_written += 1
 
     def write_marker(
@@ -337,7 +377,14 @@ class BagRecorder:
         with self._lock:
             if self._closed:
                 return
+            self._flush_pending()
             self._writer.write(self._connection(STEP_TOPIC, STRING_TYPE), int(end_ns), data)
+            # Commit the step: a process killed outright (SIGKILL, power loss) leaves whole
+            # steps in the database (metadata.yaml is only written by close()).
+            storage = getattr(self._writer, "storage", None)
+            conn = getattr(storage, "conn", None)
+            if conn is not None:
+                conn.commit()
 
     def write_commands(self, t_ns: int, commands: np.ndarray) -> None:
         for robot, (v, w) in zip(self.robot_ids, np.asarray(commands).reshape(-1, 2), strict=True):
@@ -353,120 +400,409 @@ class BagRecorder:
         commands,
         stale: dict[str, tuple[str, ...]],
     ) -> None:
-        if commands is not None:
-            self.write_commands(*commands)
-        for robot in self.robot_ids:
-            for sensor in SENSORS:
-                for _parsed, (topic, stamp_ns, msg) in used.get(robot, {}).get(sensor, []):
-                    self.write(topic, sensor, stamp_ns, msg)
-        self.write_marker(kind, index, end_ns, stale)
+        # One step = its rows and its marker, never half of it (signals wait for the end).
+        with critical():
+            if commands is not None:
+                self.write_commands(*commands)
+            for robot in self.robot_ids:
+                for sensor in SENSORS:
+                    for _parsed, (topic, msg_kind, stamp_ns, msg) in used.get(robot, {}).get(
+                        sensor, []
+                    ):
+                        self.write(topic, msg_kind, stamp_ns, msg)
+            self.write_marker(kind, index, end_ns, stale)
 
     def record_stop(self, t_ns: int, robots: Sequence[str]) -> None:
         self.write_commands(t_ns, np.zeros((len(robots), 2)))
 
     def close(self) -> None:
-        with self._lock:
+        """Write ``metadata.yaml`` and close the database (idempotent; signals deferred)."""
+        with critical(), self._lock:
             if self._closed:
                 return
             self._closed = True
+            if threading.get_ident() == self._owner:
+                self._flush_pending()
             self._writer.close()
 
 
 # ---------------------------------------------------------------------------- replay
 def read_meta(path: str | Path) -> dict[str, Any]:
-    """The bag's swarm-phd metadata (``custom_data`` of ``metadata.yaml``, YAML safe loader)."""
+    """The bag's swarm-phd metadata (``custom_data`` of ``metadata.yaml``, YAML safe loader).
+    Raises :class:`BagError` naming the problem."""
     from ruamel.yaml import YAML
 
-    metafile = Path(path) / "metadata.yaml"
+    path = Path(path)
+    if not path.exists():
+        raise BagError(path, "no such bag directory")
+    if not path.is_dir():
+        raise BagError(path, "not a directory (a ROS 2 bag is a directory with metadata.yaml)")
+    metafile = path / "metadata.yaml"
     if not metafile.is_file():
-        raise ValueError(f"{path}: not a ROS 2 bag directory (no metadata.yaml)")
-    info = YAML(typ="safe").load(metafile.read_text())
-    try:
-        custom = info["rosbag2_bagfile_information"].get("custom_data") or {}
-    except (TypeError, KeyError, AttributeError) as exc:
-        raise ValueError(f"{path}: invalid metadata.yaml") from exc
-    raw = custom.get(META_KEY)
-    if not isinstance(raw, str):
-        raise ValueError(
-            f"{path}: not a swarm-phd bag (no custom_data[{META_KEY!r}]); record it "
-            "with the bridge (record=PATH) or swarm-phd export-bag"
+        hint = (
+            "; a .db3 is there: the recorder was killed before closing (SIGKILL, power loss)"
+            if any(path.glob("*.db3"))
+            else ""
         )
-    meta = json.loads(raw)
-    if (
-        not isinstance(meta, dict)
-        or not isinstance(meta.get("robots"), list)
-        or not isinstance(meta.get("config"), dict)
-    ):
-        raise ValueError(f"{path}: invalid swarm-phd metadata")
-    for robot in meta["robots"]:
-        check_robot_id(robot)
+        raise BagError(path, f"not a ROS 2 bag directory (no metadata.yaml){hint}")
+    try:
+        info = YAML(typ="safe").load(metafile.read_bytes())
+    except Exception as exc:  # noqa: BLE001 - ruamel raises many types
+        raise BagError(metafile, f"not valid YAML ({type(exc).__name__})") from None
+    bag_info = info.get("rosbag2_bagfile_information") if isinstance(info, dict) else None
+    if not isinstance(bag_info, dict):
+        raise BagError(metafile, "no rosbag2_bagfile_information mapping")
+    custom = bag_info.get("custom_data") or {}
+    raw = custom.get(META_KEY) if isinstance(custom, dict) else None
+    if not isinstance(raw, str):
+        raise BagError(
+            metafile,
+            f"not a swarm-phd bag (no custom_data[{META_KEY!r}] string); record it "
+            "with the bridge (record=PATH) or swarm-phd export-bag",
+        )
+    try:
+        meta = json.loads(raw)
+    except ValueError as exc:
+        raise BagError(metafile, f"custom_data[{META_KEY!r}] is not valid JSON: {exc}") from None
+    if not isinstance(meta, dict):
+        raise BagError(metafile, f"custom_data[{META_KEY!r}] is not a JSON object")
+    robots = meta.get("robots")
+    if not isinstance(robots, list) or not robots:
+        raise BagError(
+            metafile, f"swarm-phd metadata: robots must be a non-empty list, got {robots!r}"
+        )
+    if not isinstance(meta.get("config"), dict):
+        raise BagError(metafile, "swarm-phd metadata: config must be an object")
+    try:
+        for robot in robots:
+            check_robot_id(robot)
+    except ValueError as exc:
+        raise BagError(metafile, f"swarm-phd metadata: {exc}") from None
+    if len(set(robots)) != len(robots):
+        raise BagError(metafile, f"swarm-phd metadata: duplicate robot ids {robots}")
+    for key in ("stale_mocap_s",):
+        value = meta.get(key, 0.5)
+        if type(value) not in (int, float) or not value > 0 or value != value:
+            raise BagError(
+                metafile, f"swarm-phd metadata: {key} must be a number > 0, got {value!r}"
+            )
+    if not isinstance(meta.get("use_mocap", True), bool):
+        raise BagError(metafile, "swarm-phd metadata: use_mocap must be a bool")
     return meta
+
+
+# Replay skips, by counter key: what a damaged bag lost (reported by ``swarm-phd replay``).
+SKIP_REASONS = {
+    "bag.undecodable": "messages whose bytes do not decode as their type",
+    "bag.wrong_type": "messages of a known topic recorded with the wrong type",
+    "bag.bad_marker": "step markers that are not valid JSON markers",
+    "bag.duplicate_marker": "repeated step markers",
+    "bag.missing_steps": "step markers missing (their steps merged into the next)",
+    "bag.duplicate_rows": "repeated message rows",
+    "bag.stamp_mismatch": "messages whose bag time differs from their header stamp",
+    "bag.incomplete_step": "messages after the last step marker (an unfinished step)",
+    "bag.orphan_steps": "step markers before any reset marker",
+    "bag.read_error": "rows lost to damaged database pages",
+    "bag.salvaged": "database refused by rosbags, rows read directly (order by insertion)",
+}
 
 
 class ReplayWorld:
     """A World that replays a recorded bag step by step (open loop: commands are ignored).
 
     Each :meth:`reset` moves to the next recorded episode; :meth:`step` returns the next
-    recorded step and raises ``EOFError`` past the end of the episode.
+    recorded step and raises ``EOFError`` past the end of the episode. A bag that cannot be
+    replayed raises :class:`BagError`; damage that leaves a replayable part is skipped and
+    counted in :attr:`counters` (keys in :data:`SKIP_REASONS`, and ``<sensor>.invalid``).
     """
 
     layout = None  # obstacle geometry is not known off the simulator
 
     def __init__(self, path: str | Path, config: SwarmConfig | None = None) -> None:
-        from rosbags.rosbag2 import Reader
-
         self.path = Path(path)
         meta = read_meta(self.path)
         self.meta = meta
         self.robot_ids = tuple(meta["robots"])
-        self.config = config if config is not None else config_from_dict(meta["config"])
-        self.stale_mocap_ns = float(meta.get("stale_mocap_s", 0.5)) * 1e9
+        try:
+            self.config = config if config is not None else config_from_dict(meta["config"])
+        except Exception as exc:  # noqa: BLE001 - any wrong type in the recorded config
+            raise BagError(
+                self.path / "metadata.yaml",
+                f"recorded config invalid: {type(exc).__name__}: {exc}",
+            ) from None
+        self.stale_mocap_s = float(meta.get("stale_mocap_s", 0.5))
         self.use_mocap = bool(meta.get("use_mocap", True))
-        self.assembler = RecordAssembler(self.robot_ids, self.config)
         self.counters = Counters()
-        ts = _typestore()
-        sensor_of = {}
-        for robot in self.robot_ids:
-            for sensor, topic in topics(robot).items():
-                sensor_of[topic] = (robot, sensor)
-        markers: list[tuple[int, dict]] = []
-        messages: list[tuple[int, str, str, dict]] = []
-        with Reader(self.path) as reader:
-            for conn, stamp, raw in reader.messages():
-                if conn.topic == STEP_TOPIC:
-                    text = ts.deserialize_cdr(raw, conn.msgtype).data
-                    marker = json.loads(text)
-                    if not isinstance(marker, dict) or marker.get("kind") not in ("reset", "step"):
-                        raise ValueError(f"{path}: invalid step marker {text[:100]!r}")
-                    markers.append((stamp, marker))
-                elif conn.topic in sensor_of:
-                    robot, sensor = sensor_of[conn.topic]
-                    if sensor == "cmd_vel":
-                        continue
-                    msg = from_rosbags(sensor, ts.deserialize_cdr(raw, conn.msgtype))
-                    messages.append((stamp, robot, sensor, msg))
-        if not markers or markers[0][1]["kind"] != "reset":
-            raise ValueError(f"{path}: no reset marker on {STEP_TOPIC}; not a replayable episode")
-        markers.sort(key=lambda m: m[0])
-        stamps = [m[0] for m in markers]
-        groups: list[list[tuple[int, str, str, dict]]] = [[] for _ in markers]
-        for item in messages:
-            k = bisect.bisect_left(stamps, item[0])  # first marker at or after the message
-            if k < len(markers):
-                groups[k].append(item)
-        # Episodes: a reset marker and the step markers after it.
-        self._episodes: list[list[int]] = []
-        for k, (_, marker) in enumerate(markers):
-            if marker["kind"] == "reset":
-                self._episodes.append([k])
-            else:
-                self._episodes[-1].append(k)
-        self._markers = markers
-        self._groups = groups
+        self.assembler = RecordAssembler(self.robot_ids, self.config, counters=self.counters)
+        self.problems: list[str] = []  # first few skip details, for the report
+        markers, messages = self._read()
+        self._index(markers, messages)
         self._episode = -1
         self._cursor = 0
-        self._truth_pose: dict[str, Pose | None] = {r: None for r in self.robot_ids}
 
+    # ------------------------------------------------------------------ reading
+    def _skip(self, key: str, detail: str, n: int = 1) -> None:
+        self.counters.incr(key, n)
+        if len(self.problems) < 10:
+            self.problems.append(detail)
+
+    def skipped(self) -> dict[str, int]:
+        """Skip counters of the read and of the replay so far (only the non-zero ones)."""
+        snap = self.counters.snapshot()
+        return {k: v for k, v in snap.items() if k in SKIP_REASONS or k.endswith(".invalid")}
+
+    def _rosbags_rows(self):
+        """``(connections, rows)`` through rosbags: connections ``(id, topic, type, count)``,
+        rows ``(conn_id, topic, type, stamp_ns, bytes)`` in time order."""
+        from rosbags.rosbag2 import Reader
+
+        reader = Reader(self.path)
+        reader.open()
+        conns = [
+            (c.id, c.topic, c.msgtype, int(getattr(c, "msgcount", 0) or 0))
+            for c in reader.connections
+        ]
+
+        def rows():
+            try:
+                for conn, stamp, raw in reader.messages():
+                    yield conn.id, conn.topic, conn.msgtype, int(stamp), bytes(raw)
+            finally:
+                try:
+                    reader.close()
+                except Exception:  # noqa: BLE001
+                    pass
+
+        return conns, rows()
+
+    def _sqlite_rows(self, error: str):
+        """Salvage a database that rosbags refuses (truncated, damaged pages): a copy with the
+        page count in its header set to what the file holds, read row by row by id (a lookup
+        per row, so a lost page loses only its own rows), in insertion order."""
+        import sqlite3
+        import struct
+        import tempfile
+
+        dbs = sorted(self.path.glob("*.db3"))
+        if len(dbs) != 1:
+            raise BagError(self.path, f"cannot open the bag: {error}")
+        data = bytearray(dbs[0].read_bytes())
+        if len(data) < 100 or not data.startswith(b"SQLite format 3\x00"):
+            raise BagError(self.path, f"cannot open the bag: {error}")
+        page = struct.unpack(">H", data[16:18])[0]
+        page = 65536 if page == 1 else page
+        n_pages = len(data) // max(page, 512)
+        data = data[: n_pages * page]
+        data[28:32] = struct.pack(">I", n_pages)
+        tmp = tempfile.NamedTemporaryFile(suffix=".db3", delete=False)  # noqa: SIM115
+        tmp.write(bytes(data))
+        tmp.close()
+        try:
+            con = sqlite3.connect(f"file:{tmp.name}?mode=ro", uri=True)
+            conns = [
+                (int(i), str(name), str(msgtype), 0)
+                for i, name, msgtype in con.execute("select id, name, type from topics")
+            ]
+        except Exception:  # noqa: BLE001 - not even the topic table: nothing to salvage
+            Path(tmp.name).unlink(missing_ok=True)
+            raise BagError(self.path, f"cannot open the bag: {error}") from None
+        names = {i: (name, msgtype) for i, name, msgtype, _ in conns}
+        total = self._recorded_count()
+        self._skip("bag.salvaged", f"rosbags refused the database ({error}); read with sqlite3")
+
+        def rows():
+            lost = 0
+            try:
+                row_id = 0
+                while row_id < total or (total == 0 and lost < 1000):
+                    row_id += 1
+                    try:
+                        row = con.execute(
+                            "select topic_id, timestamp, data from messages where id = ?",
+                            (row_id,),
+                        ).fetchone()
+                    except sqlite3.DatabaseError:
+                        row = None
+                    if row is None:
+                        lost += 1
+                        continue
+                    topic, msgtype = names.get(row[0], ("", ""))
+                    yield row[0], topic, msgtype, int(row[1]), bytes(row[2])
+                if lost:
+                    self._skip("bag.read_error", f"{lost} rows on unreadable pages", lost)
+            finally:
+                con.close()
+                Path(tmp.name).unlink(missing_ok=True)
+
+        return conns, rows()
+
+    def _recorded_count(self) -> int:
+        """Total message count from metadata.yaml (0 if unreadable)."""
+        from ruamel.yaml import YAML
+
+        try:
+            info = YAML(typ="safe").load((self.path / "metadata.yaml").read_bytes())
+            count = info["rosbag2_bagfile_information"]["message_count"]
+            return int(count) if type(count) is int and count > 0 else 0
+        except Exception:  # noqa: BLE001
+            return 0
+
+    def _read(self) -> tuple[list[tuple[int, dict]], list[tuple[int, str, str, str, dict]]]:
+        ts = _typestore()
+        expected: dict[str, tuple[str, str]] = {}  # topic -> (robot, kind)
+        for robot in self.robot_ids:
+            for kind, topic in topics(robot).items():
+                if not kind.startswith("cmd_vel"):
+                    expected[topic] = (robot, kind)
+        markers: list[tuple[int, dict]] = []
+        messages: list[tuple[int, str, str, str, dict]] = []
+        seen_rows: set[tuple[int, int, bytes]] = set()
+        salvaged = False
+        try:
+            conns, rows = self._rosbags_rows()
+        except Exception as exc:  # noqa: BLE001 - rosbags, sqlite3, yaml: one line
+            text = f"{type(exc).__name__}: {exc}"
+            if "metadata" in str(exc).lower() or not any(self.path.glob("*.db3")):
+                raise BagError(self.path, f"cannot open the bag: {text}") from None
+            conns, rows = self._sqlite_rows(text)
+            salvaged = True
+        bad_conns: set[int] = set()
+        for conn_id, topic, msgtype, count in conns:
+            if topic in expected:
+                kind = expected[topic][1]
+                if msgtype != BAG_TYPES[kind]:
+                    bad_conns.add(conn_id)
+                    self._skip(
+                        "bag.wrong_type",
+                        f"{topic} recorded as {msgtype}, expected {BAG_TYPES[kind]}",
+                        count,
+                    )
+            elif topic == STEP_TOPIC and msgtype != STRING_TYPE:
+                raise BagError(self.path, f"{STEP_TOPIC} recorded as {msgtype}")
+        n_read = 0
+        while True:
+            try:
+                item = next(rows)
+            except StopIteration:
+                break
+            except Exception as exc:  # noqa: BLE001 - a damaged database page
+                if n_read == 0:
+                    raise BagError(
+                        self.path, f"cannot read messages: {type(exc).__name__}: {exc}"
+                    ) from None
+                self._skip(
+                    "bag.read_error",
+                    f"read stopped after {n_read} messages: {type(exc).__name__}: {exc}",
+                )
+                break
+            n_read += 1
+            conn_id, topic, msgtype, stamp, raw = item
+            row = (conn_id, stamp, raw)
+            if row in seen_rows:
+                self._skip("bag.duplicate_rows", f"{topic} at {stamp} repeated")
+                continue
+            seen_rows.add(row)
+            if topic == STEP_TOPIC:
+                marker = self._marker(ts, msgtype, stamp, raw)
+                if marker is not None:
+                    markers.append((stamp, marker))
+                continue
+            if topic not in expected:
+                continue  # commands and foreign topics
+            if conn_id in bad_conns:
+                if salvaged:  # no per-connection counts from metadata: count the rows
+                    self.counters.incr("bag.wrong_type")
+                continue
+            robot, kind = expected[topic]
+            try:
+                msg = from_rosbags(kind, ts.deserialize_cdr(raw, msgtype))
+            except Exception as exc:  # noqa: BLE001 - garbage bytes in a row
+                self._skip("bag.undecodable", f"{topic} at {stamp}: {type(exc).__name__}")
+                continue
+            if kind != "camera":  # stamped kinds are written at their header stamp
+                h = msg["header"]["stamp"]
+                header_ns = h["sec"] * 1_000_000_000 + h["nanosec"]
+                if header_ns != stamp:
+                    self._skip(
+                        "bag.stamp_mismatch",
+                        f"{topic}: bag time {stamp} != header stamp {header_ns}",
+                    )
+                    continue
+            messages.append((stamp, robot, SENSOR_OF_KIND[kind], kind, msg))
+        return markers, messages
+
+    def _marker(self, ts, msgtype: str, stamp: int, raw) -> dict | None:
+        try:
+            text = ts.deserialize_cdr(raw, msgtype).data
+            marker = json.loads(text)
+        except Exception as exc:  # noqa: BLE001
+            self._skip("bag.bad_marker", f"marker at {stamp}: {type(exc).__name__}")
+            return None
+        index = marker.get("index") if isinstance(marker, dict) else None
+        stale = marker.get("stale", {}) if isinstance(marker, dict) else None
+        if (
+            not isinstance(marker, dict)
+            or marker.get("kind") not in ("reset", "step")
+            or type(index) is not int
+            or index < 0
+            or not isinstance(stale, dict)
+            or not all(
+                isinstance(v, list) and all(isinstance(x, str) for x in v) for v in stale.values()
+            )
+        ):
+            self._skip("bag.bad_marker", f"marker at {stamp}: {str(text)[:80]!r}")
+            return None
+        return marker
+
+    def _index(self, markers, messages) -> None:
+        if not markers:
+            raise BagError(
+                self.path, f"no valid step markers on {STEP_TOPIC}: not a replayable episode"
+            )
+        markers.sort(key=lambda m: m[0])
+        # Episodes: a reset marker and the step markers after it, indices 1, 2, ...
+        episodes: list[list[int]] = []
+        kept: list[tuple[int, dict]] = []
+        for stamp, marker in markers:
+            if marker["kind"] == "reset":
+                kept.append((stamp, marker))
+                episodes.append([len(kept) - 1])
+                continue
+            if not episodes:
+                self._skip("bag.orphan_steps", f"step marker {marker['index']} before any reset")
+                continue
+            last = kept[episodes[-1][-1]][1]
+            expected = 1 if last["kind"] == "reset" else last["index"] + 1
+            if marker["index"] < expected:
+                self._skip("bag.duplicate_marker", f"step marker {marker['index']} repeated")
+                continue
+            if marker["index"] > expected:
+                self._skip(
+                    "bag.missing_steps",
+                    f"episode {len(episodes) - 1}: step markers {expected}..{marker['index'] - 1} "
+                    "missing",
+                    marker["index"] - expected,
+                )
+            kept.append((stamp, marker))
+            episodes[-1].append(len(kept) - 1)
+        if not episodes:
+            raise BagError(self.path, f"no reset marker on {STEP_TOPIC}: not a replayable episode")
+        stamps = [m[0] for m in kept]
+        groups: list[list[tuple[int, str, str, str, dict]]] = [[] for _ in kept]
+        late = 0
+        for item in messages:
+            k = bisect.bisect_left(stamps, item[0])  # first marker at or after the message
+            if k < len(kept):
+                groups[k].append(item)
+            else:
+                late += 1
+        if late:
+            self._skip("bag.incomplete_step", f"{late} messages after the last step marker", late)
+        self._episodes = episodes
+        self._markers = kept
+        self._groups = groups
+
+    # ------------------------------------------------------------------ World API
     @property
     def n_episodes(self) -> int:
         return len(self._episodes)
@@ -481,16 +817,9 @@ class ReplayWorld:
 
     def _parse(self, k: int) -> dict[str, dict[str, list]]:
         out: dict[str, dict[str, list]] = {r: {s: [] for s in SENSORS} for r in self.robot_ids}
-        for stamp, robot, sensor, msg in self._groups[k]:
+        for stamp, robot, sensor, kind, msg in self._groups[k]:
             try:
-                if sensor == "lidar":
-                    parsed = parse_laser_scan(msg)
-                elif sensor == "odometry":
-                    parsed = parse_odometry(msg)
-                elif sensor == "camera":
-                    parsed = parse_bearings(msg, stamp)
-                else:
-                    parsed = parse_pose_stamped(msg)
+                parsed = parse_message(kind, msg, arrival_ns=stamp)
             except InvalidMessage as exc:
                 self.counters.reject(f"{sensor}.invalid", f"{robot}: {exc}")
                 continue
@@ -500,37 +829,26 @@ class ReplayWorld:
                 out[robot][sensor].sort(key=lambda m: m.stamp_ns)
         return out
 
-    def _truth(self, parsed: dict, end_ns: int):
-        if not self.use_mocap:
-            return None
-        for robot in self.robot_ids:
-            if parsed[robot]["mocap"]:
-                self._truth_pose[robot] = parsed[robot]["mocap"][-1]
-        fresh = {
-            r: (p if p is not None and end_ns - p.stamp_ns <= self.stale_mocap_ns else None)
-            for r, p in self._truth_pose.items()
-        }
-        return self.assembler.truth(fresh)
-
     def _world_step(self, k: int) -> WorldStep:
         end_ns, marker = self._markers[k]
         parsed = self._parse(k)
         stale = {r: tuple(s) for r, s in marker.get("stale", {}).items()}
         if marker["kind"] == "reset":
-            for robot in self.robot_ids:
-                self.assembler.odometry(robot, parsed[robot]["odometry"][-1:])
-            per_robot = {
-                r: {"lidar": parsed[r]["lidar"][-1:], "camera": parsed[r]["camera"][-1:]}
-                for r in self.robot_ids
-            }
+            measurements = self.assembler.reset_measurements(
+                self.assembler.reset_selection(parsed)
+            )
+            mocap = {r: parsed[r]["mocap"][-1:] for r in self.robot_ids}
         else:
             per_robot = {r: {s: parsed[r][s] for s in FEED_SENSORS} for r in self.robot_ids}
-        measurements = self.assembler.measurements(per_robot)
+            measurements = self.assembler.measurements(per_robot)
+            mocap = {r: parsed[r]["mocap"] for r in self.robot_ids}
+        truth = (
+            self.assembler.truth_from_mocap(mocap, end_ns, self.stale_mocap_s)
+            if self.use_mocap
+            else None
+        )
         return WorldStep(
-            time_s=ns_to_s(end_ns),
-            measurements=measurements,
-            truth=self._truth(parsed, end_ns),
-            stale=stale,
+            time_s=ns_to_s(end_ns), measurements=measurements, truth=truth, stale=stale
         )
 
     def reset(self, rng: np.random.Generator | None = None) -> WorldStep:
@@ -538,7 +856,6 @@ class ReplayWorld:
         if self._episode >= len(self._episodes):
             raise EOFError(f"{self.path}: all {len(self._episodes)} recorded episode(s) replayed")
         self.assembler.reset()
-        self._truth_pose = {r: None for r in self.robot_ids}
         self._cursor = 0
         return self._world_step(self._episodes[self._episode][0])
 
@@ -553,6 +870,9 @@ class ReplayWorld:
                 f"{self.path}: episode {self._episode} has only {len(episode) - 1} recorded steps"
             )
         return self._world_step(episode[self._cursor])
+
+    def halt(self) -> None:
+        """No robots to stop: a replay is open loop."""
 
     def close(self) -> None:
         """Nothing to release: the bag was read at construction."""
@@ -570,12 +890,12 @@ def replay_env(
     config = make_config(config=world.config, **overrides)
     if config is not world.config:
         world.config = config
-        world.assembler = RecordAssembler(world.robot_ids, config)
+        world.assembler = RecordAssembler(world.robot_ids, config, counters=world.counters)
     max_steps = overrides.get("max_steps")
     if max_steps is None:
         config = dataclasses.replace(config, max_steps=max(1, world.n_steps(0)))
         world.config = config
-        world.assembler = RecordAssembler(world.robot_ids, config)
+        world.assembler = RecordAssembler(world.robot_ids, config, counters=world.counters)
     return SwarmEnv(
         config=config,
         task=task,

@@ -70,6 +70,41 @@ class BridgeConfig:
         Websocket frame / message size limit (bytes).
     reconnect_initial_delay_s, reconnect_max_delay_s : float
         Backoff of the automatic reconnection.
+    transport_grace_s : float
+        ``step()`` raises :class:`~hardware_bridge.world.TransportLostError` once the link has
+        been down this long (the robots were stopped the moment it went down).
+    ping_interval_s, ping_timeout_s : float
+        Websocket keep-alive: a server that answers no ping within ``ping_timeout_s`` (a frozen
+        rosbridge) is declared lost after at most ``ping_interval_s + ping_timeout_s``.
+    hard_max_message_bytes : int
+        Websocket limit above which the frame cannot even be received (the link is dropped);
+        messages between ``max_message_bytes`` and this are rejected, counted as
+        ``transport.oversize``, and the link stays up.
+    max_future_s, max_past_s : float
+        A stamped message more than ``max_future_s`` ahead of the bridge clock, or more than
+        ``max_past_s`` behind it, is rejected (``<sensor>.future`` / ``<sensor>.too_old``): one
+        bad stamp must never make later good messages look out of order.
+    max_position_m : float
+        Odometry and mocap coordinates beyond this magnitude are rejected as implausible.
+    odometry_jump_factor : float
+        An odometry pose further from the previous one than ``factor x max speed x dt + 0.05 m``
+        (or turned more than ``factor x max turn rate x dt + 0.1 rad``) is a jump (driver restart,
+        glitch): the increment is not integrated, the pose becomes the new baseline
+        (``odometry.implausible``).
+    stamped_commands : bool
+        Publish ``geometry_msgs/TwistStamped`` (``header.stamp`` = send time) instead of
+        ``Twist``. The robot-side controller (ros2_control ``diff_drive_controller`` with
+        ``use_stamped_vel: true``) drops a command older than its ``cmd_vel_timeout``, so a
+        command delayed by a frozen server or a reconnection is never executed.
+    robot_cmd_timeout_s : float
+        The robots' configured command timeout (documented robot-side setting; the loopback
+        server enforces it). The guard process (below) must fire well inside it.
+    guard_process : bool
+        Run the watchdog's twin in a separate process with its own websocket, so a stall that
+        holds the GIL, or the death of the env process, still stops the robots.
+    unstamped_bearings : tuple of str
+        Robots that publish legacy header-less ``std_msgs/Float32MultiArray`` bearings (stamped
+        on arrival). Every other robot publishes ``swarm_phd_msgs/BearingsStamped``.
     """
 
     watchdog_timeout_s: float = 0.5
@@ -98,6 +133,18 @@ class BridgeConfig:
     drop_pre_command: bool = True
     reconnect_initial_delay_s: float = 0.2
     reconnect_max_delay_s: float = 2.0
+    transport_grace_s: float = 5.0
+    ping_interval_s: float = 0.5
+    ping_timeout_s: float = 1.0
+    hard_max_message_bytes: int = 64 * 1024 * 1024
+    max_future_s: float = 0.5
+    max_past_s: float = 10.0
+    max_position_m: float = 1.0e4
+    odometry_jump_factor: float = 3.0
+    stamped_commands: bool = True
+    robot_cmd_timeout_s: float = 0.5
+    guard_process: bool = True
+    unstamped_bearings: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -108,6 +155,7 @@ class BridgeConfig:
                 or f.name.endswith("_radps")
                 or f.name.endswith("_mps2")
                 or f.name.endswith("_radps2")
+                or f.name in ("max_position_m", "odometry_jump_factor")
             ):
                 if value is not None:
                     _check_positive(f.name, value)
@@ -117,6 +165,7 @@ class BridgeConfig:
             "max_beams",
             "max_bearings",
             "max_message_bytes",
+            "hard_max_message_bytes",
         ):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
@@ -129,6 +178,24 @@ class BridgeConfig:
             raise ValueError(
                 f"BridgeConfig.throttle_rate_ms must be an int >= 0, got {self.throttle_rate_ms!r}"
             )
+        for name in ("use_mocap", "drop_pre_command", "stamped_commands", "guard_process"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(
+                    f"BridgeConfig.{name} must be a bool, got {getattr(self, name)!r}"
+                )
+        if self.hard_max_message_bytes < self.max_message_bytes:
+            raise ValueError(
+                "BridgeConfig.hard_max_message_bytes must be >= max_message_bytes, got "
+                f"{self.hard_max_message_bytes!r} < {self.max_message_bytes!r}"
+            )
+        if isinstance(self.unstamped_bearings, str) or not all(
+            isinstance(r, str) for r in self.unstamped_bearings
+        ):
+            raise ValueError(
+                "BridgeConfig.unstamped_bearings must be a tuple of robot ids, got "
+                f"{self.unstamped_bearings!r}"
+            )
+        object.__setattr__(self, "unstamped_bearings", tuple(self.unstamped_bearings))
         unknown = set(self.required_sensors) - set(SENSORS)
         if unknown:
             raise ValueError(

@@ -6,9 +6,13 @@ It implements the operations a rosbridge client uses: ``advertise``, ``unadverti
 ``call_service`` (answered "unsupported"), ``set_level``; unknown operations get a ``status``
 error. Every robot publishes what a real one does (topics in :func:`messages.topics`):
 ``LaserScan`` (the sim's scan), ``Odometry`` (the encoder increments integrated into an odom
-pose), ``Float32MultiArray`` bearings, ``PoseStamped`` motion capture (the sim's truth), and it
-obeys ``Twist`` commands, stopping by itself when ``cmd_vel`` is silent for
-``robot_cmd_timeout_s`` (as a robot base driver does).
+pose), ``BearingsStamped`` (or legacy ``Float32MultiArray``) bearings, ``PoseStamped`` motion
+capture (the sim's truth); the messages are built by :class:`~hardware_bridge.emit.RobotEmitter`.
+It obeys ``Twist`` and ``TwistStamped`` commands as ros2_control's ``diff_drive_controller``
+does: a command is valid for ``robot_cmd_timeout_s`` after its stamp (after its arrival for a
+header-less ``Twist``), so a robot stops by itself when ``cmd_vel`` goes silent, and a stamped
+command older than that on arrival (held up by a frozen server, a reconnection) or older than the
+last one applied is never executed (``server.stale_commands``, ``server.out_of_order_commands``).
 
 Real time: the sim runs one control period ahead and every message is sent when the wall clock
 reaches its stamp, stamped in ROS time (``time.time_ns()``), so the client sees realistic
@@ -33,14 +37,12 @@ from typing import Any
 
 import numpy as np
 
+from hardware_bridge.emit import RobotEmitter
 from hardware_bridge.messages import (
     Counters,
     InvalidMessage,
-    bearings_msg,
-    laser_scan_msg,
-    odometry_msg,
     parse_twist,
-    pose_stamped_msg,
+    parse_twist_stamped,
     topics,
 )
 from swarm_env.config import SwarmConfig, make_config
@@ -52,6 +54,7 @@ _MALFORMED_CONTENT = {
     "lidar": ("nan", "wrong_length", "wrong_type"),
     "odometry": ("nan", "wrong_length", "wrong_type"),
     "camera": ("nan", "wrong_length", "wrong_type"),
+    "camera_stamped": ("nan", "wrong_type"),
     "mocap": ("nan", "wrong_type"),
 }
 
@@ -136,6 +139,7 @@ class LoopbackServer:
         faults: FaultConfig | None = None,
         robot_cmd_timeout_s: float = 0.5,
         mocap: bool = True,
+        unstamped_bearings: tuple[str, ...] = (),
         **overrides: Any,
     ) -> None:
         if host not in ("127.0.0.1", "localhost", "::1"):
@@ -149,22 +153,26 @@ class LoopbackServer:
         self.mocap = mocap
         self.world = SimWorld(self.config)
         self.robot_ids = self.world.robot_ids
+        self.emitter = RobotEmitter(
+            self.robot_ids, self.config, unstamped_bearings=unstamped_bearings
+        )
         self.counters = Counters()
         self._fault_rng = np.random.default_rng(self.faults.seed)
         self._malformed_turn = 0
         self._topic_sensor: dict[str, tuple[str, str]] = {}
         self._cmd_topics: dict[str, str] = {}
         for robot in self.robot_ids:
-            names = topics(robot)
-            for sensor in ("lidar", "odometry", "camera", "mocap"):
-                self._topic_sensor[names[sensor]] = (robot, sensor)
-            self._cmd_topics[names["cmd_vel"]] = robot
+            for sensor, (_kind, topic) in self.emitter.kinds[robot].items():
+                self._topic_sensor[topic] = (robot, sensor)
+            self._cmd_topics[topics(robot)["cmd_vel"]] = robot
         n = len(self.robot_ids)
         self._commands = np.zeros((n, 2))
-        self._command_time = np.full(n, -math.inf)
+        self._command_time = np.full(n, -math.inf)  # monotonic time the command was issued
+        self._command_stamp = np.zeros(n, dtype=np.int64)  # newest applied TwistStamped stamp
         self._twists: deque = deque(maxlen=200_000)  # (monotonic s, robot, v, omega)
+        # Every cmd_vel, applied or not: (monotonic s, robot, v, omega, age_s or None, applied)
+        self._command_log: deque = deque(maxlen=200_000)
         self._twist_lock = threading.Lock()
-        self._odom_pose = np.zeros((n, 3))
         self._conns: set[_Conn] = set()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
@@ -242,15 +250,37 @@ class LoopbackServer:
 
         return self._call(_run(), timeout_s)
 
+    def pause(self, seconds: float) -> None:
+        """Freeze the whole server (network and robots) for ``seconds``, as SIGSTOP does to a
+        rosbridge process: nothing is read or sent; what the client sends meanwhile waits in
+        the socket buffers and arrives as a burst on resume."""
+        if self._loop is not None:
+            self._loop.call_soon_threadsafe(time.sleep, float(seconds))
+
+    def send_raw(self, payload: str | bytes) -> None:
+        """Send ``payload`` as one websocket message to every client (fault injection)."""
+
+        async def _send() -> None:
+            for conn in list(self._conns):
+                await self._send_raw(conn, payload)
+
+        self._call(_send(), 10.0)
+
     def set_faults(self, faults: FaultConfig) -> None:
         """Change the injected faults (takes effect with the next message)."""
         self.call(lambda: setattr(self, "faults", faults))
 
     # ------------------------------------------------------------------ inspection
     def twists(self) -> list[tuple[float, str, float, float]]:
-        """Every ``cmd_vel`` received: ``(monotonic time s, robot, v, omega)``."""
+        """Every ``cmd_vel`` applied: ``(monotonic time s, robot, v, omega)``."""
         with self._twist_lock:
             return list(self._twists)
+
+    def command_log(self) -> list[tuple[float, str, float, float, float | None, bool]]:
+        """Every ``cmd_vel`` received: ``(monotonic s, robot, v, omega, age_s, applied)``;
+        ``age_s`` is arrival minus stamp (``None`` for a header-less Twist)."""
+        with self._twist_lock:
+            return list(self._command_log)
 
     def poses(self) -> np.ndarray:
         """True ``[x, y, yaw]`` of the simulated robots."""
@@ -277,7 +307,7 @@ class LoopbackServer:
             self.counters.incr("server.starts")
         if self._sim_task is None:
             self.world.reset(np.random.default_rng(self.seed))
-            self._odom_pose[:] = 0.0
+            self.emitter.reset()
             self._running = True
             self._sim_task = asyncio.get_running_loop().create_task(self._sim_loop())
 
@@ -308,6 +338,34 @@ class LoopbackServer:
             for sub in conn.subs.values():
                 if sub.task is not None:
                     sub.task.cancel()
+
+    def _command(self, robot: str, stamp_ns: int | None, v: float, omega: float) -> None:
+        """Apply one velocity command as diff_drive_controller does (see the module doc)."""
+        i = self.robot_ids.index(robot)
+        now = time.monotonic()
+        age_s = None
+        issued = now
+        applied = True
+        if stamp_ns is not None:
+            age_s = (time.time_ns() - stamp_ns) * 1e-9
+            issued = now - max(age_s, 0.0)
+            if age_s > self.robot_cmd_timeout_s:
+                applied = False
+                self.counters.incr("server.stale_commands")
+            elif stamp_ns < self._command_stamp[i]:
+                applied = False
+                self.counters.incr("server.out_of_order_commands")
+        with self._twist_lock:
+            self._command_log.append((now, robot, v, omega, age_s, applied))
+            if applied:
+                self._twists.append((now, robot, v, omega))
+        if not applied:
+            return
+        if stamp_ns is not None:
+            self._command_stamp[i] = stamp_ns
+        self._commands[i] = (v, omega)
+        self._command_time[i] = issued
+        self.counters.incr("server.twists")
 
     def _status(self, conn: _Conn, level: str, text: str) -> None:
         self.counters.incr(f"server.status_{level}")
@@ -342,19 +400,17 @@ class LoopbackServer:
             if robot is None:
                 self._status(conn, "warning", f"publish to unknown topic {topic!r} ignored")
                 return
+            body = msg.get("msg")
             try:
-                v, omega = parse_twist(msg.get("msg"))
+                if isinstance(body, dict) and "header" in body:
+                    stamp_ns, v, omega = parse_twist_stamped(body)
+                else:
+                    stamp_ns, (v, omega) = None, parse_twist(body)
             except InvalidMessage as exc:
                 self.counters.incr("server.invalid_in")
                 self._status(conn, "error", f"{topic}: {exc}")
                 return
-            i = self.robot_ids.index(robot)
-            now = time.monotonic()
-            with self._twist_lock:
-                self._twists.append((now, robot, v, omega))
-            self._commands[i] = (v, omega)
-            self._command_time[i] = now
-            self.counters.incr("server.twists")
+            self._command(robot, stamp_ns, v, omega)
         elif op == "subscribe":
             if not isinstance(topic, str):
                 self._status(conn, "error", "subscribe needs a topic")
@@ -467,7 +523,8 @@ class LoopbackServer:
         self._enqueue(topic, _Item(text))
 
     def _malform(self, topic: str, sensor: str, msg: dict) -> tuple[str, str | bytes]:
-        variants = _MALFORMED_ANY + _MALFORMED_CONTENT.get(sensor, ())
+        key = "camera_stamped" if sensor == "camera" and "bearings" in msg else sensor
+        variants = _MALFORMED_ANY + _MALFORMED_CONTENT.get(key, ())
         variant = variants[self._malformed_turn % len(variants)]
         self._malformed_turn += 1
         if variant == "invalid_json":
@@ -487,6 +544,8 @@ class LoopbackServer:
                 bad["angle_increment"] = math.nan
             elif sensor == "odometry":
                 bad["pose"]["pose"]["position"]["x"] = math.nan
+            elif sensor == "camera" and "bearings" in bad:
+                bad["bearings"] = [math.nan] + bad["bearings"]
             elif sensor == "camera":
                 bad["data"] = [math.nan] + bad["data"]
                 bad["layout"]["dim"][0]["size"] += 1
@@ -504,6 +563,8 @@ class LoopbackServer:
                 bad["ranges"][0] = "1.0"
             elif sensor == "odometry":
                 bad["pose"]["pose"]["position"]["x"] = "0.5"
+            elif sensor == "camera" and "bearings" in bad:
+                bad["bearings"] = ["0.5"] + bad["bearings"]
             elif sensor == "camera":
                 bad["data"] = ["0.5"] + bad["data"]
                 bad["layout"]["dim"][0]["size"] += 1
@@ -520,7 +581,6 @@ class LoopbackServer:
         return np.clip(cmd, -high, high)
 
     async def _sim_loop(self) -> None:
-        cfg = self.config
         loop = asyncio.get_running_loop()
         anchor = {"mono": time.monotonic(), "wall_ns": time.time_ns()}
 
@@ -529,20 +589,8 @@ class LoopbackServer:
 
         # The odom frame starts where each robot stands.
         for robot in self.robot_ids:
-            self._publish(
-                topics(robot)["odometry"],
-                odometry_msg(
-                    stamp_ns(0.0),
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.0,
-                    frame_id=f"{robot}/odom",
-                    child_frame_id=f"{robot}/base_link",
-                ),
-            )
-        scan_time = 1.0 / cfg.lidar.rate_hz
+            origin = self.emitter.origin(robot, stamp_ns(0.0))
+            self._publish(origin.topic, origin.msg)
         while self._running:
             t_start = self.world.time_s
             step = await loop.run_in_executor(None, self.world.step, self._robot_commands())
@@ -555,63 +603,15 @@ class LoopbackServer:
                 anchor["wall_ns"] += int(behind * 1e9)
                 self.counters.incr("server.realtime_resyncs")
             mono0 = anchor["mono"]
-            events: list[tuple[float, int, str, dict]] = []
+            events = []
             for i, robot in enumerate(self.robot_ids):
-                names = topics(robot)
-                rec = step.measurements[robot]
-                for r in rec.odometry:
-                    x, y, yaw = self._odom_pose[i]
-                    dx, dy, dpsi = r.delta
-                    c, s = math.cos(yaw), math.sin(yaw)
-                    self._odom_pose[i] = (
-                        x + c * dx - s * dy,
-                        y + s * dx + c * dy,
-                        math.remainder(yaw + dpsi, 2 * math.pi),
-                    )
-                    events.append(
-                        (
-                            r.stamp_s,
-                            0,
-                            names["odometry"],
-                            odometry_msg(
-                                stamp_ns(r.stamp_s),
-                                *self._odom_pose[i],
-                                *r.velocity,
-                                frame_id=f"{robot}/odom",
-                                child_frame_id=f"{robot}/base_link",
-                            ),
-                        )
-                    )
-                for r in rec.lidar:
-                    events.append(
-                        (
-                            r.stamp_s,
-                            1,
-                            names["lidar"],
-                            laser_scan_msg(
-                                stamp_ns(r.stamp_s),
-                                r.angles_rad,
-                                r.ranges_m,
-                                r.intensities,
-                                range_min_m=cfg.lidar.range_min_m,
-                                range_max_m=cfg.lidar.range_max_m,
-                                scan_time_s=scan_time,
-                                frame_id=f"{robot}/laser",
-                            ),
-                        )
-                    )
-                for r in rec.camera:
-                    events.append((r.stamp_s, 2, names["camera"], bearings_msg(r.bearings_rad)))
+                truth = None
                 if self.mocap and step.truth is not None:
-                    x, y, yaw = step.truth.poses[i]
-                    events.append(
-                        (
-                            step.time_s,
-                            3,
-                            names["mocap"],
-                            pose_stamped_msg(stamp_ns(step.time_s), x, y, yaw),
-                        )
-                    )
+                    truth = (step.time_s, step.truth.poses[i])
+                events.extend(
+                    (o.t_s, o.order, o.topic, o.msg)
+                    for o in self.emitter.step(robot, step.measurements[robot], stamp_ns, truth)
+                )
             events.sort(key=lambda e: (e[0], e[1]))
             for t_s, _, topic, msg in events:
                 delay = mono0 + t_s - time.monotonic()
@@ -624,3 +624,77 @@ class LoopbackServer:
             delay = mono0 + step.time_s - time.monotonic()
             if delay > 0:
                 await asyncio.sleep(delay)
+
+
+# ---------------------------------------------------------------------------- hostile inputs
+def hostile_inputs(robot: str, now_ns: int, max_message_bytes: int) -> dict[str, str]:
+    """Hostile rosbridge frames for one robot, by class name (the fault benchmark and the soak
+    test send them through :meth:`LoopbackServer.send_raw`). Each must be refused and counted
+    by the bridge without dropping the link, stopping a robot or silencing a sensor."""
+    from hardware_bridge.messages import odometry_msg, pose_stamped_msg
+
+    names = topics(robot)
+    hour_ns = 3600 * 1_000_000_000
+
+    def publish(topic: str, msg: Any) -> str:
+        return json.dumps({"op": "publish", "topic": topic, "msg": msg})
+
+    huge = odometry_msg(now_ns, 1.7e308, -1.7e308, 0.0, 0.0, 0.0)
+    pad = "x" * (max_message_bytes + 1024)
+    return {
+        "odometry_future_1h": publish(
+            names["odometry"], odometry_msg(now_ns + hour_ns, 0, 0, 0, 0, 0)
+        ),
+        "odometry_past_1h": publish(
+            names["odometry"], odometry_msg(now_ns - hour_ns, 0, 0, 0, 0, 0)
+        ),
+        "odometry_x_1.7e308": publish(names["odometry"], huge),
+        "mocap_future_1h": publish(names["mocap"], pose_stamped_msg(now_ns + hour_ns, 0, 0, 0)),
+        "mocap_x_1e300": publish(names["mocap"], pose_stamped_msg(now_ns, 1e300, 0, 0)),
+        "oversize": publish(names["odometry"], {"padding": pad}),
+        "not_json": "{" * 1000,
+        "deep_nesting": "[" * 100_000 + "]" * 100_000,
+    }
+
+
+# ---------------------------------------------------------------------------- subprocess entry
+def main(argv: list[str] | None = None) -> int:
+    """``python -m hardware_bridge.loopback --port 0 [--twist-log FILE]``: serve until stdin
+    closes (a robot in another process: tests pause it with SIGSTOP or starve the client's GIL
+    without starving the robots). Prints the port, then logs every ``cmd_vel`` received to
+    ``FILE`` as ``monotonic_s robot v omega age_s applied`` lines."""
+    import argparse
+    import sys
+
+    parser = argparse.ArgumentParser(prog="python -m hardware_bridge.loopback")
+    parser.add_argument("--port", type=int, default=0)
+    parser.add_argument("--preset", default="seed-lab")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--twist-log", default=None)
+    args = parser.parse_args(argv)
+    server = LoopbackServer(args.preset, port=args.port, seed=args.seed)
+    log = open(args.twist_log, "a", buffering=1) if args.twist_log else None  # noqa: SIM115
+    if log is not None:
+        original = server._command
+
+        def logged(robot, stamp_ns, v, omega):
+            before = len(server._command_log)
+            original(robot, stamp_ns, v, omega)
+            if len(server._command_log) > before:
+                t, r, v_, w_, age, applied = server._command_log[-1]
+                log.write(f"{t!r} {r} {v_!r} {w_!r} {age!r} {int(applied)}\n")
+
+        server._command = logged
+    port = server.start()
+    print(port, flush=True)
+    try:
+        sys.stdin.read()  # until the parent closes our stdin (or dies)
+    finally:
+        server.close()
+        if log is not None:
+            log.close()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -32,15 +32,36 @@ TWO_PI = 2.0 * math.pi
 _NS = 1_000_000_000
 _ROBOT_ID = re.compile(r"^[A-Za-z][A-Za-z0-9_]{0,63}$")
 
-# rosbridge type names (ROS 1 spelling, accepted by the ROS 2 rosbridge too) and bag type names.
+# Message kinds -> rosbridge type names (ROS 1 spelling, accepted by the ROS 2 rosbridge too) and
+# bag type names. A kind is a sensor's wire format: the camera has two (``camera`` = legacy
+# header-less Float32MultiArray, ``camera_stamped`` = BearingsStamped), commands too.
 ROS_TYPES = {
     "lidar": "sensor_msgs/LaserScan",
     "odometry": "nav_msgs/Odometry",
     "camera": "std_msgs/Float32MultiArray",
+    "camera_stamped": "swarm_phd_msgs/BearingsStamped",
     "mocap": "geometry_msgs/PoseStamped",
     "cmd_vel": "geometry_msgs/Twist",
+    "cmd_vel_stamped": "geometry_msgs/TwistStamped",
 }
 BAG_TYPES = {key: value.replace("/", "/msg/", 1) for key, value in ROS_TYPES.items()}
+SENSOR_OF_KIND = {
+    "lidar": "lidar",
+    "odometry": "odometry",
+    "camera": "camera",
+    "camera_stamped": "camera",
+    "mocap": "mocap",
+    "cmd_vel": "cmd_vel",
+    "cmd_vel_stamped": "cmd_vel",
+}
+# The stamped bearings message (a package ``swarm_phd_msgs`` on the robots; see
+# docs/hardware.md). ROS 2 .msg syntax; registered in the bag typestore from this text.
+BEARINGS_STAMPED_MSG = """std_msgs/Header header
+float32[] bearings
+"""
+# Physical plausibility of velocities reported by odometry (m/s, rad/s): far beyond any UGV,
+# so only corrupt values are refused.
+MAX_PLAUSIBLE_SPEED = 100.0
 
 
 class InvalidMessage(ValueError):
@@ -62,13 +83,30 @@ def check_robot_id(robot: Any) -> str:
 
 
 def topics(robot: str) -> dict[str, str]:
-    """The ROS topics of one robot, by sensor name (and ``cmd_vel``)."""
+    """The ROS topics of one robot, by message kind (see :data:`ROS_TYPES`)."""
     return {
         "lidar": f"/{robot}/scan",
         "odometry": f"/{robot}/odom",
         "camera": f"/{robot}/camera/bearings",
+        "camera_stamped": f"/{robot}/camera/bearings_stamped",
         "mocap": f"/mocap/{robot}/pose",
         "cmd_vel": f"/{robot}/cmd_vel",
+        "cmd_vel_stamped": f"/{robot}/cmd_vel",
+    }
+
+
+def kind_topics(robot: str, stamped_bearings: bool = True) -> dict[str, tuple[str, str]]:
+    """``{sensor: (kind, topic)}`` of one robot's four sensors, for its bearings format."""
+    names = topics(robot)
+    camera = "camera_stamped" if stamped_bearings else "camera"
+    return {
+        sensor: (kind, names[kind])
+        for sensor, kind in (
+            ("lidar", "lidar"),
+            ("odometry", "odometry"),
+            ("camera", camera),
+            ("mocap", "mocap"),
+        )
     }
 
 
@@ -305,15 +343,25 @@ def _beam_angles(angle_min: float, increment: float, n: int) -> np.ndarray:
     return np.where(inside, angles, wrap_angle(angles))
 
 
-def parse_odometry(msg: Any) -> Odom:
-    """Validate a ``nav_msgs/Odometry``: pose in the odom frame, twist in the body frame."""
+def _bounded(msg: Any, path: str, bound: float) -> float:
+    """A finite number with ``|value| <= bound`` (physical plausibility)."""
+    value = _number(msg, path)
+    if abs(value) > bound:
+        raise InvalidMessage(path, f"implausible magnitude {value!r} (limit {bound:g})")
+    return value
+
+
+def parse_odometry(msg: Any, max_position_m: float = 1.0e4) -> Odom:
+    """Validate a ``nav_msgs/Odometry``: pose in the odom frame, twist in the body frame.
+    Positions beyond ``max_position_m`` and speeds beyond :data:`MAX_PLAUSIBLE_SPEED` are
+    refused (a finite 1.7e308 must never reach the integration)."""
     msg = _root(msg)
     stamp_ns = parse_stamp(msg)
-    x = _number(msg, "pose.pose.position.x")
-    y = _number(msg, "pose.pose.position.y")
+    x = _bounded(msg, "pose.pose.position.x", max_position_m)
+    y = _bounded(msg, "pose.pose.position.y", max_position_m)
     yaw = _yaw(msg, "pose.pose.orientation")
-    v = _number(msg, "twist.twist.linear.x")
-    omega = _number(msg, "twist.twist.angular.z")
+    v = _bounded(msg, "twist.twist.linear.x", MAX_PLAUSIBLE_SPEED)
+    omega = _bounded(msg, "twist.twist.angular.z", MAX_PLAUSIBLE_SPEED)
     _optional_numbers(msg, "pose.covariance", 36)
     _optional_numbers(msg, "twist.covariance", 36)
     return Odom(stamp_ns, x, y, yaw, v, omega)
@@ -347,16 +395,49 @@ def parse_bearings(msg: Any, stamp_ns: int, max_bearings: int = 256) -> Bearings
     return Bearings(stamp_ns, bearings)
 
 
-def parse_pose_stamped(msg: Any) -> Pose:
+def parse_bearings_stamped(msg: Any, max_bearings: int = 256) -> Bearings:
+    """Validate a ``swarm_phd_msgs/BearingsStamped`` (``header`` + ``float32[] bearings``): the
+    stamp is the camera's exposure time, so motion compensation uses it."""
+    msg = _root(msg)
+    stamp_ns = parse_stamp(msg)
+    data = _number_array(_get(msg, "bearings"), "bearings", max_len=max_bearings)
+    return Bearings(stamp_ns, wrap_angle(data.astype(np.float32).astype(np.float64)))
+
+
+def parse_pose_stamped(msg: Any, max_position_m: float = 1.0e4) -> Pose:
     """Validate a ``geometry_msgs/PoseStamped`` (motion capture) and reduce it to x, y, yaw."""
     msg = _root(msg)
     stamp_ns = parse_stamp(msg)
     return Pose(
         stamp_ns,
-        _number(msg, "pose.position.x"),
-        _number(msg, "pose.position.y"),
+        _bounded(msg, "pose.position.x", max_position_m),
+        _bounded(msg, "pose.position.y", max_position_m),
         _yaw(msg, "pose.orientation"),
     )
+
+
+def parse_message(
+    kind: str,
+    msg: Any,
+    *,
+    arrival_ns: int,
+    max_beams: int = 8192,
+    max_bearings: int = 256,
+    max_position_m: float = 1.0e4,
+) -> Scan | Odom | Bearings | Pose:
+    """Validate one sensor message of ``kind`` (live and replay share this dispatch).
+    ``arrival_ns`` stamps header-less bearings."""
+    if kind == "lidar":
+        return parse_laser_scan(msg, max_beams)
+    if kind == "odometry":
+        return parse_odometry(msg, max_position_m)
+    if kind == "camera":
+        return parse_bearings(msg, arrival_ns, max_bearings)
+    if kind == "camera_stamped":
+        return parse_bearings_stamped(msg, max_bearings)
+    if kind == "mocap":
+        return parse_pose_stamped(msg, max_position_m)
+    raise ValueError(f"unknown sensor message kind {kind!r}")
 
 
 def parse_twist(msg: Any) -> tuple[float, float]:
@@ -367,6 +448,14 @@ def parse_twist(msg: Any) -> tuple[float, float]:
         for axis in ("x", "y", "z"):
             _number(msg, f"{part}.{axis}")
     return _number(msg, "linear.x"), _number(msg, "angular.z")
+
+
+def parse_twist_stamped(msg: Any) -> tuple[int, float, float]:
+    """Validate a ``geometry_msgs/TwistStamped``; returns ``(stamp_ns, v_mps, omega_radps)``."""
+    msg = _root(msg)
+    stamp_ns = parse_stamp(msg)
+    v, omega = parse_twist(_get(msg, "twist"))
+    return stamp_ns, v, omega
 
 
 # ---------------------------------------------------------------------------- builders
@@ -386,6 +475,13 @@ def twist_msg(v_mps: float, omega_radps: float) -> dict[str, Any]:
         "linear": {"x": float(v_mps), "y": 0.0, "z": 0.0},
         "angular": {"x": 0.0, "y": 0.0, "z": float(omega_radps)},
     }
+
+
+def twist_stamped_msg(
+    stamp_ns: int, v_mps: float, omega_radps: float, frame_id: str = "base_link"
+) -> dict[str, Any]:
+    """A ``TwistStamped``: the stamp is the send time, so the robot can refuse a late command."""
+    return {"header": header(stamp_ns, frame_id), "twist": twist_msg(v_mps, omega_radps)}
 
 
 def laser_scan_msg(
@@ -457,6 +553,13 @@ def bearings_msg(bearings_rad: np.ndarray) -> dict[str, Any]:
         },
         "data": data,
     }
+
+
+def bearings_stamped_msg(
+    stamp_ns: int, bearings_rad: np.ndarray, frame_id: str = "camera"
+) -> dict[str, Any]:
+    data = np.asarray(bearings_rad, dtype=np.float32).reshape(-1).tolist()
+    return {"header": header(stamp_ns, frame_id), "bearings": data}
 
 
 def pose_stamped_msg(

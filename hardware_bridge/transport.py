@@ -12,7 +12,9 @@ Slow consumers cannot build a backlog: every subscription asks rosbridge for ``q
 validates and appends to a bounded buffer.
 
 Malformed frames (not JSON, not an object, unknown ``op``, binary) are counted under
-``transport.malformed`` and dropped; ``status`` operations are counted and logged.
+``transport.malformed`` and dropped; messages above ``max_message_bytes`` under
+``transport.oversize`` (the link stays up); ``status`` operations are counted and logged.
+A keep-alive ping (``ping_interval_s`` / ``ping_timeout_s``) detects a frozen server.
 
 Twisted's reactor runs once per process in a daemon thread and is never stopped (it cannot be
 restarted); clients come and go on it.
@@ -82,9 +84,28 @@ def _classes(config: BridgeConfig):
         def _handle_status(self, message):
             self.factory.emit("bridge:status", dict(message))
 
+        def send_message(self, payload):
+            # roslibpy's version lets autobahn's Disconnected escape into the reactor log (a
+            # traceback on stderr) when the link closes between queueing and sending.
+            from autobahn.exception import Disconnected
+            from twisted.internet import reactor
+
+            def _send():
+                try:
+                    self.sendMessage(payload, isBinary=False)
+                except Disconnected:
+                    self.factory.emit("bridge:send_failed", 1)
+
+            return reactor.callFromThread(_send)
+
         def onMessage(self, payload, isBinary):  # noqa: N802 (autobahn API)
             if isBinary:
                 self.factory.emit("bridge:malformed", "binary frame")
+                return
+            if len(payload) > config.max_message_bytes:
+                # Refused before decoding; the link stays up (only frames beyond
+                # hard_max_message_bytes cannot be received and drop the websocket).
+                self.factory.emit("bridge:oversize", len(payload))
                 return
             try:
                 self.on_message(payload)  # json.loads + dispatch; never pickle or eval
@@ -102,11 +123,11 @@ def _classes(config: BridgeConfig):
         def __init__(self, *args, **kwargs):
             super().__init__(*args, **kwargs)
             self.setProtocolOptions(
-                maxMessagePayloadSize=config.max_message_bytes,
-                maxFramePayloadSize=config.max_message_bytes,
+                maxMessagePayloadSize=config.hard_max_message_bytes,
+                maxFramePayloadSize=config.hard_max_message_bytes,
                 openHandshakeTimeout=config.connect_timeout_s,
-                autoPingInterval=1.0,
-                autoPingTimeout=2.0,
+                autoPingInterval=config.ping_interval_s,
+                autoPingTimeout=config.ping_timeout_s,
             )
 
     return Protocol, Factory
@@ -180,6 +201,8 @@ class RosbridgeClient:
         factory.on("close", self._handle_close)
         factory.on("bridge:malformed", self._handle_malformed)
         factory.on("bridge:status", self._handle_status)
+        factory.on("bridge:oversize", self._handle_oversize)
+        factory.on("bridge:send_failed", lambda n: self.counters.incr("transport.send_failed", n))
         for sub in self.subscriptions:
             factory.on(sub.topic, sub.callback)
 
@@ -327,6 +350,12 @@ class RosbridgeClient:
 
     def _handle_malformed(self, detail: str) -> None:
         self.counters.reject("transport.malformed", detail)
+
+    def _handle_oversize(self, size: int) -> None:
+        self.counters.reject(
+            "transport.oversize",
+            f"message of {size} bytes > max_message_bytes={self.config.max_message_bytes}",
+        )
 
     def _handle_status(self, message: dict) -> None:
         level = message.get("level", "?")

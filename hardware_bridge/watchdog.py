@@ -4,8 +4,12 @@ It fires when
 
 * ``step()`` has not been called within ``timeout_s`` of the previous one returning (a stalled or
   crashed controller: policy exception, debugger, blocked GC);
-* :meth:`trip` is called: ``close()``, an exception inside ``step()``, SIGINT, loss of the
-  transport (the zero command then goes out the moment the link is back).
+* :meth:`trip` is called: ``close()``, ``halt()``, an exception inside ``step()``, SIGINT,
+  SIGTERM or SIGHUP, loss of the transport (the zero command then goes out the moment the link
+  is back).
+
+This thread lives in the env process; a stall that holds the GIL delays it. The
+:mod:`~hardware_bridge.guard` process is its twin that nothing in the env process can stall.
 
 While tripped, the zero command is repeated every ``repeat_s`` until the next ``step()``, so a
 single lost message cannot leave a robot moving. The clock is ``time.monotonic`` (immune to NTP
@@ -47,14 +51,17 @@ class Watchdog:
         poll_s: float = 0.01,
         repeat_s: float = 0.25,
         max_step_s: float = 2.0,
+        guard=None,
     ) -> None:
         self._stop_all = stop_all
+        self.guard = guard  # GuardClient or None: gets the same deadlines, in another process
         self.timeout_s = timeout_s
         self.poll_s = poll_s
         self.repeat_s = repeat_s
         self.max_step_s = max_step_s
         self._lock = threading.RLock()
-        self._sigint_pending = False
+        self._signal_pending: int | None = None
+        self._signals = None
         self._armed = False
         self._in_step = False
         self._last_kick = time.monotonic()
@@ -63,7 +70,6 @@ class Watchdog:
         self._closed = threading.Event()
         self.trips: list[tuple[float, str]] = []  # (monotonic time, reason)
         self._thread = threading.Thread(target=self._run, name="bridge-watchdog", daemon=True)
-        self._previous_sigint = None
         self._thread.start()
 
     # ------------------------------------------------------------------ controller side
@@ -73,17 +79,23 @@ class Watchdog:
             self._in_step = True
             self._last_kick = time.monotonic()
             self._tripped_at = None
+        if self.guard is not None:
+            self.guard.arm(self._last_kick + self.max_step_s)
 
     def step_finished(self) -> None:
         with self._lock:
             self._in_step = False
             self._last_kick = time.monotonic()
+        if self.guard is not None:
+            self.guard.arm(self._last_kick + self.timeout_s)
 
     def disarm(self) -> None:
         """No controller is expected (before the first step, after a reset): no timeout."""
         with self._lock:
             self._armed = False
             self._in_step = False
+        if self.guard is not None:
+            self.guard.disarm()
 
     @property
     def tripped(self) -> bool:
@@ -97,8 +109,10 @@ class Watchdog:
             self._last_stop = now
             self._in_step = False
             self.trips.append((now, reason))
-        level = logging.INFO if reason == "close()" else logging.WARNING
+        level = logging.INFO if reason in ("close()", "halt()") else logging.WARNING
         LOGGER.log(level, "watchdog: stopping all robots (%s)", reason)
+        if self.guard is not None:
+            self.guard.stop()
         self._safe_stop(reason)
 
     def close(self) -> None:
@@ -107,42 +121,34 @@ class Watchdog:
             self._thread.join(timeout=1.0)
         self.uninstall_sigint()
 
-    # ------------------------------------------------------------------ SIGINT
+    # ------------------------------------------------------------------ signals
     def install_sigint(self) -> bool:
-        """Trip on Ctrl-C before the usual ``KeyboardInterrupt`` (main thread only)."""
-        if threading.current_thread() is not threading.main_thread():
-            return False
-        previous = signal.getsignal(signal.SIGINT)
+        """Trip on SIGINT (Ctrl-C), SIGTERM and SIGHUP before the exception unwinds the main
+        thread (``KeyboardInterrupt``, or :class:`~hardware_bridge.signals.Terminated`), so
+        ``finally`` blocks close bags. Main thread only."""
+        from hardware_bridge.signals import ExitSignals
 
-        def handler(signum, frame):
+        def flag(signum: int) -> None:
             # No locks or I/O in a signal handler (the main thread may hold them): flag it; the
             # watchdog thread sends the stop within one poll tick.
-            self._sigint_pending = True
-            if callable(previous):
-                return previous(signum, frame)
-            raise KeyboardInterrupt
+            self._signal_pending = signum
 
-        signal.signal(signal.SIGINT, handler)
-        self._previous_sigint = (handler, previous)
-        return True
+        self._signals = ExitSignals(flag)
+        return self._signals.installed
 
     def uninstall_sigint(self) -> None:
-        if self._previous_sigint is None:
-            return
-        if threading.current_thread() is not threading.main_thread():
-            return
-        handler, previous = self._previous_sigint
-        if signal.getsignal(signal.SIGINT) is handler:
-            signal.signal(signal.SIGINT, previous if previous is not None else signal.SIG_DFL)
-        self._previous_sigint = None
+        if self._signals is not None:
+            self._signals.restore()
+            if not self._signals.installed:
+                self._signals = None
 
     # ------------------------------------------------------------------ thread
     def _run(self) -> None:
         while not self._closed.wait(self.poll_s):
             reason = None
-            if self._sigint_pending:
-                self._sigint_pending = False
-                self.trip("SIGINT")
+            if self._signal_pending is not None:
+                signum, self._signal_pending = self._signal_pending, None
+                self.trip(signal.Signals(signum).name)
                 continue
             with self._lock:
                 now = time.monotonic()

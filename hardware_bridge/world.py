@@ -41,13 +41,12 @@ from hardware_bridge.messages import (
     InvalidMessage,
     Pose,
     check_robot_id,
+    kind_topics,
     ns_to_s,
-    parse_bearings,
-    parse_laser_scan,
-    parse_odometry,
-    parse_pose_stamped,
+    parse_message,
     topics,
     twist_msg,
+    twist_stamped_msg,
 )
 from hardware_bridge.safety import CommandLimiter
 from hardware_bridge.transport import RosbridgeClient, Subscription, check_host
@@ -86,6 +85,10 @@ class RobotsSilentError(TimeoutError):
                 "synchronised (chrony)."
             )
         super().__init__(text)
+
+
+class TransportLostError(ConnectionError):
+    """``step()`` on a link that has been down longer than ``transport_grace_s``."""
 
 
 class _Buffer:
@@ -148,7 +151,9 @@ class RealWorld:
         self._clock_ns = clock_ns
         self.counters = Counters()
         self.recorder = recorder
-        self.assembler = RecordAssembler(ids, config)
+        self.assembler = RecordAssembler(
+            ids, config, jump_factor=self.bridge.odometry_jump_factor, counters=self.counters
+        )
         self.limiter = CommandLimiter(ids, self.bridge, config.robot, self.period_s, self.counters)
         self._lock = threading.Lock()
         self._sensors = FEED_SENSORS + (("mocap",) if self.bridge.use_mocap else ())
@@ -161,8 +166,15 @@ class RealWorld:
             "camera": 1.0 / config.camera.rate_hz,
         }
         self._mocap: dict[str, Pose | None] = {r: None for r in ids}  # newest, for the fence
-        self._truth_pose: dict[str, Pose | None] = {r: None for r in ids}
         self._closed = False
+        self._lost_since: float | None = None  # monotonic time the link went down
+        self._atexit = None
+        self.guard = None
+        self._kinds = {
+            r: kind_topics(r, stamped_bearings=r not in self.bridge.unstamped_bearings)
+            for r in ids
+        }
+        self._cmd_kind = "cmd_vel_stamped" if self.bridge.stamped_commands else "cmd_vel"
         self._step_index = 0
         self._last_step_end_mono: float | None = None
         self._last_end_ns = 0
@@ -173,14 +185,12 @@ class RealWorld:
         try:
             subscriptions, publications = [], {}
             for robot in ids:
-                names = topics(robot)
                 for sensor in self._sensors:
+                    kind, topic = self._kinds[robot][sensor]
                     subscriptions.append(
-                        Subscription(
-                            names[sensor], ROS_TYPES[sensor], self._callback(robot, sensor)
-                        )
+                        Subscription(topic, ROS_TYPES[kind], self._callback(robot, sensor))
                     )
-                publications[names["cmd_vel"]] = ROS_TYPES["cmd_vel"]
+                publications[topics(robot)["cmd_vel"]] = ROS_TYPES[self._cmd_kind]
             self._cmd_topics = [topics(r)["cmd_vel"] for r in ids]
             self.client = RosbridgeClient(
                 host,
@@ -192,12 +202,27 @@ class RealWorld:
                 on_ready=self._on_link_up,
                 on_lost=self._on_link_lost,
             )
+            if self.bridge.guard_process:
+                from hardware_bridge.guard import GuardClient
+
+                self.guard = GuardClient(
+                    host,
+                    port,
+                    self._cmd_topics,
+                    ROS_TYPES[self._cmd_kind],
+                    poll_s=self.bridge.watchdog_poll_s,
+                    repeat_s=self.bridge.watchdog_repeat_s,
+                    connect_timeout_s=self.bridge.connect_timeout_s,
+                    allow_remote=allow_remote,
+                    counters=self.counters,
+                )
             self.watchdog = Watchdog(
                 self._stop_all,
                 timeout_s=self.bridge.watchdog_timeout_s,
                 poll_s=self.bridge.watchdog_poll_s,
                 repeat_s=self.bridge.watchdog_repeat_s,
                 max_step_s=self.period_s + 2.0,
+                guard=self.guard,
             )
             self.watchdog.install_sigint()
             self._atexit = self._make_atexit()
@@ -209,7 +234,10 @@ class RealWorld:
                 atexit.unregister(self._atexit)  # the hook holds self: do not leak it
             if self.watchdog is not None:
                 self.watchdog.close()
-            self.client.close()
+            if self.guard is not None:
+                self.guard.close()
+            if getattr(self, "client", None) is not None:
+                self.client.close()
             self._release()
             raise
 
@@ -234,6 +262,13 @@ class RealWorld:
         """Stop the robots, wait for fresh data from every robot, return the first records."""
         if self._closed:
             raise RuntimeError("RealWorld.reset() after close()")
+        try:
+            return self._reset()
+        except BaseException:
+            self.halt()
+            raise
+
+    def _reset(self) -> WorldStep:
         self.watchdog.disarm()
         where = f"{self.host}:{self.port}"
         deadline = time.monotonic() + self.bridge.reset_timeout_s
@@ -241,10 +276,19 @@ class RealWorld:
             silent = {r: list(self.bridge.required_sensors) for r in self.robot_ids}
             raise RobotsSilentError(silent, self.bridge.connect_timeout_s, False, where)
         self._stop_all("reset")
+        if self.guard is not None and not self.guard.connected.wait(
+            max(0.0, deadline - time.monotonic())
+        ):
+            self.counters.incr("guard.not_connected")
+            LOGGER.warning("guard process not connected: only the in-process watchdog is active")
         start_ns = self._clock_ns()
         with self._lock:
             for buf in self._buffers.values():
+                # A fresh start: no stamp of the previous episode (however wrong) can make
+                # this episode's messages look out of order.
                 buf.items.clear()
+                buf.newest_ns = 0
+                buf.last_payload = None
         self.assembler.reset()
         self.limiter.stopped()
         self._step_index = 0
@@ -258,27 +302,9 @@ class RealWorld:
                 )
             time.sleep(0.01)
         end_ns = self._clock_ns()
-        taken = self._take(start_ns, end_ns)
-        # Records of the reset: the newest scan and camera frame of each robot; the newest
-        # odometry pose only sets the baseline of the increments.
-        used = {}
-        for robot in self.robot_ids:
-            used[robot] = {
-                "odometry": taken[robot].get("odometry", [])[-1:],
-                "lidar": taken[robot].get("lidar", [])[-1:],
-                "camera": taken[robot].get("camera", [])[-1:],
-                "mocap": taken[robot].get("mocap", [])[-1:],
-            }
-            self.assembler.odometry(robot, [m for m, _ in used[robot]["odometry"]])
-        self._truth_pose = {r: None for r in self.robot_ids}
-        per_robot = {
-            r: {
-                "lidar": [m for m, _ in used[r]["lidar"]],
-                "camera": [m for m, _ in used[r]["camera"]],
-            }
-            for r in self.robot_ids
-        }
-        measurements = self.assembler.measurements(per_robot)
+        # The newest message of each sensor (raw kept for the recorder).
+        used = self.assembler.reset_selection(self._take(start_ns, end_ns))
+        measurements = self.assembler.reset_measurements(self._parsed(used))
         truth = self._truth(used, end_ns)
         stale = self._stale(end_ns)
         self._last_end_ns = end_ns
@@ -290,9 +316,14 @@ class RealWorld:
         )
 
     def step(self, commands: np.ndarray, extra_commands: np.ndarray | None = None) -> WorldStep:
-        reject_extra_commands("RealWorld", extra_commands)
         if self._closed:
             raise RuntimeError("RealWorld.step() after close()")
+        try:
+            reject_extra_commands("RealWorld", extra_commands)
+            self._check_link()
+        except BaseException:
+            self.halt()
+            raise
         self.watchdog.step_started()
         try:
             return self._step(commands)
@@ -302,6 +333,31 @@ class RealWorld:
         finally:
             if not self.watchdog.tripped:
                 self.watchdog.step_finished()
+
+    def halt(self) -> None:
+        """Stop every robot now: zero velocity from this process (flushed) and from the guard
+        process, repeated until the next ``step()``. Idempotent, never raises, a no-op after
+        :meth:`close` (which halted already). The env calls it on any exception in its
+        ``step()``, ``reset()`` or ``close()``."""
+        try:
+            if self._closed or self.watchdog is None:
+                return
+            self.watchdog.trip("halt()")
+            self.client.flush(0.5)
+        except BaseException:  # noqa: BLE001 - halt() is called while unwinding: never mask
+            LOGGER.exception("halt() failed")
+
+    def _check_link(self) -> None:
+        lost = self._lost_since
+        if lost is None or self.client.connected:
+            return
+        down_s = time.monotonic() - lost
+        if down_s > self.bridge.transport_grace_s:
+            raise TransportLostError(
+                f"rosbridge at {self.host}:{self.port} unreachable for {down_s:.1f} s "
+                f"(transport_grace_s={self.bridge.transport_grace_s}); the robots were sent "
+                "zero velocity when the link went down and stop on their own command timeout"
+            )
 
     def close(self) -> None:
         """Stop every robot (zero velocity, flushed), disconnect, release the robots."""
@@ -313,6 +369,8 @@ class RealWorld:
             self.client.flush(1.0)
         finally:
             self.watchdog.close()
+            if self.guard is not None:
+                self.guard.close()
             self.client.close()
             if self.recorder is not None:
                 self.recorder.close()
@@ -333,7 +391,7 @@ class RealWorld:
         cmd_mono = time.monotonic()
         sent = self.client.publish(
             [
-                (topic, twist_msg(v, w))
+                (topic, self._command(t_cmd_ns, v, w))
                 for topic, (v, w) in zip(self._cmd_topics, limited, strict=True)
             ]
         )
@@ -354,10 +412,8 @@ class RealWorld:
         after_ns = t_cmd_ns if self.bridge.drop_pre_command else self._last_end_ns
         used = self._take(after_ns, end_ns)
         self._last_end_ns = end_ns
-        per_robot = {
-            r: {s: [m for m, _ in used[r].get(s, [])] for s in FEED_SENSORS}
-            for r in self.robot_ids
-        }
+        parsed = self._parsed(used)
+        per_robot = {r: {s: parsed[r].get(s, []) for s in FEED_SENSORS} for r in self.robot_ids}
         measurements = self.assembler.measurements(per_robot)
         truth = self._truth(used, end_ns)
         stale = self._stale(end_ns)
@@ -399,21 +455,22 @@ class RealWorld:
                 out[robot][sensor] = take
         return out
 
+    @staticmethod
+    def _parsed(used: dict[str, dict[str, list]]) -> dict[str, dict[str, list]]:
+        """``(parsed, raw)`` items -> parsed messages."""
+        return {r: {s: [m for m, _ in items] for s, items in d.items()} for r, d in used.items()}
+
+    def _command(self, stamp_ns: int, v: float, w: float) -> dict:
+        if self.bridge.stamped_commands:
+            return twist_stamped_msg(stamp_ns, v, w)
+        return twist_msg(v, w)
+
     def _truth(self, used: dict[str, dict[str, list]], end_ns: int):
-        """Ground truth from the newest mocap pose of each robot taken so far, if every robot
-        has one no older than ``stale_mocap_s`` (the replay applies the same rule)."""
+        """Ground truth (mocap freshness rule of :meth:`RecordAssembler.truth_from_mocap`)."""
         if not self.bridge.use_mocap:
             return None
-        for robot in self.robot_ids:
-            poses = used[robot].get("mocap", [])
-            if poses:
-                self._truth_pose[robot] = poses[-1][0]
-        limit_ns = self.bridge.stale_mocap_s * 1e9
-        fresh = {
-            r: (p if p is not None and end_ns - p.stamp_ns <= limit_ns else None)
-            for r, p in self._truth_pose.items()
-        }
-        return self.assembler.truth(fresh)
+        mocap = {r: [m for m, _ in used[r].get("mocap", [])] for r in self.robot_ids}
+        return self.assembler.truth_from_mocap(mocap, end_ns, self.bridge.stale_mocap_s)
 
     def _silent_since(self, start_ns: int) -> dict[str, list[str]]:
         silent: dict[str, list[str]] = {}
@@ -463,31 +520,54 @@ class RealWorld:
     # ------------------------------------------------------------------ receive side
     def _callback(self, robot: str, sensor: str) -> Callable[[Any], None]:
         key = sensor
-        topic = topics(robot)[sensor]
+        kind, topic = self._kinds[robot][sensor]
         buf = self._buffers[(robot, sensor)]
         bridge = self.bridge
         nominal = self._nominal_period_s.get(sensor)
+        header_less = kind == "camera"
+        future_ns = int(bridge.max_future_s * 1e9)
+        past_ns = int(bridge.max_past_s * 1e9)
 
         def on_message(msg: Any) -> None:
             try:
                 self.counters.incr(f"{key}.received")
                 arrival = time.monotonic()
-                if sensor == "lidar":
-                    parsed = parse_laser_scan(msg, bridge.max_beams)
-                elif sensor == "odometry":
-                    parsed = parse_odometry(msg)
-                elif sensor == "camera":
-                    parsed = parse_bearings(msg, self._clock_ns(), bridge.max_bearings)
-                else:
-                    parsed = parse_pose_stamped(msg)
+                now_ns = self._clock_ns()
+                parsed = parse_message(
+                    kind,
+                    msg,
+                    arrival_ns=now_ns,
+                    max_beams=bridge.max_beams,
+                    max_bearings=bridge.max_bearings,
+                    max_position_m=bridge.max_position_m,
+                )
             except InvalidMessage as exc:
                 self.counters.reject(f"{key}.invalid", f"{robot} {sensor}: {exc}")
                 return
             except Exception as exc:  # noqa: BLE001 - never let a message kill the reactor
                 self.counters.reject(f"{key}.invalid", f"{robot} {sensor}: {exc!r}")
                 return
+            # Stamp window: one message from the far future must not make every later one "out
+            # of order"; one from the far past is not a measurement of now.
+            if parsed.stamp_ns > now_ns + future_ns:
+                self.counters.reject(
+                    f"{key}.future",
+                    f"{robot} {sensor}: stamp {(parsed.stamp_ns - now_ns) * 1e-9:.3f} s ahead",
+                )
+                return
+            if parsed.stamp_ns < now_ns - past_ns:
+                self.counters.reject(
+                    f"{key}.too_old",
+                    f"{robot} {sensor}: stamp {(now_ns - parsed.stamp_ns) * 1e-9:.3f} s old",
+                )
+                return
             with self._lock:
-                if sensor == "camera":
+                if buf.newest_ns > now_ns + future_ns:
+                    # The newest accepted stamp is now beyond the window (this host's clock
+                    # was stepped back): recover instead of refusing everything from now on.
+                    buf.newest_ns = 0
+                    self.counters.incr(f"{key}.stamp_recovered")
+                if header_less:
                     # No header: a duplicate is the same payload again within a few ms.
                     if (
                         buf.last_payload is not None
@@ -516,7 +596,7 @@ class RealWorld:
                     self._mocap[robot] = parsed
                 if len(buf.items) == buf.items.maxlen:
                     self.counters.incr(f"{key}.overflow")
-                buf.items.append((parsed, (topic, parsed.stamp_ns, msg)))
+                buf.items.append((parsed, (topic, kind, parsed.stamp_ns, msg)))
             self.counters.incr(f"{key}.accepted")
 
         return on_message
@@ -525,7 +605,7 @@ class RealWorld:
     def _stop_all(self, reason: str) -> None:
         """Zero velocity to every robot (thread-safe; dropped and counted if the link is down)."""
         self.limiter.stopped()
-        zero = twist_msg(0.0, 0.0)
+        zero = self._command(self._clock_ns(), 0.0, 0.0)
         if self.client.publish([(topic, zero) for topic in self._cmd_topics]):
             self.counters.incr("watchdog.stop_commands")
             if self.recorder is not None and reason != "repeat":
@@ -535,11 +615,13 @@ class RealWorld:
 
     def _on_link_up(self) -> None:
         # First thing on every (re)connection: stop every robot.
+        self._lost_since = None
         self.limiter.stopped()
-        zero = twist_msg(0.0, 0.0)
+        zero = self._command(self._clock_ns(), 0.0, 0.0)
         self.client.publish([(topic, zero) for topic in self._cmd_topics])
 
     def _on_link_lost(self) -> None:
+        self._lost_since = time.monotonic()
         self.watchdog.trip("transport lost")
 
     def _make_atexit(self) -> Callable[[], None]:
@@ -580,4 +662,8 @@ class RealWorld:
         return self.counters.snapshot()
 
     def rejected_total(self) -> int:
-        return self.counters.total(".invalid") + self.counters.get("transport.malformed")
+        return (
+            self.counters.total(".invalid")
+            + self.counters.get("transport.malformed")
+            + self.counters.get("transport.oversize")
+        )

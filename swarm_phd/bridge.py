@@ -58,6 +58,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="loopback only: fault probabilities, e.g. drop=0.05,malformed=0.02",
     )
+    parser.add_argument(
+        "--unstamped-bearings",
+        default="",
+        help="comma-separated robots that publish legacy header-less Float32MultiArray bearings",
+    )
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
 
 
@@ -82,6 +87,28 @@ def _faults(text: str | None):
 
 
 def run(args: argparse.Namespace) -> int:
+    """SIGINT, SIGTERM and SIGHUP stop the robots at once, close the bag (readable up to the
+    last complete step) and exit with status 128 + the signal number, without a traceback."""
+    import signal
+    import sys
+
+    from hardware_bridge.signals import ExitSignals, Terminated
+
+    signals = ExitSignals()
+    try:
+        return _run(args)
+    except KeyboardInterrupt:
+        code, name = 128 + signal.SIGINT, "SIGINT"
+    except Terminated as exc:
+        code, name = exc.code, signal.Signals(exc.signum).name
+    finally:
+        signals.restore()
+    where = f"; bag {args.record} closed" if args.record else ""
+    print(f"swarm-phd bridge: {name}: robots stopped{where}", file=sys.stderr)
+    return code
+
+
+def _run(args: argparse.Namespace) -> int:
     from agents.scripted import WanderPolicy
     from hardware_bridge import real_env
     from swarm_phd.episode import format_metrics, run_episode
@@ -96,13 +123,21 @@ def run(args: argparse.Namespace) -> int:
             bridge["geofence_m"] = tuple(float(v) for v in args.geofence.split(","))
         except ValueError as exc:
             raise ValueError(f"--geofence needs 4 numbers, got {args.geofence!r}") from exc
+    unstamped = tuple(r.strip() for r in args.unstamped_bearings.split(",") if r.strip())
+    if unstamped:
+        bridge["unstamped_bearings"] = unstamped
     robots = [r.strip() for r in args.robots.split(",") if r.strip()] if args.robots else None
     server = None
     host, port = args.host, args.port
     if args.loopback:
         from hardware_bridge.loopback import LoopbackServer
 
-        server = LoopbackServer(args.preset, seed=args.seed, faults=_faults(args.faults))
+        server = LoopbackServer(
+            args.preset,
+            seed=args.seed,
+            faults=_faults(args.faults),
+            unstamped_bearings=unstamped,
+        )
         port = server.start()
         host = "127.0.0.1"
         if not args.json:

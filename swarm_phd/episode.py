@@ -11,6 +11,8 @@ from typing import Any
 
 import numpy as np
 
+from swarm_phd import progress
+
 
 @dataclass
 class EpisodeResult:
@@ -50,7 +52,7 @@ def run_episode(
     obs, infos = env.reset(seed=seed)
     if trace:
         result.trace.append(snapshot_mixtures(env))
-    for k in range(n_steps):
+    for k in progress.sim_steps(n_steps, env.config.control_period_s, "episode", leave=False):
         if not env.agents:
             break
         actions = (

@@ -12,8 +12,8 @@ from typing import Any
 import numpy as np
 
 from hardware_bridge.bag import BagRecorder
-from hardware_bridge.messages import topics
 from swarm_env.config import make_config
+from swarm_phd import progress
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -24,8 +24,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
     if Path(args.out).exists():
         raise ValueError(f"--out {args.out} exists already; bags are never overwritten")
     summary = export_sim_episode(
@@ -45,23 +43,23 @@ def export_sim_episode(
     duration_s: float = 10.0,
     seed: int = 0,
     start_stamp_s: float = 1.7e9,
+    unstamped_bearings: tuple[str, ...] = (),
     **overrides: Any,
 ) -> dict[str, Any]:
     """Run the simulator with the scripted wander policy for ``duration_s`` and write the episode
-    as a bag, exactly as the bridge would have recorded it from robots (odometry as integrated
-    odom poses, scans as ``LaserScan``, bearings, mocap = the sim's truth, commands).
+    as a bag, exactly as the bridge would have recorded it from robots: the messages are built
+    by the loopback robots' own :class:`~hardware_bridge.emit.RobotEmitter` (odometry as
+    integrated odom poses, scans, stamped bearings, mocap = the sim's truth), plus commands.
 
     Stamps are ``start_stamp_s`` + sim time (a fixed epoch keeps the file reproducible).
-    Returns a summary with the number of steps and messages and, per step, each agent's PHD
-    mixture in the simulator (``weights``, ``means``) for comparison with a replay.
+    SIGINT, SIGTERM and SIGHUP end the export cleanly: the bag is closed, readable, and holds
+    every step completed before the signal. Returns a summary with the number of steps and
+    messages and, per step, each agent's PHD mixture in the simulator (``weights``, ``means``)
+    for comparison with a replay.
     """
     from agents.scripted import WanderPolicy
-    from hardware_bridge.messages import (
-        bearings_msg,
-        laser_scan_msg,
-        odometry_msg,
-        pose_stamped_msg,
-    )
+    from hardware_bridge.emit import RobotEmitter
+    from hardware_bridge.signals import ExitSignals, critical
     from swarm_env.env import SwarmEnv
 
     if not duration_s > 0:
@@ -72,11 +70,13 @@ def export_sim_episode(
     env = SwarmEnv(config=config)
     agents = list(env.possible_agents)
     policy = WanderPolicy.for_env(env, seed=seed)
-    recorder = BagRecorder(path, agents, config, source="sim")
+    emitter = RobotEmitter(agents, config, unstamped_bearings=unstamped_bearings)
+    signals = ExitSignals()
+    recorder = None
     base_ns = int(round(start_stamp_s * 1e9))
     high = np.array([config.robot.max_speed_mps, config.robot.max_turn_rate_radps])
-    odom = {a: np.zeros(3) for a in agents}
     trace: list[dict[str, tuple[np.ndarray, np.ndarray]]] = []
+    steps_done = 0
 
     def stamp(t_s: float) -> int:
         return base_ns + int(round(t_s * 1e9))
@@ -87,100 +87,61 @@ def export_sim_episode(
             for i, a in enumerate(agents)
         }
 
+    def write(messages) -> None:
+        for m in messages:
+            recorder.write(m.topic, m.kind, m.stamp_ns, m.msg)
+
     try:
+        recorder = BagRecorder(path, agents, config, source="sim")
         obs, infos = env.reset(seed=seed)
-        for a in agents:
-            names = topics(a)
-            recorder.write(
-                names["odometry"],
-                "odometry",
-                base_ns,
-                odometry_msg(
-                    base_ns,
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.0,
-                    frame_id=f"{a}/odom",
-                    child_frame_id=f"{a}/base_link",
-                ),
-            )
-            pose = infos[a]["truth"]["pose"]
-            recorder.write(names["mocap"], "mocap", base_ns, pose_stamped_msg(base_ns, *pose))
-        recorder.write_marker("reset", 0, base_ns, {})
+        emitter.reset()
+        truth = env.last_world_step.truth
+        with critical():
+            for i, a in enumerate(agents):
+                write([emitter.origin(a, base_ns)])
+                pose = truth.poses[i]
+                mocap = emitter.step(a, _no_records(), stamp, (0.0, pose))
+                write(mocap)
+            recorder.write_marker("reset", 0, base_ns, {})
         trace.append(snapshot())
-        scan_time = 1.0 / config.lidar.rate_hz
-        for k in range(1, n_steps + 1):
+        for index in progress.sim_steps(n_steps, config.control_period_s, "export-bag"):
+            k = index + 1  # steps are numbered from 1 (0 is the reset)
             actions = policy(obs, infos)
             commands = np.array(
                 [np.clip(np.asarray(actions[a], dtype=np.float64), -high, high) for a in agents]
             )
-            recorder.write_commands(stamp(env.time_s) + 1, commands)
+            t_cmd = stamp(env.time_s) + 1
             obs, _, _, _, infos = env.step(actions)
-            end_ns = stamp(env.time_s)
-            for a in agents:
-                names = topics(a)
-                m = infos[a]["measurements"]
-                for r in m["odometry"]:
-                    x, y, yaw = odom[a]
-                    dx, dy, dpsi = r["delta"]
-                    c, s = np.cos(yaw), np.sin(yaw)
-                    odom[a] = np.array(
-                        [
-                            x + c * dx - s * dy,
-                            y + s * dx + c * dy,
-                            np.remainder(yaw + dpsi + np.pi, 2 * np.pi) - np.pi,
-                        ]
+            step = env.last_world_step
+            end_ns = stamp(step.time_s)
+            with critical():  # one step's rows and marker, whole or not at all
+                recorder.write_commands(t_cmd, commands)
+                for i, a in enumerate(agents):
+                    write(
+                        emitter.step(
+                            a, step.measurements[a], stamp, (step.time_s, step.truth.poses[i])
+                        )
                     )
-                    t = stamp(r["stamp_s"])
-                    recorder.write(
-                        names["odometry"],
-                        "odometry",
-                        t,
-                        odometry_msg(
-                            t,
-                            *odom[a],
-                            *r["velocity"],
-                            frame_id=f"{a}/odom",
-                            child_frame_id=f"{a}/base_link",
-                        ),
-                    )
-                for r in m["lidar"]:
-                    t = stamp(r["stamp_s"])
-                    recorder.write(
-                        names["lidar"],
-                        "lidar",
-                        t,
-                        laser_scan_msg(
-                            t,
-                            r["angles_rad"],
-                            r["ranges_m"],
-                            r["intensities"],
-                            range_min_m=config.lidar.range_min_m,
-                            range_max_m=config.lidar.range_max_m,
-                            scan_time_s=scan_time,
-                            frame_id=f"{a}/laser",
-                        ),
-                    )
-                for r in m["camera"]:
-                    recorder.write(
-                        names["camera"],
-                        "camera",
-                        stamp(r["stamp_s"]),
-                        bearings_msg(r["bearings_rad"]),
-                    )
-                pose = infos[a]["truth"]["pose"]
-                recorder.write(names["mocap"], "mocap", end_ns, pose_stamped_msg(end_ns, *pose))
-            recorder.write_marker("step", k, end_ns, {})
+                recorder.write_marker("step", k, end_ns, {})
+            steps_done = k
             trace.append(snapshot())
     finally:
-        recorder.close()
-        env.close()
+        try:
+            if recorder is not None:
+                recorder.close()
+            env.close()
+        finally:
+            signals.restore()
     return {
         "path": str(path),
         "robots": agents,
-        "steps": n_steps,
+        "steps": steps_done,
         "messages": recorder.messages_written,
         "trace": trace,
     }
+
+
+def _no_records():
+    from swarm_core.records import RobotMeasurements
+
+    return RobotMeasurements(odometry=[], lidar=[], camera=[])

@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 import json
 
+from swarm_phd import progress
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("bag", help="bag directory written by the bridge or export-bag")
@@ -19,7 +21,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from hardware_bridge.bag import replay_env
+    """Replay, or one line on stderr naming the bag and the problem (exit status 2); never a
+    traceback. Damage that leaves a replayable part is reported as skipped."""
+    import sys
+
+    try:
+        return _run(args)
+    except (KeyboardInterrupt, SystemExit):
+        raise
+    except Exception as exc:  # noqa: BLE001 - a corrupt bag must never show a traceback
+        from hardware_bridge.bag import BagError
+
+        text = (
+            str(exc) if isinstance(exc, BagError) else f"{args.bag}: {type(exc).__name__}: {exc}"
+        )
+        print(f"swarm-phd replay: error: {' '.join(text.split())[:500]}", file=sys.stderr)
+        return 2
+
+
+def _run(args: argparse.Namespace) -> int:
+    import sys
+
+    from hardware_bridge.bag import SKIP_REASONS, replay_env
     from swarm_phd.episode import format_metrics, run_episode
 
     overrides = {}
@@ -29,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         world = env.world
         episodes = []
-        for episode in range(world.n_episodes):
+        for episode in progress.over(range(world.n_episodes), "replay", unit="episode"):
             n_steps = world.n_steps(episode)
             result = run_episode(env, None, n_steps, seed=None)
             episodes.append(
@@ -41,8 +64,15 @@ def run(args: argparse.Namespace) -> int:
                 }
             )
         rejected = world.counters.snapshot()
+        skipped = world.skipped()
     finally:
         env.close()
+    if skipped:
+        parts = ", ".join(
+            f"{n} {SKIP_REASONS.get(k, k.replace('.invalid', ' messages failing validation'))}"
+            for k, n in skipped.items()
+        )
+        print(f"swarm-phd replay: {args.bag}: skipped {parts}", file=sys.stderr)
     if args.json:
         print(
             json.dumps(
@@ -51,6 +81,7 @@ def run(args: argparse.Namespace) -> int:
                     "robots": list(env.possible_agents),
                     "episodes": episodes,
                     "rejected": rejected,
+                    "skipped": skipped,
                 },
                 indent=2,
                 default=float,
