@@ -1,4 +1,4 @@
-"""``swarm-phd bench``: env throughput on the ``seed-sim`` preset, one process.
+"""``swarm-phd bench``: env throughput on the ``sim-6m-20`` preset (by default), one process.
 
 20 robots, all sensors at the seed's rates, random actions. Reported with localization off (the
 simulator alone) and with Lidar+Camera GM-PHD on every robot: env steps per second, the real-time
@@ -16,13 +16,14 @@ import time
 from pathlib import Path
 
 from swarm_env import parallel_env
+from swarm_phd import progress
 from swarm_phd.runner import random_policy, rollout
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--preset", default="seed-sim")
+    parser.add_argument("--preset", default="sim-6m-20")
     parser.add_argument("--duration", type=float, default=60.0, help="simulated seconds per case")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0, help="random seed")
     parser.add_argument("--repeats", type=int, default=3, help="runs per case (median shown)")
     parser.add_argument("--json", default=None, help="also write the figures to this file")
 
@@ -50,12 +51,20 @@ def measure(preset: str, duration_s: float, seed: int, localize: bool) -> dict[s
     }
 
 
-def median_of_runs(preset: str, duration_s: float, seed: int, localize: bool, repeats: int):
-    """:func:`measure` ``repeats`` times: the median run, with the real-time factor's range."""
-    runs = sorted(
-        (measure(preset, duration_s, seed, localize) for _ in range(max(repeats, 1))),
-        key=lambda r: r["real_time_factor"],
-    )
+def median_of_runs(
+    preset: str, duration_s: float, seed: int, localize: bool, repeats: int, bar=None
+):
+    """:func:`measure` ``repeats`` times: the median run, with the real-time factor's range.
+
+    ``bar`` (a :func:`swarm_phd.progress.bar`) advances once per run; the runs themselves carry
+    no per-step bar, so the throughput measured is the env's alone.
+    """
+    runs = []
+    for _ in range(max(repeats, 1)):
+        runs.append(measure(preset, duration_s, seed, localize))
+        if bar is not None:
+            bar.update(1)
+    runs.sort(key=lambda r: r["real_time_factor"])
     row = dict(runs[len(runs) // 2])
     row["rtf_min"], row["rtf_max"] = runs[0]["real_time_factor"], runs[-1]["real_time_factor"]
     row["repeats"] = len(runs)
@@ -63,10 +72,15 @@ def median_of_runs(preset: str, duration_s: float, seed: int, localize: bool, re
 
 
 def run(args: argparse.Namespace) -> int:
-    rows = [
-        median_of_runs(args.preset, args.duration, args.seed, localize, args.repeats)
-        for localize in (False, True)
-    ]
+    if args.duration <= 0:
+        raise ValueError(f"--duration must be > 0 s, got {args.duration}")
+    if args.repeats < 1:
+        raise ValueError(f"--repeats must be >= 1, got {args.repeats}")
+    with progress.bar(2 * args.repeats, "bench", unit="run") as bar:
+        rows = [
+            median_of_runs(args.preset, args.duration, args.seed, localize, args.repeats, bar)
+            for localize in (False, True)
+        ]
     print(
         f"swarm-phd bench: {args.preset}, {args.duration:.0f} s simulated per case, "
         f"median of {args.repeats} runs, "

@@ -10,13 +10,22 @@ Writes, under ``--out``::
     monitor.csv               one row per agent-episode (VecMonitor): r, l, t
     tb/progress.csv           rollout/ep_rew_mean etc. per PPO iteration
 
-Timesteps count *agent* transitions: one env step of N robots is N timesteps.
+Timesteps count *agent* transitions: one env step of N robots is N timesteps. PPO collects
+whole rollouts (``n_steps`` x agents), so the run ends at the first multiple of a rollout at or
+past ``--timesteps``; the progress bar counts to that number.
+
+Ctrl-C (SIGINT) or SIGTERM stops training cleanly: the current model is saved as ``model.zip``
+and as ``checkpoints/model_<steps>_steps.zip``, the env workers and logs are closed, and the
+command prints one line and exits with 130 (SIGINT) or 143 (SIGTERM).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
+import signal
+import sys
 import time
 import warnings
 from pathlib import Path
@@ -24,7 +33,9 @@ from typing import Any
 
 from agents.sb3.policy import write_metadata
 
-DEFAULT_PRESET = "seed-lab"
+DEFAULT_PRESET = "sim-6m-20"
+#: Exit codes of an interrupted run (the shell's 128 + signal number).
+EXIT_CODES = {"SIGINT": 130, "SIGTERM": 143}
 DEFAULT_MAX_STEPS = 300
 
 
@@ -51,7 +62,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--timesteps", type=int, default=200_000, help="agent transitions")
     parser.add_argument("--out", required=True, help="run directory, e.g. runs/formation_phd")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0, help="random seed")
     parser.add_argument("--n-copies", type=int, default=4, help="env copies (x n_robots agents)")
     parser.add_argument(
         "--num-cpus",
@@ -60,11 +71,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="worker processes for the env copies (0: step them in-process)",
     )
     parser.add_argument("--n-steps", type=int, default=128, help="PPO rollout length per agent")
-    parser.add_argument("--batch-size", type=int, default=512)
-    parser.add_argument("--n-epochs", type=int, default=10)
-    parser.add_argument("--learning-rate", type=float, default=3e-4)
-    parser.add_argument("--gamma", type=float, default=0.99)
-    parser.add_argument("--ent-coef", type=float, default=0.0)
+    parser.add_argument("--batch-size", type=int, default=512, help="PPO minibatch size")
+    parser.add_argument("--n-epochs", type=int, default=10, help="PPO epochs per rollout")
+    parser.add_argument("--learning-rate", type=float, default=3e-4, help="Adam step size")
+    parser.add_argument("--gamma", type=float, default=0.99, help="discount factor")
+    parser.add_argument("--ent-coef", type=float, default=0.0, help="entropy bonus weight")
     parser.add_argument("--checkpoint-every", type=int, default=50_000, help="agent transitions")
     parser.add_argument(
         "--torch-threads",
@@ -86,7 +97,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="stop early (and save) after this much wall time",
     )
-    parser.add_argument("--no-progress-bar", action="store_true")
+    parser.add_argument(
+        "--no-progress-bar", action="store_true", help="no progress bar (as --quiet, for train)"
+    )
 
 
 def _json_arg(text: str, name: str) -> dict[str, Any]:
@@ -125,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
         "gamma": args.gamma,
         "ent_coef": args.ent_coef,
     }
-    train(
+    _, interrupted = _train(
         env_kwargs,
         args.timesteps,
         Path(args.out),
@@ -134,15 +147,24 @@ def run(args: argparse.Namespace) -> int:
         num_cpus=args.num_cpus,
         checkpoint_every=args.checkpoint_every,
         torch_threads=args.torch_threads,
-        progress_bar=not args.no_progress_bar,
+        progress_bar=not (args.no_progress_bar or getattr(args, "quiet", False)),
         ppo_kwargs=ppo_kwargs,
         max_wall_s=None if args.max_wall_minutes is None else 60.0 * args.max_wall_minutes,
         extractor=args.extractor,
     )
-    return 0
+    return EXIT_CODES.get(interrupted, 0) if interrupted else 0
 
 
-def train(
+def train(*args: Any, **kwargs: Any) -> Path:
+    """Train and return the path of ``model.zip``; see the module docstring for the outputs.
+
+    Arguments as :func:`_train`. An interrupt (SIGINT/SIGTERM) ends training early with the
+    model saved; ``train_summary.json`` then says ``"interrupted": "SIGINT"``.
+    """
+    return _train(*args, **kwargs)[0]
+
+
+def _train(
     env_kwargs: dict[str, Any],
     timesteps: int,
     out: Path,
@@ -156,8 +178,8 @@ def train(
     ppo_kwargs: dict[str, Any] | None = None,
     max_wall_s: float | None = None,
     extractor: str = "sets",
-) -> Path:
-    """Train and return the path of ``model.zip``; see the module docstring for the outputs."""
+) -> tuple[Path, str | None]:
+    """Train; return the path of ``model.zip`` and the signal that interrupted it (or None)."""
     if timesteps <= 0:
         raise ValueError(f"--timesteps must be > 0, got {timesteps}")
     if n_copies < 1:
@@ -239,13 +261,20 @@ def train(
     # SB3 asks each env for render_mode; SuperSuit's vector env answers None (no rendering
     # while training), which SB3 reports as "not defined" on every wrapper.
     warnings.filterwarnings("ignore", message="The `render_mode` attribute is not defined")
-    venv = make_vec_env(
-        env_kwargs,
-        n_copies=n_copies,
-        num_cpus=num_cpus,
-        seed=seed,
-        monitor_file=str(out / "monitor.csv"),
-    )
+    # Worker processes (--num-cpus) inherit "ignore SIGINT": a Ctrl-C reaches the whole process
+    # group, and only this process must act on it (it saves, then closes the workers).
+    previous_sigint = _set_signal(signal.SIGINT, signal.SIG_IGN) if num_cpus > 0 else None
+    try:
+        venv = make_vec_env(
+            env_kwargs,
+            n_copies=n_copies,
+            num_cpus=num_cpus,
+            seed=seed,
+            monitor_file=str(out / "monitor.csv"),
+        )
+    finally:
+        if previous_sigint is not None:
+            _set_signal(signal.SIGINT, previous_sigint)
     # The set extractor scales its rows itself (per-slot statistics would break permutation
     # invariance); the MLP gets VecNormalize's running mean/std. Rewards are normalised in both.
     norm_obs = extractor == "mlp"
@@ -302,23 +331,144 @@ def train(
         tensorboard_log=None,
         **ppo,
     )
-    model.set_logger(configure(str(out / "tb"), ["csv", "tensorboard"]))
+    logger = configure(str(out / "tb"), ["csv", "tensorboard"])
+    model.set_logger(logger)
+    rollout_size = ppo["n_steps"] * venv.num_envs
+    callbacks = [Checkpoints(checkpoint_every)]
+    if progress_bar:
+        callbacks.append(_progress_callback(BaseCallback, timesteps, rollout_size, ppo))
     start = time.perf_counter()
-    model.learn(
-        total_timesteps=timesteps,
-        callback=Checkpoints(checkpoint_every),
-        progress_bar=progress_bar,
-    )
-    path = out / "model.zip"
-    model.save(path)
-    write_metadata(path, meta())
-    elapsed = time.perf_counter() - start
-    summary = {
-        "timesteps": int(model.num_timesteps),
-        "wall_time_s": elapsed,
-        "agent_steps_per_s": model.num_timesteps / max(elapsed, 1e-9),
-    }
-    (out / "train_summary.json").write_text(json.dumps(summary, indent=2))
-    print(f"trained {model.num_timesteps} agent steps in {elapsed:.0f} s -> {path}")
-    venv.close()
-    return path
+    interrupted: str | None = None
+    with _Interrupts() as interrupts:
+        callbacks.append(_StopOnSignal(BaseCallback, interrupts))
+        try:
+            model.learn(total_timesteps=timesteps, callback=callbacks, progress_bar=False)
+        except KeyboardInterrupt:
+            interrupted = interrupts.received or "SIGINT"
+        interrupted = interrupted or interrupts.received
+        # A second signal while saving must not leave a half-written model.
+        with _Interrupts(ignore=True):
+            for cb in callbacks:
+                if hasattr(cb, "close"):
+                    cb.close()
+            path = out / "model.zip"
+            model.save(path)
+            write_metadata(path, meta())
+            if interrupted:
+                last = out / "checkpoints" / f"model_{model.num_timesteps}_steps.zip"
+                model.save(last)
+                write_metadata(last, meta())
+            elapsed = time.perf_counter() - start
+            summary = {
+                "timesteps": int(model.num_timesteps),
+                "wall_time_s": elapsed,
+                "agent_steps_per_s": model.num_timesteps / max(elapsed, 1e-9),
+                "interrupted": interrupted,
+            }
+            (out / "train_summary.json").write_text(json.dumps(summary, indent=2))
+            logger.close()
+            venv.close()
+    if interrupted:
+        print(
+            f"swarm-phd train: {interrupted} at {model.num_timesteps} agent steps: saved {path} "
+            f"and {last.relative_to(out)}",
+            file=sys.stderr,
+        )
+    else:
+        print(f"trained {model.num_timesteps} agent steps in {elapsed:.0f} s -> {path}")
+    return path, interrupted
+
+
+def _set_signal(signum: int, handler: Any) -> Any:
+    """``signal.signal`` that is a no-op (returns None) outside the main thread."""
+    try:
+        return signal.signal(signum, handler)
+    except ValueError:  # not the main thread: signals are the caller's business
+        return None
+
+
+class _Interrupts:
+    """While active, SIGINT and SIGTERM raise ``KeyboardInterrupt`` in the main thread (and
+    remember which came), or with ``ignore=True`` are ignored; the old handlers come back on
+    exit."""
+
+    def __init__(self, ignore: bool = False) -> None:
+        self.ignore = ignore
+        self.received: str | None = None
+        self._old: dict[int, Any] = {}
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        self.received = self.received or signal.Signals(signum).name
+        raise KeyboardInterrupt
+
+    def __enter__(self) -> _Interrupts:
+        handler = signal.SIG_IGN if self.ignore else self._handle
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            old = _set_signal(signum, handler)
+            if old is not None:
+                self._old[signum] = old
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        for signum, old in self._old.items():
+            _set_signal(signum, old)
+
+
+def _StopOnSignal(base: type, interrupts: _Interrupts):  # noqa: N802 - SB3 imported lazily
+    """A callback that ends ``learn`` at the next env step once a signal came: the backstop
+    for a ``KeyboardInterrupt`` that library code caught and dropped."""
+
+    class StopOnSignal(base):  # type: ignore[misc, valid-type]
+        def _on_step(self) -> bool:
+            return interrupts.received is None
+
+    return StopOnSignal()
+
+
+def _progress_callback(base: type, timesteps: int, rollout_size: int, ppo: dict[str, Any]):
+    """A bar over agent steps that stays alive during the PPO update: it counts the optimiser's
+    gradient steps (epochs x minibatches) while the policy trains on a rollout."""
+    from swarm_phd import progress
+
+    class ProgressCallback(base):  # type: ignore[misc, valid-type]
+        def __init__(self) -> None:
+            super().__init__()
+            self.total = math.ceil(timesteps / rollout_size) * rollout_size
+            self.grad_steps = ppo["n_epochs"] * math.ceil(rollout_size / ppo["batch_size"])
+            self.bar: Any = None
+            self._hook: Any = None
+            self._grad = 0
+
+        def _on_training_start(self) -> None:
+            self.bar = progress.bar(self.total, "train", unit="agent-step")
+            self.bar.update(self.num_timesteps)
+            optimizer = self.model.policy.optimizer
+            self._hook = optimizer.register_step_post_hook(self._on_grad_step)
+
+        def _on_grad_step(self, *args: Any) -> None:
+            self._grad += 1
+            if self._grad == 1 or self._grad % 4 == 0 or self._grad == self.grad_steps:
+                self.bar.set_postfix_str(f"PPO update {self._grad}/{self.grad_steps}")
+                self.bar.refresh()
+
+        def _on_rollout_start(self) -> None:
+            self._grad = 0
+            self.bar.set_postfix_str("collecting rollout")
+
+        def _on_rollout_end(self) -> None:
+            self.bar.set_postfix_str(f"PPO update 0/{self.grad_steps}")
+            self.bar.refresh()
+
+        def _on_step(self) -> bool:
+            self.bar.update(self.training_env.num_envs)
+            return True
+
+        def close(self) -> None:
+            if self._hook is not None:
+                self._hook.remove()
+                self._hook = None
+            if self.bar is not None:
+                self.bar.close()
+                self.bar = None
+
+    return ProgressCallback()

@@ -23,6 +23,8 @@ def run_dir(tmp_path_factory):
     code = main(
         [
             "train",
+            "--preset",
+            "lab-3m-4",
             "--task",
             "formation",
             "--observation",
@@ -68,7 +70,7 @@ def test_training_writes_model_checkpoints_logs(run_dir):
 
 def _actions(model_path, seed):
     kwargs = env_kwargs_for_model(model_path)
-    env = parallel_env("seed-lab", **kwargs)
+    env = parallel_env("lab-3m-4", **kwargs)
     policy = load_policy(str(model_path), env)
     policy.reset(seed)
     obs, infos = env.reset(seed=seed)
@@ -91,7 +93,7 @@ def test_checkpoint_loads_and_acts_deterministically(run_dir):
 
 
 def test_model_on_a_mismatched_env_is_a_clear_error(run_dir):
-    env = parallel_env("seed-lab", task="wander")
+    env = parallel_env("lab-3m-4", task="wander")
     with pytest.raises(ValueError, match="expects observations of shape"):
         load_policy(str(run_dir / "model.zip"), env)
 
@@ -120,7 +122,7 @@ def test_bad_training_input_is_rejected(tmp_path):
 
 def test_vec_env_is_one_entry_per_agent_and_flags_truncation():
     kwargs = {
-        "preset": "seed-lab",
+        "preset": "lab-3m-4",
         "task": "formation",
         "observation": "truth",
         "localize": False,
@@ -146,7 +148,7 @@ def test_set_extractor_ignores_row_order_and_padding():
 
     from agents.sb3.features import NeighbourSetExtractor
 
-    env = parallel_env("seed-lab", task="formation")
+    env = parallel_env("lab-3m-4", task="formation")
     space = env.observation_space("ugv_0")
     extractor = NeighbourSetExtractor(space, top_k=16)
     obs = np.zeros(space.shape, dtype=np.float32)

@@ -1,0 +1,236 @@
+"""The command line as a new user meets it: every command's --help (defaults shown), --version,
+`list`, and a tiny run of every command that is cheap; interrupting `train` saves the model."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from swarm_phd import progress
+from swarm_phd.cli import _REGISTRY, DEFAULT_PRESET, build_parser, main
+
+COMMANDS = [name for name, *_ in _REGISTRY]
+TINY = ["--preset", "lab-3m-4"]
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_every_command_has_help_with_defaults(command, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main([command, "--help"])
+    assert exit_info.value.code == 0
+    text = capsys.readouterr().out
+    assert f"swarm-phd {command}" in text and "--quiet" in text
+    if "--preset" in text:
+        assert "lab-3m-4" in text and "sim-6m-20" in text  # the presets are listed
+
+
+def test_defaults_are_shown_and_one_preset_is_shared(capsys):
+    parser = build_parser()
+    with pytest.raises(SystemExit):
+        main(["demo", "--help"])
+    assert "(default: 60.0)" in capsys.readouterr().out
+    presets = {}
+    for action in parser._subparsers._group_actions[0].choices.items():
+        name, sub = action
+        for a in sub._actions:
+            if a.dest == "preset" and a.default is not None:
+                presets[name] = a.default
+    assert presets.pop("bridge") == "lab-3m-4"  # real robots: the lab preset
+    presets.pop("warmup")
+    assert set(presets.values()) == {DEFAULT_PRESET}, presets
+
+
+def test_version_and_list(capsys):
+    with pytest.raises(SystemExit):
+        main(["--version"])
+    assert capsys.readouterr().out.startswith("swarm-phd ")
+    assert main(["list"]) == 0
+    text = capsys.readouterr().out
+    for name in ("sim-6m-20", "lab-3m-4", "seed-sim", "formation", "wander", "phd-lc", "phd-lo"):
+        assert name in text
+
+
+def test_old_preset_names_still_work():
+    from swarm_env.config import make_config
+
+    assert make_config("seed-lab") == make_config("lab-3m-4")
+    assert make_config("seed-sim") == make_config("sim-6m-20")
+    with pytest.raises(ValueError, match="preset"):
+        make_config("seed-moon")
+
+
+def test_demo_tiny_writes_frames_and_the_comparison(tmp_path, capsys):
+    out = tmp_path / "demo"
+    code = main(
+        ["demo", *TINY, "--duration", "1", "--frames", "2", "--eval-duration", "0"]
+        + ["--out", str(out)]
+    )
+    assert code == 0
+    captured = capsys.readouterr()
+    assert "real-time factor" in captured.out and "comparison.png" in captured.out
+    assert "demo:" in captured.err  # the progress bar, as plain lines (not a TTY here)
+    assert "\r" not in captured.err
+    for name in ("demo.gif", "snapshot.png", "comparison.png", "demo.json"):
+        assert (out / name).stat().st_size > 0
+
+
+def test_bench_tiny_quiet(tmp_path, capsys):
+    path = tmp_path / "bench.json"
+    code = main(["bench", *TINY, "--duration", "0.5", "--repeats", "1", "--json", str(path)])
+    assert code == 0
+    rows = json.loads(path.read_text())
+    assert [r["localization"] for r in rows] == ["off", "phd-lc"]
+    assert all(r["steps"] == 5 for r in rows)
+    assert "bench:" in capsys.readouterr().err  # one line per run
+    code = main(["bench", *TINY, "--duration", "0.5", "--repeats", "1", "--quiet"])
+    assert code == 0 and capsys.readouterr().err == ""  # --quiet: results only
+    assert not progress.is_quiet()  # the switch does not leak past the command
+
+
+def test_evaluate_tiny(tmp_path, capsys):
+    out = tmp_path / "eval"
+    code = main(
+        ["evaluate", *TINY, "--duration", "1", "--localizer", "phd-lc", "--seeds", "0"]
+        + ["--out", str(out), "--quiet"]
+    )
+    assert code == 0
+    assert "phd-lc" in json.loads((out / "metrics.json").read_text())["localizers"]
+
+
+def test_export_bag_then_replay_tiny(tmp_path, capsys):
+    bag = tmp_path / "bag"
+    assert main(["export-bag", *TINY, "--duration", "1", "--out", str(bag), "--quiet"]) == 0
+    assert main(["replay", str(bag), "--json", "--quiet"]) == 0
+    report = json.loads(capsys.readouterr().out.split("\n", 1)[1])
+    assert report["episodes"][0]["steps"] > 0
+
+
+def test_warmup_reports_the_kernels(capsys):
+    assert main(["warmup"]) == 0
+    out = capsys.readouterr().out
+    assert "kernels" in out and "cached" in out
+
+
+TRAIN = [
+    "train",
+    *TINY,
+    "--task",
+    "formation",
+    "--observation",
+    "truth",
+    "--extractor",
+    "mlp",
+    "--n-copies",
+    "1",
+    "--n-steps",
+    "32",
+    "--batch-size",
+    "64",
+    "--n-epochs",
+    "1",
+    "--max-steps",
+    "50",
+]
+
+
+def test_train_tiny(tmp_path, capsys):
+    pytest.importorskip("stable_baselines3")
+    out = tmp_path / "train"
+    assert (
+        main([*TRAIN, "--timesteps", "200", "--out", str(out), "--checkpoint-every", "128"]) == 0
+    )
+    err = capsys.readouterr().err
+    assert "train:" in err  # the bar, as plain lines
+    assert (out / "model.zip").is_file()
+    summary = json.loads((out / "train_summary.json").read_text())
+    assert summary["timesteps"] == 256 and summary["interrupted"] is None  # 2 rollouts of 128
+
+
+def _start_train(out: Path) -> subprocess.Popen:
+    env = {**os.environ, "SWARM_PHD_PROGRESS": "lines", "SWARM_PHD_PROGRESS_EVERY_S": "0.2"}
+    return subprocess.Popen(
+        [sys.executable, "-m", "swarm_phd.cli", *TRAIN, "--timesteps", "1000000"]
+        + ["--checkpoint-every", "100000000", "--out", str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        cwd=Path(__file__).resolve().parents[1],
+    )
+
+
+def _wait_for_training(proc: subprocess.Popen) -> None:
+    """Read stderr until the train bar's first line (training has started)."""
+    lines = []
+    # Generous: a busy machine, or a kernel source edited since the last compile, can make
+    # the start slow; this test is about what happens on the signal, not about speed.
+    deadline = time.monotonic() + 600
+    while time.monotonic() < deadline:
+        line = proc.stderr.readline()
+        lines.append(line)
+        if line.startswith("train:") or not line:
+            break
+    assert lines[-1].startswith("train:"), lines
+
+
+def test_interrupted_train_saves_and_exits_with_one_line(tmp_path):
+    """SIGINT (Ctrl-C) and SIGTERM, each to its own tiny run (both at once, to save time)."""
+    pytest.importorskip("stable_baselines3")
+    runs = {signum: tmp_path / signal.Signals(signum).name for signum in (2, 15)}
+    procs = {signum: _start_train(out) for signum, out in runs.items()}
+    for proc in procs.values():
+        _wait_for_training(proc)
+    time.sleep(1.0)
+    for signum, proc in procs.items():
+        proc.send_signal(signum)
+    for signum, proc in procs.items():
+        out = runs[signum]
+        try:
+            _, stderr = proc.communicate(timeout=90)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            _, stderr = proc.communicate()
+            pytest.fail(f"{signal.Signals(signum).name} did not stop training: {stderr[-3000:]}")
+        name = signal.Signals(signum).name
+        assert proc.returncode == {"SIGINT": 130, "SIGTERM": 143}[name], stderr
+        assert "Traceback" not in stderr and "meta_path" not in stderr, stderr
+        final = [line for line in stderr.splitlines() if line.startswith("swarm-phd train:")]
+        assert len(final) == 1 and name in final[0], stderr
+        assert (out / "model.zip").is_file()
+        checkpoints = list((out / "checkpoints").glob("model_*_steps.zip"))
+        assert len(checkpoints) == 1
+        summary = json.loads((out / "train_summary.json").read_text())
+        assert summary["interrupted"] == name and summary["timesteps"] > 0
+        assert checkpoints[0].name == f"model_{summary['timesteps']}_steps.zip"
+
+
+def test_progress_lines_when_not_a_tty_and_silent_when_quiet(monkeypatch):
+    import io
+
+    monkeypatch.delenv("SWARM_PHD_PROGRESS", raising=False)
+    stream = io.StringIO()  # not a TTY: whole lines, about one per 10 %
+    with progress.bar(2.0, "sim", unit="s sim", fmt="{:.1f}", stream=stream) as b:
+        for _ in range(20):
+            b.update(0.1)
+    lines = stream.getvalue().splitlines()
+    assert "\r" not in stream.getvalue() and 9 <= len(lines) <= 11
+    assert lines[-1].startswith("sim: 2.0/2.0 s sim (100%)")
+    progress.set_quiet(True)
+    try:
+        stream = io.StringIO()
+        b = progress.bar(5, "quiet", stream=stream)
+        b.update(5)
+        b.close()
+        assert stream.getvalue() == ""
+    finally:
+        progress.set_quiet(False)
+    monkeypatch.setenv("SWARM_PHD_PROGRESS", "loud")
+    with pytest.raises(ValueError, match="SWARM_PHD_PROGRESS"):
+        progress.bar(1, "x")
