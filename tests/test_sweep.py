@@ -1,0 +1,141 @@
+"""Evaluation sweeps on Ray: a 2-worker local Ray gives the serial metrics bit for bit, shows a
+line per finished point, and a failing point is reported with its seed without losing the
+others' results."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+
+import pytest
+
+from swarm_phd import sweep
+
+ray = pytest.importorskip("ray", reason="the ray extra is not installed")
+
+LOCALIZERS = ["phd-lc", "phd-lo"]
+
+
+@pytest.fixture(scope="module")
+def local_ray():
+    started = not ray.is_initialized()
+    if started:
+        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield
+    if started:
+        ray.shutdown()
+
+
+def _metrics(results: dict) -> str:
+    """The results without the run's wall time, as canonical JSON (NaN compares equal)."""
+    return json.dumps({k: v for k, v in results.items() if k != "wall_time_s"}, sort_keys=True)
+
+
+def test_ray_sweep_equals_serial_and_survives_a_failing_point(local_ray, tmp_path):
+    from swarm_phd.evaluate import evaluate_localization
+
+    parser = argparse.ArgumentParser()
+    sweep.add_arguments(parser)
+    out = tmp_path / "sweep.json"
+    # "no-such-preset" makes its two points fail inside their workers (the env rejects it).
+    args = parser.parse_args(
+        ["--presets", "lab-3m-4,no-such-preset", "--localizer", ",".join(LOCALIZERS),
+         "--seeds", "0-1", "--duration", "3", "--out", str(out)]
+    )  # fmt: skip
+    lines: list[str] = []
+    points = sweep.grid(["lab-3m-4", "no-such-preset"], LOCALIZERS, [0, 1], 3.0, overrides={})
+    merged = sweep.run_sweep(points, out=out, report=lines.append)
+    assert len(lines) == 4 and all(line.startswith("sweep [") for line in lines)
+    assert sorted(int(line.split("/")[0].split("[")[1]) for line in lines) == [1, 2, 3, 4]
+    on_disk = json.loads(out.read_text())
+    assert on_disk["complete"] and not list(tmp_path.glob(".sweep.json.*"))  # no temp left
+    ok = {e["seed"]: e for e in on_disk["points"] if e["status"] == "ok"}
+    failed = on_disk["failed"]
+    assert sorted(ok) == [0, 1]
+    assert sorted((f["preset"], f["seed"]) for f in failed) == [
+        ("no-such-preset", 0),
+        ("no-such-preset", 1),
+    ]
+    assert all("no-such-preset" in f["error"] for f in failed)
+    assert any("FAILED" in line and "seed 1" in line for line in lines)
+    for seed in (0, 1):
+        serial = evaluate_localization("lab-3m-4", 3.0, LOCALIZERS, [seed])
+        assert _metrics(ok[seed]["results"]) == _metrics(serial)
+        assert ok[seed]["results"]["config"]["seeds"] == [seed]
+    # The summary is the mean over the seeds' own numbers, for every scalar of the block.
+    for name in LOCALIZERS:
+        summary = on_disk["summary"]["lab-3m-4"][name]
+        assert summary  # the evaluation's block has scalars
+        for key, stats in summary.items():
+            values = []
+            for s in (0, 1):
+                value = ok[s]["results"]["localizers"][name]
+                for part in key.split("."):
+                    value = value[part]
+                values.append(float(value))
+            finite = [v for v in values if v == v]
+            assert stats["n"] == 2
+            if finite:
+                assert stats["mean"] == pytest.approx(sum(finite) / len(finite))
+                assert stats["min"] == min(finite) and stats["max"] == max(finite)
+    assert merged["failed"] == failed
+    # The command's own path: same grid from the parsed arguments, exit 1 for the failures.
+    assert sweep.run(args) == 1
+    again = json.loads(out.read_text())
+    assert {e["seed"]: _metrics(e["results"]) for e in again["points"] if e["status"] == "ok"} == {
+        s: _metrics(e["results"]) for s, e in ok.items()
+    }
+
+
+def test_parse_seeds():
+    assert sweep.parse_seeds("0-3,7") == [0, 1, 2, 3, 7]
+    assert sweep.parse_seeds("5") == [5]
+    for bad in ("a", "3-1", "1.5", ""):
+        with pytest.raises(ValueError, match="--seeds"):
+            sweep.parse_seeds(bad)
+
+
+def test_grid_checks_shared_arguments_before_any_worker():
+    with pytest.raises(ValueError, match="--localizer"):
+        sweep.grid(["lab-3m-4"], ["nope"], [0], 3.0)
+    with pytest.raises(ValueError, match="--duration"):
+        sweep.grid(["lab-3m-4"], ["phd-lc"], [0], 0.0)
+    points = sweep.grid(["a", "b"], ["phd-lc"], [0, 1, 2], 1.0)
+    assert [(p.preset, p.seed) for p in points] == [(p, s) for p in "ab" for s in (0, 1, 2)]
+
+
+def test_write_json_atomic_replaces_whole_file(tmp_path):
+    path = tmp_path / "sub" / "x.json"
+    sweep.write_json_atomic(path, {"a": 1})
+    sweep.write_json_atomic(path, {"b": [1, 2]})
+    assert json.loads(path.read_text()) == {"b": [1, 2]}
+    assert os.listdir(path.parent) == ["x.json"]
+
+    class Unserialisable:
+        pass
+
+    with pytest.raises(TypeError):
+        sweep.write_json_atomic(path, {"c": Unserialisable()})
+    assert json.loads(path.read_text()) == {"b": [1, 2]}  # the old file survives a failed write
+    assert os.listdir(path.parent) == ["x.json"]
+
+
+def test_evaluate_ray_gives_each_seeds_serial_metrics(local_ray, tmp_path, capsys):
+    from swarm_phd import evaluate
+
+    parser = argparse.ArgumentParser()
+    evaluate.add_arguments(parser)
+    args = parser.parse_args(
+        ["--ray", "--preset", "lab-3m-4", "--duration", "2", "--seeds", "3,4",
+         "--localizer", "phd-lc", "--out", str(tmp_path)]
+    )  # fmt: skip
+    assert evaluate.run(args) == 0
+    merged = json.loads((tmp_path / "sweep.json").read_text())
+    assert merged["complete"] and not merged["failed"]
+    by_seed = {e["seed"]: e["results"] for e in merged["points"]}
+    for seed in (3, 4):
+        serial = evaluate.evaluate_localization("lab-3m-4", 2.0, ["phd-lc"], [seed])
+        assert _metrics(by_seed[seed]) == _metrics(serial)
+    printed = capsys.readouterr().out
+    assert "seed 3:" in printed and "seed 4:" in printed and "| phd-lc |" in printed
