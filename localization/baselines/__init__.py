@@ -16,12 +16,29 @@ same detections anonymously. Each is a small class with the shape of the other l
   particle cloud per teammate, damped constant-velocity drift, range-bearing likelihood,
   resample 90 % with replacement, re-seed 10 % uniformly, diffuse.
 
+Seed ``003``'s swarm-level pair (:mod:`~localization.baselines.direct`: SLSQP direct estimation
+with no initial state and Kabsch alignment; :class:`CentralizedUKF`: one UKF per robot in one
+global frame) run in ``swarm-phd seed003``, not per observer.
+
 ``docs/localization.md`` ("ID-PHD and baselines") lists what was adapted from the seeds.
 """
 
 from __future__ import annotations
 
+from .centralized_ukf import CentralizedUKF, CentralizedUKFConfig
+from .direct import DirectResult, align_poses, direct_estimate, kabsch
 from .particle import ParticleConfig, ParticleFilterTracker
 from .ukf import UKFConfig, UKFTracker
 
-__all__ = ["ParticleConfig", "ParticleFilterTracker", "UKFConfig", "UKFTracker"]
+__all__ = [
+    "CentralizedUKF",
+    "CentralizedUKFConfig",
+    "DirectResult",
+    "ParticleConfig",
+    "ParticleFilterTracker",
+    "UKFConfig",
+    "UKFTracker",
+    "align_poses",
+    "direct_estimate",
+    "kabsch",
+]

@@ -32,6 +32,25 @@ models the seed's setting, where every robot ranges the intruder by radio (seed 
 (and bearing) to others by wireless"): a real intruder carrying no beacon could not be told apart
 from a teammate by anonymous lidar/camera detections, so without the beacon the PHD alone does not
 say which component to enclose. With ``beacon=False`` only ``[r]`` is given.
+
+Where the intruder's position comes from (``intruder_source``, seed ``004``; the scripted
+controller :class:`agents.scripted.EncirclementPolicy` reads the same parameter):
+
+- ``"beacon"`` (the ablation, default): a fresh reading every step, simulated from the ground
+  truth; the controller encloses that reading (refined by the nearest PHD component).
+- ``"particle"``: the same kind of reading, but only at ``reading_rate_hz`` with probability
+  ``reading_dropout`` of losing each (seed ``004``'s radio ranging; ``valid`` = 1 only on the
+  step a reading arrives). Each robot's controller runs seed ``004``'s particle filter
+  (:class:`localization.baselines.particle.ParticleFilterTracker`) on them with its own
+  odometry, and encloses the filter's estimate.
+- ``"estimate"``: one reading at reset (the intruder pointed out once), none after; the
+  controller then follows the intruder in its own PHD estimate (the env's localizer output),
+  the component nearest its odometry-propagated last position.
+
+The task reports the enclosing error and the escape figures for whichever source drives the
+controller (``metrics()``: ``escape_fraction`` = share of the steps after the first enclosure
+in which the intruder is outside the agents' hull, ``escapes_per_min`` = enclosed -> not
+enclosed transitions per minute).
 """
 
 from __future__ import annotations
@@ -49,6 +68,7 @@ if TYPE_CHECKING:
     from swarm_env.world.arena import Layout
 
 PATHS = ("circle", "static")
+INTRUDER_SOURCES = ("beacon", "particle", "estimate")
 _MAX_RANGE_M = 20.0
 
 
@@ -71,6 +91,12 @@ class EncirclementTask(Task):
         True): features ``[r, valid, cos b, sin b, rho]`` instead of ``[r]``.
     beacon_range_std_m, beacon_bearing_std_deg : float
         Beacon noise (default 0.05 m, 5 deg).
+    intruder_source : {"beacon", "particle", "estimate"}
+        Where the controller's intruder position comes from (module docstring); needs
+        ``beacon=True`` unless ``"beacon"``.
+    reading_rate_hz, reading_dropout : float
+        ``"particle"`` only: readings per second per robot (default 2 Hz) and the probability
+        of losing each (default 0.2). Seed ``004`` gives neither: stated assumptions.
     """
 
     name = "encirclement"
@@ -86,6 +112,9 @@ class EncirclementTask(Task):
         beacon: bool = True,
         beacon_range_std_m: float = 0.05,
         beacon_bearing_std_deg: float = 5.0,
+        intruder_source: str = "beacon",
+        reading_rate_hz: float = 2.0,
+        reading_dropout: float = 0.2,
         **params: Any,
     ) -> None:
         super().__init__(**params)
@@ -121,6 +150,21 @@ class EncirclementTask(Task):
         self.beacon_bearing_std_rad = math.radians(
             check_param(self.name, "beacon_bearing_std_deg", beacon_bearing_std_deg, 0.0, 180.0)
         )
+        self.intruder_source = check_choice(
+            self.name, "intruder_source", intruder_source, INTRUDER_SOURCES
+        )
+        if intruder_source != "beacon" and not beacon:
+            raise ValueError(
+                f"task {self.name!r}: intruder_source={intruder_source!r} needs beacon=True "
+                "(its readings are the beacon features)"
+            )
+        self.reading_rate_hz = check_param(
+            self.name, "reading_rate_hz", reading_rate_hz, 0.0, 100.0, low_open=True
+        )
+        self.reading_dropout = check_param(self.name, "reading_dropout", reading_dropout, 0.0, 1.0)
+        self._time_s = 0.0
+        self._next_reading_s = np.zeros(0)
+        self._cued = False
         self._rng = np.random.default_rng(0)
         self._features = np.zeros((0, self.n_features))
         self._loop_radius_m = 1.0
@@ -163,6 +207,7 @@ class EncirclementTask(Task):
         out = np.zeros((n, self.n_features))
         out[:, 0] = self.radius_m
         if self.beacon and len(truth.extra_xy):
+            arrives = self._arrivals(n)
             rel = intruder_in_agent_frames(truth.poses, truth.extra_xy[0])
             rho = np.hypot(rel[:, 0], rel[:, 1]) + self._rng.normal(
                 0.0, self.beacon_range_std_m, n
@@ -173,7 +218,25 @@ class EncirclementTask(Task):
             out[:, 1] = 1.0
             out[:, 2], out[:, 3] = np.cos(bearing), np.sin(bearing)
             out[:, 4] = np.clip(rho, 0.0, _MAX_RANGE_M)
+            out[~arrives, 1:] = 0.0  # no reading this step: flagged invalid, values zeroed
         self._features = out
+
+    def _arrivals(self, n: int) -> np.ndarray:
+        """Which agents get an intruder reading this step (N,) bool, per ``intruder_source``.
+        Draws nothing for ``"beacon"`` (its random stream is the one it always had)."""
+        if self.intruder_source == "beacon":
+            return np.ones(n, dtype=bool)
+        if self.intruder_source == "estimate":
+            first = not self._cued
+            self._cued = True
+            return np.full(n, first)
+        if len(self._next_reading_s) != n:  # first reading of each robot within one period
+            self._next_reading_s = self._time_s + self._rng.uniform(
+                0.0, 1.0 / self.reading_rate_hz, n
+            )
+        due = self._next_reading_s <= self._time_s + 1e-9
+        self._next_reading_s[due] += 1.0 / self.reading_rate_hz
+        return due & (self._rng.random(n) >= self.reading_dropout)
 
     # -- episode --------------------------------------------------------------------------
     def reset(
@@ -194,9 +257,13 @@ class EncirclementTask(Task):
         self._prev_xy = None
         self._last_omega = 0.0
         self._errors, self._gaps = [], []
+        self._time_s = 0.0
+        self._next_reading_s = np.zeros(0)
+        self._cued = False
         self._update_features(truth)
 
     def extra_commands(self, truth: GroundTruth | None, dt_s: float) -> np.ndarray | None:
+        self._time_s += dt_s  # the env calls this once per step: the readings' clock
         if truth is None or self.path == "static" or not len(truth.extra_xy):
             return np.zeros((self.n_extra_robots, 2))
         q = truth.extra_xy[0]
@@ -239,12 +306,19 @@ class EncirclementTask(Task):
             return {}
         tail = max(1, len(self._errors) // 5)
         gaps = np.asarray(self._gaps)
+        enclosed = gaps < math.pi
+        after = enclosed[int(np.argmax(enclosed)) :] if enclosed.any() else enclosed[:0]
+        escapes = int(np.count_nonzero(after[:-1] & ~after[1:]))
+        minutes = self._time_s / 60.0
         return {
             "radius_error_m": float(np.mean(self._errors)),
             "final_radius_error_m": float(np.mean(self._errors[-tail:])),
             "enclosed_fraction": float(np.mean(gaps < math.pi)),
             "final_enclosed_fraction": float(np.mean(gaps[-tail:] < math.pi)),
             "mean_max_gap_deg": float(np.degrees(gaps.mean())),
+            "ever_enclosed": float(enclosed.any()),
+            "escape_fraction": float(np.mean(~after)) if len(after) else 1.0,
+            "escapes_per_min": escapes / minutes if minutes > 0 else 0.0,
         }
 
 

@@ -1,0 +1,181 @@
+"""Encirclement (seed 004): where the intruder's position comes from (``intruder_source``)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from agents.scripted import TABLE_COLUMNS, EncirclementPolicy
+from swarm_core.world import GroundTruth
+from swarm_env.config import ArenaConfig
+from swarm_env.tasks.encirclement import EncirclementTask
+
+ARENA = ArenaConfig(width_m=3.0, height_m=3.0)
+TOP_K = 4
+
+
+def truth(xy, extra=(0.0, 0.0)) -> GroundTruth:
+    xy = np.asarray(xy, dtype=float)
+    poses = np.c_[xy, np.zeros(len(xy))]
+    rel = xy[None, :, :] - xy[:, None, :]
+    return GroundTruth(poses=poses, relative_xy=rel, extra_xy=np.asarray([extra], dtype=float))
+
+
+def obs(components=(), valid=False, q=(0.0, 0.0), radius=0.9, odometry=(0.0, 0.0)):
+    """One observation: PHD table rows ``[w, x, y, sxx, sxy, syy, valid]`` of confident
+    components at ``components``, odometry ``[v, omega]``, features
+    ``[r, valid, cos, sin, rho]``."""
+    table = np.zeros((TOP_K, TABLE_COLUMNS))
+    for k, (x, y) in enumerate(components):
+        table[k] = [1.0, x, y, 0.01, 0.0, 0.01, 1.0]
+    rho = math.hypot(*q)
+    b = math.atan2(q[1], q[0])
+    feats = [radius, 1.0, math.cos(b), math.sin(b), rho] if valid else [radius, 0, 0, 0, 0]
+    return np.concatenate((table.ravel(), odometry, feats)).astype(np.float32)
+
+
+def policy(source: str) -> EncirclementPolicy:
+    return EncirclementPolicy(
+        max_speed_mps=1.0, top_k=TOP_K, intruder_source=source, control_period_s=0.1, seed=0
+    )
+
+
+def velocity(p: EncirclementPolicy, o: np.ndarray):
+    from agents.scripted import split_observation
+
+    table, odometry, features = split_observation(o, TOP_K)
+    return p.desired_velocity("ugv_0", table, odometry, features)
+
+
+# --------------------------------------------------------------------------- the task
+def test_bad_source_is_rejected():
+    with pytest.raises(ValueError, match="intruder_source"):
+        EncirclementTask(intruder_source="gps")
+    with pytest.raises(ValueError, match="beacon=True"):
+        EncirclementTask(intruder_source="particle", beacon=False)
+    with pytest.raises(ValueError, match="reading_dropout"):
+        EncirclementTask(intruder_source="particle", reading_dropout=1.5)
+    with pytest.raises(ValueError, match="intruder_source"):
+        EncirclementPolicy(intruder_source="gps")
+
+
+def _valid_counts(task: EncirclementTask, n_steps: int, n: int = 3) -> np.ndarray:
+    t = truth(np.arange(n)[:, None] * np.array([[0.5, 0.0]]), extra=(0.2, 0.4))
+    task.reset(t, np.random.default_rng(0), ARENA)
+    counts = task.features(n)[:, 1].copy()
+    for _ in range(n_steps):
+        task.extra_commands(t, 0.1)
+        task.rewards(t, np.zeros((n, 2)))
+        counts += task.features(n)[:, 1]
+    return counts
+
+
+def test_beacon_reads_every_step():
+    np.testing.assert_array_equal(_valid_counts(EncirclementTask(path="static"), 100), 101)
+
+
+def test_particle_readings_come_at_the_rate_with_dropouts():
+    task = EncirclementTask(
+        path="static", intruder_source="particle", reading_rate_hz=2.0, reading_dropout=0.0
+    )
+    # 10 s at 2 Hz, the first within the first half second: 20 each
+    np.testing.assert_array_equal(_valid_counts(task, 100), 20)
+    lossy = EncirclementTask(
+        path="static", intruder_source="particle", reading_rate_hz=2.0, reading_dropout=0.5
+    )
+    counts = _valid_counts(lossy, 1000, n=20)  # 200 due per robot, half lost
+    assert abs(counts.mean() - 100.0) < 4 * math.sqrt(200 * 0.25 / 20)
+
+
+def test_estimate_gets_one_cue_at_reset_only():
+    task = EncirclementTask(path="static", intruder_source="estimate")
+    t = truth([[1.0, 0.0], [0.0, 1.0]])
+    task.reset(t, np.random.default_rng(0), ARENA)
+    assert np.all(task.features(2)[:, 1] == 1.0)
+    for _ in range(5):
+        task.extra_commands(t, 0.1)
+        task.rewards(t, np.zeros((2, 2)))
+        np.testing.assert_array_equal(task.features(2)[:, 1:], 0.0)
+
+
+def test_escape_metrics_hand_computed():
+    task = EncirclementTask(path="static", beacon=False)
+    ring = [[0.6, 0.0], [-0.3, 0.5], [-0.3, -0.5]]  # encloses the origin (largest gap 2pi/3)
+    side = [[0.6, 0.1], [0.6, -0.1], [0.7, 0.0]]  # all on one side: not enclosed
+    task.reset(truth(side), np.random.default_rng(0), ARENA)
+    for xy in (side, ring, ring, side, ring):
+        task.extra_commands(truth(xy), 0.1)
+        task.rewards(truth(xy), np.zeros((3, 2)))
+    m = task.metrics()
+    # after the first enclosure: [in, in, out, in] -> 1 of 4 out, 1 escape in 0.5 s
+    assert m["escape_fraction"] == pytest.approx(0.25)
+    assert m["escapes_per_min"] == pytest.approx(1 / (0.5 / 60))
+    assert m["ever_enclosed"] == 1.0
+
+
+# --------------------------------------------------------------------------- the controller
+def test_beacon_snaps_to_the_phd_component_particle_does_not():
+    o = obs(components=[(1.3, 0.0)], valid=True, q=(1.0, 0.0))
+    beacon = velocity(policy("beacon"), o)
+    # beacon: q = the component at 1.3 m -> k_p (1.3 - 0.9) = 0.32 m/s outwards
+    assert beacon == pytest.approx([0.32, 0.0], abs=1e-6)
+    p = policy("particle")
+    for _ in range(10):
+        u = velocity(p, o)
+    q = p.intruder_estimate("ugv_0")
+    assert np.hypot(*(q - [1.0, 0.0])) < 0.05  # the filter's estimate, not the component
+    dq = np.hypot(*q)
+    np.testing.assert_allclose(u, 0.8 * (dq - 0.9) * q / dq, atol=1e-6)  # float32 obs
+
+
+def test_without_a_reading_beacon_wanders_but_particle_and_estimate_keep_tracking():
+    cue = obs(valid=True, q=(1.0, 0.0))
+    silent = obs(components=[(1.1, 0.05)])
+    b = policy("beacon")
+    velocity(b, cue)
+    assert velocity(b, silent) is None  # no reading: random walk
+    p = policy("particle")
+    for _ in range(5):
+        velocity(p, cue)
+    u = velocity(p, silent)
+    assert u is not None and u[0] > 0
+    e = policy("estimate")
+    velocity(e, cue)
+    u = velocity(e, silent)
+    np.testing.assert_allclose(e.intruder_estimate("ugv_0"), [1.1, 0.05], atol=1e-6)
+    assert u[0] == pytest.approx(0.8 * (math.hypot(1.1, 0.05) - 0.9) * 1.1 / math.hypot(1.1, 0.05))
+
+
+def test_estimate_without_a_cue_does_not_guess():
+    e = policy("estimate")
+    assert velocity(e, obs(components=[(1.1, 0.0)])) is None
+
+
+def test_estimate_follows_own_odometry_and_drops_a_lost_track():
+    e = policy("estimate")
+    velocity(e, obs(valid=True, q=(1.0, 0.0)))
+    velocity(e, obs(odometry=(0.5, 0.0)))  # 5 cm forward, nothing in the PHD
+    np.testing.assert_allclose(e.intruder_estimate("ugv_0"), [0.95, 0.0], atol=1e-9)
+    for _ in range(int(e.lost_after_s / 0.1) + 1):
+        velocity(e, obs())
+    assert e.intruder_estimate("ugv_0") is None
+
+
+def test_policy_reads_the_source_of_the_env_task():
+    from agents.policies import load_policy
+    from swarm_env import parallel_env
+
+    env = parallel_env(
+        "lab-3m-4", task="encirclement", task_params={"intruder_source": "estimate"}, max_steps=20
+    )
+    act = load_policy("scripted:encirclement", env)
+    assert act.intruder_source == "estimate"
+    assert act.control_period_s == env.config.control_period_s
+    o, infos = env.reset(seed=0)
+    assert all(o[a][-4] == 1.0 for a in env.agents)  # the cue's valid flag at reset
+    for _ in range(3):
+        o, _, _, _, infos = env.step(act(o, infos))
+    assert all(o[a][-4] == 0.0 for a in env.agents)
+    env.close()
