@@ -7,7 +7,9 @@ same env (``lab-3m-4`` formation, PHD observations: 4 robots) through:
   (the configuration of ``docs/results.md``'s 440 transitions/s);
 - ``supersuit``: the same, 4 copies in this process;
 - ``batched-K``: :class:`agents.sb3.batched.BatchedSwarmVecEnv`, K copies sharing one localizer
-  call per step (one kernel thread: the cores go to PPO and the env, not to OpenMP).
+  call per step.
+
+Every variant but the first runs its kernels on one thread (the cores go to PPO and the env).
 
 Each variant trains for ``--rollouts`` PPO iterations after one warm-up iteration (kernels
 compiled / loaded, workers started) and reports transitions/s over the timed ones, with the
@@ -46,6 +48,12 @@ def measure(variant: str, rollouts: int) -> dict:
     from agents.sb3.features import NeighbourSetExtractor
 
     torch.set_num_threads(1)
+    if variant != "supersuit-2proc":
+        # One kernel thread: the cores go to PPO and the env. Not before the SuperSuit
+        # workers fork: GNU OpenMP aborts a fork from a process that already started it.
+        from swarm_core.threads import set_kernel_threads
+
+        set_kernel_threads(1)
     venv = make_venv(variant)
     marks: list[tuple[str, float]] = []
 
@@ -101,10 +109,10 @@ def main() -> None:
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
 
-    from swarm_core.threads import set_kernel_threads
-
-    set_kernel_threads(1)
-    results = [measure(v, args.rollouts) for v in args.variants.split(",")]
+    variants = args.variants.split(",")
+    if "supersuit-2proc" in variants[1:]:
+        raise SystemExit("supersuit-2proc must come first (its workers fork before OpenMP starts)")
+    results = [measure(v, args.rollouts) for v in variants]
     base = results[0]["transitions_per_s"]
     print(f"bench_training: {ENV_KWARGS}, PPO {PPO_KWARGS}, {os.cpu_count()} cores")
     print("  | variant | VecEnv entries | transitions/s | vs first | env share of wall |")

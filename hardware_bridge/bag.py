@@ -338,7 +338,8 @@ class BagRecorder:
         # watchdog's stop commands) wait here and are written by the owner's next write.
         self._owner = threading.get_ident()
         self._pending: list[tuple[str, str, int, bytes]] = []
-        self.messages_written = 0
+        self.messages_written = 0  # sensor, mocap and command messages
+        self.markers_written = 0  # reset / step markers (also messages of the bag)
 
     def _connection(self, topic: str, msgtype: str):
         conn = self._connections.get(topic)
@@ -379,6 +380,7 @@ class BagRecorder:
                 return
             self._flush_pending()
             self._writer.write(self._connection(STEP_TOPIC, STRING_TYPE), int(end_ns), data)
+            self.markers_written += 1
             # Commit the step: a process killed outright (SIGKILL, power loss) leaves whole
             # steps in the database (metadata.yaml is only written by close()).
             storage = getattr(self._writer, "storage", None)

@@ -54,7 +54,7 @@ class SwarmFeed:
     stale: Sequence[tuple[str, ...]]
     truth: GroundTruth | None = None
     compensate_motion: bool = True
-    _calls: list = field(default_factory=list, repr=False)
+    _calls: list = field(default_factory=list, init=False, repr=False, compare=False)
 
     @classmethod
     def from_world_step(
@@ -75,14 +75,17 @@ class SwarmFeed:
         localizer); truth is dropped (the oracle baselines need a single World's truth)."""
         if not feeds:
             raise ValueError("concat() needs at least one feed")
-        return cls(
+        if len({f.compensate_motion for f in feeds}) > 1:
+            raise ValueError("concat() needs feeds with the same compensate_motion")
+        feed = cls(
             time_s=max(f.time_s for f in feeds),
             measurements=[m for f in feeds for m in f.measurements],
             stale=[s for f in feeds for s in f.stale],
             truth=None,
             compensate_motion=feeds[0].compensate_motion,
-            _calls=[c for f in feeds for c in f.calls()],
         )
+        feed._calls.extend(c for f in feeds for c in f.calls())  # each robot's, computed once
+        return feed
 
     @classmethod
     def empty(cls, n_robots: int, time_s: float = 0.0) -> SwarmFeed:

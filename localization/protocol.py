@@ -144,7 +144,9 @@ class LocalizerSlice(LocalizerBase):
     """Robots ``start .. start + n_robots - 1`` of a shared localizer, as a localizer of its
     own: what one env copy of a batch holds (``agents.sb3.batched``), all copies' robots
     advancing in one call of the shared localizer. Stepping a slice on its own is correct
-    (the other robots get empty records) but gives up that batching."""
+    for the anonymous families (the other robots get empty records) but gives up that
+    batching; the identity families cannot be sliced (their teammates are indices into the
+    whole localizer, and the oracle baselines need one World's truth)."""
 
     def __init__(self, shared: Localizer, start: int, n_robots: int) -> None:
         if start < 0 or n_robots < 1 or start + n_robots > shared.n_robots:
@@ -152,6 +154,8 @@ class LocalizerSlice(LocalizerBase):
                 f"slice [{start}, {start + n_robots}) outside the shared localizer's "
                 f"{shared.n_robots} robots"
             )
+        if shared.has_identities:
+            raise ValueError(f"{shared.name}: a localizer that knows identities cannot be sliced")
         self.shared = shared
         self.start = start
         self.n_robots = n_robots

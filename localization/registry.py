@@ -238,13 +238,13 @@ class IdentityLocalizer(LocalizerBase):
                         f.update_lidar(rec.detections, rec.null_bearings_rad)
 
     def padded_tables(self) -> tuple[np.ndarray, np.ndarray]:
-        return tables_from_mixtures([f.mixture for f in self.filters])
+        return tables_from_mixtures([_teammates(f) for f in self.filters])
 
     def mixture(self, robot: int) -> GaussianMixture:
-        return self.filters[self._robot(robot)].mixture
+        return _teammates(self.filters[self._robot(robot)])
 
     def estimate(self, robot: int, threshold: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
-        # The GM-PHD's extraction (Vo & Ma) on this robot's position mixture.
+        # The GM-PHD's extraction (Vo & Ma) on this robot's teammate components.
         holder = _TableHolder(self.mixture(robot).to_table())
         return RobotCentricPHD.estimate(holder, threshold)  # type: ignore[arg-type]
 
@@ -257,9 +257,22 @@ class IdentityLocalizer(LocalizerBase):
         return f.estimate()
 
 
+def _teammates(f: Any) -> GaussianMixture:
+    """The components of ``f`` that stand for a teammate: ID-PHD's tagged ones (its static
+    class, decoys and obstacles, and its not-yet-split births are left out); every component
+    of the per-teammate baselines."""
+    mixture = f.mixture
+    if isinstance(f, IDPHD):
+        keep = np.asarray(f.tags) >= 0
+        return GaussianMixture(mixture.weights[keep], mixture.means[keep], mixture.covs[keep])
+    return mixture
+
+
 def oracle_range_bearing(detections: np.ndarray, truth: Any, observer: int) -> dict:
     """Each detection within :data:`ORACLE_GATE_M` of a true robot, as ``{id: (r, bearing)}``
-    (one-to-one, by the Hungarian assignment on distance)."""
+    (one-to-one, by the Hungarian assignment on distance). The truth is the step's end, up to
+    one odometry period after the scan: a turning observer's far detections can miss the gate
+    (a bias against the oracle baselines, not for them)."""
     from scipy.optimize import linear_sum_assignment
 
     det = np.asarray(detections, dtype=float).reshape(-1, 2)

@@ -24,11 +24,13 @@ DEFAULT_WAIT_POLICY = "PASSIVE"
 
 # Must run before libgomp initialises (at numba's first parallel launch); importing this module
 # is enough, and swarm_core/__init__ imports it, so every package of the project sets it.
-os.environ.setdefault("OMP_WAIT_POLICY", DEFAULT_WAIT_POLICY)
+if "OMP_WAIT_POLICY" not in os.environ and "GOMP_SPINCOUNT" not in os.environ:
+    os.environ["OMP_WAIT_POLICY"] = DEFAULT_WAIT_POLICY
 
 
 def set_kernel_threads(n: int | None) -> int:
-    """Use ``n`` threads in this process's compiled kernels (``None``: all of numba's pool).
+    """Use ``n`` threads in the compiled kernels launched from the calling thread (numba's
+    setting is per thread; call it in each worker's main thread). ``None``: all of the pool.
 
     Returns the number now in use. Raises ``ValueError`` naming ``n`` when it is not an int in
     ``[1, NUMBA_NUM_THREADS]``.

@@ -1,18 +1,20 @@
-"""SwarmEnv: a PettingZoo parallel env of a UGV swarm in which every agent observes its own PHD.
+"""SwarmEnv: a PettingZoo parallel env of a UGV swarm in which every agent observes its own
+estimate of its teammates (GM-PHD by default, any family of :mod:`localization.registry`).
 
 | Import              | ``from swarm_env import parallel_env``                     |
 |---------------------|------------------------------------------------------------|
 | Actions             | Continuous ``[v_mps, omega_radps]``                        |
 | Parallel API        | Yes (no AEC layer: robots act simultaneously)              |
-| Agents              | ``ugv_0`` ... ``ugv_{n-1}`` (20 in ``seed-sim``)            |
+| Agents              | ``ugv_0`` ... ``ugv_{n-1}`` (20 in ``sim-6m-20``)          |
 | Action shape        | (2,)                                                       |
-| Observation         | own GM-PHD estimate (top-K components) + own speed + task  |
+| Observation         | own estimate (top-K rows) + own speed + task features      |
 """
 
 from __future__ import annotations
 
 import contextlib
 import copy
+import dataclasses
 import warnings
 from typing import Any
 
@@ -33,18 +35,18 @@ from swarm_env.world.sim import SimWorld
 
 
 class SwarmEnv(ParallelEnv):
-    """A swarm of differential-drive UGVs with embedded robot-centric GM-PHD localization.
+    """A swarm of differential-drive UGVs with embedded robot-centric localization.
 
     ## Description
     ``n_robots`` DFRobot Cherokey UGVs move in a walled arena with decoy posts (lidar false
     positives), red decoys (camera false positives) and box obstacles (occluders). Each robot has
     wheel odometry (1920 pulses/rev, 10 Hz), a 720-beam 7 Hz lidar with four blind sectors and
     inter-lidar interference, and a 360-degree colour-blob camera (30 Hz, bearings only). Every
-    robot runs its own GM-PHD filter (the model of :class:`localization.RobotCentricPHD`; all
-    robots' filters advance in one compiled :class:`localization.PHDBank` call per step) on its
-    own anonymous measurements, at their own rates and timestamps, and *that estimate is the
-    agent's observation*. Frames follow REP-103: x forward, y left, yaw counter-clockwise, SI
-    units.
+    robot runs its own filter (``localizer=``: the GM-PHD of :class:`localization.RobotCentricPHD`
+    by default, or the Poisson multi-Bernoulli ``pmb-lc``...; all robots' filters advance in one
+    :class:`~localization.protocol.Localizer` call per step) on its own anonymous measurements,
+    at their own rates and timestamps, and *that estimate is the agent's observation*. Frames
+    follow REP-103: x forward, y left, yaw counter-clockwise, SI units.
 
     ## Action Space
     ``Box([-v_max, -w_max], [v_max, w_max], float32)`` per agent:
@@ -89,14 +91,14 @@ class SwarmEnv(ParallelEnv):
 
     ## Arguments
     >>> from swarm_env import parallel_env
-    >>> env = parallel_env(preset="seed-lab", max_steps=50)
+    >>> env = parallel_env(preset="lab-3m-4", max_steps=50)
     >>> obs, infos = env.reset(seed=0)
     >>> obs["ugv_0"].shape
     (114,)
 
     | Parameter     | Type        | Default      | Description                                   |
     |---------------|-------------|--------------|-----------------------------------------------|
-    | preset        | str         | "seed-sim"   | "seed-sim" (6x6 m, 20), "seed-lab" (3x3 m, 4) |
+    | preset        | str         | "sim-6m-20"  | "sim-6m-20" (6x6 m, 20), "lab-3m-4" (3x3 m, 4)|
     | config        | SwarmConfig | None         | a full config instead of a preset             |
     | task          | str / Task  | "wander"     | see :mod:`swarm_env.tasks`                    |
     | task_params   | dict        | {}           | keyword arguments of the task                 |
@@ -124,7 +126,7 @@ class SwarmEnv(ParallelEnv):
 
     def __init__(
         self,
-        preset: str = "seed-sim",
+        preset: str = "sim-6m-20",
         *,
         config: SwarmConfig | None = None,
         task: str | Task = "wander",
@@ -193,6 +195,8 @@ class SwarmEnv(ParallelEnv):
                 f"localizer must be a Localizer of {self.config.n_robots} robots, got "
                 f"{localizer!r}"
             )
+        else:  # the config names the family it runs
+            self.config = dataclasses.replace(self.config, localizer=localizer.name)
         self.localizer: Localizer = localizer
         self.localizers = self.localizer.views
         #: Global ground-truth state for centralised critics (:meth:`state`): per robot

@@ -25,12 +25,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration", type=float, default=60.0, help="simulated seconds per case")
     parser.add_argument("--seed", type=int, default=0, help="random seed")
     parser.add_argument("--repeats", type=int, default=3, help="runs per case (median shown)")
+    parser.add_argument(
+        "--localizer",
+        default="phd-lc",
+        help="comma-separated localizers to time (each beside the simulator alone; "
+        "`swarm-phd list` names them)",
+    )
     parser.add_argument("--json", default=None, help="also write the figures to this file")
 
 
-def measure(preset: str, duration_s: float, seed: int, localize: bool) -> dict[str, float]:
+def measure(preset: str, duration_s: float, seed: int, localizer: str | None) -> dict[str, float]:
+    """One timed run: the simulator alone (``localizer=None``, raw-measurement observations)
+    or with every robot's ``localizer`` and the estimate observations."""
+    localize = localizer is not None
     observation = "phd" if localize else "measurements"
-    env = parallel_env(preset, observation=observation, localize=localize)
+    env = parallel_env(
+        preset, observation=observation, localize=localize, localizer=localizer or "phd"
+    )
     n_steps = int(round(duration_s / env.config.control_period_s))
     rollout(env, random_policy(env), 20, seed=seed)  # warm-up (imports, caches)
     for key in env.world.timing:
@@ -39,7 +50,7 @@ def measure(preset: str, duration_s: float, seed: int, localize: bool) -> dict[s
     timing = env.world.timing
     scans = max(timing["lidar_scans"], 1)
     return {
-        "localization": "phd-lc" if localize else "off",
+        "localization": localizer or "off",
         "n_robots": env.config.n_robots,
         "steps": result.steps,
         "steps_per_s": result.steps_per_s,
@@ -52,7 +63,7 @@ def measure(preset: str, duration_s: float, seed: int, localize: bool) -> dict[s
 
 
 def median_of_runs(
-    preset: str, duration_s: float, seed: int, localize: bool, repeats: int, bar=None
+    preset: str, duration_s: float, seed: int, localizer: str | None, repeats: int, bar=None
 ):
     """:func:`measure` ``repeats`` times: the median run, with the real-time factor's range.
 
@@ -61,7 +72,7 @@ def median_of_runs(
     """
     runs = []
     for _ in range(max(repeats, 1)):
-        runs.append(measure(preset, duration_s, seed, localize))
+        runs.append(measure(preset, duration_s, seed, localizer))
         if bar is not None:
             bar.update(1)
     runs.sort(key=lambda r: r["real_time_factor"])
@@ -76,10 +87,17 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--duration must be > 0 s, got {args.duration}")
     if args.repeats < 1:
         raise ValueError(f"--repeats must be >= 1, got {args.repeats}")
-    with progress.bar(2 * args.repeats, "bench", unit="run") as bar:
+    from localization.registry import LOCALIZERS
+
+    names = [n.strip() for n in args.localizer.split(",") if n.strip()]
+    unknown = [n for n in names if n not in LOCALIZERS]
+    if unknown:
+        raise ValueError(f"--localizer must name some of {sorted(LOCALIZERS)}, got {unknown}")
+    cases: list[str | None] = [None, *names]
+    with progress.bar(len(cases) * args.repeats, "bench", unit="run") as bar:
         rows = [
-            median_of_runs(args.preset, args.duration, args.seed, localize, args.repeats, bar)
-            for localize in (False, True)
+            median_of_runs(args.preset, args.duration, args.seed, name, args.repeats, bar)
+            for name in cases
         ]
     print(
         f"swarm-phd bench: {args.preset}, {args.duration:.0f} s simulated per case, "

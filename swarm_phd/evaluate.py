@@ -38,8 +38,11 @@ for seed ``003``'s / ``004``'s identifying sensors; other detections are dropped
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import math
+import os
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -96,7 +99,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_ray_arguments(parser)
 
 
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt  # SIGTERM scores the finished seeds, as Ctrl-C does
+
+
 def run(args: argparse.Namespace) -> int:
+    import signal
+
+    signal.signal(signal.SIGTERM, _interrupt)
     if getattr(args, "ray", False):
         from swarm_phd.sweep import run_evaluate_ray
 
@@ -232,68 +242,88 @@ def evaluate_localization(
     paths: list[np.ndarray] = []
     estimates: dict[str, list[np.ndarray]] = {name: [] for name in localizers}
     task_metrics: list[dict[str, float]] = []
-    for seed in progress.over(seeds, "evaluate", unit="seed"):
-        # One localizer (every robot's filter) per name, fed the same records: a paired
-        # comparison, same motion, same measurements.
-        built = {name: make_localizer(name, n_agents, base_phd, seed) for name in localizers}
-        for name, loc in built.items():
-            if loc.has_identities and name not in id_scorers:
-                id_scorers[name] = IdentityScorer(env.config.n_robots)
-            if _uses_camera(loc) and name not in camera_scorers:
-                camera_scorers[name] = SeedScorer(
-                    n_agents, CAMERA_SCORING_RANGE_M, trace_observer=None
-                )
-        act = load_policy(policy, env)
-        if hasattr(act, "reset"):
-            act.reset(seed)
-        obs, infos = env.reset(seed=seed)
-        for _ in progress.sim_steps(
-            n_steps, env.config.control_period_s, f"seed {seed}", leave=False
-        ):
-            if not env.agents:
-                break
-            obs, _, _, _, infos = env.step(act(obs, infos))
-            step = env.last_world_step
-            truth = step.truth
-            feed = SwarmFeed.from_world_step(step, env.possible_agents)
+    # Ctrl-C keeps the finished seeds: the scores are saved after each seed and restored.
+    finished: list[int] = []
+    saved: tuple | None = None
+    interrupted = False
+    try:
+        for seed in progress.over(seeds, "evaluate", unit="seed"):
+            # One localizer (every robot's filter) per name, fed the same records: a paired
+            # comparison, same motion, same measurements.
+            built = {name: make_localizer(name, n_agents, base_phd, seed) for name in localizers}
             for name, loc in built.items():
-                loc.step(feed)
-                views = loc.views
-                weights, means = weights_means_from_table(*loc.padded_tables())
-                visible = _visible(truth, name in camera_scorers)
-                scorers[name].update(
-                    truth.relative_xy,
-                    truth.in_range["lidar"],
-                    weights,
-                    means,
-                    visible=visible,
-                    time_s=step.time_s if seed == seeds[0] else None,  # Fig. 8: first seed
-                )
-                if name in camera_scorers:
-                    camera_scorers[name].update(
+                if loc.has_identities and name not in id_scorers:
+                    id_scorers[name] = IdentityScorer(env.config.n_robots)
+                if _uses_camera(loc) and name not in camera_scorers:
+                    camera_scorers[name] = SeedScorer(
+                        n_agents, CAMERA_SCORING_RANGE_M, trace_observer=None
+                    )
+            act = load_policy(policy, env)
+            if hasattr(act, "reset"):
+                act.reset(seed)
+            obs, infos = env.reset(seed=seed)
+            for _ in progress.sim_steps(
+                n_steps, env.config.control_period_s, f"seed {seed}", leave=False
+            ):
+                if not env.agents:
+                    break
+                obs, _, _, _, infos = env.step(act(obs, infos))
+                step = env.last_world_step
+                truth = step.truth
+                feed = SwarmFeed.from_world_step(step, env.possible_agents)
+                for name, loc in built.items():
+                    loc.step(feed)
+                    views = loc.views
+                    weights, means = weights_means_from_table(*loc.padded_tables())
+                    visible = _visible(truth, name in camera_scorers)
+                    scorers[name].update(
                         truth.relative_xy,
-                        in_range_pairs(truth.relative_xy, CAMERA_SCORING_RANGE_M),
+                        truth.in_range["lidar"],
                         weights,
                         means,
                         visible=visible,
+                        time_s=step.time_s if seed == seeds[0] else None,  # Fig. 8: first seed
                     )
-                if name in id_scorers:
-                    for i in range(n_agents):
-                        id_scorers[name].add(
-                            i, truth, truth.in_range["lidar"][i], views[i].identities()
+                    if name in camera_scorers:
+                        camera_scorers[name].update(
+                            truth.relative_xy,
+                            in_range_pairs(truth.relative_xy, CAMERA_SCORING_RANGE_M),
+                            weights,
+                            means,
+                            visible=visible,
                         )
+                    if name in id_scorers:
+                        for i in range(n_agents):
+                            id_scorers[name].add(
+                                i, truth, truth.in_range["lidar"][i], views[i].identities()
+                            )
+                    if seed == seeds[0]:
+                        estimates[name].append(_world_estimates(views[0], truth.poses[0]))
                 if seed == seeds[0]:
-                    estimates[name].append(_world_estimates(views[0], truth.poses[0]))
-            if seed == seeds[0]:
-                paths.append(truth.poses[:, :2].copy())
-        task_metrics.append(env.task.metrics())
-    preset = preset or ("seed-sim" if not policy.endswith(".zip") else _model_preset(policy))
+                    paths.append(truth.poses[:, :2].copy())
+            task_metrics.append(env.task.metrics())
+            finished.append(seed)
+            saved = copy.deepcopy(
+                (scorers, camera_scorers, id_scorers, task_metrics, paths, estimates)
+            )
+    except KeyboardInterrupt:
+        if saved is None:
+            raise
+        interrupted = True
+        scorers, camera_scorers, id_scorers, task_metrics, paths, estimates = saved
+        print(
+            f"swarm-phd evaluate: interrupted; scoring the {len(finished)} finished seed(s) "
+            f"{finished}",
+            file=sys.stderr,
+        )
+    preset = preset or ("sim-6m-20" if not policy.endswith(".zip") else _model_preset(policy))
     task = env.task.name
     results = {
         "config": {
             "preset": preset,
             "duration_s": duration_s,
-            "seeds": seeds,
+            "seeds": finished,
+            **({"interrupted": True, "seeds_requested": seeds} if interrupted else {}),
             "policy": policy,
             "task": task,
             "n_robots": env.config.n_robots,
@@ -321,12 +351,20 @@ def evaluate_localization(
     env.close()
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
-        (out_dir / "metrics.json").write_text(json.dumps(results, indent=2))
+        _write_atomically(out_dir / "metrics.json", json.dumps(results, indent=2))
         from swarm_phd.figures import write_localization_figures
 
         traces = {name: scorers[name].trace for name in localizers}
         write_localization_figures(out_dir, results, traces, np.array(paths), estimates)
     return results
+
+
+def _write_atomically(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file and a rename: a reader (or a crash)
+    never sees half a file."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
 
 
 def _model_preset(policy: str) -> str:

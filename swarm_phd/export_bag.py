@@ -30,7 +30,9 @@ def run(args: argparse.Namespace) -> int:
         args.out, preset=args.preset, duration_s=args.duration, seed=args.seed
     )
     print(
-        f"wrote {summary['path']}: {summary['steps']} steps, {summary['messages']} messages, "
+        f"wrote {summary['path']}: {summary['steps']} steps, "
+        f"{summary['messages'] + summary['markers']} messages ({summary['messages']} sensor, "
+        f"mocap and command messages + {summary['markers']} step markers), "
         f"robots {summary['robots']}"
     )
     return 0
@@ -137,6 +139,7 @@ def export_sim_episode(
         "robots": agents,
         "steps": steps_done,
         "messages": recorder.messages_written,
+        "markers": recorder.markers_written,
         "trace": trace,
     }
 

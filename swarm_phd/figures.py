@@ -154,7 +154,9 @@ def write_localization_figures(
     plt.close(fig)
 
     # Fig. 9: paths and ugv_0's estimates in the world frame, one panel per localizer.
-    fig, axes = plt.subplots(1, len(names), figsize=(5.5 * len(names), 5.5), squeeze=False)
+    fig, axes = plt.subplots(
+        1, len(names), figsize=(5.5 * len(names), 5.5), squeeze=False, sharex=True, sharey=True
+    )
     for ax, name in zip(axes[0], names, strict=True):
         for j in range(paths.shape[1]):
             ax.plot(

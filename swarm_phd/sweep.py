@@ -44,6 +44,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from swarm_env.config import PRESETS
+
 #: Columns of the printed summary when the localizer blocks have no ``headline`` block.
 FALLBACK_COLUMNS = (
     "pct_time_err_gt_30cm.median",
@@ -71,7 +73,9 @@ class GridPoint:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--presets", default="sim-6m-20", help="comma-separated presets (`swarm-phd list`)"
+        "--presets",
+        default="sim-6m-20",
+        help=f"comma-separated presets, of: {', '.join(PRESETS)}",
     )
     parser.add_argument(
         "--localizer", default="phd-lc,phd-lo", help="comma-separated localizers (all per point)"

@@ -10,7 +10,9 @@ phases: every copy's World moves (``SwarmEnv.step_world``), the shared localizer
 of copy ``k``): one policy shared by all agents, as with SuperSuit.
 
 Per robot the filter math is the same as in a lone env, so a batched copy's rollout is
-bit-identical to the same env run alone (``tests/agents/test_batched_vec_env.py``).
+bit-identical to the same env run alone (``tests/agents/test_batched_vec_env.py``). Families
+that know identities (``id-phd``, ``ukf``, ``pf``) index their teammates and read one World's
+truth, so they cannot be shared by copies: the constructor refuses them.
 
 As :class:`~agents.sb3.adapter.TrainingWrapper` does, it rescales the policy's ``[-1, 1]^2``
 actions to ``[v_max, omega_max]``, flags time-limit truncation (``TimeLimit.truncated``) so
@@ -54,10 +56,19 @@ class BatchedSwarmVecEnv(VecEnv):
         if isinstance(n_copies, bool) or not isinstance(n_copies, int) or n_copies < 1:
             raise ValueError(f"n_copies must be an int >= 1, got {n_copies!r}")
         kwargs = dict(env_kwargs)
+        if "world" in kwargs:
+            raise ValueError("the batched VecEnv simulates its copies itself: no world= argument")
         preset = kwargs.pop("preset", "sim-6m-20")
         config = make_config(preset, kwargs.pop("config", None), **_config_overrides(kwargs))
         n = config.n_robots
         self.shared = make_localizer(config.localizer, n * n_copies, config.phd)
+        if self.shared.has_identities:
+            # Identity families know their teammates by index and read one World's truth:
+            # K copies in one localizer would mix robots of different copies.
+            raise ValueError(
+                f"localizer {config.localizer!r} knows identities and cannot be shared by env "
+                "copies: use make_vec_env (SuperSuit) for it"
+            )
         self.envs = [
             SwarmEnv(config=config, localizer=LocalizerSlice(self.shared, k * n, n), **kwargs)
             for k in range(n_copies)
@@ -130,23 +141,27 @@ class BatchedSwarmVecEnv(VecEnv):
         for env in self.envs:
             env.close()
 
+    # SB3's contract: one result per VecEnv entry; an entry's env is its copy.
     def get_attr(self, attr_name: str, indices=None) -> list[Any]:
-        return [getattr(self.envs[k], attr_name) for k in self._copies_of(indices)]
+        n = self.agents_per_copy
+        return [getattr(self.envs[i // n], attr_name) for i in self._indices(indices)]
 
     def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
         for k in self._copies_of(indices):
             setattr(self.envs[k], attr_name, value)
 
     def env_method(self, method_name: str, *args, indices=None, **kwargs) -> list[Any]:
-        return [
-            getattr(self.envs[k], method_name)(*args, **kwargs) for k in self._copies_of(indices)
-        ]
+        results = {
+            k: getattr(self.envs[k], method_name)(*args, **kwargs)
+            for k in self._copies_of(indices)
+        }
+        return [results[i // self.agents_per_copy] for i in self._indices(indices)]
 
     def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
         return [False for _ in self._indices(indices)]
 
     def get_images(self) -> Sequence[np.ndarray | None]:
-        return [None for _ in self.envs]
+        return [env.render() if env.render_mode == "rgb_array" else None for env in self.envs]
 
     # ------------------------------------------------------------------ internals
     @property

@@ -8,6 +8,8 @@ from typing import Any
 
 import numpy as np
 
+from swarm_core.validation import as_float_array
+
 from ..config import config_with_overrides
 from ..detection import DetectionModel
 from ..mixture import N_ROWS, ROW_PXX, ROW_PXY, ROW_PYY, ROW_W, ROW_X, ROW_Y, GaussianMixture
@@ -276,15 +278,8 @@ def _readonly(a: np.ndarray) -> np.ndarray:
     return view
 
 
-def _as_float(value: Any, name: str) -> np.ndarray:
-    try:
-        return np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be numeric, got {value!r}") from exc
-
-
 def _checked_delta(value: Any, name: str) -> np.ndarray:
-    arr = _as_float(value, name)
+    arr = as_float_array(value, name)
     if arr.shape != (3,):
         raise ValueError(f"{name} must have shape (3,) [dx_m, dy_m, dpsi_rad], got {arr.shape}")
     if not np.isfinite(arr).all():
@@ -293,7 +288,7 @@ def _checked_delta(value: Any, name: str) -> np.ndarray:
 
 
 def _checked_points(value: Any, name: str = "points") -> np.ndarray:
-    pts = _as_float(value, name)
+    pts = as_float_array(value, name)
     if pts.size == 0:
         return np.empty((0, 2))
     if pts.ndim != 2 or pts.shape[1] != 2:
@@ -305,7 +300,7 @@ def _checked_points(value: Any, name: str = "points") -> np.ndarray:
 
 
 def _checked_angles(value: Any, name: str) -> np.ndarray:
-    arr = _as_float(value, name)
+    arr = as_float_array(value, name)
     if arr.size == 0:
         return np.empty(0)
     if arr.ndim != 1:

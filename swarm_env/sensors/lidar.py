@@ -371,45 +371,38 @@ class LidarSensor:
         hit_index = np.empty(shape, dtype=np.intp)
         interfered = np.empty(shape, dtype=bool)
         _scan_kernel(
-            origin,
-            yaw,
-            robots,
-            scan_time,
-            pose_time,
-            stamps,
-            np.ascontiguousarray(scene.circle_xy, dtype=np.float64),
-            np.asarray(scene.circle_radius_m, dtype=np.float64),
-            np.asarray(scene.circle_owner, dtype=np.intp),
-            c_time,
-            np.asarray(scene.circle_lidar, dtype=np.bool_),
-            np.asarray(scene.circle_intensity, dtype=np.float64),
-            np.ascontiguousarray(scene.segment_a, dtype=np.float64).reshape(-1, 2),
-            np.ascontiguousarray(scene.segment_b, dtype=np.float64).reshape(-1, 2),
-            np.asarray(scene.segment_intensity, dtype=np.float64).reshape(-1),
-            self._beam_ux,
-            self._beam_uy,
-            self.blind_mask,
-            cfg.range_min_m,
-            cfg.range_max_m,
-            cfg.range_max_m + 6.0 * float(cfg.range_noise_std_at(cfg.range_max_m)),
-            cfg.range_noise_std_m,
-            cfg.range_noise_quadratic_per_m,
-            0.5 * np.deg2rad(cfg.beam_footprint_deg),
-            1.0 / cfg.intensity_falloff_m,
-            table_indices(rng, 2 * n_scans * n_beams),
-            self._range_noise.table,
-            self._intensity_noise.table,
-            robot_yaw,
-            n_heads,
-            self.rates_hz,
-            self.head_phase_rad,
-            np.deg2rad(cfg.interference_tolerance_deg),
-            ranges,
-            intensities,
-            hit_owner,
-            hit_kind,
-            hit_index,
-            interfered,
+            (origin, yaw, robots, scan_time, pose_time, stamps),
+            (
+                np.ascontiguousarray(scene.circle_xy, dtype=np.float64),
+                np.asarray(scene.circle_radius_m, dtype=np.float64),
+                np.asarray(scene.circle_owner, dtype=np.intp),
+                c_time,
+                np.asarray(scene.circle_lidar, dtype=np.bool_),
+                np.asarray(scene.circle_intensity, dtype=np.float64),
+            ),
+            (
+                np.ascontiguousarray(scene.segment_a, dtype=np.float64).reshape(-1, 2),
+                np.ascontiguousarray(scene.segment_b, dtype=np.float64).reshape(-1, 2),
+                np.asarray(scene.segment_intensity, dtype=np.float64).reshape(-1),
+            ),
+            (self._beam_ux, self._beam_uy, self.blind_mask),
+            (
+                float(cfg.range_min_m),
+                float(cfg.range_max_m),
+                float(cfg.range_max_m + 6.0 * float(cfg.range_noise_std_at(cfg.range_max_m))),
+                float(cfg.range_noise_std_m),
+                float(cfg.range_noise_quadratic_per_m),
+                float(0.5 * np.deg2rad(cfg.beam_footprint_deg)),
+                float(1.0 / cfg.intensity_falloff_m),
+                float(np.deg2rad(cfg.interference_tolerance_deg)),
+            ),
+            (
+                table_indices(rng, 2 * n_scans * n_beams),
+                self._range_noise.table,
+                self._intensity_noise.table,
+            ),
+            (robot_yaw, n_heads, self.rates_hz, self.head_phase_rad),
+            (ranges, intensities, hit_owner, hit_kind, hit_index, interfered),
         )
         return LidarScanBatch(
             robots=robots,
@@ -425,47 +418,7 @@ class LidarSensor:
 
 
 @njit(cache=True, parallel=True)
-def _scan_kernel(
-    origin,
-    yaw,
-    robots,
-    scan_time,
-    pose_time,
-    stamps,
-    c_xy,
-    c_radius,
-    c_owner,
-    c_time,
-    c_lidar,
-    c_intensity,
-    seg_a,
-    seg_b,
-    seg_intensity,
-    beam_ux,
-    beam_uy,
-    blind,
-    range_min,
-    range_max,
-    reach,
-    noise_std,
-    noise_quadratic,
-    footprint_half,
-    inv_falloff,
-    noise_index,
-    range_table,
-    intensity_table,
-    robot_yaw,
-    n_heads,
-    rates,
-    phases,
-    tolerance,
-    ranges,
-    intensities,
-    hit_owner,
-    hit_kind,
-    hit_index,
-    interfered,
-):
+def _scan_kernel(scans, circles, segments, beams, model, noise, interference, out):
     """K full revolutions: ray casting, noise, range limits, blind sectors and interference.
 
     Shapes: K scans, B beams, C circles (``c_*``; only ``c_lidar`` ones are seen), S segments.
@@ -479,7 +432,20 @@ def _scan_kernel(
     Per (scan, shape) pair only the beams inside the shape's subtended bearing interval are
     intersected, and there a closed form without a validity test is exact (the beam is known to
     hit); the nearest hit is kept in place, so the cost is ~K x (B + small shapes' beams).
+
+    The arguments travel as tuples grouped by role (a new option is added to one group at the
+    call and unpacked once here): ``scans``, ``circles``, ``segments``, ``beams``, the float
+    ``model`` constants, the ``noise`` tables, the ``interference`` state and the ``out``puts.
     """
+    origin, yaw, robots, scan_time, pose_time, stamps = scans
+    c_xy, c_radius, c_owner, c_time, c_lidar, c_intensity = circles
+    seg_a, seg_b, seg_intensity = segments
+    beam_ux, beam_uy, blind = beams
+    (range_min, range_max, reach, noise_std, noise_quadratic, footprint_half, inv_falloff,
+     tolerance) = model  # fmt: skip
+    noise_index, range_table, intensity_table = noise
+    robot_yaw, n_heads, rates, phases = interference
+    ranges, intensities, hit_owner, hit_kind, hit_index, interfered = out
     n_scans, n_beams = ranges.shape
     spacing = TWO_PI / n_beams
     inv_spacing = 1.0 / spacing

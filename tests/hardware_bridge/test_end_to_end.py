@@ -130,6 +130,11 @@ def test_exported_sim_episode_replays_through_the_env_api(tmp_path):
     bag = tmp_path / "sim"
     summary = export_sim_episode(bag, preset="seed-lab", duration_s=2.0, seed=3)
     assert summary["steps"] == 20
+    from rosbags.rosbag2 import Reader
+
+    with Reader(bag) as reader:  # the reported count is what the bag holds
+        assert reader.message_count == summary["messages"] + summary["markers"]
+    assert summary["markers"] == 21  # the reset and 20 steps
     env = replay_env(bag)
     replayed = run_episode(env, None, 20, seed=None, trace=True)
     assert replayed.steps == 20 and replayed.scored_steps == 20

@@ -113,3 +113,23 @@ def test_agents_observe_pmb_existence():
     valid = table[:, layout.column("valid")] > 0
     assert valid.any() and np.all((w[valid] >= 0) & (w[valid] <= 1))
     assert env.localizer.weight_meaning == "existence"
+
+
+def test_identity_families_show_teammates_only_and_cannot_be_sliced(feeds):
+    phd, stream = feeds
+    loc = make_localizer("id-phd", 4, phd)
+    for feed in stream:
+        loc.step(feed)
+    for r in range(4):
+        tags = np.asarray(loc.filters[r].tags)
+        assert len(loc.mixture(r).weights) == int((tags >= 0).sum())  # no static class
+    with pytest.raises(ValueError, match="identities"):
+        LocalizerSlice(loc, 0, 2)
+
+
+def test_batched_vec_env_refuses_identity_families():
+    pytest.importorskip("stable_baselines3")
+    from agents.sb3.batched import BatchedSwarmVecEnv
+
+    with pytest.raises(ValueError, match="identities"):
+        BatchedSwarmVecEnv({"preset": "lab-3m-4", "localizer": "id-phd"}, 2)
