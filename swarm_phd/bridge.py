@@ -51,6 +51,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--geofence", default=None, help="x_min,x_max,y_min,y_max in the mocap frame (m)"
     )
+    parser.add_argument(
+        "--localizer",
+        default="phd",
+        help="every robot's filter (`swarm-phd list`), e.g. phd-lc or pmb-lc",
+    )
     parser.add_argument("--no-mocap", action="store_true", help="do not subscribe to mocap")
     parser.add_argument("--record", default=None, help="record the episode to this bag directory")
     parser.add_argument(
@@ -158,6 +163,7 @@ def _run(args: argparse.Namespace) -> int:
             record=args.record,
             bridge=bridge,
             max_steps=args.steps,
+            localizer=args.localizer,
         )
         policy = WanderPolicy.for_env(env, seed=args.seed) if args.policy == "wander" else None
         if args.max_speed is not None and policy is not None:

@@ -17,6 +17,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="rerun with another filter mode than the recorded config",
     )
+    parser.add_argument(
+        "--localizer",
+        default=None,
+        help="rerun with another filter family than the recorded config (`swarm-phd list`), "
+        "e.g. pmb-lc",
+    )
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
 
 
@@ -48,6 +54,8 @@ def _run(args: argparse.Namespace) -> int:
     overrides = {}
     if args.mode is not None:
         overrides["phd"] = {"mode": args.mode}
+    if args.localizer is not None:
+        overrides["localizer"] = args.localizer
     env = replay_env(args.bag, **overrides)
     try:
         world = env.world

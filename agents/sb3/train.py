@@ -70,6 +70,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=0,
         help="worker processes for the env copies (0: step them in-process)",
     )
+    parser.add_argument(
+        "--vec",
+        choices=("auto", "batched", "supersuit"),
+        default="auto",
+        help="VecEnv: 'batched' runs the copies in-process with one filter call for all of "
+        "them (agents.sb3.batched, fastest on few cores); 'supersuit' uses SuperSuit's "
+        "vectorizers (needed for --num-cpus > 0); 'auto': batched unless --num-cpus > 0 or "
+        "the localizer knows identities",
+    )
     parser.add_argument("--n-steps", type=int, default=128, help="PPO rollout length per agent")
     parser.add_argument("--batch-size", type=int, default=512, help="PPO minibatch size")
     parser.add_argument("--n-epochs", type=int, default=10, help="PPO epochs per rollout")
@@ -145,6 +154,7 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed,
         n_copies=args.n_copies,
         num_cpus=args.num_cpus,
+        vec=args.vec,
         checkpoint_every=args.checkpoint_every,
         torch_threads=args.torch_threads,
         progress_bar=not (args.no_progress_bar or getattr(args, "quiet", False)),
@@ -153,6 +163,26 @@ def run(args: argparse.Namespace) -> int:
         extractor=args.extractor,
     )
     return EXIT_CODES.get(interrupted, 0) if interrupted else 0
+
+
+def _vec_env(vec: str, env_kwargs, n_copies: int, num_cpus: int, seed: int, monitor: str):
+    """The training VecEnv (``--vec``): batched in-process copies or SuperSuit's."""
+    from agents.sb3.adapter import make_vec_env
+    from agents.sb3.batched import make_batched_vec_env
+    from localization.registry import make_localizer
+
+    if vec not in ("auto", "batched", "supersuit"):
+        raise ValueError(f"--vec must be auto, batched or supersuit, got {vec!r}")
+    if vec == "batched" and num_cpus > 0:
+        raise ValueError("--vec batched steps the copies in this process: use --num-cpus 0")
+    if vec == "auto":
+        identities = make_localizer(env_kwargs.get("localizer", "phd"), 1).has_identities
+        vec = "supersuit" if num_cpus > 0 or identities else "batched"
+    if vec == "batched":
+        return make_batched_vec_env(env_kwargs, n_copies=n_copies, seed=seed, monitor_file=monitor)
+    return make_vec_env(
+        env_kwargs, n_copies=n_copies, num_cpus=num_cpus, seed=seed, monitor_file=monitor
+    )
 
 
 def train(*args: Any, **kwargs: Any) -> Path:
@@ -172,6 +202,7 @@ def _train(
     seed: int = 0,
     n_copies: int = 4,
     num_cpus: int = 0,
+    vec: str = "auto",
     checkpoint_every: int = 50_000,
     torch_threads: int = 1,
     progress_bar: bool = True,
@@ -195,7 +226,6 @@ def _train(
     except ImportError as exc:  # pragma: no cover - depends on the install
         raise ValueError("training needs the rl extras: pip install -e '.[rl]'") from exc
 
-    from agents.sb3.adapter import make_vec_env
     from swarm_env import parallel_env
 
     torch.set_num_threads(max(1, torch_threads))
@@ -245,6 +275,7 @@ def _train(
                 "seed": seed,
                 "n_copies": n_copies,
                 "num_cpus": num_cpus,
+                "vec": vec,
                 "n_agents_per_env": n_agents,
                 "checkpoint_every": checkpoint_every,
                 "torch_threads": torch_threads,
@@ -265,13 +296,7 @@ def _train(
     # group, and only this process must act on it (it saves, then closes the workers).
     previous_sigint = _set_signal(signal.SIGINT, signal.SIG_IGN) if num_cpus > 0 else None
     try:
-        venv = make_vec_env(
-            env_kwargs,
-            n_copies=n_copies,
-            num_cpus=num_cpus,
-            seed=seed,
-            monitor_file=str(out / "monitor.csv"),
-        )
+        venv = _vec_env(vec, env_kwargs, n_copies, num_cpus, seed, str(out / "monitor.csv"))
     finally:
         if previous_sigint is not None:
             _set_signal(signal.SIGINT, previous_sigint)

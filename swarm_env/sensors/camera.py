@@ -105,6 +105,10 @@ class CameraConfig:
                 f"CameraConfig.range_max_m must exceed range_min_m={self.range_min_m}, got "
                 f"{self.range_max_m!r}"
             )
+        if not (math.isfinite(self.range_max_m) and self.range_max_m <= 100.0):
+            raise ValueError(
+                f"CameraConfig.range_max_m must be finite and <= 100 m, got {self.range_max_m!r}"
+            )
         if not self.bearing_noise_std_deg >= 0.0:
             raise ValueError(
                 "CameraConfig.bearing_noise_std_deg must be >= 0, got "
@@ -120,9 +124,12 @@ class CameraConfig:
             raise ValueError(
                 f"CameraConfig.miss_probability must be in [0, 1], got {self.miss_probability!r}"
             )
-        if not self.false_positive_rate >= 0.0:
+        # Cost guard: every false blob is drawn, stored and filtered each frame (1e7 per
+        # frame grew memory without bound).
+        if not 0.0 <= self.false_positive_rate <= 1000.0:
             raise ValueError(
-                f"CameraConfig.false_positive_rate must be >= 0, got {self.false_positive_rate!r}"
+                "CameraConfig.false_positive_rate must be in [0, 1000] blobs per frame, got "
+                f"{self.false_positive_rate!r}"
             )
 
 

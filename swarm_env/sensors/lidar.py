@@ -57,6 +57,11 @@ HIT_CIRCLE = 1
 HIT_SEGMENT = 2
 
 
+#: Cost and plausibility guards of :class:`LidarConfig`.
+MAX_BEAMS = 20_000
+MAX_RANGE_M = 100.0
+
+
 @dataclass(frozen=True, slots=True)
 class LidarConfig:
     """YDLidar X4 parameters (seed 000; defaults are the seed's values where it gives them).
@@ -114,9 +119,22 @@ class LidarConfig:
 
     def __post_init__(self) -> None:
         _positive("rate_hz", self.rate_hz)
-        if not isinstance(self.n_beams, (int, np.integer)) or self.n_beams < 1:
-            raise ValueError(f"LidarConfig.n_beams must be a positive int, got {self.n_beams!r}")
+        # Cost guard: every beam is cast every scan; 20 000 beams (0.018 deg) already costs
+        # ~30x the X4's 720, and 10**7 took 54 s per step.
+        if (
+            isinstance(self.n_beams, bool)
+            or not isinstance(self.n_beams, (int, np.integer))
+            or not 8 <= self.n_beams <= MAX_BEAMS
+        ):
+            raise ValueError(
+                f"LidarConfig.n_beams must be an int in [8, {MAX_BEAMS}], got {self.n_beams!r}"
+            )
         _non_negative("range_min_m", self.range_min_m)
+        if not (math.isfinite(self.range_max_m) and self.range_max_m <= MAX_RANGE_M):
+            raise ValueError(
+                f"LidarConfig.range_max_m must be finite and <= {MAX_RANGE_M} m (a planar "
+                f"lidar), got {self.range_max_m!r}"
+            )
         if not self.range_max_m > self.range_min_m:
             raise ValueError(
                 f"LidarConfig.range_max_m must exceed range_min_m={self.range_min_m}, "

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from swarm_core.validation import check_positive
+from swarm_core.validation import check_int_range, check_positive
 
 
 @dataclass(frozen=True, slots=True)
@@ -42,7 +42,7 @@ class OdometryConfig:
 
     def __post_init__(self) -> None:
         check_positive("odometry.rate_hz", self.rate_hz)
-        check_positive("odometry.pulses_per_revolution", self.pulses_per_revolution)
+        check_int_range("odometry.pulses_per_revolution", self.pulses_per_revolution, 1, 10**7)
         if not 0.0 <= self.slip_noise_std < 0.5:
             raise ValueError(
                 f"odometry.slip_noise_std must be in [0, 0.5), got {self.slip_noise_std!r}"

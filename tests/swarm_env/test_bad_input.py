@@ -119,3 +119,24 @@ def test_unknown_preset_and_render_mode():
 def test_sensor_faster_than_the_substeps_is_refused():
     with pytest.raises(ValueError, match="camera.rate_hz=30.0 exceeds"):
         parallel_env("seed-lab", physics_substeps=2)
+
+
+@pytest.mark.parametrize(
+    "override, match",
+    [
+        ({"localize": "no"}, "localize"),
+        ({"lidar": {"blind_sector_centers_deg": (float("nan"), 90.0, 180.0, 270.0)}}, "blind"),
+        ({"odometry": {"pulses_per_revolution": 0.5}}, "pulses_per_revolution"),
+        ({"lidar": {"range_max_m": float("inf")}}, "range_max_m"),
+        ({"camera": {"range_max_m": 1e300}}, "range_max_m"),
+        ({"lidar": {"n_beams": 10**7}}, "n_beams"),  # cost guard: 54 s per step
+        ({"camera": {"false_positive_rate": 1e7}}, "false_positive_rate"),  # memory guard
+        ({"localizer": "phd-xyz"}, "localizer"),
+        ({"phd": {"camera_noise_std_deg": float("nan")}}, "camera_noise_std_deg"),
+    ],
+)
+def test_bad_config_is_refused_at_construction_naming_the_field(override, match):
+    from swarm_env.config import make_config
+
+    with pytest.raises(ValueError, match=match):
+        make_config("lab-3m-4", **override)
