@@ -140,6 +140,21 @@ class SwarmEnv(ParallelEnv):
         if isinstance(localizer, str):  # a family name: the config field of that name
             overrides["localizer"], localizer = localizer, None
         self.config = make_config(preset, config, **overrides)
+        # An env that builds its own World and localizer pickles as its constructor arguments
+        # plus the resets and commands since its last seeded reset, and re-simulates them on
+        # unpickling (see __getstate__): pymunk's contact cache does not pickle.
+        self._rebuild_args: dict[str, Any] | None = (
+            {
+                "config": self.config,
+                "task": task if isinstance(task, str) else copy.deepcopy(task),
+                "task_params": copy.deepcopy(task_params),
+                "render_mode": render_mode,
+                "render_agent": render_agent,
+            }
+            if world is None and localizer is None
+            else None
+        )
+        self._replay_log: list[tuple[str, Any]] = []
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
                 f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}"
@@ -274,6 +289,9 @@ class SwarmEnv(ParallelEnv):
                 self._rng, seed = seeding.np_random(None if seed is None else int(seed))
                 for i, agent in enumerate(self.possible_agents):
                     self.action_spaces[agent].seed(None if seed is None else seed + i)
+                self._replay_log = [("reset", int(seed))]  # everything since is replayable
+            else:
+                self._replay_log.append(("reset", None))
             # One generator per env; the world and the task get their own child streams.
             world_rng, task_rng = self._rng.spawn(2)
             self.agents = list(self.possible_agents)
@@ -313,6 +331,9 @@ class SwarmEnv(ParallelEnv):
                 self._last_step.truth if self._last_step else None, self.config.control_period_s
             )
             step = self.world.step(commands, extra_commands=extra)
+            self._replay_log.append(
+                ("step", {a: commands[self._index[a]].copy() for a in self.agents})
+            )
             self._step_count += 1
             self._last_commands = commands
             return self._absorb(step)
@@ -380,9 +401,36 @@ class SwarmEnv(ParallelEnv):
             self.world.close()
 
     def __getstate__(self) -> dict[str, Any]:
-        state = self.__dict__.copy()
+        if self._rebuild_args is not None:
+            # Exact: rebuilt from its arguments and re-simulated (same seed, same commands,
+            # same state bit for bit, contacts included); the action spaces keep their RNGs.
+            return {
+                "rebuild": self._rebuild_args,
+                "replay": self._replay_log,
+                "action_spaces": self.action_spaces,
+                "closed": self._closed,
+            }
+        state = self.__dict__.copy()  # an injected World or localizer: as they pickle
         state["_renderer"] = None  # windows and canvases do not pickle; recreated on demand
         return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        if "rebuild" not in state:
+            self.__dict__.update(state)
+            return
+        self.__init__(**state["rebuild"])  # type: ignore[misc]
+        render_mode, self.render_mode = self.render_mode, None  # no windows while replaying
+        try:
+            for kind, value in state["replay"]:
+                if kind == "reset":
+                    self.reset(seed=value)
+                else:
+                    self.step(value)
+        finally:
+            self.render_mode = render_mode
+        self.action_spaces = state["action_spaces"]
+        if state["closed"]:
+            self.close()
 
     # ------------------------------------------------------------------ internals
     @contextlib.contextmanager
