@@ -25,7 +25,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from swarm_core.validation import check_blind_sectors
+from swarm_core.validation import check_blind_sectors, check_number_fields
 
 __all__ = [
     "PHDConfig",
@@ -274,6 +274,7 @@ class PHDConfig:
     min_range_m: float = 0.1
 
     def __post_init__(self) -> None:
+        check_number_fields(self)
         _check_choice("mode", self.mode, MODES)
         _check_choice("survival_model", self.survival_model, SURVIVAL_MODELS)
         _check_choice("birth", self.birth, BIRTH_MODELS)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 
 def check_positive(name: str, value: float) -> None:
     """Raise ``ValueError`` unless ``value`` is a finite number > 0."""
@@ -59,9 +61,6 @@ def check_blind_sectors(owner: str, centers_deg: object, widths_deg: object) -> 
             raise ValueError(f"{owner}.blind_sector_widths_deg must be in (0, 360), got {width!r}")
 
 
-import numpy as np  # noqa: E402  (appended helper; the checks above need no numpy)
-
-
 def as_float_array(value: object, name: str) -> np.ndarray:
     """``value`` as a float64 ndarray (no copy if it already is one).
 
@@ -72,3 +71,29 @@ def as_float_array(value: object, name: str) -> np.ndarray:
         return np.asarray(value, dtype=float)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{name} must be numeric, got {value!r}") from exc
+
+
+def check_number_fields(obj: object, owner: str | None = None) -> None:
+    """Every field of the dataclass ``obj`` annotated ``int`` or ``float`` must hold a finite
+    number of that kind: ``ValueError`` naming ``owner.field`` and the value otherwise.
+
+    The one type check every config runs first (its own ranges come after it), so a string,
+    ``None``, a bool, NaN or infinity never reaches a comparison or a kernel.
+    """
+    import dataclasses
+
+    owner = owner or type(obj).__name__
+    for f in dataclasses.fields(obj):  # type: ignore[arg-type]
+        annotation = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", "")
+        if annotation not in ("int", "float"):
+            continue
+        value = getattr(obj, f.name)
+        if annotation == "int":
+            kinds: tuple[type, ...] = (int, np.integer)
+        else:
+            kinds = (int, float, np.integer, np.floating)
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, kinds):
+            kind = "an int" if annotation == "int" else "a real number"
+            raise ValueError(f"{owner}.{f.name} must be {kind}, got {value!r}")
+        if not math.isfinite(value):
+            raise ValueError(f"{owner}.{f.name} must be finite, got {value!r}")

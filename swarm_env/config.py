@@ -18,6 +18,7 @@ from swarm_core.perception.lidar_features import LidarFeatureConfig
 from swarm_core.validation import (
     check_int_range,
     check_non_negative,
+    check_number_fields,
     check_positive,
 )
 from swarm_env.sensors.camera import CameraConfig
@@ -62,6 +63,7 @@ class RobotConfig:
     mass_kg: float = 1.6
 
     def __post_init__(self) -> None:
+        check_number_fields(self)
         for f in dataclasses.fields(self):
             check_positive(f"robot.{f.name}", getattr(self, f.name))
         if self.max_speed_mps > 2.0:
@@ -107,6 +109,7 @@ class ArenaConfig:
     box_size_range_m: tuple[float, float] = (0.3, 0.6)
 
     def __post_init__(self) -> None:
+        check_number_fields(self)
         for name in (
             "width_m",
             "height_m",
@@ -250,6 +253,7 @@ class SwarmConfig:
     sensor_stats: bool = False
 
     def __post_init__(self) -> None:
+        check_number_fields(self)
         check_int_range("n_robots", self.n_robots, 1, MAX_ROBOTS)
         check_positive("control_period_s", self.control_period_s)
         if self.control_period_s > 1.0:

@@ -33,6 +33,7 @@ import numpy as np
 from numba import njit
 
 from swarm_core.geometry import wrap_angle
+from swarm_core.validation import check_number_fields
 
 
 @dataclass(frozen=True, slots=True)
@@ -96,6 +97,7 @@ class LidarFeatureConfig:
     foreground_only: bool = True
 
     def __post_init__(self) -> None:
+        check_number_fields(self)
         for name in (
             "jump_threshold_m",
             "jump_range_gain",

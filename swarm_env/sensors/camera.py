@@ -41,6 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
+from swarm_core.validation import check_number_fields
 from swarm_env.sensors.kernels import segment_distance2, stable_order, wrap
 from swarm_env.sensors.noise import table_indices
 from swarm_env.world.scene import Scene
@@ -96,6 +97,7 @@ class CameraConfig:
     false_positive_rate: float = 0.1
 
     def __post_init__(self) -> None:
+        check_number_fields(self)
         if not self.rate_hz > 0.0:
             raise ValueError(f"CameraConfig.rate_hz must be > 0, got {self.rate_hz!r}")
         if not self.range_min_m >= 0.0:

@@ -43,7 +43,7 @@ from numba import njit, prange
 
 from swarm_core.geometry import TWO_PI, wrap_angle
 from swarm_core.perception.blind_sectors import blind_mask
-from swarm_core.validation import check_blind_sectors
+from swarm_core.validation import check_blind_sectors, check_number_fields
 from swarm_env.sensors.kernels import segment_distance2, stable_order, wrap
 from swarm_env.sensors.noise import TabulatedNormal, table_indices, tabulated
 from swarm_env.world.scene import Scene
@@ -118,6 +118,7 @@ class LidarConfig:
     head_rate_jitter_hz: float = 0.05
 
     def __post_init__(self) -> None:
+        check_number_fields(self)
         _positive("rate_hz", self.rate_hz)
         # Cost guard: every beam is cast every scan; 20 000 beams (0.018 deg) already costs
         # ~30x the X4's 720, and 10**7 took 54 s per step.

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from swarm_core.validation import check_int_range, check_positive
+from swarm_core.validation import check_int_range, check_number_fields, check_positive
 
 
 @dataclass(frozen=True, slots=True)
@@ -41,6 +41,7 @@ class OdometryConfig:
     slip_noise_std: float = 0.02
 
     def __post_init__(self) -> None:
+        check_number_fields(self)
         check_positive("odometry.rate_hz", self.rate_hz)
         check_int_range("odometry.pulses_per_revolution", self.pulses_per_revolution, 1, 10**7)
         if not 0.0 <= self.slip_noise_std < 0.5:

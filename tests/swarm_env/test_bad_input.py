@@ -140,3 +140,26 @@ def test_bad_config_is_refused_at_construction_naming_the_field(override, match)
 
     with pytest.raises(ValueError, match=match):
         make_config("lab-3m-4", **override)
+
+
+def test_every_numeric_config_field_refuses_non_numbers_and_non_finite_values():
+    """Each int / float field of every sub-config, set to NaN, inf, a string, None or a bool:
+    a ValueError naming the field, at construction (never a TypeError inside a comparison)."""
+    import dataclasses
+
+    from swarm_env.config import SwarmConfig, make_config
+
+    base = make_config("lab-3m-4")
+    checked = 0
+    for group in dataclasses.fields(SwarmConfig):
+        sub = getattr(base, group.name)
+        if not dataclasses.is_dataclass(sub):
+            continue
+        for f in dataclasses.fields(sub):
+            if f.type not in ("int", "float"):
+                continue
+            for bad in (float("nan"), float("inf"), "x", None, True):
+                with pytest.raises(ValueError, match=f.name):
+                    make_config("lab-3m-4", **{group.name: {f.name: bad}})
+            checked += 1
+    assert checked > 40  # every sensor, arena, robot and filter field
