@@ -24,7 +24,6 @@ GaussianMixture(...)
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -34,7 +33,14 @@ from swarm_core.validation import as_float_array
 
 from . import kernels
 from .config import PHDConfig
-from .filter import RobotCentricPHD, _checked_angles, _checked_odometry, _checked_points
+from .filter import (
+    MAX_INPUT_MAGNITUDE,
+    RobotCentricPHD,
+    _checked_angles,
+    _checked_odometry,
+    _checked_points,
+    check_magnitude,
+)
 from .mixture import N_ROWS, ROW_W, GaussianMixture
 
 __all__ = ["PHDBank", "PHDBankView"]
@@ -502,10 +508,14 @@ class _Batch:
 
 
 def all_finite(encoded: tuple[np.ndarray, ...]) -> bool:
-    """Whether the float buffers of an encoded batch hold only finite values."""
-    # A finite sum means finite entries (an overflowing sum of huge finite values only sends
-    # the caller down its exact per-call check, which then finds nothing to complain about).
-    return all(math.isfinite(np.add.reduce(a, axis=None)) for a in encoded if a.dtype == _F64)
+    """Whether the float buffers of an encoded batch hold only finite values within
+    :data:`~localization.filter.MAX_INPUT_MAGNITUDE` (m or rad); else the caller re-checks
+    every call exactly to name the culprit."""
+    return all(
+        a.size == 0 or np.abs(a).max() <= MAX_INPUT_MAGNITUDE  # NaN compares False
+        for a in encoded
+        if a.dtype == _F64
+    )
 
 
 def _joined(arrays: list[np.ndarray], tail: tuple[int, ...]) -> np.ndarray:
@@ -537,8 +547,7 @@ def _checked_pose(value: Any, exact: bool) -> np.ndarray | None:
         raise ValueError(
             f"sensor_pose must have shape (3,) [x_m, y_m, psi_rad], got shape {pose.shape}"
         )
-    if not np.isfinite(pose).all():
-        raise ValueError(f"sensor_pose must be finite, got {pose.tolist()}")
+    check_magnitude(pose, "sensor_pose")
     return pose
 
 

@@ -365,14 +365,33 @@ class RobotCentricPHD:
 
 
 # ---------------------------------------------------------------------- input checks
+#: Largest magnitude of any measurement or odometry input (m or rad). Beyond it a value is a
+#: fault (a relative position of a kilometre is already none), and squares of it would overflow
+#: the filters' covariances; the compiled banks and the references refuse the same values.
+MAX_INPUT_MAGNITUDE = 1e4
+
+
+def check_magnitude(values: np.ndarray, name: str) -> None:
+    """``ValueError`` naming ``name`` and the value unless every entry is finite and within
+    :data:`MAX_INPUT_MAGNITUDE`."""
+    if values.size == 0 or np.abs(values).max() <= MAX_INPUT_MAGNITUDE:  # NaN compares False
+        return
+    rule = f"{name} must be finite and within +-{MAX_INPUT_MAGNITUDE:g} (m or rad), got"
+    if values.ndim == 1 and values.size <= 8:  # a pose or an odometry increment: show it all
+        raise ValueError(f"{rule} {values.tolist()}")
+    flat = values.reshape(values.shape[0], -1) if values.ndim > 1 else values[:, None]
+    bad = int(np.flatnonzero(~(np.abs(flat) <= MAX_INPUT_MAGNITUDE).all(axis=1))[0])
+    shown = values[bad].tolist() if values.ndim > 1 else repr(values[bad])
+    raise ValueError(f"{rule} {name}[{bad}] = {shown}")
+
+
 def _checked_odometry(odometry: Any) -> np.ndarray:
     odo = as_float_array(odometry, "odometry")
     if odo.shape != (3,):
         raise ValueError(
             f"odometry must have shape (3,) [dx_m, dy_m, dpsi_rad], got shape {odo.shape}"
         )
-    if not (math.isfinite(odo[0]) and math.isfinite(odo[1]) and math.isfinite(odo[2])):
-        raise ValueError(f"odometry must be finite, got {odo.tolist()}")
+    check_magnitude(odo, "odometry")
     return odo
 
 
@@ -382,13 +401,7 @@ def _checked_points(points: Any) -> np.ndarray:
         if pts.size == 0:
             return np.empty((0, 2))
         raise ValueError(f"points must have shape (M, 2), got shape {pts.shape}")
-    # Fast check first: a finite sum means finite entries (an overflowing sum of huge finite
-    # values falls through to the exact check, which then finds nothing to complain about).
-    if not math.isfinite(np.add.reduce(pts.ravel())):
-        bad_rows = np.flatnonzero(~np.isfinite(pts).all(axis=1))
-        if bad_rows.size:
-            bad = int(bad_rows[0])
-            raise ValueError(f"points must be finite, got points[{bad}] = {pts[bad].tolist()}")
+    check_magnitude(pts, "points")
     return pts
 
 
@@ -398,9 +411,5 @@ def _checked_angles(angles: Any, name: str) -> np.ndarray:
         if arr.size == 0:
             return np.empty(0)
         raise ValueError(f"{name} must have shape (M,), got shape {arr.shape}")
-    if not math.isfinite(np.add.reduce(arr)):
-        bad_idx = np.flatnonzero(~np.isfinite(arr))
-        if bad_idx.size:
-            bad = int(bad_idx[0])
-            raise ValueError(f"{name} must be finite, got {name}[{bad}] = {arr[bad]!r}")
+    check_magnitude(arr, name)
     return arr

@@ -16,6 +16,7 @@ names (``phd``, ``phd-reference``) keep it. :func:`register` adds a family (see
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 from collections.abc import Callable, Sequence
@@ -167,8 +168,12 @@ class ReferenceLocalizer(LocalizerBase):
 
     def step(self, feed: SwarmFeed) -> None:
         self._check_feed(feed)
-        for f, calls in zip(self.filters, feed.calls(), strict=True):
+        # Every robot's calls run on copies, kept only if all succeed: a bad record for robot k
+        # must not leave robots 0..k-1 (or robot k's earlier calls) advanced.
+        trial = [copy.deepcopy(f) for f in self.filters]
+        for f, calls in zip(trial, feed.calls(), strict=True):
             run_calls(f, calls)
+        self.filters = trial
 
     def padded_tables(self) -> tuple[np.ndarray, np.ndarray]:
         return tables_from_mixtures([f.mixture for f in self.filters])
@@ -214,11 +219,12 @@ class IdentityLocalizer(LocalizerBase):
         if self.oracle_identities and feed.truth is None:
             raise ValueError(f"{self.name} needs ground truth for its oracle identities")
         records, stale = feed.measurements, feed.stale
+        filters = [copy.deepcopy(f) for f in self.filters]  # kept only if every call succeeds
         odometry = [
             [] if "odometry" in stale[r] else [rec.delta for rec in records[r].odometry]
             for r in range(self.n_robots)
         ]
-        for r, f in enumerate(self.filters):
+        for r, f in enumerate(filters):
             k_odo = 0
             for rec in records[r].in_time_order():
                 if isinstance(rec, OdometryRecord):
@@ -236,6 +242,7 @@ class IdentityLocalizer(LocalizerBase):
                         f.update(oracle_range_bearing(rec.detections, feed.truth, r))
                     else:
                         f.update_lidar(rec.detections, rec.null_bearings_rad)
+        self.filters = filters
 
     def padded_tables(self) -> tuple[np.ndarray, np.ndarray]:
         return tables_from_mixtures([_teammates(f) for f in self.filters])

@@ -40,7 +40,7 @@ import numpy as np
 
 from .. import phd
 from ..detection import DetectionModel
-from ..filter import _checked_angles, _checked_odometry, _checked_points
+from ..filter import _checked_angles, _checked_odometry, _checked_points, check_magnitude
 from ..frames import bearings_to_filter_frame, points_to_filter_frame
 from ..gaussian import bearing_update, position_update
 from ..mixture import (
@@ -520,6 +520,5 @@ def _checked_pose(value: Any) -> np.ndarray | None:
         raise ValueError(
             f"sensor_pose must have shape (3,) [x_m, y_m, psi_rad], got shape {pose.shape}"
         )
-    if not np.isfinite(pose).all():
-        raise ValueError(f"sensor_pose must be finite, got {pose.tolist()}")
+    check_magnitude(pose, "sensor_pose")
     return pose
