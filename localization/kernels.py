@@ -725,6 +725,22 @@ def _to_filter_frame(points, bearings, pose):
     return out, rotated
 
 
+@njit(cache=True)
+def robot_runs(robots):
+    """Runs of equal robot indices in the call order ``robots (Q,)`` (each robot's calls are
+    contiguous): ``starts (G + 1,)`` with run ``g`` = calls ``starts[g]:starts[g + 1]``, and
+    ``G``. Shared by the GM-PHD and PMB banks' drivers."""
+    n_calls = robots.shape[0]
+    starts = np.empty(n_calls + 1, dtype=np.int64)
+    n_groups = 0
+    for q in range(n_calls):
+        if q == 0 or robots[q] != robots[q - 1]:
+            starts[n_groups] = q
+            n_groups += 1
+    starts[n_groups] = n_calls
+    return starts, n_groups
+
+
 @njit(cache=True, parallel=True)
 def apply_calls(
     table, counts, pending, pending_counts, calls, fp, ip, sector_scaled, sector_inv_var
@@ -747,15 +763,7 @@ def apply_calls(
         camera_pose, camera_has_pose`` (module docstring).
     """
     # Robots are independent: each thread takes whole robots, and runs their calls in order.
-    robots = calls[0]
-    n_calls = robots.shape[0]
-    starts = np.empty(n_calls + 1, dtype=np.int64)
-    n_groups = 0
-    for q in range(n_calls):
-        if q == 0 or robots[q] != robots[q - 1]:
-            starts[n_groups] = q
-            n_groups += 1
-    starts[n_groups] = n_calls
+    starts, n_groups = robot_runs(calls[0])
     for g in prange(n_groups):
         for q in range(starts[g], starts[g + 1]):
             _apply_call(

@@ -34,11 +34,12 @@ import argparse
 import csv
 import json
 import os
-import signal
 import sys
 import time
 from pathlib import Path
 from typing import Any
+
+from agents.interrupts import Interrupts
 
 EXIT_CODES = {"SIGINT": 130, "SIGTERM": 143}
 
@@ -285,7 +286,7 @@ def _train(
     rows: list[dict[str, Any]] = []
     runners: list[dict[str, Any]] = []
     try:
-        with _Interrupts() as interrupts:
+        with Interrupts() as interrupts:
             try:
                 algo = config.build_algo()
                 next_ckpt = max(1, checkpoint_every)
@@ -320,7 +321,7 @@ def _train(
                         break
             except KeyboardInterrupt:
                 interrupted = interrupts.received or "SIGINT"
-        with _Interrupts(ignore=True):  # a second signal must not leave a half-written save
+        with Interrupts(ignore=True):  # a second signal must not leave a half-written save
             if algo is not None:
                 algo.save_to_path(str(final.resolve()))
                 runners = _runner_reports(algo, num_env_runners)
@@ -377,33 +378,6 @@ def _write_progress(path: Path, rows: list[dict[str, Any]]) -> None:
         writer.writeheader()
         writer.writerows(rows)
     os.replace(tmp, path)
-
-
-class _Interrupts:
-    """While active, SIGINT and SIGTERM raise ``KeyboardInterrupt`` in the main thread (and
-    remember which came), or with ``ignore=True`` are ignored; old handlers return on exit."""
-
-    def __init__(self, ignore: bool = False) -> None:
-        self.ignore = ignore
-        self.received: str | None = None
-        self._old: dict[int, Any] = {}
-
-    def _handle(self, signum: int, frame: Any) -> None:
-        self.received = self.received or signal.Signals(signum).name
-        raise KeyboardInterrupt
-
-    def __enter__(self) -> _Interrupts:
-        handler = signal.SIG_IGN if self.ignore else self._handle
-        for signum in (signal.SIGINT, signal.SIGTERM):
-            try:
-                self._old[signum] = signal.signal(signum, handler)
-            except ValueError:  # not the main thread: signals are the caller's business
-                pass
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        for signum, old in self._old.items():
-            signal.signal(signum, old)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -31,6 +31,7 @@ import warnings
 from pathlib import Path
 from typing import Any
 
+from agents.interrupts import Interrupts, set_signal
 from agents.sb3.policy import write_metadata
 
 DEFAULT_PRESET = "sim-6m-20"
@@ -294,12 +295,12 @@ def _train(
     warnings.filterwarnings("ignore", message="The `render_mode` attribute is not defined")
     # Worker processes (--num-cpus) inherit "ignore SIGINT": a Ctrl-C reaches the whole process
     # group, and only this process must act on it (it saves, then closes the workers).
-    previous_sigint = _set_signal(signal.SIGINT, signal.SIG_IGN) if num_cpus > 0 else None
+    previous_sigint = set_signal(signal.SIGINT, signal.SIG_IGN) if num_cpus > 0 else None
     try:
         venv = _vec_env(vec, env_kwargs, n_copies, num_cpus, seed, str(out / "monitor.csv"))
     finally:
         if previous_sigint is not None:
-            _set_signal(signal.SIGINT, previous_sigint)
+            set_signal(signal.SIGINT, previous_sigint)
     # The set extractor scales its rows itself (per-slot statistics would break permutation
     # invariance); the MLP gets VecNormalize's running mean/std. Rewards are normalised in both.
     norm_obs = extractor == "mlp"
@@ -364,7 +365,7 @@ def _train(
         callbacks.append(_progress_callback(BaseCallback, timesteps, rollout_size, ppo))
     start = time.perf_counter()
     interrupted: str | None = None
-    with _Interrupts() as interrupts:
+    with Interrupts() as interrupts:
         callbacks.append(_StopOnSignal(BaseCallback, interrupts))
         try:
             model.learn(total_timesteps=timesteps, callback=callbacks, progress_bar=False)
@@ -372,7 +373,7 @@ def _train(
             interrupted = interrupts.received or "SIGINT"
         interrupted = interrupted or interrupts.received
         # A second signal while saving must not leave a half-written model.
-        with _Interrupts(ignore=True):
+        with Interrupts(ignore=True):
             for cb in callbacks:
                 if hasattr(cb, "close"):
                     cb.close()
@@ -404,42 +405,7 @@ def _train(
     return path, interrupted
 
 
-def _set_signal(signum: int, handler: Any) -> Any:
-    """``signal.signal`` that is a no-op (returns None) outside the main thread."""
-    try:
-        return signal.signal(signum, handler)
-    except ValueError:  # not the main thread: signals are the caller's business
-        return None
-
-
-class _Interrupts:
-    """While active, SIGINT and SIGTERM raise ``KeyboardInterrupt`` in the main thread (and
-    remember which came), or with ``ignore=True`` are ignored; the old handlers come back on
-    exit."""
-
-    def __init__(self, ignore: bool = False) -> None:
-        self.ignore = ignore
-        self.received: str | None = None
-        self._old: dict[int, Any] = {}
-
-    def _handle(self, signum: int, frame: Any) -> None:
-        self.received = self.received or signal.Signals(signum).name
-        raise KeyboardInterrupt
-
-    def __enter__(self) -> _Interrupts:
-        handler = signal.SIG_IGN if self.ignore else self._handle
-        for signum in (signal.SIGINT, signal.SIGTERM):
-            old = _set_signal(signum, handler)
-            if old is not None:
-                self._old[signum] = old
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        for signum, old in self._old.items():
-            _set_signal(signum, old)
-
-
-def _StopOnSignal(base: type, interrupts: _Interrupts):  # noqa: N802 - SB3 imported lazily
+def _StopOnSignal(base: type, interrupts: Interrupts):  # noqa: N802 - SB3 imported lazily
     """A callback that ends ``learn`` at the next env step once a signal came: the backstop
     for a ``KeyboardInterrupt`` that library code caught and dropped."""
 

@@ -46,6 +46,7 @@ from ..kernels import (
     _to_filter_frame,
     frame_change,
     reduce_table,
+    robot_runs,
 )
 from ..mixture import N_ROWS
 from .config import PMBConfig
@@ -478,15 +479,7 @@ def apply_calls(
     pi,
 ):
     """Run the encoded calls on the bank state in place (robots in parallel, calls in order)."""
-    robots = calls[0]
-    n_calls = robots.shape[0]
-    starts = np.empty(n_calls + 1, dtype=np.int64)
-    n_groups = 0
-    for q in range(n_calls):
-        if q == 0 or robots[q] != robots[q - 1]:
-            starts[n_groups] = q
-            n_groups += 1
-    starts[n_groups] = n_calls
+    starts, n_groups = robot_runs(calls[0])
     for g in prange(n_groups):
         for q in range(starts[g], starts[g + 1]):
             _apply_call(

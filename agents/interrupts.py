@@ -1,0 +1,45 @@
+"""Training interrupted safely: SIGINT and SIGTERM become ``KeyboardInterrupt`` in the main thread
+while a trainer runs (``agents.sb3.train``, ``agents.rllib.train``), so it can save and exit
+with one line; during the save they are ignored."""
+
+from __future__ import annotations
+
+import signal
+from typing import Any
+
+__all__ = ["Interrupts", "set_signal"]
+
+
+def set_signal(signum: int, handler: Any) -> Any:
+    """``signal.signal`` that is a no-op (returns None) outside the main thread."""
+    try:
+        return signal.signal(signum, handler)
+    except ValueError:  # not the main thread: signals are the caller's business
+        return None
+
+
+class Interrupts:
+    """While active, SIGINT and SIGTERM raise ``KeyboardInterrupt`` in the main thread (and
+    remember which came), or with ``ignore=True`` are ignored; the old handlers come back on
+    exit."""
+
+    def __init__(self, ignore: bool = False) -> None:
+        self.ignore = ignore
+        self.received: str | None = None
+        self._old: dict[int, Any] = {}
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        self.received = self.received or signal.Signals(signum).name
+        raise KeyboardInterrupt
+
+    def __enter__(self) -> Interrupts:
+        handler = signal.SIG_IGN if self.ignore else self._handle
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            old = set_signal(signum, handler)
+            if old is not None:
+                self._old[signum] = old
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        for signum, old in self._old.items():
+            set_signal(signum, old)
