@@ -30,6 +30,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_detection_curves.py --json runs/bench/detection_curves.json
 	$(PY) benchmarks/bench_bank.py --json runs/bench/bank.json
 	$(PY) benchmarks/bench_phd_vs_stonesoup.py --json runs/bench/phd_vs_stonesoup.json
+	$(PY) benchmarks/bench_scaling.py --json runs/bench/scaling.json
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .

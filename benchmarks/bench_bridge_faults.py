@@ -37,6 +37,7 @@ from hardware_bridge.bag import BagError, ReplayWorld  # noqa: E402
 from hardware_bridge.faults import CORRUPTIONS, copy_bag  # noqa: E402
 from hardware_bridge.loopback import FaultConfig, LoopbackServer, hostile_inputs  # noqa: E402
 from hardware_bridge.world import TransportLostError  # noqa: E402
+from swarm_core.atomic_files import write_text_atomically  # noqa: E402
 
 ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
 
@@ -626,6 +627,10 @@ LIMITS = """- A frame above `hard_max_message_bytes` (64 MB) cannot be received 
 """
 
 
+#: The first heading of docs/reliability.md that this script does not generate.
+KEPT_SECTION = "## Inputs"
+
+
 def main() -> int:
     parser = argparse.ArgumentParser()
     parser.add_argument("--quick", action="store_true")
@@ -660,7 +665,15 @@ def main() -> int:
     command = "python benchmarks/bench_bridge_faults.py" + (" --quick" if args.quick else "")
     text = report(results, command)
     if args.write:
-        Path(args.write).write_text(text)
+        path = Path(args.write)
+        # The page's sections from "## Inputs" on come from the input property tests
+        # (tests/swarm_env/test_invalid_inputs_property.py), not from this script: keep them.
+        kept = ""
+        if path.is_file():
+            old = path.read_text()
+            at = old.find(KEPT_SECTION)
+            kept = old[at:] if at >= 0 else ""
+        write_text_atomically(path, text.rstrip("\n") + ("\n\n" + kept if kept else "\n"))
         print(f"wrote {args.write}", file=sys.stderr)
     else:
         print(text)

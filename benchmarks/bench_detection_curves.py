@@ -137,6 +137,22 @@ def camera_curve(cfg, rng, n_pairs: int) -> dict:
     return out
 
 
+def fit_bearing_noise(camera: dict, radius_m: float, min_pd: float = 0.9) -> tuple[float, float]:
+    """``(constant std deg, width fraction)`` of ``R_C(r) = s0^2 + (k W(r))^2``,
+    ``W(r) = 2 asin(R / r)``, least squares on the measured variances per range.
+
+    Only ranges where the camera detects at least ``min_pd`` are used: nearer the edge of its
+    range the blob-area test keeps only well-lit blobs, whose centroids sit closer to the
+    strip's centre, so the error there is a selected, smaller one."""
+    r = np.asarray(camera["range_m"])
+    std = np.array([np.nan if s is None else s for s in camera["bearing_std_deg"]])
+    keep = (np.asarray(camera["pd"]) >= min_pd) & np.isfinite(std)
+    width = np.degrees(2.0 * np.arcsin(np.minimum(1.0, radius_m / r[keep])))
+    design = np.stack([np.ones(keep.sum()), width**2], axis=1)
+    (a, k2), *_ = np.linalg.lstsq(design, std[keep] ** 2, rcond=None)
+    return float(np.sqrt(max(a, 0.0))), float(np.sqrt(max(k2, 0.0)))
+
+
 def camera_clutter(cfg, seed: int, episodes: int, steps: int, lidar_r50_m: float) -> dict:
     """Non-teammate camera bearings per frame in ``seed-sim`` (the simulator's own arenas)."""
     world = SimWorld(cfg)
@@ -247,6 +263,7 @@ def main(argv: list[str] | None = None) -> int:
     lidar_fit, lidar_rms = fit_sigmoid(r, np.asarray(lidar["pd"]), (1.0, 8.0, 2.0))
     camera_fit, camera_rms = fit_sigmoid(r, np.asarray(camera["pd"]), (1.05, 5.0, 4.0))
     r50 = crossing(r, np.asarray(lidar["pd"]), 0.5)
+    noise_const_deg, noise_fraction = fit_bearing_noise(camera, cfg.robot.camera_holder_radius_m)
     clutter = camera_clutter(cfg, args.seed, args.episodes, args.steps, r50)
 
     print(
@@ -282,6 +299,12 @@ def main(argv: list[str] | None = None) -> int:
         f"({camera_fit[0]:.4f}, {camera_fit[1]:.3f}, {camera_fit[2]:.3f}), RMS residual "
         f"{camera_rms:.3f}"
     )
+    print(
+        "camera bearing noise fit R_C(r) = s0^2 + (k 2 asin(R / r))^2 (ranges with P_d >= 0.9): "
+        f"s0 = {noise_const_deg:.4f} deg, k = {noise_fraction:.4f} (the blob model's "
+        f"(1 - fill_min) / 6 = {(1 - cfg.camera.fill_min) / 6:.4f}; pixel rounding alone "
+        f"{np.degrees(1 / cfg.camera.pixels_per_rad) / np.sqrt(12):.4f} deg)"
+    )
     pf = clutter["per_frame"]
     print(
         f"camera in seed-sim ({clutter['frames']} frames): per frame {pf['red_decoy']:.3f} red "
@@ -305,6 +328,10 @@ def main(argv: list[str] | None = None) -> int:
                     "lidar_r50_m": r50,
                     "camera_fit": camera_fit,
                     "camera_fit_rms": camera_rms,
+                    "camera_bearing_noise_fit": {
+                        "constant_std_deg": noise_const_deg,
+                        "width_fraction": noise_fraction,
+                    },
                     "camera_clutter": clutter,
                 },
                 indent=1,

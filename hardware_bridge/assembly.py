@@ -28,7 +28,7 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 
 from hardware_bridge.messages import Bearings, Odom, Pose, Scan, ns_to_s
-from swarm_core.geometry import wrap_angle
+from swarm_core.geometry import integrate_body_delta, wrap_angle
 from swarm_core.perception.blind_sectors import blind_mask
 from swarm_core.perception.lidar_features import extract_detections, null_bearings
 from swarm_core.records import CameraRecord, LidarRecord, OdometryRecord, RobotMeasurements
@@ -48,10 +48,7 @@ def integrate_odometry(pose: np.ndarray, delta: np.ndarray) -> np.ndarray:
     """The inverse of :func:`odometry_increment`: the odom pose ``[x, y, yaw]`` after a
     body-frame increment ``[dx, dy, dpsi]`` (the loopback robots and ``export-bag`` publish
     odometry poses built this way). Yaw wrapped to ``[-pi, pi)``."""
-    x, y, yaw = (float(v) for v in pose)
-    dx, dy, dpsi = (float(v) for v in delta)
-    c, s = math.cos(yaw), math.sin(yaw)
-    return np.array([x + c * dx - s * dy, y + s * dx + c * dy, float(wrap_angle(yaw + dpsi))])
+    return integrate_body_delta(pose, delta)
 
 
 class RecordAssembler:
@@ -243,4 +240,57 @@ class RecordAssembler:
         arr = np.array([[poses[r].x_m, poses[r].y_m, poses[r].yaw_rad] for r in self.robot_ids])
         return truth_from_poses(
             arr, self.config.localization_range_m, self.config.camera.range_max_m
+        )
+
+
+class UAVAssembler:
+    """The UAV's messages (:func:`~hardware_bridge.messages.parse_uav_pose`,
+    :func:`~hardware_bridge.messages.parse_ground_detections`) -> what its ID-PHD consumes.
+
+    * Pose: the increment since the previous pose used, in the UAV's level frame at the start
+      (:func:`odometry_increment`); the first pose after :meth:`reset` only sets the baseline.
+      The altitude is kept for the frames.
+    * Detections: an :class:`~swarm_env.sensors.downward_camera.AerialFrame` at the latest
+      altitude, with the footprint of ``camera`` (the UAV's ``DownwardCameraConfig``) there.
+      A frame before any pose has no altitude and raises ``ValueError``.
+    """
+
+    def __init__(self, camera) -> None:
+        from swarm_env.sensors.downward_camera import DownwardCameraConfig
+
+        if not isinstance(camera, DownwardCameraConfig):
+            raise ValueError(f"camera must be a DownwardCameraConfig, got {camera!r}")
+        self.camera = camera
+        self.reset()
+
+    def reset(self) -> None:
+        self._last: Odom | None = None
+        self.altitude_m: float | None = None
+
+    def pose(self, msg) -> np.ndarray | None:
+        """``[dx, dy, dpsi]`` since the previous pose (``None`` for the first one); poses older
+        than the previous one are ignored (``None``)."""
+        cur = Odom(msg.stamp_ns, msg.x_m, msg.y_m, msg.yaw_rad, 0.0, 0.0)
+        self.altitude_m = msg.altitude_m
+        prev, self._last = self._last, cur
+        if prev is None:
+            return None
+        if cur.stamp_ns <= prev.stamp_ns:
+            self._last = prev
+            return None
+        return odometry_increment(prev, cur)
+
+    def frame(self, msg):
+        """An ``AerialFrame`` of the detections (``source`` all ``-1``: no truth on hardware)."""
+        from swarm_env.sensors.downward_camera import AerialFrame
+
+        if self.altitude_m is None:
+            raise ValueError("uav detections before any uav pose: the altitude is unknown")
+        points = np.asarray(msg.points_m, dtype=np.float64).reshape(-1, 2)
+        return AerialFrame(
+            ns_to_s(msg.stamp_ns),
+            self.altitude_m,
+            self.camera.half_extents_m(self.altitude_m),
+            points,
+            np.full(points.shape[0], -1, dtype=np.int64),
         )

@@ -51,6 +51,7 @@ from typing import Any
 import numpy as np
 
 from hardware_bridge.assembly import RecordAssembler
+from hardware_bridge.comms import TeammateRelay
 from hardware_bridge.config import FEED_SENSORS
 from hardware_bridge.messages import (
     BAG_TYPES,
@@ -536,6 +537,7 @@ class ReplayWorld:
         self.use_mocap = bool(meta.get("use_mocap", True))
         self.counters = Counters()
         self.assembler = RecordAssembler(self.robot_ids, self.config, counters=self.counters)
+        self.relay = TeammateRelay(self.robot_ids) if self.config.comms.enabled else None
         self.problems: list[str] = []  # first few skip details, for the report
         markers, messages = self._read()
         self._index(markers, messages)
@@ -834,6 +836,7 @@ class ReplayWorld:
     def _world_step(self, k: int) -> WorldStep:
         end_ns, marker = self._markers[k]
         parsed = self._parse(k)
+        comms: dict = {}
         stale = {r: tuple(s) for r, s in marker.get("stale", {}).items()}
         if marker["kind"] == "reset":
             measurements = self.assembler.reset_measurements(
@@ -844,13 +847,19 @@ class ReplayWorld:
             per_robot = {r: {s: parsed[r][s] for s in FEED_SENSORS} for r in self.robot_ids}
             measurements = self.assembler.measurements(per_robot)
             mocap = {r: parsed[r]["mocap"] for r in self.robot_ids}
+            if self.relay is not None:  # as the live bridge (hardware_bridge.comms)
+                comms = self.relay.step(parsed, measurements)
         truth = (
             self.assembler.truth_from_mocap(mocap, end_ns, self.stale_mocap_s)
             if self.use_mocap
             else None
         )
         return WorldStep(
-            time_s=ns_to_s(end_ns), measurements=measurements, truth=truth, stale=stale
+            time_s=ns_to_s(end_ns),
+            measurements=measurements,
+            truth=truth,
+            stale=stale,
+            comms=comms,
         )
 
     def reset(self, rng: np.random.Generator | None = None) -> WorldStep:
@@ -858,6 +867,8 @@ class ReplayWorld:
         if self._episode >= len(self._episodes):
             raise EOFError(f"{self.path}: all {len(self._episodes)} recorded episode(s) replayed")
         self.assembler.reset()
+        if self.relay is not None:
+            self.relay.reset()
         self._cursor = 0
         return self._world_step(self._episodes[self._episode][0])
 

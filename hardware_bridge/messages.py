@@ -605,3 +605,127 @@ class Counters:
         n = self.incr(key)
         if n <= 5 or n % 100 == 0:
             LOGGER.warning("rejected message (%s, #%d): %s", key, n, detail[:300])
+
+
+# ---------------------------------------------------------------------------- the UAV (seed 002)
+# The supervisor's two topics: its pose estimate (the seed's optical flow + IMU + height sensor;
+# ``z`` is the altitude above the ground) and its downward camera's anonymous UGV positions,
+# already back-projected to the ground and expressed in its level frame (x forward, y left,
+# the UAV's yaw; roll and pitch compensated, seed 002 eqs. 2-4), one ``PoseArray`` per frame.
+UAV_ROS_TYPES = {
+    "uav_pose": "geometry_msgs/PoseStamped",
+    "uav_detections": "geometry_msgs/PoseArray",
+}
+UAV_BAG_TYPES = {key: value.replace("/", "/msg/", 1) for key, value in UAV_ROS_TYPES.items()}
+#: Plausible UAV altitude range (m): refuses a sonar's 0 and corrupt values.
+MAX_PLAUSIBLE_ALTITUDE_M = 1000.0
+
+
+def uav_topics(uav: str) -> dict[str, str]:
+    """The ROS topics of one UAV, by message kind (see :data:`UAV_ROS_TYPES`)."""
+    uav = check_robot_id(uav)
+    return {"uav_pose": f"/{uav}/pose", "uav_detections": f"/{uav}/camera/detections"}
+
+
+@dataclass(frozen=True, slots=True)
+class UAVPose:
+    """A validated UAV ``geometry_msgs/PoseStamped``: planar pose in its odometry frame, altitude
+    above the ground (m) and yaw."""
+
+    stamp_ns: int
+    x_m: float
+    y_m: float
+    altitude_m: float
+    yaw_rad: float
+
+
+@dataclass(frozen=True, slots=True)
+class GroundDetections:
+    """A validated ``geometry_msgs/PoseArray`` of anonymous ground positions ``(M, 2)`` (m) in
+    the UAV's level frame, stamped at the exposure."""
+
+    stamp_ns: int
+    points_m: np.ndarray
+
+
+def parse_uav_pose(msg: Any, max_position_m: float = 1.0e4) -> UAVPose:
+    """Validate a UAV pose: finite position within ``max_position_m``, altitude in
+    ``(0, MAX_PLAUSIBLE_ALTITUDE_M]``, unit quaternion (reduced to yaw; the detections are
+    already roll/pitch compensated)."""
+    msg = _root(msg)
+    stamp_ns = parse_stamp(msg)
+    altitude = _bounded(msg, "pose.position.z", MAX_PLAUSIBLE_ALTITUDE_M)
+    if altitude <= 0.0:
+        raise InvalidMessage("pose.position.z", f"altitude must be > 0, got {altitude!r}")
+    return UAVPose(
+        stamp_ns,
+        _bounded(msg, "pose.position.x", max_position_m),
+        _bounded(msg, "pose.position.y", max_position_m),
+        altitude,
+        _yaw(msg, "pose.orientation"),
+    )
+
+
+def parse_ground_detections(
+    msg: Any, max_detections: int = 256, max_position_m: float = 1.0e3
+) -> GroundDetections:
+    """Validate a ``geometry_msgs/PoseArray`` of detections: at most ``max_detections`` poses,
+    each ``position.x`` / ``position.y`` a finite number within ``max_position_m`` (``z`` and
+    the orientation, when present, must be numbers too; they are not used)."""
+    msg = _root(msg)
+    stamp_ns = parse_stamp(msg)
+    poses = _get(msg, "poses")
+    if not isinstance(poses, list):
+        raise InvalidMessage("poses", f"expected an array, got {type(poses).__name__}")
+    if len(poses) > max_detections:
+        raise InvalidMessage("poses", f"too long: {len(poses)} elements > {max_detections}")
+    points = np.empty((len(poses), 2))
+    for k, pose in enumerate(poses):
+        path = f"poses[{k}]"
+        if not isinstance(pose, dict):
+            raise InvalidMessage(path, f"expected an object, got {type(pose).__name__}")
+        try:
+            points[k, 0] = _bounded(pose, "position.x", max_position_m)
+            points[k, 1] = _bounded(pose, "position.y", max_position_m)
+        except InvalidMessage as exc:
+            raise InvalidMessage(f"{path}.{exc.field}", exc.reason) from None
+        for optional in ("position.z", "orientation.x", "orientation.y", "orientation.z"):
+            try:
+                _number(pose, optional)
+            except InvalidMessage as exc:
+                if exc.reason != "missing":
+                    raise InvalidMessage(f"{path}.{exc.field}", exc.reason) from None
+    return GroundDetections(stamp_ns, points)
+
+
+def uav_pose_msg(
+    stamp_ns: int,
+    x_m: float,
+    y_m: float,
+    altitude_m: float,
+    yaw_rad: float,
+    frame_id: str = "odom",
+) -> dict[str, Any]:
+    return {
+        "header": header(stamp_ns, frame_id),
+        "pose": {
+            "position": {"x": float(x_m), "y": float(y_m), "z": float(altitude_m)},
+            "orientation": _quaternion(float(yaw_rad)),
+        },
+    }
+
+
+def ground_detections_msg(
+    stamp_ns: int, points_m: np.ndarray, frame_id: str = "uav_level"
+) -> dict[str, Any]:
+    pts = np.asarray(points_m, dtype=np.float64).reshape(-1, 2)
+    return {
+        "header": header(stamp_ns, frame_id),
+        "poses": [
+            {
+                "position": {"x": float(x), "y": float(y), "z": 0.0},
+                "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0},
+            }
+            for x, y in pts
+        ],
+    }

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from hardware_bridge.assembly import RecordAssembler
+from hardware_bridge.comms import TeammateRelay
 from hardware_bridge.config import FEED_SENSORS, BridgeConfig, make_bridge_config
 from hardware_bridge.messages import (
     ROS_TYPES,
@@ -155,6 +156,8 @@ class RealWorld:
             ids, config, jump_factor=self.bridge.odometry_jump_factor, counters=self.counters
         )
         self.limiter = CommandLimiter(ids, self.bridge, config.robot, self.period_s, self.counters)
+        # Teammates' odometry and detections for WorldStep.comms, with SwarmConfig.comms on.
+        self.relay = TeammateRelay(ids) if config.comms.enabled else None
         self._lock = threading.Lock()
         self._sensors = FEED_SENSORS + (("mocap",) if self.bridge.use_mocap else ())
         self._buffers = {
@@ -290,6 +293,8 @@ class RealWorld:
                 buf.newest_ns = 0
                 buf.last_payload = None
         self.assembler.reset()
+        if self.relay is not None:
+            self.relay.reset()
         self.limiter.stopped()
         self._step_index = 0
         while True:
@@ -415,6 +420,7 @@ class RealWorld:
         parsed = self._parsed(used)
         per_robot = {r: {s: parsed[r].get(s, []) for s in FEED_SENSORS} for r in self.robot_ids}
         measurements = self.assembler.measurements(per_robot)
+        comms = {} if self.relay is None else self.relay.step(parsed, measurements)
         truth = self._truth(used, end_ns)
         stale = self._stale(end_ns)
         self._step_index += 1
@@ -430,7 +436,11 @@ class RealWorld:
             )
         self._last_step_end_mono = time.monotonic()
         return WorldStep(
-            time_s=ns_to_s(end_ns), measurements=measurements, truth=truth, stale=stale
+            time_s=ns_to_s(end_ns),
+            measurements=measurements,
+            truth=truth,
+            stale=stale,
+            comms=comms,
         )
 
     def _take(self, after_ns: int, until_ns: int) -> dict[str, dict[str, list]]:

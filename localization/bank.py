@@ -35,19 +35,27 @@ from . import kernels
 from .config import PHDConfig
 from .filter import (
     MAX_INPUT_MAGNITUDE,
+    MAX_MEASUREMENTS_PER_CALL,
     RobotCentricPHD,
     _checked_angles,
     _checked_odometry,
     _checked_points,
+    _checked_stamp,
     check_magnitude,
 )
 from .mixture import N_ROWS, ROW_W, GaussianMixture
 
 __all__ = ["PHDBank", "PHDBankView"]
 
-_KIND_CODES = {"predict": kernels.PREDICT, "lidar": kernels.LIDAR, "camera": kernels.CAMERA}
-# ("predict", odometry), ("lidar", points, nulls, sensor_pose), ("camera", bearings, sensor_pose)
-_MAX_CALL_LEN = {"predict": 2, "lidar": 4, "camera": 3}
+_KIND_CODES = {
+    "predict": kernels.PREDICT,
+    "lidar": kernels.LIDAR,
+    "camera": kernels.CAMERA,
+    "advance": kernels.ADVANCE,
+}
+# ("predict", odometry), ("lidar", points, nulls, sensor_pose), ("camera", bearings, sensor_pose),
+# ("advance", stamp_s)
+_MAX_CALL_LEN = {"predict": 2, "lidar": 4, "camera": 3, "advance": 2}
 _F64 = np.dtype(np.float64)
 
 
@@ -91,6 +99,8 @@ class PHDBank:
         self._counts = np.zeros(self.n_robots, dtype=np.int64)
         self._pending = np.zeros((self.n_robots, 8, 2))
         self._pending_counts = np.zeros(self.n_robots, dtype=np.int64)
+        # Per robot: last stamp (nan: none yet), advanced since the last predict (kernels).
+        self._clock = new_clock(self.n_robots)
         self._mixtures: list[GaussianMixture | None] = [None] * self.n_robots
         self.views = [PHDBankView(self, r) for r in range(self.n_robots)]
 
@@ -102,6 +112,7 @@ class PHDBank:
             "counts": self._counts,
             "pending": self._pending,
             "pending_counts": self._pending_counts,
+            "clock": self._clock,
         }
 
     def __setstate__(self, state: dict[str, Any]) -> None:
@@ -110,6 +121,8 @@ class PHDBank:
         self._counts = np.array(state["counts"], dtype=np.int64)
         self._pending = np.array(state["pending"], dtype=float)
         self._pending_counts = np.array(state["pending_counts"], dtype=np.int64)
+        if "clock" in state:  # absent from states pickled before the clock existed
+            self._clock = np.array(state["clock"], dtype=float)
 
     # ------------------------------------------------------------------ construction / export
     @classmethod
@@ -151,6 +164,7 @@ class PHDBank:
         self._counts[r] = n
         self._pending[r, : births.shape[0]] = births
         self._pending_counts[r] = births.shape[0]
+        self._clock[r] = state["clock"]
         self._mixtures[r] = None
 
     def to_filter(self, robot: int) -> RobotCentricPHD:
@@ -162,6 +176,7 @@ class PHDBank:
                 "config": self.config,
                 "table": self.table(r),
                 "pending_births": self.pending_births(r),
+                "clock": self._clock[r].copy(),
             }
         )
         return f
@@ -215,6 +230,7 @@ class PHDBank:
         self._table[:, rob] = 0.0
         self._counts[rob] = 0
         self._pending_counts[rob] = 0
+        self._clock[rob] = new_clock(1)
         for r in rob.tolist():
             self._mixtures[r] = None
 
@@ -313,6 +329,8 @@ class PHDBank:
             ``("camera", bearings[, sensor_pose])``. The optional ``sensor_pose`` ``(3,)``
             ``[x_m, y_m, psi_rad]`` (or None) is where the robot measured from, in the
             filter's frame: the measurement is moved into it first (:mod:`localization.frames`).
+            ``("advance", stamp_s)`` moves the robot's process-noise clock to ``stamp_s``
+            (:meth:`RobotCentricPHD.advance`; any finite clock, e.g. ROS time).
 
         Raises
         ------
@@ -382,6 +400,7 @@ class PHDBank:
             self._counts,
             self._pending,
             self._pending_counts,
+            self._clock,
             encoded,
             fparams,
             iparams,
@@ -406,6 +425,7 @@ class _Batch:
         "bearings",
         "lidar_poses",
         "camera_poses",
+        "stamps",
     )
 
     def __init__(self) -> None:
@@ -418,6 +438,7 @@ class _Batch:
         self.bearings: list[np.ndarray] = []  # (M,) per camera call
         self.lidar_poses: list[np.ndarray | None] = []  # sensor pose (3,) per lidar call
         self.camera_poses: list[np.ndarray | None] = []  # sensor pose (3,) per camera call
+        self.stamps: list[float] = []  # per advance call (s)
 
     @property
     def max_points(self) -> int:
@@ -446,6 +467,12 @@ class _Batch:
         self.bearings.append(brg)
         self.camera_poses.append(pose)
 
+    def advance(self, r: int, stamp_s: float) -> None:
+        self.robots.append(r)
+        self.kinds.append(kernels.ADVANCE)
+        self.index.append(len(self.stamps))
+        self.stamps.append(stamp_s)
+
     def add_call(self, r: int, call: Any, exact: bool = False) -> None:
         """Append ``calls[r]``'s tuple ``call``. Shapes are checked here; finiteness by
         :meth:`all_finite` over the whole batch (or here, per array, when ``exact``)."""
@@ -461,7 +488,7 @@ class _Batch:
         try:
             if kind == "camera":
                 brg = call[1]
-                if exact or not _is_f64(brg, 1):
+                if exact or not _is_f64(brg, 1) or brg.shape[0] > MAX_MEASUREMENTS_PER_CALL:
                     brg = _checked_bearings(brg)
                 self.camera(r, brg, _checked_pose(call[2], exact) if len(call) > 2 else None)
             elif kind == "predict":
@@ -469,12 +496,21 @@ class _Batch:
                 if exact or not _is_f64(odo, 1) or odo.shape[0] != 3:
                     odo = _checked_odometry(odo)
                 self.predict(r, odo)
+            elif kind == "advance":
+                self.advance(r, _checked_stamp(call[1]))
             else:
                 pts = call[1]
-                if exact or not _is_f64(pts, 2) or pts.shape[1] != 2:
+                if (
+                    exact
+                    or not _is_f64(pts, 2)
+                    or pts.shape[1] != 2
+                    or pts.shape[0] > MAX_MEASUREMENTS_PER_CALL
+                ):
                     pts = _checked_points(pts)
                 nb = call[2] if len(call) > 2 else None
-                if nb is not None and (exact or not _is_f64(nb, 1)):
+                if nb is not None and (
+                    exact or not _is_f64(nb, 1) or nb.shape[0] > MAX_MEASUREMENTS_PER_CALL
+                ):
                     nb = _checked_nulls(nb)
                 self.lidar(r, pts, nb, _checked_pose(call[3], exact) if len(call) > 3 else None)
         except (ValueError, IndexError) as exc:
@@ -483,8 +519,8 @@ class _Batch:
     def encode(self) -> tuple[np.ndarray, ...]:
         """``robots, kinds, index, odometry, lidar_start, lidar_stop, points, null_start,
         null_stop, nulls, camera_start, camera_stop, bearings, lidar_pose, lidar_has_pose,
-        camera_pose, camera_has_pose``, as :func:`localization.kernels.apply_calls` takes
-        them."""
+        camera_pose, camera_has_pose, stamps``, as :func:`localization.kernels.apply_calls`
+        takes them."""
         lidar_stop = np.cumsum([p.shape[0] for p in self.points], dtype=np.int64)
         null_stop = np.cumsum([b.shape[0] for b in self.nulls], dtype=np.int64)
         camera_stop = np.cumsum([b.shape[0] for b in self.bearings], dtype=np.int64)
@@ -504,18 +540,29 @@ class _Batch:
             _joined(self.bearings, ()),
             *_poses(self.lidar_poses),
             *_poses(self.camera_poses),
+            np.array(self.stamps, dtype=np.float64),
         )
 
 
 def all_finite(encoded: tuple[np.ndarray, ...]) -> bool:
     """Whether the float buffers of an encoded batch hold only finite values within
-    :data:`~localization.filter.MAX_INPUT_MAGNITUDE` (m or rad); else the caller re-checks
-    every call exactly to name the culprit."""
-    return all(
+    :data:`~localization.filter.MAX_INPUT_MAGNITUDE` (m or rad), and finite stamps (the last
+    buffer: seconds of any clock, ROS time included); else the caller re-checks every call
+    exactly to name the culprit."""
+    *measured, stamps = encoded
+    return bool(np.isfinite(stamps).all()) and all(
         a.size == 0 or np.abs(a).max() <= MAX_INPUT_MAGNITUDE  # NaN compares False
-        for a in encoded
+        for a in measured
         if a.dtype == _F64
     )
+
+
+def new_clock(n_robots: int) -> np.ndarray:
+    """A fresh per-robot process-noise clock, shape ``(n_robots, 2)``: no stamp yet (nan),
+    not advanced since the last predict (see :func:`localization.kernels.advance_clock`)."""
+    clock = np.zeros((n_robots, 2))
+    clock[:, 0] = np.nan
+    return clock
 
 
 def _joined(arrays: list[np.ndarray], tail: tuple[int, ...]) -> np.ndarray:

@@ -55,6 +55,11 @@ CAMERA_BIRTH_MODELS = ("none", "ray")
 #: ``"phd"``: missed copy ``(1 - P_d) w`` (Vo & Ma, the seed). ``"bernoulli"``: each component's
 #: missed copy gets the exact Bernoulli missed-detection weight (see ``PHDConfig``).
 MISSED_DETECTION_MODELS = ("phd", "bernoulli")
+TIME_UPDATE_MODELS = ("odometry", "measurement")
+#: A stamp this far (s) behind a robot's latest one means its clock was reset (a ROS ``/clock``
+#: restart, a bag looping): the process-noise clock restarts there instead of waiting for time
+#: to pass the old maximum with no noise added.
+PROCESS_CLOCK_RESET_S = 1.0
 #: Radial standard deviation of a ray-birth component, as a fraction of the spacing ``d``
 #: between component centres: below ``1 / sqrt(merge_threshold) = 0.5`` so that neighbours
 #: stay apart under the default merge gate (``d^2 / sigma^2 = 4.9 > 4``), and close to it so
@@ -75,6 +80,18 @@ class PHDConfig:
         ``Q = process_noise_std_m**2 * I``. The seed does not give Q. Default 0.03 m: a teammate
         moving at 0.2-0.3 m/s covers 0.02-0.03 m per 10 Hz odometry step, and the observer's own
         odometry error adds a little. Scale it with your time-update period.
+    time_update : str
+        When the process noise is added. ``"odometry"`` (the seed): all of ``Q`` at each
+        odometry time update. ``"measurement"``: the random walk is continuous, variance rate
+        ``Q / process_noise_interval_s``, and each lidar scan, camera frame and odometry sample
+        first adds the share that accrued since the robot's previous one (the ``("advance",
+        stamp_s)`` calls :func:`~localization.feed.localizer_calls` emits). Camera frames
+        arrive three times per odometry sample: under ``"odometry"`` a teammate keeps moving
+        between them while its covariance stands still, and with 0.45 deg bearings a 1 cm
+        move at 0.5 m is already 2.5 sigma out of the innovation. Calls without stamps get
+        the seed's behaviour.
+    process_noise_interval_s : float
+        The interval over which ``process_noise_std_m`` accrues (the odometry period, 0.1 s).
     survival_model : str
         ``"seed"`` (eq. 10) or ``"constant"``.
     survival_offset, survival_slope_per_m, survival_range_m : float
@@ -156,6 +173,14 @@ class PHDConfig:
     camera_noise_std_deg : float
         Camera bearing noise, ``R_C = radians(camera_noise_std_deg)**2``. Seed: "25 deg" read
         as a variance of 25 deg^2, i.e. 5 deg std.
+    camera_noise_width_fraction, camera_target_radius_m : float
+        Range-dependent part of the bearing noise: a blob's centroid wanders within the
+        target's angular width ``W(r) = 2 asin(R / r)`` (``R`` = ``camera_target_radius_m``,
+        the red strip's radius), so ``R_C(r) = radians(camera_noise_std_deg)**2 +
+        (camera_noise_width_fraction W(r))**2``, evaluated at each component's range (and at
+        each ray birth's). The seed has 0 (a constant 5 deg); the simulator's is measured
+        (``swarm_env.config.SIM_CAMERA_NOISE_WIDTH_FRACTION``): 0.96 deg at 0.5 m, 0.24 deg
+        at 2 m, where a constant would be 4x too tight close in or too loose far out.
     camera_pd_offset, camera_pd_slope_per_m, camera_pd_midpoint_m : float
         Camera range factor (seed eq. 30: 1.1, 5, 4).
     camera_clutter_intensity : float
@@ -228,6 +253,8 @@ class PHDConfig:
 
     mode: str = "lidar-camera"
     process_noise_std_m: float = 0.03
+    time_update: str = "odometry"
+    process_noise_interval_s: float = 0.1
     survival_model: str = "seed"
     survival_offset: float = 1.05
     survival_slope_per_m: float = 4.0
@@ -255,6 +282,8 @@ class PHDConfig:
     interference_std_deg: float = 1.0
     lidar_clutter_intensity: float = 0.05
     camera_noise_std_deg: float = 5.0
+    camera_noise_width_fraction: float = 0.0
+    camera_target_radius_m: float = 0.05
     camera_pd_offset: float = 1.1
     camera_pd_slope_per_m: float = 5.0
     camera_pd_midpoint_m: float = 4.0
@@ -281,6 +310,7 @@ class PHDConfig:
         _check_choice("lidar_pd_model", self.lidar_pd_model, LIDAR_PD_MODELS)
         _check_choice("camera_birth", self.camera_birth, CAMERA_BIRTH_MODELS)
         _check_choice("missed_detection", self.missed_detection, MISSED_DETECTION_MODELS)
+        _check_choice("time_update", self.time_update, TIME_UPDATE_MODELS)
         # Every float field must be a finite real number (bool is rejected: it is an int).
         for f in fields(self):
             value = getattr(self, f.name)
@@ -291,6 +321,7 @@ class PHDConfig:
                     raise ValueError(f"PHDConfig.{f.name} must be finite, got {value!r}")
         for name in (
             "process_noise_std_m",
+            "process_noise_interval_s",
             "survival_slope_per_m",
             "birth_std_m",
             "measurement_birth_cov_scale",
@@ -300,6 +331,7 @@ class PHDConfig:
             "occlusion_std_deg",
             "interference_std_deg",
             "camera_noise_std_deg",
+            "camera_target_radius_m",
             "camera_pd_slope_per_m",
             "merge_threshold",
             "min_range_m",
@@ -315,9 +347,28 @@ class PHDConfig:
             "camera_clutter_intensity",
             "camera_untracked_density_per_m2",
             "camera_untracked_min_range_m",
+            "camera_noise_width_fraction",
         ):
             if getattr(self, name) < 0.0:
                 raise ValueError(f"PHDConfig.{name} must be >= 0, got {getattr(self, name)!r}")
+        # Plausibility: a std beyond these is no sensor (and 1e300 squares to inf inside the
+        # kernels); the angular stds the P_d bumps divide by need a floor.
+        for name, low, high in (
+            ("process_noise_std_m", 0.0, 100.0),
+            ("birth_std_m", 0.0, 100.0),
+            ("lidar_noise_std_m", 0.0, 100.0),
+            ("lidar_range_m", 0.0, 1000.0),
+            ("camera_noise_std_deg", 0.0, 180.0),
+            ("occlusion_std_deg", 1e-3, 180.0),
+            ("interference_std_deg", 1e-3, 180.0),
+            ("process_noise_interval_s", 1e-3, 3600.0),
+            ("measurement_birth_cov_scale", 0.0, 1e6),
+            ("camera_noise_width_fraction", 0.0, 10.0),
+            ("camera_target_radius_m", 0.0, 10.0),
+        ):
+            value = getattr(self, name)
+            if not low <= value <= high:
+                raise ValueError(f"PHDConfig.{name} must be in [{low}, {high}], got {value!r}")
         # Sigmoid offsets >= 1 keep P_s and P_d inside [0, 1] without clipping.
         for name in ("survival_offset", "lidar_pd_offset", "camera_pd_offset"):
             if getattr(self, name) < 1.0:
@@ -343,10 +394,12 @@ class PHDConfig:
         if (
             isinstance(self.max_components, bool)
             or not isinstance(self.max_components, int)
-            or self.max_components < 1
+            or not 1 <= self.max_components <= 10_000
         ):
+            # Cost guard: the banks allocate (6, R, max_components) and merge in O(C^2).
             raise ValueError(
-                f"PHDConfig.max_components must be an int >= 1, got {self.max_components!r}"
+                "PHDConfig.max_components must be an int in [1, 10000], got "
+                f"{self.max_components!r}"
             )
         value = self.camera_birth_components
         if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 64:
@@ -371,8 +424,17 @@ class PHDConfig:
 
     @property
     def camera_noise_var_rad2(self) -> float:
-        """Camera bearing noise variance ``R_C`` in rad^2."""
+        """The constant part of the camera bearing noise variance ``R_C`` in rad^2 (all of it
+        when ``camera_noise_width_fraction == 0``, the seed)."""
         return math.radians(self.camera_noise_std_deg) ** 2
+
+    def camera_bearing_var(self, range_m: np.ndarray | float) -> np.ndarray:
+        """``R_C(r)`` in rad^2 at ranges ``range_m`` (m, any shape; floored at
+        ``min_range_m``): the constant part plus ``(camera_noise_width_fraction W(r))^2``,
+        ``W(r) = 2 asin(min(1, camera_target_radius_m / r))``."""
+        r = np.maximum(np.asarray(range_m, dtype=float), self.min_range_m)
+        width = 2.0 * np.arcsin(np.minimum(1.0, self.camera_target_radius_m / r))
+        return self.camera_noise_var_rad2 + (self.camera_noise_width_fraction * width) ** 2
 
     @property
     def camera_clutter_total_per_rad(self) -> float:

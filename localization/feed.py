@@ -23,7 +23,8 @@ from swarm_core.world import GroundTruth, WorldStep
 __all__ = ["SwarmFeed", "localizer_calls", "Call"]
 
 #: One filter call: ``("predict", delta (3,))``, ``("lidar", detections (M, 2), null_bearings
-#: (K,), sensor_pose (3,) or None)`` or ``("camera", bearings (M,), sensor_pose (3,) or None)``.
+#: (K,), sensor_pose (3,) or None)``, ``("camera", bearings (M,), sensor_pose (3,) or None)``
+#: or ``("advance", stamp_s)``.
 Call = tuple
 
 _EMPTY = RobotMeasurements()
@@ -112,7 +113,8 @@ def localizer_calls(
     """One robot's records as time-ordered filter calls, skipping ``stale`` sensors.
 
     ``("predict", delta)`` for odometry, ``("lidar", detections, null_bearings)`` and
-    ``("camera", bearings)``, as every bank's ``apply`` takes them.
+    ``("camera", bearings)``, each after an ``("advance", stamp_s)``, as every bank's
+    ``apply`` takes them.
 
     The filter's frame is the robot's pose at its **last odometry sample**, but a scan or a
     frame is taken up to one odometry period (0.1 s) later, from wherever the robot has moved
@@ -127,7 +129,10 @@ def localizer_calls(
     samples fall on step ends; on a real robot with unsynchronised odometry some are).
 
     Calls: ``("predict", delta)``, ``("lidar", detections, null_bearings, sensor_pose)`` and
-    ``("camera", bearings, sensor_pose)``, ``sensor_pose`` a ``(3,)`` array or None.
+    ``("camera", bearings, sensor_pose)``, ``sensor_pose`` a ``(3,)`` array or None. Each is
+    preceded by ``("advance", stamp_s)``, the record's stamp: a filter with
+    ``time_update == "measurement"`` adds the process noise that accrued up to it first
+    (:meth:`localization.RobotCentricPHD.advance`); the others only move a clock.
     """
     ordered = records.in_time_order()
     use_odometry = "odometry" not in stale
@@ -141,6 +146,7 @@ def localizer_calls(
             upcoming = record
             if use_odometry:
                 calls.append(("predict", record.delta))
+                calls.append(("advance", record.stamp_s))  # reversed below: goes first
             continue
         pose = None
         if compensate and upcoming is not None and upcoming.stamp_s > record.stamp_s:
@@ -148,8 +154,10 @@ def localizer_calls(
         if isinstance(record, LidarRecord):
             if use_lidar:
                 calls.append(("lidar", record.detections, record.null_bearings_rad, pose))
+                calls.append(("advance", record.stamp_s))
         elif use_camera:
             calls.append(("camera", record.bearings_rad, pose))
+            calls.append(("advance", record.stamp_s))
     calls.reverse()
     return calls
 

@@ -9,9 +9,12 @@ this module is the reference (and what single-filter users call before
 :class:`~localization.RobotCentricPHD`'s updates).
 
 * Positions move rigidly: ``p_filter = R(psi) p_sensor + (x, y)``.
-* Bearings rotate: ``theta_filter = wrap(theta_sensor + psi)``. The parallax of the translation
-  is not applied: a bearing has no range. It is below ``atan(|(x, y)| / range)``, e.g. 0.9 deg
-  for 3 cm at 2 m, a fifth of the camera's 5 deg noise.
+* Bearings rotate: ``theta_filter = wrap(theta_sensor + psi)``. The translation cannot be
+  applied to a bearing (it has no range), so the filters take it into their bearing model
+  instead: ``h(m) = atan2(m_y - y, m_x - x)``, evaluated from the camera's position
+  (``RobotCentricPHD.update_camera(..., sensor_pose)`` and the banks' kernels). Left out, the
+  parallax is up to ``atan(|(x, y)| / range)``: 0.9 deg for 3 cm at 2 m and 3.4 deg at 0.5 m,
+  2 and 7 sigma of the simulated camera's measured 0.45 deg bearing noise.
 """
 
 from __future__ import annotations

@@ -243,8 +243,9 @@ def bearing_update(
         Prior covariances (m^2).
     bearings : ndarray, shape (M,)
         Measured bearings (rad).
-    noise_var : float
-        Bearing noise variance ``R_C`` (rad^2).
+    noise_var : float or ndarray, shape (N,)
+        Bearing noise variance ``R_C`` (rad^2), per component if an array (a range-dependent
+        model evaluated at each prior mean).
     min_range : float
         Floor on ``||m||`` (m) used in the Jacobian.
 

@@ -26,7 +26,9 @@ Encoding of a batch of ``Q`` calls (all arrays, built by :class:`~localization.P
 * camera ``j``: rows ``camera_start[j]:camera_stop[j]`` of ``bearings (M,)`` (rad);
 * ``lidar_pose (L, 3)`` / ``camera_pose (C, 3)`` with flags ``lidar_has_pose (L,)`` /
   ``camera_has_pose (C,)``: the sensor pose ``(x_m, y_m, psi_rad)`` in the filter's frame of
-  a measurement taken away from it (:mod:`localization.frames`; flag 0: taken in it).
+  a measurement taken away from it (:mod:`localization.frames`; flag 0: taken in it);
+* advance ``j`` (:data:`ADVANCE`): ``stamps[j]``, the time (s) the robot's clock moves to,
+  adding the process noise that accrued since (``time_update == "measurement"``).
 
 Model parameters travel as one float vector ``fparams`` and one int vector ``iparams``
 indexed by the ``F_*`` and ``I_*`` constants below, each declared once with its transform of
@@ -40,12 +42,20 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .config import CAMERA_BIRTH_RADIAL_STD_FRACTION, PHDConfig
+from .config import CAMERA_BIRTH_RADIAL_STD_FRACTION, PROCESS_CLOCK_RESET_S, PHDConfig
 from .mixture import N_ROWS
 
-__all__ = ["PREDICT", "LIDAR", "CAMERA", "pack_params", "apply_calls", "reduce_table"]
+__all__ = [
+    "PREDICT",
+    "LIDAR",
+    "CAMERA",
+    "ADVANCE",
+    "pack_params",
+    "apply_calls",
+    "reduce_table",
+]
 
-PREDICT, LIDAR, CAMERA = 0, 1, 2
+PREDICT, LIDAR, CAMERA, ADVANCE = 0, 1, 2, 3
 
 
 class _Slots:
@@ -72,6 +82,7 @@ def _inv_var_deg(std_deg: float) -> float:
 
 _F = _Slots(np.float64)  # fparams
 F_PROCESS_VAR = _F.slot(lambda c: c.process_noise_std_m**2)
+F_PROCESS_INTERVAL = _F.slot(lambda c: c.process_noise_interval_s)
 F_PS_OFFSET = _F.slot(lambda c: c.survival_offset)
 F_PS_SLOPE = _F.slot(lambda c: c.survival_slope_per_m)
 F_PS_RANGE = _F.slot(lambda c: c.survival_range_m)
@@ -95,6 +106,8 @@ F_INT_DEPTH = _F.slot(lambda c: c.interference_depth)
 F_INT_INV_VAR = _F.slot(lambda c: _inv_var_deg(c.interference_std_deg))
 F_KAPPA_L = _F.slot(lambda c: c.lidar_clutter_intensity)
 F_CAMERA_VAR = _F.slot(lambda c: c.camera_noise_var_rad2)
+F_CAMERA_WIDTH_FRACTION = _F.slot(lambda c: c.camera_noise_width_fraction)
+F_CAMERA_TARGET_RADIUS = _F.slot(lambda c: c.camera_target_radius_m)
 F_CPD_OFFSET = _F.slot(lambda c: c.camera_pd_offset)
 F_CPD_SLOPE = _F.slot(lambda c: c.camera_pd_slope_per_m)
 F_CPD_MID = _F.slot(lambda c: c.camera_pd_midpoint_m)
@@ -118,6 +131,7 @@ I_BIRTH_MEASUREMENT = _I.slot(lambda c: c.birth == "measurement")
 I_LIDAR_PD_CONSTANT = _I.slot(lambda c: c.lidar_pd_model == "constant")
 I_LIDAR_ONLY = _I.slot(lambda c: c.mode == "lidar-only")
 I_CAMERA_BIRTH = _I.slot(lambda c: c.camera_birth == "ray")
+I_TIME_UPDATE_MEASUREMENT = _I.slot(lambda c: c.time_update == "measurement")
 I_CBIRTH_COMPONENTS = _I.slot(lambda c: c.camera_birth_components)
 I_MISSED_BERNOULLI = _I.slot(lambda c: c.missed_detection == "bernoulli")
 N_IPARAMS = len(_I.transforms)
@@ -252,17 +266,16 @@ def _camera_pd(tab, n, fp):
 
 # ---------------------------------------------------------------------- time update
 @njit(cache=True)
-def frame_change(out, total, n_survive, odo, fp, ip):
+def frame_change(out, total, n_survive, odo, q, fp, ip):
     """The time update of ``out``'s first ``total`` columns, in place: weights (or existences)
     times ``P_s`` (columns ``>= n_survive`` are new births: 1), and the ego-motion
-    ``m' = R(dpsi)^T (m - d)``, ``P' = R^T P R + Q`` (localization.gaussian.frame_change_matrix).
-    Shared by the GM-PHD and the PMB kernels."""
+    ``m' = R(dpsi)^T (m - d)``, ``P' = R^T P R + q I`` (localization.gaussian.frame_change_matrix;
+    ``q`` from :func:`predict_process_var`). Shared by the GM-PHD and the PMB kernels."""
     dx, dy, dpsi = odo[0], odo[1], odo[2]
     c, s = math.cos(dpsi), math.sin(dpsi)
     cc, ss, cs = c * c, s * s, c * s
     off_x = -(c * dx + s * dy)
     off_y = s * dx - c * dy
-    q = fp[F_PROCESS_VAR]
     constant = ip[I_SURVIVAL_CONSTANT]
     for i in range(total):
         x, y = out[1, i], out[2, i]
@@ -284,7 +297,49 @@ def frame_change(out, total, n_survive, odo, fp, ip):
 
 
 @njit(cache=True)
-def _predict(tab, n, births, n_births, odo, fp, ip):
+def advance_clock(clock, r, stamp, fp, ip):
+    """Robot ``r``'s clock to ``stamp`` (s); returns the process variance (m^2) that accrued
+    since its previous stamp (0 for the first stamp, a stamp out of order, or
+    ``time_update == "odometry"``). ``clock[r] = (last stamp or nan, advanced since the last
+    predict)``; as :meth:`localization.RobotCentricPHD.advance`."""
+    if not ip[I_TIME_UPDATE_MEASUREMENT]:
+        return 0.0
+    last = clock[r, 0]
+    if math.isnan(last):
+        clock[r, 0] = stamp
+        clock[r, 1] = 1.0
+        return 0.0
+    if stamp < last - PROCESS_CLOCK_RESET_S:  # the clock was reset: restart it
+        clock[r, 0] = stamp
+        clock[r, 1] = 0.0
+        return 0.0
+    clock[r, 1] = 1.0
+    if stamp <= last:
+        return 0.0
+    clock[r, 0] = stamp
+    return fp[F_PROCESS_VAR] * (stamp - last) / fp[F_PROCESS_INTERVAL]
+
+
+@njit(cache=True)
+def predict_process_var(clock, r, fp, ip):
+    """The ``Q`` variance of robot ``r``'s next predict: none if its clock was advanced since
+    the last one (the noise went in at each stamp), else all of it (the seed; unstamped calls).
+    Marks the clock as not advanced."""
+    advanced = ip[I_TIME_UPDATE_MEASUREMENT] and clock[r, 1] != 0.0
+    clock[r, 1] = 0.0
+    return 0.0 if advanced else fp[F_PROCESS_VAR]
+
+
+@njit(cache=True)
+def diffuse(tab, n, var):
+    """``P += var I`` on the first ``n`` columns of ``tab``, in place (a random walk's share)."""
+    for i in range(n):
+        tab[3, i] += var
+        tab[5, i] += var
+
+
+@njit(cache=True)
+def _predict(tab, n, births, n_births, odo, q, fp, ip):
     """Frame change + Q + survival; pending births join with ``P_s = 1``. Returns (table, n)."""
     total = n + n_births
     out = np.empty((N_ROWS, total))
@@ -297,7 +352,7 @@ def _predict(tab, n, births, n_births, odo, fp, ip):
         out[3, col] = fp[F_MBIRTH_VAR]
         out[4, col] = 0.0
         out[5, col] = fp[F_MBIRTH_VAR]
-    frame_change(out, total, n, odo, fp, ip)
+    frame_change(out, total, n, odo, q, fp, ip)
     if total > ip[I_MAX_COMPONENTS]:
         return reduce_table(out, total, fp[F_PRUNE], fp[F_MERGE], ip[I_MAX_COMPONENTS])
     return out, total
@@ -475,6 +530,16 @@ def _lidar_update(tab, n, pts, nulls, fp, ip, sector_scaled, sector_inv_var):
 
 
 @njit(cache=True)
+def camera_bearing_var(range_m, fp):
+    """``R_C(r)`` (rad^2) at range ``range_m`` (m), as
+    :meth:`localization.PHDConfig.camera_bearing_var`."""
+    r = max(range_m, fp[F_MIN_RANGE])
+    width = 2.0 * math.asin(min(1.0, fp[F_CAMERA_TARGET_RADIUS] / r))
+    spread = fp[F_CAMERA_WIDTH_FRACTION] * width
+    return fp[F_CAMERA_VAR] + spread * spread
+
+
+@njit(cache=True)
 def _camera_update(tab, n, brg, fp, ip):
     """Camera EKF bearing GM-PHD update (+ ray births), pruned. Returns (table, k)."""
     m = brg.shape[0]
@@ -482,7 +547,6 @@ def _camera_update(tab, n, brg, fp, ip):
     pd = _camera_pd(tab, n, fp)
     if m == 0:
         return _missed_only(tab, n, pd, prune, ip[I_MISSED_BERNOULLI])
-    noise = fp[F_CAMERA_VAR]
     kappa = fp[F_KAPPA_C]
     min_r2 = fp[F_MIN_RANGE] * fp[F_MIN_RANGE]
     detected = np.empty((n, m))
@@ -491,6 +555,7 @@ def _camera_update(tab, n, brg, fp, ip):
     for i in range(n):
         x, y = tab[1, i], tab[2, i]
         pxx, pxy, pyy = tab[3, i], tab[4, i], tab[5, i]
+        noise = camera_bearing_var(math.hypot(x, y), fp)
         # Guard: ||m||^2 floored so the atan2 Jacobian [-y, x] / r^2 stays finite.
         inv_r2 = 1.0 / max(x * x + y * y, min_r2)
         j0, j1 = -y * inv_r2, x * inv_r2
@@ -560,7 +625,6 @@ def _with_ray_births(tab, n, brg, explained, fp, ip):
     if n_rays == 0 or n_kept == 0:
         return tab, n
     radial_var = (fp[F_CBIRTH_RADIAL_FRACTION] * step) ** 2
-    bearing_var = fp[F_CAMERA_VAR]
     out = np.empty((N_ROWS, n + n_rays * n_kept))
     out[:, :n] = tab[:, :n]
     col = n
@@ -572,7 +636,7 @@ def _with_ray_births(tab, n, brg, explained, fp, ip):
             if share[c] < prune:
                 continue
             r = ranges[c]
-            cross_var = r * r * bearing_var
+            cross_var = r * r * camera_bearing_var(r, fp)
             out[0, col] = share[c]
             out[1, col] = r * co
             out[2, col] = r * si
@@ -726,6 +790,26 @@ def _to_filter_frame(points, bearings, pose):
 
 
 @njit(cache=True)
+def shift_means(tab, n, dx, dy):
+    """A copy of ``tab``'s first ``n`` columns with the means moved by ``(dx, dy)``; the
+    table itself when the shift is zero (a sensor pose with no translation)."""
+    if dx == 0.0 and dy == 0.0:
+        return tab
+    out = tab[:, :n].copy()
+    shift_means_in_place(out, n, dx, dy)
+    return out
+
+
+@njit(cache=True)
+def shift_means_in_place(tab, n, dx, dy):
+    if dx == 0.0 and dy == 0.0:
+        return
+    for i in range(n):
+        tab[1, i] += dx
+        tab[2, i] += dy
+
+
+@njit(cache=True)
 def robot_runs(robots):
     """Runs of equal robot indices in the call order ``robots (Q,)`` (each robot's calls are
     contiguous): ``starts (G + 1,)`` with run ``g`` = calls ``starts[g]:starts[g + 1]``, and
@@ -743,7 +827,7 @@ def robot_runs(robots):
 
 @njit(cache=True, parallel=True)
 def apply_calls(
-    table, counts, pending, pending_counts, calls, fp, ip, sector_scaled, sector_inv_var
+    table, counts, pending, pending_counts, clock, calls, fp, ip, sector_scaled, sector_inv_var
 ):
     """Run ``Q`` encoded calls (module docstring) on the bank state, in place.
 
@@ -757,10 +841,13 @@ def apply_calls(
         Measurement births awaiting the next time update (``birth == "measurement"``);
         ``Pmax`` must be at least the largest lidar call's point count.
     pending_counts : ndarray of int, shape (R,)
+    clock : ndarray, shape (R, 2)
+        Per robot: last stamp (s, nan before the first) and whether it was advanced since the
+        last predict (:func:`advance_clock`).
     calls : tuple of ndarray
         ``robots, kinds, index, odometry, lidar_start, lidar_stop, points, null_start,
         null_stop, nulls, camera_start, camera_stop, bearings, lidar_pose, lidar_has_pose,
-        camera_pose, camera_has_pose`` (module docstring).
+        camera_pose, camera_has_pose, stamps`` (module docstring).
     """
     # Robots are independent: each thread takes whole robots, and runs their calls in order.
     starts, n_groups = robot_runs(calls[0])
@@ -772,6 +859,7 @@ def apply_calls(
                 counts,
                 pending,
                 pending_counts,
+                clock,
                 calls,
                 fp,
                 ip,
@@ -782,7 +870,7 @@ def apply_calls(
 
 @njit(cache=True)
 def _apply_call(
-    q, table, counts, pending, pending_counts, calls, fp, ip, sector_scaled, sector_inv_var
+    q, table, counts, pending, pending_counts, clock, calls, fp, ip, sector_scaled, sector_inv_var
 ):
     """Call ``q`` of :func:`apply_calls` on its robot's slice of the state."""
     (
@@ -803,6 +891,7 @@ def _apply_call(
         lidar_has_pose,
         camera_pose,
         camera_has_pose,
+        stamps,
     ) = calls
     max_components = ip[I_MAX_COMPONENTS]
     measurement_birth = ip[I_BIRTH_MEASUREMENT]
@@ -812,8 +901,12 @@ def _apply_call(
     j = index[q]
     n = counts[r]
     tab = table[:, r, :n]
+    if kind == ADVANCE:
+        diffuse(tab, n, advance_clock(clock, r, stamps[j], fp, ip))
+        return
     if kind == PREDICT:
-        out, n_out = _predict(tab, n, pending[r], pending_counts[r], odometry[j], fp, ip)
+        q_var = predict_process_var(clock, r, fp, ip)
+        out, n_out = _predict(tab, n, pending[r], pending_counts[r], odometry[j], q_var, fp, ip)
         pending_counts[r] = 0
     elif kind == LIDAR:
         pts = points[lidar_start[j] : lidar_stop[j]]
@@ -845,7 +938,13 @@ def _apply_call(
         brg = bearings[camera_start[j] : camera_stop[j]]
         if camera_has_pose[j]:
             _, brg = _to_filter_frame(np.empty((0, 2)), brg, camera_pose[j])
-        cand, n_cand = _camera_update(tab, n, brg, fp, ip)
+            sx, sy = camera_pose[j, 0], camera_pose[j, 1]
+            # The bearing model from the camera's position (RobotCentricPHD.update_camera).
+            seen = shift_means(tab, n, -sx, -sy)
+            cand, n_cand = _camera_update(seen, n, brg, fp, ip)
+            shift_means_in_place(cand, n_cand, sx, sy)
+        else:
+            cand, n_cand = _camera_update(tab, n, brg, fp, ip)
         out, n_out = _merge_cap(cand, n_cand, fp[F_MERGE], max_components)
     table[:, r, :n_out] = out[:, :n_out]
     table[:, r, n_out:] = 0.0

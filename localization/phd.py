@@ -18,20 +18,87 @@ References
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+
 import numpy as np
 
+from .config import PROCESS_CLOCK_RESET_S
 from .detection import inverse_sigmoid
 from .gaussian import TINY, bearing_update, frame_change_matrix, position_update
 from .mixture import N_ROWS, ROW_PXX, ROW_PXY, ROW_PYY, ROW_W, ROW_X, ROW_Y
 
 __all__ = [
+    "ProcessClock",
     "predict",
+    "diffuse",
     "birth_components",
     "lidar_update",
     "camera_update",
     "missed_weights",
     "ray_births",
 ]
+
+
+@dataclass(frozen=True, slots=True)
+class ProcessClock:
+    """When a robot's random-walk process noise went in (``PHDConfig.time_update``).
+
+    ``time_update == "measurement"``: the noise accrues continuously at the rate
+    ``process_var / interval_s``; every stamped call (``("advance", stamp_s)``) adds what
+    accrued since the previous stamp, and the next predict adds none. A predict that no
+    stamp preceded (unstamped calls, ``"odometry"``) adds all of ``Q``, as the seed does.
+
+    Attributes
+    ----------
+    last_stamp_s : float
+        The latest stamp seen (nan: none since the reset).
+    advanced : bool
+        Whether a stamp arrived since the last predict.
+
+    The first stamp after a reset only starts the clock: the share of ``Q`` between the reset
+    and that stamp (under one odometry period, once per episode) is not added. A stamp more
+    than ``PROCESS_CLOCK_RESET_S`` behind the latest restarts the clock (the next predict then
+    adds the whole ``Q``); a smaller step back adds nothing and leaves the clock where it was.
+    """
+
+    last_stamp_s: float = float("nan")
+    advanced: bool = False
+
+    def advance(self, stamp_s: float, process_var: float, interval_s: float, enabled: bool):
+        """``(clock, variance to add now in m^2)`` at ``stamp_s``. The first stamp and a stamp
+        out of order add nothing (a stale stamp never moves the clock back)."""
+        if not enabled:
+            return self, 0.0
+        last = self.last_stamp_s
+        if math.isnan(last):
+            return ProcessClock(stamp_s, True), 0.0
+        if stamp_s < last - PROCESS_CLOCK_RESET_S:
+            return ProcessClock(stamp_s, False), 0.0
+        if stamp_s <= last:
+            return ProcessClock(last, True), 0.0
+        return ProcessClock(stamp_s, True), process_var * (stamp_s - last) / interval_s
+
+    def predict(self, process_var: float, enabled: bool):
+        """``(clock, Q variance of this predict in m^2)``."""
+        added = enabled and self.advanced
+        return ProcessClock(self.last_stamp_s, False), 0.0 if added else process_var
+
+    def as_array(self) -> np.ndarray:
+        """``[last_stamp_s, advanced]``, the compiled banks' row of their ``clock (R, 2)``."""
+        return np.array([self.last_stamp_s, float(self.advanced)])
+
+    @classmethod
+    def from_array(cls, row: np.ndarray) -> ProcessClock:
+        return cls(float(row[0]), bool(row[1]))
+
+
+def diffuse(table: np.ndarray, process_var: float) -> np.ndarray:
+    """The table with ``process_var * I`` (m^2) added to every covariance (a new array)."""
+    out = table.copy()
+    out[ROW_PXX] += process_var
+    out[ROW_PYY] += process_var
+    return out
 
 
 def predict(
@@ -218,7 +285,9 @@ def ray_births(
     weight : float
         Total weight per bearing.
     n_components : int
-    min_range_m, max_range_m, radial_std_fraction, bearing_var : float
+    min_range_m, max_range_m, radial_std_fraction : float
+    bearing_var : float or callable
+        ``R_C`` (rad^2), or ``R_C(range_m)`` evaluated at each cell's range.
     pd_offset, pd_slope_per_m, pd_midpoint_m : float
         Camera range factor (:func:`localization.detection.inverse_sigmoid`).
 
@@ -232,6 +301,8 @@ def ray_births(
     share = ranges * inverse_sigmoid(ranges, pd_offset, pd_slope_per_m, pd_midpoint_m)
     weights = share * (weight / share.sum())
     radial_var = (radial_std_fraction * step) ** 2
+    if callable(bearing_var):  # R_C(r), rad^2, at each cell's range
+        bearing_var = bearing_var(ranges)
     cross_var = ranges * ranges * bearing_var
     c = np.cos(bearings)[:, None]
     s = np.sin(bearings)[:, None]
@@ -263,7 +334,7 @@ def lidar_update(
         Detections ``[x_m, y_m]`` in the robot frame.
     detection_prob : ndarray, shape (N,)
         Lidar ``P_d`` per prior component, in ``[0, 1]``.
-    noise_var : float
+    noise_var : float or ndarray, shape (N,)
         ``R_L = noise_var * I`` (m^2).
     clutter_intensity : float
         ``kappa_L`` (1/m^2).

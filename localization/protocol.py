@@ -15,6 +15,11 @@ estimate in one form:
 - :meth:`Localizer.identities`: ``{teammate index: (x_m, y_m[, psi_rad])}`` for the families
   that know identities (ID-PHD, the oracle-identity baselines); ``{}`` otherwise.
 
+Each family bounds its total weight and its number of components per filter call (a time
+update: at most ``P_s`` times the mass plus the pending births; an update: at most one more per
+measurement; at most a configured number of components): see each class docstring and
+``docs/localization.md``, "Bounds on weight and cardinality".
+
 Families are built by name through :mod:`localization.registry`. To add one, see
 ``docs/architecture.md`` ("Add a new localizer").
 """

@@ -12,6 +12,10 @@ localizer runs on (the simulator presets' :data:`swarm_env.config.SIMULATOR_PHD`
 ``PHDConfig()`` for real robots); the ``-lc`` / ``-lo`` names set its ``mode``, the bare family
 names (``phd``, ``phd-reference``) keep it. :func:`register` adds a family (see
 ``docs/architecture.md``, "Add a new localizer").
+
+Each family's bound on total weight and cardinality is in its class docstring and in
+``docs/localization.md`` ("Bounds on weight and cardinality"), checked after every filter call by
+``tests/localization/test_localizer_bounds.py``.
 """
 
 from __future__ import annotations
@@ -30,8 +34,14 @@ from swarm_core.records import LidarRecord, OdometryRecord
 from .bank import PHDBank, _TableHolder
 from .config import PHDConfig
 from .feed import SwarmFeed
-from .filter import RobotCentricPHD
-from .frames import bearings_to_filter_frame, points_to_filter_frame
+from .filter import (
+    RobotCentricPHD,
+    _checked_angles,
+    _checked_odometry,
+    _checked_points,
+    _checked_stamp,
+    check_magnitude,
+)
 from .id_phd import IDPHD, IDPHDConfig
 from .mixture import GaussianMixture
 from .protocol import Localizer, LocalizerBase, tables_from_mixtures
@@ -100,7 +110,20 @@ def make_localizer(
 class BankLocalizer(LocalizerBase):
     """A compiled bank of every robot's filter (``PHDBank``, and any bank with its API:
     ``apply(calls)``, ``reset()``, ``padded_tables()``, ``mixture(r)``, ``estimate(r, t)``),
-    fed one step's calls in one compiled call."""
+    fed one step's calls in one compiled call.
+
+    Bounds (per robot and filter call; ``docs/localization.md``, "Bounds on weight and
+    cardinality"). **GM-PHD** (``phd*``), ``W = sum w`` the expected number of teammates:
+    a time update gives ``W' <= P_s,max W + measurement_birth_weight B`` (``B``: detections of
+    the last scan since the last time update); a scan of ``M`` detections
+    ``W' <= sum_i (1 - P_d,i) w_i + M`` (Bernoulli missed copies: ``w_i (1 - P_d,i) /
+    (1 - r_i P_d,i)``, ``r_i = w_i / max(1, ceil(w_i))``); a frame of ``K`` bearings the same
+    with the camera's ``P_d`` and ``+ K (1 + camera_birth_weight)`` with ray births; at most
+    ``max_components`` components. **PMB** (``pmb*``, ``weight_meaning="existence"``):
+    ``sum r + sum Poisson w`` obeys the same time-update bound, and ``<= sum r + sum (1 - P_d)
+    w_Poisson + M`` (or ``K``) per update; every existence in ``[0, 1]``, at most
+    ``max_tracks`` tracks.
+    """
 
     def __init__(self, bank: Any, weight_meaning: str = "phd-weight") -> None:
         self.bank = bank
@@ -124,28 +147,38 @@ class BankLocalizer(LocalizerBase):
         return self.bank.estimate(self._robot(robot), threshold)
 
 
+def _check_records(robot: int, records: Any, stale: tuple[str, ...]) -> None:
+    """The anonymous banks' input checks (finite, within ``MAX_INPUT_MAGNITUDE``, finite
+    stamps) on one robot's records, for the families that read records directly."""
+    try:
+        if "odometry" not in stale:
+            for rec in records.odometry:
+                _checked_stamp(rec.stamp_s)
+                _checked_odometry(rec.delta)
+                check_magnitude(np.asarray(rec.velocity, dtype=float), "odometry velocity")
+        if "lidar" not in stale:
+            for rec in records.lidar:
+                _checked_stamp(rec.stamp_s)
+                _checked_points(rec.detections)
+                _checked_angles(rec.null_bearings_rad, "null_bearings")
+    except ValueError as exc:
+        raise ValueError(f"robot {robot}: {exc}") from None
+
+
 def run_calls(f: Any, calls: list[tuple]) -> None:
     """Run one robot's calls (:func:`localization.feed.localizer_calls`) on a single filter
-    with the ``RobotCentricPHD`` methods, moving posed measurements with
-    :mod:`localization.frames` (what the compiled bank does inside its kernel)."""
+    with the ``RobotCentricPHD`` / ``RobotCentricPMB`` methods (which move posed measurements
+    with :mod:`localization.frames`, as the compiled banks do inside their kernels)."""
     for call in calls:
         kind = call[0]
         if kind == "predict":
             f.predict(call[1])
         elif kind == "lidar":
-            points, nulls = call[1], call[2]
-            pose = call[3] if len(call) > 3 else None
-            if pose is not None:
-                points = points_to_filter_frame(np.asarray(points, dtype=float), pose)
-                if nulls is not None:
-                    nulls = bearings_to_filter_frame(np.asarray(nulls, dtype=float), pose)
-            f.update_lidar(points, nulls)
+            f.update_lidar(call[1], call[2], sensor_pose=call[3] if len(call) > 3 else None)
         elif kind == "camera":
-            bearings = call[1]
-            pose = call[2] if len(call) > 2 else None
-            if pose is not None:
-                bearings = bearings_to_filter_frame(np.asarray(bearings, dtype=float), pose)
-            f.update_camera(bearings)
+            f.update_camera(call[1], sensor_pose=call[2] if len(call) > 2 else None)
+        elif kind == "advance":
+            f.advance(call[1])
         else:
             raise ValueError(f"unknown filter call kind {kind!r}")
 
@@ -153,7 +186,8 @@ def run_calls(f: Any, calls: list[tuple]) -> None:
 class ReferenceLocalizer(LocalizerBase):
     """One pure-numpy single filter per robot (``filter_class``: the GM-PHD's
     :class:`~localization.RobotCentricPHD` or the PMB's ``RobotCentricPMB``): the readable
-    reference of a compiled bank, same math, tens of times slower."""
+    reference of a compiled bank, same math, tens of times slower. Same bounds on weight and
+    cardinality as :class:`BankLocalizer` (its family's)."""
 
     def __init__(self, config: PHDConfig, n_robots: int, filter_class: type = RobotCentricPHD):
         self.config = config
@@ -201,6 +235,11 @@ class IdentityLocalizer(LocalizerBase):
     of the true robot within :data:`ORACLE_GATE_M` of each detection (an oracle standing in for
     seed ``003``'s / ``004``'s identifying sensors; needs ``feed.truth``). Camera records are
     not used.
+
+    Bounds (``docs/localization.md``, "Bounds on weight and cardinality"): ``id-phd`` as
+    :class:`~localization.id_phd.IDPHD` documents (its table holds the teammate-tagged part of
+    that mass); ``ukf`` / ``pf``: one unit-weight component per identified teammate, so
+    weight = count ``<= n_robots - 1``.
     """
 
     has_identities = True
@@ -219,6 +258,8 @@ class IdentityLocalizer(LocalizerBase):
         if self.oracle_identities and feed.truth is None:
             raise ValueError(f"{self.name} needs ground truth for its oracle identities")
         records, stale = feed.measurements, feed.stale
+        for r in range(self.n_robots):  # the compiled banks' input checks, before any work
+            _check_records(r, records[r], stale[r])
         filters = [copy.deepcopy(f) for f in self.filters]  # kept only if every call succeeds
         odometry = [
             [] if "odometry" in stale[r] else [rec.delta for rec in records[r].odometry]

@@ -160,6 +160,46 @@ class CameraRecord:
 
 
 @dataclass(frozen=True, slots=True)
+class Broadcast:
+    """What one robot told its teammates over the radio (seed 001 ch. 5-6, seed 002).
+
+    Robots are anonymous to each other's sensors, but not on the radio: a broadcast names its
+    sender. Its contents are in the sender's own frames, so a receiver needs no shared frame.
+
+    Attributes
+    ----------
+    sender : str
+        The sending robot's id (``"ugv_3"``).
+    stamp_s : float
+        When the sender sent it, seconds of the World's clock. Receivers get it later (latency).
+    odometry_pose : ndarray, shape (3,)
+        ``[x_m, y_m, yaw_rad]``: the sender's dead-reckoned pose since its start, in its
+        odometry frame (its own wheel odometry integrated, drift included).
+    detections : ndarray, shape (M, 2)
+        The sender's latest anonymous lidar detections, ``[x_m, y_m]`` in its body frame.
+    detections_stamp_s : float
+        Stamp of the scan ``detections`` came from (``nan`` before the first scan).
+    """
+
+    sender: str
+    stamp_s: float
+    odometry_pose: np.ndarray
+    detections: np.ndarray
+    detections_stamp_s: float = float("nan")
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.sender, str) or not self.sender:
+            raise ValueError(f"Broadcast.sender must be a robot id, got {self.sender!r}")
+        stamp = self.stamp_s
+        if isinstance(stamp, bool) or not isinstance(stamp, (int, float, np.integer, np.floating)):
+            raise ValueError(f"Broadcast.stamp_s must be a number of seconds, got {stamp!r}")
+        if not np.isfinite(stamp):
+            raise ValueError(f"Broadcast.stamp_s must be finite, got {stamp!r}")
+        object.__setattr__(self, "odometry_pose", _frozen(self.odometry_pose, shape=(3,)))
+        object.__setattr__(self, "detections", _frozen(self.detections, shape=(-1, 2)))
+
+
+@dataclass(frozen=True, slots=True)
 class RobotMeasurements:
     """Everything one robot measured during one env step, each list sorted by stamp."""
 

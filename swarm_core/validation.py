@@ -54,7 +54,7 @@ def check_blind_sectors(owner: str, centers_deg: object, widths_deg: object) -> 
     if len(centers_deg) != len(widths_deg):  # type: ignore[arg-type]
         raise ValueError(
             f"{owner}.blind_sector_widths_deg must have one width per centre, got "
-            f"{widths_deg!r} for centres {centers_deg!r}"
+            f"{widths_deg!r} for blind_sector_centers_deg={centers_deg!r}"
         )
     for width in widths_deg:  # type: ignore[union-attr]
         if not 0.0 < width < 360.0:
@@ -75,19 +75,30 @@ def as_float_array(value: object, name: str) -> np.ndarray:
 
 def check_number_fields(obj: object, owner: str | None = None) -> None:
     """Every field of the dataclass ``obj`` annotated ``int`` or ``float`` must hold a finite
-    number of that kind: ``ValueError`` naming ``owner.field`` and the value otherwise.
+    number of that kind, and every field annotated ``bool`` a bool: ``ValueError`` naming
+    ``owner.field`` and the value otherwise.
 
     The one type check every config runs first (its own ranges come after it), so a string,
-    ``None``, a bool, NaN or infinity never reaches a comparison or a kernel.
+    ``None``, a bool, NaN, infinity or an int too large for a float (``10**400``, whose
+    comparisons with floats raise ``OverflowError``) never reaches a comparison or a kernel.
     """
     import dataclasses
+    import reprlib
 
     owner = owner or type(obj).__name__
     for f in dataclasses.fields(obj):  # type: ignore[arg-type]
         annotation = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", "")
+        if annotation == "bool":
+            value = getattr(obj, f.name)
+            if not isinstance(value, (bool, np.bool_)):
+                raise ValueError(f"{owner}.{f.name} must be True or False, got {value!r}")
+            continue
         if annotation not in ("int", "float"):
             continue
         value = getattr(obj, f.name)
+        if isinstance(value, int) and not isinstance(value, bool) and abs(value) > 2**63 - 1:
+            # Beyond int64 / float range: numpy and every float comparison would overflow.
+            raise ValueError(f"{owner}.{f.name} is too large, got {reprlib.repr(value)}")
         if annotation == "int":
             kinds: tuple[type, ...] = (int, np.integer)
         else:

@@ -12,7 +12,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from swarm_core.records import RobotMeasurements
+from swarm_core.records import Broadcast, RobotMeasurements
 
 
 @dataclass(frozen=True, slots=True)
@@ -93,12 +93,16 @@ def relative_positions(observers: np.ndarray, targets_xy: np.ndarray) -> np.ndar
 
 @dataclass(frozen=True, slots=True)
 class WorldStep:
-    """What one control period produced: records per robot id, and ground truth or ``None``."""
+    """What one control period produced: records per robot id, and ground truth or ``None``.
+
+    ``comms`` maps a robot id to the teammates' :class:`~swarm_core.records.Broadcast` it
+    received during the period, in order of arrival (empty when the World has no radio)."""
 
     time_s: float
     measurements: dict[str, RobotMeasurements]
     truth: GroundTruth | None
     stale: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    comms: dict[str, list[Broadcast]] = field(default_factory=dict)
 
 
 @runtime_checkable

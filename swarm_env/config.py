@@ -21,11 +21,12 @@ from swarm_core.validation import (
     check_number_fields,
     check_positive,
 )
+from swarm_env.comms import CommsConfig
 from swarm_env.sensors.camera import CameraConfig
 from swarm_env.sensors.lidar import LidarConfig
 from swarm_env.sensors.odometry import OdometryConfig
 
-MAX_ROBOTS = 200
+MAX_ROBOTS = 1000
 OBSERVATION_MODES = ("phd", "truth", "measurements")
 
 
@@ -70,9 +71,22 @@ class RobotConfig:
             raise ValueError(f"robot.max_speed_mps must be <= 2.0 m/s, got {self.max_speed_mps!r}")
         if self.housing_radius_m > 0.5 * self.width_m:
             raise ValueError(
-                f"robot.housing_radius_m must fit the chassis (<= {0.5 * self.width_m} m), "
-                f"got {self.housing_radius_m!r}"
+                f"robot.housing_radius_m must fit the chassis (<= robot.width_m / 2, "
+                f"robot.width_m={self.width_m!r}), got {self.housing_radius_m!r}"
             )
+        # Physical plausibility of a swarm UGV: a 1e300 m axle turns 1.5 rad/s into wheel
+        # speeds whose odometry overflows the filters' input bound at the first step.
+        for name in (
+            "length_m",
+            "width_m",
+            "camera_holder_radius_m",
+            "wheel_radius_m",
+            "axle_width_m",
+        ):
+            if getattr(self, name) > 2.0:
+                raise ValueError(f"robot.{name} must be <= 2 m, got {getattr(self, name)!r}")
+        if self.axle_width_m < 0.01:  # one encoder pulse would turn the robot by radians
+            raise ValueError(f"robot.axle_width_m must be >= 0.01 m, got {self.axle_width_m!r}")
 
     @property
     def footprint_radius_m(self) -> float:
@@ -118,14 +132,44 @@ class ArenaConfig:
             "red_decoy_radius_m",
         ):
             check_positive(f"arena.{name}", getattr(self, name))
+        # 1000: the 1000-robot preset keeps the seed's obstacle density (200 posts).
         for name in ("n_decoy_posts", "n_red_decoys", "n_boxes"):
-            check_int_range(f"arena.{name}", getattr(self, name), 0, 100)
+            check_int_range(f"arena.{name}", getattr(self, name), 0, 1000)
         if self.width_m > 100 or self.height_m > 100:
-            raise ValueError(f"arena size must be <= 100 m, got {self.width_m} x {self.height_m}")
-        low, high = self.box_size_range_m
+            raise ValueError(
+                f"arena.width_m and arena.height_m must be <= 100 m, got {self.width_m!r} x "
+                f"{self.height_m!r}"
+            )
+        sizes = self.box_size_range_m
+        if not (
+            isinstance(sizes, tuple)
+            and len(sizes) == 2
+            and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                for v in sizes
+            )
+        ):
+            raise ValueError(
+                f"arena.box_size_range_m must be a tuple (low_m, high_m) of finite numbers, "
+                f"got {sizes!r}"
+            )
+        low, high = sizes
         if not 0 < low <= high:
             raise ValueError(
                 f"arena.box_size_range_m must be 0 < low <= high, got {(low, high)!r}"
+            )
+        # Every obstacle must fit inside the walls (else the scene fails at reset, not here).
+        half = 0.5 * min(self.width_m, self.height_m)
+        for name in ("decoy_post_radius_m", "red_decoy_radius_m"):
+            if getattr(self, name) >= half:
+                raise ValueError(
+                    f"arena.{name} must be < half the arena's smaller side (arena.width_m x "
+                    f"arena.height_m = {self.width_m!r} x {self.height_m!r}), got "
+                    f"{getattr(self, name)!r}"
+                )
+        if high >= 2 * half:
+            raise ValueError(
+                f"arena.box_size_range_m must fit the arena (< {2 * half} m), got {sizes!r}"
             )
 
     @property
@@ -153,10 +197,15 @@ SIM_CAMERA_PD_OFFSET = 1.050
 SIM_CAMERA_PD_SLOPE_PER_M = 3.84
 SIM_CAMERA_PD_MIDPOINT_M = 4.08
 
-#: Camera bearing noise of the simulated blobs: RMS error of teammates' detected bearings over
-#: every frame of ``seed-sim`` (15000 frames; blob-centroid offset of a partly lit strip plus
-#: pixel rounding, 0.96 deg at 0.5 m, 0.48 deg at 1 m, 0.18 deg at 2.5 m).
-SIM_CAMERA_NOISE_STD_DEG = 0.45
+#: Camera bearing noise of the simulated blobs, ``R_C(r) = s0^2 + (k W(r))^2`` with
+#: ``W(r) = 2 asin(R / r)`` the strip's angular width: least squares on the measured RMS error
+#: per range where P_d >= 0.9 (0.96 deg at 0.5 m, 0.48 at 1 m, 0.23 at 2 m, 0.16 at 3 m) gives
+#: k = 0.0845 (the blob model's own (1 - fill_min) / 6 = 0.0833: a centroid offset uniform
+#: within the unlit part of the strip) and an s0 below what the fit resolves; s0 is the pixel
+#: rounding, 1 px / sqrt(12) = 0.027 deg. Over all of ``seed-sim``'s frames the RMS error is
+#: 0.45 deg, which a constant model would use at every range: 4x too tight at 0.3 m.
+SIM_CAMERA_NOISE_STD_DEG = 0.027
+SIM_CAMERA_NOISE_WIDTH_FRACTION = 0.0845
 
 #: Camera clutter intensity per radian in ``seed-sim``: bearings that no tracked teammate
 #: explains. Measured per frame: 1.29 from the arena's red decoys, 0.10 random false blobs
@@ -170,7 +219,7 @@ SIM_CAMERA_CLUTTER_PER_RAD = 1.22
 #:
 #: * the lidar range factor :data:`SIM_LIDAR_PD_OFFSET`, ``_SLOPE_PER_M``, ``_MIDPOINT_M``;
 #: * the camera range factor :data:`SIM_CAMERA_PD_OFFSET`, ``_SLOPE_PER_M``, ``_MIDPOINT_M``,
-#:   the bearing noise :data:`SIM_CAMERA_NOISE_STD_DEG` and the clutter
+#:   the bearing noise :data:`SIM_CAMERA_NOISE_STD_DEG`, ``_WIDTH_FRACTION`` and the clutter
 #:   :data:`SIM_CAMERA_CLUTTER_PER_RAD`;
 #: * measurement-driven births of weight 0.25: teammates enter a robot's 2 m disc 0.085 times
 #:   per scan, and the seed's fixed birth needs 2-3 extra scans per newcomer.
@@ -186,6 +235,8 @@ SIMULATOR_PHD = PHDConfig(
     camera_pd_slope_per_m=SIM_CAMERA_PD_SLOPE_PER_M,
     camera_pd_midpoint_m=SIM_CAMERA_PD_MIDPOINT_M,
     camera_noise_std_deg=SIM_CAMERA_NOISE_STD_DEG,
+    camera_noise_width_fraction=SIM_CAMERA_NOISE_WIDTH_FRACTION,
+    camera_target_radius_m=RobotConfig().camera_holder_radius_m,
     camera_clutter_intensity=SIM_CAMERA_CLUTTER_PER_RAD,
     # One missed frame does not kill an established track (docs/localization.md, "Missed
     # detections: the Bernoulli term"). Camera-started tracks (camera_birth="ray") stay an
@@ -194,6 +245,9 @@ SIMULATOR_PHD = PHDConfig(
     # the seed metric a point; the bearings of teammates the lidar does not reach are clutter
     # instead (camera_clutter_intensity above counts them).
     missed_detection="bernoulli",
+    # Process noise up to each measurement's stamp: three camera frames and a scan fall between
+    # two odometry samples (docs/localization.md, "When Q goes in").
+    time_update="measurement",
 )
 
 
@@ -231,6 +285,9 @@ class SwarmConfig:
         instant of every reading (``SimWorld.stats``; the demo prints them). Costs time.
     phd : PHDConfig
         Every robot's filter (default :data:`SIMULATOR_PHD`).
+    comms : CommsConfig
+        The robots' radio (off by default): teammates' odometry and anonymous detections, with
+        loss, latency and a radius; received broadcasts are in ``infos[agent]["comms"]``.
     """
 
     n_robots: int = 20
@@ -240,6 +297,7 @@ class SwarmConfig:
     lidar: LidarConfig = field(default_factory=LidarConfig)
     lidar_features: LidarFeatureConfig = field(default_factory=LidarFeatureConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
+    comms: CommsConfig = field(default_factory=CommsConfig)
     phd: PHDConfig = SIMULATOR_PHD
     control_period_s: float = 0.1
     physics_substeps: int = 5
@@ -272,7 +330,7 @@ class SwarmConfig:
                 raise ValueError(f"{name} must be a bool, got {getattr(self, name)!r}")
         from localization.registry import LOCALIZERS
 
-        if self.localizer not in LOCALIZERS:
+        if not isinstance(self.localizer, str) or self.localizer not in LOCALIZERS:
             raise ValueError(
                 f"localizer must be one of {sorted(LOCALIZERS)}, got {self.localizer!r}"
             )
@@ -282,7 +340,8 @@ class SwarmConfig:
         if substep_m > 0.5 * self.arena.wall_thickness_m:
             raise ValueError(
                 f"physics_substeps={self.physics_substeps} lets a robot move {substep_m:.3f} m "
-                "per substep, more than half the wall thickness: raise physics_substeps"
+                "per substep, more than half the wall thickness (arena.wall_thickness_m="
+                f"{self.arena.wall_thickness_m!r}): raise physics_substeps"
             )
         # Sensors fire on substep boundaries, at most once per substep each.
         substep_hz = 1.0 / self.physics_dt_s
@@ -293,6 +352,12 @@ class SwarmConfig:
                     f"{name}.rate_hz={rate} exceeds the physics substep rate {substep_hz:g} Hz "
                     f"(control_period_s / physics_substeps): raise physics_substeps"
                 )
+        if self.spawn_clearance_m > min(self.arena.width_m, self.arena.height_m):
+            # (1e300 overflowed the packing bound below with an unnamed OverflowError.)
+            raise ValueError(
+                f"spawn_clearance_m must be <= the arena's smaller side, got "
+                f"{self.spawn_clearance_m!r}"
+            )
         # Rough packing bound: robots' enclosing discs must cover < 35 % of the free area.
         disc = math.pi * (self.robot.footprint_radius_m + self.spawn_clearance_m) ** 2
         if self.n_robots * disc > 0.35 * self.arena.area_m2:
@@ -307,11 +372,36 @@ class SwarmConfig:
         return self.control_period_s / self.physics_substeps
 
 
+def _dense(n_robots: int) -> SwarmConfig:
+    """``sim-6m-20``'s density with ``n_robots``: the arena side grows as ``sqrt(n / 20)``
+    (to 0.1 m) and the posts, red decoys and boxes with the area (big-swarm presets)."""
+    k = n_robots // 20
+    side = round(6.0 * math.sqrt(n_robots / 20.0), 1)
+    return SwarmConfig(
+        n_robots=n_robots,
+        arena=ArenaConfig(
+            width_m=side, height_m=side, n_decoy_posts=4 * k, n_red_decoys=2 * k, n_boxes=2 * k
+        ),
+    )
+
+
 PRESETS: dict[str, SwarmConfig] = {
     "sim-6m-20": SwarmConfig(),
     "lab-3m-4": SwarmConfig(
         n_robots=4,
         arena=ArenaConfig(width_m=3.0, height_m=3.0, n_decoy_posts=2, n_red_decoys=1, n_boxes=0),
+    ),
+    # Big swarms at the seed's density (docs/scaling.md, "Big swarms").
+    "sim-13m-100": _dense(100),
+    "sim-19m-200": _dense(200),
+    "sim-30m-500": _dense(500),
+    "sim-42m-1000": _dense(1000),
+    # Seed 002's simulation: 3 UGVs wandering under a hovering UAV (2.8 m, swarm_env.uav),
+    # odometry broadcast at 10 Hz; 2.5 m x 2.5 m so the camera footprint covers it (docs/uav.md).
+    "seed-uav": SwarmConfig(
+        n_robots=3,
+        arena=ArenaConfig(width_m=2.5, height_m=2.5, n_decoy_posts=0, n_red_decoys=0, n_boxes=0),
+        comms=CommsConfig(enabled=True, rate_hz=10.0),
     ),
 }
 

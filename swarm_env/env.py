@@ -111,7 +111,9 @@ class SwarmEnv(ParallelEnv):
 
     ``infos[agent]`` holds ``time_s``, ``truth`` (pose, neighbours in the agent's frame, range and
     visibility per sensor; absent without ground truth), ``measurements`` (the raw records of the
-    step, as dicts of arrays) and ``stale`` (sensors reported silent by a real World).
+    step, as dicts of arrays), ``stale`` (sensors reported silent by a real World) and ``comms``
+    (the teammates' :class:`~swarm_core.records.Broadcast` received this step, with
+    ``comms={"enabled": True}``; see :mod:`swarm_env.comms`).
 
     ## Version History
     * v0: initial release.
@@ -509,6 +511,7 @@ class SwarmEnv(ParallelEnv):
                 "time_s": step.time_s,
                 "measurements": measurements_as_dict(measurements.get(agent, empty)),
                 "stale": tuple(stale.get(agent, ())),
+                "comms": step.comms.get(agent, []),
             }
             if truth is not None:
                 # Views, not copies: every step's GroundTruth is new and never written to.

@@ -126,6 +126,29 @@ def truth_table(neighbours_xy: np.ndarray, top_k: int) -> np.ndarray:
     return table
 
 
+def truth_tables(relative_xy: np.ndarray, in_range: np.ndarray, rows, top_k: int) -> np.ndarray:
+    """:func:`truth_table` of every robot in ``rows`` at once, (R, K, 7).
+
+    ``relative_xy`` (N, M, 2) and ``in_range`` (N, M) bool as in
+    :class:`~swarm_core.world.GroundTruth`. One stable sort of all the in-range pairs by
+    (robot, distance) replaces a Python call per robot (~20 ms a step at 1000 robots); the
+    rows and their order are :func:`truth_table`'s (ties keep the neighbours' index order).
+    """
+    rows = np.asarray(rows, dtype=np.intp)
+    r, j = np.nonzero(in_range[rows])  # row-major: j ascending within each robot
+    xy = relative_xy[rows[r], j]
+    dist = np.hypot(xy[:, 0], xy[:, 1])
+    order = np.lexsort((dist, r))  # stable: by robot, then distance, then j
+    r, xy = r[order], xy[order]
+    rank = np.arange(r.size) - np.searchsorted(r, r)  # position within its robot's run
+    keep = rank < top_k
+    out = np.zeros((rows.size, top_k, 7))
+    out[r[keep], rank[keep], 0] = 1.0
+    out[r[keep], rank[keep], 1:3] = xy[keep]
+    out[r[keep], rank[keep], 6] = 1.0
+    return out
+
+
 def measurement_tables(
     detections: list[np.ndarray], bearings: list[np.ndarray], top_k: int
 ) -> np.ndarray:
@@ -294,10 +317,8 @@ class TruthEncoder(ObservationEncoder):
         truth = step.truth
         if truth is None:
             raise ValueError('observation="truth" needs ground truth, which this World lacks')
-        mask = truth.in_range["lidar"]
-        return np.array(
-            [truth_table(truth.relative_xy[i][mask[i]], self.top_k).ravel() for i in rows]
-        ).reshape(len(rows), -1)
+        table = truth_tables(truth.relative_xy, truth.in_range["lidar"], rows, self.top_k)
+        return table.reshape(len(rows), -1)
 
 
 class MeasurementEncoder(ObservationEncoder):

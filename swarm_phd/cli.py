@@ -21,11 +21,24 @@ DEFAULT_PRESET = "sim-6m-20"
 #: Commands whose ``--preset`` default is not :data:`DEFAULT_PRESET`, and why.
 PRESET_EXCEPTIONS = {"bridge": "drives the lab robots", "warmup": "kernels do not depend on size"}
 #: Commands that step an env: the first one on a fresh install compiles the kernels.
-COMPILING_COMMANDS = ("demo", "bench", "evaluate", "export-bag", "replay", "train", "bridge")
+COMPILING_COMMANDS = (
+    "demo",
+    "bench",
+    "evaluate",
+    "sweep",
+    "export-bag",
+    "replay",
+    "train",
+    "bridge",
+    "seed003",
+    "mutual",
+    "uav",
+)
 #: What each preset models (``swarm_env.config.PRESETS`` holds the values).
 PRESET_DESCRIPTIONS = {
     "sim-6m-20": "the source study's simulation: 20 UGVs, 6 m x 6 m walled arena, boxes, decoys",
     "lab-3m-4": "the source study's lab test area: 4 UGVs, 3 m x 3 m, 2 decoy posts, 1 red decoy",
+    "seed-uav": "seed 002: 3 UGVs, 2.5 m x 2.5 m, radio on, under a UAV (swarm-phd uav)",
 }
 
 
@@ -89,6 +102,17 @@ _add(
     "seed 003: SLSQP direct estimation then centralized UKF on IR range-bearing readings, "
     "5 robots",
     "swarm_phd.seed003",
+)
+_add(
+    "mutual",
+    "seed 001: mutual localization from anonymous detections and the radio (P-MultiReg, "
+    "FastSLAM-MC), scored on the thesis's metrics",
+    "swarm_phd.mutual",
+)
+_add(
+    "uav",
+    "seed 002: a UAV identifies wandering UGVs with ID-PHD on its downward camera",
+    "swarm_phd.uav",
 )
 _add("warmup", "compile the numba kernels ahead of time (first run only)", "swarm_phd.warmup")
 _add("list", "list the presets, tasks and localizers", "swarm_phd.cli")

@@ -41,7 +41,6 @@ import argparse
 import copy
 import json
 import math
-import os
 import sys
 import time
 from pathlib import Path
@@ -52,6 +51,7 @@ import numpy as np
 from localization.feed import SwarmFeed
 from localization.metrics import SeedScorer, in_range_pairs, weights_means_from_table
 from localization.registry import LOCALIZERS, make_localizer
+from swarm_core.atomic_files import write_json_atomically
 from swarm_env import parallel_env
 from swarm_env.env import SwarmEnv
 from swarm_phd import progress
@@ -351,20 +351,12 @@ def evaluate_localization(
     env.close()
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
-        _write_atomically(out_dir / "metrics.json", json.dumps(results, indent=2))
+        write_json_atomically(out_dir / "metrics.json", results)
         from swarm_phd.figures import write_localization_figures
 
         traces = {name: scorers[name].trace for name in localizers}
         write_localization_figures(out_dir, results, traces, np.array(paths), estimates)
     return results
-
-
-def _write_atomically(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and a rename: a reader (or a crash)
-    never sees half a file."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def _model_preset(policy: str) -> str:

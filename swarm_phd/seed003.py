@@ -21,8 +21,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -31,6 +29,7 @@ import numpy as np
 
 from localization.baselines.centralized_ukf import CentralizedUKF, CentralizedUKFConfig
 from localization.baselines.direct import align_poses, direct_estimate, pose_errors
+from swarm_core.atomic_files import atomic_write, write_json_atomically
 from swarm_env.sensors.ir import IRConfig, IRReadings, IRSensor
 
 #: The seed's reported accuracy: "about 10 cm, or on the order of the size of a robot".
@@ -343,7 +342,7 @@ def run_seed003(
     if out_dir is not None:
         out_dir = Path(out_dir)
         out_dir.mkdir(parents=True, exist_ok=True)
-        _write_json_atomic(out_dir / "metrics.json", results)
+        write_json_atomically(out_dir / "metrics.json", results)
         write_figure(out_dir / "seed003_error.png", episodes[0], results)
     return results
 
@@ -361,17 +360,6 @@ def _traces(episode: dict[str, Any]) -> dict[str, Any]:
         },
         "direct_trace": episode["direct_trace"],
     }
-
-
-def _write_json_atomic(path: Path, data: dict[str, Any]) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump(data, fh, indent=2)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def write_figure(path: Path, episode: dict[str, Any], results: dict[str, Any]) -> None:
@@ -409,11 +397,8 @@ def write_figure(path: Path, episode: dict[str, Any], results: dict[str, Any]) -
         wrap=True,
     )
     fig.tight_layout(rect=(0, 0.04, 1, 1))
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp.png")
-    os.close(fd)
-    fig.savefig(tmp, dpi=110)
+    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=110))
     plt.close(fig)
-    os.replace(tmp, path)
 
 
 def print_summary(results: dict[str, Any]) -> None:

@@ -34,16 +34,15 @@ import argparse
 import json
 import math
 import numbers
-import os
 import re
 import sys
-import tempfile
 import time
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from swarm_core.atomic_files import write_json_atomically
 from swarm_env.config import PRESETS
 
 #: Columns of the printed summary when the localizer blocks have no ``headline`` block.
@@ -243,7 +242,7 @@ def run_sweep(
         report(f"sweep [{done}/{len(points)}] {p.label()}: {line}")
         merged.update(_merge(points, entries, time.perf_counter() - start))
         if out is not None:
-            write_json_atomic(out, merged)
+            write_json_atomically(out, merged)
 
     if not use_ray:
         for k, point in enumerate(points):
@@ -367,24 +366,6 @@ def numeric_leaves(block: dict[str, Any], prefix: str = "") -> dict[str, float]:
         elif isinstance(value, numbers.Real) and not isinstance(value, bool):
             out[path] = float(value)
     return out
-
-
-def write_json_atomic(path: Path, data: Any) -> None:
-    """Write ``data`` as JSON to ``path`` via a temporary file in the same directory and a
-    rename: readers see the old file or the new one, never a half-written one."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(data, f, indent=2)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def print_summary(merged: dict[str, Any]) -> None:

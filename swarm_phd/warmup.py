@@ -25,6 +25,9 @@ CASES = (
     {"localizer": "pmb-lc"},
     {"localizer": "pmb-lo"},
     {"observation": "measurements", "localize": False},
+    # Big swarms take other kernels (the grid index, the compiled ground truth): compile them
+    # too, or every command would find them cold and say so.
+    {"preset": "sim-13m-100", "observation": "measurements", "localize": False, "steps": 2},
 )
 _ENV_MODULES = [
     "swarm_env.env",
@@ -83,10 +86,12 @@ def warmup(preset: str = "lab-3m-4", steps: int = 5) -> dict[str, float | int | 
     ticker = threading.Thread(target=tick, name="warmup-progress", daemon=True)
     ticker.start()
     try:
-        for kwargs in CASES:
-            env = parallel_env(preset, max_steps=steps + 1, **kwargs)
+        for case in CASES:
+            kwargs = dict(case)
+            case_steps = kwargs.pop("steps", steps)
+            env = parallel_env(kwargs.pop("preset", preset), max_steps=case_steps + 1, **kwargs)
             env.reset(seed=0)
-            for _ in range(steps):
+            for _ in range(case_steps):
                 env.step({a: np.zeros(2) for a in env.agents})
             env.close()
     finally:

@@ -35,9 +35,9 @@ def rollout_hash(steps: int = 60, seed: int = 3, **kwargs) -> str:
 
 
 PINNED = {
-    "phd-lc": ({"localizer": "phd-lc"}, "140577fa99264db0"),
-    "phd-lo": ({"localizer": "phd-lo"}, "4e3ace96bc8570e5"),
-    "pmb-lc": ({"localizer": "pmb-lc"}, "563856831ac97bc3"),
+    "phd-lc": ({"localizer": "phd-lc"}, "919bc031943f31a1"),
+    "phd-lo": ({"localizer": "phd-lo"}, "25e2bd9e72bd8965"),
+    "pmb-lc": ({"localizer": "pmb-lc"}, "3c9ac5d521ea2cd4"),
     "measurements": ({"observation": "measurements", "localize": False}, "a5183c8ff2ac8d00"),
 }
 

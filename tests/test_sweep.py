@@ -10,6 +10,7 @@ import os
 
 import pytest
 
+from swarm_core.atomic_files import write_json_atomically
 from swarm_phd import sweep
 
 ray = pytest.importorskip("ray", reason="the ray extra is not installed")
@@ -107,8 +108,8 @@ def test_grid_checks_shared_arguments_before_any_worker():
 
 def test_write_json_atomic_replaces_whole_file(tmp_path):
     path = tmp_path / "sub" / "x.json"
-    sweep.write_json_atomic(path, {"a": 1})
-    sweep.write_json_atomic(path, {"b": [1, 2]})
+    write_json_atomically(path, {"a": 1})
+    write_json_atomically(path, {"b": [1, 2]})
     assert json.loads(path.read_text()) == {"b": [1, 2]}
     assert os.listdir(path.parent) == ["x.json"]
 
@@ -116,7 +117,7 @@ def test_write_json_atomic_replaces_whole_file(tmp_path):
         pass
 
     with pytest.raises(TypeError):
-        sweep.write_json_atomic(path, {"c": Unserialisable()})
+        write_json_atomically(path, {"c": Unserialisable()})
     assert json.loads(path.read_text()) == {"b": [1, 2]}  # the old file survives a failed write
     assert os.listdir(path.parent) == ["x.json"]
 
@@ -139,3 +140,33 @@ def test_evaluate_ray_gives_each_seeds_serial_metrics(local_ray, tmp_path, capsy
         assert _metrics(by_seed[seed]) == _metrics(serial)
     printed = capsys.readouterr().out
     assert "seed 3:" in printed and "seed 4:" in printed and "| phd-lc |" in printed
+
+
+def test_atomic_write_keeps_the_old_file_when_writing_fails(tmp_path):
+    from swarm_core.atomic_files import atomic_write
+
+    path = tmp_path / "model.zip"
+    path.write_bytes(b"old")
+
+    def failing(tmp):
+        assert tmp.suffix == ".zip" and tmp.parent == path.parent  # same dir, same format
+        tmp.write_bytes(b"half")
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        atomic_write(path, failing)
+    assert path.read_bytes() == b"old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model.zip"]  # no temporary left
+
+
+def test_atomic_write_gives_the_umask_permissions(tmp_path):
+    import os
+
+    from swarm_core.atomic_files import write_text_atomically
+
+    mask = os.umask(0o022)
+    try:
+        path = write_text_atomically(tmp_path / "out.json", "{}")
+        assert path.stat().st_mode & 0o777 == 0o644
+    finally:
+        os.umask(mask)

@@ -33,13 +33,13 @@ from __future__ import annotations
 import argparse
 import csv
 import json
-import os
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
 from agents.interrupts import Interrupts
+from swarm_core.atomic_files import atomic_write
 
 EXIT_CODES = {"SIGINT": 130, "SIGTERM": 143}
 
@@ -372,12 +372,14 @@ def _runner_reports(algo: Any, num_env_runners: int) -> list[dict[str, Any]]:
 
 def _write_progress(path: Path, rows: list[dict[str, Any]]) -> None:
     """The whole table, written to a temporary file and renamed (never half-written)."""
-    tmp = path.with_suffix(".csv.tmp")
-    with tmp.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-    os.replace(tmp, path)
+
+    def write(tmp: Path) -> None:
+        with tmp.open("w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+            writer.writeheader()
+            writer.writerows(rows)
+
+    atomic_write(path, write)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -82,6 +82,11 @@ class BatchedSwarmVecEnv(VecEnv):
         self._actions: np.ndarray | None = None
         self._next_seed = seed
 
+    @property
+    def action_high(self) -> np.ndarray:
+        """``[v_max, omega_max]``: a unit action times this is the env command, shape (2,)."""
+        return self._high.copy()
+
     # ------------------------------------------------------------------ VecEnv API
     def reset(self) -> np.ndarray:
         seeds = [None if self._next_seed is None else self._next_seed + k for k in self._copies]

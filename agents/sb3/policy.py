@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from agents.sb3.adapter import scale_actions
+from swarm_core.atomic_files import atomic_write
 
 META_NAME = "swarm_phd.json"
 
@@ -33,6 +34,17 @@ def write_metadata(model_path: str | Path, meta: dict[str, Any]) -> None:
         for name, data in members.items():
             dst.writestr(name, data)
         dst.writestr(META_NAME, json.dumps(meta, indent=2))
+
+
+def save_model(model: Any, path: str | Path, meta: dict[str, Any]) -> Path:
+    """``model.save`` plus its metadata, atomically: a crash or a signal while saving leaves
+    the previous model file whole (:func:`swarm_core.atomic_files.atomic_write`)."""
+
+    def write(tmp: Path) -> None:
+        model.save(tmp)
+        write_metadata(tmp, meta)
+
+    return atomic_write(path, write)
 
 
 def read_metadata(model_path: str | Path) -> dict[str, Any]:

@@ -3,6 +3,13 @@
     python -m agents.sb3.report --runs runs/formation_phd runs/formation_truth \\
         --baselines random scripted:formation --seeds 100-109 --out docs/
 
+``--warm-start`` also scores each run's ``warm_start.zip`` (the behaviour-cloned actor before
+PPO); ``--name`` prefixes the outputs (``results_<name>.json``, ``results_<name>_learning_curve
+.png``); ``--metric`` is the task metric of the tables and the checkpoint panel (default
+``formation_error_m``; ``coverage`` for exploration, whose per-step coverage curves are also
+recorded and drawn). A markdown table (mean +- std over the held-out seeds, and pooled over the
+runs) is printed and written to ``results_<name>.md``.
+
 Every policy runs on the same held-out seeds (not used in training: training seeds its copies
 from 0..n_copies-1 and continues their generators), in the env its model was trained in, for one
 episode (``max_steps``). Scripted policies get the model's env with ``observation="phd"``
@@ -51,26 +58,72 @@ def score(
     policy = load_policy(spec, env)
     n_steps = n_steps or env.config.max_steps
     per_seed: list[dict[str, float]] = []
+    curves: list[list[float]] = []  # per seed, the task's coverage after every step
     for seed in seeds:
         if hasattr(policy, "reset"):
             policy.reset(seed)
         obs, infos = env.reset(seed=seed)
         total = 0.0
+        curve = []
         for _ in range(n_steps):
             if not env.agents:
                 break
             obs, rewards, _, _, infos = env.step(policy(obs, infos))
             total += float(np.mean(list(rewards.values()))) if rewards else 0.0
+            if hasattr(env.task, "coverage"):
+                curve.append(float(env.task.coverage))
         per_seed.append({**env.task.metrics(), "episode_return": total})
+        if curve:  # an episode ended early at the target: coverage stays where it was
+            curves.append(curve + [curve[-1]] * (n_steps - len(curve)))
     env.close()
     keys = per_seed[0].keys()
-    return {
+    out = {
         "policy": policy_spec,
         "seeds": seeds,
         "mean": {k: float(np.mean([d[k] for d in per_seed])) for k in keys},
         "std": {k: float(np.std([d[k] for d in per_seed])) for k in keys},
         "per_seed": per_seed,
     }
+    if curves:
+        out["coverage_curve_mean"] = np.mean(curves, axis=0).tolist()
+        out["control_period_s"] = env.config.control_period_s
+    return out
+
+
+def pooled(results: list[dict[str, Any]], metric: str) -> dict[str, float]:
+    """Several runs (training seeds) scored on the same held-out seeds: the mean and std over
+    all (run, seed) episodes, and the std of the runs' means (the training-seed spread)."""
+    values = np.array([[d[metric] for d in r["per_seed"]] for r in results])
+    return {
+        "mean": float(values.mean()),
+        "std": float(values.std()),
+        "std_of_run_means": float(values.mean(axis=1).std()),
+        "n_runs": len(results),
+    }
+
+
+def markdown_table(results: dict[str, Any], metric: str, groups: dict[str, list[str]]) -> str:
+    """Rows ``policy | metric mean +- std | return mean +- std`` plus one pooled row per group."""
+    lines = [f"| policy | {metric} | episode return / agent |", "|---|---|---|"]
+    for spec, r in results.items():
+        m, s = r["mean"], r["std"]
+        lines.append(
+            f"| {spec} | {m[metric]:.3f} ± {s[metric]:.3f} | "
+            f"{m['episode_return']:.1f} ± {s['episode_return']:.1f} |"
+        )
+    for name, specs in groups.items():
+        if len(specs) < 2:
+            continue
+        p, ret = (
+            pooled([results[s] for s in specs], metric),
+            pooled([results[s] for s in specs], "episode_return"),
+        )
+        lines.append(
+            f"| **{name}** ({p['n_runs']} training seeds, pooled) | "
+            f"**{p['mean']:.3f} ± {p['std']:.3f}** (run means ± {p['std_of_run_means']:.3f}) | "
+            f"{ret['mean']:.1f} ± {ret['std']:.1f} |"
+        )
+    return "\n".join(lines) + "\n"
 
 
 def monitor_curve(run_dir: Path, window: int = 200) -> tuple[np.ndarray, np.ndarray]:
@@ -115,6 +168,11 @@ def main(argv: list[str] | None = None) -> int:
         "--checkpoints", action="store_true", help="also score every checkpoint (slower)"
     )
     parser.add_argument("--checkpoint-seeds", default="100-104")
+    parser.add_argument(
+        "--warm-start", action="store_true", help="also score each run's warm_start.zip"
+    )
+    parser.add_argument("--name", default="formation", help="output file prefix")
+    parser.add_argument("--metric", default="formation_error_m", help="task metric of the table")
     args = parser.parse_args(argv)
     import matplotlib
 
@@ -130,6 +188,8 @@ def main(argv: list[str] | None = None) -> int:
     env_kwargs = read_metadata(runs[0] / "model.zip")["env_kwargs"]
     env_kwargs = {k: v for k, v in env_kwargs.items() if k not in ("observation", "localize")}
     results: dict[str, Any] = {"seeds": seeds, "env_kwargs": env_kwargs, "policies": {}}
+    # Runs named <group>_s<seed> (one per training seed) are pooled per group.
+    groups: dict[str, list[str]] = {}
     for spec in args.baselines:
         results["policies"][spec] = score(spec, env_kwargs, seeds)
         print(spec, results["policies"][spec]["mean"])
@@ -138,6 +198,15 @@ def main(argv: list[str] | None = None) -> int:
         spec = str(run / "model.zip")
         results["policies"][spec] = score(spec, read_metadata(spec)["env_kwargs"], seeds)
         print(spec, results["policies"][spec]["mean"])
+        group = re.sub(r"_s\d+$", "", run.name)
+        groups.setdefault(f"PPO {group}", []).append(spec)
+        clone = run / "warm_start.zip"
+        if args.warm_start and clone.is_file():
+            results["policies"][str(clone)] = score(
+                str(clone), read_metadata(clone)["env_kwargs"], seeds
+            )
+            groups.setdefault(f"warm start only {group}", []).append(str(clone))
+            print(clone, results["policies"][str(clone)]["mean"])
         curves[run.name] = monitor_curve(run)
         if args.checkpoints:
             results.setdefault("checkpoints", {})[run.name] = [
@@ -150,9 +219,22 @@ def main(argv: list[str] | None = None) -> int:
                     final["mean"],
                 )
             )
-    (out / "results_formation.json").write_text(json.dumps(results, indent=2))
+    results["pooled"] = {
+        name: pooled([results["policies"][s] for s in specs], args.metric)
+        for name, specs in groups.items()
+        if specs
+    }
+    (out / f"results_{args.name}.json").write_text(json.dumps(results, indent=2))
+    table = markdown_table(results["policies"], args.metric, groups)
+    (out / f"results_{args.name}.md").write_text(table)
+    print(table)
 
-    n_panels = 2 if args.checkpoints else 1
+    coverage = {
+        spec: r["coverage_curve_mean"]
+        for spec, r in results["policies"].items()
+        if "coverage_curve_mean" in r
+    }
+    n_panels = 1 + bool(args.checkpoints) + bool(coverage)
     fig, axes = plt.subplots(1, n_panels, figsize=(6.5 * n_panels, 4.2), squeeze=False)
     ax = axes[0, 0]
     colors = {
@@ -171,7 +253,7 @@ def main(argv: list[str] | None = None) -> int:
         )
     ax.set_xlabel("agent transitions")
     ax.set_ylabel("episode return per agent (moving avg.)")
-    ax.set_title("formation, PPO with parameter sharing")
+    ax.set_title(f"{args.name}, PPO with parameter sharing")
     ax.legend(fontsize=7)
     ax.grid(alpha=0.3)
     if args.checkpoints:
@@ -179,23 +261,33 @@ def main(argv: list[str] | None = None) -> int:
         for name, pts in results["checkpoints"].items():
             ax.plot(
                 [s for s, _ in pts],
-                [m["formation_error_m"] for _, m in pts],
+                [m[args.metric] for _, m in pts],
                 "o-",
                 label=f"PPO {name}",
             )
         for spec in args.baselines:
             base = score(spec, env_kwargs, _seeds(args.checkpoint_seeds))
-            ax.axhline(
-                base["mean"]["formation_error_m"], ls="--", color=colors.get(spec), label=spec
-            )
+            ax.axhline(base["mean"][args.metric], ls="--", color=colors.get(spec), label=spec)
         ax.set_xlabel("agent transitions")
-        ax.set_ylabel("formation error (m), held-out seeds")
-        ax.set_title("checkpoints on held-out seeds (lower is better)")
+        ax.set_ylabel(f"{args.metric}, held-out seeds")
+        ax.set_title("checkpoints on held-out seeds")
+        ax.legend(fontsize=7)
+        ax.grid(alpha=0.3)
+    if coverage:
+        ax = axes[0, n_panels - 1]
+        for spec, curve in coverage.items():
+            dt = results["policies"][spec]["control_period_s"]
+            label = spec if not spec.endswith(".zip") else f"PPO {Path(spec).parent.name}"
+            ax.plot(dt * np.arange(1, len(curve) + 1), 100 * np.asarray(curve), label=label)
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel("coverage (%), mean over held-out seeds")
+        ax.set_title("coverage over time")
         ax.legend(fontsize=7)
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(out / "results_formation_learning_curve.png", dpi=110)
-    print(f"wrote {out / 'results_formation_learning_curve.png'}")
+    figure = out / f"results_{args.name}_learning_curve.png"
+    fig.savefig(figure, dpi=110)
+    print(f"wrote {figure}")
     return 0
 
 

@@ -9,6 +9,7 @@ Writes, under ``--out``::
     tb/                       tensorboard logs (PPO_1/...)
     monitor.csv               one row per agent-episode (VecMonitor): r, l, t
     tb/progress.csv           rollout/ep_rew_mean etc. per PPO iteration
+    warm_start.zip/.json      with --warm-start: the cloned actor before PPO, and its fit
 
 Timesteps count *agent* transitions: one env step of N robots is N timesteps. PPO collects
 whole rollouts (``n_steps`` x agents), so the run ends at the first multiple of a rollout at or
@@ -32,7 +33,8 @@ from pathlib import Path
 from typing import Any
 
 from agents.interrupts import Interrupts, set_signal
-from agents.sb3.policy import write_metadata
+from agents.sb3.policy import save_model
+from swarm_core.atomic_files import write_json_atomically
 
 DEFAULT_PRESET = "sim-6m-20"
 #: Exit codes of an interrupted run (the shell's 128 + signal number).
@@ -86,6 +88,45 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--learning-rate", type=float, default=3e-4, help="Adam step size")
     parser.add_argument("--gamma", type=float, default=0.99, help="discount factor")
     parser.add_argument("--ent-coef", type=float, default=0.0, help="entropy bonus weight")
+    parser.add_argument(
+        "--clip-range", type=float, default=0.2, help="PPO ratio clip (smaller: stay nearer)"
+    )
+    parser.add_argument(
+        "--target-kl",
+        type=float,
+        default=None,
+        help="stop a PPO update's epochs once the KL to the rollout policy passes this",
+    )
+    parser.add_argument(
+        "--warm-start",
+        default=None,
+        metavar="scripted:NAME",
+        help="behaviour-clone this scripted controller (on the same observation) before PPO "
+        "(agents.sb3.warm_start)",
+    )
+    parser.add_argument(
+        "--bc-steps", type=int, default=40_000, help="demonstration agent transitions"
+    )
+    parser.add_argument(
+        "--bc-rounds",
+        type=int,
+        default=1,
+        help="1: plain behaviour cloning; R > 1: R DAgger rounds (rounds 2.. driven by the "
+        "clone, labelled by the teacher)",
+    )
+    parser.add_argument("--bc-epochs", type=int, default=30, help="fit epochs per round")
+    parser.add_argument(
+        "--bc-log-std",
+        type=float,
+        default=-1.5,
+        help="action log-std after the warm start (PPO's exploration around the clone)",
+    )
+    parser.add_argument(
+        "--critic-warmup",
+        type=int,
+        default=0,
+        help="first PPO rollouts that train only the value function (actor frozen)",
+    )
     parser.add_argument("--checkpoint-every", type=int, default=50_000, help="agent transitions")
     parser.add_argument(
         "--torch-threads",
@@ -147,7 +188,18 @@ def run(args: argparse.Namespace) -> int:
         "learning_rate": args.learning_rate,
         "gamma": args.gamma,
         "ent_coef": args.ent_coef,
+        "clip_range": args.clip_range,
+        "target_kl": args.target_kl,
     }
+    warm = None
+    if args.warm_start is not None:
+        warm = {
+            "teacher": args.warm_start,
+            "steps": args.bc_steps,
+            "rounds": args.bc_rounds,
+            "epochs": args.bc_epochs,
+            "log_std": args.bc_log_std,
+        }
     _, interrupted = _train(
         env_kwargs,
         args.timesteps,
@@ -162,6 +214,8 @@ def run(args: argparse.Namespace) -> int:
         ppo_kwargs=ppo_kwargs,
         max_wall_s=None if args.max_wall_minutes is None else 60.0 * args.max_wall_minutes,
         extractor=args.extractor,
+        warm_start=warm,
+        critic_warmup=args.critic_warmup,
     )
     return EXIT_CODES.get(interrupted, 0) if interrupted else 0
 
@@ -210,14 +264,43 @@ def _train(
     ppo_kwargs: dict[str, Any] | None = None,
     max_wall_s: float | None = None,
     extractor: str = "sets",
+    warm_start: dict[str, Any] | None = None,
+    critic_warmup: int = 0,
 ) -> tuple[Path, str | None]:
-    """Train; return the path of ``model.zip`` and the signal that interrupted it (or None)."""
+    """Train; return the path of ``model.zip`` and the signal that interrupted it (or None).
+
+    ``warm_start``: ``{"teacher": "scripted:NAME", "steps": int, "rounds": int, "epochs": int,
+    "log_std": float}`` clones the teacher into the actor first (:mod:`agents.sb3.warm_start`;
+    writes ``warm_start.zip`` and ``warm_start.json``). ``critic_warmup``: that many first PPO
+    rollouts update only the value function.
+    """
     if timesteps <= 0:
         raise ValueError(f"--timesteps must be > 0, got {timesteps}")
     if n_copies < 1:
         raise ValueError(f"--n-copies must be >= 1, got {n_copies}")
     if num_cpus < 0:
         raise ValueError(f"--num-cpus must be >= 0, got {num_cpus}")
+    if isinstance(critic_warmup, bool) or not isinstance(critic_warmup, int) or critic_warmup < 0:
+        raise ValueError(f"--critic-warmup must be an int >= 0, got {critic_warmup!r}")
+    for key, flag in (("clip_range", "--clip-range"), ("target_kl", "--target-kl")):
+        v = (ppo_kwargs or {}).get(key)
+        if v is None or callable(v):  # target_kl None: no early stop; SB3 schedules are callables
+            continue
+        if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            raise ValueError(f"{flag} must be a finite number > 0, got {v!r}")
+    if warm_start is not None:
+        warm_start = {"rounds": 1, "epochs": 30, "log_std": -1.5, **warm_start}
+        teacher = warm_start.get("teacher")
+        if not isinstance(teacher, str) or not teacher.startswith("scripted:"):
+            raise ValueError(f"--warm-start must be 'scripted:NAME', got {teacher!r}")
+        for key in ("steps", "rounds", "epochs"):
+            v = warm_start.get(key)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise ValueError(f"--bc-{key} must be an int >= 1, got {v!r}")
+        if not isinstance(warm_start["log_std"], (int, float)) or not (
+            -5.0 <= warm_start["log_std"] <= 1.0
+        ):
+            raise ValueError(f"--bc-log-std must be in [-5, 1], got {warm_start['log_std']!r}")
     try:
         import torch
         from stable_baselines3 import PPO
@@ -238,7 +321,7 @@ def _train(
 
     out.mkdir(parents=True, exist_ok=True)
     (out / "checkpoints").mkdir(exist_ok=True)
-    (out / "env_kwargs.json").write_text(json.dumps(env_kwargs, indent=2))
+    write_json_atomically(out / "env_kwargs.json", env_kwargs)
     ppo = {
         "n_steps": 128,
         "batch_size": 512,
@@ -261,6 +344,9 @@ def _train(
         "net_arch": {"pi": [128, 128], "vf": [128, 128]},
         "log_std_init": -0.5,
     }
+    if warm_start is not None or critic_warmup:
+        # The value loss must not move the (cloned) actor's features: separate extractors.
+        policy_kwargs["share_features_extractor"] = False
     if extractor == "sets":
         from agents.sb3.features import NeighbourSetExtractor
 
@@ -269,25 +355,25 @@ def _train(
             features_extractor_class=NeighbourSetExtractor,
             features_extractor_kwargs={"top_k": top_k},
         )
-    (out / "train_config.json").write_text(
-        json.dumps(
-            {
-                "timesteps": timesteps,
-                "seed": seed,
-                "n_copies": n_copies,
-                "num_cpus": num_cpus,
-                "vec": vec,
-                "n_agents_per_env": n_agents,
-                "checkpoint_every": checkpoint_every,
-                "torch_threads": torch_threads,
-                "ppo": ppo,
-                "extractor": extractor,
-                "policy_kwargs": {
-                    k: v for k, v in policy_kwargs.items() if k != "features_extractor_class"
-                },
+    write_json_atomically(
+        out / "train_config.json",
+        {
+            "timesteps": timesteps,
+            "seed": seed,
+            "n_copies": n_copies,
+            "num_cpus": num_cpus,
+            "vec": vec,
+            "n_agents_per_env": n_agents,
+            "checkpoint_every": checkpoint_every,
+            "torch_threads": torch_threads,
+            "ppo": ppo,
+            "extractor": extractor,
+            "warm_start": warm_start,
+            "critic_warmup": critic_warmup,
+            "policy_kwargs": {
+                k: v for k, v in policy_kwargs.items() if k != "features_extractor_class"
             },
-            indent=2,
-        )
+        },
     )
 
     # SB3 asks each env for render_mode; SuperSuit's vector env answers None (no rendering
@@ -339,8 +425,7 @@ def _train(
         def _on_step(self) -> bool:
             if self.num_timesteps >= self.next_at:
                 path = out / "checkpoints" / f"model_{self.num_timesteps}_steps.zip"
-                self.model.save(path)
-                write_metadata(path, meta())
+                save_model(self.model, path, meta())
                 self.next_at += self.every
             if max_wall_s is not None and time.perf_counter() - self.t0 > max_wall_s:
                 print(f"stopping: wall-time budget of {max_wall_s:.0f} s reached")
@@ -361,6 +446,8 @@ def _train(
     model.set_logger(logger)
     rollout_size = ppo["n_steps"] * venv.num_envs
     callbacks = [Checkpoints(checkpoint_every)]
+    if critic_warmup:
+        callbacks.append(_CriticWarmup(BaseCallback, critic_warmup))
     if progress_bar:
         callbacks.append(_progress_callback(BaseCallback, timesteps, rollout_size, ppo))
     start = time.perf_counter()
@@ -368,6 +455,11 @@ def _train(
     with Interrupts() as interrupts:
         callbacks.append(_StopOnSignal(BaseCallback, interrupts))
         try:
+            # Inside the handler: a signal during the warm start saves the actor as it is.
+            if warm_start is not None:
+                _warm_start(
+                    model, venv, env_kwargs, warm_start, n_copies, seed, norm_obs, out, meta
+                )
             model.learn(total_timesteps=timesteps, callback=callbacks, progress_bar=False)
         except KeyboardInterrupt:
             interrupted = interrupts.received or "SIGINT"
@@ -378,12 +470,10 @@ def _train(
                 if hasattr(cb, "close"):
                     cb.close()
             path = out / "model.zip"
-            model.save(path)
-            write_metadata(path, meta())
+            save_model(model, path, meta())
             if interrupted:
                 last = out / "checkpoints" / f"model_{model.num_timesteps}_steps.zip"
-                model.save(last)
-                write_metadata(last, meta())
+                save_model(model, last, meta())
             elapsed = time.perf_counter() - start
             summary = {
                 "timesteps": int(model.num_timesteps),
@@ -391,7 +481,7 @@ def _train(
                 "agent_steps_per_s": model.num_timesteps / max(elapsed, 1e-9),
                 "interrupted": interrupted,
             }
-            (out / "train_summary.json").write_text(json.dumps(summary, indent=2))
+            write_json_atomically(out / "train_summary.json", summary)
             logger.close()
             venv.close()
     if interrupted:
@@ -403,6 +493,68 @@ def _train(
     else:
         print(f"trained {model.num_timesteps} agent steps in {elapsed:.0f} s -> {path}")
     return path, interrupted
+
+
+def _warm_start(model, venv, env_kwargs, warm, n_copies, seed, norm_obs, out, meta) -> None:
+    """Clone the teacher into ``model``'s actor; save the clone as ``warm_start.zip``."""
+    from agents.sb3.warm_start import warm_start
+
+    start = time.perf_counter()
+    summary = warm_start(
+        model.policy,
+        env_kwargs,
+        warm["teacher"],
+        warm["steps"],
+        rounds=warm["rounds"],
+        n_copies=n_copies,
+        seed=seed,
+        epochs=warm["epochs"],
+        log_std=warm["log_std"],
+        # The MLP reads VecNormalize's output: its statistics start from the demonstrations.
+        obs_transform=venv.normalize_obs if norm_obs else None,
+        observe=venv.obs_rms.update if norm_obs else None,
+    )
+    summary["wall_time_s"] = time.perf_counter() - start
+    write_json_atomically(out / "warm_start.json", summary)
+    save_model(model, out / "warm_start.zip", meta())
+    fit = summary["holdout_fit"]
+    print(
+        f"warm start from {warm['teacher']}: {summary['transitions']} transitions, held-out "
+        f"R^2 v {fit['r2_v']:.2f} omega {fit['r2_omega']:.2f} "
+        f"({summary['wall_time_s']:.0f} s)"
+    )
+
+
+def _CriticWarmup(base: type, rollouts: int):  # noqa: N802 - SB3 imported lazily
+    """A callback freezing the actor (and its log-std) for the first ``rollouts`` PPO updates,
+    so the value function learns the warm-started policy's returns before the policy gradient
+    (which uses its advantages) moves the actor."""
+    from agents.sb3.warm_start import actor_parameters
+
+    class CriticWarmup(base):  # type: ignore[misc, valid-type]
+        def __init__(self) -> None:
+            super().__init__()
+            self.rollouts = 0
+
+        def _set(self, trainable: bool) -> None:
+            for p in actor_parameters(self.model.policy):
+                p.requires_grad_(trainable)
+
+        def _on_training_start(self) -> None:
+            self._set(False)
+
+        def _on_rollout_end(self) -> None:
+            self.rollouts += 1
+            if self.rollouts == rollouts + 1:  # before the (rollouts + 1)-th update
+                self._set(True)
+
+        def _on_step(self) -> bool:
+            return True
+
+        def _on_training_end(self) -> None:
+            self._set(True)
+
+    return CriticWarmup()
 
 
 def _StopOnSignal(base: type, interrupts: Interrupts):  # noqa: N802 - SB3 imported lazily

@@ -82,7 +82,13 @@ class ParticleConfig:
 
 
 class ParticleFilterTracker:
-    """One particle cloud per identified teammate, in the observer frame (seed ``004``)."""
+    """One particle cloud per identified teammate, in the observer frame (seed ``004``).
+
+    Bounds: one unit-weight component per cloud, so weight = count = the number of distinct
+    IDs ever measured (clouds are never dropped; ``predict`` adds none, ``update`` adds exactly
+    the new IDs). With the oracle of :mod:`localization.registry` the IDs are teammates: at
+    most ``n_robots - 1``.
+    """
 
     def __init__(self, config: ParticleConfig | None = None, **overrides: Any) -> None:
         self.config = config = config_with_overrides(config, ParticleConfig, overrides)

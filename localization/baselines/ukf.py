@@ -126,6 +126,11 @@ class UKFTracker:
 
     ``predict(own_odometry, teammate_odometry)``, ``update(measurements)`` with
     ``{id: (range_m, bearing_rad)}``, ``estimate() -> {id: (x, y, psi)}``, ``mixture``.
+
+    Bounds: one unit-weight component per track, so weight = count = the number of distinct
+    IDs measured and not yet dropped (``drop_position_std_m``); ``update`` adds exactly the new
+    IDs, ``predict`` can only drop. With the oracle of :mod:`localization.registry` the IDs are
+    teammates: at most ``n_robots - 1``.
     """
 
     def __init__(self, config: UKFConfig | None = None, **overrides: Any) -> None:

@@ -47,6 +47,7 @@ Modules, along the roles of the GM-PHD's: :mod:`.config` (``IDPHDConfig``, tags)
 
 from __future__ import annotations
 
+from .aerial import AerialIDPHD, CameraModel
 from .config import STATIC, UNTAGGED, IDPHDConfig
 from .filter import IDPHD
 from .motion import compose_relative, split_untagged
@@ -62,4 +63,6 @@ __all__ = [
     "split_untagged",
     "lidar_update_3d",
     "reduce_tagged",
+    "AerialIDPHD",
+    "CameraModel",
 ]

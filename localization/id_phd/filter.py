@@ -37,6 +37,16 @@ class IDPHD:
     >>> f.predict(np.zeros(3), {3: np.array([0.02, 0.0, 0.0])})  # split over {3, static}
     >>> f.update_lidar(np.array([[1.02, 0.5]]))
     >>> poses = f.estimate()  # {3: array([x, y, psi])}, maybe {-2: ...}
+
+    Notes
+    -----
+    Bounds (``docs/localization.md``, "Bounds on weight and cardinality"), ``W`` the total
+    weight over every tag: ``predict`` gives ``W' <= survival_probability (W + birth_weight
+    B)`` (``B``: detections of the last scan; the split shares a weight among its copies);
+    ``update_lidar`` with ``M`` detections ``W' <= sum_i (1 - P_d,i) w_i + M``. At most
+    ``max_components`` components; tags are teammate IDs that sent odometry, ``-1`` or ``-2``.
+    An identity's weight (:meth:`identity_weights`) is an expected count, not a probability:
+    it is bounded by ``W`` only.
     """
 
     __slots__ = (

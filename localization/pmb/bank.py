@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from ..bank import _Batch, all_finite
+from ..bank import _Batch, all_finite, new_clock
 from ..mixture import N_ROWS, ROW_W, GaussianMixture
 from . import kernels
 from .config import PMBConfig, pmb_config
@@ -68,6 +68,7 @@ class PMBBank:
         self._poisson_counts = np.zeros(r, dtype=np.int64)
         self._pending = np.zeros((r, 8, 2))
         self._pending_counts = np.zeros(r, dtype=np.int64)
+        self._clock = new_clock(r)  # process-noise clock per robot (localization.kernels)
         self._mixtures: list[GaussianMixture | None] = [None] * r
         self.views = [PMBBankView(self, i) for i in range(r)]
 
@@ -81,6 +82,7 @@ class PMBBank:
             "poisson_counts": self._poisson_counts,
             "pending": self._pending,
             "pending_counts": self._pending_counts,
+            "clock": self._clock,
         }
 
     def __setstate__(self, state: dict[str, Any]) -> None:
@@ -91,6 +93,8 @@ class PMBBank:
         self._poisson_counts = np.array(state["poisson_counts"], dtype=np.int64)
         self._pending = np.array(state["pending"], dtype=float)
         self._pending_counts = np.array(state["pending_counts"], dtype=np.int64)
+        if "clock" in state:  # absent from states pickled before the clock existed
+            self._clock = np.array(state["clock"], dtype=float)
 
     # ------------------------------------------------------------------ state access
     @property
@@ -142,6 +146,7 @@ class PMBBank:
         self._poisson[:, rob] = 0.0
         self._poisson_counts[rob] = 0
         self._pending_counts[rob] = 0
+        self._clock[rob] = new_clock(1)
         for r in rob.tolist():
             self._mixtures[r] = None
 
@@ -162,6 +167,7 @@ class PMBBank:
         self._poisson_counts[r] = p.shape[1]
         self._pending[r, : b.shape[0]] = b
         self._pending_counts[r] = b.shape[0]
+        self._clock[r] = state["clock"]
         self._mixtures[r] = None
 
     @classmethod
@@ -186,6 +192,7 @@ class PMBBank:
                 "tracks": self.table(robot),
                 "poisson": self.poisson_table(robot),
                 "pending_births": self.pending_births(robot),
+                "clock": self._clock[self._robot(robot)].copy(),
             }
         )
         return f
@@ -199,7 +206,8 @@ class PMBBank:
         calls : sequence of R sequences
             ``calls[r]``: robot ``r``'s time-ordered ``("predict", odometry (3,))``,
             ``("lidar", points (M, 2), null_bearings (B,) or None[, sensor_pose (3,) or None])``
-            and ``("camera", bearings (M,)[, sensor_pose])`` (as :meth:`PHDBank.apply`).
+            ``("camera", bearings (M,)[, sensor_pose])`` and ``("advance", stamp_s)`` (as
+            :meth:`PHDBank.apply`).
 
         Raises
         ------
@@ -232,6 +240,7 @@ class PMBBank:
             self._poisson_counts,
             self._pending,
             self._pending_counts,
+            self._clock,
             encoded,
             *self._params,
         )

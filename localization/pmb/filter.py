@@ -40,7 +40,14 @@ import numpy as np
 
 from .. import phd
 from ..detection import DetectionModel
-from ..filter import _checked_angles, _checked_odometry, _checked_points, check_magnitude
+from ..filter import (
+    _checked_angles,
+    _checked_odometry,
+    _checked_points,
+    _checked_stamp,
+    _shifted,
+    checked_pose,
+)
 from ..frames import bearings_to_filter_frame, points_to_filter_frame
 from ..gaussian import bearing_update, position_update
 from ..mixture import (
@@ -104,6 +111,14 @@ class RobotCentricPMB:
     Read access: ``.mixture`` (a :class:`GaussianMixture` whose weights are the tracks'
     existence probabilities, what the project's metrics read), ``.tracks``, ``.poisson``
     (the undetected intensity), ``.table`` (tracks as a ``(6, N)`` table).
+
+    Bounds (``docs/localization.md``, "Bounds on weight and cardinality"), with ``n = sum r +
+    sum w`` (tracks plus Poisson, the expected number of teammates): ``predict`` gives
+    ``n' <= P_s,max n + measurement_birth_weight B`` (``B``: detections of the last scan);
+    an update with ``M`` measurements ``n' <= sum r + sum_k (1 - P_d,k) w_k + M`` (each
+    measurement goes to one track or to new-or-clutter; recycling moves mass, pruning and the
+    cap only remove it). Every existence is in ``[0, 1]`` (and ``>= recycle_threshold`` after
+    an update), at most ``max_tracks`` tracks and ``phd.max_components`` Poisson components.
     """
 
     __slots__ = (
@@ -114,6 +129,7 @@ class RobotCentricPMB:
         "_pending_births",
         "_fixed_birth",
         "_mixture",
+        "_clock",
     )
 
     def __init__(self, config: Any = None, **overrides: Any) -> None:
@@ -133,6 +149,7 @@ class RobotCentricPMB:
         self._poisson = empty_table()
         self._pending_births = np.empty((0, 2))
         self._mixture: GaussianMixture | None = None
+        self._clock = phd.ProcessClock()
 
     def set_state(self, tracks: GaussianMixture, poisson: GaussianMixture | None = None) -> None:
         """Load tracks (weights = existence probabilities in ``[0, 1]``) and optionally a Poisson
@@ -222,6 +239,7 @@ class RobotCentricPMB:
             "tracks": self._tracks,
             "poisson": self._poisson,
             "pending_births": self._pending_births,
+            "clock": self._clock.as_array(),
         }
 
     def __setstate__(self, state: dict[str, Any]) -> None:
@@ -229,6 +247,8 @@ class RobotCentricPMB:
         self._tracks = np.array(state["tracks"], dtype=float).reshape(N_ROWS, -1)
         self._poisson = np.array(state["poisson"], dtype=float).reshape(N_ROWS, -1)
         self._pending_births = np.array(state["pending_births"], dtype=float).reshape(-1, 2)
+        if "clock" in state:  # absent from states pickled before the clock existed
+            self._clock = phd.ProcessClock.from_array(state["clock"])
 
     def __copy__(self) -> RobotCentricPMB:
         # Tables are never mutated in place: a shallow copy is an independent filter.
@@ -260,7 +280,9 @@ class RobotCentricPMB:
         """
         odo = _checked_odometry(odometry)
         cfg = self.config.phd
-        q = cfg.process_noise_std_m**2
+        self._clock, q = self._clock.predict(
+            cfg.process_noise_std_m**2, cfg.time_update == "measurement"
+        )
         tracks = phd.predict(self._tracks, odo, self._model.survival(self._tracks), q)
         poisson = self._poisson
         survival = self._model.survival(poisson)
@@ -279,6 +301,22 @@ class RobotCentricPMB:
         self._pending_births = np.empty((0, 2))
         self._mixture = None
 
+    def advance(self, stamp_s: float) -> None:
+        """The process noise that accrued up to ``stamp_s`` (s), on the tracks and the Poisson
+        intensity alike (as :meth:`localization.RobotCentricPHD.advance`)."""
+        stamp = _checked_stamp(stamp_s)
+        cfg = self.config.phd
+        self._clock, var = self._clock.advance(
+            stamp,
+            cfg.process_noise_std_m**2,
+            cfg.process_noise_interval_s,
+            cfg.time_update == "measurement",
+        )
+        if var > 0.0:
+            self._tracks = phd.diffuse(self._tracks, var)
+            self._poisson = phd.diffuse(self._poisson, var)
+            self._mixture = None
+
     def update_lidar(
         self, points: Any, null_bearings: Any = None, sensor_pose: Any = None
     ) -> None:
@@ -296,7 +334,7 @@ class RobotCentricPMB:
         """
         pts = _checked_points(points)
         nulls = None if null_bearings is None else _checked_angles(null_bearings, "null_bearings")
-        pose = _checked_pose(sensor_pose)
+        pose = checked_pose(sensor_pose)
         if pose is not None:
             pts = points_to_filter_frame(pts, pose)
             nulls = None if nulls is None else bearings_to_filter_frame(nulls, pose)
@@ -335,19 +373,38 @@ class RobotCentricPMB:
             Bearings (rad); ``M = 0`` is a frame with no detection.
         sensor_pose : array_like, shape (3,), optional
             Pose the frame was taken from, in the filter's frame; bearings are rotated by its
-            heading (:func:`localization.frames.bearings_to_filter_frame`).
+            heading (:func:`localization.frames.bearings_to_filter_frame`) and the bearing
+            model is evaluated from its position (the parallax, as
+            :meth:`localization.RobotCentricPHD.update_camera`'s ``sensor_xy``).
         """
         brg = _checked_angles(bearings, "bearings")
-        pose = _checked_pose(sensor_pose)
+        pose = checked_pose(sensor_pose)
         cfg = self.config.phd
         if cfg.mode == "lidar-only":
             return
-        if pose is not None:
-            brg = bearings_to_filter_frame(brg, pose)
+        if pose is None or not pose[:2].any():
+            if pose is not None:
+                brg = bearings_to_filter_frame(brg, pose)
+            self._camera_update(brg)
+            return
+        brg = bearings_to_filter_frame(brg, pose)
+        # Seen from the camera: shift the whole state, update, shift back (the update is
+        # translation-equivariant but for the sensor's own position).
+        self._tracks = _shifted(self._tracks, -pose[:2])
+        self._poisson = _shifted(self._poisson, -pose[:2])
+        try:
+            self._camera_update(brg)
+        finally:
+            self._tracks = _shifted(self._tracks, pose[:2])
+            self._poisson = _shifted(self._poisson, pose[:2])
+            self._mixture = None
+
+    def _camera_update(self, brg: np.ndarray) -> None:
+        cfg = self.config.phd
         union = np.concatenate((self._tracks, self._poisson), axis=1)
         pd = self._model.camera(union)
-        var = cfg.camera_noise_var_rad2
         means = union[ROW_X : ROW_Y + 1]
+        var = cfg.camera_bearing_var(np.hypot(means[0], means[1]))  # R_C at each prior mean
         post_means, post_covs, lik = bearing_update(
             means, union[ROW_PXX:], brg, var, cfg.min_range_m
         )
@@ -506,19 +563,3 @@ def estimate_table(table: np.ndarray, threshold: float) -> tuple[np.ndarray, np.
     keep = keep[np.argsort(-r[keep], kind="stable")]
     existences, means, _ = arrays_from_table(table[:, keep])
     return means, existences
-
-
-def _checked_pose(value: Any) -> np.ndarray | None:
-    """Optional sensor pose ``[x_m, y_m, psi_rad]``."""
-    if value is None:
-        return None
-    try:
-        pose = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"sensor_pose must be numeric, got {value!r}") from exc
-    if pose.shape != (3,):
-        raise ValueError(
-            f"sensor_pose must have shape (3,) [x_m, y_m, psi_rad], got shape {pose.shape}"
-        )
-    check_magnitude(pose, "sensor_pose")
-    return pose

@@ -25,7 +25,7 @@ from numba import njit, prange
 
 from .. import kernels as gk
 from ..kernels import (
-    F_CAMERA_VAR,
+    ADVANCE,
     F_KAPPA_C,
     F_KAPPA_L,
     F_LIDAR_VAR,
@@ -44,9 +44,15 @@ from ..kernels import (
     _camera_pd,
     _lidar_pd,
     _to_filter_frame,
+    advance_clock,
+    camera_bearing_var,
+    diffuse,
     frame_change,
+    predict_process_var,
     reduce_table,
     robot_runs,
+    shift_means,
+    shift_means_in_place,
 )
 from ..mixture import N_ROWS
 from .config import PMBConfig
@@ -73,10 +79,10 @@ def pack_pmb_params(config: PMBConfig) -> tuple[np.ndarray, ...]:
 
 # ---------------------------------------------------------------------- time update
 @njit(cache=True)
-def _predict(tracks, nt, pois, npz, births, nb, odo, fp, ip):
-    """Returns (tracks, nt, poisson, np) after the time update."""
+def _predict(tracks, nt, pois, npz, births, nb, odo, q, fp, ip):
+    """Returns (tracks, nt, poisson, np) after the time update (``q``: its Q variance)."""
     t_out = tracks[:, :nt].copy()
-    frame_change(t_out, nt, nt, odo, fp, ip)
+    frame_change(t_out, nt, nt, odo, q, fp, ip)
     total = npz + nb
     p_out = np.empty((N_ROWS, total))
     p_out[:, :npz] = pois[:, :npz]
@@ -88,7 +94,7 @@ def _predict(tracks, nt, pois, npz, births, nb, odo, fp, ip):
         p_out[3, col] = fp[F_MBIRTH_VAR]
         p_out[4, col] = 0.0
         p_out[5, col] = fp[F_MBIRTH_VAR]
-    frame_change(p_out, total, npz, odo, fp, ip)
+    frame_change(p_out, total, npz, odo, q, fp, ip)
     if total > ip[I_MAX_COMPONENTS]:
         p_out, total = reduce_table(p_out, total, fp[F_PRUNE], fp[F_MERGE], ip[I_MAX_COMPONENTS])
     return t_out, nt, p_out, total
@@ -417,7 +423,6 @@ def _camera(tracks, nt, pois, npz, brg, fp, ip, pf, pi):
     union = _union(tracks, nt, pois, npz, 0)
     total = union.shape[1]
     pd = _camera_pd(union, total, fp)
-    noise = fp[F_CAMERA_VAR]
     min_r2 = fp[F_MIN_RANGE] * fp[F_MIN_RANGE]
     gate = pf[P_GATE_EXPONENT]
     lik = np.zeros((total, m))
@@ -425,6 +430,7 @@ def _camera(tracks, nt, pois, npz, brg, fp, ip, pf, pi):
     post_covs = np.empty((3, total))
     for i in range(total):
         x, y = union[1, i], union[2, i]
+        noise = camera_bearing_var(math.hypot(x, y), fp)
         pxx, pxy, pyy = union[3, i], union[4, i], union[5, i]
         inv_r2 = 1.0 / max(x * x + y * y, min_r2)
         j0, j1 = -y * inv_r2, x * inv_r2
@@ -470,6 +476,7 @@ def apply_calls(
     poisson_counts,
     pending,
     pending_counts,
+    clock,
     calls,
     fp,
     ip,
@@ -490,6 +497,7 @@ def apply_calls(
                 poisson_counts,
                 pending,
                 pending_counts,
+                clock,
                 calls,
                 fp,
                 ip,
@@ -509,6 +517,7 @@ def _apply_call(
     poisson_counts,
     pending,
     pending_counts,
+    clock,
     calls,
     fp,
     ip,
@@ -535,6 +544,7 @@ def _apply_call(
         lidar_has_pose,
         camera_pose,
         camera_has_pose,
+        stamps,
     ) = calls
     r = robots[q]
     kind = kinds[q]
@@ -543,9 +553,15 @@ def _apply_call(
     npz = poisson_counts[r]
     tab = tracks[:, r, :nt]
     pois = poisson[:, r, :npz]
+    if kind == ADVANCE:
+        var = advance_clock(clock, r, stamps[j], fp, ip)
+        diffuse(tab, nt, var)
+        diffuse(pois, npz, var)
+        return
     if kind == PREDICT:
+        q_var = predict_process_var(clock, r, fp, ip)
         t, n_t, p, n_p = _predict(
-            tab, nt, pois, npz, pending[r], pending_counts[r], odometry[j], fp, ip
+            tab, nt, pois, npz, pending[r], pending_counts[r], odometry[j], q_var, fp, ip
         )
         pending_counts[r] = 0
     elif kind == LIDAR:
@@ -570,7 +586,23 @@ def _apply_call(
         brg = bearings[camera_start[j] : camera_stop[j]]
         if camera_has_pose[j]:
             _, brg = _to_filter_frame(np.empty((0, 2)), brg, camera_pose[j])
-        t, n_t, p, n_p = _camera(tab, nt, pois, npz, brg, fp, ip, pf, pi)
+            sx, sy = camera_pose[j, 0], camera_pose[j, 1]
+            # The bearing model from the camera's position (RobotCentricPMB.update_camera).
+            t, n_t, p, n_p = _camera(
+                shift_means(tab, nt, -sx, -sy),
+                nt,
+                shift_means(pois, npz, -sx, -sy),
+                npz,
+                brg,
+                fp,
+                ip,
+                pf,
+                pi,
+            )
+            shift_means_in_place(t, n_t, sx, sy)
+            shift_means_in_place(p, n_p, sx, sy)
+        else:
+            t, n_t, p, n_p = _camera(tab, nt, pois, npz, brg, fp, ip, pf, pi)
     tracks[:, r, :n_t] = t[:, :n_t]
     tracks[:, r, n_t:] = 0.0
     track_counts[r] = n_t

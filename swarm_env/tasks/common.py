@@ -110,6 +110,38 @@ def collisions(
     return hit
 
 
+#: Sensors whose joint detection of a teammate localizes it well: the lidar gives its range, the
+#: camera its bearing (and the red-strip identity of a robot rather than an obstacle).
+LOCALIZING_SENSORS = ("lidar", "camera")
+
+
+def unseen_fraction(truth: Any, sensors: tuple[str, ...] = LOCALIZING_SENSORS) -> np.ndarray:
+    """Per robot i: the fraction of its N - 1 teammates that not every sensor in ``sensors``
+    detected at that sensor's last tick, shape (N,), in [0, 1] (0 for a lone robot).
+
+    Detection is the simulator's ``truth.visible[sensor][i, j]`` (in range, line of sight,
+    outside blind sectors, not interfered); a World that reports no ``visible`` mask for a sensor
+    (motion capture) falls back to its nominal ``in_range`` mask. A robot's filter can only keep
+    an accurate estimate of a teammate it measures, and the range-bearing pair of lidar and
+    camera pins it down best, so this is the localization term of the tasks
+    (``localization_weight``)::
+
+        r_i -= localization_weight * unseen_fraction(truth)[i]
+    """
+    n = len(truth.poses)
+    if n < 2:
+        return np.zeros(n)
+    seen = ~np.eye(n, dtype=bool)
+    for name in sensors:
+        mask = truth.visible.get(name)
+        if mask is None:
+            mask = truth.in_range.get(name)
+        if mask is None:
+            raise ValueError(f"ground truth has no visibility or range mask for sensor {name!r}")
+        seen &= np.asarray(mask, dtype=bool)[:, :n]
+    return 1.0 - seen.sum(axis=1) / (n - 1)
+
+
 def max_angular_gap(center: np.ndarray, xy: np.ndarray) -> float:
     """Largest angle (rad) between consecutive directions from ``center`` to the points.
 

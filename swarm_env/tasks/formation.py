@@ -17,6 +17,11 @@ Optional shaping (``progress_weight`` = k > 0, for training): with ``e_i`` the b
 removed in this step. It is potential-based (potential ``-k e_i``, discount 1), so it does not
 change which policy is optimal, but it credits each agent's own motion at once.
 
+Optional localization term (``localization_weight`` = w > 0): ``r_i -= w u_i`` with ``u_i`` the
+fraction of i's teammates that its lidar and camera did not both detect at their last tick
+(:func:`~swarm_env.tasks.common.unseen_fraction`): motion that keeps teammates measured keeps
+them localized. Off by default; when on, the metrics add ``unseen_fraction`` (episode mean).
+
 Termination: never (holding the formation is the task). Truncation: ``max_steps`` of the config.
 
 Task features appended to each observation (mission parameters a robot is given, not sensed):
@@ -32,7 +37,12 @@ import numpy as np
 
 from swarm_core.world import GroundTruth
 from swarm_env.tasks.base import Task
-from swarm_env.tasks.common import check_choice, check_param, pairwise_distances
+from swarm_env.tasks.common import (
+    check_choice,
+    check_param,
+    pairwise_distances,
+    unseen_fraction,
+)
 
 if TYPE_CHECKING:
     from swarm_env.world.arena import Layout
@@ -49,6 +59,8 @@ class FormationTask(Task):
     shape : {"circle", "lattice"}
     progress_weight : float
         Weight of the optional shaping term (default 0, see the module doc).
+    localization_weight : float
+        Weight of the optional localization term (default 0, see the module doc).
     radius_m : float
         Circle radius (circle only), default 0.8 m.
     spacing_m : float
@@ -66,11 +78,16 @@ class FormationTask(Task):
         spacing_m: float | None = None,
         spacing_weight: float | None = None,
         progress_weight: float = 0.0,
+        localization_weight: float = 0.0,
         **params: Any,
     ) -> None:
         super().__init__(**params)
         self.shape = check_choice(self.name, "shape", shape, SHAPES)
         self.progress_weight = check_param(self.name, "progress_weight", progress_weight, 0.0, 1e3)
+        self.localization_weight = check_param(
+            self.name, "localization_weight", localization_weight, 0.0, 1e3
+        )
+        self._unseen: list[float] = []
         self._previous: np.ndarray | None = None
         if self.shape == "circle":
             if spacing_m is not None:
@@ -138,6 +155,7 @@ class FormationTask(Task):
     ) -> None:
         self._errors = []
         self._spacing_errors = []
+        self._unseen = []
         self._previous = None
         if truth is not None:
             shape_err, spacing_err = self.errors(truth.poses[:, :2])
@@ -166,6 +184,10 @@ class FormationTask(Task):
         if self.progress_weight and self._previous is not None and len(self._previous) == len(err):
             reward = reward + self.progress_weight * (self._previous - err)
         self._previous = err
+        if self.localization_weight:
+            unseen = unseen_fraction(truth)
+            self._unseen.append(float(unseen.mean()))
+            reward = reward - self.localization_weight * unseen
         return reward
 
     def metrics(self) -> dict[str, float]:
@@ -177,6 +199,7 @@ class FormationTask(Task):
             "final_formation_error_m": float(np.mean(self._errors[-tail:])),
             "spacing_error_m": float(np.mean(self._spacing_errors)),
             "final_spacing_error_m": float(np.mean(self._spacing_errors[-tail:])),
+            **({"unseen_fraction": float(np.mean(self._unseen))} if self._unseen else {}),
         }
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -73,7 +74,30 @@ def sample_layout(
     ValueError
         If the arena is too crowded to place everything (names the counts).
     """
-    placed: list[tuple[float, float, float]] = []  # (x, y, enclosing radius)
+    low, high = arena.box_size_range_m
+    largest = max(
+        0.5 * float(np.hypot(high, high)),
+        arena.decoy_post_radius_m,
+        arena.red_decoy_radius_m,
+        robot.footprint_radius_m,
+    )
+    # A cell list of what is placed (a dict of square cells): a candidate is tested only
+    # against objects near enough to touch it, so spawning costs O(n), not O(n^2), and
+    # accepts exactly the candidates the test against every placed object would.
+    cell_m = 2.0 * largest + clearance_m
+    cells: dict[tuple[int, int], list[tuple[float, float, float]]] = {}
+
+    def clear(x: float, y: float, radius: float) -> bool:
+        # Nothing placed can overlap beyond `reach` (inflated against rounding).
+        reach = (radius + largest + clearance_m) * (1.0 + 1e-9)
+        for ix in range(math.floor((x - reach) / cell_m), math.floor((x + reach) / cell_m) + 1):
+            for iy in range(
+                math.floor((y - reach) / cell_m), math.floor((y + reach) / cell_m) + 1
+            ):
+                for px, py, pr in cells.get((ix, iy), ()):
+                    if (x - px) ** 2 + (y - py) ** 2 < (radius + pr + clearance_m) ** 2:
+                        return False
+        return True
 
     def place(radius: float) -> tuple[float, float]:
         hx = 0.5 * arena.width_m - radius - clearance_m
@@ -82,11 +106,9 @@ def sample_layout(
             raise ValueError(f"an object of radius {radius:.3f} m does not fit the arena")
         for _ in range(_MAX_TRIES):
             x, y = rng.uniform(-hx, hx), rng.uniform(-hy, hy)
-            if all(
-                (x - px) ** 2 + (y - py) ** 2 >= (radius + pr + clearance_m) ** 2
-                for px, py, pr in placed
-            ):
-                placed.append((x, y, radius))
+            if clear(x, y, radius):
+                key = (math.floor(x / cell_m), math.floor(y / cell_m))
+                cells.setdefault(key, []).append((x, y, radius))
                 return x, y
         raise ValueError(
             f"could not place {n_robots} robots, {arena.n_boxes} boxes, {arena.n_decoy_posts} "
@@ -95,7 +117,6 @@ def sample_layout(
         )
 
     boxes = []
-    low, high = arena.box_size_range_m
     for _ in range(arena.n_boxes):
         size = rng.uniform(low, high, size=2)
         yaw = rng.uniform(-np.pi, np.pi)

@@ -15,16 +15,18 @@ world through a :class:`~swarm_env.world.scene.Scene` snapshot built from the bo
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
 import pymunk
 import pymunk.batch
-from numba import njit
+from numba import njit, prange
 
 from swarm_core.perception.lidar_features import extract_detections, null_beams
 from swarm_core.records import CameraRecord, LidarRecord, OdometryRecord, RobotMeasurements
 from swarm_core.world import GroundTruth, WorldStep, relative_positions, truth_from_poses
+from swarm_env.comms import SwarmRadio
 from swarm_env.config import SwarmConfig
 from swarm_env.sensors.camera import CameraSensor
 from swarm_env.sensors.lidar import LidarSensor
@@ -43,6 +45,10 @@ _EPS_S = 1e-9
 # chassis (~1 g on rubber), which bounds how hard a robot can push.
 _TRACTION_MPS2 = 9.0
 _TRACTION_RADPS2 = 60.0
+# Ground truth through the compiled kernel from this many robots on (bit-identical to numpy;
+# below it the call overhead costs more: 41 us against 29 us at 20 robots, 53 against 141 at
+# 100).
+_TRUTH_KERNEL_MIN_ROBOTS = 50
 
 
 def robot_names(n: int) -> tuple[str, ...]:
@@ -85,8 +91,13 @@ class SimWorld:
         self.last_camera: dict[int, CameraRecord] = {}
         self._scene_cache = {}  # Scene constants of this layout (see _scene_constants)
         self.stats = self._new_stats()
+        self.radio = SwarmRadio(config.comms, self.robot_ids) if config.comms.enabled else None
         # Wall-clock seconds spent per part and lidar scans run (for the benchmark).
         self.timing = {"physics_s": 0.0, "lidar_s": 0.0, "camera_s": 0.0, "lidar_scans": 0}
+        #: Run the brute-force reference paths (every sensor reading against every shape, the
+        #: numpy ground truth) instead of the grid-indexed and compiled ones: bit-identical
+        #: results at O(N^2) cost per step (benchmarks/bench_scaling.py compares them).
+        self.brute_force = False
 
     def _new_stats(self) -> dict[str, SensorStats]:
         # Lidar: matched within 0.15 m, counted within the tracking range. Camera: within 5 deg
@@ -125,8 +136,38 @@ class SimWorld:
         self.stats = self._new_stats()
         self._static_scene = self._static_geometry()
         self._scene_cache = {}  # Scene constants of this layout (see _scene_constants)
+        if self.radio is not None:  # its own child stream: the radio never shifts sensor noise
+            self.radio.reset(rng.spawn(1)[0])
         empty = {rid: RobotMeasurements() for rid in self.robot_ids}
         return WorldStep(time_s=0.0, measurements=empty, truth=self.ground_truth())
+
+    def place_robots(self, poses: np.ndarray) -> None:
+        """Move the robots to ``poses`` ``(N, 3)`` (world frame, ``[x_m, y_m, yaw_rad]``) with
+        zero body velocity, between steps: a scenario's start formation, or a kidnapping (the
+        motors keep their speeds, as a picked-up robot's wheels do). Their odometry does not
+        notice, and the env's replay log does not record it (an env pickled after a placement
+        re-simulates without it).
+
+        Raises
+        ------
+        ValueError
+            ``poses`` is not ``(n_agents, 3)`` finite numbers (nothing moves).
+        """
+        if self.space is None:
+            raise RuntimeError("SimWorld.place_robots() called before reset()")
+        poses = np.asarray(poses, dtype=np.float64)
+        if poses.shape != (self.n_agents, 3) or not np.isfinite(poses).all():
+            raise ValueError(
+                f"poses must be {self.n_agents} finite rows [x_m, y_m, yaw_rad], got "
+                f"shape {poses.shape}"
+            )
+        for k, (x, y, yaw) in enumerate(poses.tolist()):
+            for body in (self.bodies[k], self._drives[k]):
+                body.position = (x, y)
+                body.angle = yaw
+                body.velocity = (0.0, 0.0)
+                body.angular_velocity = 0.0
+            self.space.reindex_shapes_for_body(self.bodies[k])
 
     def halt(self) -> None:
         """Nothing to stop in simulation (see :meth:`swarm_core.world.World.halt`)."""
@@ -267,7 +308,15 @@ class SimWorld:
             for rid, o, li, c in zip(self.robot_ids, odometry, lidar, camera, strict=True)
         }
         truth = self.ground_truth(poses[-1])
-        return WorldStep(time_s=self.time_s, measurements=measurements, truth=truth)
+        comms = {}
+        if self.radio is not None:
+            comms = self.radio.step(self.time_s, measurements, poses[-1, : self.n_agents, :2])
+        return WorldStep(time_s=self.time_s, measurements=measurements, truth=truth, comms=comms)
+
+    @property
+    def _indexed(self) -> bool | None:
+        """The sensors' ``indexed`` argument: the reference paths, or their own choice."""
+        return False if self.brute_force else None
 
     # pymunk.batch reads and writes every body of the space in one C call, instead of four
     # Python property accesses per body per substep. Rows follow the space's body order (which
@@ -299,7 +348,9 @@ class SimWorld:
         if robots.size == 0:
             return out
         t0 = time.perf_counter()
-        batch = self.lidar.scan(scene, robots, scan_stamps, self._rng, time_index=when)
+        batch = self.lidar.scan(
+            scene, robots, scan_stamps, self._rng, time_index=when, indexed=self._indexed
+        )
         detections = extract_detections(
             batch.angles_rad, batch.ranges_m, self.config.lidar_features
         )
@@ -342,7 +393,9 @@ class SimWorld:
         if robots.size == 0:
             return out
         t0 = time.perf_counter()
-        batch = self.camera.observe(scene, robots, self._rng, time_index=when)
+        batch = self.camera.observe(
+            scene, robots, self._rng, time_index=when, indexed=self._indexed
+        )
         make = CameraRecord._make
         frame_stamps = stamps[when].tolist()
         for i, stamp, bearings in zip(robots.tolist(), frame_stamps, batch.bearings, strict=True):
@@ -475,6 +528,33 @@ class SimWorld:
         ``poses`` (N+E, 3) are the current body poses if the caller already has them.
         """
         poses = self.poses() if poses is None else poses
+        if self.brute_force or self.n_agents < _TRUTH_KERNEL_MIN_ROBOTS:
+            return self.ground_truth_reference(poses)
+        agents = poses[: self.n_agents]
+        # truth_from_poses's arrays in one compiled pass (its numpy temporaries cost ~0.1 s
+        # per step at 1000 robots); the cosines stay numpy's so every value is the same.
+        rel, lidar, camera = _truth_kernel(
+            np.ascontiguousarray(agents[:, :2]),
+            np.cos(agents[:, 2]),
+            np.sin(agents[:, 2]),
+            float(self.config.localization_range_m),
+            float(self.config.camera.range_max_m),
+        )
+        return GroundTruth(
+            poses=agents,
+            relative_xy=rel,
+            in_range={"lidar": lidar, "camera": camera},
+            visible={
+                "lidar": self._lidar_visible[:, : self.n_agents].copy(),
+                "camera": self._camera_visible[:, : self.n_agents].copy(),
+            },
+            extra_xy=poses[self.n_agents :, :2].copy(),
+        )
+
+    def ground_truth_reference(self, poses: np.ndarray | None = None) -> GroundTruth:
+        """:meth:`ground_truth` through :func:`swarm_core.world.truth_from_poses` (numpy): the
+        reference of the compiled path (``tests/swarm_env/test_spatial_index.py``)."""
+        poses = self.poses() if poses is None else poses
         return truth_from_poses(
             poses[: self.n_agents],
             self.config.localization_range_m,
@@ -485,6 +565,51 @@ class SimWorld:
             },
             extra_xy=poses[self.n_agents :, :2].copy(),
         )
+
+
+@njit(cache=True, parallel=True)
+def _truth_kernel(xy, cos_yaw, sin_yaw, lidar_range_m, camera_range_m):
+    """Relative positions (N, N, 2) and in-range masks (N, N) of robots at ``xy`` (N, 2) m with
+    headings given by ``cos_yaw``, ``sin_yaw`` (N,): the expressions of
+    :func:`swarm_core.world.relative_positions` and :func:`~swarm_core.world.truth_from_poses`
+    (``hypot <= range``, off the diagonal), element by element.
+
+    ``hypot`` (a libm call) is evaluated only where ``x^2 + y^2`` lies within 1e-12 of the
+    squared range: elsewhere the two agree on the side of the range (both are within a few
+    ulps of the true distance), so the masks are the numpy ones bit for bit, ~5x faster.
+    """
+    n = xy.shape[0]
+    rel = np.empty((n, n, 2))
+    lidar = np.empty((n, n), dtype=np.bool_)
+    camera = np.empty((n, n), dtype=np.bool_)
+    lidar_lo, lidar_hi = lidar_range_m**2 * (1.0 - 1e-12), lidar_range_m**2 * (1.0 + 1e-12)
+    cam_lo, cam_hi = camera_range_m**2 * (1.0 - 1e-12), camera_range_m**2 * (1.0 + 1e-12)
+    for i in prange(n):
+        c, s = cos_yaw[i], sin_yaw[i]
+        xi, yi = xy[i, 0], xy[i, 1]
+        for j in range(n):
+            dx = xy[j, 0] - xi
+            dy = xy[j, 1] - yi
+            x = c * dx + s * dy
+            y = c * dy - s * dx
+            rel[i, j, 0] = x
+            rel[i, j, 1] = y
+            d2 = x * x + y * y
+            if d2 < lidar_lo:
+                in_lidar = True
+            elif d2 > lidar_hi:
+                in_lidar = False
+            else:
+                in_lidar = math.hypot(x, y) <= lidar_range_m
+            if d2 < cam_lo:
+                in_camera = True
+            elif d2 > cam_hi:
+                in_camera = False
+            else:
+                in_camera = math.hypot(x, y) <= camera_range_m
+            lidar[i, j] = in_lidar and i != j
+            camera[i, j] = in_camera and i != j
+    return rel, lidar, camera
 
 
 @njit(cache=True)

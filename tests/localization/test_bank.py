@@ -109,6 +109,13 @@ CONFIGS = {
     "camera-ray-cap": PHDConfig(camera_birth="ray", camera_birth_components=9, max_components=12),
     "camera-ray-prune": PHDConfig(camera_birth="ray", camera_birth_weight=3e-4),
     "untracked-kappa": PHDConfig(birth="measurement", camera_untracked_density_per_m2=0.3),
+    # R_C(r): the blob-centroid term evaluated at each component's (and ray cell's) range
+    "range-noise": PHDConfig(
+        birth="measurement", camera_noise_std_deg=2.0, camera_noise_width_fraction=0.5
+    ),
+    "range-noise-ray": PHDConfig(
+        camera_birth="ray", camera_noise_std_deg=2.0, camera_noise_width_fraction=0.5
+    ),
     "bernoulli": PHDConfig(birth="measurement", missed_detection="bernoulli"),
     "bernoulli-fixed": PHDConfig(missed_detection="bernoulli"),
     "bernoulli-ray-constant": PHDConfig(
@@ -160,8 +167,9 @@ def test_cap_and_covering_chains_are_exercised(monkeypatch):
 
 @pytest.mark.parametrize("with_poses", [False, True])
 def test_apply_schedules_per_robot_order(with_poses):
-    """``apply`` runs each robot's calls in order; sensor poses move the measurements into the
-    filter's frame exactly as :mod:`localization.frames` does before the reference updates."""
+    """``apply`` runs each robot's calls in order; sensor poses move lidar points into the
+    filter's frame exactly as :mod:`localization.frames` does before the reference updates, and
+    camera updates take the camera's position as the reference's ``sensor_pose`` does."""
     config = PHDConfig(birth="measurement")
     rng = np.random.default_rng(5)
     calls = [[] for _ in range(R)]
@@ -184,13 +192,12 @@ def test_apply_schedules_per_robot_order(with_poses):
                 f.predict(c[1])
             elif c[0] == "lidar":
                 pts, nulls, pose = c[1:]
-                if pose is not None:
+                if pose is not None:  # the reference's sensor_pose is exactly this
                     pts = points_to_filter_frame(pts, pose)
                     nulls = None if nulls is None else bearings_to_filter_frame(nulls, pose)
                 f.update_lidar(pts, nulls)
-            else:
-                brg, pose = c[1:]
-                f.update_camera(brg if pose is None else bearings_to_filter_frame(brg, pose))
+            else:  # bearings rotated, and the model evaluated from the camera's position
+                f.update_camera(c[1], sensor_pose=c[2])
     bank = PHDBank(config, R)
     bank.apply(calls)
     assert_same(filters, bank, "apply")

@@ -51,7 +51,12 @@ def test_measurements_are_moved_to_the_last_odometry_frame(v, omega):
         camera_records.append(CameraRecord(stamp, np.array([math.atan2(seen[1], seen[0])])))
         calls_expected.append(stamp)
     records = RobotMeasurements([odo], lidar_records, camera_records)
-    calls = localizer_calls(records)
+    stamped = localizer_calls(records)
+    assert [c[1] for c in stamped if c[0] == "advance"] == [
+        *(s for s in calls_expected for _ in range(2)),
+        1.0 + period,
+    ]
+    calls = _measurements_only(stamped)
     assert [c[0] for c in calls] == ["lidar", "camera"] * 3 + ["predict"]
     for call in calls[:-1]:
         if call[0] == "lidar":
@@ -59,15 +64,16 @@ def test_measurements_are_moved_to_the_last_odometry_frame(v, omega):
             assert np.allclose(points_to_filter_frame(call[1], call[3]), teammate, atol=1e-4)
             assert np.allclose(bearings_to_filter_frame(call[2], call[3]), [0.3], atol=1e-9)
         else:
-            # rotation removed exactly; the parallax of the < 3 cm translation remains
-            true = math.atan2(teammate[1], teammate[0])
+            # rotation removed exactly; the < 3 cm translation is the camera's position, from
+            # which the filter evaluates the bearing (exact up to the chord approximation)
+            x, y = teammate - call[2][:2]
             moved = bearings_to_filter_frame(call[1], call[2])
-            assert abs(moved[0] - true) <= math.atan2(v * period, 1.0) + 1e-12
-    raw = localizer_calls(records, compensate_motion=False)
+            assert abs(moved[0] - math.atan2(y, x)) < 1e-4
+    raw = _measurements_only(localizer_calls(records, compensate_motion=False))
     assert raw[0][3] is None and np.array_equal(raw[0][1], lidar_records[0].detections)
     # The bank applies the pose as the reference does.
     bank = PHDBank(PHDConfig(), 1)
-    bank.apply([calls])
+    bank.apply([stamped])
     f = RobotCentricPHD(PHDConfig())
     for call in calls:
         if call[0] == "predict":
@@ -78,7 +84,7 @@ def test_measurements_are_moved_to_the_last_odometry_frame(v, omega):
                 bearings_to_filter_frame(call[2], call[3]),
             )
         else:
-            f.update_camera(bearings_to_filter_frame(call[1], call[2]))
+            f.update_camera(call[1], sensor_pose=call[2])
     assert len(f) > 0 and np.allclose(bank.table(0), f.table, atol=1e-12)
 
 
@@ -86,7 +92,7 @@ def test_records_without_a_later_sample_are_unchanged():
     odo = OdometryRecord(1.0, np.array([0.03, 0.0, 0.15]), np.array([0.3, 1.5]))
     lidar = _lidar(1.05, np.array([[1.0, 0.5]]), np.array([0.2]))
     camera = CameraRecord(1.0, np.array([0.4]))  # same stamp as the sample: already in frame
-    calls = localizer_calls(RobotMeasurements([odo], [lidar], [camera]))
+    calls = _measurements_only(localizer_calls(RobotMeasurements([odo], [lidar], [camera])))
     assert [c[0] for c in calls] == ["predict", "camera", "lidar"]
     assert calls[1][2] is None and np.array_equal(calls[1][1], camera.bearings_rad)
     assert calls[2][3] is None and np.array_equal(calls[2][1], lidar.detections)
@@ -96,4 +102,9 @@ def test_stale_odometry_disables_compensation():
     odo = OdometryRecord(1.1, np.array([0.03, 0.0, 0.15]), np.array([0.3, 1.5]))
     camera = CameraRecord(1.05, np.array([0.4]))
     calls = localizer_calls(RobotMeasurements([odo], [], [camera]), stale=("odometry",))
-    assert calls == [("camera", camera.bearings_rad, None)]
+    assert calls == [("advance", 1.05), ("camera", camera.bearings_rad, None)]
+
+
+def _measurements_only(calls):
+    """The calls without the process-noise clock's ``("advance", stamp)`` entries."""
+    return [c for c in calls if c[0] != "advance"]

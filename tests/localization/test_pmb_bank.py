@@ -101,6 +101,9 @@ CONFIGS = {
         )
     ),
     "track-cap": PMBConfig(phd=phd(birth="measurement", max_components=5), max_tracks=3),
+    "range-noise": PMBConfig(
+        phd=phd(birth="measurement", camera_noise_std_deg=2.0, camera_noise_width_fraction=0.5)
+    ),
     "no-clutter": PMBConfig(
         phd=phd(birth="measurement", lidar_clutter_intensity=0.0, camera_clutter_intensity=0.0)
     ),

@@ -207,7 +207,9 @@ def test_sensor_pose_moves_measurements_like_frames():
             f.predict([0.01, 0.0, 0.02])
             if with_pose:
                 f.update_lidar(pts, nulls, sensor_pose=pose)
-                f.update_camera(brg, sensor_pose=pose)
+                # A pure rotation: the bearings turn (the camera's position is the parallax
+                # test's, tests/localization/test_process_clock.py).
+                f.update_camera(brg, sensor_pose=pose * [0.0, 0.0, 1.0])
             else:
                 f.update_lidar(
                     points_to_filter_frame(pts, pose), bearings_to_filter_frame(nulls, pose)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -333,3 +334,69 @@ def test_encirclement_env_has_an_intruder_the_sensors_see():
     t = env.last_world_step.truth
     assert t.extra_xy.shape == (1, 2)
     assert env.world.n_extra == 1
+
+
+# ------------------------------------------------------------------ localization term
+def _seen_truth(lidar, camera) -> GroundTruth:
+    t = truth([[0, 0], [1, 0], [0, 1]])
+    visible = {"lidar": np.asarray(lidar, bool), "camera": np.asarray(camera, bool)}
+    return dataclasses.replace(t, visible=visible)
+
+
+def test_unseen_fraction_hand_computed():
+    from swarm_env.tasks.common import unseen_fraction
+
+    # Robot 0 sees 1 with both sensors and 2 with the lidar only: 1 of 2 unseen -> 0.5.
+    # Robot 1 sees both with both: 0. Robot 2 sees nobody with the camera: 1. The diagonal
+    # (a robot "seeing itself") must not count.
+    lidar = [[1, 1, 1], [1, 1, 1], [1, 1, 1]]
+    camera = [[1, 1, 0], [1, 0, 1], [0, 0, 1]]
+    np.testing.assert_allclose(unseen_fraction(_seen_truth(lidar, camera)), [0.5, 0.0, 1.0])
+    # Without a visibility mask (motion capture) the nominal range masks are used.
+    near = np.array([[0, 1, 0], [1, 0, 0], [0, 0, 0]], bool)
+    t = dataclasses.replace(
+        truth([[0, 0], [1, 0], [5, 0]]), in_range={"lidar": near, "camera": near}
+    )
+    np.testing.assert_allclose(unseen_fraction(t), [0.5, 0.5, 1.0])
+    assert unseen_fraction(truth([[0, 0]])).tolist() == [0.0]
+    with pytest.raises(ValueError, match="lidar"):
+        unseen_fraction(truth([[0, 0], [1, 0]]))
+
+
+@pytest.mark.parametrize("name", ["formation", "exploration"])
+def test_localization_term_subtracts_the_unseen_fraction(name):
+    lidar = np.ones((3, 3), bool)
+    camera = np.array([[1, 1, 0], [1, 0, 1], [0, 0, 1]], bool)
+    t = _seen_truth(lidar, camera)
+    plain, weighted = make_task(name), make_task(name, localization_weight=2.0)
+    for task in (plain, weighted):
+        task.reset(t, RNG, ARENA)
+    base = plain.rewards(t, np.zeros((3, 2)))
+    np.testing.assert_allclose(
+        weighted.rewards(t, np.zeros((3, 2))), base - 2.0 * np.array([0.5, 0, 1])
+    )
+    assert weighted.metrics()["unseen_fraction"] == pytest.approx(0.5)
+    assert "unseen_fraction" not in plain.metrics()  # off by default: metrics as before
+    with pytest.raises(ValueError, match="localization_weight"):
+        make_task(name, localization_weight=-1.0)
+
+
+def test_localization_term_in_the_simulator():
+    # The simulator's visibility masks reach the task: the term is in [0, w] per agent and the
+    # reward differs from the plain task's by exactly -w * unseen_fraction.
+    from swarm_env.tasks.common import unseen_fraction
+
+    env = parallel_env(
+        "lab-3m-4",
+        task="formation",
+        task_params={"localization_weight": 1.0},
+        observation="truth",
+        localize=False,
+    )
+    env.reset(seed=3)
+    _, rewards, _, _, _ = env.step({a: np.array([0.1, 0.2]) for a in env.agents})
+    t = env.last_world_step.truth
+    shape_err, spacing_err = env.task.errors(t.poses[:, :2])
+    expected = -(shape_err + env.task.spacing_weight * spacing_err) - unseen_fraction(t)
+    np.testing.assert_allclose([rewards[a] for a in env.possible_agents], expected, rtol=1e-6)
+    assert 0.0 <= env.task.metrics()["unseen_fraction"] <= 1.0

@@ -1,0 +1,128 @@
+"""What an observer keeps of its own odometry and of each teammate's broadcasts.
+
+Registration compares scans taken at different instants: the observer's at ``t_i``, teammate
+``j``'s at ``t_j`` (a lidar turns at 7 Hz, the radio adds latency), while the filters hold ``j``'s
+pose at ``j``'s latest broadcast odometry, seen from the observer now. :class:`PoseTrack`
+keeps a short stamped history of dead-reckoned poses so that both ends can be moved to the
+filters' instants (:func:`to_filter_instant`); at 1.5 rad/s a 0.14 s gap is 12 deg of heading.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from swarm_core.geometry import integrate_body_delta, wrap_angle
+from swarm_core.records import Broadcast
+
+from .se2 import compose, inverse_compose, rotation
+
+__all__ = ["PoseTrack", "TeammateLink", "absorb_broadcasts", "next_due", "to_filter_instant"]
+
+
+def next_due(due_s: float, time_s: float, period_s: float) -> float:
+    """The next instant of a periodic schedule that is due at ``time_s`` (s).
+
+    The schedule is the grid ``due_s + k period_s`` (no drift when the callers' steps do not
+    divide the period), advanced past ``time_s`` (to within 1e-9 s) when it is more than a period
+    behind; ``due_s = -inf`` (never run) anchors the grid at ``time_s``."""
+    if not math.isfinite(due_s):
+        return time_s + period_s
+    return due_s + (math.floor((time_s + 1e-9 - due_s) / period_s) + 1) * period_s
+
+
+class PoseTrack:
+    """Stamped dead-reckoned poses (odometry frame), the newest ``maxlen``."""
+
+    def __init__(self, maxlen: int = 64) -> None:
+        self.stamps: deque[float] = deque(maxlen=maxlen)
+        self.poses: deque[np.ndarray] = deque(maxlen=maxlen)
+
+    def append(self, stamp_s: float, pose: np.ndarray) -> None:
+        self.stamps.append(float(stamp_s))
+        self.poses.append(np.asarray(pose, dtype=np.float64).copy())
+
+    def integrate(self, stamp_s: float, delta: np.ndarray) -> None:
+        """Append the last pose moved by a body-frame increment (own wheel odometry)."""
+        last = self.poses[-1] if self.poses else np.zeros(3)
+        self.append(stamp_s, integrate_body_delta(last, delta))
+
+    @property
+    def latest(self) -> np.ndarray | None:
+        return self.poses[-1] if self.poses else None
+
+    def at(self, stamp_s: float) -> np.ndarray | None:
+        """The pose at ``stamp_s``, linearly interpolated (clamped to the history's ends)."""
+        if not self.poses:
+            return None
+        t = np.fromiter(self.stamps, float, len(self.stamps))
+        k = int(np.searchsorted(t, stamp_s))
+        if k <= 0:
+            return self.poses[0].copy()
+        if k >= len(t):
+            return self.poses[-1].copy()
+        a, b = self.poses[k - 1], self.poses[k]
+        f = (stamp_s - t[k - 1]) / max(t[k] - t[k - 1], 1e-9)
+        out = a + f * (b - a)
+        out[2] = wrap_angle(a[2] + f * float(wrap_angle(b[2] - a[2])))
+        return out
+
+
+@dataclass
+class TeammateLink:
+    """What the observer knows of one teammate from the radio."""
+
+    track: PoseTrack = field(default_factory=PoseTrack)
+    stamp_s: float = -math.inf
+    detections: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    detections_stamp_s: float = math.nan
+
+    @property
+    def odometry_pose(self) -> np.ndarray | None:
+        return self.track.latest
+
+
+def absorb_broadcasts(links: dict[str, TeammateLink], broadcasts: list[Broadcast]):
+    """Record the broadcasts (in send order; late duplicates dropped) and yield each teammate's
+    motion between consecutive ones: ``(sender, v_new (-) v_old)`` (eq. 15's ``u_j``; a radio gap
+    is bridged by the same difference)."""
+    for b in sorted(broadcasts, key=lambda m: m.stamp_s):
+        link = links.get(b.sender)
+        if link is None or b.stamp_s <= link.stamp_s:
+            continue  # unknown sender, or overtaken by a newer broadcast (jitter)
+        previous = link.odometry_pose
+        link.track.append(b.stamp_s, b.odometry_pose)
+        link.stamp_s = b.stamp_s
+        if np.isfinite(b.detections_stamp_s):
+            link.detections = np.array(b.detections)
+            link.detections_stamp_s = b.detections_stamp_s
+        if previous is not None:
+            yield b.sender, inverse_compose(np.asarray(b.odometry_pose), previous)
+
+
+def to_filter_instant(
+    poses: np.ndarray,
+    covariances: np.ndarray,
+    own: PoseTrack,
+    own_scan_s: float,
+    link: TeammateLink,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Registration poses (H, 3) of ``j``'s frame at its scan in the observer's frame at its
+    scan, moved to the filters' instants: the observer now (its latest odometry) and ``j`` at its
+    latest broadcast odometry. The covariances (H, 3, 3) turn with the observer's frame (the
+    small right-composition with ``j``'s own motion is left out)."""
+    p_scan, p_now = own.at(own_scan_s), own.latest
+    v_scan, v_last = link.track.at(link.detections_stamp_s), link.track.latest
+    out = np.asarray(poses, dtype=np.float64)
+    covs = np.asarray(covariances, dtype=np.float64)
+    if v_scan is not None and v_last is not None:
+        out = compose(out, inverse_compose(v_last, v_scan))
+    if p_scan is not None and p_now is not None:
+        out = inverse_compose(compose(p_scan, out), p_now)
+        g = np.eye(3)
+        g[:2, :2] = rotation(float(p_scan[2] - p_now[2]))
+        covs = g @ covs @ g.T
+    return out, covs
