@@ -16,6 +16,7 @@ from swarm_phd.runner import random_policy
 SCRIPTED: dict[str, Callable[..., scripted.ScriptedPolicy]] = {
     "wander": scripted.WanderPolicy.for_env,
     "formation": scripted.FormationPolicy.for_env,
+    "exploration": scripted.DispersionPolicy.for_env,
     "encirclement": scripted.EncirclementPolicy.for_env,
     "anti-symmetry": scripted.AntiSymmetryPolicy.for_env,
 }

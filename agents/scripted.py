@@ -374,6 +374,59 @@ class FormationPolicy(VectorFieldPolicy):
         return self._clip_speed(u)
 
 
+class DispersionPolicy(VectorFieldPolicy):
+    """Exploration by dispersion from the robot's own PHD estimate (task ``exploration``).
+
+    Potential-field deployment (Howard, Mataric & Sukhatme 2002): each confident neighbour
+    estimate ``(w_k, m_k)`` closer than ``spread_m`` pushes the robot away,
+    ``u = cruise [1, 0] - k_s sum_k w_k (spread - d_k) / spread * m_k / d_k``, with ``w_k``
+    discounted by the component's spread as in :class:`FormationPolicy`. The cruise term keeps
+    a spread-out swarm sweeping new cells; the lidar pushes it off walls and obstacles (the base
+    class). With nobody estimated within ``spread_m`` it random-walks (the seed's wander), which
+    is what a lone robot can do without a map. The robot never needs its own global position.
+    """
+
+    name = "exploration"
+
+    def __init__(
+        self,
+        max_speed_mps: float = 0.3,
+        max_turn_rate_radps: float = 1.5,
+        spread_m: float = 1.5,
+        k_s: float = 0.4,
+        cruise_fraction: float = 0.6,
+        **kwargs: Any,
+    ) -> None:
+        for name, value in (("spread_m", spread_m), ("k_s", k_s)):
+            if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        if not (isinstance(cruise_fraction, (int, float)) and 0.0 <= cruise_fraction <= 1.0):
+            raise ValueError(f"cruise_fraction must be in [0, 1], got {cruise_fraction!r}")
+        self.spread_m = float(spread_m)
+        self.k_s = float(k_s)
+        self.cruise_fraction = float(cruise_fraction)
+        super().__init__(max_speed_mps, max_turn_rate_radps, **kwargs)
+
+    @classmethod
+    def for_env(cls, env: Any, **kwargs: Any) -> ScriptedPolicy:
+        if env.task.name != "exploration":
+            raise ValueError(
+                f"scripted:exploration needs task='exploration', got {env.task.name!r}"
+            )
+        return super().for_env(env, **kwargs)
+
+    def desired_velocity(self, agent, table, odometry, features):
+        pts, w = estimated_neighbours(table, self.min_weight, reference_variance_m2=0.02)
+        d = np.linalg.norm(pts, axis=1) if len(pts) else np.zeros(0)
+        near = (d < self.spread_m) & (d > 1e-6)
+        if not near.any():
+            return None
+        push = w[near] * (self.spread_m - d[near]) / self.spread_m
+        u = np.array([self.cruise_fraction * self.max_speed_mps, 0.0])
+        u -= self.k_s * ((push / d[near])[:, None] * pts[near]).sum(axis=0)
+        return self._clip_speed(u)
+
+
 def expected_count(radius_m: float, chord_m: float) -> int:
     """Swarm size N implied by the circle features ``[r, s* = 2 r sin(pi / N)]``."""
     ratio = chord_m / (2.0 * radius_m) if radius_m > 0 else 0.0
