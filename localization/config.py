@@ -225,6 +225,16 @@ class PHDConfig:
     camera_birth_max_explained : float
         Threshold on a bearing's explained fraction below which it spawns a ray (as
         ``measurement_birth_max_explained`` for the lidar).
+    lidar_missed_moments : bool
+        The missed-detection copy of a lidar update under a range-dependent ``P_d``: its
+        posterior is ``(1 - P_d(x)) N(x; m, P)``, not the prior reweighted by ``1 - P_d(m)``.
+        With ``True`` it is moment-matched along the component's range direction (9-point
+        Gauss-Hermite over the linearised range, the angular factors at the mean): the weight
+        uses the expected ``P_d`` and the mean moves towards where the lidar would not have seen
+        it. A track left at the edge of the lidar's range by a teammate that moved beyond it
+        then drifts outwards with each missed scan instead of only losing weight (which the
+        camera restores). ``lidar_pd_model="seed"`` only; the GM-PHD engines only (the PMB
+        ignores it).
     missed_detection : str
         ``"phd"`` (Vo & Ma, the seed): a component's missed-detection copy keeps
         ``(1 - P_d) w``. ``"bernoulli"``: it keeps the exact Bernoulli filter's missed
@@ -297,6 +307,7 @@ class PHDConfig:
     camera_birth_max_range_m: float = 4.0
     camera_birth_max_explained: float = 0.5
     missed_detection: str = "phd"
+    lidar_missed_moments: bool = False
     prune_threshold: float = 1e-4
     merge_threshold: float = 4.0
     max_components: int = 64

@@ -301,8 +301,10 @@ class RobotCentricPHD:
         table = self._table
         bernoulli = cfg.missed_detection == "bernoulli"
         if pts.shape[0] == 0:
-            out = table.copy()
-            out[ROW_W] = self._missed_only(table, self._model.lidar(table, nulls))
+            pd = self._model.lidar(table, nulls)
+            missed = self._lidar_missed(table, pd)
+            out = (table if missed is None else missed[1]).copy()
+            out[ROW_W] = self._missed_only(table, pd if missed is None else missed[0])
             explained = np.empty(0)
         else:
             n = table.shape[1]
@@ -310,13 +312,15 @@ class RobotCentricPHD:
             if fixed_birth:
                 # The seed's birth component (eq. 11) joins the prior of every lidar update.
                 table = np.concatenate((table, self._fixed_birth), axis=1)
+            pd = self._model.lidar(table, nulls)
             out, explained = phd.lidar_update(
                 table,
                 pts,
-                self._model.lidar(table, nulls),
+                pd,
                 cfg.lidar_noise_var_m2,
                 cfg.lidar_clutter_intensity,
                 bernoulli,
+                self._lidar_missed(table, pd),
             )
             if fixed_birth:
                 # Its missed-detection copy is dropped (weight 0, pruned): kept, a 2 m-wide
@@ -438,6 +442,20 @@ class RobotCentricPHD:
         counts = np.maximum(np.floor(wk + 0.5), 1.0).astype(np.intp)
         positions = np.repeat(table[ROW_X : ROW_Y + 1, keep].T, counts, axis=0)
         return positions, np.repeat(wk / counts, counts)
+
+    def _lidar_missed(self, table: np.ndarray, pd: np.ndarray):
+        """The lidar missed copies' ``P_d`` and shape (``lidar_missed_moments``), or None."""
+        cfg = self.config
+        if not cfg.lidar_missed_moments or cfg.lidar_pd_model != "seed":
+            return None
+        return phd.missed_moments(
+            table,
+            pd,
+            cfg.lidar_pd_offset,
+            cfg.lidar_pd_slope_per_m,
+            cfg.lidar_pd_midpoint_m,
+            cfg.min_range_m,
+        )
 
     def _missed_only(self, table: np.ndarray, detection_prob: np.ndarray) -> np.ndarray:
         """Weights after a scan or frame without measurements, shape ``(N,)``."""

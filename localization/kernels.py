@@ -44,6 +44,7 @@ from numba import njit, prange
 
 from .config import CAMERA_BIRTH_RADIAL_STD_FRACTION, PROCESS_CLOCK_RESET_S, PHDConfig
 from .mixture import N_ROWS
+from .phd import GH_NODES, GH_WEIGHTS
 
 __all__ = [
     "PREDICT",
@@ -134,6 +135,7 @@ I_CAMERA_BIRTH = _I.slot(lambda c: c.camera_birth == "ray")
 I_TIME_UPDATE_MEASUREMENT = _I.slot(lambda c: c.time_update == "measurement")
 I_CBIRTH_COMPONENTS = _I.slot(lambda c: c.camera_birth_components)
 I_MISSED_BERNOULLI = _I.slot(lambda c: c.missed_detection == "bernoulli")
+I_LIDAR_MISSED_MOMENTS = _I.slot(lambda c: c.lidar_missed_moments and c.lidar_pd_model == "seed")
 N_IPARAMS = len(_I.transforms)
 
 _TINY = 1e-300  # as localization.gaussian.TINY: floor of every divisor
@@ -377,7 +379,18 @@ def _negligible_exponent(pd_w, norm, kappa, prune):
 
 @njit(cache=True)
 def _posterior(
-    tab, n, pd, detected, post_means, post_covs, kappa, prune, dropped_missed, bernoulli
+    tab,
+    n,
+    pd,
+    detected,
+    post_means,
+    post_covs,
+    kappa,
+    prune,
+    dropped_missed,
+    bernoulli,
+    missed_tab,
+    missed_pd,
 ):
     """GM-PHD weights (Vo & Ma Table I), pruned: the kept missed copies, then the kept
     detected copies in component-major order (the reference's column order, minus the pruned).
@@ -385,8 +398,9 @@ def _posterior(
     ``detected (n, M)`` holds ``P_d w N`` per pair, ``post_means (2, n, M)`` (read only where
     ``detected > 0``), ``post_covs (3, n)``; ``dropped_missed`` is a component whose missed
     copy is not kept (-1: none); ``bernoulli``: missed copies get
-    :func:`localization.phd.missed_weights`. Returns the ``(6, k)`` table, ``k`` and
-    ``explained (M,)``.
+    :func:`localization.phd.missed_weights`; the missed copies take their ``P_d`` from
+    ``missed_pd`` and their means and covariances from ``missed_tab`` (``pd`` and ``tab``, or
+    :func:`_missed_moments`'). Returns the ``(6, k)`` table, ``k`` and ``explained (M,)``.
     """
     m = detected.shape[1]
     sums = np.zeros(m)
@@ -402,13 +416,13 @@ def _posterior(
     weights = np.empty(n + n * m)
     k = 0
     for i in range(n):
-        w = tab[0, i] - pd[i] * tab[0, i]  # (1 - P_d) w
+        w = tab[0, i] - missed_pd[i] * tab[0, i]  # (1 - P_d) w
         if bernoulli:
             evidence = 0.0  # w_i Lambda_i
             for h in range(m):
                 others = max(sums[h] - detected[i, h], 0.0) + kappa
                 evidence += detected[i, h] / max(others, _TINY)
-            w = _bernoulli_missed(tab[0, i], pd[i], evidence)
+            w = _bernoulli_missed(tab[0, i], missed_pd[i], evidence)
         weights[i] = 0.0 if i == dropped_missed else w
         k += weights[i] >= prune
         for h in range(m):
@@ -421,7 +435,7 @@ def _posterior(
         if weights[i] >= prune:
             out[0, col] = weights[i]
             for r in range(1, N_ROWS):
-                out[r, col] = tab[r, i]
+                out[r, col] = missed_tab[r, i]
             col += 1
     for i in range(n):
         for h in range(m):
@@ -446,16 +460,64 @@ def _bernoulli_missed(w, pd, evidence):
 
 
 @njit(cache=True)
-def _missed_only(tab, n, pd, prune, bernoulli):
+def _missed_only(tab, n, pd, prune, bernoulli, missed_tab):
     """An update without measurements: ``w *= 1 - P_d`` (or the Bernoulli missed weight),
-    pruned. Returns (table, k)."""
-    out = tab[:, :n].copy()
+    means and covariances from ``missed_tab`` (``tab``, or :func:`_missed_moments`'), pruned.
+    Returns (table, k)."""
+    out = missed_tab[:, :n].copy()
     for i in range(n):
+        out[0, i] = tab[0, i]
         if bernoulli:
             out[0, i] = _bernoulli_missed(out[0, i], pd[i], 0.0)
         else:
             out[0, i] *= 1.0 - pd[i]
     return _prune(out, n, prune)
+
+
+@njit(cache=True)
+def _missed_moments(tab, n, pd, fp):
+    """:func:`localization.phd.missed_moments` (the lidar's missed copies moment-matched to
+    ``(1 - P_d(x)) N(x; m, P)``), scalar loops. Returns ``(missed_pd (n,), missed_tab (6, n))``."""
+    missed_pd = np.empty(n)
+    out = tab[:, :n].copy()
+    k_nodes = GH_NODES.shape[0]
+    for i in range(n):
+        mx, my = tab[1, i], tab[2, i]
+        pxx, pxy, pyy = tab[3, i], tab[4, i], tab[5, i]
+        r = math.hypot(mx, my)
+        inv_r = 1.0 / max(r, fp[F_MIN_RANGE])
+        ux, uy = mx * inv_r, my * inv_r
+        pu_x = pxx * ux + pxy * uy
+        pu_y = pxy * ux + pyy * uy
+        s2 = ux * pu_x + uy * pu_y
+        s = math.sqrt(max(s2, 0.0))
+        f_mean = _inverse_sigmoid(r, fp[F_LPD_OFFSET], fp[F_LPD_SLOPE], fp[F_LPD_MID])
+        g = pd[i] / f_mean if f_mean > 1e-12 else 0.0
+        z = 0.0
+        z1 = 0.0
+        z2 = 0.0
+        for q in range(k_nodes):
+            f = _inverse_sigmoid(
+                r + s * GH_NODES[q], fp[F_LPD_OFFSET], fp[F_LPD_SLOPE], fp[F_LPD_MID]
+            )
+            miss = 1.0 - g * f
+            z += GH_WEIGHTS[q] * miss
+            z1 += GH_WEIGHTS[q] * GH_NODES[q] * miss
+            z2 += GH_WEIGHTS[q] * GH_NODES[q] * GH_NODES[q] * miss
+        if not (z > _TINY and s2 > _TINY and f_mean > 1e-12):
+            missed_pd[i] = pd[i]
+            continue
+        missed_pd[i] = 1.0 - z
+        mu = s * z1 / z
+        v = s2 * z2 / z - mu * mu
+        shift = mu / s2
+        shrink = (v - s2) / (s2 * s2)
+        out[1, i] = mx + pu_x * shift
+        out[2, i] = my + pu_y * shift
+        out[3, i] = pxx + pu_x * pu_x * shrink
+        out[4, i] = pxy + pu_x * pu_y * shrink
+        out[5, i] = pyy + pu_y * pu_y * shrink
+    return missed_pd, out
 
 
 @njit(cache=True)
@@ -465,7 +527,11 @@ def _lidar_update(tab, n, pts, nulls, fp, ip, sector_scaled, sector_inv_var):
     prune = fp[F_PRUNE]
     if m == 0:
         pd = _lidar_pd(tab, n, nulls, fp, ip, sector_scaled, sector_inv_var)
-        out, k = _missed_only(tab, n, pd, prune, ip[I_MISSED_BERNOULLI])
+        if ip[I_LIDAR_MISSED_MOMENTS]:
+            missed_pd, missed_tab = _missed_moments(tab, n, pd, fp)
+        else:
+            missed_pd, missed_tab = pd, tab
+        out, k = _missed_only(tab, n, missed_pd, prune, ip[I_MISSED_BERNOULLI], missed_tab)
         return out, k, np.empty(0)
     fixed_birth = ip[I_BIRTH_FIXED]
     n1 = n + 1 if fixed_birth else n
@@ -514,6 +580,10 @@ def _lidar_update(tab, n, pts, nulls, fp, ip, sector_scaled, sector_inv_var):
             detected[i, h] = math.exp(exponent) * norm * pd_w
             post_means[0, i, h] = pts[h, 0] + (2.0 * r) * e0
             post_means[1, i, h] = pts[h, 1] + (2.0 * r) * e1
+    if ip[I_LIDAR_MISSED_MOMENTS]:
+        missed_pd, missed_tab = _missed_moments(prior, n1, pd, fp)
+    else:
+        missed_pd, missed_tab = pd, prior
     # the fixed birth's missed copy is dropped (see RobotCentricPHD.update_lidar)
     return _posterior(
         prior,
@@ -526,6 +596,8 @@ def _lidar_update(tab, n, pts, nulls, fp, ip, sector_scaled, sector_inv_var):
         prune,
         n if fixed_birth else -1,
         ip[I_MISSED_BERNOULLI],
+        missed_tab,
+        missed_pd,
     )
 
 
@@ -546,7 +618,7 @@ def _camera_update(tab, n, brg, fp, ip):
     prune = fp[F_PRUNE]
     pd = _camera_pd(tab, n, fp)
     if m == 0:
-        return _missed_only(tab, n, pd, prune, ip[I_MISSED_BERNOULLI])
+        return _missed_only(tab, n, pd, prune, ip[I_MISSED_BERNOULLI], tab)
     kappa = fp[F_KAPPA_C]
     min_r2 = fp[F_MIN_RANGE] * fp[F_MIN_RANGE]
     detected = np.empty((n, m))
@@ -590,7 +662,18 @@ def _camera_update(tab, n, brg, fp, ip):
             post_means[0, i, h] = x + g0 * innov
             post_means[1, i, h] = y + g1 * innov
     out, k, explained = _posterior(
-        tab, n, pd, detected, post_means, post_covs, kappa, prune, -1, ip[I_MISSED_BERNOULLI]
+        tab,
+        n,
+        pd,
+        detected,
+        post_means,
+        post_covs,
+        kappa,
+        prune,
+        -1,
+        ip[I_MISSED_BERNOULLI],
+        tab,
+        pd,
     )
     if ip[I_CAMERA_BIRTH]:
         return _with_ray_births(out, k, brg, explained, fp, ip)

@@ -168,6 +168,7 @@ def _posterior_table(
     likelihood: np.ndarray,
     clutter_intensity: float,
     bernoulli: bool = False,
+    missed: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """GM-PHD weights (Vo & Ma 2006, Table I, step 4) and the stacked posterior table.
 
@@ -187,6 +188,9 @@ def _posterior_table(
         ``kappa`` in the measurement's units.
     bernoulli : bool
         Missed copies with :func:`missed_weights`' Bernoulli weights instead of the PHD's.
+    missed : (missed_prob (N,), missed_table (6, N)), optional
+        The missed copies' ``P_d`` and shape from :func:`missed_moments` (default: ``P_d`` at
+        the mean and the prior's shape).
 
     Returns
     -------
@@ -206,20 +210,94 @@ def _posterior_table(
     # floor turns it into weights of exactly 0 (nothing explains that measurement).
     inv_denom = 1.0 / np.maximum(sums + clutter_intensity, TINY)
     out = np.empty((N_ROWS, n + n * m))
+    missed_prob, missed_table = (detection_prob, table) if missed is None else missed
     if bernoulli:
         # Lambda_i w_i = sum_h P_d w_i g_ih / (kappa + sum_{j != i} P_d w_j g_jh)
         others = np.maximum(sums[None, :] - detected, 0.0) + clutter_intensity
         evidence = (detected / np.maximum(others, TINY)).dot(np.ones(m))
-        out[ROW_W, :n] = missed_weights(weights, detection_prob, evidence)
+        out[ROW_W, :n] = missed_weights(weights, missed_prob, evidence)
     else:
-        np.subtract(weights, pd_w, out=out[ROW_W, :n])  # (1 - P_d) w
-    out[ROW_X:, :n] = table[ROW_X:]
+        out[ROW_W, :n] = weights - missed_prob * weights  # (1 - P_d) w
+    out[ROW_X:, :n] = missed_table[ROW_X:]
     # a view: component-major (i, h) blocks
     blocks = out[:, n:].reshape(N_ROWS, n, m)
     np.multiply(detected, inv_denom[None, :], out=blocks[ROW_W])
     blocks[ROW_X : ROW_Y + 1] = post_means
     blocks[ROW_PXX:] = post_covs[:, :, None]
     return out, sums * inv_denom
+
+
+#: Probabilists' Gauss-Hermite rule (9 nodes) for expectations over N(0, 1).
+GH_NODES, GH_WEIGHTS = np.polynomial.hermite_e.hermegauss(9)
+GH_WEIGHTS = GH_WEIGHTS / math.sqrt(2.0 * math.pi)
+
+
+def missed_moments(
+    table: np.ndarray,
+    detection_prob: np.ndarray,
+    offset: float,
+    slope_per_m: float,
+    midpoint_m: float,
+    min_range_m: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The lidar missed-detection posterior ``(1 - P_d(x)) N(x; m, P)``, moment-matched.
+
+    ``P_d(x) = g f(r(x))``: the range factor ``f`` (seed eq. 19's sigmoid) varies over the
+    component, the angular factors ``g = P_d(m) / f(||m||)`` are taken at the mean. Along the
+    range direction ``u = m / ||m||`` the range is linearised, ``r = ||m|| + s z``,
+    ``s^2 = u^T P u``, ``z ~ N(0, 1)``, and 9-point Gauss-Hermite gives ``Z = E[1 - g f]``,
+    ``mu = s E[z (1 - g f)] / Z`` and ``v = s^2 E[z^2 (1 - g f)] / Z - mu^2``. A likelihood of
+    the projection ``u^T x`` updates the Gaussian exactly as conditioning does:
+    ``m' = m + P u mu / s^2``, ``P' = P + P u u^T P (v - s^2) / s^4``.
+
+    Parameters
+    ----------
+    table : ndarray, shape (6, N)
+        Prior components.
+    detection_prob : ndarray, shape (N,)
+        ``P_d`` at the means (every factor).
+    offset, slope_per_m, midpoint_m : float
+        The range factor ``1 / (offset + exp(slope (r - midpoint)))``.
+    min_range_m : float
+        Floor on ``||m||`` for the direction.
+
+    Returns
+    -------
+    missed_prob : ndarray, shape (N,)
+        ``E[P_d]`` over each component, for the missed copy's weight.
+    missed_table : ndarray, shape (6, N)
+        The missed copies' means and covariances (rows 1-5; row 0 is the prior's).
+    """
+    out = table.copy()
+    mx, my = table[ROW_X], table[ROW_Y]
+    r = np.hypot(mx, my)
+    ux, uy = mx / np.maximum(r, min_range_m), my / np.maximum(r, min_range_m)
+    pu_x = table[ROW_PXX] * ux + table[ROW_PXY] * uy  # P u
+    pu_y = table[ROW_PXY] * ux + table[ROW_PYY] * uy
+    s2 = ux * pu_x + uy * pu_y
+    s = np.sqrt(np.maximum(s2, 0.0))
+    f_mean = inverse_sigmoid(r, offset, slope_per_m, midpoint_m)
+    # Angular factors; a mean far beyond the range (f underflows) keeps its own P_d.
+    g = np.divide(detection_prob, f_mean, out=np.zeros_like(f_mean), where=f_mean > 1e-12)
+    f_nodes = inverse_sigmoid(
+        r[:, None] + s[:, None] * GH_NODES[None, :], offset, slope_per_m, midpoint_m
+    )
+    miss = 1.0 - g[:, None] * f_nodes  # (N, K), in [0, 1]
+    z = miss.dot(GH_WEIGHTS)
+    ok = (z > TINY) & (s2 > TINY) & (f_mean > 1e-12)
+    missed_prob = np.where(ok, 1.0 - z, detection_prob)
+    zs = np.where(ok, z, 1.0)
+    mu = s * miss.dot(GH_WEIGHTS * GH_NODES) / zs
+    v = s2 * miss.dot(GH_WEIGHTS * GH_NODES**2) / zs - mu * mu
+    s2_safe = np.where(ok, s2, 1.0)
+    shift = np.where(ok, mu / s2_safe, 0.0)
+    shrink = np.where(ok, (v - s2) / (s2_safe * s2_safe), 0.0)
+    out[ROW_X] = mx + pu_x * shift
+    out[ROW_Y] = my + pu_y * shift
+    out[ROW_PXX] = table[ROW_PXX] + pu_x * pu_x * shrink
+    out[ROW_PXY] = table[ROW_PXY] + pu_x * pu_y * shrink
+    out[ROW_PYY] = table[ROW_PYY] + pu_y * pu_y * shrink
+    return missed_prob, out
 
 
 def missed_weights(
@@ -323,6 +401,7 @@ def lidar_update(
     noise_var: float,
     clutter_intensity: float,
     bernoulli: bool = False,
+    missed: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """GM-PHD update with lidar position measurements (seed eqs. 12-17, ``H = I``).
 
@@ -340,6 +419,8 @@ def lidar_update(
         ``kappa_L`` (1/m^2).
     bernoulli : bool
         Bernoulli missed-copy weights (:func:`missed_weights`).
+    missed : optional
+        The missed copies' ``P_d`` and shape (:func:`missed_moments`).
 
     Returns
     -------
@@ -354,7 +435,14 @@ def lidar_update(
         table[ROW_X : ROW_Y + 1], table[ROW_PXX:], points.T, noise_var
     )
     return _posterior_table(
-        table, detection_prob, post_means, post_covs, likelihood, clutter_intensity, bernoulli
+        table,
+        detection_prob,
+        post_means,
+        post_covs,
+        likelihood,
+        clutter_intensity,
+        bernoulli,
+        missed,
     )
 
 

@@ -222,7 +222,11 @@ SIM_CAMERA_CLUTTER_PER_RAD = 1.22
 #:   the bearing noise :data:`SIM_CAMERA_NOISE_STD_DEG`, ``_WIDTH_FRACTION`` and the clutter
 #:   :data:`SIM_CAMERA_CLUTTER_PER_RAD`;
 #: * measurement-driven births of weight 0.25: teammates enter a robot's 2 m disc 0.085 times
-#:   per scan, and the seed's fixed birth needs 2-3 extra scans per newcomer.
+#:   per scan, and the seed's fixed birth needs 2-3 extra scans per newcomer;
+#: * the model corrections of ``docs/localization.md`` ("The camera's measurement model,
+#:   corrected"): the Bernoulli missed-detection term, process noise up to each measurement's
+#:   stamp, the camera's position in the bearing model (always on with motion compensation),
+#:   the range-dependent bearing noise and the moment-matched missed lidar copies.
 #:
 #: Real robots (:func:`hardware_bridge.real_env`) keep the seed's values unless overridden.
 SIMULATOR_PHD = PHDConfig(
@@ -248,6 +252,10 @@ SIMULATOR_PHD = PHDConfig(
     # Process noise up to each measurement's stamp: three camera frames and a scan fall between
     # two odometry samples (docs/localization.md, "When Q goes in").
     time_update="measurement",
+    # The lidar's missed copies moment-matched under its range-dependent P_d (the GM-PHD's):
+    # a track left at the range edge by a teammate that moved beyond it drifts outwards
+    # instead of being confirmed in place by the camera (docs/localization.md).
+    lidar_missed_moments=True,
 )
 
 

@@ -148,9 +148,9 @@ def run(args: argparse.Namespace) -> int:
             "geometry, detects a teammate reliably out to ~1.9 m (the real one fades from "
             "~1.3 m), so inside the 2 m scoring disc the camera adds bearings, not positions; "
             "and bearings from teammates beyond the lidar keep some surplus tracks alive (LC "
-            "over-counts by ~0.9 teammates in range). The measured causes are in "
-            "benchmarks/RESULTS.md ('The camera's model corrected'). `--localizer pmb-lc` in "
-            "`swarm-phd evaluate` runs the multi-Bernoulli filter."
+            "over-counts by ~0.3 teammates in range). The measured causes are in "
+            "benchmarks/RESULTS.md ('The lidar's missed copies moment-matched'). "
+            "`--localizer pmb-lc` in `swarm-phd evaluate` runs the multi-Bernoulli filter."
         )
     return 0
 

@@ -35,8 +35,8 @@ def rollout_hash(steps: int = 60, seed: int = 3, **kwargs) -> str:
 
 
 PINNED = {
-    "phd-lc": ({"localizer": "phd-lc"}, "919bc031943f31a1"),
-    "phd-lo": ({"localizer": "phd-lo"}, "25e2bd9e72bd8965"),
+    "phd-lc": ({"localizer": "phd-lc"}, "50fca56a0405e160"),
+    "phd-lo": ({"localizer": "phd-lo"}, "8ce198e4164ddd71"),
     "pmb-lc": ({"localizer": "pmb-lc"}, "3c9ac5d521ea2cd4"),
     "measurements": ({"observation": "measurements", "localize": False}, "a5183c8ff2ac8d00"),
 }

@@ -24,13 +24,15 @@ def canonical(table: np.ndarray) -> np.ndarray:
     return table[:, np.lexsort(np.round(table[::-1], 7))]
 
 
-def assert_same(filters: list[RobotCentricPHD], bank: PHDBank, where: str) -> None:
+def assert_same(
+    filters: list[RobotCentricPHD], bank: PHDBank, where: str, atol: float = 1e-10
+) -> None:
     for r, f in enumerate(filters):
         a, b = canonical(np.asarray(f.table)), canonical(bank.table(r))
         assert a.shape == b.shape, (
             f"{where}: robot {r} has {b.shape[1]} != {a.shape[1]} components"
         )
-        assert np.allclose(a, b, rtol=0.0, atol=1e-10), f"{where}: robot {r} differs"
+        assert np.allclose(a, b, rtol=0.0, atol=atol), f"{where}: robot {r} differs"
         pa, pb = f.__getstate__()["pending_births"], bank.pending_births(r)
         assert pa.shape == pb.shape and np.allclose(pa, pb, rtol=0.0, atol=1e-10), where
 
@@ -65,7 +67,9 @@ def random_calls(rng: np.random.Generator, steps: int, bearing_std: float = 0.08
             yield kind, robots, (bearings,)
 
 
-def run_both(config: PHDConfig, seed: int, steps: int = 60, bearing_std: float = 0.08):
+def run_both(
+    config: PHDConfig, seed: int, steps: int = 60, bearing_std: float = 0.08, atol: float = 1e-10
+):
     filters = [RobotCentricPHD(config) for _ in range(R)]
     bank = PHDBank(config, R)
     rng = np.random.default_rng(seed)
@@ -79,7 +83,7 @@ def run_both(config: PHDConfig, seed: int, steps: int = 60, bearing_std: float =
             else:
                 f.update_camera(args[0][i])
         getattr(bank, "predict" if kind == "predict" else f"update_{kind}")(robots, *args)
-        assert_same(filters, bank, f"seed {seed} step {step} ({kind})")
+        assert_same(filters, bank, f"seed {seed} step {step} ({kind})", atol)
     return filters, bank
 
 
@@ -117,6 +121,11 @@ CONFIGS = {
         camera_birth="ray", camera_noise_std_deg=2.0, camera_noise_width_fraction=0.5
     ),
     "bernoulli": PHDConfig(birth="measurement", missed_detection="bernoulli"),
+    # the lidar's missed copies moment-matched under the range-dependent P_d
+    "missed-moments": PHDConfig(birth="measurement", lidar_missed_moments=True),
+    "missed-moments-bernoulli-fixed": PHDConfig(
+        lidar_missed_moments=True, missed_detection="bernoulli", lidar_pd_midpoint_m=1.0
+    ),
     "bernoulli-fixed": PHDConfig(missed_detection="bernoulli"),
     "bernoulli-ray-constant": PHDConfig(
         missed_detection="bernoulli",
@@ -342,5 +351,7 @@ def test_greedy_merge_ranks_tiny_weights_by_weight():
 def test_bank_matches_with_the_simulators_sharp_bearings(seed):
     """SIMULATOR_PHD as the env runs it (ray births, Bernoulli missed term, 0.46 deg bearing
     noise, the cap), fed bearings with that noise."""
-    filters, bank = run_both(SIMULATOR_PHD, seed, bearing_std=np.radians(0.46))
+    # 0.46 deg bearings on 10-sigma-wide priors amplify summation-order round-off (the
+    # engines sum the Gauss-Hermite terms of the missed copies in different orders): 2e-10.
+    filters, bank = run_both(SIMULATOR_PHD, seed, bearing_std=np.radians(0.46), atol=1e-9)
     assert sum(len(f) for f in filters) > 0

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from localization import PHDConfig
-from localization.detection import DetectionModel
+from localization.detection import DetectionModel, inverse_sigmoid
 from localization.feed import SwarmFeed
 from localization.mixture import ROW_W
 from localization.registry import LOCALIZERS, make_localizer, oracle_range_bearing
@@ -189,6 +189,22 @@ def _only_diffused(t0: np.ndarray, t1: np.ndarray) -> None:
     assert np.all(t1[3] >= t0[3]) and np.all(t1[5] >= t0[5])  # Pxx, Pyy
 
 
+def _lowest_expected_pd(cfg, table: np.ndarray, pd: np.ndarray) -> np.ndarray:
+    """A lower bound of ``E[P_d]`` over each component (``lidar_missed_moments``): the range
+    factor decreases with range, so its value 5 sigma out bounds the 9-node rule's average;
+    sigma grows by the process noise the advance before the scan may add (two periods')."""
+    r = np.hypot(table[1], table[2])
+    u = table[1:3] / np.maximum(r, cfg.min_range_m)
+    s2 = u[0] ** 2 * table[3] + 2 * u[0] * u[1] * table[4] + u[1] ** 2 * table[5]
+    s_max = np.sqrt(np.maximum(s2, 0.0) + 2.0 * cfg.process_noise_std_m**2)
+    f = inverse_sigmoid(r, cfg.lidar_pd_offset, cfg.lidar_pd_slope_per_m, cfg.lidar_pd_midpoint_m)
+    f_far = inverse_sigmoid(
+        r + 5.0 * s_max, cfg.lidar_pd_offset, cfg.lidar_pd_slope_per_m, cfg.lidar_pd_midpoint_m
+    )
+    g = np.divide(pd, f, out=np.zeros_like(f), where=f > 1e-12)
+    return g * f_far
+
+
 def check_common(loc, after: dict, r: int) -> None:
     t = after["table"]
     assert np.all(np.isfinite(t)), f"{loc.name} robot {r}: non-finite table"
@@ -207,6 +223,8 @@ def check_gm_phd(loc, before, after, kind, rec, r, state) -> None:
     elif rec.lidar:
         lid = rec.lidar[0]
         pd = model.lidar(t0, lid.null_bearings_rad if lid.null_bearings_rad.size else None)
+        if cfg.lidar_missed_moments and cfg.lidar_pd_model == "seed":
+            pd = _lowest_expected_pd(cfg, t0, pd)
         bound = _missed_bound(t0[ROW_W], pd, bern).sum() + lid.detections.shape[0]
         assert np.all(t1[ROW_W] >= cfg.prune_threshold)  # reduced
     else:
