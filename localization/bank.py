@@ -41,7 +41,7 @@ from .filter import (
     _checked_odometry,
     _checked_points,
     _checked_stamp,
-    check_magnitude,
+    checked_pose,
 )
 from .mixture import N_ROWS, ROW_W, GaussianMixture
 
@@ -585,17 +585,9 @@ def _poses(poses: list[np.ndarray | None]) -> tuple[np.ndarray, np.ndarray]:
 
 def _checked_pose(value: Any, exact: bool) -> np.ndarray | None:
     """A call's optional sensor pose ``[x_m, y_m, psi_rad]`` (finiteness: see all_finite)."""
-    if value is None:
-        return None
     if not exact and _is_f64(value, 1) and value.shape[0] == 3:
-        return value
-    pose = as_float_array(value, "sensor_pose")
-    if pose.shape != (3,):
-        raise ValueError(
-            f"sensor_pose must have shape (3,) [x_m, y_m, psi_rad], got shape {pose.shape}"
-        )
-    check_magnitude(pose, "sensor_pose")
-    return pose
+        return value  # the fast path: finiteness is checked batch-wide
+    return checked_pose(value)
 
 
 _NO_ANGLES = np.empty(0)

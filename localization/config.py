@@ -87,8 +87,8 @@ class PHDConfig:
         first adds the share that accrued since the robot's previous one (the ``("advance",
         stamp_s)`` calls :func:`~localization.feed.localizer_calls` emits). Camera frames
         arrive three times per odometry sample: under ``"odometry"`` a teammate keeps moving
-        between them while its covariance stands still, and with 0.45 deg bearings a 1 cm
-        move at 0.5 m is already 2.5 sigma out of the innovation. Calls without stamps get
+        between them while its covariance stands still (1 cm of motion at 0.5 m is 1.2 sigma of
+        the simulated camera's bearing noise there, per frame). Calls without stamps get
         the seed's behaviour.
     process_noise_interval_s : float
         The interval over which ``process_noise_std_m`` accrues (the odometry period, 0.1 s).

@@ -123,8 +123,9 @@ def localizer_calls(
     its **sensor pose** in the frame of the last sample, from the robot's own motion up to its
     stamp: the next sample's motion ``delta`` minus its constant-velocity remainder
     ``velocity * tau`` over the ``tau`` seconds from the stamp to that sample (see
-    :func:`_motion_since_sample`). The filter moves detections exactly and rotates bearings
-    (:mod:`localization.frames`). Only the robot's own odometry is used. A record after the
+    :func:`_motion_since_sample`). The filter moves detections exactly, rotates bearings
+    (:mod:`localization.frames`) and evaluates their model from the camera's position (the
+    parallax a bearing cannot carry). Only the robot's own odometry is used. A record after the
     step's last odometry sample goes in uncompensated (in the simulator none is: odometry
     samples fall on step ends; on a real robot with unsynchronised odometry some are).
 

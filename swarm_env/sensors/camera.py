@@ -267,21 +267,9 @@ class CameraSensor:
         visible)."""
         cfg = self.config
         robots = np.asarray(robots, dtype=np.intp).reshape(-1)
-        n_circles = scene.circle_xy.shape[0]
-        if scene.circle_time is not None and time_index is not None:
+        when, n_instants, frame_time = _instants(scene, robots.size, time_index)
+        if time_index is not None:
             time_index = np.asarray(time_index, dtype=np.intp).reshape(-1)
-            when = np.asarray(scene.circle_time, dtype=np.intp)
-            n_instants = (
-                scene.robot_xy.shape[0]
-                if scene.robot_xy.ndim == 3
-                else int(when.max(initial=0)) + 1
-            )
-            _check_instants(n_instants, time_index)
-            frame_time = time_index
-        else:
-            # Every circle exists at every instant (the observers' poses are at instant 0).
-            when = np.full(n_circles, -1, dtype=np.intp)
-            n_instants, frame_time = 0, np.full(robots.size, -1, dtype=np.intp)
         target = np.flatnonzero(np.asarray(scene.circle_red, dtype=bool))
         # Occluders grouped by instant: static ones first, then instant 0, 1, ...
         occ = np.flatnonzero(np.asarray(scene.circle_camera_occluder, dtype=bool))
@@ -432,19 +420,7 @@ class CameraSensor:
         ``pair_bearing`` (V,) rad and distance ``pair_dist`` (V,) m: exactly the non-zero
         entries of :meth:`_geometry`'s (K, T) arrays, without building them.
         """
-        n_circles = scene.circle_xy.shape[0]
-        if scene.circle_time is not None and time_index is not None:
-            when = np.asarray(scene.circle_time, dtype=np.intp)
-            n_instants = (
-                scene.robot_xy.shape[0]
-                if scene.robot_xy.ndim == 3
-                else int(when.max(initial=0)) + 1
-            )
-            _check_instants(n_instants, time_index)
-            frame_time = time_index
-        else:
-            when = np.full(n_circles, -1, dtype=np.intp)
-            frame_time = np.full(robots.size, -1, dtype=np.intp)
+        when, _, frame_time = _instants(scene, robots.size, time_index)
         xy = np.ascontiguousarray(scene.circle_xy, dtype=np.float64)
         radius = np.asarray(scene.circle_radius_m, dtype=np.float64)
         target = np.flatnonzero(np.asarray(scene.circle_red, dtype=bool))
@@ -824,6 +800,26 @@ def _circles_block(
         if segment_distance2(wx, wy, dx, dy) < r2:
             return True
     return False
+
+
+def _instants(scene: Scene, n_frames: int, time_index) -> tuple[np.ndarray, int, np.ndarray]:
+    """``(when (C,), n_instants, frame_time (n_frames,))``: each circle's instant and each
+    frame's, in a time-stacked scene; without one, every circle exists at every instant
+    (``when = frame_time = -1``, the observers' poses are at instant 0)."""
+    if scene.circle_time is not None and time_index is not None:
+        time_index = np.asarray(time_index, dtype=np.intp).reshape(-1)
+        when = np.asarray(scene.circle_time, dtype=np.intp)
+        n_instants = (
+            scene.robot_xy.shape[0] if scene.robot_xy.ndim == 3 else int(when.max(initial=0)) + 1
+        )
+        _check_instants(n_instants, time_index)
+        return when, n_instants, time_index
+    n_circles = scene.circle_xy.shape[0]
+    return (
+        np.full(n_circles, -1, dtype=np.intp),
+        0,
+        np.full(n_frames, -1, dtype=np.intp),
+    )
 
 
 def _check_instants(n_instants: int, time_index: np.ndarray) -> None:

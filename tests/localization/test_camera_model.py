@@ -19,7 +19,7 @@ def test_bearing_model_is_evaluated_from_the_camera_position(family):
     """A teammate at (0.5, 0) seen from a camera that has moved 3 cm left since the time update
     has bearing atan2(-0.03, 0.5) = -3.4 deg: with the camera's position in the model the track
     stays put and keeps its weight; the bearing taken as if from the origin would pull it 3 cm
-    sideways (7 sigma of the 0.45 deg noise at 0.5 m)."""
+    sideways (7.6 sigma of the 0.45 deg noise this test uses, at 0.5 m)."""
     config = PHDConfig(camera_noise_std_deg=0.45, camera_clutter_intensity=0.5)
     pose = np.array([0.0, 0.03, 0.0])
     bearing = np.array([np.arctan2(-0.03, 0.5)])

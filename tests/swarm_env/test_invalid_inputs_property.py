@@ -60,37 +60,38 @@ def _config_fields() -> list[tuple[str, str | None]]:
 
 CONFIG_FIELDS = _config_fields()
 
+#: Values no config field takes: the property test samples them, the sweep tries them all.
+SWEEP_VALUES = [
+    float("nan"),
+    np.float64("nan"),
+    float("inf"),
+    -float("inf"),
+    "1",
+    "",
+    b"1",
+    None,
+    True,
+    False,
+    np.bool_(True),
+    1 + 1j,
+    [1.0],
+    (),
+    {},
+    -1,
+    -1.0,
+    -1e300,
+    0,
+    0.0,
+    1e-300,
+    1e300,
+    10**18,
+    10**400,
+    -(10**400),
+    np.int64(2**62),
+]
+
 hostile_values = st.one_of(
-    st.sampled_from(
-        [
-            float("nan"),
-            np.float64("nan"),
-            float("inf"),
-            -float("inf"),
-            "1",
-            "",
-            b"1",
-            None,
-            True,
-            False,
-            np.bool_(True),
-            1 + 1j,
-            [1.0],
-            (),
-            {},
-            -1,
-            -1.0,
-            -1e300,
-            0,
-            0.0,
-            1e-300,
-            1e300,
-            10**18,
-            10**400,
-            -(10**400),
-            np.int64(2**62),
-        ]
-    ),
+    st.sampled_from(SWEEP_VALUES),
     st.floats(allow_nan=False, allow_infinity=False, min_value=-1e6, max_value=-1e-6),
 )
 
@@ -502,34 +503,6 @@ def test_feed_for_the_wrong_swarm_size_is_refused_unchanged():
 
 
 # ---------------------------------------------------------------------- the exhaustive sweep
-SWEEP_VALUES = [
-    float("nan"),
-    np.float64("nan"),
-    float("inf"),
-    -float("inf"),
-    "1",
-    "",
-    b"1",
-    None,
-    True,
-    False,
-    np.bool_(True),
-    1 + 1j,
-    [1.0],
-    (),
-    {},
-    -1,
-    -1.0,
-    -1e300,
-    0,
-    0.0,
-    1e-300,
-    1e300,
-    10**18,
-    10**400,
-    -(10**400),
-    np.int64(2**62),
-]
 
 
 def sweep_configs() -> None:
