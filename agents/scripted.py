@@ -131,15 +131,20 @@ TABLE_COLUMNS = len(ESTIMATE_COLUMNS)  # [w, x, y, sxx, sxy, syy, valid]
 _W, _X, _Y, _SXX, _SXY, _SYY, _VALID = (ESTIMATE_COLUMNS.index(c) for c in ESTIMATE_COLUMNS)
 
 
-def split_observation(obs: np.ndarray, top_k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def split_observation(
+    obs: np.ndarray, top_k: int, n_sectors: int = 0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(table (K, 7), odometry [v, omega] (2,), task features (F,))`` of one observation in
-    the ``"phd"``/``"truth"`` layout."""
+    the ``"phd"``/``"truth"`` layout; ``n_sectors``: the lidar sector table between the table
+    and the odometry (``SwarmConfig.lidar_sectors``), skipped here (the controllers read the
+    full scan from ``infos``)."""
     n_table = TABLE_COLUMNS * top_k
+    start = n_table + n_sectors
     obs = np.asarray(obs, dtype=np.float64)
     return (
         obs[:n_table].reshape(top_k, TABLE_COLUMNS),
-        obs[n_table : n_table + 2],
-        obs[n_table + 2 :],
+        obs[start : start + 2],
+        obs[start + 2 :],
     )
 
 
@@ -213,9 +218,11 @@ class VectorFieldPolicy(ScriptedPolicy):
         heading_gain: float = 2.0,
         deadband_mps: float = 0.02,
         seed: int | None = 0,
+        n_sectors: int = 0,
     ) -> None:
         super().__init__(max_speed_mps, max_turn_rate_radps)
         self.top_k = top_k
+        self.n_sectors = n_sectors  # lidar sector table in the observation (skipped)
         self.min_weight = min_weight
         self.avoid_distance_m = avoid_distance_m
         self.avoid_gain = avoid_gain
@@ -232,6 +239,7 @@ class VectorFieldPolicy(ScriptedPolicy):
                 f"scripted:{cls.name} reads the PHD table: it needs "
                 f"observation='phd' (or 'truth'), the env has {mode!r}"
             )
+        kwargs.setdefault("n_sectors", env.config.lidar_sectors)
         return super().for_env(env, top_k=env.config.top_k, **kwargs)
 
     def reset(self, seed: int | None = None) -> None:
@@ -247,7 +255,7 @@ class VectorFieldPolicy(ScriptedPolicy):
             if scan is not None:
                 self._scan[agent] = scan
                 self._wander._scan[agent] = scan
-            table, odometry, features = split_observation(obs, self.top_k)
+            table, odometry, features = split_observation(obs, self.top_k, self.n_sectors)
             u = self.desired_velocity(agent, table, odometry, features)
             if u is None:  # nothing to act on: search (the seed's random walk)
                 actions[agent] = self._wander._act(agent)
@@ -450,7 +458,13 @@ class EncirclementPolicy(VectorFieldPolicy):
       (:class:`localization.baselines.particle.ParticleFilterTracker`, one per robot, in its body
       frame), predicted every step with the robot's own odometry ``[v, omega]`` and updated with
       each range-bearing reading when one arrives (``valid`` = 1); ``q`` is its estimate. The
-      filter starts at the first reading (the seed's uniform cloud weighted by it).
+      filter starts at the first reading (the seed's uniform cloud weighted by it), or with
+      ``particle_start="trilateration"`` (the task's) at its polar fix; a range-only reading
+      (``cos b = sin b = 0``) has a NaN bearing, and a trilateration start waits for >= 3
+      spread readings (random walk until then). With the
+      task's ``intruder_features="filter"`` the features already are such a filter's estimate
+      (the task runs it): ``q`` is read from them (``task_filter=True``), as a learned policy
+      reads it.
     - ``"estimate"``: the robot's own PHD estimate. The first reading (the task gives one, at
       reset) picks the component; after that ``q`` is propagated with the robot's odometry and
       snapped to the nearest confident component within ``gate_m``; after ``lost_after_s``
@@ -479,6 +493,8 @@ class EncirclementPolicy(VectorFieldPolicy):
         reading_bearing_std_rad: float = float(np.radians(5.0)),
         n_particles: int = 300,
         lost_after_s: float = 3.0,
+        task_filter: bool = False,
+        particle_start: str = "uniform",
         **kwargs: Any,
     ) -> None:
         if intruder_source not in self.sources:
@@ -496,6 +512,12 @@ class EncirclementPolicy(VectorFieldPolicy):
         self.reading_bearing_std_rad = reading_bearing_std_rad
         self.n_particles = n_particles
         self.lost_after_s = lost_after_s
+        self.task_filter = bool(task_filter)
+        if particle_start not in ("uniform", "trilateration"):
+            raise ValueError(
+                f"particle_start must be 'uniform' or 'trilateration', got {particle_start!r}"
+            )
+        self.particle_start = particle_start
         super().__init__(max_speed_mps, max_turn_rate_radps, **kwargs)
 
     @classmethod
@@ -511,6 +533,8 @@ class EncirclementPolicy(VectorFieldPolicy):
         kwargs.setdefault("control_period_s", env.config.control_period_s)
         kwargs.setdefault("reading_range_std_m", max(task.beacon_range_std_m, 1e-3))
         kwargs.setdefault("reading_bearing_std_rad", max(task.beacon_bearing_std_rad, 1e-3))
+        kwargs.setdefault("task_filter", getattr(task, "intruder_features", "reading") == "filter")
+        kwargs.setdefault("particle_start", getattr(task, "particle_start", "uniform"))
         return super().for_env(env, **kwargs)
 
     def reset(self, seed: int | None = None) -> None:
@@ -523,6 +547,8 @@ class EncirclementPolicy(VectorFieldPolicy):
     def intruder_estimate(self, agent: str) -> np.ndarray | None:
         """The intruder's position (2,) in ``agent``'s body frame the controller last used for
         ``"particle"`` / ``"estimate"``, or ``None`` (no track)."""
+        if self.intruder_source == "particle" and self.task_filter:
+            return None  # the task's filter: read it from the task (intruder_estimates)
         if self.intruder_source == "particle":
             pf = self._filters.get(agent)
             return None if pf is None or not pf.ids else pf.estimate()[0]
@@ -551,12 +577,13 @@ class EncirclementPolicy(VectorFieldPolicy):
                 bearing_std_rad=self.reading_bearing_std_rad,
                 period_s=self.control_period_s,
                 seed=seed,
+                start=self.particle_start,
             )
         else:
             pf.predict(self._increment(odometry))
         if valid:
             pf.update({0: reading})
-        return pf.estimate()[0]
+        return pf.estimate()[0] if pf.ids else None  # range-only: no fix yet
 
     def _estimate_q(self, agent: str, odometry, valid: bool, q_cue, pts) -> np.ndarray | None:
         q = self._track.get(agent)
@@ -587,8 +614,12 @@ class EncirclementPolicy(VectorFieldPolicy):
         radius, valid, cos_b, sin_b, rho = (float(x) for x in features[:5])
         has_reading = valid >= 0.5
         pts, w = estimated_neighbours(table, self.min_weight)
-        if self.intruder_source == "particle":
-            q = self._particle_q(agent, odometry, has_reading, (rho, np.arctan2(sin_b, cos_b)))
+        if self.intruder_source == "particle" and self.task_filter:
+            q = rho * np.array([cos_b, sin_b]) if has_reading else None  # the task's filter
+        elif self.intruder_source == "particle":
+            # (cos b, sin b) = (0, 0): a range-only reading (intruder_sensing="range")
+            bearing = np.nan if cos_b == 0.0 and sin_b == 0.0 else np.arctan2(sin_b, cos_b)
+            q = self._particle_q(agent, odometry, has_reading, (rho, bearing))
         elif self.intruder_source == "estimate":
             q = self._estimate_q(agent, odometry, has_reading, rho * np.array([cos_b, sin_b]), pts)
         else:

@@ -15,10 +15,18 @@ alternates both per row.
     .venv/bin/python benchmarks/bench_scaling.py                        # the whole curve
     .venv/bin/python benchmarks/bench_scaling.py --sizes 20 --compare --repeats 3
     .venv/bin/python benchmarks/bench_scaling.py --sizes 1000 --localize on --profile
+    .venv/bin/python benchmarks/bench_scaling.py --sizes 20 --localize on --threads 1
+    NUMBA_NUM_THREADS=1 .venv/bin/python benchmarks/bench_scaling.py --feed --sizes 20,200,1000
+
+``--feed`` times the robots' filters alone, fed the two ways the compiled bank accepts (the
+per-robot call tuples, and the packed arrays of ``localization.feed.pack_calls`` the env
+uses), on the same recorded steps in one process, and checks they leave the same bits.
 
 Reports env steps/s, robot-steps/s, the real-time factor (control period 0.1 s: 1x = 10 env
-steps/s), the share of the wall time in physics, lidar, camera and the localizer, peak memory,
-and the load average before and after each row (other processes on the machine slow it).
+steps/s), the CPU time per step (all threads; with one kernel thread the figure that other
+jobs on the machine disturb least), the share of the wall time in physics, lidar, camera and
+the localizer, peak memory, and the load average before and after each row (other processes
+on the machine slow it).
 """
 
 from __future__ import annotations
@@ -90,13 +98,14 @@ def measure(
 
         profiler = cProfile.Profile()
         profiler.enable()
-    steps, start = 0, time.perf_counter()
+    steps, start, cpu_start = 0, time.perf_counter(), time.process_time()
     while True:
         env.step(commands[steps % len(commands)])
         steps += 1
         wall = time.perf_counter() - start
         if wall >= duration_s and steps >= 5:
             break
+    cpu = time.process_time() - cpu_start  # all of this process's threads
     if profiler is not None:
         import pstats
 
@@ -104,8 +113,11 @@ def measure(
         pstats.Stats(profiler, stream=sys.stderr).sort_stats("tottime").print_stats(15)
     timing = env.world.timing
     period = env.config.control_period_s
+    import numba
+
     return {
         "n_robots": n_robots,
+        "kernel_threads": numba.get_num_threads(),
         "preset": preset,
         "localization": "phd" if localize else "off",
         "path": "brute-force" if brute_force else "default",
@@ -114,6 +126,7 @@ def measure(
         "env_steps_per_s": steps / wall,
         "robot_steps_per_s": steps * n_robots / wall,
         "real_time_factor": steps * period / wall,
+        "cpu_ms_per_step": 1e3 * cpu / steps,
         "physics_share": timing["physics_s"] / wall,
         "lidar_share": timing["lidar_s"] / wall,
         "camera_share": timing["camera_s"] / wall,
@@ -124,9 +137,66 @@ def measure(
     }
 
 
-def run_child(n: int, localize: bool, brute: bool, duration: float, profile: bool) -> dict:
-    """:func:`measure` in a fresh interpreter (its own peak memory), with the load average."""
+def feed_paths(n_robots: int, n_steps: int, repeats: int) -> dict:
+    """The filters alone, the two ways into the compiled bank, in this process: the call tuples
+    (``feed.call_lists()``, re-read by the bank's batch encoder) against the packed arrays
+    (``feed.calls()``, :func:`localization.feed.pack_calls`), on the same ``n_steps`` recorded
+    steps (after 20 to fill the filters) from the same bank state, alternated ``repeats``
+    times; CPU seconds per env step, and the kernel alone. Both must end in the same bits."""
+    import copy
+
+    import numpy as np
+
+    from localization.feed import SwarmFeed
+    from swarm_env import parallel_env
+
+    env = parallel_env(PRESET_OF[n_robots], max_steps=1_000_000)
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    high = np.array([0.3, 1.5])
+
+    def actions() -> dict:
+        return dict(zip(env.agents, rng.uniform(-high, high, (len(env.agents), 2)), strict=True))
+
+    for _ in range(20):
+        env.step(actions())
+    start_bank = copy.deepcopy(env.localizer.bank)
+    steps = []
+    for _ in range(n_steps):
+        env.step(actions())
+        steps.append(env.last_world_step)
+    ids = env.possible_agents
+    out: dict = {"n_robots": n_robots, "steps": n_steps, "tuples_ms": [], "packed_ms": []}
+    for _ in range(repeats):
+        tables = []
+        for key in ("tuples_ms", "packed_ms"):
+            bank = copy.deepcopy(start_bank)
+            feeds = [SwarmFeed.from_world_step(s, ids) for s in steps]
+            t = time.process_time()
+            for f in feeds:
+                bank.apply(f.call_lists() if key == "tuples_ms" else f.calls())
+            out[key].append(1e3 * (time.process_time() - t) / n_steps)
+            tables.append(bank.padded_tables()[0].tobytes())
+        if tables[0] != tables[1]:
+            raise AssertionError("the packed path changed the filters' output")
+    bank = copy.deepcopy(start_bank)
+    packed = [SwarmFeed.from_world_step(s, ids).packed() for s in steps]
+    t = time.process_time()
+    for p in packed:
+        bank._run_encoded(p.encoded, p.robots)
+    out["kernel_ms"] = 1e3 * (time.process_time() - t) / n_steps
+    return out
+
+
+def run_child(
+    n: int, localize: bool, brute: bool, duration: float, profile: bool, threads: int | None = None
+) -> dict:
+    """:func:`measure` in a fresh interpreter (its own peak memory), with the load average;
+    ``threads``: its ``NUMBA_NUM_THREADS`` (default: inherited, numba's: one per core)."""
     load_before = os.getloadavg()[0]
+    env = dict(os.environ)
+    if threads is not None:
+        env["NUMBA_NUM_THREADS"] = str(threads)
     cmd = [
         sys.executable,
         __file__,
@@ -141,7 +211,7 @@ def run_child(n: int, localize: bool, brute: bool, duration: float, profile: boo
         cmd.append("--brute-force")
     if profile:
         cmd.append("--profile")
-    done = subprocess.run(cmd, check=True, stdout=subprocess.PIPE, text=True)
+    done = subprocess.run(cmd, check=True, stdout=subprocess.PIPE, text=True, env=env)
     row = json.loads(done.stdout.strip().splitlines()[-1])
     row["load_before"], row["load_after"] = load_before, os.getloadavg()[0]
     return row
@@ -158,6 +228,14 @@ def main() -> None:
         "--compare", action="store_true", help="indexed and brute force, alternated"
     )
     parser.add_argument("--profile", action="store_true", help="cProfile top 15 on stderr")
+    parser.add_argument(
+        "--threads", type=int, default=None, help="kernel threads per row (NUMBA_NUM_THREADS)"
+    )
+    parser.add_argument(
+        "--feed",
+        action="store_true",
+        help="the filters alone: call tuples vs packed arrays (CPU ms per step), per size",
+    )
     parser.add_argument("--json", default=None)
     parser.add_argument("--child", type=int, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -173,12 +251,30 @@ def main() -> None:
     for n in sizes:
         if n not in PRESET_OF:
             raise ValueError(f"--sizes: {n} has no preset; choose from {sorted(PRESET_OF)}")
+    if args.feed:
+        rows = []
+        for n in sizes:
+            n_steps = max(5, 4000 // n)  # ~4000 robot-steps a size
+            row = feed_paths(n, n_steps, max(args.repeats, 3))
+            row["load"] = os.getloadavg()[0]
+            rows.append(row)
+            print(
+                f"{n:>5} robots, {n_steps} steps: filters CPU ms/step, tuples "
+                f"{_fmt(row['tuples_ms'])}, packed {_fmt(row['packed_ms'])}; kernel alone "
+                f"{row['kernel_ms']:.2f}; load {row['load']:.1f}",
+                flush=True,
+            )
+        if args.json:
+            os.makedirs(os.path.dirname(args.json) or ".", exist_ok=True)
+            with open(args.json, "w") as f:
+                json.dump(rows, f, indent=2)
+        return
     modes = {"both": (False, True), "on": (True,), "off": (False,)}[args.localize]
     paths = (False, True) if args.compare else (args.brute_force,)
     print(
         f"{'robots':>6} {'filters':>7} {'path':>11} {'steps/s':>8} {'robot-steps/s':>13} "
-        f"{'RTF':>7} {'phys':>5} {'lidar':>5} {'cam':>5} {'filt':>5} {'peak MB':>8} "
-        f"{'base MB':>7} {'reset s':>7} {'load':>9}",
+        f"{'RTF':>7} {'CPU ms':>6} {'phys':>5} {'lidar':>5} {'cam':>5} {'filt':>5} {'peak MB':>8} "
+        f"{'base MB':>7} {'reset s':>7} {'load':>9} {'thr':>3}",
         flush=True,
     )
     rows = []
@@ -186,22 +282,28 @@ def main() -> None:
         for localize in modes:
             for _ in range(max(args.repeats, 1)):
                 for brute in paths:
-                    row = run_child(n, localize, brute, args.duration, args.profile)
+                    row = run_child(n, localize, brute, args.duration, args.profile, args.threads)
                     rows.append(row)
                     print(
                         f"{n:>6} {row['localization']:>7} {row['path']:>11} "
                         f"{row['env_steps_per_s']:>8.2f} {row['robot_steps_per_s']:>13,.0f} "
-                        f"{row['real_time_factor']:>6.2f}x {row['physics_share']:>5.2f} "
+                        f"{row['real_time_factor']:>6.2f}x {row['cpu_ms_per_step']:>6.2f} "
+                        f"{row['physics_share']:>5.2f} "
                         f"{row['lidar_share']:>5.2f} {row['camera_share']:>5.2f} "
                         f"{row['localizer_share']:>5.2f} {row['peak_rss_mb']:>8.0f} "
                         f"{row['baseline_rss_mb']:>7.0f} {row['reset_s']:>7.2f} "
-                        f"{row['load_before']:>4.1f}/{row['load_after']:<4.1f}",
+                        f"{row['load_before']:>4.1f}/{row['load_after']:<4.1f} "
+                        f"{row['kernel_threads']:>3}",
                         flush=True,
                     )
     if args.json:
         os.makedirs(os.path.dirname(args.json) or ".", exist_ok=True)
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=2)
+
+
+def _fmt(values: list[float]) -> str:
+    return "/".join(f"{v:.2f}" for v in values)
 
 
 if __name__ == "__main__":

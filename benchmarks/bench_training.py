@@ -7,7 +7,10 @@ same env (``lab-3m-4`` formation, PHD observations: 4 robots) through:
   (the configuration of ``docs/results.md``'s 440 transitions/s);
 - ``supersuit``: the same, 4 copies in this process;
 - ``batched-K``: :class:`agents.sb3.batched.BatchedSwarmVecEnv`, K copies sharing one localizer
-  call per step.
+  call per step;
+- ``sectors-K``: the same with 16 lidar sectors in the observation (``lidar_sectors=16``);
+- ``residual-K``: the same plus the residual mode (``residual="scripted:formation"``: one
+  scripted controller per copy runs every step, :mod:`agents.sb3.residual`).
 
 Every variant but the first runs its kernels on one thread (the cores go to PPO and the env).
 
@@ -37,7 +40,10 @@ def make_venv(variant: str, seed: int = 0):
         return make_vec_env(ENV_KWARGS, n_copies=4, num_cpus=num_cpus, seed=seed)
     from agents.sb3.batched import make_batched_vec_env
 
-    return make_batched_vec_env(ENV_KWARGS, n_copies=int(variant.split("-")[1]), seed=seed)
+    kind, copies = variant.split("-")
+    kwargs = ENV_KWARGS if kind == "batched" else {**ENV_KWARGS, "lidar_sectors": 16}
+    residual = "scripted:formation" if kind == "residual" else None
+    return make_batched_vec_env(kwargs, n_copies=int(copies), seed=seed, residual=residual)
 
 
 def measure(variant: str, rollouts: int) -> dict:

@@ -30,7 +30,9 @@ from hardware_bridge.config import BridgeConfig
 __all__ = [
     "BridgeConfig",
     "real_env",
+    "real_supervised_env",
     "replay_env",
+    "replay_supervised_env",
     "RealWorld",
     "ReplayWorld",
     "BagRecorder",
@@ -81,10 +83,8 @@ def real_env(
 
     The returned env refuses pickling, copying and vectorisation (it drives real robots).
     """
-    from hardware_bridge.bag import BagRecorder
     from hardware_bridge.config import make_bridge_config
     from hardware_bridge.transport import check_host
-    from hardware_bridge.world import RealWorld
     from localization.config import PHDConfig, config_with_overrides
     from swarm_env.config import make_config
     from swarm_env.env import SwarmEnv
@@ -111,6 +111,24 @@ def real_env(
             f"task {task_obj.name!r} needs {task_obj.n_extra_robots} simulated extra robot(s); "
             "it cannot run on real robots"
         )
+    world = _open_real_world(robots, config, host, port, allow_remote, bridge_cfg, record)
+    try:
+        env = SwarmEnv(config=config, task=task_obj, world=world, render_agent=robots[0])
+    except BaseException:
+        world.close()
+        raise
+    # Never vectorise: SuperSuit and friends read this flag.
+    env.metadata = {**env.metadata, "is_parallelizable": False}
+    return env
+
+
+def _open_real_world(robots, config, host, port, allow_remote, bridge_cfg, record):
+    """The :class:`~hardware_bridge.world.RealWorld` of :func:`real_env` and
+    :func:`real_supervised_env`, recording to a new bag at ``record`` if given (the bag is
+    closed again if the world cannot start)."""
+    from hardware_bridge.bag import BagRecorder
+    from hardware_bridge.world import RealWorld
+
     recorder = None
     if record is not None:
         recorder = BagRecorder(
@@ -120,9 +138,10 @@ def real_env(
             source="bridge",
             stale_mocap_s=bridge_cfg.stale_mocap_s,
             use_mocap=bridge_cfg.use_mocap,
+            uav_id=bridge_cfg.uav_id,
         )
     try:
-        world = RealWorld(
+        return RealWorld(
             robots,
             config,
             host=host,
@@ -135,14 +154,87 @@ def real_env(
         if recorder is not None:
             recorder.close()
         raise
+
+
+def real_supervised_env(
+    robots: list[str] | tuple[str, ...] | None = None,
+    host: str = "127.0.0.1",
+    port: int = 9090,
+    preset: str = "seed-uav",
+    task: str = "wander",
+    *,
+    uav_id: str = "uav_0",
+    uav: Any = None,
+    allow_remote: bool = False,
+    record: str | None = None,
+    bridge: BridgeConfig | dict | None = None,
+    task_params: dict | None = None,
+    filter_lag_s: float | None = None,
+    **overrides: Any,
+):
+    """Seed ``002`` on real robots: :class:`swarm_env.uav.SupervisedSwarmEnv` (UGV agents plus
+    ``uav_0``) over a :class:`~hardware_bridge.world.RealWorld` that also subscribes to the UAV
+    ``uav_id`` (its pose and detections) and publishes its commands.
+
+    The UGVs' odometry reaches the UAV's ID-PHD through the env's radio model
+    (``SwarmConfig.comms``) applied to the odometry records the bridge received. ``uav`` is
+    the :class:`~swarm_env.uav.UAVConfig` (limits, camera geometry). Other arguments as
+    :func:`real_env`; the filter model stays the preset's (``seed-uav``).
+    """
+    import dataclasses
+
+    from hardware_bridge.config import make_bridge_config
+    from hardware_bridge.transport import check_host
+    from swarm_env.config import make_config
+    from swarm_env.uav import SupervisedSwarmEnv
+
+    check_host(host, allow_remote)
+    bridge_cfg = dataclasses.replace(make_bridge_config(bridge), uav_id=uav_id)
+    if robots is None:
+        robots = [f"ugv_{i}" for i in range(make_config(preset, **overrides).n_robots)]
+    robots = list(robots)
+    overrides["n_robots"] = len(robots)
+    config = make_config(preset, **overrides)
+    # The env owns the radio (to the UAV); the UGV world runs none.
+    ground = dataclasses.replace(config, comms=dataclasses.replace(config.comms, enabled=False))
+    world = _open_real_world(robots, ground, host, port, allow_remote, bridge_cfg, record)
     try:
-        env = SwarmEnv(config=config, task=task_obj, world=world, render_agent=robots[0])
+        env = SupervisedSwarmEnv(
+            config=config,
+            uav=uav,
+            task=task,
+            task_params=task_params,
+            filter_lag_s=filter_lag_s,
+            world=world,
+        )
     except BaseException:
         world.close()
         raise
-    # Never vectorise: SuperSuit and friends read this flag.
     env.metadata = {**env.metadata, "is_parallelizable": False}
     return env
+
+
+def replay_supervised_env(path: str, *, task: str = "wander", uav: Any = None, **kwargs: Any):
+    """:class:`swarm_env.uav.SupervisedSwarmEnv` over a bag recorded by
+    :func:`real_supervised_env` (open loop): the UAV's filter sees the recorded pose and
+    detections and the UGVs' recorded odometry; the radio is the recorded config's. The
+    recorded config has the radio off (the UGV world's); it is switched back on here."""
+    import dataclasses
+
+    from hardware_bridge.bag import ReplayWorld
+    from swarm_env.uav import SupervisedSwarmEnv
+
+    world = ReplayWorld(path)
+    if world.uav_id is None:
+        from hardware_bridge.bag import BagError
+
+        raise BagError(path, "no UAV in this bag (record it with real_supervised_env)")
+    config = dataclasses.replace(
+        world.config,
+        comms=dataclasses.replace(world.config.comms, enabled=True),
+        max_steps=max(1, world.n_steps(0)),
+    )
+    return SupervisedSwarmEnv(config=config, uav=uav, task=task, world=world, **kwargs)
 
 
 def __getattr__(name: str) -> Any:

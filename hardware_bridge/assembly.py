@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -241,6 +242,26 @@ class RecordAssembler:
         return truth_from_poses(
             arr, self.config.localization_range_m, self.config.camera.range_max_m
         )
+
+
+@dataclass(frozen=True)
+class UAVMessages:
+    """One step's validated UAV messages (:class:`~hardware_bridge.messages.UAVPose`,
+    :class:`~hardware_bridge.messages.GroundDetections`), oldest first, and the UAV's kinds
+    that were stale at the step's end. Shared by :class:`~hardware_bridge.world.RealWorld`
+    (``last_uav``) and the bag replay."""
+
+    poses: tuple = ()
+    detections: tuple = ()
+    stale: tuple[str, ...] = ()
+
+
+def uav_messages(parsed: dict[str, list], stale: Sequence[str] = ()) -> UAVMessages:
+    """``{"uav_pose": [...], "uav_detections": [...]}`` (parsed, any order) -> sorted
+    :class:`UAVMessages`."""
+    poses = sorted(parsed.get("uav_pose", []), key=lambda m: m.stamp_ns)
+    frames = sorted(parsed.get("uav_detections", []), key=lambda m: m.stamp_ns)
+    return UAVMessages(tuple(poses), tuple(frames), tuple(stale))
 
 
 class UAVAssembler:

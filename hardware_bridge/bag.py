@@ -19,6 +19,12 @@ topic                          type                            what
 ``/bridge/step``               ``std_msgs/msg/String``          one JSON marker per reset/step
 =============================  ==============================  ===============================
 
+With a UAV supervisor (``BridgeConfig.uav_id``, seed ``002``) also ``/<uav>/pose``
+(``geometry_msgs/msg/PoseStamped``), ``/<uav>/camera/detections``
+(``geometry_msgs/msg/PoseArray``) and its commands on ``/<uav>/cmd_vel``; the metadata names it
+(``"uav"``) and :class:`ReplayWorld` replays its messages into ``last_uav`` as the live bridge
+fills it.
+
 A marker ``{"kind": "reset"|"step", "index": k, "stale": {...}}`` is written at the end of each
 reset/step, at the step's end time; the messages of step k are those stamped after marker k-1 and
 up to marker k. A step's rows and its marker are written inside a signal-deferring critical
@@ -50,13 +56,15 @@ from typing import Any
 
 import numpy as np
 
-from hardware_bridge.assembly import RecordAssembler
+from hardware_bridge.assembly import RecordAssembler, UAVMessages, uav_messages
 from hardware_bridge.comms import TeammateRelay
 from hardware_bridge.config import FEED_SENSORS
 from hardware_bridge.messages import (
     BAG_TYPES,
     BEARINGS_STAMPED_MSG,
     SENSOR_OF_KIND,
+    UAV_BAG_TYPES,
+    UAV_KINDS,
     Counters,
     InvalidMessage,
     check_robot_id,
@@ -64,6 +72,9 @@ from hardware_bridge.messages import (
     parse_message,
     topics,
     twist_msg,
+    uav_cmd_topic,
+    uav_topics,
+    uav_twist_msg,
 )
 from hardware_bridge.signals import critical
 from swarm_core.world import WorldStep, reject_extra_commands
@@ -74,6 +85,7 @@ STEP_TOPIC = "/bridge/step"
 STRING_TYPE = "std_msgs/msg/String"
 BAG_VERSION = 8
 SENSORS = ("lidar", "odometry", "camera", "mocap")
+ALL_BAG_TYPES = {**BAG_TYPES, **UAV_BAG_TYPES}
 
 
 class BagError(ValueError):
@@ -220,6 +232,14 @@ def to_rosbags(ts, sensor: str, msg: dict):
         return t[BAG_TYPES["cmd_vel"]](
             linear=_vec3(ts, msg["linear"]), angular=_vec3(ts, msg["angular"])
         )
+    if sensor == "uav_pose":
+        return t[UAV_BAG_TYPES["uav_pose"]](
+            header=_header(ts, msg["header"]), pose=_pose(ts, msg["pose"])
+        )
+    if sensor == "uav_detections":
+        return t[UAV_BAG_TYPES["uav_detections"]](
+            header=_header(ts, msg["header"]), poses=[_pose(ts, p) for p in msg["poses"]]
+        )
     raise ValueError(f"unknown sensor {sensor!r}")
 
 
@@ -294,6 +314,10 @@ def from_rosbags(sensor: str, m) -> dict:
         return {"header": _header_dict(m.header), "pose": _pose_dict(m.pose)}
     if sensor == "cmd_vel":
         return {"linear": _vec_dict(m.linear), "angular": _vec_dict(m.angular)}
+    if sensor == "uav_pose":
+        return {"header": _header_dict(m.header), "pose": _pose_dict(m.pose)}
+    if sensor == "uav_detections":
+        return {"header": _header_dict(m.header), "poses": [_pose_dict(p) for p in m.poses]}
     raise ValueError(f"unknown sensor {sensor!r}")
 
 
@@ -311,11 +335,13 @@ class BagRecorder:
         source: str = "bridge",
         stale_mocap_s: float = 0.5,
         use_mocap: bool = True,
+        uav_id: str | None = None,
     ) -> None:
         from rosbags.rosbag2 import Writer
 
         self.path = Path(path)
         self.robot_ids = tuple(robot_ids)
+        self.uav_id = None if uav_id is None else check_robot_id(uav_id)
         self._ts = _typestore()
         self._writer = Writer(self.path, version=BAG_VERSION)
         self._writer.set_custom_data(
@@ -328,6 +354,7 @@ class BagRecorder:
                     "config": config_to_dict(config),
                     "stale_mocap_s": stale_mocap_s,
                     "use_mocap": use_mocap,
+                    **({} if uav_id is None else {"uav": uav_id}),
                 }
             ),
         )
@@ -353,11 +380,11 @@ class BagRecorder:
         """Write one message dict of a message kind (``lidar``, ``odometry``, ``camera``,
         ``camera_stamped``, ``mocap``, ``cmd_vel``)."""
         obj = to_rosbags(self._ts, sensor, msg)
-        data = bytes(self._ts.serialize_cdr(obj, BAG_TYPES[sensor]))
+        data = bytes(self._ts.serialize_cdr(obj, ALL_BAG_TYPES[sensor]))
         with self._lock:
             if self._closed:
                 return
-            self._pending.append((topic, BAG_TYPES[sensor], int(stamp_ns), data))
+            self._pending.append((topic, ALL_BAG_TYPES[sensor], int(stamp_ns), data))
             if threading.get_ident() == self._owner:
                 self._flush_pending()
 
@@ -402,11 +429,21 @@ class BagRecorder:
         used: dict,
         commands,
         stale: dict[str, tuple[str, ...]],
+        uav_command: tuple[str, np.ndarray] | None = None,
     ) -> None:
         # One step = its rows and its marker, never half of it (signals wait for the end).
         with critical():
             if commands is not None:
                 self.write_commands(*commands)
+                if uav_command is not None:
+                    uav, cmd = uav_command
+                    self.write(uav_cmd_topic(uav), "cmd_vel", commands[0], uav_twist_msg(cmd))
+            for uav in () if self.uav_id is None else (self.uav_id,):
+                for uav_kind in UAV_KINDS:  # ``kind`` is the marker's
+                    for _parsed, (topic, msg_kind, stamp_ns, msg) in used.get(uav, {}).get(
+                        uav_kind, []
+                    ):
+                        self.write(topic, msg_kind, stamp_ns, msg)
             for robot in self.robot_ids:
                 for sensor in SENSORS:
                     for _parsed, (topic, msg_kind, stamp_ns, msg) in used.get(robot, {}).get(
@@ -417,6 +454,8 @@ class BagRecorder:
 
     def record_stop(self, t_ns: int, robots: Sequence[str]) -> None:
         self.write_commands(t_ns, np.zeros((len(robots), 2)))
+        if self.uav_id is not None:  # the stop is a hover for the UAV
+            self.write(uav_cmd_topic(self.uav_id), "cmd_vel", t_ns, uav_twist_msg(np.zeros(4)))
 
     def close(self) -> None:
         """Write ``metadata.yaml`` and close the database (idempotent; signals deferred)."""
@@ -491,6 +530,14 @@ def read_meta(path: str | Path) -> dict[str, Any]:
             )
     if not isinstance(meta.get("use_mocap", True), bool):
         raise BagError(metafile, "swarm-phd metadata: use_mocap must be a bool")
+    uav = meta.get("uav")
+    if uav is not None:
+        try:
+            check_robot_id(uav)
+        except ValueError as exc:
+            raise BagError(metafile, f"swarm-phd metadata: uav: {exc}") from None
+        if uav in robots:
+            raise BagError(metafile, f"swarm-phd metadata: uav {uav!r} is also a robot")
     return meta
 
 
@@ -526,6 +573,9 @@ class ReplayWorld:
         meta = read_meta(self.path)
         self.meta = meta
         self.robot_ids = tuple(meta["robots"])
+        self.uav_id: str | None = meta.get("uav")
+        self._uav_ids = () if self.uav_id is None else (self.uav_id,)
+        self.last_uav = UAVMessages()
         try:
             self.config = config if config is not None else config_from_dict(meta["config"])
         except Exception as exc:  # noqa: BLE001 - any wrong type in the recorded config
@@ -658,6 +708,9 @@ class ReplayWorld:
             for kind, topic in topics(robot).items():
                 if not kind.startswith("cmd_vel"):
                     expected[topic] = (robot, kind)
+        for uav in self._uav_ids:
+            for kind, topic in uav_topics(uav).items():
+                expected[topic] = (uav, kind)
         markers: list[tuple[int, dict]] = []
         messages: list[tuple[int, str, str, str, dict]] = []
         seen_rows: set[tuple[int, int, bytes]] = set()
@@ -674,11 +727,11 @@ class ReplayWorld:
         for conn_id, topic, msgtype, count in conns:
             if topic in expected:
                 kind = expected[topic][1]
-                if msgtype != BAG_TYPES[kind]:
+                if msgtype != ALL_BAG_TYPES[kind]:
                     bad_conns.add(conn_id)
                     self._skip(
                         "bag.wrong_type",
-                        f"{topic} recorded as {msgtype}, expected {BAG_TYPES[kind]}",
+                        f"{topic} recorded as {msgtype}, expected {ALL_BAG_TYPES[kind]}",
                         count,
                     )
             elif topic == STEP_TOPIC and msgtype != STRING_TYPE:
@@ -821,6 +874,8 @@ class ReplayWorld:
 
     def _parse(self, k: int) -> dict[str, dict[str, list]]:
         out: dict[str, dict[str, list]] = {r: {s: [] for s in SENSORS} for r in self.robot_ids}
+        for uav in self._uav_ids:
+            out[uav] = {kind: [] for kind in UAV_KINDS}
         for stamp, robot, sensor, kind, msg in self._groups[k]:
             try:
                 parsed = parse_message(kind, msg, arrival_ns=stamp)
@@ -828,9 +883,9 @@ class ReplayWorld:
                 self.counters.reject(f"{sensor}.invalid", f"{robot}: {exc}")
                 continue
             out[robot][sensor].append(parsed)
-        for robot in self.robot_ids:
-            for sensor in SENSORS:
-                out[robot][sensor].sort(key=lambda m: m.stamp_ns)
+        for sensors in out.values():
+            for items in sensors.values():
+                items.sort(key=lambda m: m.stamp_ns)
         return out
 
     def _world_step(self, k: int) -> WorldStep:
@@ -838,6 +893,11 @@ class ReplayWorld:
         parsed = self._parse(k)
         comms: dict = {}
         stale = {r: tuple(s) for r, s in marker.get("stale", {}).items()}
+        if self.uav_id is not None:
+            part = parsed[self.uav_id]
+            if marker["kind"] == "reset":  # the newest of each, as the live reset
+                part = {kind: items[-1:] for kind, items in part.items()}
+            self.last_uav = uav_messages(part, stale.get(self.uav_id, ()))
         if marker["kind"] == "reset":
             measurements = self.assembler.reset_measurements(
                 self.assembler.reset_selection(parsed)
@@ -883,6 +943,16 @@ class ReplayWorld:
                 f"{self.path}: episode {self._episode} has only {len(episode) - 1} recorded steps"
             )
         return self._world_step(episode[self._cursor])
+
+    def set_uav_command(self, command: np.ndarray) -> None:
+        """Checked like the live bridge's, then ignored: a replay is open loop."""
+        if self.uav_id is None:
+            raise ValueError("set_uav_command: this bag has no UAV")
+        cmd = np.asarray(command, dtype=np.float64)
+        if cmd.shape != (4,) or not np.isfinite(cmd).all():
+            raise ValueError(
+                f"uav command must be 4 finite numbers [vx, vy, yaw_rate, climb], got {command!r}"
+            )
 
     def halt(self) -> None:
         """No robots to stop: a replay is open loop."""

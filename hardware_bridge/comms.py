@@ -21,6 +21,7 @@ from hardware_bridge.messages import ns_to_s
 from swarm_core.records import Broadcast, RobotMeasurements
 
 _NO_DETECTIONS = np.zeros((0, 2))
+_NO_BEARINGS = np.zeros(0)
 
 
 class TeammateRelay:
@@ -39,6 +40,7 @@ class TeammateRelay:
     def reset(self) -> None:
         """Forget every robot's last detections (a new episode)."""
         self._detections = {r: (_NO_DETECTIONS, float("nan")) for r in self.robot_ids}
+        self._bearings = {r: (_NO_BEARINGS, float("nan")) for r in self.robot_ids}
 
     def step(
         self, parsed: dict[str, dict[str, list]], measurements: dict[str, RobotMeasurements]
@@ -52,7 +54,8 @@ class TeammateRelay:
             ``"odometry"`` (:class:`~hardware_bridge.messages.Odom`) is the sender's pose.
         measurements : dict
             ``robot -> RobotMeasurements`` of the step: the newest lidar record's detections
-            are what the sender shares (its anonymous feature set, body frame).
+            and the newest camera frame's bearings are what the sender shares (its anonymous
+            feature sets, body frame; kept until a newer one arrives).
 
         Returns
         -------
@@ -64,6 +67,9 @@ class TeammateRelay:
             if records is not None and records.lidar:
                 scan = records.lidar[-1]
                 self._detections[robot] = (scan.detections, scan.stamp_s)
+            if records is not None and records.camera:
+                frame = records.camera[-1]  # its camera's red-blob bearings (body frame)
+                self._bearings[robot] = (frame.bearings_rad, frame.stamp_s)
         outgoing = []
         for robot in self.robot_ids:
             odometry = parsed.get(robot, {}).get("odometry", [])
@@ -71,6 +77,7 @@ class TeammateRelay:
                 continue
             odom = odometry[-1]
             detections, detections_stamp = self._detections[robot]
+            bearings, bearings_stamp = self._bearings[robot]
             outgoing.append(
                 Broadcast(
                     robot,
@@ -78,6 +85,8 @@ class TeammateRelay:
                     np.array([odom.x_m, odom.y_m, odom.yaw_rad]),
                     detections,
                     detections_stamp,
+                    bearings,
+                    bearings_stamp,
                 )
             )
         return {r: [m for m in outgoing if m.sender != r] for r in self.robot_ids}

@@ -105,6 +105,14 @@ class BridgeConfig:
     unstamped_bearings : tuple of str
         Robots that publish legacy header-less ``std_msgs/Float32MultiArray`` bearings (stamped
         on arrival). Every other robot publishes ``swarm_phd_msgs/BearingsStamped``.
+    uav_id : str or None
+        A UAV supervisor (seed ``002``) to subscribe to: its pose and downward-camera detections
+        (``hardware_bridge.messages.uav_topics``), validated and stamp-windowed like the UGVs'
+        messages, recorded and replayed with them; its velocity command goes out with the
+        UGVs' and is zeroed (hover) by every stop. ``reset()`` waits for both of its topics.
+    stale_uav_s : float
+        The UAV's pose or detections older than this at the end of a step are reported stale
+        (``infos["uav_0"]["stale"]``).
     """
 
     watchdog_timeout_s: float = 0.5
@@ -145,6 +153,8 @@ class BridgeConfig:
     robot_cmd_timeout_s: float = 0.5
     guard_process: bool = True
     unstamped_bearings: tuple[str, ...] = ()
+    uav_id: str | None = None
+    stale_uav_s: float = 0.5
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -196,6 +206,13 @@ class BridgeConfig:
                 f"{self.unstamped_bearings!r}"
             )
         object.__setattr__(self, "unstamped_bearings", tuple(self.unstamped_bearings))
+        if self.uav_id is not None:
+            from hardware_bridge.messages import check_robot_id
+
+            try:
+                check_robot_id(self.uav_id)
+            except ValueError as exc:
+                raise ValueError(f"BridgeConfig.uav_id: {exc}") from None
         unknown = set(self.required_sensors) - set(SENSORS)
         if unknown:
             raise ValueError(

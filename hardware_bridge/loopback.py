@@ -14,6 +14,13 @@ header-less ``Twist``), so a robot stops by itself when ``cmd_vel`` goes silent,
 command older than that on arrival (held up by a frozen server, a reconnection) or older than the
 last one applied is never executed (``server.stale_commands``, ``server.out_of_order_commands``).
 
+With ``uav=UAVConfig(...)`` it also flies seed ``002``'s supervisor (``uav_id``, default
+``uav_0``): the env's kinematic UAV (:func:`swarm_env.uav.env.fly`) obeying ``/<uav>/cmd_vel``
+(same timeout and staleness rules; silence = hover), publishing its pose (its own noisy
+odometry, integrated from where it started, ``z`` = altitude) and each downward-camera frame of
+the UGVs (:class:`~swarm_env.sensors.downward_camera.DownwardCamera`, level frame) on the topics
+of :func:`messages.uav_topics`. :attr:`uav_true_pose` / :attr:`uav_altitude_m` are its truth.
+
 Real time: the sim runs one control period ahead and every message is sent when the wall clock
 reaches its stamp, stamped in ROS time (``time.time_ns()``), so the client sees realistic
 arrival times. Faults can be injected on the outgoing sensor messages (:class:`FaultConfig`).
@@ -41,9 +48,14 @@ from hardware_bridge.emit import RobotEmitter
 from hardware_bridge.messages import (
     Counters,
     InvalidMessage,
+    ground_detections_msg,
     parse_twist,
     parse_twist_stamped,
+    parse_uav_twist,
     topics,
+    uav_cmd_topic,
+    uav_pose_msg,
+    uav_topics,
 )
 from swarm_env.config import SwarmConfig, make_config
 from swarm_env.world.sim import SimWorld
@@ -126,6 +138,8 @@ class LoopbackServer:
         A robot stops when its ``cmd_vel`` has been silent this long (robot-side safety).
     mocap : bool
         Publish ``/mocap/<robot>/pose``.
+    uav : UAVConfig, optional
+        Fly a UAV supervisor too (module docstring), named ``uav_id``.
     """
 
     def __init__(
@@ -140,6 +154,8 @@ class LoopbackServer:
         robot_cmd_timeout_s: float = 0.5,
         mocap: bool = True,
         unstamped_bearings: tuple[str, ...] = (),
+        uav: Any = None,
+        uav_id: str = "uav_0",
         **overrides: Any,
     ) -> None:
         if host not in ("127.0.0.1", "localhost", "::1"):
@@ -181,6 +197,43 @@ class LoopbackServer:
         self._running = False
         self.sim_steps = 0
         self.max_lag_s = 0.0
+        self._truth_log: deque = deque(maxlen=int(20.0 / self.config.control_period_s))
+        self._init_uav(uav, uav_id)
+
+    def _init_uav(self, uav: Any, uav_id: str) -> None:
+        """The simulated UAV's state (``uav=None``: none)."""
+        self.uav = uav
+        self.uav_id = None
+        if uav is None:
+            return
+        from swarm_env.sensors.downward_camera import DownwardCamera
+        from swarm_env.uav.config import UAVConfig
+
+        if not isinstance(uav, UAVConfig):
+            raise ValueError(f"uav must be a UAVConfig, got {uav!r}")
+        self.uav_id = uav_id
+        if uav_id in self.robot_ids:
+            raise ValueError(f"uav_id {uav_id!r} is also a robot id")
+        self._uav_topics = uav_topics(uav_id)
+        for kind, topic in self._uav_topics.items():
+            self._topic_sensor[topic] = (uav_id, kind)
+        self._uav_cmd_topic = uav_cmd_topic(uav_id)
+        self.uav_camera = DownwardCamera(uav.camera)
+        # Its own streams, apart from the robots': camera, odometry noise.
+        self._uav_rng = np.random.default_rng([self.seed, 2002]).spawn(2)
+        self.uav_true_pose = np.array([uav.start_x_m, uav.start_y_m, uav.start_yaw_rad])
+        self.uav_altitude_m = float(uav.start_altitude_m)
+        self.uav_odometry_pose = np.zeros(3)  # its own estimate, from where it started
+        self._uav_command = np.zeros(4)
+        self._uav_command_time = -math.inf
+        self._uav_command_stamp = 0
+        self._uav_next_frame_s = 0.0
+        hx, hy = 0.5 * self.config.arena.width_m, 0.5 * self.config.arena.height_m
+        self._uav_fence = np.array([hx, hy]) + uav.geofence_margin_m
+        high = np.array(
+            [uav.max_speed_mps, uav.max_speed_mps, uav.max_yaw_rate_radps, uav.max_climb_rate_mps]
+        )
+        self._uav_high = high * np.array([1, 1, uav.yaw_control, uav.altitude_control])
 
     # ------------------------------------------------------------------ lifecycle
     @property
@@ -286,6 +339,19 @@ class LoopbackServer:
         """True ``[x, y, yaw]`` of the simulated robots."""
         return self.call(lambda: self.world.poses()[: len(self.robot_ids)].copy())
 
+    def truth_at(self, stamp_ns: int) -> tuple[np.ndarray, np.ndarray | None, float | None]:
+        """Scoring only: ``(robot poses (N, 3), UAV pose [x, y, yaw] or None, UAV altitude or
+        None)`` of the newest sim step stamped at or before ``stamp_ns`` (ROS time), so that an
+        estimate made from the messages up to a step's end meets the truth of that instant
+        (the sim runs up to a period ahead of the wall clock). Keeps the last 20 s."""
+        with self._twist_lock:
+            log = list(self._truth_log)
+        if not log:
+            raise ValueError("truth_at: the loopback has not stepped yet")
+        stamps = [entry[0] for entry in log]
+        k = max(0, int(np.searchsorted(stamps, stamp_ns, side="right")) - 1)
+        return log[k][1].copy(), log[k][2], log[k][3]
+
     @property
     def n_clients(self) -> int:
         return len(self._conns)
@@ -367,6 +433,77 @@ class LoopbackServer:
         self._command_time[i] = issued
         self.counters.incr("server.twists")
 
+    def _uav_command_in(self, stamp_ns: int | None, command: np.ndarray) -> None:
+        """The UAV's autopilot takes a command under the robots' timeout and staleness rules."""
+        now = time.monotonic()
+        issued = now
+        if stamp_ns is not None:
+            age_s = (time.time_ns() - stamp_ns) * 1e-9
+            issued = now - max(age_s, 0.0)
+            if age_s > self.robot_cmd_timeout_s:
+                self.counters.incr("server.uav_stale_commands")
+                return
+            if stamp_ns < self._uav_command_stamp:
+                self.counters.incr("server.uav_out_of_order_commands")
+                return
+            self._uav_command_stamp = stamp_ns
+        with self._twist_lock:
+            self._uav_command = np.asarray(command, dtype=np.float64).copy()
+            self._uav_command_time = issued
+        self.counters.incr("server.uav_twists")
+
+    def _uav_step(self, step: Any, stamp_ns: Callable[[float], int]) -> list[tuple]:
+        """Fly the UAV one control period; its pose message and, when due, a camera frame, as
+        ``(t_s, order, topic, msg)`` events at the step's end."""
+        from swarm_env.uav.env import fly
+
+        uav, dt = self.uav, self.config.control_period_s
+        with self._twist_lock:
+            command = self._uav_command.copy()
+            if time.monotonic() - self._uav_command_time > self.robot_cmd_timeout_s:
+                command[:] = 0.0  # silence: hover
+        command = np.clip(command, -self._uav_high, self._uav_high)
+        speed = math.hypot(command[0], command[1])
+        if speed > uav.max_speed_mps:
+            command[:2] *= uav.max_speed_mps / speed
+        self.uav_true_pose, self.uav_altitude_m, true = fly(
+            self.uav_true_pose, self.uav_altitude_m, command, dt, uav, self._uav_fence
+        )
+        noise = self._uav_rng[1].standard_normal(3) * np.array(
+            [uav.odometry_std_mps * dt, uav.odometry_std_mps * dt, uav.odometry_std_radps * dt]
+        )
+        from swarm_core.geometry import integrate_body_delta
+
+        self.uav_odometry_pose = integrate_body_delta(self.uav_odometry_pose, true + noise)
+        t_s = step.time_s
+        x, y, yaw = self.uav_odometry_pose
+        events = [
+            (
+                t_s,
+                10_000,
+                self._uav_topics["uav_pose"],
+                uav_pose_msg(stamp_ns(t_s), x, y, self.uav_altitude_m, yaw),
+            )
+        ]
+        if t_s + 1e-9 >= self._uav_next_frame_s:
+            period = 1.0 / uav.camera.rate_hz
+            self._uav_next_frame_s += (
+                math.floor((t_s - self._uav_next_frame_s) / period) + 1
+            ) * period
+            ugv_xy = step.truth.poses[: len(self.robot_ids), :2]
+            frame = self.uav_camera.frame(
+                t_s, self.uav_true_pose, self.uav_altitude_m, ugv_xy, self._uav_rng[0]
+            )
+            events.append(
+                (
+                    t_s,
+                    10_001,
+                    self._uav_topics["uav_detections"],
+                    ground_detections_msg(stamp_ns(t_s), frame.detections),
+                )
+            )
+        return events
+
     def _status(self, conn: _Conn, level: str, text: str) -> None:
         self.counters.incr(f"server.status_{level}")
         payload = json.dumps({"op": "status", "level": level, "msg": text})
@@ -395,7 +532,15 @@ class LoopbackServer:
             return
         op = msg["op"]
         topic = msg.get("topic")
-        if op == "publish":
+        if op == "publish" and self.uav_id is not None and topic == self._uav_cmd_topic:
+            try:
+                stamp_ns, command = parse_uav_twist(msg.get("msg"))
+            except InvalidMessage as exc:
+                self.counters.incr("server.invalid_in")
+                self._status(conn, "error", f"{topic}: {exc}")
+                return
+            self._uav_command_in(stamp_ns, command)
+        elif op == "publish":
             robot = self._cmd_topics.get(topic)
             if robot is None:
                 self._status(conn, "warning", f"publish to unknown topic {topic!r} ignored")
@@ -612,6 +757,17 @@ class LoopbackServer:
                     (o.t_s, o.order, o.topic, o.msg)
                     for o in self.emitter.step(robot, step.measurements[robot], stamp_ns, truth)
                 )
+            if self.uav is not None:
+                events.extend(self._uav_step(step, stamp_ns))
+            if step.truth is not None:
+                entry = (
+                    stamp_ns(step.time_s),
+                    step.truth.poses[: len(self.robot_ids)].copy(),
+                    None if self.uav is None else self.uav_true_pose.copy(),
+                    None if self.uav is None else self.uav_altitude_m,
+                )
+                with self._twist_lock:
+                    self._truth_log.append(entry)
             events.sort(key=lambda e: (e[0], e[1]))
             for t_s, _, topic, msg in events:
                 delay = mono0 + t_s - time.monotonic()
@@ -659,7 +815,8 @@ def hostile_inputs(robot: str, now_ns: int, max_message_bytes: int) -> dict[str,
 
 # ---------------------------------------------------------------------------- subprocess entry
 def main(argv: list[str] | None = None) -> int:
-    """``python -m hardware_bridge.loopback --port 0 [--twist-log FILE]``: serve until stdin
+    """``python -m hardware_bridge.loopback --port 0 [--twist-log FILE] [--uav uav_0]``: serve
+    (with a UAV supervisor if asked) until stdin
     closes (a robot in another process: tests pause it with SIGSTOP or starve the client's GIL
     without starving the robots). Prints the port, then logs every ``cmd_vel`` received to
     ``FILE`` as ``monotonic_s robot v omega age_s applied`` lines."""
@@ -671,8 +828,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--preset", default="seed-lab")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--twist-log", default=None)
+    parser.add_argument(
+        "--uav", default=None, metavar="ID", help="also fly a UAV supervisor named ID (seed 002)"
+    )
     args = parser.parse_args(argv)
-    server = LoopbackServer(args.preset, port=args.port, seed=args.seed)
+    uav = None
+    if args.uav is not None:
+        from swarm_env.uav.config import UAVConfig
+
+        uav = UAVConfig()
+    server = LoopbackServer(
+        args.preset, port=args.port, seed=args.seed, uav=uav, uav_id=args.uav or "uav_0"
+    )
     log = open(args.twist_log, "a", buffering=1) if args.twist_log else None  # noqa: SIM115
     if log is not None:
         original = server._command

@@ -53,6 +53,8 @@ SENSOR_OF_KIND = {
     "mocap": "mocap",
     "cmd_vel": "cmd_vel",
     "cmd_vel_stamped": "cmd_vel",
+    "uav_pose": "uav_pose",
+    "uav_detections": "uav_detections",
 }
 # The stamped bearings message (a package ``swarm_phd_msgs`` on the robots; see
 # docs/hardware.md). ROS 2 .msg syntax; registered in the bag typestore from this text.
@@ -424,9 +426,11 @@ def parse_message(
     max_beams: int = 8192,
     max_bearings: int = 256,
     max_position_m: float = 1.0e4,
-) -> Scan | Odom | Bearings | Pose:
+) -> Any:
     """Validate one sensor message of ``kind`` (live and replay share this dispatch).
-    ``arrival_ns`` stamps header-less bearings."""
+    ``arrival_ns`` stamps header-less bearings. The UAV's kinds (``uav_pose``,
+    ``uav_detections``) give :class:`UAVPose` and :class:`GroundDetections`; a detections
+    message holds at most ``max_bearings`` poses (the same per-frame bound as the bearings)."""
     if kind == "lidar":
         return parse_laser_scan(msg, max_beams)
     if kind == "odometry":
@@ -437,6 +441,11 @@ def parse_message(
         return parse_bearings_stamped(msg, max_bearings)
     if kind == "mocap":
         return parse_pose_stamped(msg, max_position_m)
+    if kind == "uav_pose":
+        return parse_uav_pose(msg, max_position_m)
+    if kind == "uav_detections":
+        # Detections are metres from the UAV: the plausibility bound of its altitude range.
+        return parse_ground_detections(msg, max_bearings, min(max_position_m, 1.0e3))
     raise ValueError(f"unknown sensor message kind {kind!r}")
 
 
@@ -621,10 +630,58 @@ UAV_BAG_TYPES = {key: value.replace("/", "/msg/", 1) for key, value in UAV_ROS_T
 MAX_PLAUSIBLE_ALTITUDE_M = 1000.0
 
 
+#: The UAV's sensor kinds (its command topic is ``uav_cmd_topic``).
+UAV_KINDS = ("uav_pose", "uav_detections")
+
+
 def uav_topics(uav: str) -> dict[str, str]:
-    """The ROS topics of one UAV, by message kind (see :data:`UAV_ROS_TYPES`)."""
+    """The ROS topics of one UAV's sensors, by message kind (see :data:`UAV_ROS_TYPES`)."""
     uav = check_robot_id(uav)
     return {"uav_pose": f"/{uav}/pose", "uav_detections": f"/{uav}/camera/detections"}
+
+
+def uav_cmd_topic(uav: str) -> str:
+    """The UAV's velocity command topic: ``Twist`` / ``TwistStamped`` (as the UGVs' commands)
+    with ``linear.x, linear.y`` the planar velocity in its body frame (m/s), ``linear.z`` the
+    climb rate (m/s) and ``angular.z`` the yaw rate (rad/s). A zero command is a hover."""
+    return f"/{check_robot_id(uav)}/cmd_vel"
+
+
+def uav_twist_msg(command: np.ndarray) -> dict[str, Any]:
+    """A UAV ``Twist`` from ``[vx, vy, yaw_rate, climb]`` (the env's UAV command order)."""
+    vx, vy, yaw_rate, climb = (float(v) for v in np.asarray(command, dtype=float).reshape(4))
+    return {
+        "linear": {"x": vx, "y": vy, "z": climb},
+        "angular": {"x": 0.0, "y": 0.0, "z": yaw_rate},
+    }
+
+
+def uav_twist_stamped_msg(
+    stamp_ns: int, command: np.ndarray, frame_id: str = "base_link"
+) -> dict[str, Any]:
+    return {"header": header(stamp_ns, frame_id), "twist": uav_twist_msg(command)}
+
+
+def parse_uav_twist(msg: Any) -> tuple[int | None, np.ndarray]:
+    """Validate a UAV ``Twist`` or ``TwistStamped`` (a ``header`` says which); returns
+    ``(stamp_ns or None, [vx, vy, yaw_rate, climb])``. Every component must be a finite number
+    below :data:`MAX_PLAUSIBLE_SPEED`."""
+    msg = _root(msg)
+    stamp_ns = None
+    if "header" in msg:
+        stamp_ns = parse_stamp(msg)
+        msg = _root(_get(msg, "twist"))
+    for part in ("linear", "angular"):
+        for axis in ("x", "y", "z"):
+            _bounded(msg, f"{part}.{axis}", MAX_PLAUSIBLE_SPEED)
+    return stamp_ns, np.array(
+        [
+            _number(msg, "linear.x"),
+            _number(msg, "linear.y"),
+            _number(msg, "angular.z"),
+            _number(msg, "linear.z"),
+        ]
+    )
 
 
 @dataclass(frozen=True, slots=True)

@@ -33,11 +33,13 @@ from typing import Any
 
 import numpy as np
 
-from hardware_bridge.assembly import RecordAssembler
+from hardware_bridge.assembly import RecordAssembler, UAVMessages, uav_messages
 from hardware_bridge.comms import TeammateRelay
 from hardware_bridge.config import FEED_SENSORS, BridgeConfig, make_bridge_config
 from hardware_bridge.messages import (
     ROS_TYPES,
+    UAV_KINDS,
+    UAV_ROS_TYPES,
     Counters,
     InvalidMessage,
     Pose,
@@ -48,6 +50,10 @@ from hardware_bridge.messages import (
     topics,
     twist_msg,
     twist_stamped_msg,
+    uav_cmd_topic,
+    uav_topics,
+    uav_twist_msg,
+    uav_twist_stamped_msg,
 )
 from hardware_bridge.safety import CommandLimiter
 from hardware_bridge.transport import RosbridgeClient, Subscription, check_host
@@ -120,6 +126,12 @@ class RealWorld:
         Records every message the bridge uses and every command it sends.
     clock_ns : callable, optional
         ROS time in integer nanoseconds (default ``time.time_ns``).
+
+    With ``bridge.uav_id`` set, the world also subscribes to that UAV's pose and detections
+    (seed ``002``'s supervisor): after each ``reset()`` / ``step()``, :attr:`last_uav` holds the
+    step's validated UAV messages (:class:`~hardware_bridge.assembly.UAVMessages`; the newest
+    of each at a reset), and :meth:`set_uav_command` sets the velocity command published with
+    the UGVs' at the next step (stops and halts send the UAV a zero command: hover).
     """
 
     layout = None  # obstacle geometry is not known off the simulator
@@ -147,6 +159,12 @@ class RealWorld:
         self.robot_ids = ids
         self.config = config
         self.bridge = make_bridge_config(bridge)
+        self.uav_id = self.bridge.uav_id
+        if self.uav_id is not None and self.uav_id in ids:
+            raise ValueError(f"bridge uav_id {self.uav_id!r} is also one of the robots {ids}")
+        self._uav_ids = () if self.uav_id is None else (self.uav_id,)
+        self._uav_command = np.zeros(4)  # [vx, vy, yaw_rate, climb], body frame
+        self.last_uav = UAVMessages()
         self.host, self.port = host, port
         self.period_s = config.control_period_s
         self._clock_ns = clock_ns
@@ -163,6 +181,9 @@ class RealWorld:
         self._buffers = {
             (r, s): _Buffer(self.bridge.buffer_length) for r in ids for s in self._sensors
         }
+        for uav in self._uav_ids:
+            for kind in UAV_KINDS:
+                self._buffers[(uav, kind)] = _Buffer(self.bridge.buffer_length)
         self._nominal_period_s = {
             "odometry": 1.0 / config.odometry.rate_hz,
             "lidar": 1.0 / config.lidar.rate_hz,
@@ -177,6 +198,8 @@ class RealWorld:
             r: kind_topics(r, stamped_bearings=r not in self.bridge.unstamped_bearings)
             for r in ids
         }
+        for uav in self._uav_ids:
+            self._kinds[uav] = {kind: (kind, uav_topics(uav)[kind]) for kind in UAV_KINDS}
         self._cmd_kind = "cmd_vel_stamped" if self.bridge.stamped_commands else "cmd_vel"
         self._step_index = 0
         self._last_step_end_mono: float | None = None
@@ -194,7 +217,16 @@ class RealWorld:
                         Subscription(topic, ROS_TYPES[kind], self._callback(robot, sensor))
                     )
                 publications[topics(robot)["cmd_vel"]] = ROS_TYPES[self._cmd_kind]
+            for uav in self._uav_ids:
+                for kind in UAV_KINDS:
+                    _, topic = self._kinds[uav][kind]
+                    subscriptions.append(
+                        Subscription(topic, UAV_ROS_TYPES[kind], self._callback(uav, kind))
+                    )
+                publications[uav_cmd_topic(uav)] = ROS_TYPES[self._cmd_kind]
             self._cmd_topics = [topics(r)["cmd_vel"] for r in ids]
+            # Every stop (watchdog, guard, halt, reconnection) zeroes the UAV too: a hover.
+            self._stop_topics = self._cmd_topics + [uav_cmd_topic(u) for u in self._uav_ids]
             self.client = RosbridgeClient(
                 host,
                 port,
@@ -211,7 +243,7 @@ class RealWorld:
                 self.guard = GuardClient(
                     host,
                     port,
-                    self._cmd_topics,
+                    self._stop_topics,
                     ROS_TYPES[self._cmd_kind],
                     poll_s=self.bridge.watchdog_poll_s,
                     repeat_s=self.bridge.watchdog_repeat_s,
@@ -309,6 +341,8 @@ class RealWorld:
         end_ns = self._clock_ns()
         # The newest message of each sensor (raw kept for the recorder).
         used = self.assembler.reset_selection(self._take(start_ns, end_ns))
+        self._uav_command = np.zeros(4)
+        self.last_uav = self._uav_part(used, end_ns)
         measurements = self.assembler.reset_measurements(self._parsed(used))
         truth = self._truth(used, end_ns)
         stale = self._stale(end_ns)
@@ -394,11 +428,14 @@ class RealWorld:
         limited = self.limiter.limit(commands, self._fresh_mocap())
         t_cmd_ns = self._clock_ns()
         cmd_mono = time.monotonic()
+        # One-shot: a step the env gave no UAV command sends a hover, never a stale command.
+        uav_command, self._uav_command = self._uav_command, np.zeros(4)
         sent = self.client.publish(
             [
                 (topic, self._command(t_cmd_ns, v, w))
                 for topic, (v, w) in zip(self._cmd_topics, limited, strict=True)
             ]
+            + [(uav_cmd_topic(u), self._uav_msg(t_cmd_ns, uav_command)) for u in self._uav_ids]
         )
         if not sent:
             self.counters.incr("commands.not_sent_steps")
@@ -420,6 +457,7 @@ class RealWorld:
         parsed = self._parsed(used)
         per_robot = {r: {s: parsed[r].get(s, []) for s in FEED_SENSORS} for r in self.robot_ids}
         measurements = self.assembler.measurements(per_robot)
+        self.last_uav = self._uav_part(used, end_ns)
         comms = {} if self.relay is None else self.relay.step(parsed, measurements)
         truth = self._truth(used, end_ns)
         stale = self._stale(end_ns)
@@ -433,6 +471,7 @@ class RealWorld:
                 used,
                 (t_cmd_ns, limited) if sent else None,
                 stale,
+                **({"uav_command": (self.uav_id, uav_command)} if self._uav_ids and sent else {}),
             )
         self._last_step_end_mono = time.monotonic()
         return WorldStep(
@@ -446,8 +485,8 @@ class RealWorld:
     def _take(self, after_ns: int, until_ns: int) -> dict[str, dict[str, list]]:
         """Remove and return buffered ``(parsed, raw)`` messages stamped in
         ``(after_ns, until_ns]``, oldest first; older ones are dropped (``pre_command``),
-        newer ones (clock skew) stay for the next step."""
-        out: dict[str, dict[str, list]] = {r: {} for r in self.robot_ids}
+        newer ones (clock skew) stay for the next step. Keyed by robot (and UAV) id."""
+        out: dict[str, dict[str, list]] = {r: {} for r in self.robot_ids + self._uav_ids}
         with self._lock:
             for (robot, sensor), buf in self._buffers.items():
                 keep, take = [], []
@@ -470,6 +509,32 @@ class RealWorld:
         """``(parsed, raw)`` items -> parsed messages."""
         return {r: {s: [m for m, _ in items] for s, items in d.items()} for r, d in used.items()}
 
+    def _uav_msg(self, stamp_ns: int, command: np.ndarray) -> dict:
+        if self.bridge.stamped_commands:
+            return uav_twist_stamped_msg(stamp_ns, command)
+        return uav_twist_msg(command)
+
+    def _uav_part(self, used: dict[str, dict[str, list]], end_ns: int) -> UAVMessages:
+        """The step's UAV messages (parsed), with the UAV's stale kinds at ``end_ns``."""
+        if self.uav_id is None:
+            return UAVMessages()
+        part = {k: [m for m, _ in items] for k, items in used.get(self.uav_id, {}).items()}
+        return uav_messages(part, self._stale(end_ns, count=False).get(self.uav_id, ()))
+
+    def set_uav_command(self, command: np.ndarray) -> None:
+        """The UAV's command ``[vx_mps, vy_mps, yaw_rate_radps, climb_mps]`` (body frame) for
+        the next :meth:`step` only (a step without one sends a hover), already limited by the
+        caller (the env's UAV action space).
+        Raises ``ValueError`` without a UAV, or on a wrong shape or a non-finite value."""
+        if self.uav_id is None:
+            raise ValueError("set_uav_command: this RealWorld has no UAV (bridge uav_id=None)")
+        cmd = np.asarray(command, dtype=np.float64)
+        if cmd.shape != (4,) or not np.isfinite(cmd).all():
+            raise ValueError(
+                f"uav command must be 4 finite numbers [vx, vy, yaw_rate, climb], got {command!r}"
+            )
+        self._uav_command = cmd.copy()
+
     def _command(self, stamp_ns: int, v: float, w: float) -> dict:
         if self.bridge.stamped_commands:
             return twist_stamped_msg(stamp_ns, v, w)
@@ -485,6 +550,10 @@ class RealWorld:
     def _silent_since(self, start_ns: int) -> dict[str, list[str]]:
         silent: dict[str, list[str]] = {}
         with self._lock:
+            for uav in self._uav_ids:
+                missing = [k for k in UAV_KINDS if self._buffers[(uav, k)].newest_ns <= start_ns]
+                if missing:
+                    silent[uav] = missing
             for robot in self.robot_ids:
                 missing = [
                     s
@@ -495,9 +564,18 @@ class RealWorld:
                     silent[robot] = missing
         return silent
 
-    def _stale(self, now_ns: int) -> dict[str, tuple[str, ...]]:
+    def _stale(self, now_ns: int, count: bool = True) -> dict[str, tuple[str, ...]]:
         out = {}
         with self._lock:
+            for uav in self._uav_ids:
+                late = [
+                    k
+                    for k in UAV_KINDS
+                    if (now_ns - self._buffers[(uav, k)].newest_ns) * 1e-9
+                    > self.bridge.stale_uav_s
+                ]
+                if late:
+                    out[uav] = tuple(late)
             for robot in self.robot_ids:
                 stale = []
                 for sensor in self._sensors:
@@ -513,9 +591,10 @@ class RealWorld:
                         stale.append(sensor)
                 if stale:
                     out[robot] = tuple(stale)
-        for sensors in out.values():
-            for sensor in sensors:
-                self.counters.incr(f"{sensor}.stale_steps")
+        if count:
+            for sensors in out.values():
+                for sensor in sensors:
+                    self.counters.incr(f"{sensor}.stale_steps")
         return out
 
     def _fresh_mocap(self, now_ns: int | None = None) -> dict[str, Pose | None]:
@@ -615,8 +694,8 @@ class RealWorld:
     def _stop_all(self, reason: str) -> None:
         """Zero velocity to every robot (thread-safe; dropped and counted if the link is down)."""
         self.limiter.stopped()
-        zero = self._command(self._clock_ns(), 0.0, 0.0)
-        if self.client.publish([(topic, zero) for topic in self._cmd_topics]):
+        zero = self._command(self._clock_ns(), 0.0, 0.0)  # all zero: also the UAV's hover
+        if self.client.publish([(topic, zero) for topic in self._stop_topics]):
             self.counters.incr("watchdog.stop_commands")
             if self.recorder is not None and reason != "repeat":
                 self.recorder.record_stop(self._clock_ns(), self.robot_ids)
@@ -628,7 +707,7 @@ class RealWorld:
         self._lost_since = None
         self.limiter.stopped()
         zero = self._command(self._clock_ns(), 0.0, 0.0)
-        self.client.publish([(topic, zero) for topic in self._cmd_topics])
+        self.client.publish([(topic, zero) for topic in self._stop_topics])
 
     def _on_link_lost(self) -> None:
         self._lost_since = time.monotonic()

@@ -33,6 +33,7 @@ from swarm_core.validation import as_float_array
 
 from . import kernels
 from .config import PHDConfig
+from .feed import FeedCalls
 from .filter import (
     MAX_INPUT_MAGNITUDE,
     MAX_MEASUREMENTS_PER_CALL,
@@ -331,6 +332,9 @@ class PHDBank:
             filter's frame: the measurement is moved into it first (:mod:`localization.frames`).
             ``("advance", stamp_s)`` moves the robot's process-noise clock to ``stamp_s``
             (:meth:`RobotCentricPHD.advance`; any finite clock, e.g. ROS time).
+            A :meth:`SwarmFeed.calls() <localization.feed.SwarmFeed.calls>` sequence is run
+            from its packed arrays (:func:`localization.feed.pack_calls`, the same calls
+            encoded without tuples) whenever they pass the batch-wide checks.
 
         Raises
         ------
@@ -338,6 +342,8 @@ class PHDBank:
             A malformed call (``calls[r]`` and the argument are named), or not one list per
             robot. All calls are validated before any state changes.
         """
+        if run_packed(self, calls):  # a SwarmFeed's calls: its arrays, no tuples
+            return
         calls = list(calls)
         if len(calls) != self.n_robots:
             raise ValueError(
@@ -394,6 +400,10 @@ class PHDBank:
         if encoded is None:
             encoded = batch.encode()
         self._reserve_pending(batch.max_points)
+        self._run_encoded(encoded, set(batch.robots))
+
+    def _run_encoded(self, encoded: tuple[np.ndarray, ...], robots: Any) -> None:
+        """Run validated ``encoded`` calls touching ``robots``; pending room reserved."""
         fparams, iparams, sector_scaled, sector_inv_var = self._params
         kernels.apply_calls(
             self._table,
@@ -408,7 +418,7 @@ class PHDBank:
             sector_inv_var,
         )
         mixtures = self._mixtures
-        for r in set(batch.robots):
+        for r in robots:
             mixtures[r] = None
 
 
@@ -542,6 +552,32 @@ class _Batch:
             *_poses(self.camera_poses),
             np.array(self.stamps, dtype=np.float64),
         )
+
+
+def run_packed(bank: Any, calls: Any) -> bool:
+    """Run ``calls`` on ``bank`` (a :class:`PHDBank` or a ``PMBBank``) from their packed arrays
+    if they are a checked :meth:`SwarmFeed.calls() <localization.feed.SwarmFeed.calls>`
+    (:func:`packed_of`); False (nothing done) otherwise."""
+    packed = packed_of(calls, bank.n_robots)
+    if packed is None:
+        return False
+    if packed.robots:
+        bank._reserve_pending(packed.max_points)
+        bank._run_encoded(packed.encoded, packed.robots)
+    return True
+
+
+def packed_of(calls: Any, n_robots: int) -> Any:
+    """The :class:`~localization.feed.PackedCalls` behind ``calls`` when it is a
+    :meth:`SwarmFeed.calls() <localization.feed.SwarmFeed.calls>` of ``n_robots`` robots whose
+    arrays pass :func:`all_finite`; else None (the caller encodes the tuples, whose checks
+    name any bad value)."""
+    if calls.__class__ is not FeedCalls or len(calls) != n_robots:
+        return None
+    packed = calls.feed.packed()
+    if packed is None or not all_finite(packed.encoded):
+        return None
+    return packed
 
 
 def all_finite(encoded: tuple[np.ndarray, ...]) -> bool:

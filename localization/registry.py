@@ -63,22 +63,25 @@ Builder = Callable[[int, PHDConfig, int], Localizer]
 
 @dataclass(frozen=True)
 class LocalizerSpec:
-    """A registry entry: ``build(n_robots, phd, seed)`` returns the localizer."""
+    """A registry entry: ``build(n_robots, phd, seed)`` returns the localizer;
+    ``needs_comms``: it reads ``SwarmFeed.comms`` (``swarm-phd evaluate`` switches the radio
+    on, and refuses a config with the radio off)."""
 
     name: str
     description: str
     build: Builder
+    needs_comms: bool = False
 
 
 #: name -> :class:`LocalizerSpec`, in registration order.
 LOCALIZERS: dict[str, LocalizerSpec] = {}
 
 
-def register(name: str, description: str, build: Builder) -> None:
+def register(name: str, description: str, build: Builder, needs_comms: bool = False) -> None:
     """Add (or replace) the family ``name``."""
     if not isinstance(name, str) or not name:
         raise ValueError(f"localizer name must be a non-empty str, got {name!r}")
-    LOCALIZERS[name] = LocalizerSpec(name, description, build)
+    LOCALIZERS[name] = LocalizerSpec(name, description, build, bool(needs_comms))
 
 
 def descriptions() -> dict[str, str]:
@@ -427,4 +430,34 @@ for _suffix, _mode in _MODES.items():
         f"pmb-reference{_suffix}",
         f"Poisson multi-Bernoulli, {_MODE_TEXT[_suffix]} (pure-numpy reference per robot)",
         _pmb_reference(_mode),
+    )
+
+
+# ---------------------------------------------------------------------- seed 001 (mutual)
+def _mutual(method: str, **config: Any) -> Builder:
+    def build(n: int, phd: PHDConfig, seed: int) -> Localizer:
+        from .mutual.localizer import METHODS, MutualLocalizer
+
+        cfg = METHODS[method][1](**config) if config else None
+        return MutualLocalizer(method, n, seed, config=cfg)
+
+    return build
+
+
+for _name, _method, _config, _text in (
+    ("p-multireg", "p-multireg", {}, "P-MultiReg, seed 001 ch. 6 (lidar registration"),
+    ("fastslam-mc", "fastslam-mc", {}, "FastSLAM-MC, seed 001 ch. 5 (lidar"),
+    ("p-multibeareg", "p-multibeareg", {}, "P-MultiBeaReg, seed 001 ch. 10 (camera bearings"),
+    (
+        "p-multibeareg-lidar",
+        "p-multibeareg",
+        {"features": "lidar"},
+        "P-MultiBeaReg on the lidar detections' bearings, the thesis's own detector (lidar",
+    ),
+):
+    register(
+        _name,
+        f"{_text} + radio; teammates' poses, identities)",
+        _mutual(_method, **_config),
+        needs_comms=True,
     )

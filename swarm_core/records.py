@@ -179,6 +179,11 @@ class Broadcast:
         The sender's latest anonymous lidar detections, ``[x_m, y_m]`` in its body frame.
     detections_stamp_s : float
         Stamp of the scan ``detections`` came from (``nan`` before the first scan).
+    bearings_rad : ndarray, shape (M,)
+        The sender's latest camera frame: anonymous red-blob bearings in its body frame (the
+        camera sits at the body origin), wrapped to ``[-pi, pi)``; empty by default.
+    bearings_stamp_s : float
+        Stamp of that frame (``nan`` before the first frame, or when the sender shares none).
     """
 
     sender: str
@@ -186,6 +191,8 @@ class Broadcast:
     odometry_pose: np.ndarray
     detections: np.ndarray
     detections_stamp_s: float = float("nan")
+    bearings_rad: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    bearings_stamp_s: float = float("nan")
 
     def __post_init__(self) -> None:
         if not isinstance(self.sender, str) or not self.sender:
@@ -197,6 +204,20 @@ class Broadcast:
             raise ValueError(f"Broadcast.stamp_s must be finite, got {stamp!r}")
         object.__setattr__(self, "odometry_pose", _frozen(self.odometry_pose, shape=(3,)))
         object.__setattr__(self, "detections", _frozen(self.detections, shape=(-1, 2)))
+        if np.ndim(self.bearings_rad) != 1:
+            raise ValueError(
+                f"Broadcast.bearings_rad must be a 1-D array of bearings, "
+                f"got {self.bearings_rad!r}"
+            )
+        object.__setattr__(self, "bearings_rad", _frozen(self.bearings_rad, ndim=1))
+        b_stamp = self.bearings_stamp_s
+        if isinstance(b_stamp, bool) or not isinstance(
+            b_stamp, (int, float, np.integer, np.floating)
+        ):
+            raise ValueError(
+                f"Broadcast.bearings_stamp_s must be a number of seconds (nan: no frame), "
+                f"got {b_stamp!r}"
+            )
 
 
 @dataclass(frozen=True, slots=True)
@@ -218,6 +239,14 @@ class RobotMeasurements:
 
     def in_time_order(self) -> list[OdometryRecord | LidarRecord | CameraRecord]:
         """All records merged by stamp; on equal stamps odometry comes first (predict first)."""
-        order = {OdometryRecord: 0, LidarRecord: 1, CameraRecord: 2}
         merged = [*self.odometry, *self.lidar, *self.camera]
-        return sorted(merged, key=lambda r: (r.stamp_s, order[type(r)]))
+        return sorted(merged, key=_time_order_key)
+
+
+_KIND_ORDER = {OdometryRecord: 0, LidarRecord: 1, CameraRecord: 2}
+
+
+def _time_order_key(record: OdometryRecord | LidarRecord | CameraRecord) -> tuple[float, int]:
+    """Sort key of :meth:`RobotMeasurements.in_time_order`: stamp, then odometry < lidar <
+    camera (a stable sort keeps each kind's list order on ties)."""
+    return record.stamp_s, _KIND_ORDER[type(record)]

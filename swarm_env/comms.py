@@ -201,7 +201,9 @@ class SwarmRadio:
     """The robots' side of the radio in the simulator.
 
     Each robot integrates its own wheel odometry (what it would report: drift included), keeps
-    its latest lidar detections, and broadcasts both when its next send falls due.
+    its latest lidar detections and its latest camera frame's bearings (body frame; the camera
+    sits at the body origin), and broadcasts the three when its next send falls due. The radio
+    reads the records the sensors already drew: it never touches their random streams.
 
     Parameters
     ----------
@@ -216,6 +218,8 @@ class SwarmRadio:
         self.odometry_pose = np.zeros((len(self.robot_ids), 3))
         self._detections: list[np.ndarray] = []
         self._detections_stamp = np.full(len(self.robot_ids), np.nan)
+        self._bearings: list[np.ndarray] = []
+        self._bearings_stamp = np.full(len(self.robot_ids), np.nan)
 
     def reset(self, rng: np.random.Generator) -> None:
         """Odometry back to the origin, nothing in flight; ``rng`` is the radio's own stream."""
@@ -223,6 +227,8 @@ class SwarmRadio:
         self.odometry_pose[:] = 0.0
         self._detections = [np.zeros((0, 2)) for _ in self.robot_ids]
         self._detections_stamp[:] = np.nan
+        self._bearings = [np.zeros(0) for _ in self.robot_ids]
+        self._bearings_stamp[:] = np.nan
 
     def step(
         self,
@@ -253,6 +259,9 @@ class SwarmRadio:
             if records.lidar:
                 self._detections[i] = records.lidar[-1].detections
                 self._detections_stamp[i] = records.lidar[-1].stamp_s
+            if records.camera:
+                self._bearings[i] = records.camera[-1].bearings_rad
+                self._bearings_stamp[i] = records.camera[-1].stamp_s
         due = self.channel.due_senders(time_s)
         outgoing = [
             Broadcast(
@@ -261,6 +270,8 @@ class SwarmRadio:
                 self.odometry_pose[i].copy(),
                 self._detections[i],
                 float(self._detections_stamp[i]),
+                self._bearings[i],
+                float(self._bearings_stamp[i]),
             )
             for i in due
         ]

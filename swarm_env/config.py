@@ -278,6 +278,13 @@ class SwarmConfig:
         same layout; an upper bound for ablations) or ``"measurements"`` (padded raw detections).
     top_k : int
         Rows of the observation's neighbour table.
+    lidar_sectors : int
+        0 (default): no lidar block. S > 0: the observation also holds the robot's own last
+        lidar scan as S angular sectors (min valid range per sector, body frame, sector 0
+        centred straight ahead, then CCW; :func:`swarm_env.observation.lidar_sector_ranges`),
+        what the scripted controllers avoid obstacles with.
+    lidar_sector_max_m : float
+        Sector ranges are clipped to this (and an empty sector reads it).
     localization_range_m : float
         "In range" for ground truth and metrics: the lidar's effective tracking range (seed: 2 m).
     localize : bool
@@ -312,6 +319,8 @@ class SwarmConfig:
     max_steps: int = 3000
     observation: str = "phd"
     top_k: int = 16
+    lidar_sectors: int = 0
+    lidar_sector_max_m: float = 2.0
     localization_range_m: float = 2.0
     spawn_clearance_m: float = 0.05
     localize: bool = True
@@ -327,6 +336,8 @@ class SwarmConfig:
         check_int_range("physics_substeps", self.physics_substeps, 1, 100)
         check_int_range("max_steps", self.max_steps, 1, 10_000_000)
         check_int_range("top_k", self.top_k, 1, 256)
+        check_int_range("lidar_sectors", self.lidar_sectors, 0, 360)
+        check_positive("lidar_sector_max_m", self.lidar_sector_max_m)
         check_positive("localization_range_m", self.localization_range_m)
         check_non_negative("spawn_clearance_m", self.spawn_clearance_m)
         if self.observation not in OBSERVATION_MODES:
@@ -344,6 +355,13 @@ class SwarmConfig:
             )
         if self.observation == "phd" and not self.localize:
             raise ValueError('observation="phd" needs localize=True')
+        if self.localize and LOCALIZERS[self.localizer].needs_comms and not self.comms.enabled:
+            # Seed 001's methods learn who is who from the teammates' broadcasts: without the
+            # radio they would run and never know a teammate.
+            raise ValueError(
+                f"localizer={self.localizer!r} needs the radio: set comms={{'enabled': True}} "
+                f"(comms.enabled is {self.comms.enabled})"
+            )
         substep_m = self.robot.max_speed_mps * self.physics_dt_s
         if substep_m > 0.5 * self.arena.wall_thickness_m:
             raise ValueError(

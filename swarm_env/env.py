@@ -187,15 +187,14 @@ class SwarmEnv(ParallelEnv):
         feature_low, feature_high = self.task.feature_bounds()
         #: What each agent observes (``config.observation``), with its named columns.
         self.encoder = obs_lib.make_encoder(
-            self.config.observation, self.config.top_k, int(np.size(feature_low))
-        )
-        observation_space = obs_lib.build_space(
             self.config.observation,
             self.config.top_k,
-            robot.max_speed_mps,
-            robot.max_turn_rate_radps,
-            feature_low,
-            feature_high,
+            int(np.size(feature_low)),
+            self.config.lidar_sectors,
+            self.config.lidar_sector_max_m,
+        )
+        observation_space = self.encoder.space(
+            robot.max_speed_mps, robot.max_turn_rate_radps, feature_low, feature_high
         )
         # One space object per agent, identical, returned on every call (PettingZoo API).
         self.action_spaces = {a: copy.deepcopy(action_space) for a in self.possible_agents}
@@ -299,6 +298,7 @@ class SwarmEnv(ParallelEnv):
             self.agents = list(self.possible_agents)
             self._step_count = 0
             self.localizer.reset()
+            self.encoder.reset()
             self._velocity[:] = 0.0
             for i in range(len(self.possible_agents)):
                 self.last_detections[i] = np.zeros((0, 2))

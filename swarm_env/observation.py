@@ -20,6 +20,11 @@ Layout (``observation="measurements"``)::
     | K rows x (cos b, sin b, valid) camera bearings of the last frame
     | v_mps, omega_radps | task features ]
 
+With ``SwarmConfig.lidar_sectors = S > 0`` one more table follows the neighbour table(s), before
+the odometry: ``S rows x (range_m,)``, the robot's own last lidar scan summarised per angular
+sector (:func:`lidar_sector_ranges`; sector 0 centred straight ahead, then counter-clockwise,
+REP-103). It is what the scripted controllers push off walls and obstacles with.
+
 Positions are in the agent's body frame (REP-103). Unused rows are zeros. Every entry is clipped to
 the observation space's bounds so that ``space.contains(obs)`` always holds.
 """
@@ -42,6 +47,9 @@ PHD_COLUMNS = ESTIMATE_COLUMNS  # the name before the multi-Bernoulli localizers
 #: Columns of the measurement tables: lidar detections, then camera bearings.
 LIDAR_COLUMNS = ("x_m", "y_m", "valid")
 CAMERA_COLUMNS = ("cos_bearing", "sin_bearing", "valid")
+#: Column of the lidar sector table (``SwarmConfig.lidar_sectors > 0``).
+SECTOR_COLUMNS = ("range_m",)
+SECTOR_TABLE = "lidar_sectors"
 MAX_POSITION_M = 20.0
 MAX_WEIGHT = 10.0
 MAX_VARIANCE_M2 = 25.0
@@ -203,6 +211,45 @@ def _fill_measurement_tables(pts, ranges, det_counts, bearings, cam_counts, out)
         start += m
 
 
+def lidar_sector_ranges(
+    angles_rad: list[np.ndarray], ranges_m: list[np.ndarray], n_sectors: int, max_range_m: float
+) -> np.ndarray:
+    """Each robot's lidar scan as the minimum valid range per angular sector, (R, S).
+
+    Sector ``j`` spans body-frame bearings ``[(j - 1/2) w, (j + 1/2) w)`` with ``w = 2 pi / S``:
+    sector 0 is centred straight ahead (+x), sector 1 is the next one counter-clockwise
+    (towards +y, REP-103), ..., sector ``S - 1`` is just right of ahead. A return is valid when
+    its range is finite and > 0 (0 is the driver's "no return"). Ranges are clipped to
+    ``max_range_m``; a sector without a valid return reads ``max_range_m``.
+
+    Parameters
+    ----------
+    angles_rad, ranges_m : list of R arrays, shape (B_r,)
+        Robot r's scan (beam bearings in rad, ranges in m); scans may differ in length.
+    n_sectors : int
+        S >= 1.
+    max_range_m : float
+        > 0.
+    """
+    n = len(ranges_m)
+    out = np.full((n, n_sectors), float(max_range_m))
+    if n == 0:
+        return out
+    counts = np.fromiter(map(len, ranges_m), dtype=np.intp, count=n)
+    if not counts.any():
+        return out
+    a = np.concatenate(angles_rad).astype(np.float64)
+    r = np.concatenate(ranges_m).astype(np.float64)
+    robot = np.repeat(np.arange(n), counts)
+    width = 2.0 * np.pi / n_sectors
+    sector = np.floor(np.mod(a + 0.5 * width, 2.0 * np.pi) / width).astype(np.intp)
+    sector = np.minimum(sector, n_sectors - 1)  # mod can round up to exactly 2 pi
+    ok = np.isfinite(r) & (r > 0.0) & np.isfinite(a)
+    # One unbuffered scatter-min over all beams of all robots (no loop over rays).
+    np.minimum.at(out, (robot[ok], sector[ok]), np.minimum(r[ok], max_range_m))
+    return out
+
+
 def assemble(
     space: spaces.Box, table: np.ndarray, velocity: np.ndarray, features: np.ndarray
 ) -> np.ndarray:
@@ -279,24 +326,96 @@ class ObservationLayout:
 
 
 class ObservationEncoder:
-    """Builds every agent's neighbour table(s) from one env step (subclasses below)."""
+    """Builds every agent's neighbour table(s) from one env step (subclasses below), plus the
+    lidar sector table when ``lidar_sectors > 0``."""
 
     name = ""
 
-    def __init__(self, top_k: int, n_features: int) -> None:
+    def __init__(
+        self,
+        top_k: int,
+        n_features: int,
+        lidar_sectors: int = 0,
+        lidar_sector_max_m: float = 2.0,
+    ) -> None:
         self.top_k = top_k
-        self.layout = self._layout(top_k, n_features)
+        self.lidar_sectors = int(lidar_sectors)
+        self.lidar_sector_max_m = float(lidar_sector_max_m)
+        layout = self._layout(top_k, n_features)
+        if self.lidar_sectors:
+            layout = ObservationLayout(
+                layout.tables + ((SECTOR_TABLE, self.lidar_sectors, SECTOR_COLUMNS),),
+                n_features,
+            )
+        self.layout = layout
+        # Every robot's sectors from its last non-stale scan (a lidar slower than the control
+        # rate leaves steps without a scan: the robot keeps what it last saw). Sized lazily.
+        self._sectors: np.ndarray | None = None
+
+    def reset(self) -> None:
+        """Forget what the last episode saw (the env calls it on every reset)."""
+        self._sectors = None
 
     def _layout(self, top_k: int, n_features: int) -> ObservationLayout:
         return ObservationLayout((("estimate", top_k, ESTIMATE_COLUMNS),), n_features)
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """Low and high of the flattened table(s)."""
+        """Low and high of the flattened table(s), the sector table included."""
+        low, high = self._neighbour_bounds()
+        if not self.lidar_sectors:
+            return low, high
+        return (
+            np.r_[low, np.zeros(self.lidar_sectors)],
+            np.r_[high, np.full(self.lidar_sectors, self.lidar_sector_max_m)],
+        )
+
+    def _neighbour_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         return table_bounds(self.top_k)
+
+    def space(
+        self,
+        max_speed_mps: float,
+        max_turn_rate_radps: float,
+        feature_low: np.ndarray,
+        feature_high: np.ndarray,
+    ) -> spaces.Box:
+        """The observation space of this layout (:func:`build_space` plus the sector table)."""
+        low, high = self.bounds()
+        low = np.concatenate([low, [-max_speed_mps, -max_turn_rate_radps], feature_low])
+        high = np.concatenate([high, [max_speed_mps, max_turn_rate_radps], feature_high])
+        return spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
 
     def tables(self, env, step, rows: list[int]) -> np.ndarray:
         """``(len(rows), layout.table_size)`` tables of the agents at robot indices ``rows``."""
+        tables = self.neighbour_tables(env, step, rows)
+        if not self.lidar_sectors:
+            return tables
+        return np.concatenate([tables, self.sector_tables(env, step)[rows]], axis=1)
+
+    def neighbour_tables(self, env, step, rows: list[int]) -> np.ndarray:
         raise NotImplementedError
+
+    def sector_tables(self, env, step) -> np.ndarray:
+        """Every robot's lidar sectors, (N, S), updated from ``step``'s newest non-stale scans.
+
+        "Nothing seen" (``lidar_sector_max_m``) until a robot's first scan of the episode
+        (:meth:`reset`)."""
+        agents = env.possible_agents
+        if self._sectors is None:
+            self._sectors = np.full((len(agents), self.lidar_sectors), self.lidar_sector_max_m)
+        fresh, angles, ranges = [], [], []
+        for i, agent in enumerate(agents):  # per robot: pick its record (no per-ray work)
+            records = step.measurements.get(agent)
+            if records is None or not records.lidar or "lidar" in step.stale.get(agent, ()):
+                continue
+            fresh.append(i)
+            angles.append(records.lidar[-1].angles_rad)
+            ranges.append(records.lidar[-1].ranges_m)
+        if fresh:
+            self._sectors[fresh] = lidar_sector_ranges(
+                angles, ranges, self.lidar_sectors, self.lidar_sector_max_m
+            )
+        return self._sectors
 
 
 class EstimateEncoder(ObservationEncoder):
@@ -304,7 +423,7 @@ class EstimateEncoder(ObservationEncoder):
 
     name = "phd"
 
-    def tables(self, env, step, rows: list[int]) -> np.ndarray:
+    def neighbour_tables(self, env, step, rows: list[int]) -> np.ndarray:
         return phd_tables(*env.localizer.padded_tables(), self.top_k)[rows].reshape(len(rows), -1)
 
 
@@ -313,7 +432,7 @@ class TruthEncoder(ObservationEncoder):
 
     name = "truth"
 
-    def tables(self, env, step, rows: list[int]) -> np.ndarray:
+    def neighbour_tables(self, env, step, rows: list[int]) -> np.ndarray:
         truth = step.truth
         if truth is None:
             raise ValueError('observation="truth" needs ground truth, which this World lacks')
@@ -331,10 +450,10 @@ class MeasurementEncoder(ObservationEncoder):
             (("lidar", top_k, LIDAR_COLUMNS), ("camera", top_k, CAMERA_COLUMNS)), n_features
         )
 
-    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+    def _neighbour_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         return measurement_bounds(self.top_k)
 
-    def tables(self, env, step, rows: list[int]) -> np.ndarray:
+    def neighbour_tables(self, env, step, rows: list[int]) -> np.ndarray:
         return measurement_tables(env.last_detections, env.last_bearings, self.top_k)[rows]
 
 
@@ -344,8 +463,19 @@ ENCODERS: dict[str, type[ObservationEncoder]] = {
 }
 
 
-def make_encoder(name: str, top_k: int, n_features: int) -> ObservationEncoder:
-    """The encoder ``name`` (a key of :data:`ENCODERS`)."""
+def make_encoder(
+    name: str,
+    top_k: int,
+    n_features: int,
+    lidar_sectors: int = 0,
+    lidar_sector_max_m: float = 2.0,
+) -> ObservationEncoder:
+    """The encoder ``name`` (a key of :data:`ENCODERS`), with ``lidar_sectors`` sectors of the
+    robot's own scan appended to its tables (0: none)."""
     if name not in ENCODERS:
         raise ValueError(f"observation must be one of {sorted(ENCODERS)}, got {name!r}")
-    return ENCODERS[name](top_k, n_features)
+    if isinstance(lidar_sectors, bool) or not isinstance(lidar_sectors, int) or lidar_sectors < 0:
+        raise ValueError(f"lidar_sectors must be an int >= 0, got {lidar_sectors!r}")
+    if not (np.isfinite(lidar_sector_max_m) and lidar_sector_max_m > 0):
+        raise ValueError(f"lidar_sector_max_m must be > 0, got {lidar_sector_max_m!r}")
+    return ENCODERS[name](top_k, n_features, lidar_sectors, lidar_sector_max_m)

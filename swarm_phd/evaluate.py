@@ -32,7 +32,12 @@ observer, over the same pairs, the error of *that neighbour's own ID estimate*
 (:class:`IdentityScorer`). Their records: each robot's odometry records of the step stand for
 the radio messages (every teammate's own increment with its ID); ``ukf`` and ``pf`` get each
 lidar detection with the identity of the true robot within 0.2 m of it (an oracle standing in
-for seed ``003``'s / ``004``'s identifying sensors; other detections are dropped).
+for seed ``003``'s / ``004``'s identifying sensors; other detections are dropped). Seed
+``001``'s ``p-multireg``, ``fastslam-mc`` and ``p-multibeareg`` read what each robot heard on
+the radio: selecting one switches the radio on (``DEFAULT_RADIO`` of
+:mod:`localization.mutual.localizer`, unless ``comms`` is given), and a config with the radio
+off is refused. Their ``identity`` block adds the thesis's pooled % of pair-steps within 0.1 m,
+bearing < 7 deg and heading < 7 deg. Each localizer's ms per env step goes to stderr.
 """
 
 from __future__ import annotations
@@ -55,6 +60,9 @@ from swarm_core.atomic_files import write_json_atomically
 from swarm_env import parallel_env
 from swarm_env.env import SwarmEnv
 from swarm_phd import progress
+
+#: ``--scenario`` values.
+SCENARIOS = ("study", "seed003")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -84,10 +92,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--compare",
         default=None,
-        help="a second policy run on the same env and seeds, reported side by "
-        "side (e.g. --policy runs/X/model.zip --compare scripted:formation)",
+        help="further policies (comma-separated) run on the same env and seeds, reported side "
+        "by side (e.g. --policy runs/X/model.zip --compare scripted:formation,scripted:wander)",
     )
     parser.add_argument("--out", default=None, help="write metrics.json and figures here")
+    parser.add_argument(
+        "--scenario",
+        choices=SCENARIOS,
+        default="study",
+        help="'study': the source study's experiment (or a policy's evaluation) with the "
+        "localizers above; 'seed003': seed 003's 5-robot experiment, IR readings with "
+        "identities, SLSQP direct estimation then the centralized UKF, errors after the Kabsch "
+        "fit (swarm_phd/seed003.py; --preset, --duration, --seeds and --out apply)",
+    )
     parser.add_argument(
         "--ray",
         action="store_true",
@@ -116,6 +133,8 @@ def run(args: argparse.Namespace) -> int:
         seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
     except ValueError as exc:
         raise ValueError(f"--seeds must be comma-separated integers, got {args.seeds!r}") from exc
+    if getattr(args, "scenario", "study") == "seed003":
+        return _run_seed003(args, seeds)
     overrides: dict[str, Any] = {}
     if args.task_params is not None:
         try:
@@ -135,23 +154,52 @@ def run(args: argparse.Namespace) -> int:
     )
     print_table(results)
     if args.compare:
-        shared = shared_env_kwargs(args.policy, args.preset, args.task, **overrides)
-        other = evaluate_localization(
-            shared.pop("preset"),
-            args.duration,
-            localizers,
-            seeds,
-            policy=args.compare,
-            task=shared.pop("task"),
-            out_dir=out_dir / "compare" if out_dir else None,
-            **shared,
-        )
-        print_table(other)
-        print_comparison([results, other])
+        compared = [results]
+        specs = [s.strip() for s in args.compare.split(",") if s.strip()]
+        for k, spec in enumerate(specs):
+            shared = shared_env_kwargs(args.policy, args.preset, args.task, **overrides)
+            other = evaluate_localization(
+                shared.pop("preset"),
+                args.duration,
+                localizers,
+                seeds,
+                policy=spec,
+                task=shared.pop("task"),
+                out_dir=(out_dir / ("compare" if k == 0 else f"compare{k + 1}"))
+                if out_dir
+                else None,
+                **shared,
+            )
+            print_table(other)
+            compared.append(other)
+        print_comparison(compared)
         if out_dir is not None:
             (out_dir / "comparison.json").write_text(
-                json.dumps(comparison_rows([results, other]), indent=2)
+                json.dumps(comparison_rows(compared), indent=2)
             )
+    return 0
+
+
+def _run_seed003(args: argparse.Namespace, seeds: list[int]) -> int:
+    """``--scenario seed003``: seed 003's centralized pipeline (not a per-robot localizer, so
+    ``--localizer``, ``--policy``, ``--task`` and ``--compare`` do not apply)."""
+    from swarm_phd.seed003 import print_summary, run_seed003
+
+    for name, value, default in (
+        ("--policy", args.policy, "scripted:wander"),
+        ("--task", args.task, None),
+        ("--compare", args.compare, None),
+        ("--task-params", args.task_params, None),
+    ):
+        if value != default:
+            raise ValueError(f"--scenario seed003 takes no {name} (got {value!r})")
+    results = run_seed003(
+        preset=args.preset or "lab-3m-4",
+        duration_s=args.duration,
+        seeds=seeds,
+        out_dir=Path(args.out) if args.out else None,
+    )
+    print_summary(results)
     return 0
 
 
@@ -229,7 +277,15 @@ def evaluate_localization(
     if duration_s <= 0:
         raise ValueError(f"duration must be > 0 s, got {duration_s}")
     start = time.perf_counter()
+    radio = [name for name in localizers if LOCALIZERS[name].needs_comms]
+    if radio and "comms" not in overrides:  # seed 001's methods hear teammates on the radio
+        from localization.mutual.localizer import DEFAULT_RADIO
+
+        overrides["comms"] = dict(DEFAULT_RADIO)
     env = _make_env(preset, task, policy, **overrides)
+    if radio and not env.config.comms.enabled:
+        env.close()
+        raise ValueError(f"localizers {radio} need the radio: comms.enabled is False")
     n_steps = int(round(duration_s / env.config.control_period_s))
     base_phd = env.config.phd
     n_agents = len(env.possible_agents)
@@ -242,6 +298,9 @@ def evaluate_localization(
     paths: list[np.ndarray] = []
     estimates: dict[str, list[np.ndarray]] = {name: [] for name in localizers}
     task_metrics: list[dict[str, float]] = []
+    # Each localizer's step time (not in the results: they must not depend on the machine).
+    cost_s = dict.fromkeys(localizers, 0.0)
+    n_done = 0
     # Ctrl-C keeps the finished seeds: the scores are saved after each seed and restored.
     finished: list[int] = []
     saved: tuple | None = None
@@ -272,7 +331,9 @@ def evaluate_localization(
                 truth = step.truth
                 feed = SwarmFeed.from_world_step(step, env.possible_agents)
                 for name, loc in built.items():
+                    t0 = time.perf_counter()
                     loc.step(feed)
+                    cost_s[name] += time.perf_counter() - t0
                     views = loc.views
                     weights, means = weights_means_from_table(*loc.padded_tables())
                     visible = _visible(truth, name in camera_scorers)
@@ -301,6 +362,7 @@ def evaluate_localization(
                         estimates[name].append(_world_estimates(views[0], truth.poses[0]))
                 if seed == seeds[0]:
                     paths.append(truth.poses[:, :2].copy())
+                n_done += 1
             task_metrics.append(env.task.metrics())
             finished.append(seed)
             saved = copy.deepcopy(
@@ -316,6 +378,12 @@ def evaluate_localization(
             f"{finished}",
             file=sys.stderr,
         )
+    if n_done:
+        cost = ", ".join(
+            f"{name} {1e3 * c / n_done:.1f} ({1e3 * c / n_done / n_agents:.2f})"
+            for name, c in cost_s.items()
+        )
+        print(f"swarm-phd evaluate: ms per env step (per observer): {cost}", file=sys.stderr)
     preset = preset or ("sim-6m-20" if not policy.endswith(".zip") else _model_preset(policy))
     task = env.task.name
     results = {
@@ -518,18 +586,29 @@ class IdentityScorer:
         self.accurate = np.zeros(n_observers)
         self.errors: list[float] = []
         self.heading_errors: list[float] = []
+        # Seed 001's thesis metrics (no estimate counts as an error): pair-steps with bearing
+        # error < 7 deg; with a heading estimate, heading-estimating pair-steps < 7 deg.
+        self.bearing_ok = 0
+        self.heading_ok = 0
+        self.heading_pairs = 0
 
     def add(self, observer: int, truth, mask: np.ndarray, identities: dict) -> None:
         for j in np.flatnonzero(mask).tolist():
             est = identities.get(j)
+            rel = truth.relative_xy[observer, j]
             if est is None:
                 err = math.inf
+                self.heading_pairs += 1
             else:
-                err = math.hypot(*(est[:2] - truth.relative_xy[observer, j]))
+                err = math.hypot(*(est[:2] - rel))
+                b = math.atan2(est[1], est[0]) - math.atan2(rel[1], rel[0])
+                self.bearing_ok += abs((b + math.pi) % (2 * math.pi) - math.pi) < math.radians(7)
                 if len(est) > 2:
                     true_psi = truth.poses[j, 2] - truth.poses[observer, 2]
                     d = (est[2] - true_psi + math.pi) % (2 * math.pi) - math.pi
                     self.heading_errors.append(abs(math.degrees(d)))
+                    self.heading_ok += abs(d) < math.radians(7)
+                    self.heading_pairs += 1
             self.pairs[observer] += 1
             self.large[observer] += not err <= self.error_threshold_m
             self.accurate[observer] += err <= 0.10
@@ -562,6 +641,11 @@ class IdentityScorer:
             "id_median_heading_error_deg": float(np.median(self.heading_errors))
             if self.heading_errors
             else nan,
+            "id_percent_within_10cm": 100.0 * float(self.accurate.sum()) / total if total else nan,
+            "id_percent_bearing_within_7deg": 100.0 * self.bearing_ok / total if total else nan,
+            "id_percent_heading_within_7deg": 100.0 * self.heading_ok / self.heading_pairs
+            if self.heading_errors
+            else nan,
         }
 
 
@@ -572,13 +656,16 @@ def print_identity_table(results: dict[str, Any]) -> None:
         return
     print(
         "  | localizer (own-ID estimate) | % time err > 30 cm (median robot) | pooled | "
-        "% time < 10 cm | no estimate % | median err m | median heading err deg |"
+        "% time < 10 cm | no estimate % | median err m | median heading err deg | "
+        "seed 001: % < 0.1 m / bearing < 7 deg / heading < 7 deg (pooled) |"
     )
-    print("  |---|---|---|---|---|---|---|")
+    print("  |---|---|---|---|---|---|---|---|")
     for name, m in ident.items():
         print(
             f"  | {name} | {m['id_pct_time_err_gt_30cm']['median']:.1f} | "
             f"{m['id_percent_large_error']:.1f} | {m['id_pct_time_within_10cm']['median']:.1f} | "
             f"{m['id_percent_missing']:.1f} | {m['id_median_error_m']:.3f} | "
-            f"{m['id_median_heading_error_deg']:.1f} |"
+            f"{m['id_median_heading_error_deg']:.1f} | "
+            f"{m['id_percent_within_10cm']:.1f} / {m['id_percent_bearing_within_7deg']:.1f} / "
+            f"{m['id_percent_heading_within_7deg']:.1f} |"
         )

@@ -283,19 +283,24 @@ def run_episode(
 
 def run_seed003(
     preset: str,
-    n_robots: int,
-    arena_m: float,
     duration_s: float,
-    init_s: float,
-    speed_mps: float,
     seeds: list[int],
-    ir: IRConfig,
-    ukf: CentralizedUKFConfig,
+    n_robots: int = 5,
+    arena_m: float = 1.5,
+    init_s: float = 3.0,
+    speed_mps: float = 0.05,
+    ir: IRConfig | None = None,
+    ukf: CentralizedUKFConfig | None = None,
     out_dir: Path | None = None,
 ) -> dict[str, Any]:
-    """Run every seed; return (and with ``out_dir`` write) the metrics and the figure."""
+    """Run every seed; return (and with ``out_dir`` write) the metrics and the figure.
+
+    The defaults are the seed's setup (:func:`add_arguments`'): 5 robots, a 1.5 m square,
+    3 s standstill, 5 cm/s, seed 003's IR figures (``IRConfig()``)."""
     if not seeds:
         raise ValueError("--seeds must name at least one integer")
+    ir = IRConfig() if ir is None else ir
+    ukf = CentralizedUKFConfig() if ukf is None else ukf
     start = time.perf_counter()
     episodes = [
         run_episode(s, preset, n_robots, arena_m, duration_s, init_s, speed_mps, ir, ukf)

@@ -18,6 +18,13 @@ against its true pose in the UAV's level frame):
 
 The seed's result (sec. V): convergence in less than one minute, final error under 12 cm and
 10 deg. ``--json`` writes everything, with the measured camera statistics the filter used.
+
+``--loopback`` runs the same experiment over the hardware bridge: a
+:class:`~hardware_bridge.loopback.LoopbackServer` flies the simulated UGVs and the UAV in real
+time behind a rosbridge websocket on 127.0.0.1, and the env is
+:func:`hardware_bridge.real_supervised_env` (the UAV's pose and detections topics, its
+``cmd_vel``); the truth for the metrics is read from the server. ``--record BAG`` records the
+(first seed's) bridge episode to a ROS 2 bag.
 """
 
 from __future__ import annotations
@@ -58,6 +65,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--hold-s", type=float, default=5.0, help="convergence: within thresholds this long (s)"
     )
+    parser.add_argument(
+        "--loopback",
+        action="store_true",
+        help="run over the hardware bridge against a loopback robot server with a UAV "
+        "(real time: --duration seconds of wall time per seed)",
+    )
+    parser.add_argument(
+        "--record", default=None, help="with --loopback: record the first seed's episode here"
+    )
     parser.add_argument("--json", default=None, help="write the metrics here")
     parser.add_argument(
         "--figure",
@@ -72,6 +88,8 @@ def run(args: argparse.Namespace) -> int:
     if not seeds:
         raise ValueError(f"--seeds must list at least one integer, got {args.seeds!r}")
     comms: dict[str, Any] = {}
+    if args.record and not args.loopback:
+        raise ValueError("--record needs --loopback (a simulated episode has no bridge)")
     if args.loss is not None:
         comms["loss_probability"] = args.loss
     if args.latency is not None:
@@ -87,6 +105,8 @@ def run(args: argparse.Namespace) -> int:
         filter_lag_s=args.filter_lag,
         quiet=args.quiet,
         figure=Path(args.figure) if args.figure else None,
+        loopback=args.loopback,
+        record=args.record,
     )
     print(format_summary(result))
     if args.json:
@@ -104,11 +124,12 @@ def run_episode(
     altitude_m: float | None = None,
     comms: dict[str, Any] | None = None,
     filter_lag_s: float | None = None,
+    loopback: bool = False,
+    record: str | None = None,
 ) -> dict[str, Any]:
-    """One episode; returns per-step error traces ``(T, n)`` and the camera statistics."""
-    from agents.scripted import WanderPolicy
-    from swarm_env.uav import UAV_ID, SupervisedSwarmEnv, UAVConfig
-    from swarm_env.uav.control import uav_action
+    """One episode; returns per-step error traces ``(T, n)`` and the camera statistics.
+    ``loopback``: over the bridge against a loopback server (module docstring)."""
+    from swarm_env.uav import SupervisedSwarmEnv, UAVConfig
 
     if not (math.isfinite(duration_s) and duration_s > 0):
         raise ValueError(f"duration_s must be a finite number > 0, got {duration_s!r}")
@@ -120,15 +141,71 @@ def run_episode(
     n_steps = int(round(duration_s / make_config(preset).control_period_s))
     # The radio is what the UAV identifies the UGVs by: on for any preset.
     overrides: dict[str, Any] = {"comms": {"enabled": True, **(comms or {})}}
-    env = SupervisedSwarmEnv(
-        preset, uav=uav, max_steps=n_steps + 1, filter_lag_s=filter_lag_s, **overrides
-    )
+    server = None
+    if loopback:
+        from hardware_bridge import real_supervised_env
+        from hardware_bridge.loopback import LoopbackServer
+
+        server = LoopbackServer(preset, seed=seed, uav=uav)
+        server.start()
+        try:
+            env = real_supervised_env(
+                port=server.port,
+                preset=preset,
+                uav=uav,
+                record=record,
+                filter_lag_s=filter_lag_s,
+                max_steps=n_steps + 1,
+                **overrides,
+            )
+        except BaseException:
+            server.close()
+            raise
+    else:
+        env = SupervisedSwarmEnv(
+            preset, uav=uav, max_steps=n_steps + 1, filter_lag_s=filter_lag_s, **overrides
+        )
+    try:
+        return _episode(env, server, seed, n_steps, uav_control)
+    finally:
+        env.close()
+        if server is not None:
+            server.close()
+
+
+def _level_truth(env: Any, server: Any) -> np.ndarray:
+    """Over the bridge: the UGVs' true ``[x, y, psi]`` in the UAV's level frame at the step's
+    end, from the loopback server's simulator (scoring only)."""
+    from hardware_bridge.messages import s_to_ns
+    from swarm_env.sensors.downward_camera import to_level_frame
+
+    n = len(env.ugv_agents)
+    poses, uav_pose, _ = server.truth_at(s_to_ns(env.ground.last_world_step.time_s))
+    out = np.empty((n, 3))
+    out[:, :2] = to_level_frame(uav_pose, poses[:n, :2])
+    out[:, 2] = [_wrap(p - uav_pose[2]) for p in poses[:n, 2]]
+    return out
+
+
+def _ugv_truth(env: Any) -> np.ndarray | None:
+    """The UGVs' true poses of the last step (simulator, or motion capture over the bridge:
+    stamped with the step's records), ``None`` without."""
+    truth = env.ground.last_world_step.truth
+    return None if truth is None else truth.poses[: len(env.ugv_agents)].copy()
+
+
+def _episode(env: Any, server: Any, seed: int, n_steps: int, uav_control: str) -> dict[str, Any]:
+    from agents.scripted import WanderPolicy
+    from swarm_env.uav import UAV_ID
+    from swarm_env.uav.control import uav_action
+
     robot = env.config.robot
     policy = WanderPolicy(robot.max_speed_mps, robot.max_turn_rate_radps, seed=seed)
     obs, infos = env.reset(seed=seed)
     n = len(env.ugv_agents)
     times, pos_err, head_err, in_view, slip, signed = [], [], [], [], [], []
-    prev = env.ground.last_world_step.truth.poses[:n].copy()
+    prev = _ugv_truth(env)
+    t0 = infos[UAV_ID]["time_s"] if server is not None else 0.0
     for _ in range(n_steps):
         if not env.agents:
             break
@@ -137,7 +214,7 @@ def run_episode(
         actions[UAV_ID] = uav_action(env, uav_control)
         obs, _, _, _, infos = env.step(actions)
         info = infos[UAV_ID]
-        truth = info["truth"]["ugv_level_poses"]
+        truth = info["truth"]["ugv_level_poses"] if server is None else _level_truth(env, server)
         estimate = info["estimate"]
         pe, he = np.full(n, np.nan), np.full(n, np.nan)
         err = np.full((n, 3), np.nan)
@@ -150,14 +227,17 @@ def run_episode(
         signed.append(err)
         half = env.uav_config.camera.half_extents_m(env.altitude_m)
         step = env.ground.last_world_step
-        now = step.truth.poses[:n].copy()
-        slip.append(_odometry_slip(prev, now, [step.measurements[a] for a in env.ugv_agents]))
+        now = _ugv_truth(env)
+        slip.append(
+            np.zeros(n, dtype=bool)  # no truth (a bridge without motion capture): not known
+            if prev is None or now is None
+            else _odometry_slip(prev, now, [step.measurements[a] for a in env.ugv_agents])
+        )
         prev = now
-        times.append(info["time_s"])
+        times.append(info["time_s"] - t0)  # from the reset (ROS time over the bridge)
         pos_err.append(pe)
         head_err.append(he)
         in_view.append((np.abs(truth[:, :2]) <= half).all(axis=1))
-    env.close()
     return {
         "seed": seed,
         "time_s": np.asarray(times),
@@ -246,13 +326,26 @@ def run_seed002(
     filter_lag_s: float | None = None,
     quiet: bool = True,
     figure: Path | None = None,
+    loopback: bool = False,
+    record: str | None = None,
 ) -> dict[str, Any]:
     """Every seed's episode and metrics, and the summary over seeds (``figure``: the first
-    seed's error traces, see :func:`plot_errors`)."""
+    seed's error traces, see :func:`plot_errors`; ``loopback``: over the bridge, ``record``
+    the first seed's bag)."""
     episodes = []
     for seed in seeds:
         start = time.perf_counter()
-        ep = run_episode(seed, duration_s, preset, uav_control, altitude_m, comms, filter_lag_s)
+        ep = run_episode(
+            seed,
+            duration_s,
+            preset,
+            uav_control,
+            altitude_m,
+            comms,
+            filter_lag_s,
+            loopback=loopback,
+            record=record if not episodes else None,
+        )
         if figure is not None and not episodes:
             plot_errors(ep, figure)
             if not quiet:
@@ -311,6 +404,7 @@ def run_seed002(
             "comms": comms or {},
             "hold_s": hold_s,
             "filter_lag_s": filter_lag_s,
+            "loopback": loopback,
         },
         "seed_reference": {
             "convergence_s": SEED_CONVERGENCE_S,

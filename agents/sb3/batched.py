@@ -50,9 +50,19 @@ class BatchedSwarmVecEnv(VecEnv):
         Env copies ``K`` (>= 1); the VecEnv has ``K x n_robots`` entries.
     seed : int or None
         Copy ``k`` is reset with ``seed + k`` at the first :meth:`reset`.
+    residual : str or None
+        ``"scripted:NAME"``: a residual policy (:mod:`agents.sb3.residual`): each copy's
+        command is ``clip(scripted(obs, infos) + action x high, -high, high)``, the scripted
+        controller (one per copy) reading that copy's last observations and infos.
     """
 
-    def __init__(self, env_kwargs: dict[str, Any], n_copies: int, seed: int | None = 0) -> None:
+    def __init__(
+        self,
+        env_kwargs: dict[str, Any],
+        n_copies: int,
+        seed: int | None = 0,
+        residual: str | None = None,
+    ) -> None:
         if isinstance(n_copies, bool) or not isinstance(n_copies, int) or n_copies < 1:
             raise ValueError(f"n_copies must be an int >= 1, got {n_copies!r}")
         kwargs = dict(env_kwargs)
@@ -81,6 +91,16 @@ class BatchedSwarmVecEnv(VecEnv):
         )
         self._actions: np.ndarray | None = None
         self._next_seed = seed
+        self._bases = None
+        if residual is not None:
+            from agents.sb3.residual import ResidualBase
+
+            self._bases = [ResidualBase(residual, env) for env in self.envs]
+            # The base reads the copy's last (obs, infos); an auto-reset episode reseeds its
+            # random walk from (seed, copy, episode), so the rollout stays reproducible.
+            self._last: list[tuple[dict, dict] | None] = [None] * n_copies
+            self._episodes = [0] * n_copies
+            self._base_seed = 0 if seed is None else int(seed)
 
     @property
     def action_high(self) -> np.ndarray:
@@ -107,10 +127,19 @@ class BatchedSwarmVecEnv(VecEnv):
         self._actions = None
         feeds = []
         for k, env in enumerate(self.envs):
-            commands = {
-                a: scale_actions(actions[k * n + i], self._high)
-                for i, a in enumerate(env.possible_agents)
-            }
+            if self._bases is not None:
+                from agents.sb3.residual import compose
+
+                base = self._bases[k](*self._last[k])
+                commands = {
+                    a: compose(base[a], actions[k * n + i], self._high)
+                    for i, a in enumerate(env.possible_agents)
+                }
+            else:
+                commands = {
+                    a: scale_actions(actions[k * n + i], self._high)
+                    for i, a in enumerate(env.possible_agents)
+                }
             feed = env.step_world(commands)
             feeds.append(feed if feed is not None else SwarmFeed.empty(n))
         self.shared.step(SwarmFeed.concat(feeds))
@@ -120,7 +149,9 @@ class BatchedSwarmVecEnv(VecEnv):
         infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
         ended = []
         for k, env in enumerate(self.envs):
-            o, r, term, trunc, _ = env.finish_step()
+            o, r, term, trunc, step_infos = env.finish_step()
+            if self._bases is not None:
+                self._last[k] = (o, step_infos)
             for i, a in enumerate(env.possible_agents):
                 j = k * n + i
                 obs[j], rewards[j] = o[a], r[a]
@@ -194,9 +225,15 @@ class BatchedSwarmVecEnv(VecEnv):
             )
         )
         out = {}
-        for k in copies:
-            obs, _ = self.envs[k].finish_reset()
+        for k, s in zip(copies, seeds, strict=True):
+            obs, infos = self.envs[k].finish_reset()
             out[k] = np.stack([obs[a] for a in self.envs[k].possible_agents])
+            if self._bases is not None:
+                self._last[k] = (obs, infos)
+                if s is None:
+                    s = 1_000_003 * (self._base_seed + 1) + 1009 * k + self._episodes[k]
+                self._bases[k].reset(int(s))
+                self._episodes[k] += 1
         return out
 
 
@@ -211,8 +248,11 @@ def make_batched_vec_env(
     n_copies: int = 4,
     seed: int | None = 0,
     monitor_file: str | None = None,
+    residual: str | None = None,
 ):
     """:class:`BatchedSwarmVecEnv` wrapped in SB3's ``VecMonitor`` (episode statistics)."""
     from stable_baselines3.common.vec_env import VecMonitor
 
-    return VecMonitor(BatchedSwarmVecEnv(env_kwargs, n_copies, seed), filename=monitor_file)
+    return VecMonitor(
+        BatchedSwarmVecEnv(env_kwargs, n_copies, seed, residual=residual), filename=monitor_file
+    )

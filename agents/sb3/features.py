@@ -5,7 +5,10 @@ The observation's table is a *set* of Gaussian components (or true neighbours) s
 has to relearn the same geometry for every slot. Here one small network ``phi`` encodes every
 row, and the rows are pooled with the PHD's own weights (``sum_k w_k phi(row_k)``, the integral
 of ``phi`` against the PHD intensity) and with a masked max. The pooled code, the odometry and
-the task features go to SB3's policy and value heads.
+the task features go to SB3's policy and value heads. Everything after the table (the lidar
+sector block of ``SwarmConfig.lidar_sectors`` when present, the odometry, the task features) is
+passed on divided by its observation-space bound, so sector ranges arrive as ``r / r_max`` in
+[0, 1].
 
 Row inputs (scaled to O(1)): ``w``, ``x / 2``, ``y / 2``, ``rho / 2``, ``sqrt(sxx)``,
 ``sqrt(syy)``, ``sxy``, with ``rho = ||(x, y)||``; rows with ``valid = 0`` are masked out.

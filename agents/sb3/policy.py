@@ -5,7 +5,9 @@ carries one extra member, ``swarm_phd.json`` (SB3's loader ignores it)::
 
     {"env_kwargs": {...},            # preset, task, task_params, observation, n_robots, ...
      "obs_norm": {"mean": [...], "var": [...], "clip": 10.0, "epsilon": 1e-8} | null,
-     "action_scale": "unit"}         # the policy acts in [-1, 1]; scaled by [v_max, omega_max]
+     "action_scale": "unit",         # the policy acts in [-1, 1]; scaled by [v_max, omega_max]
+     "residual": "scripted:NAME"}    # optional, a residual policy (agents.sb3.residual):
+                                     # command = clip(scripted + policy, -1, 1) x high
 
 ``env_kwargs.json`` next to ``model.zip`` holds the same ``env_kwargs`` for humans and scripts.
 """
@@ -84,9 +86,16 @@ class SB3Policy:
     actions``). Deterministic (the Gaussian's mean) unless ``deterministic=False``."""
 
     def __init__(
-        self, model: Any, meta: dict[str, Any], action_high: np.ndarray, deterministic: bool = True
+        self,
+        model: Any,
+        meta: dict[str, Any],
+        action_high: np.ndarray,
+        deterministic: bool = True,
+        base: Any = None,
     ) -> None:
         self.model = model
+        #: A residual model's scripted base (:class:`agents.sb3.residual.ResidualBase`) or None.
+        self.base = base
         self.meta = meta
         self.action_high = np.asarray(action_high, dtype=np.float64)
         self.deterministic = deterministic
@@ -101,6 +110,8 @@ class SB3Policy:
     def reset(self, seed: int | None = None) -> None:
         if seed is not None:
             self.model.set_random_seed(seed)
+        if self.base is not None:
+            self.base.reset(seed)
 
     def normalize(self, obs: np.ndarray) -> np.ndarray:
         if self._mean is None:
@@ -115,6 +126,13 @@ class SB3Policy:
         agents = list(observations)
         batch = self.normalize(np.stack([observations[a] for a in agents]))
         actions, _ = self.model.predict(batch, deterministic=self.deterministic)
+        if self.base is not None:
+            from agents.sb3.residual import compose
+
+            base = self.base(observations, infos)
+            return {
+                a: compose(base[a], actions[k], self.action_high) for k, a in enumerate(agents)
+            }
         return {a: scale_actions(actions[k], self.action_high) for k, a in enumerate(agents)}
 
 
@@ -134,4 +152,11 @@ def load_sb3_policy(path: str | Path, env: Any, deterministic: bool = True) -> S
             f"model {str(path)!r} expects observations of shape {want}, the env gives {have}: "
             f"build the env with the model's kwargs {meta['env_kwargs']}"
         )
-    return SB3Policy(model, meta, env.action_space(agent).high, deterministic=deterministic)
+    base = None
+    if meta.get("residual"):
+        from agents.sb3.residual import ResidualBase
+
+        base = ResidualBase(meta["residual"], env)
+    return SB3Policy(
+        model, meta, env.action_space(agent).high, deterministic=deterministic, base=base
+    )

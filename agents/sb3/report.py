@@ -84,9 +84,9 @@ def score(
         "std": {k: float(np.std([d[k] for d in per_seed])) for k in keys},
         "per_seed": per_seed,
     }
+    out["control_period_s"] = env.config.control_period_s
     if curves:
         out["coverage_curve_mean"] = np.mean(curves, axis=0).tolist()
-        out["control_period_s"] = env.config.control_period_s
     return out
 
 
@@ -173,11 +173,32 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--name", default="formation", help="output file prefix")
     parser.add_argument("--metric", default="formation_error_m", help="task metric of the table")
+    parser.add_argument(
+        "--curves-only",
+        action="store_true",
+        help="only draw the runs' training curves (results_<name>_learning_curve.png), no scoring",
+    )
     args = parser.parse_args(argv)
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
+    if args.curves_only:
+        fig, ax = plt.subplots(figsize=(6.5, 4.2))
+        for run in map(Path, args.runs):
+            x, y = monitor_curve(run)
+            ax.plot(x, y, label=run.name)
+        ax.set_xlabel("agent transitions")
+        ax.set_ylabel("episode return per agent (moving avg. of 200)")
+        ax.set_title(f"{args.name}: training episodes")
+        ax.legend(fontsize=7)
+        ax.grid(alpha=0.3)
+        fig.tight_layout()
+        figure = Path(args.out) / f"results_{args.name}_learning_curve.png"
+        fig.savefig(figure, dpi=110)
+        print(f"wrote {figure}")
+        return 0
 
     from agents.sb3.policy import read_metadata
 
@@ -199,7 +220,9 @@ def main(argv: list[str] | None = None) -> int:
         results["policies"][spec] = score(spec, read_metadata(spec)["env_kwargs"], seeds)
         print(spec, results["policies"][spec]["mean"])
         group = re.sub(r"_s\d+$", "", run.name)
-        groups.setdefault(f"PPO {group}", []).append(spec)
+        residual = read_metadata(spec).get("residual")
+        kind = f"residual PPO ({residual} + learned correction)" if residual else "PPO"
+        groups.setdefault(f"{kind} {group}", []).append(spec)
         clone = run / "warm_start.zip"
         if args.warm_start and clone.is_file():
             results["policies"][str(clone)] = score(
@@ -207,7 +230,7 @@ def main(argv: list[str] | None = None) -> int:
             )
             groups.setdefault(f"warm start only {group}", []).append(str(clone))
             print(clone, results["policies"][str(clone)]["mean"])
-        curves[run.name] = monitor_curve(run)
+        curves[("residual PPO " if residual else "PPO ") + run.name] = monitor_curve(run)
         if args.checkpoints:
             results.setdefault("checkpoints", {})[run.name] = [
                 (s, r["mean"]) for s, r in checkpoint_scores(run, _seeds(args.checkpoint_seeds))
@@ -243,7 +266,7 @@ def main(argv: list[str] | None = None) -> int:
         "scripted:formation@truth": "tab:olive",
     }
     for name, (x, y) in curves.items():
-        ax.plot(x, y, label=f"PPO {name} (training episodes)")
+        ax.plot(x, y, label=f"{name} (training episodes)")
     for spec in args.baselines:
         ax.axhline(
             results["policies"][spec]["mean"]["episode_return"],
@@ -263,7 +286,7 @@ def main(argv: list[str] | None = None) -> int:
                 [s for s, _ in pts],
                 [m[args.metric] for _, m in pts],
                 "o-",
-                label=f"PPO {name}",
+                label=name,
             )
         for spec in args.baselines:
             base = score(spec, env_kwargs, _seeds(args.checkpoint_seeds))

@@ -105,6 +105,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(agents.sb3.warm_start)",
     )
     parser.add_argument(
+        "--residual",
+        default=None,
+        metavar="scripted:NAME",
+        help="RESIDUAL policy (agents.sb3.residual): the command is this scripted controller's "
+        "action plus the learned correction, whose mean starts at zero (batched VecEnv only)",
+    )
+    parser.add_argument(
+        "--residual-log-std",
+        type=float,
+        default=-1.5,
+        help="initial log-std of the residual correction (unit action scale)",
+    )
+    parser.add_argument(
+        "--lidar-sectors",
+        type=int,
+        default=None,
+        help="add the robot's own lidar scan as S sector minima to the observation "
+        "(SwarmConfig.lidar_sectors; default: the preset's, 0)",
+    )
+    parser.add_argument(
         "--bc-steps", type=int, default=40_000, help="demonstration agent transitions"
     )
     parser.add_argument(
@@ -174,6 +194,8 @@ def env_kwargs_from_args(args: argparse.Namespace) -> dict[str, Any]:
     }
     if args.n_robots is not None:
         kwargs["n_robots"] = args.n_robots
+    if getattr(args, "lidar_sectors", None) is not None:
+        kwargs["lidar_sectors"] = args.lidar_sectors
     if args.observation != "phd":
         kwargs.setdefault("localize", False)  # the filters cost most of the step; unused here
     return kwargs
@@ -216,11 +238,21 @@ def run(args: argparse.Namespace) -> int:
         extractor=args.extractor,
         warm_start=warm,
         critic_warmup=args.critic_warmup,
+        residual=args.residual,
+        residual_log_std=args.residual_log_std,
     )
     return EXIT_CODES.get(interrupted, 0) if interrupted else 0
 
 
-def _vec_env(vec: str, env_kwargs, n_copies: int, num_cpus: int, seed: int, monitor: str):
+def _vec_env(
+    vec: str,
+    env_kwargs,
+    n_copies: int,
+    num_cpus: int,
+    seed: int,
+    monitor: str,
+    residual: str | None = None,
+):
     """The training VecEnv (``--vec``): batched in-process copies or SuperSuit's."""
     from agents.sb3.adapter import make_vec_env
     from agents.sb3.batched import make_batched_vec_env
@@ -233,8 +265,12 @@ def _vec_env(vec: str, env_kwargs, n_copies: int, num_cpus: int, seed: int, moni
     if vec == "auto":
         identities = make_localizer(env_kwargs.get("localizer", "phd"), 1).has_identities
         vec = "supersuit" if num_cpus > 0 or identities else "batched"
+    if residual is not None and vec != "batched":
+        raise ValueError("--residual needs the batched VecEnv (--vec batched, --num-cpus 0)")
     if vec == "batched":
-        return make_batched_vec_env(env_kwargs, n_copies=n_copies, seed=seed, monitor_file=monitor)
+        return make_batched_vec_env(
+            env_kwargs, n_copies=n_copies, seed=seed, monitor_file=monitor, residual=residual
+        )
     return make_vec_env(
         env_kwargs, n_copies=n_copies, num_cpus=num_cpus, seed=seed, monitor_file=monitor
     )
@@ -266,13 +302,17 @@ def _train(
     extractor: str = "sets",
     warm_start: dict[str, Any] | None = None,
     critic_warmup: int = 0,
+    residual: str | None = None,
+    residual_log_std: float = -1.5,
 ) -> tuple[Path, str | None]:
     """Train; return the path of ``model.zip`` and the signal that interrupted it (or None).
 
     ``warm_start``: ``{"teacher": "scripted:NAME", "steps": int, "rounds": int, "epochs": int,
     "log_std": float}`` clones the teacher into the actor first (:mod:`agents.sb3.warm_start`;
     writes ``warm_start.zip`` and ``warm_start.json``). ``critic_warmup``: that many first PPO
-    rollouts update only the value function.
+    rollouts update only the value function. ``residual``: ``"scripted:NAME"`` trains a
+    residual policy (:mod:`agents.sb3.residual`; correction mean 0 and log-std
+    ``residual_log_std`` at the start).
     """
     if timesteps <= 0:
         raise ValueError(f"--timesteps must be > 0, got {timesteps}")
@@ -288,6 +328,17 @@ def _train(
             continue
         if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
             raise ValueError(f"{flag} must be a finite number > 0, got {v!r}")
+    if residual is not None:
+        from agents.sb3.residual import check_residual
+
+        check_residual(residual)
+        if warm_start is not None:
+            raise ValueError(
+                "--residual and --warm-start exclude each other (the residual "
+                "starts from the scripted controller itself)"
+            )
+        if not (isinstance(residual_log_std, (int, float)) and -5.0 <= residual_log_std <= 1.0):
+            raise ValueError(f"--residual-log-std must be in [-5, 1], got {residual_log_std!r}")
     if warm_start is not None:
         warm_start = {"rounds": 1, "epochs": 30, "log_std": -1.5, **warm_start}
         teacher = warm_start.get("teacher")
@@ -344,7 +395,7 @@ def _train(
         "net_arch": {"pi": [128, 128], "vf": [128, 128]},
         "log_std_init": -0.5,
     }
-    if warm_start is not None or critic_warmup:
+    if warm_start is not None or critic_warmup or residual is not None:
         # The value loss must not move the (cloned) actor's features: separate extractors.
         policy_kwargs["share_features_extractor"] = False
     if extractor == "sets":
@@ -370,6 +421,8 @@ def _train(
             "extractor": extractor,
             "warm_start": warm_start,
             "critic_warmup": critic_warmup,
+            "residual": residual,
+            "residual_log_std": residual_log_std if residual else None,
             "policy_kwargs": {
                 k: v for k, v in policy_kwargs.items() if k != "features_extractor_class"
             },
@@ -383,7 +436,9 @@ def _train(
     # group, and only this process must act on it (it saves, then closes the workers).
     previous_sigint = set_signal(signal.SIGINT, signal.SIG_IGN) if num_cpus > 0 else None
     try:
-        venv = _vec_env(vec, env_kwargs, n_copies, num_cpus, seed, str(out / "monitor.csv"))
+        venv = _vec_env(
+            vec, env_kwargs, n_copies, num_cpus, seed, str(out / "monitor.csv"), residual
+        )
     finally:
         if previous_sigint is not None:
             set_signal(signal.SIGINT, previous_sigint)
@@ -405,12 +460,15 @@ def _train(
                 "epsilon": venv.epsilon,
             }
         )
-        return {
+        out_meta = {
             "env_kwargs": env_kwargs,
             "action_scale": "unit",
             "obs_norm": norm,
             "extractor": extractor,
         }
+        if residual is not None:
+            out_meta["residual"] = residual
+        return out_meta
 
     class Checkpoints(BaseCallback):
         """Save ``model_<steps>_steps.zip`` (with its metadata) every ``every`` transitions;
@@ -442,6 +500,10 @@ def _train(
         tensorboard_log=None,
         **ppo,
     )
+    if residual is not None:
+        from agents.sb3.residual import zero_correction
+
+        zero_correction(model.policy, residual_log_std)
     logger = configure(str(out / "tb"), ["csv", "tensorboard"])
     model.set_logger(logger)
     rollout_size = ppo["n_steps"] * venv.num_envs

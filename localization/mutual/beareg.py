@@ -16,9 +16,10 @@ third side), the remaining rays of ``a``, ``b`` and ``c`` that meet in one point
 or a decoy, seen by all three). The triangles containing the observer with the best rating form
 the partial solutions; mutually consistent ones (no robot on two features of one set, no feature
 for two robots) are merged into complete solutions (maximal consistent sets), each giving every
-teammate it contains one ``xi``. The fitness test against the belief and the particle filter
-use ``xi`` only (scale-free): ``p(xi_hat | x) = N(bearing(x) - beta_hat; s_b) N(theta - theta_hat;
-s_t)``, in place of the thesis's scale chosen to maximise eq. 18.
+teammate it contains one ``xi``. The particle filter's update uses ``xi`` (eq. 19:
+``p(xi_hat | x) = N(bearing(x) - beta_hat; s_b) N(theta - theta_hat; s_t)``); the fitness test
+places each ``xi`` at the scale that maximises eq. 18 against the belief
+(:meth:`~localization.mutual.particles.TeammateParticles.scale_search`).
 
 Simplifications, stated: triangles not containing the observer are not used to expand solutions
 (with four robots every teammate that sees the observer and one other teammate is in a triangle
@@ -63,12 +64,18 @@ def _ordered_pairs(m: int) -> np.ndarray:
 
 
 def find_triangles(
-    bearings: dict[int, np.ndarray], tol_rad: float = math.radians(3.0)
+    bearings: dict[int, np.ndarray],
+    tol_rad: float = math.radians(3.0),
+    containing: int | None = None,
 ) -> list[BearingTriangle]:
-    """Every candidate triangle among the labelled bearing sets (vectorised per triplet)."""
+    """Every candidate triangle among the labelled bearing sets (vectorised per triplet);
+    with ``containing``, only the robot triples that include that label (the observer's:
+    ``R - 1`` choose 2 triples instead of ``R`` choose 3)."""
     out: list[BearingTriangle] = []
     labels = sorted(bearings)
     for a, b, c in itertools.combinations(labels, 3):
+        if containing is not None and containing not in (a, b, c):
+            continue
         ba, bb, bc = (np.asarray(bearings[x], dtype=np.float64) for x in (a, b, c))
         pa, pb, pc = _ordered_pairs(len(ba)), _ordered_pairs(len(bb)), _ordered_pairs(len(bc))
         if not (len(pa) and len(pb) and len(pc)):
@@ -77,11 +84,8 @@ def find_triangles(
         sa = wrap_angle(ba[pa[:, 1]] - ba[pa[:, 0]])  # beta_ac - beta_ab
         sb = wrap_angle(bb[pb[:, 0]] - bb[pb[:, 1]])  # beta_ba - beta_bc
         sc = wrap_angle(bc[pc[:, 1]] - bc[pc[:, 0]])  # beta_cb - beta_ca
-        total = sa[:, None, None] + sb[None, :, None] + sc[None, None, :]
-        pos = (sa[:, None, None] > 0) & (sb[None, :, None] > 0) & (sc[None, None, :] > 0)
-        neg = (sa[:, None, None] < 0) & (sb[None, :, None] < 0) & (sc[None, None, :] < 0)
-        resid = np.where(pos, np.abs(total - np.pi), np.where(neg, np.abs(total + np.pi), np.inf))
-        for ia, ib, ic in zip(*np.nonzero(resid <= tol_rad), strict=True):
+        hits, resid = _triangle_candidates(sa, sb, sc, tol_rad)
+        for (ia, ib, ic), r in zip(hits.tolist(), resid.tolist(), strict=True):
             f = {
                 (a, b): int(pa[ia, 0]),
                 (a, c): int(pa[ia, 1]),
@@ -110,8 +114,59 @@ def find_triangles(
                     ]
                 ),
             }
-            out.append(BearingTriangle((a, b, c), f, beta, pose, float(resid[ia, ib, ic])))
+            out.append(BearingTriangle((a, b, c), f, beta, pose, float(r)))
     return out
+
+
+def _triangle_candidates_dense(
+    sa: np.ndarray, sb: np.ndarray, sc: np.ndarray, tol_rad: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Reference of :func:`_triangle_candidates`: every ``(ia, ib, ic)`` (K, 3), row-major, whose
+    signed differences share a sign and sum to ``+-pi`` within ``tol_rad``, and their residuals
+    (K,). Memory and time ``Pa Pb Pc``."""
+    total = sa[:, None, None] + sb[None, :, None] + sc[None, None, :]
+    pos = (sa[:, None, None] > 0) & (sb[None, :, None] > 0) & (sc[None, None, :] > 0)
+    neg = (sa[:, None, None] < 0) & (sb[None, :, None] < 0) & (sc[None, None, :] < 0)
+    resid = np.where(pos, np.abs(total - np.pi), np.where(neg, np.abs(total + np.pi), np.inf))
+    hits = np.argwhere(resid <= tol_rad)
+    return hits, resid[tuple(hits.T)]
+
+
+def _triangle_candidates(
+    sa: np.ndarray, sb: np.ndarray, sc: np.ndarray, tol_rad: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The same as :func:`_triangle_candidates_dense`, same order, in ``Pa Pb log Pc``: for each
+    ``(ia, ib)`` the third difference must lie within ``tol_rad`` of ``+-pi - sa - sb``, a window
+    of the sorted ``sc`` (widened by 1e-9 rad, then the exact residual test of the reference)."""
+    ab = sa[:, None] + sb[None, :]  # (Pa, Pb): the reference's first sum, same rounding
+    order = np.argsort(sc, kind="stable")
+    sorted_sc = sc[order]
+    ia_all, ib_all, ic_all = [], [], []
+    for sign, same in ((1.0, (sa[:, None] > 0) & (sb[None, :] > 0)),
+                       (-1.0, (sa[:, None] < 0) & (sb[None, :] < 0))):  # fmt: skip
+        ia, ib = np.nonzero(same)
+        target = sign * np.pi - ab[ia, ib]
+        lo = np.searchsorted(sorted_sc, target - tol_rad - 1e-9, side="left")
+        hi = np.searchsorted(sorted_sc, target + tol_rad + 1e-9, side="right")
+        count = hi - lo
+        if not count.sum():
+            continue
+        pair = np.repeat(np.arange(len(ia)), count)
+        offset = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
+        ia_all.append(ia[pair])
+        ib_all.append(ib[pair])
+        ic_all.append(order[lo[pair] + offset])
+    if not ia_all:
+        return np.zeros((0, 3), dtype=np.int64), np.zeros(0)
+    ia, ib, ic = (np.concatenate(v) for v in (ia_all, ib_all, ic_all))
+    total = ab[ia, ib] + sc[ic]
+    pos = (sa[ia] > 0) & (sb[ib] > 0) & (sc[ic] > 0)
+    neg = (sa[ia] < 0) & (sb[ib] < 0) & (sc[ic] < 0)
+    resid = np.where(pos, np.abs(total - np.pi), np.where(neg, np.abs(total + np.pi), np.inf))
+    keep = resid <= tol_rad
+    ia, ib, ic, resid = ia[keep], ib[keep], ic[keep], resid[keep]
+    row_major = np.lexsort((ic, ib, ia))
+    return np.column_stack([ia, ib, ic])[row_major], resid[row_major]
 
 
 def three_intersections(
@@ -170,7 +225,7 @@ def bearing_solutions(
     triangle containing the observer (a maximal consistent set is a complete solution), and the
     solutions that place the most robots with the most 3-intersections are returned.
     """
-    tris = [t for t in find_triangles(bearings, tol_rad) if observer in t.labels]
+    tris = find_triangles(bearings, tol_rad, containing=observer)
     if not tris:
         return []
     for k, t in enumerate(tris):

@@ -35,7 +35,7 @@ from swarm_core.geometry import wrap_angle
 from swarm_core.records import Broadcast, RobotMeasurements
 
 from .links import PoseTrack, TeammateLink, absorb_broadcasts, next_due
-from .particles import MotionNoise, odometry_noise
+from .particles import MotionNoise, odometry_noise, weighted_moments
 from .pmultireg import check_localizer_args
 from .se2 import compose, inverse_compose, rotation
 
@@ -374,6 +374,23 @@ class FastSLAMLocalizer:
                 if abs(link.detections_stamp_s - self._own_stamp) <= self.config.max_skew_s:
                     self._reweight_teammate(r, link)
             self._normalise_and_resample()
+
+    def moments(self) -> dict[str, tuple[np.ndarray, np.ndarray] | None]:
+        """Each teammate's pose mean (3,) and covariance (3, 3): the moments of the mixture of
+        its EKFs over the particles that hold it (weighted mean of the EKF covariances plus the
+        spread of their means), or ``None`` if no particle holds it. The mean is
+        :meth:`estimates`'."""
+        w = np.exp(self.logw - self.logw.max())
+        out: dict[str, tuple[np.ndarray, np.ndarray] | None] = {}
+        for r, t in enumerate(self.teammates):  # a loop over teammates, vectorised over particles
+            ok = self.init_r[:, r]
+            if not ok.any():
+                out[t] = None
+                continue
+            wr = w[ok] / w[ok].sum()
+            mean, spread = weighted_moments(self.mu_r[ok, r], wr)
+            out[t] = (mean, spread + np.einsum("p,pij->ij", wr, self.cov_r[ok, r]))
+        return out
 
     def estimates(self) -> dict[str, np.ndarray | None]:
         """Each teammate's relative pose: the weighted mean over the particles that hold it."""

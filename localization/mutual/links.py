@@ -79,6 +79,8 @@ class TeammateLink:
     stamp_s: float = -math.inf
     detections: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     detections_stamp_s: float = math.nan
+    bearings: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    bearings_stamp_s: float = math.nan
 
     @property
     def odometry_pose(self) -> np.ndarray | None:
@@ -99,6 +101,9 @@ def absorb_broadcasts(links: dict[str, TeammateLink], broadcasts: list[Broadcast
         if np.isfinite(b.detections_stamp_s):
             link.detections = np.array(b.detections)
             link.detections_stamp_s = b.detections_stamp_s
+        if np.isfinite(b.bearings_stamp_s):
+            link.bearings = np.array(b.bearings_rad)
+            link.bearings_stamp_s = b.bearings_stamp_s
         if previous is not None:
             yield b.sender, inverse_compose(np.asarray(b.odometry_pose), previous)
 

@@ -31,7 +31,13 @@ from swarm_core.geometry import wrap_angle
 
 from .se2 import compose, inverse_compose
 
-__all__ = ["MotionNoise", "TeammateParticles", "gaussian_log_density", "odometry_noise"]
+__all__ = [
+    "MotionNoise",
+    "TeammateParticles",
+    "gaussian_log_density",
+    "odometry_noise",
+    "weighted_moments",
+]
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,6 +82,16 @@ def gaussian_log_density(residual: np.ndarray, covariance: np.ndarray) -> np.nda
         maha + logdet.reshape((-1,) + (1,) * (maha.ndim - 1)) + 3 * math.log(2 * math.pi)
     )
     return np.moveaxis(out, 0, -1)
+
+
+def weighted_moments(x: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean (3,) (circular in theta) and covariance (3, 3) (theta residuals wrapped about the
+    circular mean) of pose particles ``x`` (P, 3) with normalised weights ``w`` (P,)."""
+    th = math.atan2(float(w @ np.sin(x[:, 2])), float(w @ np.cos(x[:, 2])))
+    mean = np.array([float(w @ x[:, 0]), float(w @ x[:, 1]), th])
+    d = x - mean
+    d[:, 2] = (d[:, 2] + math.pi) % (2 * math.pi) - math.pi
+    return mean, (d * w[:, None]).T @ d
 
 
 class TeammateParticles:
@@ -219,12 +235,25 @@ class TeammateParticles:
         return -0.5 * (rb**2 + rt**2) - math.log(2 * math.pi * std[0] * std[1])
 
     def _sample_bearing(
-        self, xis: np.ndarray, std: np.ndarray, n: int, range_m, ranges: np.ndarray | None = None
+        self,
+        xis: np.ndarray,
+        std: np.ndarray,
+        n: int,
+        range_m,
+        ranges: np.ndarray | None = None,
+        scales: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Particles on the hypotheses' rays, range uniform in ``range_m`` (scale unknown), or
-        drawn from ``ranges`` (the current belief's, so that re-seeding does not bias them)."""
+        """Particles on the hypotheses' rays, range uniform in ``range_m`` (scale unknown),
+        drawn from ``ranges`` (the current belief's, so that re-seeding does not bias them), or,
+        with ``scales`` (H,), at each hypothesis's scale of eq. 18 with the relative spread
+        ``s_b`` of :meth:`scale_search`'s model (``scales`` take precedence)."""
         h = self.rng.integers(0, len(xis), n)
-        if ranges is None:
+        if scales is not None:
+            r = np.asarray(scales, dtype=np.float64)[h] * (
+                1.0 + std[0] * self.rng.standard_normal(n)
+            )
+            r = np.maximum(r, 1e-3)
+        elif ranges is None:
             r = self.rng.uniform(range_m[0], range_m[1], n)
         else:
             r = self.rng.choice(ranges, size=n)
@@ -233,13 +262,72 @@ class TeammateParticles:
         return np.column_stack([r * np.cos(b), r * np.sin(b), wrap_angle(th)])
 
     def log_fitness_bearing(self, xis: np.ndarray, std: np.ndarray) -> np.ndarray | None:
-        """Eq. 18 for bearing-orientation candidates (H,); ``None`` while uninformed."""
+        """Scale-free eq. 18 for bearing-orientation candidates (H,); ``None`` while
+        uninformed."""
         if not self.initialized:
             return None
         return logsumexp(self._bearing_ll(xis, std) + self.logw[:, None], axis=0)
 
-    def update_bearing(self, xis: np.ndarray, std: np.ndarray, range_m=(0.2, 2.5)) -> None:
-        """Eq. 19 with the normalised sum of Gaussians over the hypotheses ``xis`` (H, 2)."""
+    def scale_search(
+        self, xis: np.ndarray, std: np.ndarray, ranges_m: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Eq. 18 with each candidate's scale chosen to maximise it (the thesis's section 10.3).
+
+        A bearing-orientation ``xi_h = (beta_h, theta_h)`` placed at range ``r`` is the pose
+        ``x_hat(r) = (r cos beta_h, r sin beta_h, theta_h)``; its fit to the belief is
+        ``P_h(r) = sum_p w_p N(x_hat(r)_xy - z_p; (r s_b)^2 I) N(theta_p - theta_h; s_t)``: the
+        position error of a bearing measured with std ``s_b`` at range ``r`` is ``r s_b`` across
+        the ray, and, the scale being unknown, the same along it. Evaluated on the grid
+        ``ranges_m`` (G,), vectorised over particles x candidates x grid, with
+        ``|x_hat(r) - z_p|^2 = r^2 - 2 r (z_p . u_h) + |z_p|^2``.
+
+        Parameters
+        ----------
+        xis : ndarray, shape (H, 2)
+            Candidates ``(beta, theta)`` (rad), the observer's frame.
+        std : ndarray, shape (2,)
+            ``(s_b, s_t)`` (rad).
+        ranges_m : ndarray, shape (G,)
+            Candidate scales (m), > 0.
+
+        Returns
+        -------
+        (log_fit, scale) : ndarrays, shape (H,) each
+            ``max_r log P_h(r)`` and the maximising ``r`` (m); ``None`` while uninformed.
+        """
+        if not self.initialized:
+            return None
+        xis = np.asarray(xis, dtype=np.float64).reshape(-1, 2)
+        r = np.asarray(ranges_m, dtype=np.float64).reshape(-1)
+        u = np.column_stack([np.cos(xis[:, 0]), np.sin(xis[:, 0])])  # (H, 2)
+        along = self.x[:, :2] @ u.T  # (P, H): z_p . u_h
+        norm2 = (self.x[:, :2] ** 2).sum(axis=1)  # (P,)
+        d2 = r**2 - 2.0 * along[..., None] * r + norm2[:, None, None]  # (P, H, G)
+        var = (r * std[0]) ** 2  # (G,)
+        rt = wrap_angle(self.x[:, None, 2] - xis[None, :, 1]) / std[1]  # (P, H)
+        # The terms that do not depend on the particle leave the sum over particles (one pass
+        # over the (P, H, G) block fewer): a log-sum-exp over p of the rest.
+        e = (self.logw[:, None] - 0.5 * rt**2)[..., None] - (0.5 / var) * np.maximum(d2, 0.0)
+        top = e.max(axis=0)  # (H, G)
+        fit = (
+            top
+            + np.log(np.exp(e - top).sum(axis=0))
+            - np.log(2.0 * math.pi * var)
+            - math.log(math.sqrt(2.0 * math.pi) * std[1])
+        )  # (H, G)
+        best = fit.argmax(axis=1)
+        return fit[np.arange(len(xis)), best], r[best]
+
+    def update_bearing(
+        self,
+        xis: np.ndarray,
+        std: np.ndarray,
+        range_m=(0.2, 2.5),
+        scales: np.ndarray | None = None,
+    ) -> None:
+        """Eq. 19 with the normalised sum of Gaussians over the hypotheses ``xis`` (H, 2); the
+        re-seeded particles sit at ``scales`` (H,) (eq. 18's, :meth:`scale_search`) if given,
+        else at ranges drawn from the belief."""
         xis = np.asarray(xis, dtype=np.float64).reshape(-1, 2)
         std = np.asarray(std, dtype=np.float64)
         if len(xis) == 0:
@@ -258,11 +346,19 @@ class TeammateParticles:
         self._reweight_resample_reseed(
             logw - total,
             lambda k: self._sample_bearing(
-                xis, std, k, range_m, np.hypot(self.x[:, 0], self.x[:, 1])
+                xis, std, k, range_m, np.hypot(self.x[:, 0], self.x[:, 1]), scales
             ),
         )
 
     # ------------------------------------------------------------------ estimate
+    def moments(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """Weighted mean (3,) (circular in theta, as :meth:`mean`) and covariance (3, 3) of the
+        particles (theta residuals wrapped); ``None`` if uninformed."""
+        if not self.initialized:
+            return None
+        w = np.exp(self.logw - self.logw.max())
+        return weighted_moments(self.x, w / w.sum())
+
     def mean(self) -> np.ndarray | None:
         """Weighted mean (3,), circular for theta (the thesis's); ``None`` if uninformed."""
         if not self.initialized:

@@ -1,18 +1,23 @@
 """The P-MultiBeaReg system of one observer (seed ``001`` chapter 10, Fig. 33).
 
 As :class:`~localization.mutual.pmultireg.PMultiRegLocalizer`, with bearings instead of
-positions: every ``update_period_s`` the observer's bearings and those of the teammates whose scan
-is within ``max_skew_s`` go to :func:`~localization.mutual.beareg.bearing_solutions`; each
-teammate's distinct bearing-orientations ``xi = (bearing, theta)`` pass the fitness test (eq. 18,
-relative drop and an absolute gate, as in P-MultiReg) and update its particle filter (eq. 19).
-The filter is the same (motion from both robots' odometry); its first particles lie on the
-hypotheses' rays at ranges uniform in ``range_m``, and the range (scale) becomes observable as
-the robots move (the thesis's "circular sectors", Fig. 35).
+positions: every ``update_period_s`` the observer's bearings and those of the teammates whose set
+is within ``max_skew_s`` of its own go to :func:`~localization.mutual.beareg.bearing_solutions`;
+each teammate's distinct bearing-orientations ``xi = (bearing, theta)`` pass the fitness test
+(eq. 18 at the scale that maximises it, :meth:`TeammateParticles.scale_search`; relative drop
+and an absolute gate, as in P-MultiReg) and update its particle filter (eq. 19). The filter is
+the same (motion from both robots' odometry); its first particles lie on the hypotheses' rays at
+ranges uniform in ``range_m``, re-seeded ones at eq. 18's scale, and the range becomes
+observable as the robots move (the thesis's "circular sectors", Fig. 35).
 
-The bearings are those of the lidar detections, own and broadcast: the thesis's own experiment
-(section 10.5) made its bearing detector the same way. The rotation between the scans and the
-filters' instants is compensated (observer's and teammate's turns); the translation is not
-(the scale is unknown at registration).
+The bearings are the camera's (default): the observer's newest frame and each teammate's newest
+broadcast frame (``Broadcast.bearings_rad``), red blobs of teammates' strips and red decoys,
+with misses and false blobs. The camera sits at the body origin (no mount parallax); its frames
+(30 Hz) fall between odometry samples, so each set's rotation to the filters' instants is taken
+from the odometry track interpolated at the frame's stamp; the translation over that gap is not
+compensated (the scale is unknown at registration) and is part of the model's 2 deg time-gap
+term. ``features="lidar"`` uses the lidar detections' bearings instead (the thesis's
+experiment made its bearing detector that way; this project's first figures).
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from swarm_core.geometry import wrap_angle
+from swarm_core.records import RobotMeasurements
 
 from .beareg import bearing_solutions
 from .links import PoseTrack, TeammateLink
@@ -38,6 +44,32 @@ from .pmultireg import (
 __all__ = ["PMultiBeaRegConfig", "PMultiBeaRegLocalizer"]
 
 
+#: Per feature source, the noise the measurement model and the triangle test assume (deg) and
+#: the ranges a teammate can be seen at (m), from the sensors' measured statistics
+#: (docs/sensors.md, RESULTS "Sensor detection curves"). Each bearing's std is the sensor's
+#: bearing noise plus 2 deg for the sets' time gap (the radio's latency and the sensors'
+#: periods; the rotation is compensated, the translation cannot be: 1.5 cm at 1 m is 0.9 deg);
+#: the orientation combines two bearings (sqrt 2 x); the triangle tolerance is 2 x the bearing
+#: std (a sum of three differences of such bearings, at about 1.2 sigma).
+#: lidar: a detection's centre error 0.03 m is 1.7 deg at 1 m; robot detections to 2.5 m.
+#: camera: the red-blob bearing RMS 0.45 deg (all ranges; 0.96 deg at 0.5 m); a 5 cm strip
+#: is detected to 4.7 m.
+FEATURE_MODELS: dict[str, dict[str, object]] = {
+    "lidar": {
+        "triangle_tol_deg": 6.0,
+        "bearing_std_deg": 3.0,
+        "orientation_std_deg": 4.0,
+        "range_m": (0.2, 2.5),
+    },
+    "camera": {
+        "triangle_tol_deg": 5.0,
+        "bearing_std_deg": 2.5,
+        "orientation_std_deg": 3.5,
+        "range_m": (0.2, 4.7),
+    },
+}
+
+
 @dataclass(frozen=True, slots=True)
 class PMultiBeaRegConfig:
     """Parameters of the bearing-only system.
@@ -46,30 +78,51 @@ class PMultiBeaRegConfig:
     ----------
     n_particles : int
         Per teammate (the thesis ran 500).
-    triangle_tol_deg : float
-        Tolerance on the triangles' angle sum and on the 3-intersections: about 2.5 x the
-        bearing noise of a detection at 1 m (0.03 m / 1 m = 1.7 deg) combined over the sum.
-    bearing_std_deg, orientation_std_deg : float
-        Measurement model: one detection's bearing noise plus 2 deg for the scans' time gap; the
-        orientation combines two bearings.
-    range_m : tuple of 2 floats
-        Ranges of the first particles along a ray (the lidar's robot-detection range).
+    features : str
+        ``"camera"`` (default): the red-blob bearings of the observer's camera frames and of
+        the teammates' broadcast frames (``Broadcast.bearings_rad``). ``"lidar"``: the bearings
+        of the lidar detections, own and broadcast (how the thesis's experiment built its
+        bearing detector, and this project's first figures).
+    scale_search : bool
+        Eq. 18 with each hypothesis's scale chosen to maximise it (the thesis's, default), used
+        in the fitness test and to place re-seeded particles; ``False``: the scale-free test and
+        re-seeded ranges drawn from the belief (the first figures: ``features="lidar",
+        scale_search=False`` reproduces them).
+    triangle_tol_deg : float, optional
+        Tolerance on the triangles' angle sum and on the 3-intersections; ``None``: the
+        feature source's (:data:`FEATURE_MODELS`).
+    bearing_std_deg, orientation_std_deg : float, optional
+        Measurement model (eq. 19); ``None``: the feature source's.
+    range_m : tuple of 2 floats, optional
+        Ranges of the first particles along a ray and the scale search's span (the sensor's
+        robot-detection range); ``None``: the feature source's.
     """
 
     n_particles: int = 500
     update_period_s: float = 0.5
     max_skew_s: float = 0.3
     reseed_fraction: float = 0.05
-    triangle_tol_deg: float = 6.0
-    bearing_std_deg: float = 3.0
-    orientation_std_deg: float = 4.0
-    range_m: tuple[float, float] = (0.2, 2.5)
+    features: str = "camera"
+    scale_search: bool = True
+    triangle_tol_deg: float | None = None
+    bearing_std_deg: float | None = None
+    orientation_std_deg: float | None = None
+    range_m: tuple[float, float] | None = None
     gate_mahalanobis2: float = 25.0
     lost_after: int = 6
     log_fitness_drop: float = math.log(100.0)
     motion_noise: MotionNoise = field(default_factory=MotionNoise)
 
     def __post_init__(self) -> None:
+        if self.features not in FEATURE_MODELS:
+            raise ValueError(
+                f"features must be one of {sorted(FEATURE_MODELS)}, got {self.features!r}"
+            )
+        if not isinstance(self.scale_search, bool):
+            raise ValueError(f"scale_search must be a bool, got {self.scale_search!r}")
+        for name, value in FEATURE_MODELS[self.features].items():
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, value)
         if isinstance(self.n_particles, bool) or not isinstance(self.n_particles, int):
             raise ValueError(f"n_particles must be an integer >= 2, got {self.n_particles!r}")
         if self.n_particles < 2:
@@ -128,6 +181,11 @@ class PMultiBeaRegLocalizer(_ScheduledRegistrar):
         self._own_stamp = math.nan
         self._next_update_s = -math.inf  # the first registration anchors the schedule
         self._std = np.radians([cfg.bearing_std_deg, cfg.orientation_std_deg])
+        # Eq. 18's scale grid: geometric, half the model's relative spread s_b apart (its
+        # position std at range r is r s_b), over the sensor's range.
+        step = 1.0 + 0.5 * float(self._std[0])
+        n_grid = int(math.ceil(math.log(cfg.range_m[1] / cfg.range_m[0]) / math.log(step))) + 1
+        self._scales = cfg.range_m[0] * step ** np.arange(n_grid)
         self.last_hypotheses: dict[str, np.ndarray] = {}
         self.n_registrations = 0
 
@@ -135,12 +193,33 @@ class PMultiBeaRegLocalizer(_ScheduledRegistrar):
         """What the registration uses of the observer's latest detections (M, 2): bearings (M,)."""
         return np.arctan2(detections[:, 1], detections[:, 0])
 
+    def _absorb_own(self, measurements: RobotMeasurements) -> None:
+        """Keep the observer's latest bearing set and its stamp: its newest camera frame (the
+        camera sits at the body origin, so its bearings are body-frame ones), or its newest
+        scan's detections' bearings with ``features="lidar"``."""
+        if self.config.features == "camera":
+            if measurements.camera:
+                frame = measurements.camera[-1]
+                self._own = np.array(frame.bearings_rad)
+                self._own_stamp = frame.stamp_s
+        elif measurements.lidar:
+            self._own = self._own_set(measurements.lidar[-1].detections)
+            self._own_stamp = measurements.lidar[-1].stamp_s
+
+    def _mate_set(self, t: str) -> tuple[np.ndarray, float]:
+        """Teammate ``t``'s latest broadcast bearing set (M,) and its stamp (s)."""
+        link = self.links[t]
+        if self.config.features == "camera":
+            return link.bearings, link.bearings_stamp_s
+        det = link.detections
+        return np.arctan2(det[:, 1], det[:, 0]), link.detections_stamp_s
+
     def _turns(self, t: str) -> tuple[float, float]:
-        """The observer's and the teammate's heading change from their scans to the filters'
-        instants (rad)."""
+        """The observer's and the teammate's heading change from their sets' instants (frame or
+        scan, interpolated on the odometry tracks) to the filters' instants (rad)."""
         link = self.links[t]
         p_scan, p_now = self.own_track.at(self._own_stamp), self.own_track.latest
-        v_scan, v_last = link.track.at(link.detections_stamp_s), link.track.latest
+        v_scan, v_last = link.track.at(self._mate_set(t)[1]), link.track.latest
         own = 0.0 if p_scan is None else float(wrap_angle(p_now[2] - p_scan[2]))
         mate = 0.0 if v_scan is None else float(wrap_angle(v_last[2] - v_scan[2]))
         return own, mate
@@ -149,11 +228,10 @@ class PMultiBeaRegLocalizer(_ScheduledRegistrar):
         cfg = self.config
         labels, sets = {}, {0: self._own}
         for k, t in enumerate(self.teammates, start=1):
-            link = self.links[t]
-            if abs(link.detections_stamp_s - self._own_stamp) <= cfg.max_skew_s:
+            bearings, stamp = self._mate_set(t)
+            if abs(stamp - self._own_stamp) <= cfg.max_skew_s:
                 labels[k] = t
-                det = link.detections
-                sets[k] = np.arctan2(det[:, 1], det[:, 0])
+                sets[k] = bearings
         self.last_hypotheses = {}
         if not labels:
             return
@@ -174,7 +252,13 @@ class PMultiBeaRegLocalizer(_ScheduledRegistrar):
                     keep.append(h)
             xis = xis[keep]
             f = self.filters[t]
-            lf = f.log_fitness_bearing(xis, self._std)
+            scales = None
+            if cfg.scale_search:
+                searched = f.scale_search(xis, self._std, self._scales)
+                lf = None if searched is None else searched[0]
+                scales = None if searched is None else searched[1]
+            else:
+                lf = f.log_fitness_bearing(xis, self._std)
             if lf is not None:
                 ok = lf >= lf.max() - cfg.log_fitness_drop
                 if self._rejections[t] < cfg.lost_after:
@@ -186,10 +270,16 @@ class PMultiBeaRegLocalizer(_ScheduledRegistrar):
                     self._rejections[t] += 1
                     continue
                 xis = xis[ok]
+                scales = None if scales is None else scales[ok]
             self._rejections[t] = 0
-            f.update_bearing(xis, self._std, cfg.range_m)
+            f.update_bearing(xis, self._std, cfg.range_m, scales)
             self.last_hypotheses[t] = xis
 
     def estimates(self) -> dict[str, np.ndarray | None]:
         """Each teammate's relative pose ``[x_m, y_m, theta_rad]`` (particle mean) or ``None``."""
         return {t: f.mean() for t, f in self.filters.items()}
+
+    def moments(self) -> dict[str, tuple[np.ndarray, np.ndarray] | None]:
+        """Each teammate's pose mean (3,) and covariance (3, 3) over its particles, or ``None``
+        while uninformed (what :class:`~localization.mutual.localizer.MutualLocalizer` reports)."""
+        return {t: f.moments() for t, f in self.filters.items()}

@@ -145,14 +145,18 @@ class _ScheduledRegistrar:
                 f.predict_own(odo.delta)
         for sender, delta in absorb_broadcasts(self.links, broadcasts):
             self.filters[sender].predict_teammate(delta)
-        if measurements.lidar:
-            self._own = self._own_set(measurements.lidar[-1].detections)
-            self._own_stamp = measurements.lidar[-1].stamp_s
+        self._absorb_own(measurements)
         if time_s + 1e-9 >= self._next_update_s and np.isfinite(self._own_stamp):
             self._next_update_s = next_due(
                 self._next_update_s, time_s, self.config.update_period_s
             )
             self._register()
+
+    def _absorb_own(self, measurements: RobotMeasurements) -> None:
+        """Keep the observer's latest feature set and its stamp (here: the lidar scan's)."""
+        if measurements.lidar:
+            self._own = self._own_set(measurements.lidar[-1].detections)
+            self._own_stamp = measurements.lidar[-1].stamp_s
 
 
 class PMultiRegLocalizer(_ScheduledRegistrar):
@@ -257,3 +261,8 @@ class PMultiRegLocalizer(_ScheduledRegistrar):
     def estimates(self) -> dict[str, np.ndarray | None]:
         """Each teammate's relative pose ``[x_m, y_m, theta_rad]`` (particle mean) or ``None``."""
         return {t: f.mean() for t, f in self.filters.items()}
+
+    def moments(self) -> dict[str, tuple[np.ndarray, np.ndarray] | None]:
+        """Each teammate's pose mean (3,) and covariance (3, 3) over its particles, or ``None``
+        while uninformed (what :class:`~localization.mutual.localizer.MutualLocalizer` reports)."""
+        return {t: f.moments() for t, f in self.filters.items()}

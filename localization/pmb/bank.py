@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from ..bank import _Batch, all_finite, new_clock
+from ..bank import _Batch, all_finite, new_clock, run_packed
 from ..mixture import N_ROWS, ROW_W, GaussianMixture
 from . import kernels
 from .config import PMBConfig, pmb_config
@@ -207,13 +207,16 @@ class PMBBank:
             ``calls[r]``: robot ``r``'s time-ordered ``("predict", odometry (3,))``,
             ``("lidar", points (M, 2), null_bearings (B,) or None[, sensor_pose (3,) or None])``
             ``("camera", bearings (M,)[, sensor_pose])`` and ``("advance", stamp_s)`` (as
-            :meth:`PHDBank.apply`).
+            :meth:`PHDBank.apply`; a ``SwarmFeed.calls()`` sequence runs from its packed
+            arrays, as there).
 
         Raises
         ------
         ValueError
             A malformed call (``calls[r]`` and the argument named); nothing changes.
         """
+        if run_packed(self, calls):  # a SwarmFeed's calls: its arrays, no tuples
+            return
         calls = list(calls)
         if len(calls) != self.n_robots:
             raise ValueError(
@@ -233,6 +236,10 @@ class PMBBank:
         if not batch.robots:
             return
         self._reserve_pending(batch.max_points)
+        self._run_encoded(encoded, set(batch.robots))
+
+    def _run_encoded(self, encoded: tuple, robots: Any) -> None:
+        """Run validated ``encoded`` calls touching ``robots``; pending room reserved."""
         kernels.apply_calls(
             self._tracks,
             self._track_counts,
@@ -244,7 +251,7 @@ class PMBBank:
             encoded,
             *self._params,
         )
-        for r in set(batch.robots):
+        for r in robots:
             self._mixtures[r] = None
 
     def predict(self, robots: Any, odometry: Any) -> None:

@@ -43,9 +43,29 @@ controller :class:`agents.scripted.EncirclementPolicy` reads the same parameter)
   step a reading arrives). Each robot's controller runs seed ``004``'s particle filter
   (:class:`localization.baselines.particle.ParticleFilterTracker`) on them with its own
   odometry, and encloses the filter's estimate.
+  With ``intruder_sensing="range"`` (``"particle"`` only) a reading carries the range only,
+  with the same rate, loss and range noise: its ``cos b, sin b`` are both 0 (no unit vector
+  is, so ``(0, 0)`` with ``valid`` = 1 means "no bearing"). The filters then weight by range
+  alone, and with ``particle_start="trilateration"`` start from a trilateration fix of the
+  robot's own positions at >= 3 readings (:mod:`localization.baselines.particle`); before
+  that the robot random-walks, which is what gives it the baseline.
 - ``"estimate"``: one reading at reset (the intruder pointed out once), none after; the
   controller then follows the intruder in its own PHD estimate (the env's localizer output),
   the component nearest its odometry-propagated last position.
+
+What the features carry (``intruder_features``):
+
+- ``"reading"`` (default): the raw reading of the step, as above (``valid`` = 1 only when one
+  arrives). The scripted controller runs its own filter on them; a memoryless learned policy
+  sees a reading on 2 steps in 10 (``particle``) or once (``estimate``).
+- ``"filter"`` (``intruder_source="particle"`` only): the task runs seed ``004``'s particle
+  filter for every robot itself and the features are the filter's estimate every step (``valid``
+  = 1 from the first reading on; range-only with ``particle_start="trilateration"``, from the
+  fix on), so a learned policy observes what the scripted one encloses.
+  Each robot's filter is predicted with the arc of that robot's own clipped command ``[v, omega]``
+  over the control period (the task sees the commands, not the wheel odometry) and updated with
+  each reading. Commands are what the robot knows without ground truth; they miss wheel slip and
+  contact, which the reading updates correct.
 
 The task reports the enclosing error and the escape figures for whichever source drives the
 controller (``metrics()``: ``escape_fraction`` = share of the steps after the first enclosure
@@ -69,6 +89,9 @@ if TYPE_CHECKING:
 
 PATHS = ("circle", "static")
 INTRUDER_SOURCES = ("beacon", "particle", "estimate")
+INTRUDER_FEATURES = ("reading", "filter")
+INTRUDER_SENSING = ("range-bearing", "range")
+PARTICLE_STARTS = ("uniform", "trilateration")
 _MAX_RANGE_M = 20.0
 
 
@@ -97,6 +120,18 @@ class EncirclementTask(Task):
     reading_rate_hz, reading_dropout : float
         ``"particle"`` only: readings per second per robot (default 2 Hz) and the probability
         of losing each (default 0.2). Seed ``004`` gives neither: stated assumptions.
+    intruder_features : {"reading", "filter"}
+        What the features carry (module docstring): the raw reading (default) or, with
+        ``intruder_source="particle"``, the estimate of a particle filter the task runs per robot.
+    n_particles : int
+        ``"filter"`` only: particles per robot's filter (default 300, as the scripted controller).
+    intruder_sensing : {"range-bearing", "range"}
+        ``"particle"`` only for ``"range"``: what a reading carries (module docstring). Default
+        ``"range-bearing"``.
+    particle_start : {"uniform", "trilateration"}
+        How the particle filters (the task's under ``"filter"``, the scripted controller's)
+        start a track (:mod:`localization.baselines.particle`): uniform cloud (default) or the
+        triangulation / trilateration fix.
     """
 
     name = "encirclement"
@@ -115,6 +150,10 @@ class EncirclementTask(Task):
         intruder_source: str = "beacon",
         reading_rate_hz: float = 2.0,
         reading_dropout: float = 0.2,
+        intruder_features: str = "reading",
+        n_particles: int = 300,
+        intruder_sensing: str = "range-bearing",
+        particle_start: str = "uniform",
         **params: Any,
     ) -> None:
         super().__init__(**params)
@@ -162,6 +201,36 @@ class EncirclementTask(Task):
             self.name, "reading_rate_hz", reading_rate_hz, 0.0, 100.0, low_open=True
         )
         self.reading_dropout = check_param(self.name, "reading_dropout", reading_dropout, 0.0, 1.0)
+        self.intruder_features = check_choice(
+            self.name, "intruder_features", intruder_features, INTRUDER_FEATURES
+        )
+        if intruder_features == "filter" and intruder_source != "particle":
+            raise ValueError(
+                f"task {self.name!r}: intruder_features='filter' needs "
+                f"intruder_source='particle', got {intruder_source!r}"
+            )
+        if isinstance(n_particles, bool) or not isinstance(n_particles, (int, np.integer)):
+            raise ValueError(
+                f"task {self.name!r}: n_particles must be an int, got {n_particles!r}"
+            )
+        if not 10 <= n_particles <= 100_000:
+            raise ValueError(
+                f"task {self.name!r}: n_particles must be in [10, 100000], got {n_particles!r}"
+            )
+        self.n_particles = int(n_particles)
+        self.intruder_sensing = check_choice(
+            self.name, "intruder_sensing", intruder_sensing, INTRUDER_SENSING
+        )
+        if intruder_sensing == "range" and intruder_source != "particle":
+            raise ValueError(
+                f"task {self.name!r}: intruder_sensing='range' needs intruder_source='particle' "
+                f"(the other sources use the reading's bearing), got {intruder_source!r}"
+            )
+        self.particle_start = check_choice(
+            self.name, "particle_start", particle_start, PARTICLE_STARTS
+        )
+        self._filters: list[Any] = []  # "filter": one ParticleFilterTracker (or None) per agent
+        self._dt_s = 0.1
         self._time_s = 0.0
         self._next_reading_s = np.zeros(0)
         self._cued = False
@@ -197,7 +266,9 @@ class EncirclementTask(Task):
             return out
         return self._features.copy()
 
-    def _update_features(self, truth: GroundTruth | None) -> None:
+    def _update_features(
+        self, truth: GroundTruth | None, commands: np.ndarray | None = None
+    ) -> None:
         if truth is None:
             # No ground truth, no beacon: drop the last reading so that features() reports
             # it invalid instead of repeating a stale intruder position.
@@ -217,9 +288,54 @@ class EncirclementTask(Task):
             )
             out[:, 1] = 1.0
             out[:, 2], out[:, 3] = np.cos(bearing), np.sin(bearing)
+            if self.intruder_sensing == "range":
+                out[:, 2:4] = 0.0  # range only: (cos b, sin b) = (0, 0) is "no bearing"
             out[:, 4] = np.clip(rho, 0.0, _MAX_RANGE_M)
             out[~arrives, 1:] = 0.0  # no reading this step: flagged invalid, values zeroed
+            if self.intruder_features == "filter":
+                self._filter_features(out, commands)
         self._features = out
+
+    def _filter_features(self, out: np.ndarray, commands: np.ndarray | None) -> None:
+        """Replace ``out``'s readings (N, 5) by each robot's particle-filter estimate, in place:
+        predict with the robot's command arc (not on the reset step, ``commands is None``),
+        update with the reading if one arrived, report the estimate once the filter started."""
+        from localization.baselines.particle import ParticleFilterTracker
+
+        n = len(out)
+        if len(self._filters) != n:
+            self._filters = [None] * n
+        for i in range(n):  # a loop over the robots; each filter is vectorised over particles
+            pf = self._filters[i]
+            if pf is not None and commands is not None:
+                pf.predict(command_arc(commands[i], self._dt_s))
+            if out[i, 1] >= 0.5:
+                if pf is None:
+                    pf = self._filters[i] = ParticleFilterTracker(
+                        n_particles=self.n_particles,
+                        range_std_m=max(self.beacon_range_std_m, 1e-3),
+                        bearing_std_rad=max(self.beacon_bearing_std_rad, 1e-3),
+                        period_s=self._dt_s,
+                        seed=int(self._rng.integers(2**31)),
+                        start=self.particle_start,
+                    )
+                bearing = (
+                    math.atan2(out[i, 3], out[i, 2])
+                    if self.intruder_sensing == "range-bearing"
+                    else math.nan
+                )
+                pf.update({0: np.array([out[i, 4], bearing])})
+            if pf is None or 0 not in pf.ids:  # no filter, or range-only and not fixed yet
+                out[i, 1:] = 0.0
+                continue
+            q = pf.estimate()[0]
+            b = math.atan2(q[1], q[0])
+            out[i, 1:] = (1.0, math.cos(b), math.sin(b), min(math.hypot(*q), _MAX_RANGE_M))
+
+    def intruder_estimates(self) -> list[np.ndarray | None]:
+        """``"filter"`` only: each robot's filter estimate of the intruder (2,) in its body frame
+        (m), or ``None`` before its first reading; empty otherwise."""
+        return [None if pf is None or not pf.ids else pf.estimate()[0] for pf in self._filters]
 
     def _arrivals(self, n: int) -> np.ndarray:
         """Which agents get an intruder reading this step (N,) bool, per ``intruder_source``.
@@ -260,10 +376,12 @@ class EncirclementTask(Task):
         self._time_s = 0.0
         self._next_reading_s = np.zeros(0)
         self._cued = False
+        self._filters = []
         self._update_features(truth)
 
     def extra_commands(self, truth: GroundTruth | None, dt_s: float) -> np.ndarray | None:
         self._time_s += dt_s  # the env calls this once per step: the readings' clock
+        self._dt_s = dt_s
         if truth is None or self.path == "static" or not len(truth.extra_xy):
             return np.zeros((self.n_extra_robots, 2))
         q = truth.extra_xy[0]
@@ -297,7 +415,7 @@ class EncirclementTask(Task):
         radius_err, gap = self.errors(xy, truth.extra_xy[0])
         self._errors.append(float(radius_err.mean()))
         self._gaps.append(gap)
-        self._update_features(truth)
+        self._update_features(truth, actions)
         spread = max(0.0, gap - 2 * math.pi / len(xy)) / math.pi
         return -(radius_err + self.gap_weight * spread)
 
@@ -320,6 +438,15 @@ class EncirclementTask(Task):
             "escape_fraction": float(np.mean(~after)) if len(after) else 1.0,
             "escapes_per_min": escapes / minutes if minutes > 0 else 0.0,
         }
+
+
+def command_arc(command: np.ndarray, dt_s: float) -> np.ndarray:
+    """Own motion ``(dx_m, dy_m, dpsi_rad)`` over ``dt_s`` of a unicycle holding ``[v, omega]``
+    (m/s, rad/s): an arc, the straight line as ``omega -> 0``."""
+    v, w = float(command[0]), float(command[1])
+    if abs(w) < 1e-9:
+        return np.array([v * dt_s, 0.0, 0.0])
+    return np.array([v * math.sin(w * dt_s) / w, v * (1.0 - math.cos(w * dt_s)) / w, w * dt_s])
 
 
 def intruder_in_agent_frames(poses: np.ndarray, q: np.ndarray) -> np.ndarray:

@@ -86,6 +86,36 @@ def body_increment(velocity: np.ndarray, yaw_rate: float, dt: float) -> np.ndarr
     return np.array([s * vx - c * vy, c * vx + s * vy, a])
 
 
+def fly(
+    pose: np.ndarray,
+    altitude_m: float,
+    command: np.ndarray,
+    dt: float,
+    config: UAVConfig,
+    fence: np.ndarray,
+) -> tuple[np.ndarray, float, np.ndarray]:
+    """One control period of the kinematic UAV: ``(new pose [x, y, yaw], new altitude, true
+    increment [dx, dy, dpsi])`` (increment in the body frame at the start) under ``command``
+    ``[vx, vy, yaw_rate, climb]`` (checked and limited). The geofence ``|x|, |y| <= fence``
+    (m) and the altitude range saturate the motion. Shared by the env and the loopback UAV."""
+    x, y, yaw = pose
+    v = command[:2]
+    if config.velocity_frame == "world":
+        c, s = math.cos(yaw), math.sin(yaw)
+        v = np.array([c * v[0] + s * v[1], -s * v[0] + c * v[1]])
+    delta = body_increment(v, command[2], dt)
+    c, s = math.cos(yaw), math.sin(yaw)
+    new_xy = np.array([x + c * delta[0] - s * delta[1], y + s * delta[0] + c * delta[1]])
+    new_xy = np.clip(new_xy, -fence, fence)
+    new_yaw = float(wrap_angle(yaw + delta[2]))
+    moved = new_xy - pose[:2]
+    true = np.array([c * moved[0] + s * moved[1], -s * moved[0] + c * moved[1], delta[2]])
+    new_altitude = float(
+        np.clip(altitude_m + command[3] * dt, config.min_altitude_m, config.max_altitude_m)
+    )
+    return np.array([new_xy[0], new_xy[1], new_yaw]), new_altitude, true
+
+
 def relative_increment(old: np.ndarray, new: np.ndarray) -> np.ndarray:
     """``old^-1 (+) new``: the increment from odometry pose ``old`` to ``new``, in ``old``'s
     frame."""
@@ -113,6 +143,18 @@ class SupervisedSwarmEnv(ParallelEnv):
         belongs to. The reported estimate (``env.filter``) is the settled filter re-run over
         the unsettled steps with the broadcasts heard so far. ``0``: no lag (increments are
         applied when they arrive).
+    config : SwarmConfig, optional
+        A full config instead of the preset (``overrides`` still apply).
+    world : World, optional
+        Real robots and a real UAV instead of the simulator: a
+        :class:`~hardware_bridge.world.RealWorld` with ``bridge.uav_id`` set, or a
+        :class:`~hardware_bridge.bag.ReplayWorld` of a bag recorded with one (both expose
+        ``uav_id``, ``last_uav`` and ``set_uav_command``). Built with the UGV config (``comms``
+        off: this env owns the radio). The UAV is then not simulated: its action is published
+        as a velocity command, its increment comes from its pose messages and the camera frames
+        from its detections messages (the newest per step;
+        :class:`~hardware_bridge.assembly.UAVAssembler`). Without the UAV's true pose the
+        UAV's reward is 0 and ``infos["uav_0"]["truth"]`` is ``None``.
     **overrides
         ``SwarmConfig`` fields (``n_robots=5``, ``comms={"loss_probability": 0.2}``, ...).
         ``comms.enabled`` must stay ``True``: without the radio the UAV cannot identify anyone.
@@ -129,9 +171,11 @@ class SupervisedSwarmEnv(ParallelEnv):
         task_params: dict[str, Any] | None = None,
         id_phd: IDPHDConfig | None = None,
         filter_lag_s: float | None = None,
+        config: Any = None,
+        world: Any = None,
         **overrides: Any,
     ) -> None:
-        config = make_config(preset, None, **overrides)
+        config = make_config(preset, config, **overrides)
         if not config.comms.enabled:
             raise ValueError(
                 "comms.enabled must be True for a supervised swarm (the UAV needs the UGVs' "
@@ -148,7 +192,20 @@ class SupervisedSwarmEnv(ParallelEnv):
         ground_config = dataclasses.replace(
             config, comms=dataclasses.replace(config.comms, enabled=False)
         )
-        self.ground = SwarmEnv(config=ground_config, task=task, task_params=task_params)
+        self.world = world
+        self._uav_assembler = None
+        if world is not None:
+            for name in ("uav_id", "last_uav", "set_uav_command"):
+                if not hasattr(world, name):
+                    raise ValueError(f"world must provide {name!r} (a RealWorld / ReplayWorld)")
+            if world.uav_id is None:
+                raise ValueError("world has no UAV: set the bridge config's uav_id")
+            from hardware_bridge.assembly import UAVAssembler  # only for real / replayed UAVs
+
+            self._uav_assembler = UAVAssembler(uav.camera)
+        self.ground = SwarmEnv(
+            config=ground_config, task=task, task_params=task_params, world=world
+        )
         self.ugv_agents = list(self.ground.possible_agents)
         self.possible_agents = self.ugv_agents + [UAV_ID]
         self.agents: list[str] = []
@@ -262,7 +319,12 @@ class SupervisedSwarmEnv(ParallelEnv):
         self._last_uav_delta = np.zeros(3)
         self._next_frame_s = 0.0
         self.last_frame = None
-        frame = self._camera_tick(self.ground.time_s)
+        if self.world is not None:
+            self._uav_assembler.reset()
+            self.uav_pose = np.zeros(3)
+            frame = self._external_uav()[1]
+        else:
+            frame = self._camera_tick(self.ground.time_s)
         if frame is not None:  # no odometry before the first frame: nothing to wait for
             self.settled_filter.update_camera(
                 frame.detections, frame.altitude_m, frame.half_extents_m
@@ -286,25 +348,42 @@ class SupervisedSwarmEnv(ParallelEnv):
             raise ValueError(f"missing action for agent(s) ['{UAV_ID}']")
         command = self._check_uav_action(actions.get(UAV_ID))  # before anything changes
         ugv_actions = {a: v for a, v in actions.items() if a != UAV_ID}
+        if self.world is not None:
+            self.ground._validate_actions(ugv_actions)  # nothing goes out on bad input
+            self.world.set_uav_command(command)  # published with the UGVs' commands
         obs, rewards, terms, truncs, infos = self.ground.step(ugv_actions)  # validates first
         dt = self.config.control_period_s
-        true_delta = self._fly(command, dt)
-        cfg = self.uav_config
-        noise = self._streams[1].standard_normal(3) * np.array(
-            [cfg.odometry_std_mps * dt, cfg.odometry_std_mps * dt, cfg.odometry_std_radps * dt]
-        )
-        own_delta = true_delta + noise
+        if self.world is not None:
+            own_delta, frame = self._external_uav()
+        else:
+            true_delta = self._fly(command, dt)
+            cfg = self.uav_config
+            noise = self._streams[1].standard_normal(3) * np.array(
+                [cfg.odometry_std_mps * dt, cfg.odometry_std_mps * dt, cfg.odometry_std_radps * dt]
+            )
+            own_delta = true_delta + noise
         self._last_uav_delta = own_delta
         step = self.ground.last_world_step
-        ugv_xy = step.truth.poses[: len(self.ugv_agents), :2]
+        # The radio's range needs positions: the truth where there is one (sim, mocap), else
+        # every UGV in range (a lab radio's range exceeds the arena).
+        ugv_xy = (
+            step.truth.poses[: len(self.ugv_agents), :2]
+            if step.truth is not None
+            else np.zeros((len(self.ugv_agents), 2))
+        )
         delivered = self.radio.step(
             step.time_s,
             step.measurements,
             ugv_xy,
-            listeners=((UAV_ID,), self.uav_pose[None, :2]),
+            listeners=(
+                (UAV_ID,),
+                self.uav_pose[None, :2] if step.truth is not None else ugv_xy[:1],
+            ),
         )
         self._hear(delivered[UAV_ID])
-        self._pending.append((step.time_s, own_delta, self._camera_tick(step.time_s)))
+        if self.world is None:
+            frame = self._camera_tick(step.time_s)
+        self._pending.append((step.time_s, own_delta, frame))
         self._run_filter()
         for agent in self.ugv_agents:
             if agent in infos:
@@ -319,7 +398,8 @@ class SupervisedSwarmEnv(ParallelEnv):
         return obs, rewards, terms, truncs, infos
 
     def state(self) -> np.ndarray:
-        """The UGV env's state, then ``[x_m, y_m, cos yaw, sin yaw, altitude_m, 0]`` of the UAV."""
+        """The UGV env's state, then ``[x_m, y_m, cos yaw, sin yaw, altitude_m, 0]`` of the UAV
+        (over a bridge: its own pose estimate, in its odometry frame)."""
         x, y, yaw = self.uav_pose
         tail = np.array([x, y, math.cos(yaw), math.sin(yaw), self.altitude_m, 0.0])
         return np.concatenate([self.ground.state(), tail.astype(np.float32)])
@@ -331,6 +411,25 @@ class SupervisedSwarmEnv(ParallelEnv):
         self.ground.close()
 
     # ------------------------------------------------------------------ the UAV
+    def _external_uav(self) -> tuple[np.ndarray, AerialFrame | None]:
+        """A real (or replayed) UAV's step: its increment over the step's pose messages
+        (composed, body frame at the start; zero without a new pose) and an ``AerialFrame`` of
+        its newest detections message (``None`` without one, or before any altitude)."""
+        msgs = self.world.last_uav
+        delta = np.zeros(3)
+        for pose in msgs.poses:
+            inc = self._uav_assembler.pose(pose)
+            if inc is not None:
+                delta = integrate_body_delta(delta, inc)
+            self.uav_pose = np.array([pose.x_m, pose.y_m, pose.yaw_rad])  # its odometry frame
+        if self._uav_assembler.altitude_m is not None:
+            self.altitude_m = self._uav_assembler.altitude_m
+        frame = None
+        if msgs.detections and self._uav_assembler.altitude_m is not None:
+            frame = self._uav_assembler.frame(msgs.detections[-1])
+            self.last_frame = frame
+        return delta, frame
+
     def ugv_level_poses(self) -> np.ndarray:
         """Ground truth ``(n, 3)``: each UGV's ``[x, y, psi]`` in the UAV's level frame now."""
         poses = self.ground.last_world_step.truth.poses[: len(self.ugv_agents)]
@@ -368,24 +467,9 @@ class SupervisedSwarmEnv(ParallelEnv):
         return out
 
     def _fly(self, command: np.ndarray, dt: float) -> np.ndarray:
-        """Move the UAV one period; return its true increment ``[dx, dy, dpsi]`` (body frame at
-        the start). The geofence and the altitude range saturate the motion."""
-        x, y, yaw = self.uav_pose
-        v = command[:2]
-        if self.uav_config.velocity_frame == "world":
-            c, s = math.cos(yaw), math.sin(yaw)
-            v = np.array([c * v[0] + s * v[1], -s * v[0] + c * v[1]])
-        delta = body_increment(v, command[2], dt)
-        c, s = math.cos(yaw), math.sin(yaw)
-        new_xy = np.array([x + c * delta[0] - s * delta[1], y + s * delta[0] + c * delta[1]])
-        new_xy = np.clip(new_xy, -self._fence, self._fence)
-        new_yaw = float(wrap_angle(yaw + delta[2]))
-        moved = new_xy - self.uav_pose[:2]
-        true = np.array([c * moved[0] + s * moved[1], -s * moved[0] + c * moved[1], delta[2]])
-        self.uav_pose = np.array([new_xy[0], new_xy[1], new_yaw])
-        cfg = self.uav_config
-        self.altitude_m = float(
-            np.clip(self.altitude_m + command[3] * dt, cfg.min_altitude_m, cfg.max_altitude_m)
+        """Move the UAV one period (:func:`fly`); return its true increment."""
+        self.uav_pose, self.altitude_m, true = fly(
+            self.uav_pose, self.altitude_m, command, dt, self.uav_config, self._fence
         )
         return true
 
@@ -490,7 +574,10 @@ class SupervisedSwarmEnv(ParallelEnv):
         return np.concatenate([rows.ravel(), tail]).astype(np.float32)
 
     def _uav_reward(self) -> float:
-        """Supervision: the fraction of the UGVs inside the camera's footprint."""
+        """Supervision: the fraction of the UGVs inside the camera's footprint (0 over a bridge:
+        the UAV's true pose is unknown)."""
+        if self.world is not None:
+            return 0.0
         half = self.uav_config.camera.half_extents_m(self.altitude_m)
         return float(in_footprint(self.ugv_level_poses()[:, :2], half).mean())
 
@@ -501,7 +588,10 @@ class SupervisedSwarmEnv(ParallelEnv):
             "frame": self.last_frame,
             "odometry_delta": self._last_uav_delta.copy(),
             "estimate": self.filter.estimate(),
-            "truth": {
+            "stale": () if self.world is None else self.world.last_uav.stale,
+            "truth": None
+            if self.world is not None
+            else {
                 "uav_pose": self.uav_pose.copy(),
                 "altitude_m": self.altitude_m,
                 "ugv_level_poses": self.ugv_level_poses(),

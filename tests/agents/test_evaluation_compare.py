@@ -76,7 +76,7 @@ def test_evaluate_compare_end_to_end(tmp_path):
             "--policy",
             "scripted:formation",
             "--compare",
-            "random",
+            "random,scripted:wander",
             "--duration",
             "3",
             "--localizer",
@@ -87,7 +87,10 @@ def test_evaluate_compare_end_to_end(tmp_path):
     )
     assert code == 0
     rows = json.loads((out / "comparison.json").read_text())
-    assert [r["policy"] for r in rows] == ["scripted:formation", "random"]
+    # Several --compare policies, one row each, in the order given.
+    assert [r["policy"] for r in rows] == ["scripted:formation", "random", "scripted:wander"]
+    assert (out / "compare" / "metrics.json").is_file()
+    assert (out / "compare2" / "metrics.json").is_file()
     assert all("formation_error_m" in r and "phd-lc GOSPA" in r for r in rows)
     assert all("phd-lc ugv_0 teammates > 25 %" in r for r in rows)
     # The seed's scoring, per tracked teammate of ugv_0 and over all observers, and the

@@ -9,7 +9,7 @@ import numpy as np
 from hardware_bridge.bag import ReplayWorld
 from hardware_bridge.comms import TeammateRelay
 from hardware_bridge.messages import Odom
-from swarm_core.records import LidarRecord, RobotMeasurements
+from swarm_core.records import CameraRecord, LidarRecord, RobotMeasurements
 from swarm_phd.export_bag import export_sim_episode
 
 
@@ -26,22 +26,25 @@ def test_relay_sends_each_robots_newest_odometry_and_detections_to_the_others():
         "b": {"odometry": []},  # nothing arrived: b sends nothing this step
         "c": {"odometry": [Odom(1_050_000_000, -1.0, 2.0, -0.5, 0.0, 0.0)]},
     }  # fmt: skip
-    measurements = {"a": RobotMeasurements([], [_lidar(1.08, [[1.0, 0.0]])], [])}
+    frames = [CameraRecord(1.03, np.array([0.5])), CameraRecord(1.07, np.array([0.2, -1.0]))]
+    measurements = {"a": RobotMeasurements([], [_lidar(1.08, [[1.0, 0.0]])], frames)}
     out = relay.step(parsed, measurements)
     assert [m.sender for m in out["b"]] == ["a", "c"]
     assert [m.sender for m in out["a"]] == ["c"] and [m.sender for m in out["c"]] == ["a"]
     a = out["b"][0]
     assert a.stamp_s == 1.1 and np.allclose(a.odometry_pose, [0.4, 0.5, 0.6])
     assert np.allclose(a.detections, [[1.0, 0.0]]) and a.detections_stamp_s == 1.08
+    # The newest camera frame's bearings (seed 001's P-MultiBeaReg features).
+    assert np.allclose(a.bearings_rad, [0.2, -1.0]) and a.bearings_stamp_s == 1.07
     assert out["b"][1].detections.shape == (0, 2)  # c has not scanned yet
-    # Detections persist until the next scan; a reset forgets them.
+    assert out["b"][1].bearings_rad.size == 0 and np.isnan(out["b"][1].bearings_stamp_s)
+    # Detections and bearings persist until the next scan / frame; a reset forgets them.
     again = relay.step({"a": {"odometry": parsed["a"]["odometry"][:1]}}, {})
     assert np.allclose(again["c"][0].detections, [[1.0, 0.0]])
+    assert np.allclose(again["c"][0].bearings_rad, [0.2, -1.0])
     relay.reset()
-    assert (
-        relay.step({"a": {"odometry": parsed["a"]["odometry"][:1]}}, {})["c"][0].detections.size
-        == 0
-    )
+    after_reset = relay.step({"a": {"odometry": parsed["a"]["odometry"][:1]}}, {})["c"][0]
+    assert after_reset.detections.size == 0 and after_reset.bearings_rad.size == 0
 
 
 def test_replay_fills_comms_from_the_recorded_odometry(tmp_path):

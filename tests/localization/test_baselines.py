@@ -191,3 +191,147 @@ def test_ukf_covariances_stay_symmetric_pd(sequence):
             assert (np.linalg.eigvalsh(p) > 0).all()
         for x in f.estimate().values():
             assert np.isfinite(x).all() and abs(x[2]) <= math.pi
+
+
+# ------------------------------------------- seed 004: range-only readings and the filter's start
+def test_trilaterate_recovers_the_point_from_exact_ranges():
+    from localization.baselines.particle import trilaterate
+
+    # Hand-derived: stations (0,0), (2,0), (0,2), all sqrt(2) from (1,1).
+    st3 = np.array([[0.0, 0.0], [2.0, 0.0], [0.0, 2.0]])
+    np.testing.assert_allclose(trilaterate(st3, np.full(3, math.sqrt(2.0))), [1.0, 1.0])
+    rng = np.random.default_rng(0)
+    stations = rng.uniform(-1.0, 1.0, (6, 2))
+    q = np.array([1.7, -0.9])
+    np.testing.assert_allclose(trilaterate(stations, np.hypot(*(q - stations).T)), q, atol=1e-10)
+    with pytest.raises(ValueError, match="stations"):
+        trilaterate(stations[:2], np.ones(2))
+
+
+def test_trilaterate_noisy_ranges_within_the_expected_error():
+    """Range noise sigma. Linear fix: subtracting circle 0 makes the right-hand side's noise
+    ``2 r_0 dr_0 - 2 r_i dr_i``, so its covariance is ``A^+ S A^+T`` with
+    ``S = 4 sigma^2 (r_0^2 11^T + diag(r_i^2))``, above the Cramer-Rao bound
+    ``sigma^2 (H^T H)^-1`` (H = unit vectors stations -> point) that the Gauss-Newton
+    refinement reaches."""
+    from localization.baselines.particle import refine_fix, trilaterate
+
+    stations = np.array([[0.0, 0.0], [0.4, 0.0], [0.0, 0.4], [0.3, 0.3]])
+    q = np.array([1.2, 0.8])
+    sigma = 0.05
+    d = q - stations
+    h = d / np.hypot(*d.T)[:, None]
+    bound = math.sqrt(sigma**2 * np.trace(np.linalg.inv(h.T @ h)))
+    rng = np.random.default_rng(1)
+    ranges = np.hypot(*d.T) + rng.normal(0.0, sigma, (2000, 4))
+    r = np.hypot(*d.T)
+    a = 2.0 * (stations[1:] - stations[0])
+    s_b = 4 * sigma**2 * (r[0] ** 2 + np.diag(r[1:] ** 2))
+    a_pinv = np.linalg.pinv(a)
+    linear_rms = math.sqrt(np.trace(a_pinv @ s_b @ a_pinv.T))
+    assert linear_rms > 1.2 * bound
+    fixes = np.array([trilaterate(stations, z) for z in ranges])
+    rms = math.sqrt(np.mean(np.sum((fixes - q) ** 2, axis=1)))
+    assert rms == pytest.approx(linear_rms, rel=0.1)
+    refined = np.array([refine_fix(stations, z, f) for z, f in zip(ranges, fixes, strict=True)])
+    rms_refined = math.sqrt(np.mean(np.sum((refined - q) ** 2, axis=1)))
+    assert rms_refined == pytest.approx(bound, rel=0.1)
+
+
+def test_collinear_stations_refuse_to_start():
+    """Range-only readings from a robot driving straight: the stations are collinear (spread
+    0), the mirror point fits as well, so no track starts however many readings arrive."""
+    from localization.baselines.particle import station_spread
+
+    assert station_spread(np.array([[0.0, 0.0], [1.0, 0.0], [2.5, 0.0]])) < 1e-12
+    pf = ParticleFilterTracker(start="trilateration")
+    for _ in range(30):
+        pf.update({0: (1.0, math.nan)})
+        pf.predict(np.array([0.1, 0.0, 0.0]))
+    assert pf.ids == ()
+    stations, ranges = pf.pending[0]
+    assert stations.shape == (20, 2) and ranges.shape == (20,)  # the last max_stations kept
+    np.testing.assert_allclose(stations[:, 1], 0.0)
+
+
+def test_pending_stations_move_with_own_odometry():
+    pf = ParticleFilterTracker(start="trilateration")
+    pf.update({0: np.array([1.0])})  # a 1-vector is range-only too
+    pf.predict(np.array([0.5, 0.0, math.pi / 2]))
+    # R(pi/2)^T ((0, 0) - (0.5, 0)) = (0, 0.5)
+    np.testing.assert_allclose(pf.pending[0][0], [[0.0, 0.5]], atol=1e-12)
+
+
+def _range_only_run(start: str, seed: int = 1, n: int = 40) -> list[float | None]:
+    """Observer driving a 0.33 m arc per reading, target fixed at (1.5, 0.8): the filter's
+    error (m) after each range-only reading (sigma 0.05 m), ``None`` while it has no track."""
+    pf = ParticleFilterTracker(start=start, n_particles=300, seed=seed)
+    rng = np.random.default_rng(seed)
+    target, pose = np.array([1.5, 0.8]), np.zeros(3)
+    inc = np.array([0.1 * math.cos(0.15), 0.1 * math.sin(0.15), 0.3])
+    out = []
+    for _ in range(n):
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        d = target - pose[:2]
+        rel = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1]])
+        pf.update({0: (np.hypot(*rel) + rng.normal(0.0, 0.05), math.nan)})
+        est = pf.estimate().get(0)
+        out.append(None if est is None else float(np.hypot(*(est - rel))))
+        pose = pose + np.array([c * inc[0] - s * inc[1], s * inc[0] + c * inc[1], inc[2]])
+        pf.predict(inc)
+    return out
+
+
+def test_range_only_trilateration_start_fixes_then_tracks():
+    errors = _range_only_run("trilateration")
+    first = next(k for k, e in enumerate(errors) if e is not None)
+    assert 2 <= first < 20  # >= 3 stations, then as soon as they are spread enough
+    assert errors[first] < 0.3  # the fix itself
+    assert max(errors[first:]) < 0.35 and np.mean(errors[-10:]) < 0.2
+    # the uniform start estimates from the first reading on, far off at first (a ring)
+    uniform = _range_only_run("uniform")
+    assert uniform[0] is not None and uniform[0] > 0.5
+
+
+def test_range_only_likelihood_drops_the_bearing():
+    """One range-only reading on a uniform cloud: the resampled particles sit on the ring of
+    that range, all around (no bearing information)."""
+    pf = ParticleFilterTracker(n_particles=4000, seed=3)
+    pf.update({0: (1.0, math.nan)})
+    core = pf.particles[0, : pf.config.n_resampled, :2]
+    r = np.hypot(*core.T)
+    assert abs(np.median(r) - 1.0) < 0.03
+    # bearings spread over the circle: mean resultant length ~ 1/sqrt(the ~130 distinct
+    # survivors of the 0.2 m annulus), where a reading with a bearing makes it ~ 1
+    b = np.arctan2(core[:, 1], core[:, 0])
+    assert np.hypot(np.cos(b).mean(), np.sin(b).mean()) < 0.3
+    with_bearing = ParticleFilterTracker(n_particles=4000, seed=3)
+    with_bearing.update({0: (1.0, 0.0)})
+    b = np.arctan2(*with_bearing.particles[0, : pf.config.n_resampled, 1::-1].T)
+    assert np.hypot(np.cos(b).mean(), np.sin(b).mean()) > 0.9
+
+
+def test_range_bearing_trilateration_start_is_the_polar_fix():
+    z = (1.2, 0.7)
+    fix = np.array([1.2 * math.cos(0.7), 1.2 * math.sin(0.7)])
+    pf = ParticleFilterTracker(start="trilateration", seed=2)
+    pf.update({4: z})
+    assert pf.ids == (4,) and not pf.pending
+    cloud = pf.particles[0, :, :2]
+    # every particle (the 10 % re-seeded aside) within a few range/bearing sigmas of the fix
+    near = np.hypot(*(cloud - fix).T) < 4 * (0.05 + 1.2 * 0.05)
+    assert near.mean() > 0.88
+    assert np.hypot(*(pf.estimate()[4] - fix)) < 0.02
+
+
+def test_range_only_and_start_bad_input():
+    with pytest.raises(ValueError, match="start"):
+        ParticleFilterTracker(start="gps")
+    with pytest.raises(ValueError, match="min_station_spread_m"):
+        ParticleFilterTracker(min_station_spread_m=0.0)
+    pf = ParticleFilterTracker(start="trilateration")
+    with pytest.raises(ValueError, match="measurements"):
+        pf.update({0: (math.nan, math.nan)})
+    with pytest.raises(ValueError, match="measurements"):
+        pf.update({0: (-1.0, math.nan)})
+    assert pf.ids == () and not pf.pending

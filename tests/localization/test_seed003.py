@@ -327,3 +327,16 @@ def test_ir_sweep_motion_reads_each_pair_when_the_sweep_passes_it():
         t_row = max(dt, math.floor(t_pass / dt + 1e-9) * dt)  # latest given poses at or before
         assert bearing == pytest.approx(math.remainder(-omega * t_row, 2 * math.pi), abs=1e-9)
         assert abs(bearing - b_end) > 0.05  # the delay shows: not the end-of-sweep bearing
+
+
+def test_evaluate_runs_the_seed003_scenario(tmp_path, capsys):
+    from swarm_phd.cli import main
+
+    out = tmp_path / "ev"
+    argv = ["evaluate", "--scenario", "seed003", "--duration", "8", "--seeds", "1"]
+    assert main([*argv, "--out", str(out), "-q"]) == 0
+    data = json.loads((out / "metrics.json").read_text())
+    assert data["config"]["n_robots"] == 5 and data["config"]["duration_s"] == 8.0
+    assert data["summary"]["ukf_pos_rmse_mean_m"] < 0.15  # the seed's ~10 cm, with margin
+    assert main([*argv, "--policy", "random"]) != 0
+    assert "--scenario seed003 takes no --policy" in capsys.readouterr().err

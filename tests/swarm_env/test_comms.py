@@ -39,6 +39,12 @@ def test_radio_off_by_default_and_on_it_changes_no_sensor_noise():
                 sa[agent]["measurements"]["lidar"], sb[agent]["measurements"]["lidar"], strict=True
             ):
                 np.testing.assert_array_equal(ra["detections"], rb["detections"])
+            for ca, cb in zip(
+                sa[agent]["measurements"]["camera"],
+                sb[agent]["measurements"]["camera"],
+                strict=True,
+            ):
+                np.testing.assert_array_equal(ca["bearings_rad"], cb["bearings_rad"])
 
 
 def test_lossless_radio_delivers_every_teammate_each_period_with_its_own_odometry():
@@ -163,3 +169,39 @@ def test_bad_broadcast_is_refused(kwargs, field):
     args.update(kwargs)
     with pytest.raises(ValueError, match=field):
         Broadcast(**args)
+
+
+def test_broadcast_carries_the_senders_latest_camera_frame():
+    """Each broadcast holds the sender's newest camera frame (body-frame bearings and stamp) as of
+    the send; before its first frame, none (empty, nan)."""
+    empty = Broadcast("ugv_1", 0.0, np.zeros(3), np.zeros((0, 2)))
+    assert empty.bearings_rad.shape == (0,) and np.isnan(empty.bearings_stamp_s)
+    env = SwarmEnv("lab-3m-4", localize=False, observation="truth", comms={"enabled": True})
+    history = _drive(env, 15)
+    latest: dict[str, tuple[float, np.ndarray]] = {}
+    checked = 0
+    for infos in history[1:]:
+        for agent, info in infos.items():
+            frames = info["measurements"]["camera"]
+            if frames:
+                latest[agent] = (frames[-1]["stamp_s"], frames[-1]["bearings_rad"])
+        for info in infos.values():
+            for m in info["comms"]:  # no latency: sent this step, after the step's records
+                stamp, bearings = latest[m.sender]
+                assert m.bearings_stamp_s == stamp
+                np.testing.assert_array_equal(m.bearings_rad, bearings)
+                assert m.bearings_stamp_s <= m.stamp_s
+                checked += 1
+    assert checked > 100
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "field"),
+    [({"bearings_rad": np.zeros((2, 2))}, "bearings_rad"),
+     ({"bearings_rad": 0.5}, "bearings_rad"),
+     ({"bearings_stamp_s": "0.1"}, "bearings_stamp_s")],
+)  # fmt: skip
+def test_bad_broadcast_bearings_are_refused(kwargs, field):
+    args = {"sender": "ugv_1", "stamp_s": 1.0, "odometry_pose": np.zeros(3)}
+    with pytest.raises(ValueError, match=field):
+        Broadcast(**args, detections=np.zeros((0, 2)), **kwargs)

@@ -6,7 +6,13 @@ from __future__ import annotations
 import numpy as np
 
 from localization.mutual.se2 import inverse_compose, points_to_frame
-from swarm_core.records import Broadcast, LidarRecord, OdometryRecord, RobotMeasurements
+from swarm_core.records import (
+    Broadcast,
+    CameraRecord,
+    LidarRecord,
+    OdometryRecord,
+    RobotMeasurements,
+)
 
 EMPTY = np.zeros(0)
 
@@ -38,9 +44,17 @@ class SyntheticSwarm:
             z = points_to_frame(others, self.poses[i])
             z = z + self.rng.normal(0.0, det_noise_m, z.shape) if det_noise_m else z
             lidar = LidarRecord(self.time_s, EMPTY, EMPTY, EMPTY, z, EMPTY)
+            # The camera sees the teammates' red strips (the features are not red), sorted.
+            mates = z[: len(self.poses) - 1]
+            bearings = np.sort(np.arctan2(mates[:, 1], mates[:, 0]))
+            camera = CameraRecord(self.time_s, bearings)
             odo = OdometryRecord(self.time_s, delta[i], v[i])
-            meas[rid] = RobotMeasurements([odo], [lidar], [])
-            said.append(Broadcast(rid, self.time_s, self.odom[i].copy(), z, self.time_s))
+            meas[rid] = RobotMeasurements([odo], [lidar], [camera])
+            said.append(
+                Broadcast(
+                    rid, self.time_s, self.odom[i].copy(), z, self.time_s, bearings, self.time_s
+                )
+            )
         comms = {rid: [b for b in said if b.sender != rid] for rid in self.ids}
         return meas, comms
 
