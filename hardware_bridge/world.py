@@ -342,10 +342,10 @@ class RealWorld:
         # The newest message of each sensor (raw kept for the recorder).
         used = self.assembler.reset_selection(self._take(start_ns, end_ns))
         self._uav_command = np.zeros(4)
-        self.last_uav = self._uav_part(used, end_ns)
+        stale = self._stale(end_ns)  # once: what is recorded is what the step reports
+        self.last_uav = self._uav_part(used, stale)
         measurements = self.assembler.reset_measurements(self._parsed(used))
         truth = self._truth(used, end_ns)
-        stale = self._stale(end_ns)
         self._last_end_ns = end_ns
         if self.recorder is not None:
             self.recorder.record_step("reset", 0, end_ns, used, None, stale)
@@ -457,10 +457,10 @@ class RealWorld:
         parsed = self._parsed(used)
         per_robot = {r: {s: parsed[r].get(s, []) for s in FEED_SENSORS} for r in self.robot_ids}
         measurements = self.assembler.measurements(per_robot)
-        self.last_uav = self._uav_part(used, end_ns)
+        stale = self._stale(end_ns)  # once: what is recorded is what the step reports
+        self.last_uav = self._uav_part(used, stale)
         comms = {} if self.relay is None else self.relay.step(parsed, measurements)
         truth = self._truth(used, end_ns)
-        stale = self._stale(end_ns)
         self._step_index += 1
         self.timing["steps"] += 1
         if self.recorder is not None:
@@ -514,12 +514,15 @@ class RealWorld:
             return uav_twist_stamped_msg(stamp_ns, command)
         return uav_twist_msg(command)
 
-    def _uav_part(self, used: dict[str, dict[str, list]], end_ns: int) -> UAVMessages:
-        """The step's UAV messages (parsed), with the UAV's stale kinds at ``end_ns``."""
+    def _uav_part(
+        self, used: dict[str, dict[str, list]], stale: dict[str, tuple[str, ...]]
+    ) -> UAVMessages:
+        """The step's UAV messages (parsed), with the UAV's stale kinds from the step's
+        ``stale`` (:meth:`_stale`)."""
         if self.uav_id is None:
             return UAVMessages()
         part = {k: [m for m, _ in items] for k, items in used.get(self.uav_id, {}).items()}
-        return uav_messages(part, self._stale(end_ns, count=False).get(self.uav_id, ()))
+        return uav_messages(part, stale.get(self.uav_id, ()))
 
     def set_uav_command(self, command: np.ndarray) -> None:
         """The UAV's command ``[vx_mps, vy_mps, yaw_rate_radps, climb_mps]`` (body frame) for
@@ -564,7 +567,7 @@ class RealWorld:
                     silent[robot] = missing
         return silent
 
-    def _stale(self, now_ns: int, count: bool = True) -> dict[str, tuple[str, ...]]:
+    def _stale(self, now_ns: int) -> dict[str, tuple[str, ...]]:
         out = {}
         with self._lock:
             for uav in self._uav_ids:
@@ -591,10 +594,9 @@ class RealWorld:
                         stale.append(sensor)
                 if stale:
                     out[robot] = tuple(stale)
-        if count:
-            for sensors in out.values():
-                for sensor in sensors:
-                    self.counters.incr(f"{sensor}.stale_steps")
+        for sensors in out.values():
+            for sensor in sensors:
+                self.counters.incr(f"{sensor}.stale_steps")
         return out
 
     def _fresh_mocap(self, now_ns: int | None = None) -> dict[str, Pose | None]:

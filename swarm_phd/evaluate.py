@@ -124,6 +124,8 @@ def run(args: argparse.Namespace) -> int:
     import signal
 
     signal.signal(signal.SIGTERM, _interrupt)
+    if getattr(args, "scenario", "study") != "study" and getattr(args, "ray", False):
+        raise ValueError(f"--ray runs the study's seeds; --scenario {args.scenario} is serial")
     if getattr(args, "ray", False):
         from swarm_phd.sweep import run_evaluate_ray
 
@@ -135,6 +137,9 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--seeds must be comma-separated integers, got {args.seeds!r}") from exc
     if getattr(args, "scenario", "study") == "seed003":
         return _run_seed003(args, seeds)
+    specs = [s.strip() for s in (args.compare or "").split(",") if s.strip()]
+    if args.compare is not None and not specs:
+        raise ValueError(f"--compare names no policy: {args.compare!r}")
     overrides: dict[str, Any] = {}
     if args.task_params is not None:
         try:
@@ -155,7 +160,6 @@ def run(args: argparse.Namespace) -> int:
     print_table(results)
     if args.compare:
         compared = [results]
-        specs = [s.strip() for s in args.compare.split(",") if s.strip()]
         for k, spec in enumerate(specs):
             shared = shared_env_kwargs(args.policy, args.preset, args.task, **overrides)
             other = evaluate_localization(

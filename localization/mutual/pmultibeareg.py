@@ -143,12 +143,35 @@ class PMultiBeaRegConfig:
         if not (
             isinstance(r, (tuple, list))
             and len(r) == 2
-            and all(isinstance(v, (int, float)) and math.isfinite(v) for v in r)
+            and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                for v in r
+            )
             and 0.0 < r[0] < r[1]
         ):
             raise ValueError(f"range_m must be 2 finite numbers 0 < low < high, got {r!r}")
+        n_scales = scale_grid(r, math.radians(self.bearing_std_deg)).shape[0]
+        if self.scale_search and n_scales > MAX_SCALES:
+            # Eq. 18's search holds particles x hypotheses x scales values at once.
+            raise ValueError(
+                f"bearing_std_deg={self.bearing_std_deg} over range_m={r!r} needs {n_scales} "
+                f"scales for eq. 18's search, more than {MAX_SCALES}: widen the bearing noise"
+            )
         if not isinstance(self.motion_noise, MotionNoise):
             raise ValueError(f"motion_noise must be a MotionNoise, got {self.motion_noise!r}")
+
+
+#: Most scales eq. 18's search may test (a bearing std of ~0.36 deg over 0.2-4.7 m; the
+#: camera's model needs ~150).
+MAX_SCALES = 1000
+
+
+def scale_grid(range_m: tuple[float, float], bearing_std_rad: float) -> np.ndarray:
+    """Eq. 18's scale grid (m): geometric, half the model's relative spread ``s_b`` apart (a
+    bearing's position std at range ``r`` is ``r s_b``), over ``range_m``."""
+    step = 1.0 + 0.5 * bearing_std_rad
+    n_grid = int(math.ceil(math.log(range_m[1] / range_m[0]) / math.log(step))) + 1
+    return range_m[0] * step ** np.arange(n_grid)
 
 
 class PMultiBeaRegLocalizer(_ScheduledRegistrar):
@@ -181,11 +204,7 @@ class PMultiBeaRegLocalizer(_ScheduledRegistrar):
         self._own_stamp = math.nan
         self._next_update_s = -math.inf  # the first registration anchors the schedule
         self._std = np.radians([cfg.bearing_std_deg, cfg.orientation_std_deg])
-        # Eq. 18's scale grid: geometric, half the model's relative spread s_b apart (its
-        # position std at range r is r s_b), over the sensor's range.
-        step = 1.0 + 0.5 * float(self._std[0])
-        n_grid = int(math.ceil(math.log(cfg.range_m[1] / cfg.range_m[0]) / math.log(step))) + 1
-        self._scales = cfg.range_m[0] * step ** np.arange(n_grid)
+        self._scales = scale_grid(cfg.range_m, float(self._std[0]))
         self.last_hypotheses: dict[str, np.ndarray] = {}
         self.n_registrations = 0
 

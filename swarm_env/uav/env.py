@@ -200,6 +200,12 @@ class SupervisedSwarmEnv(ParallelEnv):
                     raise ValueError(f"world must provide {name!r} (a RealWorld / ReplayWorld)")
             if world.uav_id is None:
                 raise ValueError("world has no UAV: set the bridge config's uav_id")
+            if uav.velocity_frame != "body":
+                # cmd_vel is body-frame; over a bridge the UAV's world yaw is unknown, so a
+                # world-frame command could not be converted.
+                raise ValueError(
+                    f"uav.velocity_frame must be 'body' with a world, got {uav.velocity_frame!r}"
+                )
             from hardware_bridge.assembly import UAVAssembler  # only for real / replayed UAVs
 
             self._uav_assembler = UAVAssembler(uav.camera)
@@ -364,21 +370,20 @@ class SupervisedSwarmEnv(ParallelEnv):
             own_delta = true_delta + noise
         self._last_uav_delta = own_delta
         step = self.ground.last_world_step
-        # The radio's range needs positions: the truth where there is one (sim, mocap), else
-        # every UGV in range (a lab radio's range exceeds the arena).
+        # The radio's range needs positions in one frame: the simulator's truth; over a bridge
+        # (mocap truth and the UAV's own odometry frame differ) every UGV is in range (a lab
+        # radio's range exceeds the arena).
+        simulated = self.world is None and step.truth is not None
         ugv_xy = (
             step.truth.poses[: len(self.ugv_agents), :2]
-            if step.truth is not None
+            if simulated
             else np.zeros((len(self.ugv_agents), 2))
         )
         delivered = self.radio.step(
             step.time_s,
             step.measurements,
             ugv_xy,
-            listeners=(
-                (UAV_ID,),
-                self.uav_pose[None, :2] if step.truth is not None else ugv_xy[:1],
-            ),
+            listeners=((UAV_ID,), self.uav_pose[None, :2] if simulated else ugv_xy[:1]),
         )
         self._hear(delivered[UAV_ID])
         if self.world is None:

@@ -122,14 +122,14 @@ def test_banks_take_the_packed_path_and_end_in_the_same_state():
     """The bank fed ``feed.calls()`` (packed) and the bank fed the tuples hold the same bits."""
     for make in (lambda: PHDBank(PHDConfig(), 6), lambda: PMBBank(PHDConfig(), 6)):
         a, b = make(), make()
-        for seed in range(3):
+        for repeat in range(3):  # the same calls again: the banks move on, both alike
             feed = hand_feed(True)
             a.apply(feed.calls())
             assert not feed._calls  # no tuple was made
             b.apply(list(hand_feed(True).call_lists()))
             ta, ca = a.padded_tables()
             tb, cb = b.padded_tables()
-            assert ta.tobytes() == tb.tobytes() and (ca == cb).all(), seed
+            assert ta.tobytes() == tb.tobytes() and (ca == cb).all(), repeat
 
 
 def test_falls_back_on_what_it_cannot_vouch_for():

@@ -340,3 +340,7 @@ def test_evaluate_runs_the_seed003_scenario(tmp_path, capsys):
     assert data["summary"]["ukf_pos_rmse_mean_m"] < 0.15  # the seed's ~10 cm, with margin
     assert main([*argv, "--policy", "random"]) != 0
     assert "--scenario seed003 takes no --policy" in capsys.readouterr().err
+    assert main([*argv, "--ray"]) != 0  # Ray fans out the study's seeds only
+    assert "--scenario seed003 is serial" in capsys.readouterr().err
+    assert main(["evaluate", "--compare", ",", "--duration", "1"]) != 0  # before any run
+    assert "--compare names no policy" in capsys.readouterr().err

@@ -29,11 +29,14 @@ def test_sectors_of_several_robots_and_empty_scans():
     r1 = np.full(360, 3.0)
     r1[a1.size // 2] = 0.25  # straight ahead
     r1[np.argmin(np.abs(a1 - np.pi / 2))] = 0.5  # left
-    out = lidar_sector_ranges([a1, np.zeros(0), a1[:10]], [r1, np.zeros(0), r1[:10]], 8, 2.0)
+    # Robot 2: 10 beams just past -pi (behind, sector 4), a 1.2 m return, and a 0 ("no
+    # return") and a NaN beam that must not count.
+    r2 = np.array([1.5, 1.2, 0.0, np.nan, 1.9, 1.7, 1.6, 1.8, 1.4, 1.3])
+    out = lidar_sector_ranges([a1, np.zeros(0), a1[:10]], [r1, np.zeros(0), r2], 8, 2.0)
     assert out.shape == (3, 8)
     np.testing.assert_allclose(out[0], [0.25, 2.0, 0.5, 2.0, 2.0, 2.0, 2.0, 2.0])
     np.testing.assert_allclose(out[1], 2.0)  # no scan: nothing seen
-    assert out[2, 4] == 2.0 and np.all(out[2, [0, 1, 2, 3, 5, 6, 7]] == 2.0)
+    np.testing.assert_allclose(out[2], [2.0, 2.0, 2.0, 2.0, 1.2, 2.0, 2.0, 2.0])
     # Matches a plain per-beam loop (the readable reference).
     ref = np.full(8, 2.0)
     w = 2 * np.pi / 8
@@ -69,7 +72,8 @@ def test_env_sector_block_is_the_last_scan_and_leaves_the_rest_alone():
     assert np.all(space.low[layout.table_size - 8 : layout.table_size] == 0.0)
     assert np.all(space.high[layout.table_size - 8 : layout.table_size] == np.float32(2.0))
     plain_layout = plain_env.encoder.layout
-    seen_scan = False
+    seen_scan = held = False
+    previous: dict = {}
     for (o0, _), (o1, infos) in zip(plain, with_sectors, strict=True):
         for a in env.possible_agents:
             assert space.contains(o1[a])
@@ -90,7 +94,11 @@ def test_env_sector_block_is_the_last_scan_and_leaves_the_rest_alone():
                 )[0]
                 got = layout.table(o1[a], SECTOR_TABLE)[:, 0]
                 np.testing.assert_allclose(got, want.astype(np.float32))
-    assert seen_scan
+            elif a in previous:  # a step without a scan keeps what the robot last saw
+                held = True
+                np.testing.assert_array_equal(layout.table(o1[a], SECTOR_TABLE), previous[a])
+            previous[a] = layout.table(o1[a], SECTOR_TABLE)
+    assert seen_scan and held
     # In the lab arena (3 m walls) some sector always sees a wall within 2 m.
     assert layout.table(with_sectors[-1][0][agent], SECTOR_TABLE).min() < 2.0
 
@@ -121,3 +129,13 @@ def test_set_extractor_reads_the_sector_block():
     # Exactly the 8 sector features change (scaled by the 2 m bound), nothing else.
     assert int(changed.sum()) == 8
     np.testing.assert_allclose(fy[:, changed].detach().numpy(), 0.05, rtol=1e-6)
+
+
+def test_reset_forgets_the_last_episode_sectors():
+    env = parallel_env(**KWARGS, lidar_sectors=8)
+    fresh, _ = env.reset(seed=3)
+    for _ in range(15):
+        env.step({a: np.array([0.2, 0.5], dtype=np.float32) for a in env.agents})
+    again, _ = env.reset(seed=3)
+    for a in env.possible_agents:
+        np.testing.assert_array_equal(fresh[a], again[a])

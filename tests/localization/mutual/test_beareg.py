@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from localization.mutual.beareg import bearing_solutions, find_triangles, three_intersections
 from localization.mutual.particles import MotionNoise, TeammateParticles
@@ -263,3 +264,18 @@ def test_sorted_triangle_search_equals_the_dense_reference():
             ref_hits, ref_res = _triangle_candidates_dense(*diffs, tol)
             np.testing.assert_array_equal(hits, ref_hits)
             np.testing.assert_array_equal(res, ref_res)
+
+
+def test_scale_search_grid_is_bounded_and_range_refuses_bools():
+    import math
+
+    from localization.mutual.pmultibeareg import MAX_SCALES, PMultiBeaRegConfig, scale_grid
+
+    grid = scale_grid((0.2, 4.7), math.radians(2.5))
+    assert grid[0] == 0.2 and grid[-1] >= 4.7 and grid[-2] < 4.7  # covers the range, no more
+    np.testing.assert_allclose(grid[1:] / grid[:-1], 1.0 + 0.5 * math.radians(2.5))
+    with pytest.raises(ValueError, match=f"more than {MAX_SCALES}"):
+        PMultiBeaRegConfig(bearing_std_deg=0.01)
+    PMultiBeaRegConfig(bearing_std_deg=0.01, scale_search=False)  # no grid without the search
+    with pytest.raises(ValueError, match="range_m"):
+        PMultiBeaRegConfig(range_m=(True, 2.0))
