@@ -13,12 +13,13 @@ the real-time factors and their ratio (goal: >= 0.6 with one busy core on a 2-co
 from __future__ import annotations
 
 import argparse
-import json
 import multiprocessing as mp
 import os
 import time
 
 import numpy as np
+
+from swarm_core.atomic_files import write_json_atomically
 
 
 def _spin(stop) -> None:
@@ -83,9 +84,7 @@ def main() -> None:
         f"  loaded / idle: {result['ratio_of_medians']:.2f} (goal >= 0.6)"
     )
     if args.json:
-        os.makedirs(os.path.dirname(args.json) or ".", exist_ok=True)
-        with open(args.json, "w") as fh:
-            json.dump(result, fh, indent=2)
+        write_json_atomically(args.json, result)
 
 
 if __name__ == "__main__":

@@ -24,9 +24,10 @@ env-stepping and the update share of the wall time. Ratios within one run are wh
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
+
+from swarm_core.atomic_files import write_json_atomically
 
 ENV_KWARGS = {"preset": "lab-3m-4", "task": "formation", "observation": "phd"}
 PPO_KWARGS = {"n_steps": 128, "batch_size": 512, "n_epochs": 10, "learning_rate": 3e-4}
@@ -129,9 +130,7 @@ def main() -> None:
             f"{r['transitions_per_s'] / base:.2f}x | {100 * r['env_share']:.0f} % |"
         )
     if args.json:
-        os.makedirs(os.path.dirname(args.json) or ".", exist_ok=True)
-        with open(args.json, "w") as fh:
-            json.dump(results, fh, indent=2)
+        write_json_atomically(args.json, results)
 
 
 if __name__ == "__main__":

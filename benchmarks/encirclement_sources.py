@@ -49,6 +49,9 @@ from typing import Any
 
 import numpy as np
 
+from swarm_core.atomic_files import write_json_atomically
+from swarm_phd.sweep import parse_seeds
+
 SOURCES = (
     "beacon",
     "particle",
@@ -143,20 +146,6 @@ def track_outcomes(
         else:
             out[2] += 1
     return out
-
-
-def parse_seeds(text: str) -> list[int]:
-    """``"0,1,2"`` or ``"100-109"`` (inclusive ranges, comma-separated)."""
-    seeds: list[int] = []
-    for part in (p.strip() for p in text.split(",")):
-        if not part:
-            continue
-        if "-" in part:
-            lo, hi = (int(v) for v in part.split("-", 1))
-            seeds.extend(range(lo, hi + 1))
-        else:
-            seeds.append(int(part))
-    return seeds
 
 
 def pm(m: dict[str, Any], key: str, scale: float = 1.0, fmt: str = ".1f") -> str:
@@ -266,11 +255,7 @@ def main(argv: list[str] | None = None) -> int:
             )
     if args.out:
         out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=out, suffix=".tmp")
-        with os.fdopen(fd, "w") as fh:
-            json.dump(result, fh, indent=2)
-        os.replace(tmp, out / "encirclement_sources.json")
+        write_json_atomically(out / "encirclement_sources.json", result)
         write_figure(out / "encirclement_sources.png", result)
     return 0
 

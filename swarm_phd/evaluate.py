@@ -60,6 +60,7 @@ from swarm_core.atomic_files import write_json_atomically
 from swarm_env import parallel_env
 from swarm_env.env import SwarmEnv
 from swarm_phd import progress
+from swarm_phd.sweep import parse_seeds
 
 #: ``--scenario`` values.
 SCENARIOS = ("study", "seed003")
@@ -75,7 +76,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="phd-lc,phd-lo",
         help=f"comma-separated, from {sorted(LOCALIZERS)} (`swarm-phd list` describes them)",
     )
-    parser.add_argument("--seeds", default="0", help="comma-separated integers")
+    parser.add_argument("--seeds", default="0", help="comma-separated integers or ranges (0-4)")
     parser.add_argument(
         "--policy",
         default="scripted:wander",
@@ -131,10 +132,7 @@ def run(args: argparse.Namespace) -> int:
 
         return run_evaluate_ray(args)
     localizers = [s.strip() for s in args.localizer.split(",") if s.strip()]
-    try:
-        seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
-    except ValueError as exc:
-        raise ValueError(f"--seeds must be comma-separated integers, got {args.seeds!r}") from exc
+    seeds = parse_seeds(args.seeds)
     if getattr(args, "scenario", "study") == "seed003":
         return _run_seed003(args, seeds)
     specs = [s.strip() for s in (args.compare or "").split(",") if s.strip()]

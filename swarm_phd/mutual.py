@@ -52,6 +52,7 @@ import numpy as np
 from localization.mutual.pmultireg import PMultiRegConfig, PMultiRegLocalizer
 from localization.mutual.se2 import inverse_compose
 from swarm_core.geometry import wrap_angle
+from swarm_phd.sweep import parse_seeds
 
 #: The thesis's thresholds (tables 2-5).
 DIST_THRESHOLD_M = 0.10
@@ -71,7 +72,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--observer", default=None, help="one observer (default: every robot)")
     parser.add_argument("--duration", type=float, default=None, help="simulated seconds")
     parser.add_argument("--speed", type=float, default=0.1, help="robots' max speed (m/s)")
-    parser.add_argument("--seeds", default="0", help="comma-separated integers")
+    parser.add_argument("--seeds", default="0", help="comma-separated integers or ranges (0-4)")
     parser.add_argument("--particles", type=int, default=None, help="per filter")
     parser.add_argument("--loss", type=float, default=0.1, help="radio loss probability")
     parser.add_argument("--latency", type=float, default=0.05, help="radio latency (s)")
@@ -103,9 +104,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    seeds = [int(s) for s in str(args.seeds).split(",") if s.strip()]
-    if not seeds:
-        raise ValueError("--seeds must name at least one integer")
+    seeds = parse_seeds(str(args.seeds))
     if args.symmetry:
         result = symmetry_experiment(seeds=seeds)
         sim = symmetry_sim_experiment(seeds=seeds)

@@ -31,6 +31,7 @@ from localization.baselines.centralized_ukf import CentralizedUKF, CentralizedUK
 from localization.baselines.direct import align_poses, direct_estimate, pose_errors
 from swarm_core.atomic_files import atomic_write, write_json_atomically
 from swarm_env.sensors.ir import IRConfig, IRReadings, IRSensor
+from swarm_phd.sweep import parse_seeds
 
 #: The seed's reported accuracy: "about 10 cm, or on the order of the size of a robot".
 SEED_ACCURACY_M = 0.10
@@ -57,7 +58,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--speed", type=float, default=0.05, help="max speed (m/s); wander cruises at 0.6 of it"
     )
-    parser.add_argument("--seeds", default="0,1,2,3,4", help="comma-separated integers")
+    parser.add_argument(
+        "--seeds", default="0,1,2,3,4", help="comma-separated integers or ranges (0-4)"
+    )
     parser.add_argument("--ir-params", default=None, help="JSON dict of IRConfig overrides")
     parser.add_argument(
         "--ukf-params", default=None, help="JSON dict of CentralizedUKFConfig overrides"
@@ -80,7 +83,7 @@ def _json_arg(text: str | None, name: str) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
-    seeds = [int(s) for s in str(args.seeds).split(",") if s.strip()]
+    seeds = parse_seeds(str(args.seeds))
     ir_params = _json_arg(args.ir_params, "--ir-params")
     if "outlier_offset_m" in ir_params:
         ir_params["outlier_offset_m"] = tuple(ir_params["outlier_offset_m"])

@@ -38,6 +38,8 @@ from typing import Any
 
 import numpy as np
 
+from swarm_phd.sweep import parse_seeds
+
 #: The seed's figures (sec. V).
 SEED_POSITION_M = 0.12
 SEED_HEADING_DEG = 10.0
@@ -49,7 +51,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--preset", default=None, help="UGV preset (default: seed-uav, seed 002's setup)"
     )
-    parser.add_argument("--seeds", default="0,1,2", help="comma-separated integers")
+    parser.add_argument(
+        "--seeds", default="0,1,2", help="comma-separated integers or ranges (0-4)"
+    )
     parser.add_argument("--duration", type=float, default=120.0, help="simulated seconds")
     parser.add_argument("--uav-control", choices=UAV_CONTROLS, default="hover")
     parser.add_argument("--altitude", type=float, default=None, help="UAV altitude (m)")
@@ -84,9 +88,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    seeds = [int(s) for s in str(args.seeds).split(",") if s.strip()]
-    if not seeds:
-        raise ValueError(f"--seeds must list at least one integer, got {args.seeds!r}")
+    seeds = parse_seeds(str(args.seeds))
     comms: dict[str, Any] = {}
     if args.record and not args.loopback:
         raise ValueError("--record needs --loopback (a simulated episode has no bridge)")

@@ -23,7 +23,13 @@ from localization.detection import DetectionModel, inverse_sigmoid
 from localization.feed import SwarmFeed
 from localization.mixture import ROW_W
 from localization.registry import LOCALIZERS, make_localizer, oracle_range_bearing
-from swarm_core.records import CameraRecord, LidarRecord, OdometryRecord, RobotMeasurements
+from swarm_core.records import (
+    Broadcast,
+    CameraRecord,
+    LidarRecord,
+    OdometryRecord,
+    RobotMeasurements,
+)
 from swarm_core.world import GroundTruth
 from swarm_env.config import SIMULATOR_PHD
 
@@ -49,6 +55,7 @@ TRUTH = _truth()
 
 # ---------------------------------------------------------------------- adversarial streams
 _NO = np.zeros(0)
+_NO2 = np.zeros((0, 2))
 
 
 def _lidar(t: float, points: np.ndarray, nulls: np.ndarray = _NO) -> RobotMeasurements:
@@ -313,8 +320,9 @@ def check_oracle(loc, before, after, kind, rec, r, state) -> None:
 
 
 def check_mutual(loc, before, after, kind, rec, r, state) -> None:
-    """Seed 001's methods: one existence-1 component per teammate it holds a belief about
-    (a teammate is only known once heard over the radio, which these feeds do not carry)."""
+    """Seed 001's methods: one existence-1 component per teammate it holds a belief about, and
+    only real teammates (the feeds carry the others' broadcasts of the same adversarial scans:
+    FastSLAM-MC holds both teammates by the end; the registrations find none in the clutter)."""
     t1 = after["table"]
     np.testing.assert_array_equal(t1[ROW_W], 1.0)
     assert after["ids"] <= set(range(R)) - {r} and len(after["ids"]) == t1.shape[1]
@@ -350,6 +358,16 @@ CASES = [(name, "sim") for name in ALL] + [
 ]
 
 
+def _broadcasts(records: list[RobotMeasurements], t: float) -> list[tuple[Broadcast, ...]]:
+    """What each robot hears from the others (seed 001's radio): its still pose and the
+    (adversarial) detections of its scan this step."""
+    sent = [
+        Broadcast(f"ugv_{j}", t, TRUTH.poses[j], rec.lidar[0].detections if rec.lidar else _NO2)
+        for j, rec in enumerate(records)
+    ]
+    return [tuple(b for j, b in enumerate(sent) if j != r) for r in range(R)]
+
+
 def _run(name: str, config: PHDConfig, n_mix: int, seed: int = 0) -> int:
     loc = make_localizer(name, R, config, seed=seed)
     check = _checker(name)
@@ -360,7 +378,8 @@ def _run(name: str, config: PHDConfig, n_mix: int, seed: int = 0) -> int:
         t = 0.1 * (k + 1)
         records = [_event(kind, rng, r, t) for r in range(R)]
         before = [_tables(loc, r) for r in range(R)]
-        loc.step(SwarmFeed(t, records, [()] * R, truth=TRUTH))
+        comms = _broadcasts(records, t) if LOCALIZERS[name].needs_comms else ()
+        loc.step(SwarmFeed(t, records, [()] * R, truth=TRUTH, comms=comms))
         for r in range(R):
             after = _tables(loc, r)
             check_common(loc, after, r)
