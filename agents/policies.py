@@ -26,7 +26,9 @@ def load_policy(spec: str, env: Any) -> Any:
     """Build the policy named by ``spec`` for ``env``.
 
     ``"random"``: uniform actions from the agents' seeded action spaces. ``"scripted:NAME"``: a
-    controller from :data:`SCRIPTED`. Anything ending in ``.zip``: a trained SB3 model.
+    controller from :data:`SCRIPTED`. ``"privileged:NAME"``: a training teacher that also reads
+    the simulator's truth (:mod:`agents.sb3.privileged`; a reference, not deployable). Anything
+    ending in ``.zip``: a trained SB3 model.
     """
     if spec == "random":
         return random_policy(env)
@@ -35,21 +37,31 @@ def load_policy(spec: str, env: Any) -> Any:
         if name not in SCRIPTED:
             raise ValueError(f"unknown scripted policy {name!r}; choose from {sorted(SCRIPTED)}")
         return SCRIPTED[name](env)
+    if spec.startswith("privileged:"):  # a training teacher that reads the simulator's truth
+        from agents.sb3.privileged import load_teacher
+
+        return load_teacher(spec, env)
     if spec.endswith(".zip"):
         if not Path(spec).is_file():
             raise ValueError(f"policy file {spec!r} does not exist")
         from agents.sb3.policy import load_sb3_policy
 
         return load_sb3_policy(spec, env)
-    raise ValueError(f"policy must be 'random', 'scripted:NAME' or a .zip model, got {spec!r}")
+    raise ValueError(
+        "policy must be 'random', 'scripted:NAME', 'privileged:NAME' or a .zip model, "
+        f"got {spec!r}"
+    )
 
 
 def policy_observation(spec: str) -> str | None:
     """The observation mode a scripted policy reads (``"phd"`` for the controllers acting on
     the robot's PHD estimate), or ``None`` if it ignores the observation (``random``,
     ``scripted:wander``: lidar only). Models carry their own mode (see ``agents.sb3.policy``)."""
-    if spec.startswith("scripted:"):
-        factory = SCRIPTED.get(spec.split(":", 1)[1])
+    if spec.startswith(("scripted:", "privileged:")):
+        from agents.sb3.privileged import TEACHERS
+
+        registry = SCRIPTED if spec.startswith("scripted:") else TEACHERS
+        factory = registry.get(spec.split(":", 1)[1])
         modes = getattr(getattr(factory, "__self__", None), "observation_modes", None)
         return modes[0] if modes else None
     return None

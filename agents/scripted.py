@@ -173,6 +173,13 @@ def estimated_neighbours(
     return table[keep][:, [_X, _Y]], weights
 
 
+def estimated_centroid(points: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """The swarm's centroid as a robot sees it, in its body frame (2,): its confident
+    components ``points`` (M, 2) with ``weights`` (M,), plus itself (weight 1 at the origin),
+    ``sum_k w_k m_k / (1 + sum_k w_k)``."""
+    return (weights[:, None] * points).sum(axis=0) / (1.0 + weights.sum())
+
+
 def lidar_points(scan: tuple[np.ndarray, np.ndarray] | None, max_range_m: float) -> np.ndarray:
     """Valid lidar returns closer than ``max_range_m`` as body-frame points (P, 2)."""
     if scan is None:
@@ -250,6 +257,8 @@ class VectorFieldPolicy(ScriptedPolicy):
 
     def __call__(self, observations, infos):
         actions = {}
+        #: The agents of the last call that had nothing to act on and random-walked.
+        self.wandering: set[str] = set()
         for agent, obs in observations.items():
             scan = latest_scan(infos.get(agent, {}) if infos else {})
             if scan is not None:
@@ -259,6 +268,7 @@ class VectorFieldPolicy(ScriptedPolicy):
             u = self.desired_velocity(agent, table, odometry, features)
             if u is None:  # nothing to act on: search (the seed's random walk)
                 actions[agent] = self._wander._act(agent)
+                self.wandering.add(agent)
                 continue
             u = u + self.avoidance(self._scan.get(agent))
             actions[agent] = self.to_unicycle(u)
@@ -356,7 +366,7 @@ class FormationPolicy(VectorFieldPolicy):
         d = np.linalg.norm(pts, axis=1)
         if self.shape == "circle":
             radius, chord = float(features[0]), float(features[1])
-            c = (w[:, None] * pts).sum(axis=0) / (1.0 + w.sum())
+            c = estimated_centroid(pts, w)
             dc = np.linalg.norm(c)
             if len(pts) + 1 < expected_count(radius, chord) and dc > 0.5 * radius:
                 # Not everyone in sight: this centroid is only a local one. Close in first.

@@ -26,10 +26,13 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
 from agents.sb3.adapter import UNIT_ACTION_SPACE, scale_actions
+from agents.sb3.central_critic import critic_state, critic_state_dims
+from agents.sb3.residual import base_in_unit_scale
 from localization.feed import SwarmFeed
 from localization.protocol import LocalizerSlice
 from localization.registry import make_localizer
@@ -54,6 +57,14 @@ class BatchedSwarmVecEnv(VecEnv):
         ``"scripted:NAME"``: a residual policy (:mod:`agents.sb3.residual`): each copy's
         command is ``clip(scripted(obs, infos) + action x high, -high, high)``, the scripted
         controller (one per copy) reading that copy's last observations and infos.
+    residual_observes_base : bool
+        With ``residual``: append the scripted command, in unit scale ``base / high`` (2
+        entries in [-1, 1]), to the observation, so the correction can depend on it directly
+        (the policy would otherwise have to recompute the controller from the observation).
+    critic_state : bool
+        Append each agent's true-state block for a centralised critic
+        (:mod:`agents.sb3.central_critic`; simulation only): the observation space grows by
+        ``P = critic_state_dims`` unbounded entries, after the env's observation.
     """
 
     def __init__(
@@ -62,7 +73,11 @@ class BatchedSwarmVecEnv(VecEnv):
         n_copies: int,
         seed: int | None = 0,
         residual: str | None = None,
+        critic_state: bool = False,
+        residual_observes_base: bool = False,
     ) -> None:
+        if residual_observes_base and residual is None:
+            raise ValueError("residual_observes_base needs a residual (--residual scripted:NAME)")
         if isinstance(n_copies, bool) or not isinstance(n_copies, int) or n_copies < 1:
             raise ValueError(f"n_copies must be an int >= 1, got {n_copies!r}")
         kwargs = dict(env_kwargs)
@@ -86,9 +101,20 @@ class BatchedSwarmVecEnv(VecEnv):
         first = self.envs[0]
         self.agents_per_copy = n
         self._high = np.array(first.action_space(first.possible_agents[0]).high, np.float64)
-        super().__init__(
-            n * n_copies, first.observation_space(first.possible_agents[0]), UNIT_ACTION_SPACE
-        )
+        space = first.observation_space(first.possible_agents[0])
+        #: Entries of the scripted command in the observation (0 or 2).
+        self.base_dims = 2 if residual_observes_base else 0
+        #: Width of the critic block (0 without ``critic_state``).
+        self.critic_dims = critic_state_dims(n, first.task) if critic_state else 0
+        if self.base_dims or self.critic_dims:
+            ones = np.ones(self.base_dims, np.float32)
+            unbounded = np.full(self.critic_dims, np.inf, np.float32)
+            space = gym.spaces.Box(
+                np.concatenate([space.low, -ones, -unbounded]),
+                np.concatenate([space.high, ones, unbounded]),
+                dtype=np.float32,
+            )
+        super().__init__(n * n_copies, space, UNIT_ACTION_SPACE)
         self._actions: np.ndarray | None = None
         self._next_seed = seed
         self._bases = None
@@ -96,11 +122,21 @@ class BatchedSwarmVecEnv(VecEnv):
             from agents.sb3.residual import ResidualBase
 
             self._bases = [ResidualBase(residual, env) for env in self.envs]
-            # The base reads the copy's last (obs, infos); an auto-reset episode reseeds its
-            # random walk from (seed, copy, episode), so the rollout stays reproducible.
-            self._last: list[tuple[dict, dict] | None] = [None] * n_copies
+            # The base's command for each copy's current (obs, infos), computed when the obs is
+            # made and sent at the next step; an auto-reset episode reseeds its random walk
+            # from (seed, copy, episode), so the rollout stays reproducible.
+            self._base_commands: list[dict[str, np.ndarray] | None] = [None] * n_copies
             self._episodes = [0] * n_copies
             self._base_seed = 0 if seed is None else int(seed)
+
+    def scripted_commands(self, copy: int) -> dict[str, np.ndarray]:
+        """The residual base's commands ``[v_mps, omega_radps]`` per agent for copy ``copy``'s
+        current observation: what a zero correction would send (residual mode only)."""
+        if self._bases is None:
+            raise ValueError(
+                "scripted_commands needs a residual VecEnv (residual='scripted:NAME')"
+            )
+        return self._base_commands[copy]
 
     @property
     def action_high(self) -> np.ndarray:
@@ -130,7 +166,7 @@ class BatchedSwarmVecEnv(VecEnv):
             if self._bases is not None:
                 from agents.sb3.residual import compose
 
-                base = self._bases[k](*self._last[k])
+                base = self._base_commands[k]
                 commands = {
                     a: compose(base[a], actions[k * n + i], self._high)
                     for i, a in enumerate(env.possible_agents)
@@ -150,11 +186,14 @@ class BatchedSwarmVecEnv(VecEnv):
         ended = []
         for k, env in enumerate(self.envs):
             o, r, term, trunc, step_infos = env.finish_step()
-            if self._bases is not None:
-                self._last[k] = (o, step_infos)
+            base = None
+            if self._bases is not None and (env.agents or self.base_dims):
+                # (on a terminal obs only to fill its entries: the reset below reseeds the base)
+                base = self._base_commands[k] = self._bases[k](o, step_infos)
+            obs[k * n : (k + 1) * n] = self._observation(env, o, base)
             for i, a in enumerate(env.possible_agents):
                 j = k * n + i
-                obs[j], rewards[j] = o[a], r[a]
+                rewards[j] = r[a]
                 dones[j] = term[a] or trunc[a]
                 infos[j]["TimeLimit.truncated"] = bool(trunc[a] and not term[a])
             if env.agents:
@@ -215,6 +254,20 @@ class BatchedSwarmVecEnv(VecEnv):
             return [indices]
         return list(indices)
 
+    def _observation(
+        self, env: SwarmEnv, obs: dict[str, np.ndarray], base: dict[str, np.ndarray] | None
+    ) -> np.ndarray:
+        """One copy's VecEnv rows (R, D [+ 2] [+ P]): the agents' observations, the scripted
+        command in unit scale (``residual_observes_base``), then the critic block from the
+        copy's ground truth (``critic_state``)."""
+        agents = env.possible_agents
+        parts = [np.stack([obs[a] for a in agents])]
+        if self.base_dims:
+            parts.append(base_in_unit_scale([base[a] for a in agents], self._high))
+        if self.critic_dims:
+            parts.append(critic_state(env.last_world_step.truth, env.task, len(agents)))
+        return np.concatenate(parts, axis=1) if len(parts) > 1 else parts[0]
+
     def _reset_copies(self, copies: Sequence[int], seeds: Sequence[int | None]) -> dict:
         """Reset ``copies`` (their robots' filters in one shared call); their obs per copy."""
         n = self.agents_per_copy
@@ -227,13 +280,14 @@ class BatchedSwarmVecEnv(VecEnv):
         out = {}
         for k, s in zip(copies, seeds, strict=True):
             obs, infos = self.envs[k].finish_reset()
-            out[k] = np.stack([obs[a] for a in self.envs[k].possible_agents])
+            base = None
             if self._bases is not None:
-                self._last[k] = (obs, infos)
                 if s is None:
                     s = 1_000_003 * (self._base_seed + 1) + 1009 * k + self._episodes[k]
                 self._bases[k].reset(int(s))
                 self._episodes[k] += 1
+                base = self._base_commands[k] = self._bases[k](obs, infos)
+            out[k] = self._observation(self.envs[k], obs, base)
         return out
 
 
@@ -249,10 +303,18 @@ def make_batched_vec_env(
     seed: int | None = 0,
     monitor_file: str | None = None,
     residual: str | None = None,
+    critic_state: bool = False,
+    residual_observes_base: bool = False,
 ):
     """:class:`BatchedSwarmVecEnv` wrapped in SB3's ``VecMonitor`` (episode statistics)."""
     from stable_baselines3.common.vec_env import VecMonitor
 
-    return VecMonitor(
-        BatchedSwarmVecEnv(env_kwargs, n_copies, seed, residual=residual), filename=monitor_file
+    venv = BatchedSwarmVecEnv(
+        env_kwargs,
+        n_copies,
+        seed,
+        residual=residual,
+        critic_state=critic_state,
+        residual_observes_base=residual_observes_base,
     )
+    return VecMonitor(venv, filename=monitor_file)

@@ -10,6 +10,9 @@ sector block of ``SwarmConfig.lidar_sectors`` when present, the odometry, the ta
 passed on divided by its observation-space bound, so sector ranges arrive as ``r / r_max`` in
 [0, 1].
 
+With ``critic_dims`` = P > 0 the last P entries of the observation (a centralised critic's
+true-state block, :mod:`agents.sb3.central_critic`) are dropped: the actor never reads them.
+
 Row inputs (scaled to O(1)): ``w``, ``x / 2``, ``y / 2``, ``rho / 2``, ``sqrt(sxx)``,
 ``sqrt(syy)``, ``sxy``, with ``rho = ||(x, y)||``; rows with ``valid = 0`` are masked out.
 """
@@ -31,9 +34,14 @@ class NeighbourSetExtractor(BaseFeaturesExtractor):
     """Deep Sets over the ``top_k`` rows of the ``"phd"``/``"truth"`` observation layout."""
 
     def __init__(
-        self, observation_space: gym.spaces.Box, top_k: int = 16, hidden: int = 64
+        self,
+        observation_space: gym.spaces.Box,
+        top_k: int = 16,
+        hidden: int = 64,
+        critic_dims: int = 0,
     ) -> None:
-        n_extra = observation_space.shape[0] - ROW * top_k
+        n_read = observation_space.shape[0] - critic_dims
+        n_extra = n_read - ROW * top_k
         if n_extra < 2:
             raise ValueError(
                 f"observation of size {observation_space.shape[0]} does not hold "
@@ -41,10 +49,12 @@ class NeighbourSetExtractor(BaseFeaturesExtractor):
             )
         super().__init__(observation_space, features_dim=2 * hidden + n_extra)
         self.top_k = top_k
+        self.n_read = n_read  # the entries the extractor reads (the rest: critic-only)
         self.phi = nn.Sequential(
             nn.Linear(ROW, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU()
         )
-        high = torch.as_tensor(observation_space.high[ROW * top_k :], dtype=torch.float32)
+        high = observation_space.high[ROW * top_k : self.n_read]
+        high = torch.as_tensor(high, dtype=torch.float32)
         self.register_buffer("extra_scale", torch.clamp(high.abs(), min=1e-6))
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
@@ -72,5 +82,5 @@ class NeighbourSetExtractor(BaseFeaturesExtractor):
         weighted = (h * mask * w.clamp(0, 3).unsqueeze(-1)).sum(dim=1)
         maxed = (h * mask - (1 - mask) * 1e4).max(dim=1).values
         maxed = torch.where(mask.sum(dim=1) > 0, maxed, torch.zeros_like(maxed))
-        extra = obs[:, ROW * self.top_k :] / self.extra_scale
+        extra = obs[:, ROW * self.top_k : self.n_read] / self.extra_scale
         return torch.cat([weighted, maxed, extra], dim=1)

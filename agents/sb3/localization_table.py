@@ -1,7 +1,7 @@
 """One table of task and localization metrics for several policies, in one process.
 
     python -m agents.sb3.localization_table --policies runs/a/model.zip runs/b/model.zip \\
-        scripted:formation --seeds 100-109 --out docs --name ablation
+        scripted:formation --seeds 100-109 --out docs/results --name ablation
 
 For every policy, on the same held-out seeds (one deterministic episode each, ``max_steps`` of
 the first model's env): the per-agent episode return and the task metric, mean ± std over the
@@ -23,7 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from agents.sb3.report import _seeds, score
+from agents.sb3.report import score
+from swarm_phd.sweep import parse_seeds
 
 
 def policy_row(
@@ -95,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", default="100-109")
     parser.add_argument("--localizers", default="phd-lc", help="comma-separated")
     parser.add_argument("--metric", default="formation_error_m")
-    parser.add_argument("--out", default="docs")
+    parser.add_argument("--out", default="docs/results")
     parser.add_argument("--name", default="ablation")
     args = parser.parse_args(argv)
     from agents.sb3.policy import read_metadata
@@ -104,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
     if not models:
         raise ValueError("--policies needs at least one model.zip (its env is the table's env)")
     base = dict(read_metadata(models[0])["env_kwargs"])
-    seeds = _seeds(args.seeds)
+    seeds = parse_seeds(args.seeds)
     localizers = [s.strip() for s in args.localizers.split(",") if s.strip()]
     rows = []
     for spec in args.policies:

@@ -6,8 +6,13 @@ carries one extra member, ``swarm_phd.json`` (SB3's loader ignores it)::
     {"env_kwargs": {...},            # preset, task, task_params, observation, n_robots, ...
      "obs_norm": {"mean": [...], "var": [...], "clip": 10.0, "epsilon": 1e-8} | null,
      "action_scale": "unit",         # the policy acts in [-1, 1]; scaled by [v_max, omega_max]
-     "residual": "scripted:NAME"}    # optional, a residual policy (agents.sb3.residual):
+     "residual": "scripted:NAME",    # optional, a residual policy (agents.sb3.residual):
                                      # command = clip(scripted + policy, -1, 1) x high
+     "residual_observes_base": true, # optional: the scripted command / high is appended to
+                                     # the observation (agents.sb3.residual)
+     "critic_dims": P}               # optional, a centralised critic's block
+                                     # (agents.sb3.central_critic): P zeros are appended to
+                                     # the observation, which the actor does not read
 
 ``env_kwargs.json`` next to ``model.zip`` holds the same ``env_kwargs`` for humans and scripts.
 """
@@ -106,6 +111,8 @@ class SB3Policy:
             self._clip = float(norm["clip"])
         else:
             self._mean = None
+        #: Entries of a centralised critic's block, padded with zeros (the actor ignores them).
+        self.critic_dims = int(meta.get("critic_dims", 0))
 
     def reset(self, seed: int | None = None) -> None:
         if seed is not None:
@@ -124,12 +131,20 @@ class SB3Policy:
         if not observations:
             return {}
         agents = list(observations)
-        batch = self.normalize(np.stack([observations[a] for a in agents]))
-        actions, _ = self.model.predict(batch, deterministic=self.deterministic)
+        batch = np.stack([observations[a] for a in agents])
+        base = None
         if self.base is not None:
-            from agents.sb3.residual import compose
+            from agents.sb3.residual import base_in_unit_scale, compose
 
             base = self.base(observations, infos)
+            if self.meta.get("residual_observes_base"):
+                unit = base_in_unit_scale([base[a] for a in agents], self.action_high)
+                batch = np.concatenate([batch, unit], axis=1)
+        batch = self.normalize(batch)
+        if self.critic_dims:
+            batch = np.pad(batch, ((0, 0), (0, self.critic_dims)))
+        actions, _ = self.model.predict(batch, deterministic=self.deterministic)
+        if base is not None:
             return {
                 a: compose(base[a], actions[k], self.action_high) for k, a in enumerate(agents)
             }
@@ -147,6 +162,9 @@ def load_sb3_policy(path: str | Path, env: Any, deterministic: bool = True) -> S
     agent = env.possible_agents[0]
     want = model.observation_space.shape
     have = env.observation_space(agent).shape
+    # Entries the policy adds to the env's observation: the scripted command, the critic block.
+    added = 2 * bool(meta.get("residual_observes_base")) + int(meta.get("critic_dims", 0))
+    want = (want[0] - added,)
     if want != have:
         raise ValueError(
             f"model {str(path)!r} expects observations of shape {want}, the env gives {have}: "

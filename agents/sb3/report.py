@@ -1,7 +1,7 @@
 """Score policies on a task and draw learning curves (the figures of ``docs/results.md``).
 
     python -m agents.sb3.report --runs runs/formation_phd runs/formation_truth \\
-        --baselines random scripted:formation --seeds 100-109 --out docs/
+        --baselines random scripted:formation --seeds 100-109 --out docs/results
 
 ``--warm-start`` also scores each run's ``warm_start.zip`` (the behaviour-cloned actor before
 PPO); ``--name`` prefixes the outputs (``results_<name>.json``, ``results_<name>_learning_curve
@@ -27,14 +27,13 @@ from typing import Any
 
 import numpy as np
 
+from swarm_phd.sweep import parse_seeds
+
 METRICS = ("formation_error_m", "final_formation_error_m", "spacing_error_m")
 
 
-def _seeds(text: str) -> list[int]:
-    if "-" in text:
-        lo, hi = (int(x) for x in text.split("-"))
-        return list(range(lo, hi + 1))
-    return [int(x) for x in text.split(",") if x.strip()]
+#: Task metrics where more is better (the rest are errors and rates: less is better).
+HIGHER_IS_BETTER = ("coverage", "episode_return")
 
 
 def score(
@@ -141,17 +140,47 @@ def monitor_curve(run_dir: Path, window: int = 200) -> tuple[np.ndarray, np.ndar
     return steps[w - 1 :], smooth
 
 
+def run_models(run_dir: Path) -> list[tuple[int, Path]]:
+    """A run's models as ``(PPO agent transitions, path)`` in training order: its warm start
+    (``warm_start.zip``, at 0), its checkpoints and its final ``model.zip`` (a final model
+    saved at a checkpoint's step replaces it)."""
+    models = {
+        int(re.findall(r"\d+", p.stem)[0]): p
+        for p in (run_dir / "checkpoints").glob("model_*_steps.zip")
+    }
+    if (run_dir / "warm_start.zip").is_file():
+        models[0] = run_dir / "warm_start.zip"
+    summary = run_dir / "train_summary.json"
+    if summary.is_file() and (run_dir / "model.zip").is_file():
+        models[int(json.loads(summary.read_text())["timesteps"])] = run_dir / "model.zip"
+    return sorted(models.items())
+
+
 def checkpoint_scores(run_dir: Path, seeds: list[int]) -> list[tuple[int, dict[str, Any]]]:
     from agents.sb3.policy import read_metadata
 
-    out = []
-    for path in sorted(
-        (run_dir / "checkpoints").glob("model_*_steps.zip"),
-        key=lambda p: int(re.findall(r"\d+", p.stem)[0]),
-    ):
-        steps = int(re.findall(r"\d+", path.stem)[0])
-        out.append((steps, score(str(path), read_metadata(path)["env_kwargs"], seeds)))
-    return out
+    return [
+        (steps, score(str(path), read_metadata(path)["env_kwargs"], seeds))
+        for steps, path in run_models(run_dir)
+        if path.parent.name == "checkpoints"
+    ]
+
+
+def select_model(run_dir: Path, seeds: list[int], metric: str) -> tuple[Path, list[dict]]:
+    """The run's model (checkpoint or final) with the best mean ``metric`` on the validation
+    ``seeds``, and every candidate's score (``{"steps", "model", "mean"}``); ties go to the
+    earlier model."""
+    from agents.sb3.policy import read_metadata
+
+    sign = -1.0 if metric in HIGHER_IS_BETTER else 1.0
+    scored = []
+    for steps, path in run_models(run_dir):
+        result = score(str(path), read_metadata(path)["env_kwargs"], seeds)
+        scored.append({"steps": steps, "model": str(path), "mean": result["mean"][metric]})
+    if not scored:
+        raise ValueError(f"run {str(run_dir)!r} has no model.zip and no checkpoints")
+    best = min(scored, key=lambda c: sign * c["mean"])
+    return Path(best["model"]), scored
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -163,11 +192,18 @@ def main(argv: list[str] | None = None) -> int:
         default=["random", "scripted:formation", "scripted:formation@truth"],
     )
     parser.add_argument("--seeds", default="100-109")
-    parser.add_argument("--out", default="docs")
+    parser.add_argument("--out", default="docs/results")
     parser.add_argument(
         "--checkpoints", action="store_true", help="also score every checkpoint (slower)"
     )
     parser.add_argument("--checkpoint-seeds", default="100-104")
+    parser.add_argument(
+        "--select-on",
+        default=None,
+        metavar="SEEDS",
+        help="validation seeds, disjoint from --seeds: each run is scored with its checkpoint "
+        "(or final model) that did best on them",
+    )
     parser.add_argument(
         "--warm-start", action="store_true", help="also score each run's warm_start.zip"
     )
@@ -202,7 +238,13 @@ def main(argv: list[str] | None = None) -> int:
 
     from agents.sb3.policy import read_metadata
 
-    seeds = _seeds(args.seeds)
+    seeds = parse_seeds(args.seeds)
+    validation = None if args.select_on is None else parse_seeds(args.select_on, "--select-on")
+    if validation is not None and set(validation) & set(seeds):
+        raise ValueError(
+            f"--select-on {args.select_on} shares seeds with --seeds {args.seeds}: selecting "
+            "a checkpoint on the seeds it is scored on would flatter it"
+        )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     runs = [Path(r) for r in args.runs]
@@ -217,6 +259,15 @@ def main(argv: list[str] | None = None) -> int:
     curves = {}
     for run in runs:
         spec = str(run / "model.zip")
+        if validation is not None:
+            chosen, candidates = select_model(run, validation, args.metric)
+            results.setdefault("selection", {})[run.name] = {
+                "seeds": validation,
+                "chosen": str(chosen),
+                "candidates": candidates,
+            }
+            print(f"{run.name}: selected {chosen} on seeds {args.select_on}")
+            spec = str(chosen)
         results["policies"][spec] = score(spec, read_metadata(spec)["env_kwargs"], seeds)
         print(spec, results["policies"][spec]["mean"])
         group = re.sub(r"_s\d+$", "", run.name)
@@ -233,9 +284,15 @@ def main(argv: list[str] | None = None) -> int:
         curves[("residual PPO " if residual else "PPO ") + run.name] = monitor_curve(run)
         if args.checkpoints:
             results.setdefault("checkpoints", {})[run.name] = [
-                (s, r["mean"]) for s, r in checkpoint_scores(run, _seeds(args.checkpoint_seeds))
+                (s, r["mean"])
+                for s, r in checkpoint_scores(run, parse_seeds(args.checkpoint_seeds))
             ]
-            final = score(spec, read_metadata(spec)["env_kwargs"], _seeds(args.checkpoint_seeds))
+            final_spec = str(run / "model.zip")
+            final = score(
+                final_spec,
+                read_metadata(final_spec)["env_kwargs"],
+                parse_seeds(args.checkpoint_seeds),
+            )
             results["checkpoints"][run.name].append(
                 (
                     int(json.loads((run / "train_summary.json").read_text())["timesteps"]),
@@ -289,7 +346,7 @@ def main(argv: list[str] | None = None) -> int:
                 label=name,
             )
         for spec in args.baselines:
-            base = score(spec, env_kwargs, _seeds(args.checkpoint_seeds))
+            base = score(spec, env_kwargs, parse_seeds(args.checkpoint_seeds))
             ax.axhline(base["mean"][args.metric], ls="--", color=colors.get(spec), label=spec)
         ax.set_xlabel("agent transitions")
         ax.set_ylabel(f"{args.metric}, held-out seeds")

@@ -13,7 +13,8 @@ at exactly zero
 scripted controller, and PPO only has to learn where the controller is wrong. The policy
 network sees the env's observation, not ``b``'s internal state (the scripted controller's
 random-walk generator, its full lidar scan); ``SwarmConfig.lidar_sectors`` gives it the scan
-summarised in sectors.
+summarised in sectors, and ``--residual-observes-base`` gives it ``b``'s command itself
+(:func:`base_in_unit_scale`, appended to the observation).
 
 Training: ``swarm-phd train --residual scripted:formation`` (batched VecEnv only: the base
 needs each copy's ``infos``). Evaluation: the model zip's ``swarm_phd.json`` says
@@ -51,6 +52,13 @@ def compose(base: np.ndarray, correction: np.ndarray, high: np.ndarray) -> np.nd
     high = np.asarray(high, dtype=np.float64)
     c = np.clip(np.asarray(correction, dtype=np.float64), -1.0, 1.0) * high
     return np.clip(np.asarray(base, dtype=np.float64) + c, -high, high).astype(np.float32)
+
+
+def base_in_unit_scale(base: Any, high: np.ndarray) -> np.ndarray:
+    """Scripted commands ``[v_mps, omega_radps]`` (..., 2) as the policy's input: ``base /
+    high`` clipped to [-1, 1], float32 (``--residual-observes-base``)."""
+    unit = np.asarray(base, dtype=np.float64) / np.asarray(high, dtype=np.float64)
+    return np.clip(unit, -1.0, 1.0).astype(np.float32)
 
 
 class ResidualBase:

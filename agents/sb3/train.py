@@ -101,8 +101,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--warm-start",
         default=None,
         metavar="scripted:NAME",
-        help="behaviour-clone this scripted controller (on the same observation) before PPO "
-        "(agents.sb3.warm_start)",
+        help="behaviour-clone this teacher (on the same observation) before PPO "
+        "(agents.sb3.warm_start): scripted:NAME, or privileged:NAME (reads ground truth, "
+        "agents.sb3.privileged); with --residual the clone is the correction from the "
+        "scripted base to the teacher",
     )
     parser.add_argument(
         "--residual",
@@ -116,6 +118,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=float,
         default=-1.5,
         help="initial log-std of the residual correction (unit action scale)",
+    )
+    parser.add_argument(
+        "--residual-observes-base",
+        action="store_true",
+        help="with --residual: append the scripted command (unit scale) to the policy's "
+        "observation, so the correction can depend on it directly",
+    )
+    parser.add_argument(
+        "--critic-state",
+        action="store_true",
+        help="centralised critic (agents.sb3.central_critic): the value function also reads "
+        "the true teammate positions and task state, the policy does not (batched VecEnv, "
+        "--extractor sets)",
     )
     parser.add_argument(
         "--lidar-sectors",
@@ -240,6 +255,8 @@ def run(args: argparse.Namespace) -> int:
         critic_warmup=args.critic_warmup,
         residual=args.residual,
         residual_log_std=args.residual_log_std,
+        critic_state=args.critic_state,
+        residual_observes_base=args.residual_observes_base,
     )
     return EXIT_CODES.get(interrupted, 0) if interrupted else 0
 
@@ -252,6 +269,8 @@ def _vec_env(
     seed: int,
     monitor: str,
     residual: str | None = None,
+    critic_state: bool = False,
+    residual_observes_base: bool = False,
 ):
     """The training VecEnv (``--vec``): batched in-process copies or SuperSuit's."""
     from agents.sb3.adapter import make_vec_env
@@ -265,11 +284,18 @@ def _vec_env(
     if vec == "auto":
         identities = make_localizer(env_kwargs.get("localizer", "phd"), 1).has_identities
         vec = "supersuit" if num_cpus > 0 or identities else "batched"
-    if residual is not None and vec != "batched":
-        raise ValueError("--residual needs the batched VecEnv (--vec batched, --num-cpus 0)")
+    for flag, on in (("--residual", residual is not None), ("--critic-state", critic_state)):
+        if on and vec != "batched":
+            raise ValueError(f"{flag} needs the batched VecEnv (--vec batched, --num-cpus 0)")
     if vec == "batched":
         return make_batched_vec_env(
-            env_kwargs, n_copies=n_copies, seed=seed, monitor_file=monitor, residual=residual
+            env_kwargs,
+            n_copies=n_copies,
+            seed=seed,
+            monitor_file=monitor,
+            residual=residual,
+            critic_state=critic_state,
+            residual_observes_base=residual_observes_base,
         )
     return make_vec_env(
         env_kwargs, n_copies=n_copies, num_cpus=num_cpus, seed=seed, monitor_file=monitor
@@ -304,6 +330,8 @@ def _train(
     critic_warmup: int = 0,
     residual: str | None = None,
     residual_log_std: float = -1.5,
+    critic_state: bool = False,
+    residual_observes_base: bool = False,
 ) -> tuple[Path, str | None]:
     """Train; return the path of ``model.zip`` and the signal that interrupted it (or None).
 
@@ -312,7 +340,9 @@ def _train(
     writes ``warm_start.zip`` and ``warm_start.json``). ``critic_warmup``: that many first PPO
     rollouts update only the value function. ``residual``: ``"scripted:NAME"`` trains a
     residual policy (:mod:`agents.sb3.residual`; correction mean 0 and log-std
-    ``residual_log_std`` at the start).
+    ``residual_log_std`` at the start; ``residual_observes_base`` appends the scripted command
+    to the policy's observation). ``critic_state``: a centralised critic that also reads
+    the true state (:mod:`agents.sb3.central_critic`).
     """
     if timesteps <= 0:
         raise ValueError(f"--timesteps must be > 0, got {timesteps}")
@@ -328,22 +358,29 @@ def _train(
             continue
         if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
             raise ValueError(f"{flag} must be a finite number > 0, got {v!r}")
+    if residual_observes_base and residual is None:
+        raise ValueError("--residual-observes-base needs --residual scripted:NAME")
     if residual is not None:
         from agents.sb3.residual import check_residual
 
         check_residual(residual)
-        if warm_start is not None:
-            raise ValueError(
-                "--residual and --warm-start exclude each other (the residual "
-                "starts from the scripted controller itself)"
-            )
         if not (isinstance(residual_log_std, (int, float)) and -5.0 <= residual_log_std <= 1.0):
             raise ValueError(f"--residual-log-std must be in [-5, 1], got {residual_log_std!r}")
+    if critic_state:
+        if warm_start is not None:
+            raise ValueError(
+                "--critic-state and --warm-start exclude each other (the clone is fitted on "
+                "the env's observation, without the critic block)"
+            )
+        if extractor != "sets":
+            raise ValueError(f"--critic-state needs --extractor sets, got {extractor!r}")
     if warm_start is not None:
         warm_start = {"rounds": 1, "epochs": 30, "log_std": -1.5, **warm_start}
         teacher = warm_start.get("teacher")
-        if not isinstance(teacher, str) or not teacher.startswith("scripted:"):
-            raise ValueError(f"--warm-start must be 'scripted:NAME', got {teacher!r}")
+        if not isinstance(teacher, str) or not teacher.startswith(("scripted:", "privileged:")):
+            raise ValueError(
+                f"--warm-start must be 'scripted:NAME' or 'privileged:NAME', got {teacher!r}"
+            )
         for key in ("steps", "rounds", "epochs"):
             v = warm_start.get(key)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
@@ -368,6 +405,11 @@ def _train(
     probe = parallel_env(**env_kwargs)
     n_agents = len(probe.possible_agents)
     probe_top_k = probe.config.top_k
+    critic_dims = 0
+    if critic_state:
+        from agents.sb3.central_critic import critic_state_dims
+
+        critic_dims = critic_state_dims(n_agents, probe.task)
     probe.close()
 
     out.mkdir(parents=True, exist_ok=True)
@@ -423,6 +465,8 @@ def _train(
             "critic_warmup": critic_warmup,
             "residual": residual,
             "residual_log_std": residual_log_std if residual else None,
+            "critic_state": critic_state,
+            "residual_observes_base": residual_observes_base,
             "policy_kwargs": {
                 k: v for k, v in policy_kwargs.items() if k != "features_extractor_class"
             },
@@ -437,7 +481,15 @@ def _train(
     previous_sigint = set_signal(signal.SIGINT, signal.SIG_IGN) if num_cpus > 0 else None
     try:
         venv = _vec_env(
-            vec, env_kwargs, n_copies, num_cpus, seed, str(out / "monitor.csv"), residual
+            vec,
+            env_kwargs,
+            n_copies,
+            num_cpus,
+            seed,
+            str(out / "monitor.csv"),
+            residual,
+            critic_state,
+            residual_observes_base,
         )
     finally:
         if previous_sigint is not None:
@@ -468,6 +520,10 @@ def _train(
         }
         if residual is not None:
             out_meta["residual"] = residual
+        if residual_observes_base:
+            out_meta["residual_observes_base"] = True
+        if critic_dims:
+            out_meta["critic_dims"] = critic_dims
         return out_meta
 
     class Checkpoints(BaseCallback):
@@ -490,8 +546,17 @@ def _train(
                 return False
             return True
 
+    policy_class: Any = "MlpPolicy"
+    if critic_dims:
+        from agents.sb3.central_critic import CentralCriticPolicy
+
+        policy_class = CentralCriticPolicy
+        policy_kwargs = {
+            k: v for k, v in policy_kwargs.items() if not k.startswith(("features_", "share_"))
+        }
+        policy_kwargs.update(critic_dims=critic_dims, top_k=probe_top_k)
     model = PPO(
-        "MlpPolicy",
+        policy_class,
         venv,
         seed=seed,
         device="cpu",
@@ -520,7 +585,17 @@ def _train(
             # Inside the handler: a signal during the warm start saves the actor as it is.
             if warm_start is not None:
                 _warm_start(
-                    model, venv, env_kwargs, warm_start, n_copies, seed, norm_obs, out, meta
+                    model,
+                    venv,
+                    env_kwargs,
+                    warm_start,
+                    n_copies,
+                    seed,
+                    norm_obs,
+                    out,
+                    meta,
+                    residual,
+                    residual_observes_base,
                 )
             model.learn(total_timesteps=timesteps, callback=callbacks, progress_bar=False)
         except KeyboardInterrupt:
@@ -557,8 +632,21 @@ def _train(
     return path, interrupted
 
 
-def _warm_start(model, venv, env_kwargs, warm, n_copies, seed, norm_obs, out, meta) -> None:
-    """Clone the teacher into ``model``'s actor; save the clone as ``warm_start.zip``."""
+def _warm_start(
+    model,
+    venv,
+    env_kwargs,
+    warm,
+    n_copies,
+    seed,
+    norm_obs,
+    out,
+    meta,
+    residual=None,
+    residual_observes_base=False,
+) -> None:
+    """Clone the teacher into ``model``'s actor (with ``residual``: the correction from the
+    scripted base to the teacher); save it as ``warm_start.zip``."""
     from agents.sb3.warm_start import warm_start
 
     start = time.perf_counter()
@@ -575,6 +663,8 @@ def _warm_start(model, venv, env_kwargs, warm, n_copies, seed, norm_obs, out, me
         # The MLP reads VecNormalize's output: its statistics start from the demonstrations.
         obs_transform=venv.normalize_obs if norm_obs else None,
         observe=venv.obs_rms.update if norm_obs else None,
+        residual=residual,
+        residual_observes_base=residual_observes_base,
     )
     summary["wall_time_s"] = time.perf_counter() - start
     write_json_atomically(out / "warm_start.json", summary)

@@ -20,6 +20,14 @@ The teacher also reads its lidar scan (obstacle avoidance) and random-walks when
 neither is in the policy's observation, so the clone reproduces the teacher where the PHD table
 decides the action and averages over the rest. :func:`fit_report` measures how closely.
 
+**Residual distillation** (``residual="scripted:NAME"``, ``swarm-phd train --residual ...
+--warm-start TEACHER``): the copies run as a residual VecEnv, and the label is the correction
+that turns the scripted base's command into the teacher's, ``clip((teacher - base) / high,
+-1, 1)``, and 0 where the teacher random-walks (it has nothing to act on, and its random walk
+is not the base's); the fitted actor is that correction. With a privileged teacher
+(``privileged:NAME``, :mod:`agents.sb3.privileged`, which reads ground truth) the student learns
+from its own observation what the teacher knows from the truth.
+
 Demonstration copy ``k`` of round ``r`` is seeded ``10_000 + 100 * (1000 * seed + r) + k`` (the
 held-out fit episodes use ``r = 999``; each copy's later episodes continue its own generator).
 For ``seed >= 0`` (numpy refuses negative seeds), ``n_copies <= 100`` and ``rounds <= 999``
@@ -72,15 +80,20 @@ class Demonstrations:
 
 
 def _teacher_infos(env: Any) -> dict[str, dict[str, Any]]:
-    """What a scripted controller reads from ``infos``: each agent's latest sensor records."""
+    """What a teacher reads from ``infos``: each agent's latest sensor records, and (for the
+    privileged teachers) the true positions of every robot in its frame."""
     from swarm_env.env import measurements_as_dict
 
     step = env.last_world_step
     empty = RobotMeasurements()
-    return {
-        a: {"measurements": measurements_as_dict(step.measurements.get(a, empty))}
-        for a in env.agents
-    }
+    infos = {}
+    for a in env.agents:
+        infos[a] = {"measurements": measurements_as_dict(step.measurements.get(a, empty))}
+        if step.truth is not None:
+            infos[a]["truth"] = {
+                "neighbours_xy": step.truth.relative_xy[env.possible_agents.index(a)]
+            }
+    return infos
 
 
 def collect_demonstrations(
@@ -91,6 +104,8 @@ def collect_demonstrations(
     n_copies: int = 4,
     seed: int = 0,
     learner: Any = None,
+    residual: str | None = None,
+    residual_observes_base: bool = False,
 ) -> Demonstrations:
     """Roll out ``n_copies`` batched copies for ``ceil(n_transitions / agents)`` steps.
 
@@ -99,31 +114,44 @@ def collect_demonstrations(
     env_kwargs : dict
         As for :func:`swarm_env.parallel_env` (the training env).
     teacher : str
-        ``"scripted:NAME"`` (see :data:`agents.policies.SCRIPTED`); labels every transition.
+        ``"scripted:NAME"`` (see :data:`agents.policies.SCRIPTED`) or ``"privileged:NAME"``
+        (:data:`agents.sb3.privileged.TEACHERS`); labels every transition.
     n_transitions : int
         Agent transitions to collect (>= 1).
     learner : callable ``(obs (B, D) float32) -> actions (B, 2)`` in unit scale, optional
         Drives the copies instead of the teacher (DAgger); the teacher still labels.
+    residual, residual_observes_base
+        Residual distillation (module doc): the copies run with this scripted base (and its
+        command in the observation); labels are corrections ``(teacher - base) / high``.
 
     Returns
     -------
     Demonstrations with ``ceil(n_transitions / (n_copies * n_robots)) * n_copies * n_robots``
     rows.
     """
-    from agents.policies import load_policy
     from agents.sb3.batched import BatchedSwarmVecEnv
+    from agents.sb3.privileged import load_teacher
 
-    if not teacher.startswith("scripted:"):
-        raise ValueError(f"warm start teacher must be 'scripted:NAME', got {teacher!r}")
+    if not isinstance(teacher, str) or not teacher.startswith(("scripted:", "privileged:")):
+        raise ValueError(
+            f"warm start teacher must be 'scripted:NAME' or 'privileged:NAME', got {teacher!r}"
+        )
     if isinstance(n_transitions, bool) or not isinstance(n_transitions, int) or n_transitions < 1:
         raise ValueError(f"bc steps must be an int >= 1, got {n_transitions!r}")
     if isinstance(n_copies, bool) or not isinstance(n_copies, int) or not 1 <= n_copies <= 100:
         # More copies would run into the next round's block of seeds (module docstring).
         raise ValueError(f"warm start n_copies must be an int in [1, 100], got {n_copies!r}")
-    venv = BatchedSwarmVecEnv(env_kwargs, n_copies, seed=DEMO_SEED_BASE + 100 * seed)
+    venv = BatchedSwarmVecEnv(
+        env_kwargs,
+        n_copies,
+        seed=DEMO_SEED_BASE + 100 * seed,
+        residual=residual,
+        residual_observes_base=residual_observes_base,
+    )
     try:
         n = venv.agents_per_copy
-        teachers = [load_policy(teacher, env) for env in venv.envs]
+        d_env = venv.envs[0].observation_space(venv.envs[0].possible_agents[0]).shape[0]
+        teachers = [load_teacher(teacher, env) for env in venv.envs]
         rng = np.random.default_rng(DEMO_SEED_BASE + 100 * seed)
         for t in teachers:
             t.reset(int(rng.integers(2**31)))
@@ -134,9 +162,17 @@ def collect_demonstrations(
         for _ in range(n_steps):
             labels = np.zeros((venv.num_envs, 2), np.float32)
             for k, env in enumerate(venv.envs):
-                rows = obs[k * n : (k + 1) * n]
+                rows = obs[k * n : (k + 1) * n, :d_env]  # the env's own observation
                 act = teachers[k](dict(zip(env.agents, rows, strict=True)), _teacher_infos(env))
                 labels[k * n : (k + 1) * n] = [act[a] for a in env.agents]
+                if residual is not None:
+                    # Where the teacher has nothing to act on it random-walks on its own
+                    # generator, not the base's: no correction to learn there (label 0).
+                    wandering = getattr(teachers[k], "wandering", set())
+                    base = venv.scripted_commands(k)
+                    labels[k * n : (k + 1) * n] = [
+                        np.zeros(2) if a in wandering else act[a] - base[a] for a in env.agents
+                    ]
             labels = np.clip(labels / high, -1.0, 1.0).astype(np.float32)
             all_obs.append(obs.astype(np.float32))
             all_act.append(labels)
@@ -265,12 +301,15 @@ def warm_start(
     obs_transform: Any = None,
     observe: Any = None,
     holdout_fraction: float = 0.1,
+    residual: str | None = None,
+    residual_observes_base: bool = False,
 ) -> dict[str, Any]:
     """Collect, fit (and, for ``rounds > 1``, DAgger); return a summary with the fit report on
     held-out demonstrations (a fresh episode set collected under the teacher).
 
     ``observe(obs (M, D))``, if given, sees every round's raw observations before the fit (to
-    update VecNormalize's running statistics that ``obs_transform`` then applies)."""
+    update VecNormalize's running statistics that ``obs_transform`` then applies).
+    ``residual``, ``residual_observes_base``: residual distillation (module doc)."""
     import torch
 
     if isinstance(rounds, bool) or not isinstance(rounds, int) or not 1 <= rounds <= 999:
@@ -295,6 +334,8 @@ def warm_start(
             n_copies=n_copies,
             seed=seed * 1000 + r,  # each round its own episodes
             learner=None if r == 0 else learner,
+            residual=residual,
+            residual_observes_base=residual_observes_base,
         )
         data = new if data is None else data + new
         if observe is not None:
@@ -310,10 +351,13 @@ def warm_start(
         max(1, int(holdout_fraction * n_transitions)),
         n_copies=n_copies,
         seed=seed * 1000 + 999,
+        residual=residual,
+        residual_observes_base=residual_observes_base,
     )
     assert data is not None
     return {
         "teacher": teacher,
+        "residual": residual,
         "transitions": len(data),
         "rounds": rounds,
         "final_loss": losses[-1][-1],

@@ -69,3 +69,14 @@ class Task:
     def metrics(self) -> dict[str, float]:
         """Episode metrics so far (e.g. final formation error), for evaluation tables."""
         return {}
+
+    # -- training only ----------------------------------------------------------------------
+    #: Width of :meth:`critic_features` (a class constant or set in ``__init__``).
+    n_critic_features = 0
+
+    def critic_features(self, truth: GroundTruth) -> np.ndarray:
+        """True per-agent task state for a centralised critic, shape (N, ``n_critic_features``).
+
+        Simulation-only training input (:mod:`agents.sb3.central_critic`): the value function
+        may read it, the policy never does. Default: none."""
+        return np.zeros((len(truth.poses), 0))

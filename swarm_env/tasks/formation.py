@@ -26,6 +26,9 @@ Termination: never (holding the formation is the task). Truncation: ``max_steps`
 
 Task features appended to each observation (mission parameters a robot is given, not sensed):
 circle ``[r, s*]``, lattice ``[d]``.
+
+Critic features (training only, :meth:`FormationTask.critic_features`): circle ``[shape error,
+spacing error, true centroid x, y in the robot's body frame]``, lattice ``[lattice error]``.
 """
 
 from __future__ import annotations
@@ -35,7 +38,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from swarm_core.world import GroundTruth
+from swarm_core.world import GroundTruth, relative_positions
 from swarm_env.tasks.base import Task
 from swarm_env.tasks.common import (
     check_choice,
@@ -128,6 +131,7 @@ class FormationTask(Task):
             )
             self.radius_m = None
             self.spacing_weight = 0.0
+        self.n_critic_features = 4 if self.shape == "circle" else 1
         self._errors: list[float] = []
         self._spacing_errors: list[float] = []
 
@@ -189,6 +193,14 @@ class FormationTask(Task):
             self._unseen.append(float(unseen.mean()))
             reward = reward - self.localization_weight * unseen
         return reward
+
+    def critic_features(self, truth: GroundTruth) -> np.ndarray:
+        xy = truth.poses[:, :2]
+        shape_err, spacing_err = self.errors(xy)
+        if self.shape != "circle":
+            return shape_err[:, None]
+        centroid = relative_positions(truth.poses, xy.mean(axis=0, keepdims=True))[:, 0]
+        return np.column_stack([shape_err, spacing_err, centroid])
 
     def metrics(self) -> dict[str, float]:
         if not self._errors:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -33,3 +35,57 @@ def test_markdown_table_has_a_row_per_policy_and_a_pooled_row_per_group():
     assert len(lines) == 2 + 3 + 1
     assert "0.200 ± 0.100" in lines[2]  # a.zip: mean 0.2, std 0.1
     assert "**0.250 ±" in lines[-1] and "2 training seeds" in lines[-1]
+
+
+def _fake_run(tmp_path, scores: dict[str, float], final_steps: int):
+    """A run directory whose models' scores are given by file name (``score`` is patched)."""
+    import json
+
+    run = tmp_path / "run_s0"
+    (run / "checkpoints").mkdir(parents=True)
+    for name in scores:
+        (run / name).parent.mkdir(parents=True, exist_ok=True)
+        (run / name).write_bytes(b"")
+    (run / "train_summary.json").write_text(json.dumps({"timesteps": final_steps}))
+    return run
+
+
+def test_select_model_picks_the_best_on_validation_seeds_in_either_direction(
+    tmp_path, monkeypatch
+):
+    import agents.sb3.policy as policy_module
+    import agents.sb3.report as report
+
+    scores = {
+        "checkpoints/model_100_steps.zip": 0.30,
+        "checkpoints/model_200_steps.zip": 0.10,
+        "checkpoints/model_300_steps.zip": 0.10,  # a tie: the earlier model wins
+        "model.zip": 0.20,
+        "warm_start.zip": 0.25,
+    }
+    run = _fake_run(tmp_path, scores, final_steps=350)
+    seen_seeds = []
+
+    def fake_score(spec, env_kwargs, seeds):
+        seen_seeds.append(list(seeds))
+        value = scores[str(Path(spec).relative_to(run))]
+        return {"mean": {"formation_error_m": value, "coverage": value}}
+
+    monkeypatch.setattr(report, "score", fake_score)
+    monkeypatch.setattr(policy_module, "read_metadata", lambda path: {"env_kwargs": {}})
+    assert [s for s, _ in report.run_models(run)] == [0, 100, 200, 300, 350]
+    chosen, candidates = report.select_model(run, [200, 201], "formation_error_m")
+    assert chosen == run / "checkpoints" / "model_200_steps.zip"
+    assert [c["mean"] for c in candidates] == [0.25, 0.30, 0.10, 0.10, 0.20]
+    assert all(s == [200, 201] for s in seen_seeds)
+    chosen, _ = report.select_model(run, [200], "coverage")  # more coverage is better
+    assert chosen == run / "checkpoints" / "model_100_steps.zip"
+    scores["warm_start.zip"] = 0.05  # the warm start itself can be the best
+    assert report.select_model(run, [200], "formation_error_m")[0] == run / "warm_start.zip"
+
+
+def test_select_on_must_not_share_the_scoring_seeds(tmp_path):
+    from agents.sb3.report import main
+
+    with pytest.raises(ValueError, match="select-on"):
+        main(["--runs", str(tmp_path), "--seeds", "100-109", "--select-on", "105-115"])

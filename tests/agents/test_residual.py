@@ -41,11 +41,17 @@ def test_bad_residual_names_are_refused():
             check_residual(bad)
 
 
-def test_zero_correction_in_the_batched_env_is_the_scripted_controller():
+@pytest.mark.parametrize("observes_base", [False, True])
+def test_zero_correction_in_the_batched_env_is_the_scripted_controller(observes_base):
     """With a zero correction every copy moves exactly as the scripted controller drives the
-    same env alone (same seeds, the base reseeded the same way), across an auto-reset."""
-    vec = BatchedSwarmVecEnv(KWARGS, 2, seed=3, residual="scripted:formation")
+    same env alone (same seeds, the base reseeded the same way), across an auto-reset; with
+    ``residual_observes_base`` the two extra entries are that controller's command / high."""
+    vec = BatchedSwarmVecEnv(
+        KWARGS, 2, seed=3, residual="scripted:formation", residual_observes_base=observes_base
+    )
     n = vec.agents_per_copy
+    d = parallel_env(**KWARGS).observation_space("ugv_0").shape[0]
+    assert vec.observation_space.shape == (d + 2 * observes_base,)
     obs = vec.reset()
     lone = []
     for k in range(2):
@@ -54,14 +60,21 @@ def test_zero_correction_in_the_batched_env_is_the_scripted_controller():
         policy.reset(3 + k)
         o, i = env.reset(seed=3 + k)
         lone.append([env, policy, o, i])
+    high = vec.action_high
     for t in range(20):  # max_steps 15: the second episode's base is reseeded
-        for k, (env, _, o, _) in enumerate(lone):
+        commands = []
+        for k, (env, policy, o, i) in enumerate(lone):
             want = np.stack([o[a] for a in env.possible_agents])
-            np.testing.assert_array_equal(obs[k * n : (k + 1) * n], want, err_msg=f"t={t}")
+            rows = obs[k * n : (k + 1) * n]
+            np.testing.assert_array_equal(rows[:, :d], want, err_msg=f"t={t}")
+            commands.append(policy(o, i))
+            if observes_base:
+                unit = np.stack([commands[k][a] for a in env.possible_agents]) / high
+                np.testing.assert_allclose(rows[:, d:], unit, rtol=1e-6, err_msg=f"t={t}")
         obs, _, dones, _ = vec.step(np.zeros((vec.num_envs, 2), np.float32))
         for k, entry in enumerate(lone):
             env, policy, o, i = entry
-            o, _, _, _, i = env.step(policy(o, i))
+            o, _, _, _, i = env.step(commands[k])
             if not env.agents:
                 assert dones[k * n : (k + 1) * n].all()
                 seed = 1_000_003 * (3 + 1) + 1009 * k + 1  # the copy's second episode
@@ -71,17 +84,15 @@ def test_zero_correction_in_the_batched_env_is_the_scripted_controller():
     vec.close()
 
 
-def test_train_residual_saves_a_model_that_starts_as_the_scripted_controller(tmp_path):
-    """`swarm-phd train --residual`: the correction's mean starts at 0; while the critic warms
-    up the actor does not move, so the saved deterministic policy *is* the scripted controller
-    (same actions on a held-out seed); the zip says it is a residual."""
-    from agents.sb3.policy import load_sb3_policy, read_metadata
+def train_frozen_residual(out, **train_kwargs):
+    """A tiny residual run whose actor never leaves the critic warm-up: the scripted
+    controller in a model zip."""
     from agents.sb3.train import train
 
-    path = train(
+    return train(
         KWARGS,
         2 * 4 * 32 * 2,
-        tmp_path / "run",
+        out,
         n_copies=2,
         vec="batched",
         progress_bar=False,
@@ -89,26 +100,41 @@ def test_train_residual_saves_a_model_that_starts_as_the_scripted_controller(tmp
         checkpoint_every=10_000,
         critic_warmup=5,
         residual="scripted:formation",
-        residual_log_std=-2.0,
+        **train_kwargs,
     )
+
+
+def assert_drives_like_scripted(policy, seed: int = 100, steps: int = 12):
+    """``policy`` gives the scripted formation controller's commands on a held-out seed;
+    returns the env and the last (obs, infos)."""
+    env = parallel_env(**KWARGS)
+    scripted = load_policy("scripted:formation", parallel_env(**KWARGS))
+    policy.reset(seed)
+    scripted.reset(seed)
+    obs, infos = env.reset(seed=seed)
+    for _ in range(steps):
+        actions, want = policy(obs, infos), scripted(obs, infos)
+        for agent in obs:
+            np.testing.assert_allclose(actions[agent], want[agent], atol=1e-6)
+        obs, _, _, _, infos = env.step(actions)
+    return env, obs, infos
+
+
+def test_train_residual_saves_a_model_that_starts_as_the_scripted_controller(tmp_path):
+    """`swarm-phd train --residual`: the correction's mean starts at 0; while the critic warms
+    up the actor does not move, so the saved deterministic policy *is* the scripted controller
+    (same actions on a held-out seed); the zip says it is a residual."""
+    from agents.sb3.policy import load_sb3_policy, read_metadata
+
+    path = train_frozen_residual(tmp_path / "run", residual_log_std=-2.0)
     meta = read_metadata(path)
     assert meta["residual"] == "scripted:formation"
     config = json.loads((tmp_path / "run" / "train_config.json").read_text())
     assert config["residual"] == "scripted:formation"
-    env = parallel_env(**KWARGS)
-    learned = load_sb3_policy(path, env)
+    learned = load_sb3_policy(path, parallel_env(**KWARGS))
     assert learned.base is not None
     np.testing.assert_allclose(learned.model.policy.log_std.detach().numpy(), -2.0, rtol=0, atol=0)
-    scripted = load_policy("scripted:formation", parallel_env(**KWARGS))
-    learned.reset(100)
-    scripted.reset(100)
-    obs, infos = env.reset(seed=100)
-    for _ in range(12):
-        a_learned = learned(obs, infos)
-        a_scripted = scripted(obs, infos)
-        for agent in obs:
-            np.testing.assert_allclose(a_learned[agent], a_scripted[agent], atol=1e-6)
-        obs, _, _, _, infos = env.step(a_learned)
+    assert_drives_like_scripted(learned)
     # The one-table scorer: same motion, so the same task and localization metrics.
     from agents.sb3.localization_table import main
 
@@ -136,18 +162,9 @@ def test_train_residual_saves_a_model_that_starts_as_the_scripted_controller(tmp
     assert "| scripted:formation |" in (out / "results_t.md").read_text()
 
 
-def test_residual_refuses_a_warm_start_and_supersuit(tmp_path):
+def test_residual_refuses_supersuit(tmp_path):
     from agents.sb3.train import train
 
-    with pytest.raises(ValueError, match="warm-start"):
-        train(
-            KWARGS,
-            64,
-            tmp_path / "a",
-            residual="scripted:formation",
-            warm_start={"teacher": "scripted:formation", "steps": 10},
-            progress_bar=False,
-        )
     with pytest.raises(ValueError, match="batched"):
         train(
             KWARGS,

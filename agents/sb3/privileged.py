@@ -1,0 +1,91 @@
+"""Privileged teachers: scripted controllers that also read ground truth (simulation only).
+
+A teacher may know what no robot knows, because only its student is deployed ("learning by
+cheating", Chen et al. 2019). ``scripted:formation`` loses most of its accuracy to spurious
+components of its own PHD estimate: a red decoy tracked as a teammate moves its centroid
+estimate by ~0.18 m (``python -m agents.formation_diagnosis``, ``docs/results.md``). The teacher
+here is the same controller on the same table with every component that sits on no true
+teammate removed: the controller the robot would run if it could tell decoys from teammates.
+A student distilled from it (``swarm-phd train --residual scripted:formation --warm-start
+privileged:formation``: the correction is fitted to ``teacher - scripted`` by DAgger,
+:mod:`agents.sb3.warm_start`) acts on the robot's own observation only.
+
+Teachers are named ``privileged:NAME`` (:data:`TEACHERS`); they read ``infos[agent]["truth"]
+["neighbours_xy"]`` (true positions of every robot in the agent's frame, itself at the origin).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from agents.scripted import TABLE_COLUMNS, FormationPolicy
+from swarm_env.observation import ESTIMATE_COLUMNS
+
+__all__ = ["OracleFormationTeacher", "TEACHERS", "drop_spurious_rows", "load_teacher"]
+
+_X, _Y, _VALID = (ESTIMATE_COLUMNS.index(c) for c in ("x_m", "y_m", "valid"))
+
+
+def drop_spurious_rows(
+    obs: np.ndarray, neighbours_xy: np.ndarray, top_k: int, match_m: float = 0.15
+) -> np.ndarray:
+    """A copy of a ``"phd"`` observation whose table rows farther than ``match_m`` from every
+    true teammate are marked invalid.
+
+    ``obs`` (D,); ``neighbours_xy`` (N, 2): every robot's true position in the agent's body
+    frame, the agent itself at the origin (excluded); metres."""
+    out = np.array(obs, dtype=np.float32, copy=True)
+    table = out[: TABLE_COLUMNS * top_k].reshape(top_k, TABLE_COLUMNS)  # a view into out
+    mates = np.asarray(neighbours_xy, dtype=np.float64).reshape(-1, 2)
+    mates = mates[np.hypot(mates[:, 0], mates[:, 1]) > 1e-9]
+    if not len(mates):
+        table[:, _VALID] = 0.0
+        return out
+    d = np.linalg.norm(table[:, None, [_X, _Y]] - mates[None, :, :], axis=2).min(axis=1)
+    table[d > match_m, _VALID] = 0.0
+    return out
+
+
+class OracleFormationTeacher(FormationPolicy):
+    """``scripted:formation`` on the PHD table without its spurious components (module doc).
+
+    Needs ``infos`` with ground truth; refuses to run without it (a real robot has none)."""
+
+    name = "formation"
+
+    def __init__(self, *args: Any, match_m: float = 0.15, **kwargs: Any) -> None:
+        self.match_m = match_m
+        super().__init__(*args, **kwargs)
+
+    def __call__(self, observations, infos):
+        filtered = {}
+        for agent, obs in observations.items():
+            truth = (infos or {}).get(agent, {}).get("truth")
+            if truth is None:
+                raise ValueError(
+                    f"privileged:{self.name} reads ground truth: infos[{agent!r}] has no 'truth'"
+                )
+            filtered[agent] = drop_spurious_rows(
+                obs, truth["neighbours_xy"], self.top_k, self.match_m
+            )
+        return super().__call__(filtered, infos)
+
+
+TEACHERS = {"formation": OracleFormationTeacher.for_env}
+
+
+def load_teacher(spec: str, env: Any) -> Any:
+    """A teacher for ``env``: ``"scripted:NAME"`` (:func:`agents.policies.load_policy`) or
+    ``"privileged:NAME"`` (:data:`TEACHERS`)."""
+    if isinstance(spec, str) and spec.startswith("privileged:"):
+        name = spec.split(":", 1)[1]
+        if name not in TEACHERS:
+            raise ValueError(
+                f"unknown privileged teacher {name!r}; choose from {sorted(TEACHERS)}"
+            )
+        return TEACHERS[name](env)
+    from agents.policies import load_policy
+
+    return load_policy(spec, env)

@@ -1,0 +1,41 @@
+"""The formation controller's error diagnosis (agents.formation_diagnosis)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from agents.formation_diagnosis import classify_components, diagnose
+from swarm_env.world.arena import Layout
+
+
+def test_classify_components_by_hand():
+    layout = Layout(
+        posts_xy=np.array([[1.0, 1.0]]),
+        red_decoys_xy=np.array([[-1.0, 0.0]]),
+        boxes=np.zeros((0, 5)),
+    )
+    teammates = np.array([[0.0, 0.0], [1.1, 1.0]])  # the second stands beside the post
+    world = np.array(
+        [
+            [0.1, 0.0],  # on teammate 0
+            [1.12, 1.0],  # on teammate 1, and near the post: a teammate wins
+            [0.95, 1.0],  # on the post, 0.15 m from teammate 1 (the match radius is 0.1)
+            [-1.1, 0.1],  # on the red decoy
+            [0.0, 1.45],  # 5 cm from the wall y = 1.5
+            [0.5, -0.5],  # nothing
+        ]
+    )
+    kind = classify_components(world, teammates, layout, (1.5, 1.5), match_m=0.1)
+    assert kind.tolist() == ["teammate", "teammate", "post", "red_decoy", "wall", "other"]
+    assert classify_components(np.zeros((0, 2)), teammates, layout, (1.5, 1.5)).shape == (0,)
+
+
+def test_diagnose_runs_and_its_shares_add_up():
+    out = diagnose("lab-3m-4", [200], from_step=20, max_steps=30)
+    assert out["observer_steps"] == 4 * 10
+    assert set(out["centroid_error_m"]) == {"controller", "oracle", "oracle_weight_1"}
+    if out["spurious_per_observer_step"] > 0:
+        assert sum(out["spurious_share"].values()) == pytest.approx(1.0)
+    with pytest.raises(ValueError, match="from-step"):
+        diagnose("lab-3m-4", [200], from_step=30, max_steps=30)

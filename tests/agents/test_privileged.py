@@ -1,0 +1,114 @@
+"""Privileged teachers (agents.sb3.privileged) and residual distillation from them."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("stable_baselines3")
+
+from agents.sb3.privileged import drop_spurious_rows, load_teacher  # noqa: E402
+from agents.scripted import TABLE_COLUMNS  # noqa: E402
+from swarm_env import parallel_env  # noqa: E402
+from swarm_env.observation import ESTIMATE_COLUMNS  # noqa: E402
+from tests.agents.test_residual import KWARGS, train_frozen_residual  # noqa: E402
+
+VALID = ESTIMATE_COLUMNS.index("valid")
+
+
+def _row(x, y, valid=1.0):
+    row = np.zeros(TABLE_COLUMNS, np.float32)
+    row[[ESTIMATE_COLUMNS.index(c) for c in ("w", "x_m", "y_m")]] = [1.0, x, y]
+    row[VALID] = valid
+    return row
+
+
+def test_drop_spurious_rows_by_hand():
+    rows = [_row(1.0, 0.0), _row(0.0, -2.0), _row(0.55, 0.5), _row(0.0, 0.0, valid=0.0)]
+    obs = np.concatenate([np.concatenate(rows), [0.1, 0.2, 0.8, 0.9]]).astype(np.float32)
+    truth = np.array([[0.0, 0.0], [1.05, 0.05], [0.5, 0.5]])  # self at the origin, 2 mates
+    out = drop_spurious_rows(obs, truth, top_k=4, match_m=0.1)
+    valid = out[: 4 * TABLE_COLUMNS].reshape(4, TABLE_COLUMNS)[:, VALID]
+    assert valid.tolist() == [1.0, 0.0, 1.0, 0.0]
+    np.testing.assert_array_equal(out[4 * TABLE_COLUMNS :], obs[4 * TABLE_COLUMNS :])
+    assert obs[TABLE_COLUMNS + VALID] == 1.0  # the input is not modified
+    # Nobody but the robot itself: every row goes.
+    alone = drop_spurious_rows(obs, np.zeros((1, 2)), top_k=4)
+    assert not alone[: 4 * TABLE_COLUMNS].reshape(4, TABLE_COLUMNS)[:, VALID].any()
+
+
+def test_the_teacher_needs_truth_and_equals_the_controller_without_spurious_rows():
+    env = parallel_env(**{**KWARGS, "observation": "phd"})
+    teacher = load_teacher("privileged:formation", env)
+    scripted = load_teacher("scripted:formation", env)
+    obs, infos = env.reset(seed=3)
+    with pytest.raises(ValueError, match="truth"):
+        teacher(obs, {a: {} for a in obs})
+    with pytest.raises(ValueError, match="privileged teacher"):
+        load_teacher("privileged:nope", env)
+    # Truth placed on every valid component: nothing is dropped, so the commands agree.
+    k = env.config.top_k
+    fake = {}
+    for a, o in obs.items():
+        table = o[: k * TABLE_COLUMNS].reshape(k, TABLE_COLUMNS)
+        xy = table[table[:, VALID] > 0.5][:, [1, 2]]
+        fake[a] = {**infos[a], "truth": {"neighbours_xy": np.vstack([[0.0, 0.0], xy])}}
+    teacher.reset(3)
+    scripted.reset(3)
+    a, b = teacher(obs, fake), scripted(obs, fake)
+    for agent in obs:
+        np.testing.assert_array_equal(a[agent], b[agent])
+
+
+def test_residual_distillation_from_the_privileged_teacher(tmp_path):
+    """`swarm-phd train --residual scripted:formation --warm-start privileged:formation`: the
+    labels are corrections (teacher - base), the fit beats the best constant on its own data,
+    and the saved student runs on an env whose infos carry no truth."""
+    from agents.policies import load_policy
+
+    path = train_frozen_residual(
+        tmp_path / "run",
+        residual_observes_base=True,
+        warm_start={"teacher": "privileged:formation", "steps": 480, "rounds": 2, "epochs": 5},
+    )
+    summary = json.loads((tmp_path / "run" / "warm_start.json").read_text())
+    assert summary["teacher"] == "privileged:formation"
+    assert summary["residual"] == "scripted:formation"
+    assert summary["train_fit"]["r2_v"] > 0.0
+    env = parallel_env(**KWARGS)
+    student = load_policy(str(path), env)
+    obs, infos = env.reset(seed=100)
+    for _ in range(5):
+        bare = {a: {k: v for k, v in i.items() if k != "truth"} for a, i in infos.items()}
+        obs, _, _, _, infos = env.step(student(obs, bare))
+
+
+def test_residual_labels_are_the_teachers_correction_of_the_base():
+    """A teacher that *is* the base controller has nothing to correct: every label is 0 (its
+    random walk, on its own generator, is labelled 0 too). The privileged teacher corrects
+    the base where a decoy or ghost is tracked, so some labels are not 0."""
+    from agents.sb3.warm_start import collect_demonstrations
+
+    same = collect_demonstrations(
+        KWARGS, "scripted:formation", 320, n_copies=2, residual="scripted:formation"
+    )
+    assert len(same) == 320
+    np.testing.assert_array_equal(same.actions, 0.0)
+    privileged = collect_demonstrations(
+        KWARGS, "privileged:formation", 320, n_copies=2, residual="scripted:formation"
+    )
+    assert np.abs(privileged.actions).max() > 0.05
+
+
+def test_the_teacher_is_a_named_policy_for_scoring():
+    """`--baselines privileged:formation` (report, evaluate): it runs on the PHD observation,
+    where the simulator's infos carry the truth it reads."""
+    from agents.policies import load_policy, policy_observation
+
+    assert policy_observation("privileged:formation") == "phd"
+    env = parallel_env(**{**KWARGS, "observation": "phd"})
+    teacher = load_policy("privileged:formation", env)
+    obs, infos = env.reset(seed=1)
+    assert set(teacher(obs, infos)) == set(obs)
