@@ -5,6 +5,8 @@ robot estimates it* (:func:`agents.scripted.estimated_centroid` over the confide
 of its own PHD table). This tool runs that controller on the PHD observation and, for every
 robot and step from ``--from-step`` on (the settled formation), compares:
 
+- each true teammate's position with the nearest confident component (how well the robot
+  localizes its teammates);
 - the controller's centroid estimate with the true centroid (both in the robot's body frame);
 - the same estimate from only the components that sit on a true teammate (within
   ``--match-m``; an oracle no robot has), with the controller's weights and with weight 1;
@@ -70,19 +72,24 @@ def diagnose(
     from_step: int,
     max_steps: int = 300,
     match_m: float = 0.15,
+    observation: str = "phd",
 ) -> dict[str, Any]:
-    """Run ``scripted:formation`` on the PHD observation for ``seeds``; the module doc's
-    figures (medians and means in metres, counts per observer-step)."""
+    """Run ``scripted:formation`` on ``observation`` (``"phd"``, or ``"truth"`` as a check:
+    every component is then a teammate) for ``seeds``; the module doc's figures (medians and
+    means in metres, counts per observer-step)."""
     from agents.policies import load_policy
     from swarm_env import parallel_env
 
     if not 0 <= from_step < max_steps:
         raise ValueError(f"--from-step must be in [0, {max_steps}), got {from_step}")
-    env = parallel_env(preset=preset, task="formation", observation="phd", max_steps=max_steps)
+    env = parallel_env(
+        preset=preset, task="formation", observation=observation, max_steps=max_steps
+    )
     policy = load_policy("scripted:formation", env)
     arena = env.config.arena
     half = (0.5 * arena.width_m, 0.5 * arena.height_m)
     errors: dict[str, list[float]] = {"controller": [], "oracle": [], "oracle_weight_1": []}
+    teammate_errors: list[np.ndarray] = []
     counts = dict.fromkeys(KINDS, 0)
     formation: list[float] = []
     observer_steps = 0
@@ -109,6 +116,9 @@ def diagnose(
                     kind = classify_components(world, others, layout, half, match_m)
                     for k in KINDS:
                         counts[k] += int((kind == k).sum())
+                    if len(world):
+                        gap = np.linalg.norm(others[:, None, :] - world[None, :, :], axis=2)
+                        teammate_errors.append(gap.min(axis=1))
                     mate = kind == "teammate"
                     true_c = centroid[i, 0]
                     for name, value in (
@@ -125,6 +135,10 @@ def diagnose(
         "seeds": seeds,
         "from_step": from_step,
         "formation_error_m": float(np.mean(formation)),
+        "teammate_error_m": {
+            "median": float(np.median(np.concatenate(teammate_errors or [np.zeros(0)]))),
+            "mean": float(np.mean(np.concatenate(teammate_errors or [np.zeros(0)]))),
+        },
         "centroid_error_m": {
             name: {"median": float(np.median(v)), "mean": float(np.mean(v))}
             for name, v in errors.items()
@@ -144,10 +158,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--from-step", type=int, default=150, help="first step scored")
     parser.add_argument("--max-steps", type=int, default=300)
     parser.add_argument("--match-m", type=float, default=0.15, help="'on a teammate' radius")
+    parser.add_argument("--observation", default="phd", choices=["phd", "truth"])
     parser.add_argument("--out", default=None, help="JSON summary file")
     args = parser.parse_args(argv)
     summary = diagnose(
-        args.preset, parse_seeds(args.seeds), args.from_step, args.max_steps, args.match_m
+        args.preset,
+        parse_seeds(args.seeds),
+        args.from_step,
+        args.max_steps,
+        args.match_m,
+        args.observation,
     )
     print(json.dumps(summary, indent=2))
     if args.out:

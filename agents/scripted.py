@@ -254,11 +254,12 @@ class VectorFieldPolicy(ScriptedPolicy):
         self._rng = np.random.default_rng(seed)
         self._scan: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self._wander = WanderPolicy(self.max_speed_mps, self.max_turn_rate_radps, seed=seed)
+        #: The agents of the last call that had nothing to act on and random-walked.
+        self.wandering: set[str] = set()
 
     def __call__(self, observations, infos):
         actions = {}
-        #: The agents of the last call that had nothing to act on and random-walked.
-        self.wandering: set[str] = set()
+        self.wandering = set()
         for agent, obs in observations.items():
             scan = latest_scan(infos.get(agent, {}) if infos else {})
             if scan is not None:

@@ -136,7 +136,7 @@ class BatchedSwarmVecEnv(VecEnv):
             raise ValueError(
                 "scripted_commands needs a residual VecEnv (residual='scripted:NAME')"
             )
-        return self._base_commands[copy]
+        return {a: c.copy() for a, c in self._base_commands[copy].items()}
 
     @property
     def action_high(self) -> np.ndarray:

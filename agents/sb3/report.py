@@ -33,7 +33,13 @@ METRICS = ("formation_error_m", "final_formation_error_m", "spacing_error_m")
 
 
 #: Task metrics where more is better (the rest are errors and rates: less is better).
-HIGHER_IS_BETTER = ("coverage", "episode_return")
+HIGHER_IS_BETTER = (
+    "coverage",
+    "episode_return",
+    "enclosed_fraction",
+    "final_enclosed_fraction",
+    "ever_enclosed",
+)
 
 
 def score(
@@ -167,15 +173,20 @@ def checkpoint_scores(run_dir: Path, seeds: list[int]) -> list[tuple[int, dict[s
 
 
 def select_model(run_dir: Path, seeds: list[int], metric: str) -> tuple[Path, list[dict]]:
-    """The run's model (checkpoint or final) with the best mean ``metric`` on the validation
-    ``seeds``, and every candidate's score (``{"steps", "model", "mean"}``); ties go to the
-    earlier model."""
+    """The run's model (warm start, checkpoint or final) with the best mean ``metric`` on the
+    validation ``seeds``, and every candidate's score (``{"steps", "model", "mean"}``); ties go
+    to the earlier model."""
     from agents.sb3.policy import read_metadata
 
     sign = -1.0 if metric in HIGHER_IS_BETTER else 1.0
     scored = []
     for steps, path in run_models(run_dir):
         result = score(str(path), read_metadata(path)["env_kwargs"], seeds)
+        if metric not in result["mean"]:
+            raise ValueError(
+                f"--metric {metric!r} is not a metric of {str(path)!r}'s task; it has "
+                f"{sorted(result['mean'])}"
+            )
         scored.append({"steps": steps, "model": str(path), "mean": result["mean"][metric]})
     if not scored:
         raise ValueError(f"run {str(run_dir)!r} has no model.zip and no checkpoints")
@@ -201,8 +212,8 @@ def main(argv: list[str] | None = None) -> int:
         "--select-on",
         default=None,
         metavar="SEEDS",
-        help="validation seeds, disjoint from --seeds: each run is scored with its checkpoint "
-        "(or final model) that did best on them",
+        help="validation seeds, disjoint from --seeds: each run is scored with its model (warm "
+        "start, checkpoint or final) that did best on them; a chosen warm start is labelled so",
     )
     parser.add_argument(
         "--warm-start", action="store_true", help="also score each run's warm_start.zip"
@@ -273,9 +284,11 @@ def main(argv: list[str] | None = None) -> int:
         group = re.sub(r"_s\d+$", "", run.name)
         residual = read_metadata(spec).get("residual")
         kind = f"residual PPO ({residual} + learned correction)" if residual else "PPO"
-        groups.setdefault(f"{kind} {group}", []).append(spec)
         clone = run / "warm_start.zip"
-        if args.warm_start and clone.is_file():
+        if Path(spec) == clone:  # selection chose the warm start itself: label it so
+            kind = "warm start only"
+        groups.setdefault(f"{kind} {group}", []).append(spec)
+        if args.warm_start and clone.is_file() and Path(spec) != clone:
             results["policies"][str(clone)] = score(
                 str(clone), read_metadata(clone)["env_kwargs"], seeds
             )

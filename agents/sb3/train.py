@@ -275,18 +275,8 @@ def _vec_env(
     """The training VecEnv (``--vec``): batched in-process copies or SuperSuit's."""
     from agents.sb3.adapter import make_vec_env
     from agents.sb3.batched import make_batched_vec_env
-    from localization.registry import make_localizer
 
-    if vec not in ("auto", "batched", "supersuit"):
-        raise ValueError(f"--vec must be auto, batched or supersuit, got {vec!r}")
-    if vec == "batched" and num_cpus > 0:
-        raise ValueError("--vec batched steps the copies in this process: use --num-cpus 0")
-    if vec == "auto":
-        identities = make_localizer(env_kwargs.get("localizer", "phd"), 1).has_identities
-        vec = "supersuit" if num_cpus > 0 or identities else "batched"
-    for flag, on in (("--residual", residual is not None), ("--critic-state", critic_state)):
-        if on and vec != "batched":
-            raise ValueError(f"{flag} needs the batched VecEnv (--vec batched, --num-cpus 0)")
+    vec = _resolve_vec(vec, env_kwargs, num_cpus, residual is not None, critic_state)
     if vec == "batched":
         return make_batched_vec_env(
             env_kwargs,
@@ -300,6 +290,26 @@ def _vec_env(
     return make_vec_env(
         env_kwargs, n_copies=n_copies, num_cpus=num_cpus, seed=seed, monitor_file=monitor
     )
+
+
+def _resolve_vec(
+    vec: str, env_kwargs: dict[str, Any], num_cpus: int, residual: bool, critic_state: bool
+) -> str:
+    """``"batched"`` or ``"supersuit"`` for ``--vec`` (``"auto"`` resolved); ``ValueError``
+    for a combination the chosen VecEnv cannot serve."""
+    from localization.registry import make_localizer
+
+    if vec not in ("auto", "batched", "supersuit"):
+        raise ValueError(f"--vec must be auto, batched or supersuit, got {vec!r}")
+    if vec == "batched" and num_cpus > 0:
+        raise ValueError("--vec batched steps the copies in this process: use --num-cpus 0")
+    if vec == "auto":
+        identities = make_localizer(env_kwargs.get("localizer", "phd"), 1).has_identities
+        vec = "supersuit" if num_cpus > 0 or identities else "batched"
+    for flag, on in (("--residual", residual), ("--critic-state", critic_state)):
+        if on and vec != "batched":
+            raise ValueError(f"{flag} needs the batched VecEnv (--vec batched, --num-cpus 0)")
+    return vec
 
 
 def train(*args: Any, **kwargs: Any) -> Path:
@@ -411,6 +421,8 @@ def _train(
 
         critic_dims = critic_state_dims(n_agents, probe.task)
     probe.close()
+    # Refused combinations fail here, before the run directory is written.
+    _resolve_vec(vec, env_kwargs, num_cpus, residual is not None, critic_state)
 
     out.mkdir(parents=True, exist_ok=True)
     (out / "checkpoints").mkdir(exist_ok=True)
@@ -466,6 +478,7 @@ def _train(
             "residual": residual,
             "residual_log_std": residual_log_std if residual else None,
             "critic_state": critic_state,
+            "critic_dims": critic_dims,
             "residual_observes_base": residual_observes_base,
             "policy_kwargs": {
                 k: v for k, v in policy_kwargs.items() if k != "features_extractor_class"

@@ -23,8 +23,10 @@ decides the action and averages over the rest. :func:`fit_report` measures how c
 **Residual distillation** (``residual="scripted:NAME"``, ``swarm-phd train --residual ...
 --warm-start TEACHER``): the copies run as a residual VecEnv, and the label is the correction
 that turns the scripted base's command into the teacher's, ``clip((teacher - base) / high,
--1, 1)``, and 0 where the teacher random-walks (it has nothing to act on, and its random walk
-is not the base's); the fitted actor is that correction. With a privileged teacher
+-1, 1)`` (exact while the two differ by at most ``high`` per component), and 0 where a
+:class:`~agents.scripted.VectorFieldPolicy` teacher random-walks (it has nothing to act on, and
+its random walk is not the base's); the fitted actor is that correction. The action log-std
+after the fit is ``--bc-log-std`` (it replaces ``--residual-log-std``). With a privileged teacher
 (``privileged:NAME``, :mod:`agents.sb3.privileged`, which reads ground truth) the student learns
 from its own observation what the teacher knows from the truth.
 

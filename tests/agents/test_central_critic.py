@@ -93,6 +93,20 @@ def test_batched_env_appends_the_true_state_and_keeps_the_rollout():
     assert p == critic_state_dims(4, central.envs[0].task) == 2 * 3 + 4
     assert central.observation_space.shape == (d + p,)
     a, b = plain.reset(), central.reset()
+    stepped = {}  # copy -> truth of its last step, kept past the auto-reset
+
+    def recording(k, env):
+        finish = env.finish_step
+
+        def finish_step():
+            out = finish()
+            stepped[k] = env.last_world_step.truth
+            return out
+
+        return finish_step
+
+    for k, env in enumerate(central.envs):
+        env.finish_step = recording(k, env)
     rng = np.random.default_rng(1)
     for t in range(18):  # across the auto-reset at max_steps 15
         np.testing.assert_array_equal(a, b[:, :d], err_msg=f"t={t}")
@@ -103,10 +117,13 @@ def test_batched_env_appends_the_true_state_and_keeps_the_rollout():
         a, _, done_a, info_a = plain.step(actions)
         b, _, done_b, info_b = central.step(actions)
         np.testing.assert_array_equal(done_a, done_b)
-        if done_b.any():
+        if done_b.any():  # the terminal block is the last step's truth, not the reset's
             term = info_b[0]["terminal_observation"]
             assert term.shape == (d + p,)
             np.testing.assert_array_equal(term[:d], info_a[0]["terminal_observation"])
+            last = critic_state(stepped[0], central.envs[0].task, 4)[0]
+            np.testing.assert_array_equal(term[d:], last)
+            assert not np.array_equal(term[d:], b[0, d:])
     plain.close()
     central.close()
 
@@ -173,3 +190,4 @@ def test_critic_state_refuses_what_it_cannot_serve(tmp_path, kwargs, match):
         train(
             KWARGS, 64, tmp_path / "a", **{"critic_state": True, "progress_bar": False, **kwargs}
         )
+    assert not (tmp_path / "a").exists()  # refused before the run directory is written

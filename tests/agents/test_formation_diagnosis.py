@@ -31,6 +31,17 @@ def test_classify_components_by_hand():
     assert classify_components(np.zeros((0, 2)), teammates, layout, (1.5, 1.5)).shape == (0,)
 
 
+def test_on_true_neighbours_every_component_is_a_teammate():
+    """With the true-neighbour table every component sits on a teammate, so nothing is
+    spurious and the controller's centroid is the oracle's (a wrong body-to-world rotation
+    would misplace them)."""
+    out = diagnose("lab-3m-4", [200], from_step=20, max_steps=30, observation="truth")
+    assert out["spurious_per_observer_step"] == 0.0
+    assert out["teammate_error_m"]["median"] == pytest.approx(0.0, abs=1e-5)
+    errors = out["centroid_error_m"]
+    assert errors["controller"] == errors["oracle"]
+
+
 def test_diagnose_runs_and_its_shares_add_up():
     out = diagnose("lab-3m-4", [200], from_step=20, max_steps=30)
     assert out["observer_steps"] == 4 * 10

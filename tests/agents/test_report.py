@@ -82,6 +82,8 @@ def test_select_model_picks_the_best_on_validation_seeds_in_either_direction(
     assert chosen == run / "checkpoints" / "model_100_steps.zip"
     scores["warm_start.zip"] = 0.05  # the warm start itself can be the best
     assert report.select_model(run, [200], "formation_error_m")[0] == run / "warm_start.zip"
+    with pytest.raises(ValueError, match="radius_error_m"):  # not this task's metric
+        report.select_model(run, [200], "radius_error_m")
 
 
 def test_select_on_must_not_share_the_scoring_seeds(tmp_path):
