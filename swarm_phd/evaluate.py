@@ -60,7 +60,7 @@ from swarm_core.atomic_files import write_json_atomically
 from swarm_env import parallel_env
 from swarm_env.env import SwarmEnv
 from swarm_phd import progress
-from swarm_phd.sweep import parse_seeds
+from swarm_phd.sweep import parse_json_object, parse_seeds
 
 #: ``--scenario`` values.
 SCENARIOS = ("study", "seed003")
@@ -140,10 +140,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--compare names no policy: {args.compare!r}")
     overrides: dict[str, Any] = {}
     if args.task_params is not None:
-        try:
-            overrides["task_params"] = json.loads(args.task_params)
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"--task-params must be a JSON object: {exc}") from exc
+        overrides["task_params"] = parse_json_object(args.task_params, "--task-params")
     out_dir = Path(args.out) if args.out else None
     results = evaluate_localization(
         args.preset,

@@ -19,7 +19,6 @@ the estimated positions onto the true ones, position RMSE (m) over the robots an
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import time
 from pathlib import Path
@@ -31,7 +30,7 @@ from localization.baselines.centralized_ukf import CentralizedUKF, CentralizedUK
 from localization.baselines.direct import align_poses, direct_estimate, pose_errors
 from swarm_core.atomic_files import atomic_write, write_json_atomically
 from swarm_env.sensors.ir import IRConfig, IRReadings, IRSensor
-from swarm_phd.sweep import parse_seeds
+from swarm_phd.sweep import parse_json_object, parse_seeds
 
 #: The seed's reported accuracy: "about 10 cm, or on the order of the size of a robot".
 SEED_ACCURACY_M = 0.10
@@ -70,26 +69,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _json_arg(text: str | None, name: str) -> dict[str, Any]:
-    if text is None:
-        return {}
-    try:
-        value = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{name} must be a JSON object: {exc}") from exc
-    if not isinstance(value, dict):
-        raise ValueError(f"{name} must be a JSON object, got {text!r}")
-    return value
-
-
 def run(args: argparse.Namespace) -> int:
     seeds = parse_seeds(str(args.seeds))
-    ir_params = _json_arg(args.ir_params, "--ir-params")
+    ir_params = parse_json_object(args.ir_params, "--ir-params")
     if "outlier_offset_m" in ir_params:
         ir_params["outlier_offset_m"] = tuple(ir_params["outlier_offset_m"])
     try:
         ir = IRConfig(**ir_params)
-        ukf = CentralizedUKFConfig(**_json_arg(args.ukf_params, "--ukf-params"))
+        ukf = CentralizedUKFConfig(**parse_json_object(args.ukf_params, "--ukf-params"))
     except TypeError as exc:  # an unknown field name
         raise ValueError(f"--ir-params / --ukf-params: {exc}") from exc
     results = run_seed003(

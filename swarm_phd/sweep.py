@@ -135,6 +135,20 @@ def parse_seeds(text: str, name: str = "--seeds") -> list[int]:
     return seeds
 
 
+def parse_json_object(text: str | None, name: str) -> dict[str, Any]:
+    """A JSON object given on the command line (``None``: ``{}``); ValueError naming ``name``
+    and the text otherwise."""
+    if text is None:
+        return {}
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{name} must be a JSON object, got {text!r}: {exc}") from exc
+    if not isinstance(value, dict):
+        raise ValueError(f"{name} must be a JSON object, got {text!r}")
+    return value
+
+
 def _names(text: str, name: str) -> list[str]:
     items = [s.strip() for s in text.split(",") if s.strip()]
     if not items:
@@ -393,12 +407,7 @@ def print_summary(merged: dict[str, Any]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    try:
-        overrides = json.loads(args.env_overrides)
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"--env-overrides must be a JSON object: {exc}") from exc
-    if not isinstance(overrides, dict):
-        raise ValueError(f"--env-overrides must be a JSON object, got {args.env_overrides!r}")
+    overrides = parse_json_object(args.env_overrides, "--env-overrides")
     points = grid(
         _names(args.presets, "--presets"),
         _names(args.localizer, "--localizer"),
@@ -437,10 +446,7 @@ def run_evaluate_ray(args: argparse.Namespace) -> int:
         raise ValueError("--compare is not supported with --ray: run the two policies apart")
     overrides: dict[str, Any] = {}
     if args.task_params is not None:
-        try:
-            overrides["task_params"] = json.loads(args.task_params)
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"--task-params must be a JSON object: {exc}") from exc
+        overrides["task_params"] = parse_json_object(args.task_params, "--task-params")
     preset = args.preset
     if preset is None:  # the serial command's default: the model's preset, else seed-sim
         preset = "seed-sim"

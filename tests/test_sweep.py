@@ -170,3 +170,11 @@ def test_atomic_write_gives_the_umask_permissions(tmp_path):
         assert path.stat().st_mode & 0o777 == 0o644
     finally:
         os.umask(mask)
+
+
+def test_parse_json_object_names_the_flag_and_the_text():
+    assert sweep.parse_json_object('{"localizer": "pmb"}', "--x") == {"localizer": "pmb"}
+    assert sweep.parse_json_object(None, "--x") == {}
+    for bad in ("[1, 2]", "nope", '"text"'):
+        with pytest.raises(ValueError, match=r"--x must be a JSON object, got"):
+            sweep.parse_json_object(bad, "--x")

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from swarm_phd.sweep import parse_seeds
+from swarm_phd.sweep import parse_json_object, parse_seeds
 
 METRICS = ("formation_error_m", "final_formation_error_m", "spacing_error_m")
 
@@ -221,6 +221,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--name", default="formation", help="output file prefix")
     parser.add_argument("--metric", default="formation_error_m", help="task metric of the table")
     parser.add_argument(
+        "--baseline-overrides",
+        default="{}",
+        metavar="JSON",
+        help="SwarmConfig overrides for the baselines' env only, e.g. '{\"localizer\": "
+        '"id-phd"}\' (models always run in their own env)',
+    )
+    parser.add_argument(
         "--curves-only",
         action="store_true",
         help="only draw the runs' training curves (results_<name>_learning_curve.png), no scoring",
@@ -259,8 +266,10 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     runs = [Path(r) for r in args.runs]
+    overrides = parse_json_object(args.baseline_overrides, "--baseline-overrides")
     env_kwargs = read_metadata(runs[0] / "model.zip")["env_kwargs"]
     env_kwargs = {k: v for k, v in env_kwargs.items() if k not in ("observation", "localize")}
+    env_kwargs.update(overrides)
     results: dict[str, Any] = {"seeds": seeds, "env_kwargs": env_kwargs, "policies": {}}
     # Runs named <group>_s<seed> (one per training seed) are pooled per group.
     groups: dict[str, list[str]] = {}

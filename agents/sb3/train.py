@@ -23,7 +23,6 @@ command prints one line and exits with 130 (SIGINT) or 143 (SIGTERM).
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import signal
 import sys
@@ -35,6 +34,7 @@ from typing import Any
 from agents.interrupts import Interrupts, set_signal
 from agents.sb3.policy import save_model
 from swarm_core.atomic_files import write_json_atomically
+from swarm_phd.sweep import parse_json_object
 
 DEFAULT_PRESET = "sim-6m-20"
 #: Exit codes of an interrupted run (the shell's 128 + signal number).
@@ -188,24 +188,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _json_arg(text: str, name: str) -> dict[str, Any]:
-    try:
-        value = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{name} must be a JSON object, got {text!r}: {exc}") from exc
-    if not isinstance(value, dict):
-        raise ValueError(f"{name} must be a JSON object, got {text!r}")
-    return value
-
-
 def env_kwargs_from_args(args: argparse.Namespace) -> dict[str, Any]:
     kwargs: dict[str, Any] = {
         "preset": args.preset,
         "task": args.task,
-        "task_params": _json_arg(args.task_params, "--task-params"),
+        "task_params": parse_json_object(args.task_params, "--task-params"),
         "observation": args.observation,
         "max_steps": args.max_steps,
-        **_json_arg(args.env_overrides, "--env-overrides"),
+        **parse_json_object(args.env_overrides, "--env-overrides"),
     }
     if args.n_robots is not None:
         kwargs["n_robots"] = args.n_robots
