@@ -19,6 +19,9 @@ class ScriptedPolicy:
     """Base class: per-agent state is kept in dicts keyed by agent name."""
 
     name = "scripted"
+    #: The agents whose command of the last call was the seed's random walk (drawn from the
+    #: controller's own generator, so two instances disagree there). Set by every call.
+    wandering: frozenset[str] | set[str] = frozenset()
 
     def __init__(self, max_speed_mps: float = 0.3, max_turn_rate_radps: float = 1.5) -> None:
         self.max_speed_mps = max_speed_mps
@@ -93,6 +96,7 @@ class WanderPolicy(ScriptedPolicy):
             if scan is not None:
                 self._scan[agent] = scan
             actions[agent] = self._act(agent)
+        self.wandering = set(observations)
         return actions
 
     def _act(self, agent: str) -> np.ndarray:
@@ -254,8 +258,7 @@ class VectorFieldPolicy(ScriptedPolicy):
         self._rng = np.random.default_rng(seed)
         self._scan: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self._wander = WanderPolicy(self.max_speed_mps, self.max_turn_rate_radps, seed=seed)
-        #: The agents of the last call that had nothing to act on and random-walked.
-        self.wandering: set[str] = set()
+        self.wandering = set()
 
     def __call__(self, observations, infos):
         actions = {}

@@ -23,12 +23,12 @@ decides the action and averages over the rest. :func:`fit_report` measures how c
 **Residual distillation** (``residual="scripted:NAME"``, ``swarm-phd train --residual ...
 --warm-start TEACHER``): the copies run as a residual VecEnv, and the label is the correction
 that turns the scripted base's command into the teacher's, ``clip((teacher - base) / high,
--1, 1)`` (exact while the two differ by at most ``high`` per component), and 0 where a
-:class:`~agents.scripted.VectorFieldPolicy` teacher random-walks (it has nothing to act on, and
-its random walk is not the base's); the fitted actor is that correction. The action log-std
-after the fit is ``--bc-log-std`` (it replaces ``--residual-log-std``). With a privileged teacher
-(``privileged:NAME``, :mod:`agents.sb3.privileged`, which reads ground truth) the student learns
-from its own observation what the teacher knows from the truth.
+-1, 1)`` (exact while the two differ by at most ``high`` per component), and 0 where the
+teacher random-walks (:attr:`~agents.scripted.ScriptedPolicy.wandering`: its random walk is
+drawn from its own generator, not the base's); the fitted actor is that correction. The
+action log-std after the fit is ``--bc-log-std`` (it replaces ``--residual-log-std``). With a
+privileged teacher (``privileged:NAME``, :mod:`agents.sb3.privileged`, which reads ground
+truth) the student learns from its own observation what the teacher knows from the truth.
 
 Demonstration copy ``k`` of round ``r`` is seeded ``10_000 + 100 * (1000 * seed + r) + k`` (the
 held-out fit episodes use ``r = 999``; each copy's later episodes continue its own generator).
@@ -168,12 +168,12 @@ def collect_demonstrations(
                 act = teachers[k](dict(zip(env.agents, rows, strict=True)), _teacher_infos(env))
                 labels[k * n : (k + 1) * n] = [act[a] for a in env.agents]
                 if residual is not None:
-                    # Where the teacher has nothing to act on it random-walks on its own
-                    # generator, not the base's: no correction to learn there (label 0).
-                    wandering = getattr(teachers[k], "wandering", set())
+                    # Where the teacher random-walks it draws from its own generator, not the
+                    # base's: no correction to learn there (label 0).
                     base = venv.scripted_commands(k)
                     labels[k * n : (k + 1) * n] = [
-                        np.zeros(2) if a in wandering else act[a] - base[a] for a in env.agents
+                        np.zeros(2) if a in teachers[k].wandering else act[a] - base[a]
+                        for a in env.agents
                     ]
             labels = np.clip(labels / high, -1.0, 1.0).astype(np.float32)
             all_obs.append(obs.astype(np.float32))

@@ -53,7 +53,7 @@ def test_the_teacher_needs_truth_and_equals_the_controller_without_spurious_rows
     fake = {}
     for a, o in obs.items():
         table = o[: k * TABLE_COLUMNS].reshape(k, TABLE_COLUMNS)
-        xy = table[table[:, VALID] > 0.5][:, [1, 2]]
+        xy = table[table[:, VALID] > 0.5][:, [ESTIMATE_COLUMNS.index(c) for c in ("x_m", "y_m")]]
         fake[a] = {**infos[a], "truth": {"neighbours_xy": np.vstack([[0.0, 0.0], xy])}}
     teacher.reset(3)
     scripted.reset(3)
@@ -96,6 +96,11 @@ def test_residual_labels_are_the_teachers_correction_of_the_base():
     )
     assert len(same) == 320
     np.testing.assert_array_equal(same.actions, 0.0)
+    # A teacher that only random-walks (the seed's wander) has nothing to teach either.
+    wander = collect_demonstrations(
+        KWARGS, "scripted:wander", 160, n_copies=2, residual="scripted:formation"
+    )
+    np.testing.assert_array_equal(wander.actions, 0.0)
     privileged = collect_demonstrations(
         KWARGS, "privileged:formation", 320, n_copies=2, residual="scripted:formation"
     )
