@@ -324,8 +324,13 @@ class FormationPolicy(VectorFieldPolicy):
     :func:`estimated_neighbours`, reference variance 0.02 m^2) so that a camera-only track with
     a drifting range does not drag the centroid. The robot heads for the closest point of the
     circle of radius ``r`` around ``c`` (``c + r (-c) / ||c||``, gain ``k_p``) and is pushed
-    away from estimated neighbours closer than the even-spread chord ``s*`` and pulled towards
-    those farther than the diameter ``2 r`` (gain ``k_s``).
+    away from estimated neighbours closer than the even-spread chord ``s*`` (gain ``k_s``).
+    With ``pull_far`` it is also pulled towards those farther than the diameter ``2 r``. That
+    rule is off by default: the components beyond the lidar's ~2 m are camera-only, and since
+    the lidar extractor rejects red decoys (``LidarFeatureConfig.extent_test``) a red decoy's
+    camera track sits along its ray at 2-4 m as often as a far teammate does. Measured in
+    ``docs/results.md`` (round 4): on ``lab-3m-4`` validation seeds the pull raised the
+    formation error from 0.086 to 0.162 m.
     Lattice: a spring to every estimated neighbour within ``1.5 d`` (and to the nearest one):
     ``u = k_p sum_k (||m_k|| - d) m_k / ||m_k||``.
 
@@ -346,11 +351,13 @@ class FormationPolicy(VectorFieldPolicy):
         k_p: float = 0.8,
         k_s: float = 0.6,
         min_neighbours: int = 1,
+        pull_far: bool = False,
         **kwargs: Any,
     ) -> None:
         if shape not in ("circle", "lattice"):
             raise ValueError(f"shape must be 'circle' or 'lattice', got {shape!r}")
         self.shape = shape
+        self.pull_far = pull_far
         self.k_p = k_p
         self.k_s = k_s
         self.min_neighbours = min_neighbours
@@ -380,12 +387,12 @@ class FormationPolicy(VectorFieldPolicy):
             close = (d < chord) & (d > 1e-6)
             push = (chord - d[close]) / d[close]
             u -= self.k_s * (push[:, None] * pts[close]).sum(axis=0)
-            # Nobody on the circle is farther than its diameter: pull towards anyone beyond it.
-            # This holds whatever the centroid estimate is, so it keeps the swarm compact even
-            # when far teammates are only camera-tracked (range drifts, weight discounted).
-            far = d > 2.0 * radius
-            pull = (d[far] - 2.0 * radius) / d[far]
-            u += self.k_s * (pull[:, None] * pts[far]).sum(axis=0)
+            if self.pull_far:
+                # Nobody on the circle is farther than its diameter: pull towards anyone beyond
+                # it, whatever the centroid estimate is (but a camera ghost pulls too).
+                far = d > 2.0 * radius
+                pull = (d[far] - 2.0 * radius) / d[far]
+                u += self.k_s * (pull[:, None] * pts[far]).sum(axis=0)
         else:
             spacing = float(features[0])
             near = d < 1.5 * spacing

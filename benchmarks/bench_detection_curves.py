@@ -7,6 +7,10 @@ What it measures (no timing; every figure is a statistic of the simulated sensor
   has separate blind-sector, occlusion and interference factors, so this is its *range*
   factor). Detected = the feature extractor reports a point within 0.15 m of the housing.
   Also the returns per housing (against ``65 mm / (r x 0.5 deg)``) and the centre error.
+* **Lidar false positives on a red decoy**: the same pairs with the housing replaced by a
+  lidar-visible cylinder of the arena's ``red_decoy_radius_m`` (60 mm); and, for housings and
+  decoys, the rate without the extractor's angular extent test
+  (``LidarFeatureConfig.extent_test``).
 * **Camera** ``P_d(r)``: a teammate's red strip (the simulator's ``camera_holder_radius_m``)
   at range ``r``, free line of sight; detected = a blob from that strip. Also the bearing
   error of the detected blobs.
@@ -45,7 +49,7 @@ from swarm_core.perception.lidar_features import extract_clusters  # noqa: E402
 from swarm_env.config import make_config  # noqa: E402
 from swarm_env.sensors.camera import CameraSensor  # noqa: E402
 from swarm_env.sensors.lidar import LidarSensor  # noqa: E402
-from swarm_env.world.scene_builder import make_pair_scene  # noqa: E402
+from swarm_env.world.scene_builder import HOUSING_RADIUS_M, make_pair_scene  # noqa: E402
 from swarm_env.world.sim import SimWorld  # noqa: E402
 
 RANGES_M = np.round(np.arange(0.25, 5.51, 0.125), 3)
@@ -71,16 +75,31 @@ def fit_sigmoid(r: np.ndarray, pd: np.ndarray, guess: tuple[float, float, float]
     return tuple(float(v) for v in popt), rms
 
 
-def margin_deg(r: float) -> float:
-    """Bearing margin that keeps a whole housing at range r (plus a footprint) out of a blind
-    sector: the sector is the filter's blind factor, not its range factor."""
-    return math.degrees(math.asin(0.0325 / r)) + 1.0
+def margin_deg(r: float, radius_m: float = HOUSING_RADIUS_M) -> float:
+    """Bearing margin that keeps a whole target of ``radius_m`` at range r (plus a footprint)
+    out of a blind sector: the sector is the filter's blind factor, not its range factor."""
+    return math.degrees(math.asin(min(radius_m / r, 1.0))) + 1.0
 
 
-def lidar_curve(cfg, rng, n_pairs: int) -> dict:
-    """Lidar P_d, returns per housing and centre error per range."""
+def lidar_curve(cfg, rng, n_pairs: int, target_radius_m: float | None = None) -> dict:
+    """Lidar P_d, returns per target and centre error per range.
+
+    The target is a teammate's housing, or with ``target_radius_m`` a lidar-visible cylinder of
+    that radius in its place (the arena's red decoy: then ``pd`` is its false-positive rate).
+    ``pd_width_only`` is the same scans through the extractor without its angular extent test (the
+    rule before 2026-12-02)."""
     lidar_cfg = dataclasses.replace(cfg.lidar, interference_tolerance_deg=0.0)
-    out = {"range_m": [], "pd": [], "returns_mean": [], "returns_expected": [], "centre_err": []}
+    radius = HOUSING_RADIUS_M if target_radius_m is None else target_radius_m
+    width_only = dataclasses.replace(cfg.lidar_features, extent_test=False)
+    out = {
+        "target_radius_m": radius,
+        "range_m": [],
+        "pd": [],
+        "pd_width_only": [],
+        "returns_mean": [],
+        "returns_expected": [],
+        "centre_err": [],
+    }
     for r in RANGES_M:
         scene, bearings = make_pair_scene(
             rng,
@@ -88,26 +107,35 @@ def lidar_curve(cfg, rng, n_pairs: int) -> dict:
             n_pairs,
             cfg.robot.camera_holder_radius_m,
             lidar_cfg.blind_sector_centers_deg,
-            tuple(0.5 * w + margin_deg(r) for w in lidar_cfg.blind_sector_widths_deg),
+            tuple(0.5 * w + margin_deg(r, radius) for w in lidar_cfg.blind_sector_widths_deg),
         )
+        if target_radius_m is not None:  # the targets' housings become cylinders of that radius
+            target = scene.circle_lidar & (scene.circle_owner % 2 == 1)
+            scene = dataclasses.replace(
+                scene, circle_radius_m=np.where(target, radius, scene.circle_radius_m)
+            )
         sensor = LidarSensor(lidar_cfg, scene.n_robots)
         observers = np.arange(0, scene.n_robots, 2)
         batch = sensor.scan(scene, observers, np.ones(observers.size), rng)
         counts = batch.owner_beam_counts(scene.n_robots)[np.arange(observers.size), observers + 1]
-        dets = extract_clusters(batch.angles_rad, batch.ranges_m, cfg.lidar_features)
         truth = float(r) * np.stack([np.cos(bearings), np.sin(bearings)], axis=1)
-        err = np.linalg.norm(dets.xy_m - truth[dets.scan_index], axis=1)
-        ok = err <= MATCH_GATE_M
-        found = np.zeros(observers.size, dtype=bool)
-        found[dets.scan_index[ok]] = True
-        expected = 2.0 * math.asin(0.0325 / r) / lidar_cfg.beam_spacing_rad - (
+        for key, features in (("pd", cfg.lidar_features), ("pd_width_only", width_only)):
+            dets = extract_clusters(batch.angles_rad, batch.ranges_m, features)
+            err = np.linalg.norm(dets.xy_m - truth[dets.scan_index], axis=1)
+            ok = err <= MATCH_GATE_M
+            found = np.zeros(observers.size, dtype=bool)
+            found[dets.scan_index[ok]] = True
+            out[key].append(float(found.mean()))
+            if key == "pd":
+                out["centre_err"].append(
+                    float(np.sqrt(np.mean(err[ok] ** 2))) if ok.any() else None
+                )
+        expected = 2.0 * math.asin(min(radius / r, 1.0)) / lidar_cfg.beam_spacing_rad - (
             lidar_cfg.beam_footprint_deg / math.degrees(lidar_cfg.beam_spacing_rad)
         )
         out["range_m"].append(float(r))
-        out["pd"].append(float(found.mean()))
         out["returns_mean"].append(float(counts.mean()))
         out["returns_expected"].append(max(expected, 0.0))
-        out["centre_err"].append(float(np.sqrt(np.mean(err[ok] ** 2))) if ok.any() else None)
     return out
 
 
@@ -259,6 +287,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     lidar = lidar_curve(cfg, rng, args.pairs)
     camera = camera_curve(cfg, rng, args.pairs)
+    red_decoy = lidar_curve(cfg, rng, args.pairs, cfg.arena.red_decoy_radius_m)
     r = np.asarray(lidar["range_m"])
     lidar_fit, lidar_rms = fit_sigmoid(r, np.asarray(lidar["pd"]), (1.0, 8.0, 2.0))
     camera_fit, camera_rms = fit_sigmoid(r, np.asarray(camera["pd"]), (1.05, 5.0, 4.0))
@@ -288,6 +317,20 @@ def main(argv: list[str] | None = None) -> int:
             f"| {camera['pd'][i]:.3f} | {camera['pd_model'][i]:.3f} "
             f"| {seed_sigmoid(rr, *SEED_EQ30):.3f} | {seed_sigmoid(rr, *camera_fit):.3f} "
             f"| {'-' if bs is None else f'{bs:.2f}'} |"
+        )
+    print(
+        "\nLidar extractor, angular extent test on / off (the end-to-end width test alone): "
+        f"teammate housing P_d and {1000 * red_decoy['target_radius_m']:.0f} mm-radius red decoy "
+        "false-positive rate"
+    )
+    print("| range (m) | housing | housing, width only | red decoy | red decoy, width only |")
+    print("|---|---|---|---|---|")
+    for i, rr in enumerate(r):
+        if abs(rr * 2 - round(rr * 2)) > 1e-9:
+            continue
+        print(
+            f"| {rr:.1f} | {lidar['pd'][i]:.3f} | {lidar['pd_width_only'][i]:.3f} "
+            f"| {red_decoy['pd'][i]:.3f} | {red_decoy['pd_width_only'][i]:.3f} |"
         )
     print(
         "lidar range factor fit (offset, slope /m, midpoint m) = "
@@ -323,6 +366,7 @@ def main(argv: list[str] | None = None) -> int:
                 {
                     "lidar": lidar,
                     "camera": camera,
+                    "red_decoy_lidar": red_decoy,
                     "lidar_fit": lidar_fit,
                     "lidar_fit_rms": lidar_rms,
                     "lidar_r50_m": r50,

@@ -107,7 +107,7 @@ class ArenaConfig:
         Robot-sized posts (radius ``decoy_post_radius_m`` <= 32.5 mm): lidar false positives.
     n_red_decoys : int
         Red objects (radius ``red_decoy_radius_m``): camera false positives; too wide to pass the
-        lidar feature extractor.
+        lidar feature extractor's angular extent test (``LidarFeatureConfig.extent_test``).
     n_boxes : int
         Box obstacles, sides drawn in ``box_size_range_m``: they occlude lidar and camera.
     """
@@ -378,6 +378,15 @@ class SwarmConfig:
                     f"{name}.rate_hz={rate} exceeds the physics substep rate {substep_hz:g} Hz "
                     f"(control_period_s / physics_substeps): raise physics_substeps"
                 )
+        features = self.lidar_features
+        if features.extent_test and features.beam_footprint_deg > self.lidar.beam_footprint_deg:
+            # The extent test assumes every return's footprint is this wide: with a wider
+            # assumed footprint than the scanner's it would reject the scanner's housings.
+            raise ValueError(
+                f"lidar_features.beam_footprint_deg={features.beam_footprint_deg!r} exceeds the "
+                f"simulated scanner's lidar.beam_footprint_deg={self.lidar.beam_footprint_deg!r}: "
+                "the extent test would reject housings (set them equal)"
+            )
         if self.spawn_clearance_m > min(self.arena.width_m, self.arena.height_m):
             # (1e300 overflowed the packing bound below with an unnamed OverflowError.)
             raise ValueError(

@@ -80,6 +80,17 @@ def run(args: argparse.Namespace) -> int:
     from agents.sb3.train import env_kwargs_from_args
 
     env_kwargs = env_kwargs_from_args(args)
+    sb3_only = {
+        "--warm-start": getattr(args, "warm_start", None) is not None,
+        "--residual": getattr(args, "residual", None) is not None,
+        "--residual-observes-base": getattr(args, "residual_observes_base", False),
+        "--critic-state": getattr(args, "critic_state", False),
+        "--critic-warmup": bool(getattr(args, "critic_warmup", 0)),
+        "--recurrent": getattr(args, "recurrent", False),
+    }
+    given = [flag for flag, on in sb3_only.items() if on]
+    if given:
+        raise ValueError(f"swarm-phd train --engine rllib: {', '.join(given)} are SB3-only")
     if getattr(args, "extractor", "mlp") == "sets":
         print(
             "swarm-phd train --engine rllib: the Deep Sets extractor is SB3-only; "

@@ -12,7 +12,9 @@ of copy ``k``): one policy shared by all agents, as with SuperSuit.
 Per robot the filter math is the same as in a lone env, so a batched copy's rollout is
 bit-identical to the same env run alone (``tests/agents/test_batched_vec_env.py``). Families
 that know identities (``id-phd``, ``ukf``, ``pf``) index their teammates and read one World's
-truth, so they cannot be shared by copies: the constructor refuses them.
+truth, so they cannot be shared by copies: each copy then keeps its own localizer, stepped on
+its own feed (no batching of the filter call, but the same VecEnv, residual and critic options;
+``shared`` is ``None``).
 
 As :class:`~agents.sb3.adapter.TrainingWrapper` does, it rescales the policy's ``[-1, 1]^2``
 actions to ``[v_max, omega_max]``, flags time-limit truncation (``TimeLimit.truncated``) so
@@ -86,16 +88,18 @@ class BatchedSwarmVecEnv(VecEnv):
         preset = kwargs.pop("preset", "sim-6m-20")
         config = make_config(preset, kwargs.pop("config", None), **_config_overrides(kwargs))
         n = config.n_robots
-        self.shared = make_localizer(config.localizer, n * n_copies, config.phd)
-        if self.shared.has_identities:
-            # Identity families know their teammates by index and read one World's truth:
-            # K copies in one localizer would mix robots of different copies.
-            raise ValueError(
-                f"localizer {config.localizer!r} knows identities and cannot be shared by env "
-                "copies: use make_vec_env (SuperSuit) for it"
-            )
+        #: The localizer all copies' robots share, or ``None`` for an identity family: those
+        #: know their teammates by index and read one World's truth, so K copies in one
+        #: localizer would mix robots of different copies; each copy makes its own.
+        self.shared: Any = None
+        if not make_localizer(config.localizer, 1, config.phd).has_identities:
+            self.shared = make_localizer(config.localizer, n * n_copies, config.phd)
         self.envs = [
-            SwarmEnv(config=config, localizer=LocalizerSlice(self.shared, k * n, n), **kwargs)
+            SwarmEnv(
+                config=config,
+                localizer=None if self.shared is None else LocalizerSlice(self.shared, k * n, n),
+                **kwargs,
+            )
             for k in range(n_copies)
         ]
         first = self.envs[0]
@@ -176,9 +180,8 @@ class BatchedSwarmVecEnv(VecEnv):
                     a: scale_actions(actions[k * n + i], self._high)
                     for i, a in enumerate(env.possible_agents)
                 }
-            feed = env.step_world(commands)
-            feeds.append(feed if feed is not None else SwarmFeed.empty(n))
-        self.shared.step(SwarmFeed.concat(feeds))
+            feeds.append(env.step_world(commands))
+        self._step_localizers(dict(enumerate(feeds)))
         obs = np.zeros((self.num_envs, *self.observation_space.shape), np.float32)
         rewards = np.zeros(self.num_envs, np.float32)
         dones = np.zeros(self.num_envs, bool)
@@ -254,6 +257,20 @@ class BatchedSwarmVecEnv(VecEnv):
             return [indices]
         return list(indices)
 
+    def _step_localizers(self, feeds: dict[int, SwarmFeed | None]) -> None:
+        """Give the localizer(s) the feeds of the copies in ``feeds`` (``None``: the copy does
+        not localize): one call of the shared localizer, the other copies' robots fed nothing
+        (a no-op for them), or each copy's own localizer in turn."""
+        n = self.agents_per_copy
+        if self.shared is not None:
+            parts = [feeds.get(k) for k in self._copies]
+            parts = [SwarmFeed.empty(n) if f is None else f for f in parts]
+            self.shared.step(SwarmFeed.concat(parts))
+            return
+        for k, feed in feeds.items():
+            if feed is not None:
+                self.envs[k].localizer.step(feed)
+
     def _observation(
         self, env: SwarmEnv, obs: dict[str, np.ndarray], base: dict[str, np.ndarray] | None
     ) -> np.ndarray:
@@ -270,13 +287,8 @@ class BatchedSwarmVecEnv(VecEnv):
 
     def _reset_copies(self, copies: Sequence[int], seeds: Sequence[int | None]) -> dict:
         """Reset ``copies`` (their robots' filters in one shared call); their obs per copy."""
-        n = self.agents_per_copy
         feeds = {k: self.envs[k].reset_world(seed=s) for k, s in zip(copies, seeds, strict=True)}
-        self.shared.step(
-            SwarmFeed.concat(
-                [feeds.get(k) or SwarmFeed.empty(n) for k in self._copies]  # others: no-op
-            )
-        )
+        self._step_localizers(feeds)
         out = {}
         for k, s in zip(copies, seeds, strict=True):
             obs, infos = self.envs[k].finish_reset()

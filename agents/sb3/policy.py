@@ -10,9 +10,11 @@ carries one extra member, ``swarm_phd.json`` (SB3's loader ignores it)::
                                      # command = clip(scripted + policy, -1, 1) x high
      "residual_observes_base": true, # optional: the scripted command / high is appended to
                                      # the observation (agents.sb3.residual)
-     "critic_dims": P}               # optional, a centralised critic's block
+     "critic_dims": P,               # optional, a centralised critic's block
                                      # (agents.sb3.central_critic): P zeros are appended to
                                      # the observation, which the actor does not read
+     "recurrent": true}              # optional: an sb3-contrib RecurrentPPO model (LSTM
+                                     # memory per agent, cleared by reset())
 
 ``env_kwargs.json`` next to ``model.zip`` holds the same ``env_kwargs`` for humans and scripts.
 """
@@ -88,7 +90,11 @@ def env_kwargs_for_model(model_path: str | Path) -> dict[str, Any]:
 
 class SB3Policy:
     """A trained PPO model driving every agent with the same network (``(obs, infos) ->
-    actions``). Deterministic (the Gaussian's mean) unless ``deterministic=False``."""
+    actions``). Deterministic (the Gaussian's mean) unless ``deterministic=False``.
+
+    A recurrent model keeps each agent's LSTM state between calls (by agent name, so agents
+    that leave the episode do not shift the others'); :meth:`reset` clears it, and must be
+    called at every episode start, as for the scripted policies."""
 
     def __init__(
         self,
@@ -113,12 +119,17 @@ class SB3Policy:
             self._mean = None
         #: Entries of a centralised critic's block, padded with zeros (the actor ignores them).
         self.critic_dims = int(meta.get("critic_dims", 0))
+        self.recurrent = bool(meta.get("recurrent", False))
+        #: Recurrent models: each agent's LSTM state ``(h, c)``, each (layers, hidden); an
+        #: agent without one starts its episode at the next call.
+        self._memory: dict[str, tuple[np.ndarray, np.ndarray]] = {}
 
     def reset(self, seed: int | None = None) -> None:
         if seed is not None:
             self.model.set_random_seed(seed)
         if self.base is not None:
             self.base.reset(seed)
+        self._memory.clear()
 
     def normalize(self, obs: np.ndarray) -> np.ndarray:
         if self._mean is None:
@@ -143,12 +154,32 @@ class SB3Policy:
         batch = self.normalize(batch)
         if self.critic_dims:
             batch = np.pad(batch, ((0, 0), (0, self.critic_dims)))
-        actions, _ = self.model.predict(batch, deterministic=self.deterministic)
+        if self.recurrent:
+            actions = self._predict_recurrent(agents, batch)
+        else:
+            actions, _ = self.model.predict(batch, deterministic=self.deterministic)
         if base is not None:
             return {
                 a: compose(base[a], actions[k], self.action_high) for k, a in enumerate(agents)
             }
         return {a: scale_actions(actions[k], self.action_high) for k, a in enumerate(agents)}
+
+    def _predict_recurrent(self, agents: list[str], batch: np.ndarray) -> np.ndarray:
+        """One step of the LSTM for ``agents`` (their rows of ``batch``), each from its own
+        state; an agent seen for the first time since :meth:`reset` starts an episode."""
+        starts = np.array([a not in self._memory for a in agents])
+        state = None
+        if not starts.all():
+            shape = self.model.policy.lstm_hidden_state_shape  # (layers, 1, hidden)
+            zeros = np.zeros((shape[0], shape[2]), np.float32)
+            pairs = [self._memory.get(a, (zeros, zeros)) for a in agents]
+            state = tuple(np.stack([p[i] for p in pairs], axis=1) for i in (0, 1))
+        actions, (h, c) = self.model.predict(
+            batch, state=state, episode_start=starts, deterministic=self.deterministic
+        )
+        for k, a in enumerate(agents):
+            self._memory[a] = (h[:, k].copy(), c[:, k].copy())
+        return actions
 
 
 def load_sb3_policy(path: str | Path, env: Any, deterministic: bool = True) -> SB3Policy:
@@ -158,7 +189,12 @@ def load_sb3_policy(path: str | Path, env: Any, deterministic: bool = True) -> S
 
     torch.set_num_threads(1)
     meta = read_metadata(path)
-    model = PPO.load(str(path), device="cpu")
+    if meta.get("recurrent"):
+        from sb3_contrib import RecurrentPPO
+
+        model = RecurrentPPO.load(str(path), device="cpu")
+    else:
+        model = PPO.load(str(path), device="cpu")
     agent = env.possible_agents[0]
     want = model.observation_space.shape
     have = env.observation_space(agent).shape

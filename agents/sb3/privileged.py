@@ -2,9 +2,9 @@
 
 A teacher may know what no robot knows, because only its student is deployed ("learning by
 cheating", Chen et al. 2019). ``scripted:formation`` loses much of its accuracy to spurious
-components of its own PHD estimate, mostly a red decoy tracked as a teammate: its centroid
-estimate is off by ~0.18 m, ~0.04 m without them (``python -m agents.formation_diagnosis``,
-``docs/results.md``). The teacher
+components of its own PHD estimate, mostly camera-only tracks beyond the lidar's range (a red
+decoy's bearing, for example): its centroid estimate is off by ~0.16 m, ~0.04 m without them
+(``python -m agents.formation_diagnosis``, ``docs/results.md``, round 4). The teacher
 here is the same controller on the same table with every component that sits on no true
 teammate removed: the controller the robot would run if it could tell decoys from teammates.
 A student distilled from it (``swarm-phd train --residual scripted:formation --warm-start

@@ -79,8 +79,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="auto",
         help="VecEnv: 'batched' runs the copies in-process with one filter call for all of "
         "them (agents.sb3.batched, fastest on few cores); 'supersuit' uses SuperSuit's "
-        "vectorizers (needed for --num-cpus > 0); 'auto': batched unless --num-cpus > 0 or "
-        "the localizer knows identities",
+        "vectorizers (needed for --num-cpus > 0); 'auto': batched unless --num-cpus > 0 (a "
+        "localizer that knows identities, id-phd, ukf or pf, gets one per copy)",
     )
     parser.add_argument("--n-steps", type=int, default=128, help="PPO rollout length per agent")
     parser.add_argument("--batch-size", type=int, default=512, help="PPO minibatch size")
@@ -131,6 +131,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="centralised critic (agents.sb3.central_critic): the value function also reads "
         "the true teammate positions and task state, the policy does not (batched VecEnv, "
         "--extractor sets)",
+    )
+    parser.add_argument(
+        "--recurrent",
+        action="store_true",
+        help="recurrent PPO (sb3-contrib RecurrentPPO): an LSTM after the extractor, in the "
+        "actor and the critic, so the policy acts on the history of its observations "
+        "(a static decoy and a moving teammate differ over time, not in one frame)",
+    )
+    parser.add_argument(
+        "--lstm-hidden",
+        type=int,
+        default=None,
+        help="with --recurrent: LSTM hidden units (default 64)",
     )
     parser.add_argument(
         "--lidar-sectors",
@@ -247,8 +260,18 @@ def run(args: argparse.Namespace) -> int:
         residual_log_std=args.residual_log_std,
         critic_state=args.critic_state,
         residual_observes_base=args.residual_observes_base,
+        lstm_hidden=_lstm_hidden(args),
     )
     return EXIT_CODES.get(interrupted, 0) if interrupted else 0
+
+
+def _lstm_hidden(args: argparse.Namespace) -> int | None:
+    """The LSTM size of ``--recurrent`` (64 unless ``--lstm-hidden``), else None."""
+    if not args.recurrent:
+        if args.lstm_hidden is not None:
+            raise ValueError(f"--lstm-hidden {args.lstm_hidden} needs --recurrent")
+        return None
+    return 64 if args.lstm_hidden is None else args.lstm_hidden
 
 
 def _vec_env(
@@ -287,15 +310,12 @@ def _resolve_vec(
 ) -> str:
     """``"batched"`` or ``"supersuit"`` for ``--vec`` (``"auto"`` resolved); ``ValueError``
     for a combination the chosen VecEnv cannot serve."""
-    from localization.registry import make_localizer
-
     if vec not in ("auto", "batched", "supersuit"):
         raise ValueError(f"--vec must be auto, batched or supersuit, got {vec!r}")
     if vec == "batched" and num_cpus > 0:
         raise ValueError("--vec batched steps the copies in this process: use --num-cpus 0")
     if vec == "auto":
-        identities = make_localizer(env_kwargs.get("localizer", "phd"), 1).has_identities
-        vec = "supersuit" if num_cpus > 0 or identities else "batched"
+        vec = "supersuit" if num_cpus > 0 else "batched"
     for flag, on in (("--residual", residual), ("--critic-state", critic_state)):
         if on and vec != "batched":
             raise ValueError(f"{flag} needs the batched VecEnv (--vec batched, --num-cpus 0)")
@@ -332,6 +352,7 @@ def _train(
     residual_log_std: float = -1.5,
     critic_state: bool = False,
     residual_observes_base: bool = False,
+    lstm_hidden: int | None = None,
 ) -> tuple[Path, str | None]:
     """Train; return the path of ``model.zip`` and the signal that interrupted it (or None).
 
@@ -342,7 +363,9 @@ def _train(
     residual policy (:mod:`agents.sb3.residual`; correction mean 0 and log-std
     ``residual_log_std`` at the start; ``residual_observes_base`` appends the scripted command
     to the policy's observation). ``critic_state``: a centralised critic that also reads
-    the true state (:mod:`agents.sb3.central_critic`).
+    the true state (:mod:`agents.sb3.central_critic`). ``lstm_hidden``: recurrent PPO
+    (sb3-contrib ``RecurrentPPO``, an LSTM of that many units in the actor and in the critic,
+    after the extractor); the model's metadata says ``"recurrent": true``.
     """
     if timesteps <= 0:
         raise ValueError(f"--timesteps must be > 0, got {timesteps}")
@@ -374,6 +397,18 @@ def _train(
             )
         if extractor != "sets":
             raise ValueError(f"--critic-state needs --extractor sets, got {extractor!r}")
+    if lstm_hidden is not None:
+        if isinstance(lstm_hidden, bool) or not isinstance(lstm_hidden, int) or lstm_hidden < 1:
+            raise ValueError(f"--lstm-hidden must be an int >= 1, got {lstm_hidden!r}")
+        for flag, on in (
+            ("--warm-start", warm_start is not None),
+            ("--critic-state", critic_state),
+        ):
+            if on:
+                raise ValueError(
+                    f"--recurrent and {flag} exclude each other (the behaviour cloning and the "
+                    "centralised critic's policy are feed-forward)"
+                )
     if warm_start is not None:
         warm_start = {"rounds": 1, "epochs": 30, "log_std": -1.5, **warm_start}
         teacher = warm_start.get("teacher")
@@ -470,6 +505,8 @@ def _train(
             "critic_state": critic_state,
             "critic_dims": critic_dims,
             "residual_observes_base": residual_observes_base,
+            "recurrent": lstm_hidden is not None,
+            "lstm_hidden": lstm_hidden,
             "policy_kwargs": {
                 k: v for k, v in policy_kwargs.items() if k != "features_extractor_class"
             },
@@ -527,6 +564,8 @@ def _train(
             out_meta["residual_observes_base"] = True
         if critic_dims:
             out_meta["critic_dims"] = critic_dims
+        if lstm_hidden is not None:
+            out_meta["recurrent"] = True
         return out_meta
 
     class Checkpoints(BaseCallback):
@@ -558,7 +597,14 @@ def _train(
             k: v for k, v in policy_kwargs.items() if not k.startswith(("features_", "share_"))
         }
         policy_kwargs.update(critic_dims=critic_dims, top_k=probe_top_k)
-    model = PPO(
+    algorithm: Any = PPO
+    if lstm_hidden is not None:
+        from sb3_contrib import RecurrentPPO
+
+        algorithm, policy_class = RecurrentPPO, "MlpLstmPolicy"
+        # One LSTM per side: the critic's must not move the actor's memory.
+        policy_kwargs.update(lstm_hidden_size=lstm_hidden, shared_lstm=False)
+    model = algorithm(
         policy_class,
         venv,
         seed=seed,

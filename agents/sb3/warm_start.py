@@ -249,6 +249,8 @@ def fit_actor(
 def _actor_parameters(policy: Any) -> list[Any]:
     """The actor's parameters (deduplicated: a shared extractor appears once)."""
     modules = [policy.pi_features_extractor, policy.mlp_extractor.policy_net, policy.action_net]
+    if getattr(policy, "lstm_actor", None) is not None:  # a recurrent policy's actor memory
+        modules.append(policy.lstm_actor)
     seen, params = set(), []
     for m in modules:
         for p in m.parameters():

@@ -18,6 +18,12 @@ the detection probability falls from 1 at 1.86 m to 0 at 2.48 m; measured in
 * walls and large obstacles form wide clusters and are rejected, except small fragments where a
   nearer object cuts a wall into a narrow visible sliver (a realistic false positive, rare at the
   seed's 2 m tracking range);
+* round objects wider than a housing (the arena's 120 mm red decoys) are rejected by the angular
+  extent test (``extent_test``): a cluster's returns cover at least its beams' spread plus one
+  footprint, which must fit within the angle a housing subtends at that range. The end-to-end
+  width alone must allow for two returns' range noise, and let a 120 mm cylinder pass 98-100 %
+  of the time from 1.5 to 3 m; beyond 2.5 m, where a housing can no longer give three returns,
+  only the extent test can tell three returns on a wider object from a housing;
 * two robots touching side by side merge into one wide cluster: both are missed.
 
 All K scans are segmented in one compiled pass (``_cluster_kernel``): each scan is walked once,
@@ -76,6 +82,25 @@ class LidarFeatureConfig:
         Detections whose centre is farther are dropped. Default 10 m, the X4's maximum range:
         no cut. The seed's "range of the lidar is limited to 2m" (sec. 3.2) follows from the
         rules above (fewer returns at longer range), not from a threshold.
+    extent_test : bool
+        Also require the cluster's angular extent to fit a housing. Every return's footprint
+        lies on the object (mixed returns at its edges are split off), so the object subtends
+        at least ``alpha + beam_footprint_deg``, with ``alpha`` the angle between the first and
+        last beams; a housing whose centre is ``d`` away subtends ``2 asin(max_width_m / 2 /
+        d)``. The cluster is kept when the first fits in the second, with ``d`` the mean range
+        plus ``housing_radius_m`` minus ``width_noise_sigmas`` range-noise standard deviations.
+        With the true centre distance the rule never rejects a housing that the footprint model
+        lets return (the number of beams whose footprint fits in its subtense is at most that
+        subtense over the spacing, plus one); the estimated distance is a few mm long and
+        noisy, which the margin covers (measured: no housing lost at any range); with
+        ``width_noise_sigmas=0`` there is no margin. It rejects wider round objects at every
+        range, including three returns on a 120 mm red decoy at 3 m. ``False`` gives the
+        end-to-end width test alone (the rule before 2026-12-02). The angles are the
+        scanner's, taken as exact (no angular jitter).
+    beam_footprint_deg : float
+        The scanner's sample footprint, as :class:`swarm_env.sensors.lidar.LidarConfig`'s (the
+        X4 head turns 0.5 deg during a sample). 0 gives the ideal thin-beam bound, the most
+        lenient.
     foreground_only : bool
         Keep only clusters standing in front of both neighbouring returns (or next to invalid
         returns). A free-standing post or housing always does; a one-beam sliver of a wall
@@ -94,6 +119,8 @@ class LidarFeatureConfig:
     min_beams: int = 3
     housing_radius_m: float = 0.0325
     tracking_range_m: float = 10.0
+    extent_test: bool = True
+    beam_footprint_deg: float = 0.5
     foreground_only: bool = True
 
     def __post_init__(self) -> None:
@@ -105,11 +132,17 @@ class LidarFeatureConfig:
             "width_noise_sigmas",
             "range_noise_std_m",
             "range_noise_quadratic_per_m",
+            "beam_footprint_deg",
         ):
             if not math.isfinite(getattr(self, name)) or not getattr(self, name) >= 0.0:
                 raise ValueError(
                     f"LidarFeatureConfig.{name} must be >= 0, got {getattr(self, name)!r}"
                 )
+        if not self.beam_footprint_deg < 10.0:  # as LidarConfig's: a sample is < 10 deg wide
+            raise ValueError(
+                f"LidarFeatureConfig.beam_footprint_deg must be < 10, got "
+                f"{self.beam_footprint_deg!r}"
+            )
         for name in ("max_width_m", "tracking_range_m"):
             if not getattr(self, name) > 0.0:
                 raise ValueError(
@@ -193,6 +226,8 @@ def extract_clusters(
         int(cfg.min_beams),
         cfg.housing_radius_m,
         cfg.tracking_range_m,
+        bool(cfg.extent_test),
+        math.radians(cfg.beam_footprint_deg),
         bool(cfg.foreground_only),
     )
     return LidarDetections(xy_m=xy, scan_index=scan, width_m=width, n_beams=count, n_scans=n_scans)
@@ -223,11 +258,15 @@ def _cluster_kernel(
     min_beams,
     housing_radius,
     tracking_range,
+    extent_test,
+    footprint,
     foreground_only,
 ):
     """Robot-like clusters of K scans: ``ranges`` (K, B) m (0 = no return), beam directions
     ``cos_a``, ``sin_a`` (B,). A cluster of mean range r is kept when its width is at most
-    ``max_width + width_tol_const + width_tol_quadratic r^2``.
+    ``max_width + width_tol_const + width_tol_quadratic r^2`` and, with ``extent_test``, its
+    returns' angular spread plus ``footprint`` (rad) fits the angle a ``max_width`` housing
+    subtends at its range (see :class:`LidarFeatureConfig`).
 
     Returns ``xy`` (M, 2) m, ``scan`` (M,), ``width`` (M,) m and ``count`` (M,) beams, sorted
     by scan then bearing. Each scan is walked once from its first cluster start (a valid beam
@@ -304,6 +343,20 @@ def _cluster_kernel(
             if not centre_r <= tracking_range:
                 continue
             phi = math.atan2(sum_s, sum_c)
+            if extent_test:
+                # The tolerances hold n_sigmas sqrt(2) sigma(r): the centre may be n_sigmas
+                # sigma(r) nearer than measured, which widens the housing's subtense.
+                near = (width_tol_const + width_tol_quadratic * mean_r * mean_r) / math.sqrt(2.0)
+                half = 0.5 * max_width / max(centre_r - near, 1e-9)
+                subtense = 2.0 * math.asin(half) if half < 1.0 else math.pi
+                spread = abs(
+                    math.atan2(
+                        sin_a[e] * cos_a[s] - cos_a[e] * sin_a[s],
+                        cos_a[e] * cos_a[s] + sin_a[e] * sin_a[s],
+                    )
+                )
+                if not spread + footprint <= subtense:
+                    continue
             # Insert in bearing order (stable; a seam cluster is walked last but may be first).
             j = m - m_scan
             while j > 0 and bearing[j - 1] > phi:

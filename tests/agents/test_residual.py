@@ -84,9 +84,8 @@ def test_zero_correction_in_the_batched_env_is_the_scripted_controller(observes_
     vec.close()
 
 
-def train_frozen_residual(out, **train_kwargs):
-    """A tiny residual run whose actor never leaves the critic warm-up: the scripted
-    controller in a model zip."""
+def train_tiny(out, **train_kwargs):
+    """Two PPO updates of 2 batched copies on ``KWARGS`` (a few seconds)."""
     from agents.sb3.train import train
 
     return train(
@@ -98,9 +97,15 @@ def train_frozen_residual(out, **train_kwargs):
         progress_bar=False,
         ppo_kwargs={"n_steps": 32, "batch_size": 64, "n_epochs": 1},
         checkpoint_every=10_000,
-        critic_warmup=5,
-        residual="scripted:formation",
         **train_kwargs,
+    )
+
+
+def train_frozen_residual(out, **train_kwargs):
+    """A tiny residual run whose actor never leaves the critic warm-up: the scripted
+    controller in a model zip."""
+    return train_tiny(
+        out, **{"critic_warmup": 5, "residual": "scripted:formation", **train_kwargs}
     )
 
 

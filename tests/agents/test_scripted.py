@@ -182,3 +182,21 @@ def test_dispersion_covers_the_arena_far_better_than_random():
         _run(env, policy, 200, seed=5)
         coverage[spec] = env.task.metrics()["coverage"]
     assert coverage["scripted:exploration"] > coverage["random"] + 0.15, coverage
+
+
+def test_formation_pulls_towards_far_components_only_with_pull_far():
+    """Beyond the circle's diameter 2r the optional pull adds k_s (d - 2r) / d m_k; off by
+    default, since a red decoy's camera ghost beyond the lidar pulls as hard as a teammate."""
+    table = np.zeros((4, 7))
+    table[0] = [1.0, 0.3, 0.2, 0.001, 0.0, 0.001, 1.0]
+    table[1] = [1.0, -0.2, 0.4, 0.001, 0.0, 0.001, 1.0]
+    table[2] = [0.9, 2.0, -1.0, 0.01, 0.0, 0.01, 1.0]  # 2.24 m away: beyond 2r = 1 m
+    features = np.array([0.5, 0.7])
+    assert FormationPolicy(top_k=4).pull_far is False
+    default = FormationPolicy(max_speed_mps=10.0, top_k=4)  # fast enough never to clip here
+    pulled = FormationPolicy(max_speed_mps=10.0, top_k=4, pull_far=True)
+    u0 = default.desired_velocity("a", table, None, features)
+    u1 = pulled.desired_velocity("a", table, None, features)
+    d = float(np.hypot(2.0, -1.0))
+    expected = default.k_s * (d - 1.0) / d * np.array([2.0, -1.0])
+    np.testing.assert_allclose(u1 - u0, expected, atol=1e-12)

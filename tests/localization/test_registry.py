@@ -127,9 +127,15 @@ def test_identity_families_show_teammates_only_and_cannot_be_sliced(feeds):
         LocalizerSlice(loc, 0, 2)
 
 
-def test_batched_vec_env_refuses_identity_families():
+def test_batched_vec_env_gives_identity_families_one_localizer_per_copy():
+    """Identity families cannot be sliced from one shared localizer: each copy of the batched
+    VecEnv makes its own (its rollout equals a lone env's: tests/agents/test_batched_vec_env)."""
     pytest.importorskip("stable_baselines3")
     from agents.sb3.batched import BatchedSwarmVecEnv
 
-    with pytest.raises(ValueError, match="identities"):
-        BatchedSwarmVecEnv({"preset": "lab-3m-4", "localizer": "id-phd"}, 2)
+    vec = BatchedSwarmVecEnv({"preset": "lab-3m-4", "localizer": "id-phd"}, 2)
+    assert vec.shared is None
+    first, second = (env.localizer for env in vec.envs)
+    assert first is not second and not isinstance(first, LocalizerSlice)
+    assert first.name == "id-phd" and first.n_robots == 4
+    vec.close()

@@ -369,7 +369,17 @@ def reference_clusters(angles, ranges, cfg):
     for row, col, n, w in zip(s_rows[keep], s_cols[keep], count[keep], width[keep], strict=True):
         beams = (col + np.arange(n)) % n_beams
         bearing = math.atan2(sin_a[beams].sum(), cos_a[beams].sum())
-        centre = ranges[row, beams].mean() + cfg.housing_radius_m
+        mean_range = ranges[row, beams].mean()
+        centre = mean_range + cfg.housing_radius_m
+        if cfg.extent_test:
+            # The returns' angular spread plus one footprint must fit a housing's subtense,
+            # its centre up to n_sigmas sigma(r) nearer than measured.
+            sigma = cfg.range_noise_std_m + cfg.range_noise_quadratic_per_m * mean_range**2
+            nearest = max(centre - cfg.width_noise_sigmas * sigma, 1e-9)
+            subtense = 2.0 * math.asin(min(0.5 * cfg.max_width_m / nearest, 1.0))
+            spread = abs(wrap_angle(angles[beams[-1]] - angles[beams[0]]))
+            if not spread + math.radians(cfg.beam_footprint_deg) <= subtense:
+                continue
         if centre <= cfg.tracking_range_m:
             out.append(
                 (row, bearing, centre * math.cos(bearing), centre * math.sin(bearing), w, n)
@@ -380,6 +390,8 @@ def reference_clusters(angles, ranges, cfg):
 
 FEATURE_CONFIGS = [
     LidarFeatureConfig(),
+    LidarFeatureConfig(extent_test=False),
+    LidarFeatureConfig(beam_footprint_deg=0.0, width_noise_sigmas=0.0),
     LidarFeatureConfig(foreground_only=False, jump_range_gain=0.0),
     LidarFeatureConfig(min_beams=2, max_width_m=0.2, tracking_range_m=2.0),
     LidarFeatureConfig(min_beams=1, width_noise_sigmas=0.0, max_width_m=0.078),

@@ -492,17 +492,66 @@ def test_extractor_width_range_and_count_gates():
     angles = -math.pi + np.arange(720) * (2 * math.pi / 720)
     ranges = np.zeros((1, 720))
     ranges[0, 10:30] = 1.0  # 20 beams at 1 m: ~0.17 m wide
-    ranges[0, 200:203] = 6.0  # 3 beams: narrow, at 6 m
+    ranges[0, 200:203] = 6.0  # 3 beams: 10 cm across at 6 m, narrower than the width limit
     ranges[0, 400:402] = 1.0  # 2 beams: fewer than min_beams = 3
-    assert extract_detections(angles, ranges)[0].shape == (1, 2)  # only the 3-beam one, 6 m
-    clusters = extract_clusters(angles, ranges, LidarFeatureConfig(tracking_range_m=5.0))
+    width_only = LidarFeatureConfig(extent_test=False)
+    assert extract_detections(angles, ranges, width_only)[0].shape == (1, 2)  # the 3-beam one
+    # ... which spans 1.5 deg with its footprints, where a housing at 6 m subtends 0.62 deg.
+    assert extract_detections(angles, ranges)[0].shape == (0, 2)
+    clusters = extract_clusters(
+        angles, ranges, dataclasses.replace(width_only, tracking_range_m=5.0)
+    )
     assert clusters.xy_m.shape == (0, 2)
-    clusters = extract_clusters(angles, ranges, LidarFeatureConfig(min_beams=2))
+    clusters = extract_clusters(angles, ranges, dataclasses.replace(width_only, min_beams=2))
     assert clusters.n_beams.tolist() == [3, 2]
     clusters = extract_clusters(
-        angles, ranges, LidarFeatureConfig(max_width_m=0.2, tracking_range_m=5.0)
+        angles, ranges, dataclasses.replace(width_only, max_width_m=0.2, tracking_range_m=5.0)
     )
     assert clusters.n_beams.tolist() == [20]  # the wide one; the narrow one is beyond 5 m
+
+
+def test_extent_test_keeps_housings_and_rejects_wider_cylinders_at_every_range():
+    """The arena's 120 mm red decoy passes the end-to-end width test at 1.5-3 m (range noise
+    tolerance), never the angular extent test; a housing passes both alike. Targets clear of
+    the blind sectors (one that a blind sector cuts shows a narrower arc)."""
+    rng = np.random.default_rng(5)
+    cfg = LidarConfig(interference_tolerance_deg=0.0)
+    width_only = LidarFeatureConfig(extent_test=False)
+    for r in (0.5, 1.0, 1.5, 2.0, 2.2, 3.0, 3.5):
+        margin = math.degrees(math.asin(0.06 / r)) + 1.0
+        scene, bearings = make_pair_scene(
+            rng,
+            r,
+            200,
+            avoid_centers_deg=cfg.blind_sector_centers_deg,
+            avoid_half_widths_deg=tuple(0.5 * w + margin for w in cfg.blind_sector_widths_deg),
+        )
+        truth = r * np.stack([np.cos(bearings), np.sin(bearings)], axis=1)
+        decoy = dataclasses.replace(
+            scene,
+            circle_radius_m=np.where(
+                scene.circle_lidar & (scene.circle_owner % 2 == 1), 0.06, scene.circle_radius_m
+            ),
+        )
+        rates = {}
+        for name, target in (("housing", scene), ("decoy", decoy)):
+            sensor = LidarSensor(cfg, target.n_robots)
+            observers = np.arange(0, target.n_robots, 2)
+            batch = sensor.scan(target, observers, np.ones(observers.size), rng)
+            for features in ("default", "width_only"):
+                dets = extract_clusters(
+                    batch.angles_rad,
+                    batch.ranges_m,
+                    None if features == "default" else width_only,
+                )
+                near = np.linalg.norm(dets.xy_m - truth[dets.scan_index], axis=1) <= 0.15
+                rates[name, features] = np.unique(dets.scan_index[near]).size / observers.size
+        assert rates["housing", "default"] == rates["housing", "width_only"], r
+        if r <= 1.5:
+            assert rates["housing", "default"] == 1.0, r  # every housing in reach is kept
+        assert rates["decoy", "default"] == 0.0, r
+        if 1.5 <= r <= 3.0:
+            assert rates["decoy", "width_only"] > 0.9, r  # what the width test alone lets by
 
 
 def test_width_tolerance_grows_with_the_range_noise():

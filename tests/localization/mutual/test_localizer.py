@@ -106,8 +106,12 @@ def test_pmultireg_against_ground_truth(episode):
         assert counts[i] == len(ids) == 3 and set(ids) == set(range(4)) - {i}
         np.testing.assert_allclose(table[1:3, i, :3].T, [ids[j][:2] for j in sorted(ids)])
         np.testing.assert_array_equal(table[0, i, :3], 1.0)
-        for c in loc.mixture(i).covs:
-            assert np.all(np.linalg.eigvalsh(c) > 0) and c[0, 0] < 0.1**2  # positive, < 0.1 m std
+        # The particles' covariance: positive, a few cm to ~0.1 m, and consistent with the
+        # final error (squared Mahalanobis distance below chi2(2) at 99.9 %, 13.8).
+        for j, mean, c in zip(sorted(ids), loc.mixture(i).means, loc.mixture(i).covs, strict=True):
+            assert np.all(np.linalg.eigvalsh(c) > 0) and c[0, 0] < 0.2**2 and c[1, 1] < 0.2**2
+            err = mean - inverse_compose(poses[-1][j], poses[-1][i])[:2]
+            assert err @ np.linalg.solve(c, err) < 13.8, (i, j, err, c)
 
 
 def test_same_as_the_per_observer_systems_and_needs_the_radio(episode):
