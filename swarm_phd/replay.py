@@ -23,6 +23,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="rerun with another filter family than the recorded config (`swarm-phd list`), "
         "e.g. pmb-lc",
     )
+    parser.add_argument(
+        "--overrides",
+        default=None,
+        metavar="JSON",
+        help="SwarmConfig overrides of the recorded config, e.g. "
+        '\'{"lidar_features": {"extent_test": false}}\' to re-extract the lidar detections '
+        "from the recorded scans with another rule",
+    )
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
 
 
@@ -50,8 +58,9 @@ def _run(args: argparse.Namespace) -> int:
 
     from hardware_bridge.bag import SKIP_REASONS, replay_env
     from swarm_phd.episode import format_metrics, run_episode
+    from swarm_phd.sweep import parse_json_object
 
-    overrides = {}
+    overrides = parse_json_object(args.overrides, "--overrides")
     if args.mode is not None:
         overrides["phd"] = {"mode": args.mode}
     if args.localizer is not None:

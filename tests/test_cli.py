@@ -110,6 +110,15 @@ def test_export_bag_then_replay_tiny(tmp_path, capsys):
     assert main(["replay", str(bag), "--json", "--quiet"]) == 0
     report = json.loads(capsys.readouterr().out.split("\n", 1)[1])
     assert report["episodes"][0]["steps"] > 0
+    # --overrides reach the replayed config (the scans are re-extracted with them) ...
+    width_only = '{"lidar_features": {"extent_test": false}}'
+    assert main(["replay", str(bag), "--overrides", width_only, "--quiet"]) == 0
+    capsys.readouterr()
+    # ... and a bad one is one line naming it.
+    assert main(["replay", str(bag), "--overrides", '{"lidar_features": {"nope": 1}}']) == 2
+    assert "unknown config key 'lidar_features.nope'" in capsys.readouterr().err
+    assert main(["replay", str(bag), "--overrides", "[1]"]) == 2
+    assert "--overrides" in capsys.readouterr().err
 
 
 def test_warmup_reports_the_kernels(capsys):
