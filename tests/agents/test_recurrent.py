@@ -125,3 +125,14 @@ def test_cli_refuses_lstm_size_without_recurrent_and_sb3_flags_on_rllib(tmp_path
     assert main([*base, "--engine", "rllib", "--recurrent", "--out", str(out)]) == 2
     assert "--recurrent are SB3-only" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_critic_warmup_freezes_the_actors_lstm(recurrent_model):
+    """The critic warm-up freezes ``actor_parameters``: for a recurrent policy that list holds
+    the actor's LSTM, and not the critic's."""
+    from agents.sb3.warm_start import actor_parameters
+
+    policy = load_policy(str(recurrent_model), parallel_env(**KWARGS)).model.policy
+    frozen = {id(p) for p in actor_parameters(policy)}
+    assert all(id(p) in frozen for p in policy.lstm_actor.parameters())
+    assert not any(id(p) in frozen for p in policy.lstm_critic.parameters())
