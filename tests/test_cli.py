@@ -81,6 +81,19 @@ def test_demo_tiny_writes_frames_and_the_comparison(tmp_path, capsys):
         assert (out / name).stat().st_size > 0
 
 
+def test_demo_comparison_reports_the_measured_over_count(tmp_path, capsys):
+    """The LC vs LO summary after the table quotes this run's in-range weight bias."""
+    out = tmp_path / "demo"
+    code = main(
+        ["demo", *TINY, "--duration", "0.5", "--frames", "1", "--eval-duration", "2"]
+        + ["--out", str(out)]
+    )
+    assert code == 0
+    metrics = json.loads((out / "localization" / "metrics.json").read_text())
+    bias = metrics["localizers"]["phd-lc"]["cardinality"]["in_range_bias"]
+    assert f"LC's weight in range is {bias:+.2f} teammates" in capsys.readouterr().out
+
+
 def test_bench_tiny_quiet(tmp_path, capsys):
     path = tmp_path / "bench.json"
     code = main(["bench", *TINY, "--duration", "0.5", "--repeats", "1", "--json", str(path)])
