@@ -14,15 +14,16 @@ from swarm_env import parallel_env  # noqa: E402
 KWARGS = {"preset": "lab-3m-4", "task": "formation", "max_steps": 12}
 
 
-@pytest.mark.parametrize("localizer", [None, "id-phd"])
+@pytest.mark.parametrize("localizer", [None, "id-phd", "ukf", "pf"])
 def test_batched_copies_equal_lone_envs_bit_for_bit(localizer):
     """Each copy of the batch gives exactly what the same env run alone gives (same seed,
-    same actions): sharing the localizer call changes nothing per robot. An identity family
-    (``id-phd``) cannot be shared: each copy keeps its own localizer, with the same result."""
+    same actions): sharing the localizer call changes nothing per robot. The identity families
+    (``id-phd``, ``ukf``, ``pf``) cannot be shared: each copy keeps its own localizer, with the
+    same result."""
     kwargs = KWARGS if localizer is None else {**KWARGS, "localizer": localizer}
     k_copies, steps = 3, 20  # crosses an episode end (max_steps 12): auto-reset included
     vec = BatchedSwarmVecEnv(kwargs, k_copies, seed=7)
-    assert (vec.shared is None) == (localizer == "id-phd")
+    assert (vec.shared is None) == (localizer is not None)
     n = vec.agents_per_copy
     lone = [parallel_env(**kwargs) for _ in range(k_copies)]
     lone_obs = [env.reset(seed=7 + k)[0] for k, env in enumerate(lone)]
