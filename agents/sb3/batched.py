@@ -263,8 +263,9 @@ class BatchedSwarmVecEnv(VecEnv):
         (a no-op for them), or each copy's own localizer in turn."""
         n = self.agents_per_copy
         if self.shared is not None:
-            parts = [feeds.get(k) for k in self._copies]
-            parts = [SwarmFeed.empty(n) if f is None else f for f in parts]
+            parts = [
+                SwarmFeed.empty(n) if feeds.get(k) is None else feeds[k] for k in self._copies
+            ]
             self.shared.step(SwarmFeed.concat(parts))
             return
         for k, feed in feeds.items():
