@@ -43,8 +43,10 @@ from .filter import (
     _checked_points,
     _checked_stamp,
     checked_pose,
+    checked_scan_profile,
 )
 from .mixture import N_ROWS, ROW_W, GaussianMixture
+from .scan_evidence import MEMORY_LEN, N_BINS
 
 __all__ = ["PHDBank", "PHDBankView"]
 
@@ -54,10 +56,12 @@ _KIND_CODES = {
     "camera": kernels.CAMERA,
     "advance": kernels.ADVANCE,
 }
-# ("predict", odometry), ("lidar", points, nulls, sensor_pose), ("camera", bearings, sensor_pose),
-# ("advance", stamp_s)
-_MAX_CALL_LEN = {"predict": 2, "lidar": 4, "camera": 3, "advance": 2}
+# ("predict", odometry), ("lidar", points, nulls, sensor_pose, scan_profile),
+# ("camera", bearings, sensor_pose), ("advance", stamp_s)
+_MAX_CALL_LEN = {"predict": 2, "lidar": 5, "camera": 3, "advance": 2}
 _F64 = np.dtype(np.float64)
+# Positions in the encoded batch (_Batch.encode): the stamps (any clock) and the scan profiles.
+_STAMPS, _PROFILES = 17, 18
 
 
 class PHDBank:
@@ -102,6 +106,8 @@ class PHDBank:
         self._pending_counts = np.zeros(self.n_robots, dtype=np.int64)
         # Per robot: last stamp (nan: none yet), advanced since the last predict (kernels).
         self._clock = new_clock(self.n_robots)
+        # Per robot: its last lidar scan (localization.scan_evidence), row 0 = none yet.
+        self._scan_memory = np.zeros((self.n_robots, MEMORY_LEN))
         self._mixtures: list[GaussianMixture | None] = [None] * self.n_robots
         self.views = [PHDBankView(self, r) for r in range(self.n_robots)]
 
@@ -114,6 +120,7 @@ class PHDBank:
             "pending": self._pending,
             "pending_counts": self._pending_counts,
             "clock": self._clock,
+            "scan_memory": self._scan_memory,
         }
 
     def __setstate__(self, state: dict[str, Any]) -> None:
@@ -124,6 +131,8 @@ class PHDBank:
         self._pending_counts = np.array(state["pending_counts"], dtype=np.int64)
         if "clock" in state:  # absent from states pickled before the clock existed
             self._clock = np.array(state["clock"], dtype=float)
+        if "scan_memory" in state:  # absent from states pickled before the scan evidence
+            self._scan_memory = np.array(state["scan_memory"], dtype=float)
 
     # ------------------------------------------------------------------ construction / export
     @classmethod
@@ -166,6 +175,7 @@ class PHDBank:
         self._pending[r, : births.shape[0]] = births
         self._pending_counts[r] = births.shape[0]
         self._clock[r] = state["clock"]
+        self._scan_memory[r] = state["scan_memory"]
         self._mixtures[r] = None
 
     def to_filter(self, robot: int) -> RobotCentricPHD:
@@ -178,6 +188,7 @@ class PHDBank:
                 "table": self.table(r),
                 "pending_births": self.pending_births(r),
                 "clock": self._clock[r].copy(),
+                "scan_memory": self._scan_memory[r].copy(),
             }
         )
         return f
@@ -232,6 +243,7 @@ class PHDBank:
         self._counts[rob] = 0
         self._pending_counts[rob] = 0
         self._clock[rob] = new_clock(1)
+        self._scan_memory[rob] = 0.0
         for r in rob.tolist():
             self._mixtures[r] = None
 
@@ -411,6 +423,7 @@ class PHDBank:
             self._pending,
             self._pending_counts,
             self._clock,
+            self._scan_memory,
             encoded,
             fparams,
             iparams,
@@ -434,6 +447,7 @@ class _Batch:
         "nulls",
         "bearings",
         "lidar_poses",
+        "profiles",
         "camera_poses",
         "stamps",
     )
@@ -447,6 +461,7 @@ class _Batch:
         self.nulls: list[np.ndarray] = []  # (B,) per lidar call
         self.bearings: list[np.ndarray] = []  # (M,) per camera call
         self.lidar_poses: list[np.ndarray | None] = []  # sensor pose (3,) per lidar call
+        self.profiles: list[np.ndarray | None] = []  # scan profile (N_BINS,) per lidar call
         self.camera_poses: list[np.ndarray | None] = []  # sensor pose (3,) per camera call
         self.stamps: list[float] = []  # per advance call (s)
 
@@ -461,7 +476,12 @@ class _Batch:
         self.odometry.append(odo)
 
     def lidar(
-        self, r: int, pts: np.ndarray, nulls: np.ndarray | None, pose: np.ndarray | None = None
+        self,
+        r: int,
+        pts: np.ndarray,
+        nulls: np.ndarray | None,
+        pose: np.ndarray | None = None,
+        profile: np.ndarray | None = None,
     ) -> None:
         self.robots.append(r)
         self.kinds.append(kernels.LIDAR)
@@ -469,6 +489,7 @@ class _Batch:
         self.points.append(pts)
         self.nulls.append(_NO_ANGLES if nulls is None else nulls)
         self.lidar_poses.append(pose)
+        self.profiles.append(profile)
 
     def camera(self, r: int, brg: np.ndarray, pose: np.ndarray | None = None) -> None:
         self.robots.append(r)
@@ -522,15 +543,21 @@ class _Batch:
                     exact or not _is_f64(nb, 1) or nb.shape[0] > MAX_MEASUREMENTS_PER_CALL
                 ):
                     nb = _checked_nulls(nb)
-                self.lidar(r, pts, nb, _checked_pose(call[3], exact) if len(call) > 3 else None)
+                pose = _checked_pose(call[3], exact) if len(call) > 3 else None
+                profile = call[4] if len(call) > 4 else None
+                if profile is not None and (
+                    exact or not _is_f64(profile, 1) or profile.shape[0] != N_BINS
+                ):
+                    profile = checked_scan_profile(profile)
+                self.lidar(r, pts, nb, pose, profile)
         except (ValueError, IndexError) as exc:
             raise ValueError(f"calls[{r}]: {exc}") from exc
 
     def encode(self) -> tuple[np.ndarray, ...]:
         """``robots, kinds, index, odometry, lidar_start, lidar_stop, points, null_start,
         null_stop, nulls, camera_start, camera_stop, bearings, lidar_pose, lidar_has_pose,
-        camera_pose, camera_has_pose, stamps``, as :func:`localization.kernels.apply_calls`
-        takes them."""
+        camera_pose, camera_has_pose, stamps, profiles, lidar_has_profile``, as
+        :func:`localization.kernels.apply_calls` takes them."""
         lidar_stop = np.cumsum([p.shape[0] for p in self.points], dtype=np.int64)
         null_stop = np.cumsum([b.shape[0] for b in self.nulls], dtype=np.int64)
         camera_stop = np.cumsum([b.shape[0] for b in self.bearings], dtype=np.int64)
@@ -551,6 +578,7 @@ class _Batch:
             *_poses(self.lidar_poses),
             *_poses(self.camera_poses),
             np.array(self.stamps, dtype=np.float64),
+            *_profiles(self.profiles),
         )
 
 
@@ -582,14 +610,18 @@ def packed_of(calls: Any, n_robots: int) -> Any:
 
 def all_finite(encoded: tuple[np.ndarray, ...]) -> bool:
     """Whether the float buffers of an encoded batch hold only finite values within
-    :data:`~localization.filter.MAX_INPUT_MAGNITUDE` (m or rad), and finite stamps (the last
-    buffer: seconds of any clock, ROS time included); else the caller re-checks every call
+    :data:`~localization.filter.MAX_INPUT_MAGNITUDE` (m or rad), finite stamps (seconds of any
+    clock, ROS time included) and scan profiles >= 0; else the caller re-checks every call
     exactly to name the culprit."""
-    *measured, stamps = encoded
-    return bool(np.isfinite(stamps).all()) and all(
-        a.size == 0 or np.abs(a).max() <= MAX_INPUT_MAGNITUDE  # NaN compares False
-        for a in measured
-        if a.dtype == _F64
+    stamps, profiles = encoded[_STAMPS], encoded[_PROFILES]
+    return (
+        bool(np.isfinite(stamps).all())
+        and all(
+            a.size == 0 or np.abs(a).max() <= MAX_INPUT_MAGNITUDE  # NaN compares False
+            for k, a in enumerate(encoded)
+            if a.dtype == _F64 and k != _STAMPS
+        )
+        and (profiles.size == 0 or profiles.min() >= 0.0)
     )
 
 
@@ -616,6 +648,15 @@ def _poses(poses: list[np.ndarray | None]) -> tuple[np.ndarray, np.ndarray]:
     out = np.zeros((len(poses), 3))
     if flags.any():
         out[flags.astype(bool)] = [p for p in poses if p is not None]
+    return out, flags
+
+
+def _profiles(profiles: list[np.ndarray | None]) -> tuple[np.ndarray, np.ndarray]:
+    """Scan profiles ``(L, N_BINS)`` (zeros where None) and their flags ``(L,)``."""
+    flags = np.array([p is not None for p in profiles], dtype=np.int64)
+    out = np.zeros((len(profiles), N_BINS))
+    if flags.any():
+        out[flags.astype(bool)] = [p for p in profiles if p is not None]
     return out, flags
 
 

@@ -249,6 +249,23 @@ class PHDConfig:
         ``P_s = 0.95``): one dropped blob does not kill the track, three in a row do. With a
         gated measurement ``Lambda`` is large and the missed copy vanishes, so a detected
         track is not inflated towards ``1 / P_d``. Detected copies keep the PHD weights.
+    scan_evidence : bool
+        Use the lidar scan's raw ranges (:mod:`localization.scan_evidence`): a component in the
+        free space the beams crossed loses weight (``1 - P_free``), and one behind the scan's
+        first surface is hidden from both sensors (``P_d`` times the visibility). Needs the
+        scan in the lidar calls (every :class:`~localization.feed.SwarmFeed` passes it).
+        Default False: the seed's filter. The GM-PHD engines only (the PMB ignores it).
+    scan_target_radius_m : float
+        Radius of what the lidar sees of a teammate (seed 000: the X4's 65 mm housing).
+    scan_range_noise_std_m, scan_range_noise_quadratic_per_m : float
+        The scanner's range noise std ``a + b d^2`` at range ``d`` (the X4's, as
+        ``swarm_env.sensors.lidar.LidarConfig``: 1 cm + 0.0025 /m).
+    scan_beam_footprint_deg : float
+        Angular width of one beam's sample (the X4: 0.5 deg); only bins whose whole footprint
+        lies on the housing can refute it.
+    scan_margin_sigmas : float
+        Margin ``k`` of the visibility and free-space tests, in radial sigmas: a teammate on the
+        scan keeps ``V >= Phi(k)`` and ``P_free <= Phi(-k)`` (``k = 3``: 0.13 %).
     prune_threshold : float
         Components with a lower weight are dropped after each update (mass is lost).
         Must be > 0 (zero-weight components are always dropped).
@@ -308,6 +325,12 @@ class PHDConfig:
     camera_birth_max_explained: float = 0.5
     missed_detection: str = "phd"
     lidar_missed_moments: bool = False
+    scan_evidence: bool = False
+    scan_target_radius_m: float = 0.0325
+    scan_range_noise_std_m: float = 0.01
+    scan_range_noise_quadratic_per_m: float = 0.0025
+    scan_beam_footprint_deg: float = 0.5
+    scan_margin_sigmas: float = 3.0
     prune_threshold: float = 1e-4
     merge_threshold: float = 4.0
     max_components: int = 64
@@ -376,6 +399,11 @@ class PHDConfig:
             ("measurement_birth_cov_scale", 0.0, 1e6),
             ("camera_noise_width_fraction", 0.0, 10.0),
             ("camera_target_radius_m", 0.0, 10.0),
+            ("scan_target_radius_m", 1e-3, 10.0),
+            ("scan_range_noise_std_m", 0.0, 10.0),
+            ("scan_range_noise_quadratic_per_m", 0.0, 10.0),
+            ("scan_beam_footprint_deg", 0.0, 10.0),
+            ("scan_margin_sigmas", 0.0, 10.0),
         ):
             value = getattr(self, name)
             if not low <= value <= high:

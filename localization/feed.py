@@ -36,12 +36,13 @@ from swarm_core.world import GroundTruth, WorldStep
 
 from . import kernels
 from .filter import MAX_MEASUREMENTS_PER_CALL
+from .scan_evidence import N_BINS, profile_into, profiles_of
 
 __all__ = ["SwarmFeed", "FeedCalls", "PackedCalls", "localizer_calls", "pack_calls", "Call"]
 
 #: One filter call: ``("predict", delta (3,))``, ``("lidar", detections (M, 2), null_bearings
-#: (K,), sensor_pose (3,) or None)``, ``("camera", bearings (M,), sensor_pose (3,) or None)``
-#: or ``("advance", stamp_s)``.
+#: (K,), sensor_pose (3,) or None, scan_profile (N_BINS,))``, ``("camera", bearings (M,),
+#: sensor_pose (3,) or None)`` or ``("advance", stamp_s)``.
 Call = tuple
 
 _EMPTY = RobotMeasurements()
@@ -199,8 +200,9 @@ def localizer_calls(
     step's last odometry sample goes in uncompensated (in the simulator none is: odometry
     samples fall on step ends; on a real robot with unsynchronised odometry some are).
 
-    Calls: ``("predict", delta)``, ``("lidar", detections, null_bearings, sensor_pose)`` and
-    ``("camera", bearings, sensor_pose)``, ``sensor_pose`` a ``(3,)`` array or None. Each is
+    Calls: ``("predict", delta)``, ``("lidar", detections, null_bearings, sensor_pose,
+    scan_profile)`` and ``("camera", bearings, sensor_pose)``, ``sensor_pose`` a ``(3,)`` array
+    or None, ``scan_profile`` the scan's ranges binned (:func:`scan_profile_of`). Each is
     preceded by ``("advance", stamp_s)``, the record's stamp: a filter with
     ``time_update == "measurement"`` adds the process noise that accrued up to it first
     (:meth:`localization.RobotCentricPHD.advance`); the others only move a clock.
@@ -224,13 +226,33 @@ def localizer_calls(
             pose = _motion_since_sample(upcoming, upcoming.stamp_s - record.stamp_s)
         if isinstance(record, LidarRecord):
             if use_lidar:
-                calls.append(("lidar", record.detections, record.null_bearings_rad, pose))
+                calls.append(
+                    (
+                        "lidar",
+                        record.detections,
+                        record.null_bearings_rad,
+                        pose,
+                        scan_profile_of(record),
+                    )
+                )
                 calls.append(("advance", record.stamp_s))
         elif use_camera:
             calls.append(("camera", record.bearings_rad, pose))
             calls.append(("advance", record.stamp_s))
     calls.reverse()
     return calls
+
+
+def scan_profile_of(record: LidarRecord) -> np.ndarray:
+    """The scan of ``record`` as a profile ``(N_BINS,)`` (:mod:`localization.scan_evidence`),
+    compiled; :func:`localization.scan_evidence.scan_profile` is its reference."""
+    out = np.empty(N_BINS)
+    profile_into(
+        out,
+        np.asarray(record.angles_rad, dtype=np.float64),
+        np.asarray(record.ranges_m, dtype=np.float64),
+    )
+    return out
 
 
 def _motion_since_sample(odo: OdometryRecord, tau_s: float) -> np.ndarray:
@@ -393,6 +415,20 @@ def _pack(odo, lid, cam, per_robot, stamp_list, compensate_motion) -> PackedCall
     lidar_stop = np.cumsum(n_points, dtype=np.int64)
     null_stop = np.cumsum(n_nulls, dtype=np.int64)
     camera_stop = np.cumsum(n_bearings, dtype=np.int64)
+    if n_l:
+        scans = [lid[i] for i in l_src.tolist()]
+        angles = [rec.angles_rad for rec in scans]
+        ranges = [rec.ranges_m for rec in scans]
+        n_beams = np.fromiter(map(len, angles), np.int64, n_l)
+        if not np.array_equal(n_beams, np.fromiter(map(len, ranges), np.int64, n_l)):
+            return None
+        profiles = profiles_of(
+            np.concatenate(angles).astype(np.float64, copy=False),
+            np.concatenate(ranges).astype(np.float64, copy=False),
+            np.cumsum(n_beams, dtype=np.int64),
+        )
+    else:
+        profiles = np.zeros((0, N_BINS))
     encoded = (
         robots,
         kinds,
@@ -412,6 +448,8 @@ def _pack(odo, lid, cam, per_robot, stamp_list, compensate_motion) -> PackedCall
         c_pose,
         c_has,
         s_stamp,
+        profiles,
+        np.ones(n_l, dtype=np.int64),
     )
     max_points = int(n_points.max()) if n_l else 0
     return PackedCalls(encoded, max_points, np.unique(robots).tolist())
@@ -527,6 +565,8 @@ def _encode_empty() -> tuple:
         np.zeros((0, 3)),
         empty_i,
         np.zeros(0),
+        np.zeros((0, N_BINS)),
+        empty_i,
     )
 
 

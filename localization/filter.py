@@ -42,6 +42,7 @@ from .detection import DetectionModel
 from .frames import bearings_to_filter_frame, points_to_filter_frame
 from .mixture import ROW_PXX, ROW_W, ROW_X, ROW_Y, GaussianMixture, empty_table
 from .reducer import reduce
+from .scan_evidence import MEMORY_LEN, N_BINS, move_scan_pose, scan_factors
 
 __all__ = ["RobotCentricPHD"]
 
@@ -81,6 +82,7 @@ class RobotCentricPHD:
         "_mixture",
         "_fixed_birth",
         "_clock",
+        "_scan",
     )
 
     def __init__(self, config: PHDConfig | None = None, **overrides: Any) -> None:
@@ -95,6 +97,8 @@ class RobotCentricPHD:
         self._pending_births = np.empty((0, 2))
         self._mixture: GaussianMixture | None = None
         self._clock = phd.ProcessClock()
+        # The last lidar scan (localization.scan_evidence): [has_scan, x, y, psi, profile].
+        self._scan = np.zeros(MEMORY_LEN)
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
@@ -103,6 +107,7 @@ class RobotCentricPHD:
         self._pending_births = np.empty((0, 2))
         self._mixture = None
         self._clock = phd.ProcessClock()
+        self._scan = np.zeros(MEMORY_LEN)
 
     def set_mixture(self, mixture: GaussianMixture) -> None:
         """Replace the current PHD (e.g. to start from a known prior or replay a log).
@@ -180,6 +185,7 @@ class RobotCentricPHD:
             "table": self._table,
             "pending_births": self._pending_births,
             "clock": self._clock.as_array(),
+            "scan_memory": self._scan,
         }
 
     def __copy__(self) -> RobotCentricPHD:
@@ -194,6 +200,7 @@ class RobotCentricPHD:
         new = self.__copy__()
         new._table = self._table.copy()
         new._pending_births = self._pending_births.copy()
+        new._scan = self._scan.copy()
         new._mixture = None
         return new
 
@@ -203,6 +210,8 @@ class RobotCentricPHD:
         self._pending_births = np.array(state["pending_births"], dtype=float)
         if "clock" in state:  # absent from states pickled before the clock existed
             self._clock = phd.ProcessClock.from_array(state["clock"])
+        if "scan_memory" in state:  # absent from states pickled before the scan evidence
+            self._scan = np.array(state["scan_memory"], dtype=float)
 
     # ------------------------------------------------------------------ steps
     def predict(self, odometry: np.ndarray) -> None:
@@ -241,6 +250,9 @@ class RobotCentricPHD:
         if table.shape[1] > cfg.max_components:
             table = self._reduce(table)
         self._table = table
+        if self._scan[0]:  # the scan was taken from a place the frame has moved away from
+            self._scan = self._scan.copy()
+            self._scan[1:4] = move_scan_pose(self._scan[1:4], odo)
         self._pending_births = np.empty((0, 2))
         self._mixture = None
 
@@ -271,6 +283,7 @@ class RobotCentricPHD:
         points: np.ndarray,
         null_bearings: np.ndarray | None = None,
         sensor_pose: np.ndarray | None = None,
+        scan_profile: np.ndarray | None = None,
     ) -> None:
         """GM-PHD measurement update with lidar detections (seed eqs. 12-23), then reduce.
 
@@ -285,6 +298,12 @@ class RobotCentricPHD:
             ``[x_m, y_m, psi_rad]``: where the robot scanned from, in the filter's frame (it
             moved since the last time update); points and null bearings are moved into the
             filter's frame first (:mod:`localization.frames`).
+        scan_profile : array_like, shape (N_BINS,), optional
+            The scan's :func:`~localization.scan_evidence.scan_profile` (m, 0 = unknown). It
+            becomes the filter's scan memory; with ``config.scan_evidence`` the lidar's
+            ``P_d`` is times each component's visibility, the weights after the update are
+            times ``1 - P_free``, and later camera frames are judged against it. Without
+            one the filter has no scan until the next.
 
         Raises
         ------
@@ -292,16 +311,22 @@ class RobotCentricPHD:
             If an argument has the wrong shape or non-finite values.
         """
         pts = _checked_points(points)
+        profile = None if scan_profile is None else checked_scan_profile(scan_profile)
         nulls = None if null_bearings is None else _checked_angles(null_bearings, "null_bearings")
         pose = checked_pose(sensor_pose)
         if pose is not None:
             pts = points_to_filter_frame(pts, pose)
             nulls = None if nulls is None else bearings_to_filter_frame(nulls, pose)
+        self._scan = np.zeros(MEMORY_LEN)
+        if profile is not None:
+            self._scan[0] = 1.0
+            self._scan[1:4] = 0.0 if pose is None else pose
+            self._scan[4:] = profile
         cfg = self.config
         table = self._table
         bernoulli = cfg.missed_detection == "bernoulli"
         if pts.shape[0] == 0:
-            pd = self._model.lidar(table, nulls)
+            pd = self._model.lidar(table, nulls) * self._visibility(table)
             missed = self._lidar_missed(table, pd)
             out = (table if missed is None else missed[1]).copy()
             out[ROW_W] = self._missed_only(table, pd if missed is None else missed[0])
@@ -312,7 +337,7 @@ class RobotCentricPHD:
             if fixed_birth:
                 # The seed's birth component (eq. 11) joins the prior of every lidar update.
                 table = np.concatenate((table, self._fixed_birth), axis=1)
-            pd = self._model.lidar(table, nulls)
+            pd = self._model.lidar(table, nulls) * self._visibility(table)
             out, explained = phd.lidar_update(
                 table,
                 pts,
@@ -327,6 +352,9 @@ class RobotCentricPHD:
                 # component would be merged into the heaviest track at every reduction
                 # (Vo & Ma's gate uses the candidate's covariance) and inflate its covariance.
                 out[ROW_W, n] = 0.0
+        if self._scan_on():
+            out = out.copy()
+            out[ROW_W] *= 1.0 - self._scan_factors(out)[1]
         if cfg.birth == "measurement":
             self._pending_births = pts[explained < cfg.measurement_birth_max_explained]
         self._table = self._reduce(out)
@@ -364,21 +392,23 @@ class RobotCentricPHD:
             brg = bearings_to_filter_frame(brg, pose)
         offset = None if pose is None else pose[:2]
         if offset is None or not offset.any():
-            self._camera_update(brg)
+            self._camera_update(brg, np.zeros(2))
             return
         # The update is translation-equivariant but for the sensor's own position: run it on
         # the mixture seen from the camera, and move the result back.
         self._table = _shifted(self._table, -offset)
         try:
-            self._camera_update(brg)
+            self._camera_update(brg, offset)
         finally:
             self._table = _shifted(self._table, offset)
             self._mixture = None
 
-    def _camera_update(self, brg: np.ndarray) -> None:
+    def _camera_update(self, brg: np.ndarray, offset: np.ndarray) -> None:
+        """The update of ``self._table``, whose frame is the filter's shifted by ``-offset``
+        (the camera's view; the scan memory's pose is shifted alike)."""
         cfg = self.config
         table = self._table
-        detection_prob = self._model.camera(table)
+        detection_prob = self._model.camera(table) * self._visibility(table, offset)
         if brg.shape[0] == 0:
             out = table.copy()
             out[ROW_W] = self._missed_only(table, detection_prob)
@@ -409,6 +439,7 @@ class RobotCentricPHD:
                         cfg.camera_pd_slope_per_m,
                         cfg.camera_pd_midpoint_m,
                     )
+                    births[ROW_W] *= self._visibility(births, offset)
                     out = np.concatenate((out, births), axis=1)
         self._table = self._reduce(out)
         self._mixture = None
@@ -442,6 +473,36 @@ class RobotCentricPHD:
         counts = np.maximum(np.floor(wk + 0.5), 1.0).astype(np.intp)
         positions = np.repeat(table[ROW_X : ROW_Y + 1, keep].T, counts, axis=0)
         return positions, np.repeat(wk / counts, counts)
+
+    def _scan_on(self) -> bool:
+        return self.config.scan_evidence and bool(self._scan[0])
+
+    def _scan_factors(
+        self, table: np.ndarray, offset: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`~localization.scan_evidence.scan_factors` of ``table`` (in the filter's frame
+        shifted by ``-offset``) against the scan memory."""
+        cfg = self.config
+        pose = self._scan[1:4].copy()
+        if offset is not None:
+            pose[:2] -= offset
+        return scan_factors(
+            table,
+            pose,
+            self._scan[4:],
+            cfg.scan_target_radius_m,
+            cfg.scan_range_noise_std_m,
+            cfg.scan_range_noise_quadratic_per_m,
+            math.radians(cfg.scan_beam_footprint_deg),
+            cfg.scan_margin_sigmas,
+            cfg.min_range_m,
+        )
+
+    def _visibility(self, table: np.ndarray, offset: np.ndarray | None = None) -> np.ndarray:
+        """Each component's visibility against the scan memory, ``(N,)``; 1 without it."""
+        if not self._scan_on():
+            return np.ones(table.shape[1])
+        return self._scan_factors(table, offset)[0]
 
     def _lidar_missed(self, table: np.ndarray, pd: np.ndarray):
         """The lidar missed copies' ``P_d`` and shape (``lidar_missed_moments``), or None."""
@@ -492,6 +553,22 @@ def check_magnitude(values: np.ndarray, name: str) -> None:
     bad = int(np.flatnonzero(~(np.abs(flat) <= MAX_INPUT_MAGNITUDE).all(axis=1))[0])
     shown = values[bad].tolist() if values.ndim > 1 else repr(values[bad])
     raise ValueError(f"{rule} {name}[{bad}] = {shown}")
+
+
+def checked_scan_profile(value: Any) -> np.ndarray:
+    """A scan profile (:mod:`localization.scan_evidence`): ``(N_BINS,)`` finite ranges >= 0 m
+    (0 = unknown), within the input bound."""
+    profile = as_float_array(value, "scan_profile")
+    if profile.shape != (N_BINS,):
+        raise ValueError(
+            f"scan_profile must have shape ({N_BINS},) (localization.scan_evidence), got shape "
+            f"{profile.shape}"
+        )
+    check_magnitude(profile, "scan_profile")
+    if (profile < 0.0).any():
+        bad = float(profile[profile < 0.0][0])
+        raise ValueError(f"scan_profile ranges must be >= 0 m (0 = unknown), got {bad!r}")
+    return profile
 
 
 def checked_pose(value: Any) -> np.ndarray | None:

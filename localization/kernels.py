@@ -28,7 +28,9 @@ Encoding of a batch of ``Q`` calls (all arrays, built by :class:`~localization.P
   ``camera_has_pose (C,)``: the sensor pose ``(x_m, y_m, psi_rad)`` in the filter's frame of
   a measurement taken away from it (:mod:`localization.frames`; flag 0: taken in it);
 * advance ``j`` (:data:`ADVANCE`): ``stamps[j]``, the time (s) the robot's clock moves to,
-  adding the process noise that accrued since (``time_update == "measurement"``).
+  adding the process noise that accrued since (``time_update == "measurement"``);
+* ``profiles (L, N_BINS)`` with flags ``lidar_has_profile (L,)``: lidar call ``j``'s scan
+  profile (:mod:`localization.scan_evidence`), which becomes the robot's scan memory.
 
 Model parameters travel as one float vector ``fparams`` and one int vector ``iparams``
 indexed by the ``F_*`` and ``I_*`` constants below, each declared once with its transform of
@@ -45,6 +47,7 @@ from numba import njit, prange
 from .config import CAMERA_BIRTH_RADIAL_STD_FRACTION, PROCESS_CLOCK_RESET_S, PHDConfig
 from .mixture import N_ROWS
 from .phd import GH_NODES, GH_WEIGHTS
+from .scan_evidence import move_scan_pose_in_place, scan_factors_into
 
 __all__ = [
     "PREDICT",
@@ -122,6 +125,11 @@ F_CBIRTH_MIN_RANGE = _F.slot(lambda c: c.camera_birth_min_range_m)
 F_CBIRTH_MAX_RANGE = _F.slot(lambda c: c.camera_birth_max_range_m)
 F_CBIRTH_MAX_EXPLAINED = _F.slot(lambda c: c.camera_birth_max_explained)
 F_CBIRTH_RADIAL_FRACTION = _F.slot(lambda c: CAMERA_BIRTH_RADIAL_STD_FRACTION)
+F_SCAN_RADIUS = _F.slot(lambda c: c.scan_target_radius_m)
+F_SCAN_STD0 = _F.slot(lambda c: c.scan_range_noise_std_m)
+F_SCAN_STD2 = _F.slot(lambda c: c.scan_range_noise_quadratic_per_m)
+F_SCAN_FOOTPRINT = _F.slot(lambda c: math.radians(c.scan_beam_footprint_deg))
+F_SCAN_MARGIN = _F.slot(lambda c: c.scan_margin_sigmas)
 N_FPARAMS = len(_F.transforms)
 
 _I = _Slots(np.int64)  # iparams (flags are 0 / 1)
@@ -136,6 +144,7 @@ I_TIME_UPDATE_MEASUREMENT = _I.slot(lambda c: c.time_update == "measurement")
 I_CBIRTH_COMPONENTS = _I.slot(lambda c: c.camera_birth_components)
 I_MISSED_BERNOULLI = _I.slot(lambda c: c.missed_detection == "bernoulli")
 I_LIDAR_MISSED_MOMENTS = _I.slot(lambda c: c.lidar_missed_moments and c.lidar_pd_model == "seed")
+I_SCAN_EVIDENCE = _I.slot(lambda c: c.scan_evidence)
 N_IPARAMS = len(_I.transforms)
 
 _TINY = 1e-300  # as localization.gaussian.TINY: floor of every divisor
@@ -264,6 +273,40 @@ def _camera_pd(tab, n, fp):
     if n > 1:
         _apply_occlusion(pd, tab, n, ranges, units, fp[F_OCC_INV_VAR], fp[F_OCC_SEPARATION])
     return pd
+
+
+@njit(cache=True)
+def _scan_factors(tab, n, memory, ox, oy, fp):
+    """Visibility and free-space probability ``(n,)`` each of ``tab``'s components against the
+    robot's last scan (:mod:`localization.scan_evidence`)."""
+    visible = np.empty(n)
+    free = np.empty(n)
+    scan_factors_into(
+        visible,
+        free,
+        tab,
+        n,
+        memory,
+        ox,
+        oy,
+        fp[F_SCAN_RADIUS],
+        fp[F_SCAN_STD0],
+        fp[F_SCAN_STD2],
+        fp[F_SCAN_FOOTPRINT],
+        fp[F_SCAN_MARGIN],
+        fp[F_MIN_RANGE],
+    )
+    return visible, free
+
+
+@njit(cache=True)
+def _refute(tab, n, memory, fp):
+    """Weights times ``1 - P_free`` against the scan in ``memory``, then pruned (as the
+    reference's reduction does). Returns (table, k)."""
+    _, free = _scan_factors(tab, n, memory, 0.0, 0.0, fp)
+    for i in range(n):
+        tab[0, i] *= 1.0 - free[i]
+    return _prune(tab, n, fp[F_PRUNE])
 
 
 # ---------------------------------------------------------------------- time update
@@ -521,17 +564,24 @@ def _missed_moments(tab, n, pd, fp):
 
 
 @njit(cache=True)
-def _lidar_update(tab, n, pts, nulls, fp, ip, sector_scaled, sector_inv_var):
-    """Lidar GM-PHD update (H = I), pruned. Returns (table, k, explained (M,))."""
+def _lidar_update(tab, n, pts, nulls, fp, ip, sector_scaled, sector_inv_var, memory):
+    """Lidar GM-PHD update (H = I), pruned, then the scan's free-space evidence
+    (``memory``: the robot's scan memory, :mod:`localization.scan_evidence`). Returns
+    (table, k, explained (M,))."""
     m = pts.shape[0]
     prune = fp[F_PRUNE]
+    scan = ip[I_SCAN_EVIDENCE] and memory[0] != 0.0
     if m == 0:
         pd = _lidar_pd(tab, n, nulls, fp, ip, sector_scaled, sector_inv_var)
+        if scan:
+            pd *= _scan_factors(tab, n, memory, 0.0, 0.0, fp)[0]
         if ip[I_LIDAR_MISSED_MOMENTS]:
             missed_pd, missed_tab = _missed_moments(tab, n, pd, fp)
         else:
             missed_pd, missed_tab = pd, tab
         out, k = _missed_only(tab, n, missed_pd, prune, ip[I_MISSED_BERNOULLI], missed_tab)
+        if scan:
+            out, k = _refute(out, k, memory, fp)
         return out, k, np.empty(0)
     fixed_birth = ip[I_BIRTH_FIXED]
     n1 = n + 1 if fixed_birth else n
@@ -545,6 +595,8 @@ def _lidar_update(tab, n, pts, nulls, fp, ip, sector_scaled, sector_inv_var):
         prior[4, n] = 0.0
         prior[5, n] = fp[F_BIRTH_VAR]
     pd = _lidar_pd(prior, n1, nulls, fp, ip, sector_scaled, sector_inv_var)
+    if scan:
+        pd *= _scan_factors(prior, n1, memory, 0.0, 0.0, fp)[0]
     r = fp[F_LIDAR_VAR]
     kappa = fp[F_KAPPA_L]
     detected = np.empty((n1, m))
@@ -585,7 +637,7 @@ def _lidar_update(tab, n, pts, nulls, fp, ip, sector_scaled, sector_inv_var):
     else:
         missed_pd, missed_tab = pd, prior
     # the fixed birth's missed copy is dropped (see RobotCentricPHD.update_lidar)
-    return _posterior(
+    out, k, explained = _posterior(
         prior,
         n1,
         pd,
@@ -599,6 +651,9 @@ def _lidar_update(tab, n, pts, nulls, fp, ip, sector_scaled, sector_inv_var):
         missed_tab,
         missed_pd,
     )
+    if scan:
+        out, k = _refute(out, k, memory, fp)
+    return out, k, explained
 
 
 @njit(cache=True)
@@ -612,11 +667,17 @@ def camera_bearing_var(range_m, fp):
 
 
 @njit(cache=True)
-def _camera_update(tab, n, brg, fp, ip):
-    """Camera EKF bearing GM-PHD update (+ ray births), pruned. Returns (table, k)."""
+def _camera_update(tab, n, brg, fp, ip, memory, ox, oy):
+    """Camera EKF bearing GM-PHD update (+ ray births), pruned. Returns (table, k).
+
+    ``tab`` is seen from the camera: the filter's frame shifted by ``(-ox, -oy)``, which is
+    how the scan memory's pose is read (:func:`_scan_factors`)."""
     m = brg.shape[0]
     prune = fp[F_PRUNE]
+    scan = ip[I_SCAN_EVIDENCE] and memory[0] != 0.0
     pd = _camera_pd(tab, n, fp)
+    if scan:
+        pd *= _scan_factors(tab, n, memory, ox, oy, fp)[0]
     if m == 0:
         return _missed_only(tab, n, pd, prune, ip[I_MISSED_BERNOULLI], tab)
     kappa = fp[F_KAPPA_C]
@@ -676,14 +737,16 @@ def _camera_update(tab, n, brg, fp, ip):
         pd,
     )
     if ip[I_CAMERA_BIRTH]:
-        return _with_ray_births(out, k, brg, explained, fp, ip)
+        return _with_ray_births(out, k, brg, explained, fp, ip, memory, scan, ox, oy)
     return out, k
 
 
 @njit(cache=True)
-def _with_ray_births(tab, n, brg, explained, fp, ip):
+def _with_ray_births(tab, n, brg, explained, fp, ip, memory, scan, ox, oy):
     """``tab`` plus :func:`localization.phd.ray_births` of the bearings explained less than
-    ``camera_birth_max_explained``, those above the prune threshold. Returns (table, k)."""
+    ``camera_birth_max_explained``, those above the prune threshold. With ``scan``, each
+    cell's weight is times its visibility against the scan memory (a teammate the camera saw
+    is not behind the scan's first surface). Returns (table, k)."""
     n_cells = ip[I_CBIRTH_COMPONENTS]
     r_min = fp[F_CBIRTH_MIN_RANGE]
     step = (fp[F_CBIRTH_MAX_RANGE] - r_min) / n_cells
@@ -710,22 +773,29 @@ def _with_ray_births(tab, n, brg, explained, fp, ip):
     radial_var = (fp[F_CBIRTH_RADIAL_FRACTION] * step) ** 2
     out = np.empty((N_ROWS, n + n_rays * n_kept))
     out[:, :n] = tab[:, :n]
+    cells = np.empty((N_ROWS, n_cells))
     col = n
     for h in range(brg.shape[0]):
         if explained[h] >= threshold:
             continue
         co, si = math.cos(brg[h]), math.sin(brg[h])
         for c in range(n_cells):
-            if share[c] < prune:
-                continue
             r = ranges[c]
             cross_var = r * r * camera_bearing_var(r, fp)
-            out[0, col] = share[c]
-            out[1, col] = r * co
-            out[2, col] = r * si
-            out[3, col] = radial_var * (co * co) + cross_var * (si * si)
-            out[4, col] = (radial_var - cross_var) * (co * si)
-            out[5, col] = radial_var * (si * si) + cross_var * (co * co)
+            cells[0, c] = share[c]
+            cells[1, c] = r * co
+            cells[2, c] = r * si
+            cells[3, c] = radial_var * (co * co) + cross_var * (si * si)
+            cells[4, c] = (radial_var - cross_var) * (co * si)
+            cells[5, c] = radial_var * (si * si) + cross_var * (co * co)
+        if scan:
+            visible = _scan_factors(cells, n_cells, memory, ox, oy, fp)[0]
+            for c in range(n_cells):
+                cells[0, c] *= visible[c]
+        for c in range(n_cells):
+            if cells[0, c] < prune:
+                continue
+            out[:, col] = cells[:, c]
             col += 1
     return out, col
 
@@ -859,6 +929,20 @@ def _merge(tab, n, threshold):
 
 # ---------------------------------------------------------------------- driver
 @njit(cache=True)
+def _remember_scan(memory, profiles, has_profile, poses, has_pose, j):
+    """Lidar call ``j``'s scan becomes the robot's scan memory: its profile, and the pose it
+    was taken from (the filter's origin without one). A call without a profile leaves no
+    scan (an older one would be judged from the wrong place and time)."""
+    if not has_profile[j]:
+        memory[:] = 0.0
+        return
+    memory[0] = 1.0
+    for k in range(3):
+        memory[1 + k] = poses[j, k] if has_pose[j] else 0.0
+    memory[4:] = profiles[j]
+
+
+@njit(cache=True)
 def _to_filter_frame(points, bearings, pose):
     """:mod:`localization.frames`: points moved rigidly, bearings rotated (new arrays)."""
     c, s = math.cos(pose[2]), math.sin(pose[2])
@@ -910,7 +994,17 @@ def robot_runs(robots):
 
 @njit(cache=True, parallel=True)
 def apply_calls(
-    table, counts, pending, pending_counts, clock, calls, fp, ip, sector_scaled, sector_inv_var
+    table,
+    counts,
+    pending,
+    pending_counts,
+    clock,
+    scan_memory,
+    calls,
+    fp,
+    ip,
+    sector_scaled,
+    sector_inv_var,
 ):
     """Run ``Q`` encoded calls (module docstring) on the bank state, in place.
 
@@ -927,10 +1021,14 @@ def apply_calls(
     clock : ndarray, shape (R, 2)
         Per robot: last stamp (s, nan before the first) and whether it was advanced since the
         last predict (:func:`advance_clock`).
+    scan_memory : ndarray, shape (R, MEMORY_LEN)
+        Per robot: its last scan (:mod:`localization.scan_evidence`), ``[has_scan, x_m, y_m,
+        psi_rad, profile]``, the pose in the filter's frame. Written by lidar calls that carry
+        a profile, moved by predicts.
     calls : tuple of ndarray
         ``robots, kinds, index, odometry, lidar_start, lidar_stop, points, null_start,
         null_stop, nulls, camera_start, camera_stop, bearings, lidar_pose, lidar_has_pose,
-        camera_pose, camera_has_pose, stamps`` (module docstring).
+        camera_pose, camera_has_pose, stamps, profiles, lidar_has_profile`` (module docstring).
     """
     # Robots are independent: each thread takes whole robots, and runs their calls in order.
     starts, n_groups = robot_runs(calls[0])
@@ -943,6 +1041,7 @@ def apply_calls(
                 pending,
                 pending_counts,
                 clock,
+                scan_memory,
                 calls,
                 fp,
                 ip,
@@ -953,7 +1052,18 @@ def apply_calls(
 
 @njit(cache=True)
 def _apply_call(
-    q, table, counts, pending, pending_counts, clock, calls, fp, ip, sector_scaled, sector_inv_var
+    q,
+    table,
+    counts,
+    pending,
+    pending_counts,
+    clock,
+    scan_memory,
+    calls,
+    fp,
+    ip,
+    sector_scaled,
+    sector_inv_var,
 ):
     """Call ``q`` of :func:`apply_calls` on its robot's slice of the state."""
     (
@@ -975,6 +1085,8 @@ def _apply_call(
         camera_pose,
         camera_has_pose,
         stamps,
+        profiles,
+        lidar_has_profile,
     ) = calls
     max_components = ip[I_MAX_COMPONENTS]
     measurement_birth = ip[I_BIRTH_MEASUREMENT]
@@ -984,6 +1096,7 @@ def _apply_call(
     j = index[q]
     n = counts[r]
     tab = table[:, r, :n]
+    memory = scan_memory[r]
     if kind == ADVANCE:
         diffuse(tab, n, advance_clock(clock, r, stamps[j], fp, ip))
         return
@@ -991,11 +1104,14 @@ def _apply_call(
         q_var = predict_process_var(clock, r, fp, ip)
         out, n_out = _predict(tab, n, pending[r], pending_counts[r], odometry[j], q_var, fp, ip)
         pending_counts[r] = 0
+        if memory[0] != 0.0:
+            move_scan_pose_in_place(memory, odometry[j])
     elif kind == LIDAR:
         pts = points[lidar_start[j] : lidar_stop[j]]
         nul = nulls[null_start[j] : null_stop[j]]
         if lidar_has_pose[j]:
             pts, nul = _to_filter_frame(pts, nul, lidar_pose[j])
+        _remember_scan(memory, profiles, lidar_has_profile, lidar_pose, lidar_has_pose, j)
         cand, n_cand, explained = _lidar_update(
             tab,
             n,
@@ -1005,6 +1121,7 @@ def _apply_call(
             ip,
             sector_scaled,
             sector_inv_var,
+            memory,
         )
         if measurement_birth:
             b = 0
@@ -1024,10 +1141,10 @@ def _apply_call(
             sx, sy = camera_pose[j, 0], camera_pose[j, 1]
             # The bearing model from the camera's position (RobotCentricPHD.update_camera).
             seen = shift_means(tab, n, -sx, -sy)
-            cand, n_cand = _camera_update(seen, n, brg, fp, ip)
+            cand, n_cand = _camera_update(seen, n, brg, fp, ip, memory, sx, sy)
             shift_means_in_place(cand, n_cand, sx, sy)
         else:
-            cand, n_cand = _camera_update(tab, n, brg, fp, ip)
+            cand, n_cand = _camera_update(tab, n, brg, fp, ip, memory, 0.0, 0.0)
         out, n_out = _merge_cap(cand, n_cand, fp[F_MERGE], max_components)
     table[:, r, :n_out] = out[:, :n_out]
     table[:, r, n_out:] = 0.0

@@ -177,7 +177,12 @@ def run_calls(f: Any, calls: list[tuple]) -> None:
         if kind == "predict":
             f.predict(call[1])
         elif kind == "lidar":
-            f.update_lidar(call[1], call[2], sensor_pose=call[3] if len(call) > 3 else None)
+            f.update_lidar(
+                call[1],
+                call[2],
+                sensor_pose=call[3] if len(call) > 3 else None,
+                scan_profile=call[4] if len(call) > 4 else None,
+            )
         elif kind == "camera":
             f.update_camera(call[1], sensor_pose=call[2] if len(call) > 2 else None)
         elif kind == "advance":

@@ -47,6 +47,7 @@ from ..filter import (
     _checked_stamp,
     _shifted,
     checked_pose,
+    checked_scan_profile,
 )
 from ..frames import bearings_to_filter_frame, points_to_filter_frame
 from ..gaussian import bearing_update, position_update
@@ -318,7 +319,11 @@ class RobotCentricPMB:
             self._mixture = None
 
     def update_lidar(
-        self, points: Any, null_bearings: Any = None, sensor_pose: Any = None
+        self,
+        points: Any,
+        null_bearings: Any = None,
+        sensor_pose: Any = None,
+        scan_profile: Any = None,
     ) -> None:
         """PMB update with lidar detections (position measurements, ``H = I``).
 
@@ -331,8 +336,13 @@ class RobotCentricPMB:
         sensor_pose : array_like, shape (3,), optional
             ``[x_m, y_m, psi_rad]`` in the filter's frame the scan was taken from; points and
             null bearings are moved into the filter's frame (:mod:`localization.frames`).
+        scan_profile : array_like, shape (N_BINS,), optional
+            Validated and not used: the scan evidence (``PHDConfig.scan_evidence``) is the
+            GM-PHD's only, as the compiled PMB bank ignores it.
         """
         pts = _checked_points(points)
+        if scan_profile is not None:
+            checked_scan_profile(scan_profile)
         nulls = None if null_bearings is None else _checked_angles(null_bearings, "null_bearings")
         pose = checked_pose(sensor_pose)
         if pose is not None:

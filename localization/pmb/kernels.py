@@ -545,6 +545,8 @@ def _apply_call(
         camera_pose,
         camera_has_pose,
         stamps,
+        _profiles,  # the scan evidence is the GM-PHD's only (PHDConfig.scan_evidence)
+        _has_profile,
     ) = calls
     r = robots[q]
     kind = kinds[q]

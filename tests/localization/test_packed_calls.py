@@ -32,7 +32,7 @@ def tuple_encoding(feed: SwarmFeed) -> tuple:
 
 
 def assert_same_encoding(packed, reference) -> None:
-    assert len(packed) == len(reference) == 18
+    assert len(packed) == len(reference) == 20
     for k, (a, b) in enumerate(zip(packed, reference, strict=True)):
         assert a.dtype == b.dtype, k
         assert a.shape == b.shape, k

@@ -1,0 +1,309 @@
+"""What a lidar scan's raw ranges say about where a teammate can and cannot be.
+
+The lidar feature extractor turns a scan into robot-like clusters, and the filters' update
+uses only those: a teammate beyond the extractor's ~2 m is "not detected", which says almost
+nothing (``P_d`` ~ 0 there). The ranges themselves say more. Along each bearing the scan
+found the first surface at some range ``d``; both sensors sit on the robot's axis, so:
+
+* **Free space refutes** (the seed's "negative information", seed 000 section 6 and seed 001
+  on landmarks "expected and not seen"): if the beams at a component's bearing, all of whose
+  footprints would have hit a 65 mm housing at the component's range ``r``, returned from
+  beyond ``r``, no teammate is there. Up to the X4's range (a housing still takes a beam at
+  8 m), not only the extractor's 2 m. The weight is multiplied by ``1 - P_free``.
+* **A surface occludes**: a component beyond the first surface at its bearing (by more than a
+  housing radius) is hidden from both the lidar and the camera: their ``P_d`` is multiplied by
+  the visibility ``V``. A component that drifted behind a wall is then neither confirmed by a
+  bearing that a red object in front of the wall explains, nor penalised; it decays with the
+  survival probability.
+
+Per component (mean ``m``, covariance ``P``), from the scanner's position, with ``r`` the
+range, ``theta`` the bearing, ``s^2 = u^T P u + sigma_r(d)^2`` the radial variance plus the
+scanner's range noise (``u`` the unit bearing vector, ``sigma_r(d) = a + b d^2``), ``R`` the
+housing radius and ``k`` the margin in sigmas:
+
+* ``alpha = asin(R / r)`` is the housing's angular half-width;
+* ``V = Phi((d_max + R - r) / s + k)`` with ``d_max`` the farthest return over the bins that
+  overlap ``[theta - alpha, theta + alpha]`` (a teammate is hidden only if even the farthest
+  beam across it stopped short);
+* ``P_free = Phi((d_min - r) / s - k)`` with ``d_min`` the nearest return over the bins whose
+  whole footprint lies on the housing, ``|c_b - theta| + footprint / 2 <= alpha`` (every one
+  of them passed beyond the housing's centre). No such bin (beyond ``R / sin(footprint / 2)``,
+  7.4 m for the X4, or a bearing between two bins): no evidence.
+
+A bin without a valid return (nothing in range, a blind-sector pillar, an interference null,
+a mixed edge pixel) is unknown: ``V = 1`` and ``P_free = 0`` for every component whose window
+touches it. A teammate on the scan is safe: its own housing returns ``d = r - R``, so ``V >=
+Phi(k)`` and ``P_free <= Phi(-R / s - k)``.
+
+The scan is kept as a **profile**: :data:`N_BINS` bins of 0.5 deg (the X4's resolution), bin
+``b`` centred on ``-pi + b 2 pi / N_BINS`` in the scanner's frame, holding the farthest valid
+return of its beams or 0 (unknown). Bins and beams need not match: a denser scanner puts
+several beams per bin (the farthest counts; one invalid beam makes the bin unknown), a sparser
+one leaves bins empty (unknown). Each filter keeps its last scan's profile and the scanner's
+pose in its own frame (moved with the odometry at every time update), so a camera frame taken
+between two scans is judged against the latest one.
+
+Left out, and why it is off in the simulator's filter (``swarm_env.config.SIMULATOR_PHD``):
+the scan's own **skew**. The head takes 0.14 s per revolution while the robot turns, and the
+beams are binned at the bearings the driver reports, in the robot's frame at each beam's own
+instant. At 1 rad/s the scan is 8 deg out of shape by its end, which puts free beams where a
+teammate is: true teammates get refuted (``tests/localization/test_scan_evidence.py`` checks
+the model on robots that do not turn; ``docs/localization.md`` has the measurement). De-skewing
+needs each beam's time (``LaserScan.time_increment``) and the odometry's turn rate. Also left
+out: other robots' motion since the scan (0.04 m at 0.3 m/s), and low obstacles the camera sees
+over (the simulator's decoy posts): a teammate hidden from the lidar by one loses its camera
+updates while it is hidden, never its weight.
+
+This module holds the numpy reference (:func:`scan_profile`, :func:`scan_factors`) and the
+compiled versions the banks call (:func:`profile_into`, :func:`scan_factors_into`), checked
+equal in ``tests/localization/test_scan_evidence.py``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+__all__ = [
+    "N_BINS",
+    "BIN_WIDTH_RAD",
+    "MEMORY_LEN",
+    "scan_profile",
+    "scan_factors",
+    "move_scan_pose",
+    "profile_into",
+    "profiles_of",
+    "scan_factors_into",
+]
+
+#: Bins of a scan profile: 0.5 deg each, the YDLidar X4's angular resolution.
+N_BINS = 720
+BIN_WIDTH_RAD = 2.0 * math.pi / N_BINS
+#: A filter's scan memory: ``[has_scan, x_m, y_m, psi_rad, profile (N_BINS,)]``.
+MEMORY_LEN = 4 + N_BINS
+_INV_SQRT2 = 1.0 / math.sqrt(2.0)
+_MIN_STD_M = 1e-9  # a noiseless scanner and a point-mass component: no 0 / 0
+_TWO_PI = 2.0 * math.pi
+
+
+# ---------------------------------------------------------------------- numpy reference
+def scan_profile(angles_rad: np.ndarray, ranges_m: np.ndarray) -> np.ndarray:
+    """A scan's profile, shape ``(N_BINS,)`` (m; 0 = unknown), from its beams.
+
+    Parameters
+    ----------
+    angles_rad, ranges_m : ndarray, shape (B,)
+        Beam bearings (rad, scanner frame) and ranges (m); a range that is not a finite
+        positive number is no valid return.
+    """
+    angles = np.asarray(angles_rad, dtype=float).reshape(-1)
+    ranges = np.asarray(ranges_m, dtype=float).reshape(-1)
+    if angles.shape != ranges.shape:
+        raise ValueError(
+            f"scan angles and ranges differ in length: {angles.shape[0]} vs {ranges.shape[0]}"
+        )
+    with np.errstate(invalid="ignore"):
+        valid = np.isfinite(ranges) & (ranges > 0.0)
+    finite = np.isfinite(angles)
+    bins = np.zeros(angles.shape[0], dtype=np.intp)
+    bins[finite] = np.floor(((angles[finite] + math.pi) % _TWO_PI) / BIN_WIDTH_RAD + 0.5).astype(
+        np.intp
+    )
+    bins %= N_BINS
+    profile = np.full(N_BINS, -1.0)
+    np.maximum.at(profile, bins[valid & finite], ranges[valid & finite])
+    profile[bins[~valid & finite]] = 0.0
+    profile[profile < 0.0] = 0.0  # empty bins
+    return profile
+
+
+def move_scan_pose(pose: np.ndarray, odometry: np.ndarray) -> np.ndarray:
+    """The scanner pose ``(3,)`` in the filter's frame after a time update with ``odometry``
+    ``[dx, dy, dpsi]`` (the frame moves as the components do: ``p' = R(dpsi)^T (p - d)``)."""
+    dx, dy, dpsi = (float(v) for v in odometry)
+    c, s = math.cos(dpsi), math.sin(dpsi)
+    x, y = pose[0] - dx, pose[1] - dy
+    return np.array([c * x + s * y, -s * x + c * y, pose[2] - dpsi])
+
+
+def scan_factors(
+    table: np.ndarray,
+    pose: np.ndarray,
+    profile: np.ndarray,
+    target_radius_m: float,
+    range_std_m: float,
+    range_std_quadratic_per_m: float,
+    footprint_rad: float,
+    margin_sigmas: float,
+    min_range_m: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Visibility ``V`` and free-space probability ``P_free`` per component (module doc).
+
+    Parameters
+    ----------
+    table : ndarray, shape (6, N)
+        Components ``w, x, y, Pxx, Pxy, Pyy`` in the filter's frame (m, m^2).
+    pose : ndarray, shape (3,)
+        The scanner's ``(x_m, y_m, psi_rad)`` in the same frame.
+    profile : ndarray, shape (N_BINS,)
+        :func:`scan_profile` of the scan.
+
+    Returns
+    -------
+    visible, free : ndarray, shape (N,)
+        Both in ``[0, 1]``; a component within ``min_range_m`` of the scanner gets 1 and 0.
+    """
+    n = table.shape[1]
+    visible, free = np.ones(n), np.zeros(n)
+    for i in range(n):  # the reference: one component at a time, as the derivation reads
+        dx, dy = table[1, i] - pose[0], table[2, i] - pose[1]
+        r = math.hypot(dx, dy)
+        if r < min_range_m:
+            continue
+        radial_var = (
+            dx * dx * table[3, i] + 2 * dx * dy * table[4, i] + dy * dy * table[5, i]
+        ) / (r * r)
+        theta = math.atan2(dy, dx) - pose[2]
+        alpha = math.asin(min(1.0, target_radius_m / r))
+        centre = (theta + math.pi) / BIN_WIDTH_RAD
+        wide = np.arange(
+            math.floor(centre - alpha / BIN_WIDTH_RAD + 0.5),
+            math.floor(centre + alpha / BIN_WIDTH_RAD + 0.5) + 1,
+        )
+        ranges = profile[wide % N_BINS]
+        if ranges.min() > 0.0:
+            d = ranges.max()
+            s = max(
+                math.sqrt(radial_var + (range_std_m + range_std_quadratic_per_m * d * d) ** 2),
+                _MIN_STD_M,
+            )
+            visible[i] = _phi((d + target_radius_m - r) / s + margin_sigmas)
+        inner = alpha - 0.5 * footprint_rad
+        if inner < 0.0:
+            continue
+        central = np.arange(
+            math.ceil(centre - inner / BIN_WIDTH_RAD),
+            math.floor(centre + inner / BIN_WIDTH_RAD) + 1,
+        )
+        if not central.shape[0]:
+            continue
+        ranges = profile[central % N_BINS]
+        if ranges.min() > 0.0:
+            d = ranges.min()
+            s = max(
+                math.sqrt(radial_var + (range_std_m + range_std_quadratic_per_m * d * d) ** 2),
+                _MIN_STD_M,
+            )
+            free[i] = _phi((d - r) / s - margin_sigmas)
+    return visible, free
+
+
+def _phi(x: float) -> float:
+    """Standard normal CDF."""
+    return 0.5 * math.erfc(-x * _INV_SQRT2)
+
+
+# ---------------------------------------------------------------------- compiled
+@njit(cache=True)
+def profile_into(out, angles, ranges):
+    """:func:`scan_profile` of one scan, written into ``out (N_BINS,)``."""
+    out[:] = -1.0
+    for k in range(angles.shape[0]):
+        a = angles[k]
+        if not math.isfinite(a):
+            continue
+        b = int(math.floor(((a + math.pi) % _TWO_PI) / BIN_WIDTH_RAD + 0.5)) % N_BINS
+        d = ranges[k]
+        if math.isfinite(d) and d > 0.0:
+            if out[b] != 0.0 and d > out[b]:
+                out[b] = d
+        else:
+            out[b] = 0.0
+    for b in range(N_BINS):
+        if out[b] < 0.0:
+            out[b] = 0.0
+
+
+@njit(cache=True)
+def profiles_of(angles, ranges, stops):
+    """Profiles ``(S, N_BINS)`` of ``S`` scans concatenated in ``angles``, ``ranges``, scan
+    ``j`` being entries ``stops[j - 1]:stops[j]``."""
+    out = np.empty((stops.shape[0], N_BINS))
+    start = 0
+    for j in range(stops.shape[0]):
+        profile_into(out[j], angles[start : stops[j]], ranges[start : stops[j]])
+        start = stops[j]
+    return out
+
+
+@njit(cache=True)
+def move_scan_pose_in_place(memory, odometry):
+    """:func:`move_scan_pose` of the pose in ``memory[1:4]``."""
+    c, s = math.cos(odometry[2]), math.sin(odometry[2])
+    x, y = memory[1] - odometry[0], memory[2] - odometry[1]
+    memory[1] = c * x + s * y
+    memory[2] = -s * x + c * y
+    memory[3] -= odometry[2]
+
+
+@njit(cache=True)
+def _phi_nb(x):
+    return 0.5 * math.erfc(-x * _INV_SQRT2)
+
+
+@njit(cache=True)
+def scan_factors_into(
+    visible, free, tab, n, memory, ox, oy, radius, std0, std2, footprint, k, min_range
+):
+    """:func:`scan_factors` of ``tab``'s first ``n`` columns against ``memory`` (a filter's
+    ``[has_scan, x, y, psi, profile]``), the table's frame being the filter's shifted by
+    ``(-ox, -oy)`` (a camera update's view). Writes ``visible (n,)`` and ``free (n,)``."""
+    for i in range(n):
+        visible[i] = 1.0
+        free[i] = 0.0
+    if memory[0] == 0.0:
+        return
+    sx, sy, psi = memory[1] - ox, memory[2] - oy, memory[3]
+    for i in range(n):
+        dx, dy = tab[1, i] - sx, tab[2, i] - sy
+        r = math.hypot(dx, dy)
+        if r < min_range:
+            continue
+        radial_var = (dx * dx * tab[3, i] + 2 * dx * dy * tab[4, i] + dy * dy * tab[5, i]) / (
+            r * r
+        )
+        theta = math.atan2(dy, dx) - psi
+        alpha = math.asin(min(1.0, radius / r))
+        centre = (theta + math.pi) / BIN_WIDTH_RAD
+        lo = math.floor(centre - alpha / BIN_WIDTH_RAD + 0.5)
+        hi = math.floor(centre + alpha / BIN_WIDTH_RAD + 0.5)
+        d_max = 0.0
+        known = True
+        for b in range(lo, hi + 1):
+            d = memory[4 + b % N_BINS]
+            if d <= 0.0:
+                known = False
+                break
+            d_max = max(d_max, d)
+        if known:
+            s = max(math.sqrt(radial_var + (std0 + std2 * d_max * d_max) ** 2), _MIN_STD_M)
+            visible[i] = _phi_nb((d_max + radius - r) / s + k)
+        inner = alpha - 0.5 * footprint
+        if inner < 0.0:
+            continue
+        lo = math.ceil(centre - inner / BIN_WIDTH_RAD)
+        hi = math.floor(centre + inner / BIN_WIDTH_RAD)
+        if hi < lo:
+            continue
+        d_min = math.inf
+        for b in range(lo, hi + 1):
+            d = memory[4 + b % N_BINS]
+            if d <= 0.0:
+                d_min = -1.0
+                break
+            d_min = min(d_min, d)
+        if d_min > 0.0:
+            s = max(math.sqrt(radial_var + (std0 + std2 * d_min * d_min) ** 2), _MIN_STD_M)
+            free[i] = _phi_nb((d_min - r) / s - k)
