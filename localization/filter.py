@@ -299,8 +299,8 @@ class RobotCentricPHD:
             moved since the last time update); points and null bearings are moved into the
             filter's frame first (:mod:`localization.frames`).
         scan_profile : array_like, shape (N_BINS,), optional
-            The scan's :func:`~localization.scan_evidence.scan_profile` (m, 0 = unknown). It
-            becomes the filter's scan memory; with ``config.scan_evidence`` the lidar's
+            The scan's :func:`~localization.scan_evidence.scan_profile` (m, 0 = unknown).
+            With ``config.scan_evidence`` it becomes the filter's scan memory, the lidar's
             ``P_d`` is times each component's visibility, the weights after the update are
             times ``1 - P_free``, and later camera frames are judged against it. Without
             one the filter has no scan until the next.
@@ -317,8 +317,9 @@ class RobotCentricPHD:
         if pose is not None:
             pts = points_to_filter_frame(pts, pose)
             nulls = None if nulls is None else bearings_to_filter_frame(nulls, pose)
-        self._scan = np.zeros(MEMORY_LEN)
-        if profile is not None:
+        if self.config.scan_evidence:  # the memory is kept only where it is used
+            self._scan = np.zeros(MEMORY_LEN)
+        if self.config.scan_evidence and profile is not None:
             self._scan[0] = 1.0
             self._scan[1:4] = 0.0 if pose is None else pose
             self._scan[4:] = profile

@@ -1023,8 +1023,8 @@ def apply_calls(
         last predict (:func:`advance_clock`).
     scan_memory : ndarray, shape (R, MEMORY_LEN)
         Per robot: its last scan (:mod:`localization.scan_evidence`), ``[has_scan, x_m, y_m,
-        psi_rad, profile]``, the pose in the filter's frame. Written by lidar calls that carry
-        a profile, moved by predicts.
+        psi_rad, profile]``, the pose in the filter's frame. Written by lidar calls (with
+        ``scan_evidence`` only; a call without a profile clears it), moved by predicts.
     calls : tuple of ndarray
         ``robots, kinds, index, odometry, lidar_start, lidar_stop, points, null_start,
         null_stop, nulls, camera_start, camera_stop, bearings, lidar_pose, lidar_has_pose,
@@ -1111,7 +1111,8 @@ def _apply_call(
         nul = nulls[null_start[j] : null_stop[j]]
         if lidar_has_pose[j]:
             pts, nul = _to_filter_frame(pts, nul, lidar_pose[j])
-        _remember_scan(memory, profiles, lidar_has_profile, lidar_pose, lidar_has_pose, j)
+        if ip[I_SCAN_EVIDENCE]:  # without it the scan is not needed: no 720-float copy
+            _remember_scan(memory, profiles, lidar_has_profile, lidar_pose, lidar_has_pose, j)
         cand, n_cand, explained = _lidar_update(
             tab,
             n,

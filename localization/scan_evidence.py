@@ -65,6 +65,7 @@ import math
 
 import numpy as np
 from numba import njit
+from scipy import special
 
 __all__ = [
     "N_BINS",
@@ -157,52 +158,49 @@ def scan_factors(
     """
     n = table.shape[1]
     visible, free = np.ones(n), np.zeros(n)
-    for i in range(n):  # the reference: one component at a time, as the derivation reads
-        dx, dy = table[1, i] - pose[0], table[2, i] - pose[1]
-        r = math.hypot(dx, dy)
-        if r < min_range_m:
-            continue
-        radial_var = (
-            dx * dx * table[3, i] + 2 * dx * dy * table[4, i] + dy * dy * table[5, i]
-        ) / (r * r)
-        theta = math.atan2(dy, dx) - pose[2]
-        alpha = math.asin(min(1.0, target_radius_m / r))
-        centre = (theta + math.pi) / BIN_WIDTH_RAD
-        wide = np.arange(
-            math.floor(centre - alpha / BIN_WIDTH_RAD + 0.5),
-            math.floor(centre + alpha / BIN_WIDTH_RAD + 0.5) + 1,
-        )
-        ranges = profile[wide % N_BINS]
-        if ranges.min() > 0.0:
-            d = ranges.max()
-            s = max(
-                math.sqrt(radial_var + (range_std_m + range_std_quadratic_per_m * d * d) ** 2),
-                _MIN_STD_M,
-            )
-            visible[i] = _phi((d + target_radius_m - r) / s + margin_sigmas)
-        inner = alpha - 0.5 * footprint_rad
-        if inner < 0.0:
-            continue
-        central = np.arange(
-            math.ceil(centre - inner / BIN_WIDTH_RAD),
-            math.floor(centre + inner / BIN_WIDTH_RAD) + 1,
-        )
-        if not central.shape[0]:
-            continue
-        ranges = profile[central % N_BINS]
-        if ranges.min() > 0.0:
-            d = ranges.min()
-            s = max(
-                math.sqrt(radial_var + (range_std_m + range_std_quadratic_per_m * d * d) ** 2),
-                _MIN_STD_M,
-            )
-            free[i] = _phi((d - r) / s - margin_sigmas)
+    dx, dy = table[1] - pose[0], table[2] - pose[1]
+    r = np.hypot(dx, dy)
+    near = r < min_range_m
+    r = np.where(near, 1.0, r)  # placeholders; those components keep 1 and 0
+    radial_var = (dx * dx * table[3] + 2 * dx * dy * table[4] + dy * dy * table[5]) / (r * r)
+    alpha = np.arcsin(np.minimum(1.0, target_radius_m / r))
+    centre = (np.arctan2(dy, dx) - pose[2] + math.pi) / BIN_WIDTH_RAD
+    inner = alpha - 0.5 * footprint_rad
+
+    def window(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Profile ranges ``(n, W)`` over bins ``lo..hi`` per component (padded with nan),
+        and whether every bin is known (an empty window counts as unknown)."""
+        width = max(int((hi - lo).max(initial=-1)) + 1, 1)
+        bins = lo[:, None] + np.arange(width)
+        inside = bins <= hi[:, None]
+        ranges = np.where(inside, profile[bins % N_BINS], np.nan)
+        known = (hi >= lo) & ~(inside & (ranges <= 0.0)).any(axis=1)
+        return ranges, known
+
+    def scale(d: np.ndarray) -> np.ndarray:
+        noise = range_std_m + range_std_quadratic_per_m * d * d
+        return np.maximum(np.sqrt(radial_var + noise * noise), _MIN_STD_M)
+
+    wide, known = window(
+        np.floor(centre - alpha / BIN_WIDTH_RAD + 0.5).astype(np.intp),
+        np.floor(centre + alpha / BIN_WIDTH_RAD + 0.5).astype(np.intp),
+    )
+    ok = known & ~near
+    d_max = np.nanmax(np.where(ok[:, None], wide, 1.0), axis=1)
+    visible[ok] = _phi((d_max + target_radius_m - r) / scale(d_max) + margin_sigmas)[ok]
+    half = np.maximum(inner, 0.0) / BIN_WIDTH_RAD
+    central, known = window(
+        np.ceil(centre - half).astype(np.intp), np.floor(centre + half).astype(np.intp)
+    )
+    ok = known & ~near & (inner >= 0.0)
+    d_min = np.nanmin(np.where(ok[:, None], central, 1.0), axis=1)
+    free[ok] = _phi((d_min - r) / scale(d_min) - margin_sigmas)[ok]
     return visible, free
 
 
-def _phi(x: float) -> float:
-    """Standard normal CDF."""
-    return 0.5 * math.erfc(-x * _INV_SQRT2)
+def _phi(x: np.ndarray) -> np.ndarray:
+    """Standard normal CDF, elementwise."""
+    return 0.5 * special.erfc(-x * _INV_SQRT2)
 
 
 # ---------------------------------------------------------------------- compiled
