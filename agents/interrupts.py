@@ -7,7 +7,7 @@ from __future__ import annotations
 import signal
 from typing import Any
 
-__all__ = ["Interrupts", "set_signal"]
+__all__ = ["Interrupts", "set_signal", "signal_interrupt"]
 
 
 def set_signal(signum: int, handler: Any) -> Any:
@@ -16,6 +16,22 @@ def set_signal(signum: int, handler: Any) -> Any:
         return signal.signal(signum, handler)
     except ValueError:  # not the main thread: signals are the caller's business
         return None
+
+
+def signal_interrupt(exc: BaseException) -> bool:
+    """Whether ``exc`` is the ``KeyboardInterrupt`` of :class:`Interrupts`, or carries it as its
+    cause or context. The handler can fire while a numba-compiled function is calling back into
+    Python (a dispatcher's first call unpickles its constants): numba then raises
+    ``SystemError(... returned a result with an exception set)`` from the interrupt, and a
+    trainer must still save and exit with one line."""
+    seen: set[int] = set()
+    current: BaseException | None = exc
+    while current is not None and id(current) not in seen:
+        if isinstance(current, KeyboardInterrupt):
+            return True
+        seen.add(id(current))
+        current = current.__cause__ or current.__context__
+    return False
 
 
 class Interrupts:

@@ -38,7 +38,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from agents.interrupts import Interrupts
+from agents.interrupts import Interrupts, signal_interrupt
 from swarm_core.atomic_files import atomic_write
 
 EXIT_CODES = {"SIGINT": 130, "SIGTERM": 143}
@@ -330,7 +330,9 @@ def _train(
                     if max_wall_s is not None and time.perf_counter() - start > max_wall_s:
                         print(f"stopping: wall-time budget of {max_wall_s:.0f} s reached")
                         break
-            except KeyboardInterrupt:
+            except (KeyboardInterrupt, SystemError) as exc:
+                if not signal_interrupt(exc):
+                    raise
                 interrupted = interrupts.received or "SIGINT"
         with Interrupts(ignore=True):  # a second signal must not leave a half-written save
             if algo is not None:

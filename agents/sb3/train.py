@@ -31,7 +31,7 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-from agents.interrupts import Interrupts, set_signal
+from agents.interrupts import Interrupts, set_signal, signal_interrupt
 from agents.sb3.policy import save_model
 from swarm_core.atomic_files import write_json_atomically
 from swarm_phd.sweep import parse_json_object
@@ -647,7 +647,9 @@ def _train(
                     residual_observes_base,
                 )
             model.learn(total_timesteps=timesteps, callback=callbacks, progress_bar=False)
-        except KeyboardInterrupt:
+        except (KeyboardInterrupt, SystemError) as exc:
+            if not signal_interrupt(exc):
+                raise
             interrupted = interrupts.received or "SIGINT"
         interrupted = interrupted or interrupts.received
         # A second signal while saving must not leave a half-written model.

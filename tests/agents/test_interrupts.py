@@ -1,0 +1,43 @@
+"""Which exceptions a trainer treats as its signal handler's interrupt."""
+
+from __future__ import annotations
+
+import pytest
+
+from agents.interrupts import signal_interrupt
+
+
+def _raised(make):
+    try:
+        make()
+    except BaseException as exc:  # noqa: BLE001 - the test inspects whatever came
+        return exc
+    raise AssertionError("nothing raised")
+
+
+def test_the_interrupt_itself_and_numbas_wrapping_of_it_count():
+    def wrapped():  # what numba's dispatcher raises when the handler fires in a callback
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise SystemError(
+                "CPUDispatcher(...) returned a result with an exception set"
+            ) from exc
+
+    assert signal_interrupt(_raised(lambda: (_ for _ in ()).throw(KeyboardInterrupt)))
+    assert signal_interrupt(_raised(wrapped))
+
+
+@pytest.mark.parametrize("error", [SystemError("a real one"), ValueError("bad input")])
+def test_other_errors_do_not(error):
+    def chained():
+        try:
+            raise RuntimeError("unrelated cause")
+        except RuntimeError as exc:
+            raise error from exc
+
+    assert not signal_interrupt(_raised(chained))
+    cyclic = SystemError("cycle")
+    cyclic.__context__ = ValueError("x")
+    cyclic.__context__.__context__ = cyclic
+    assert not signal_interrupt(cyclic)
