@@ -73,17 +73,23 @@ def diagnose(
     max_steps: int = 300,
     match_m: float = 0.15,
     observation: str = "phd",
+    env_overrides: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Run ``scripted:formation`` on ``observation`` (``"phd"``, or ``"truth"`` as a check:
-    every component is then a teammate) for ``seeds``; the module doc's figures (medians and
-    means in metres, counts per observer-step)."""
+    every component is then a teammate) for ``seeds``, in ``preset`` with ``env_overrides``
+    (``parallel_env`` keywords); the module doc's figures (medians and means in metres, counts
+    per observer-step)."""
     from agents.policies import load_policy
     from swarm_env import parallel_env
 
     if not 0 <= from_step < max_steps:
         raise ValueError(f"--from-step must be in [0, {max_steps}), got {from_step}")
     env = parallel_env(
-        preset=preset, task="formation", observation=observation, max_steps=max_steps
+        preset=preset,
+        task="formation",
+        observation=observation,
+        max_steps=max_steps,
+        **(env_overrides or {}),
     )
     policy = load_policy("scripted:formation", env)
     arena = env.config.arena
@@ -150,7 +156,7 @@ def diagnose(
 
 
 def main(argv: list[str] | None = None) -> int:
-    from swarm_phd.sweep import parse_seeds
+    from swarm_phd.sweep import parse_json_object, parse_seeds
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--preset", default="lab-3m-4")
@@ -159,6 +165,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-steps", type=int, default=300)
     parser.add_argument("--match-m", type=float, default=0.15, help="'on a teammate' radius")
     parser.add_argument("--observation", default="phd", choices=["phd", "truth"])
+    parser.add_argument(
+        "--env-overrides",
+        default=None,
+        help='env keywords as JSON, e.g. \'{"phd": {"scan_evidence": true}}\'',
+    )
     parser.add_argument("--out", default=None, help="JSON summary file")
     args = parser.parse_args(argv)
     summary = diagnose(
@@ -168,6 +179,7 @@ def main(argv: list[str] | None = None) -> int:
         args.max_steps,
         args.match_m,
         args.observation,
+        parse_json_object(args.env_overrides, "--env-overrides"),
     )
     print(json.dumps(summary, indent=2))
     if args.out:

@@ -22,13 +22,21 @@ scanner's range noise (``u`` the unit bearing vector, ``sigma_r(d) = a + b d^2``
 housing radius and ``k`` the margin in sigmas:
 
 * ``alpha = asin(R / r)`` is the housing's angular half-width;
+* ``delta = k sigma_t / r`` is the bearing's spread, ``sigma_t^2 = v^T P v`` the tangential
+  variance (``v`` perpendicular to ``u``): the housing may be at any bearing within
+  ``theta +- delta``, as it may be anywhere within ``k`` sigmas radially. Without it a
+  well-tracked teammate 2 cm off its mean at 2 m (0.6 deg) falls between the two or three
+  bins that would see it, and the scan "refutes" it;
 * ``V = Phi((d_max + R - r) / s + k)`` with ``d_max`` the farthest return over the bins that
-  overlap ``[theta - alpha, theta + alpha]`` (a teammate is hidden only if even the farthest
-  beam across it stopped short);
+  overlap ``[theta - alpha - delta, theta + alpha + delta]`` (a teammate is hidden only if
+  even the farthest beam across it stopped short);
 * ``P_free = Phi((d_min - r) / s - k)`` with ``d_min`` the nearest return over the bins whose
-  whole footprint lies on the housing, ``|c_b - theta| + footprint / 2 <= alpha`` (every one
-  of them passed beyond the housing's centre). No such bin (beyond ``R / sin(footprint / 2)``,
-  7.4 m for the X4, or a bearing between two bins): no evidence.
+  whole footprint lies on the housing at some bearing of the spread,
+  ``|c_b - theta| + footprint / 2 <= alpha + delta`` (every one of them passed beyond the
+  housing's centre), provided every bearing of the spread has such a bin. No evidence
+  beyond ``R / sin(footprint / 2)`` (7.4 m for the X4), nor where a housing in the spread
+  could sit between two bins (beyond 3.7 m, where the bins are wider apart than a
+  housing's inner width, unless one bin covers the whole spread).
 
 A bin without a valid return (nothing in range, a blind-sector pillar, an interference null,
 a mixed edge pixel) is unknown: ``V = 1`` and ``P_free = 0`` for every component whose window
@@ -43,16 +51,15 @@ one leaves bins empty (unknown). Each filter keeps its last scan's profile and t
 pose in its own frame (moved with the odometry at every time update), so a camera frame taken
 between two scans is judged against the latest one.
 
-Left out, and why it is off in the simulator's filter (``swarm_env.config.SIMULATOR_PHD``):
-the scan's own **skew**. The head takes 0.14 s per revolution while the robot turns, and the
-beams are binned at the bearings the driver reports, in the robot's frame at each beam's own
-instant. At 1 rad/s the scan is 8 deg out of shape by its end, which puts free beams where a
-teammate is: true teammates get refuted (``tests/localization/test_scan_evidence.py`` checks
-the model on robots that do not turn; ``docs/localization.md`` has the measurement). De-skewing
-needs each beam's time (``LaserScan.time_increment``) and the odometry's turn rate. Also left
-out: other robots' motion since the scan (0.04 m at 0.3 m/s), and low obstacles the camera sees
-over (the simulator's decoy posts): a teammate hidden from the lidar by one loses its camera
-updates while it is hidden, never its weight.
+Left out: the scan's own **skew**. A real head takes 0.14 s per revolution while the robot
+turns, and the driver reports each beam in the robot's frame at that beam's own instant (8 deg
+out of shape by the end at 1 rad/s). The simulator's scans are snapshots, so this does not
+arise there; on a real robot, de-skewing needs each beam's time (``LaserScan.time_increment``)
+and the odometry's turn rate. Also left out: other robots' motion since the scan (0.04 m at
+0.3 m/s), and low obstacles the camera sees over (the simulator's decoy posts): a teammate
+hidden from the lidar by one loses its camera updates while it is hidden, never its weight.
+Why it is off in the simulator's filter (``swarm_env.config.SIMULATOR_PHD``): measured, it
+does not make the agents' estimate better (``docs/localization.md``).
 
 This module holds the numpy reference (:func:`scan_profile`, :func:`scan_factors`) and the
 compiled versions the banks call (:func:`profile_into`, :func:`scan_factors_into`), checked
@@ -87,6 +94,9 @@ MEMORY_LEN = 4 + N_BINS
 _INV_SQRT2 = 1.0 / math.sqrt(2.0)
 _MIN_STD_M = 1e-9  # a noiseless scanner and a point-mass component: no 0 / 0
 _TWO_PI = 2.0 * math.pi
+# Widest tangential spread, rad: with the housing's half-width (<= pi / 2) a window then
+# covers the whole scan, and no wider window is needed.
+_MAX_SPREAD = 0.5 * math.pi
 
 
 # ---------------------------------------------------------------------- numpy reference
@@ -163,6 +173,8 @@ def scan_factors(
     near = r < min_range_m
     r = np.where(near, 1.0, r)  # placeholders; those components keep 1 and 0
     radial_var = (dx * dx * table[3] + 2 * dx * dy * table[4] + dy * dy * table[5]) / (r * r)
+    tangential_var = (dy * dy * table[3] - 2 * dx * dy * table[4] + dx * dx * table[5]) / (r * r)
+    spread = np.minimum(margin_sigmas * np.sqrt(np.maximum(tangential_var, 0.0)) / r, _MAX_SPREAD)
     alpha = np.arcsin(np.minimum(1.0, target_radius_m / r))
     centre = (np.arctan2(dy, dx) - pose[2] + math.pi) / BIN_WIDTH_RAD
     inner = alpha - 0.5 * footprint_rad
@@ -181,18 +193,26 @@ def scan_factors(
         noise = range_std_m + range_std_quadratic_per_m * d * d
         return np.maximum(np.sqrt(radial_var + noise * noise), _MIN_STD_M)
 
+    outer = (alpha + spread) / BIN_WIDTH_RAD
     wide, known = window(
-        np.floor(centre - alpha / BIN_WIDTH_RAD + 0.5).astype(np.intp),
-        np.floor(centre + alpha / BIN_WIDTH_RAD + 0.5).astype(np.intp),
+        np.floor(centre - outer + 0.5).astype(np.intp),
+        np.floor(centre + outer + 0.5).astype(np.intp),
     )
     ok = known & ~near
     d_max = np.nanmax(np.where(ok[:, None], wide, 1.0), axis=1)
     visible[ok] = _phi((d_max + target_radius_m - r) / scale(d_max) + margin_sigmas)[ok]
-    half = np.maximum(inner, 0.0) / BIN_WIDTH_RAD
+    half = (np.maximum(inner, 0.0) + spread) / BIN_WIDTH_RAD
     central, known = window(
         np.ceil(centre - half).astype(np.intp), np.floor(centre + half).astype(np.intp)
     )
-    ok = known & ~near & (inner >= 0.0)
+    # Every bearing within the spread must have a bin whole on the housing: always so when
+    # the bins are no farther apart than the housing's inner width, else only if one bin
+    # covers the whole spread (a housing between two bins is never seen, nor refuted).
+    sure = np.maximum(inner - spread, 0.0) / BIN_WIDTH_RAD
+    covered = (2.0 * inner >= BIN_WIDTH_RAD) | (
+        (inner >= spread) & (np.ceil(centre - sure) <= np.floor(centre + sure))
+    )
+    ok = known & ~near & (inner >= 0.0) & covered
     d_min = np.nanmin(np.where(ok[:, None], central, 1.0), axis=1)
     free[ok] = _phi((d_min - r) / scale(d_min) - margin_sigmas)[ok]
     return visible, free
@@ -272,11 +292,16 @@ def scan_factors_into(
         radial_var = (dx * dx * tab[3, i] + 2 * dx * dy * tab[4, i] + dy * dy * tab[5, i]) / (
             r * r
         )
+        tangential_var = (dy * dy * tab[3, i] - 2 * dx * dy * tab[4, i] + dx * dx * tab[5, i]) / (
+            r * r
+        )
+        spread = min(k * math.sqrt(max(tangential_var, 0.0)) / r, _MAX_SPREAD)
         theta = math.atan2(dy, dx) - psi
         alpha = math.asin(min(1.0, radius / r))
         centre = (theta + math.pi) / BIN_WIDTH_RAD
-        lo = math.floor(centre - alpha / BIN_WIDTH_RAD + 0.5)
-        hi = math.floor(centre + alpha / BIN_WIDTH_RAD + 0.5)
+        outer = (alpha + spread) / BIN_WIDTH_RAD
+        lo = math.floor(centre - outer + 0.5)
+        hi = math.floor(centre + outer + 0.5)
         d_max = 0.0
         known = True
         for b in range(lo, hi + 1):
@@ -291,8 +316,15 @@ def scan_factors_into(
         inner = alpha - 0.5 * footprint
         if inner < 0.0:
             continue
-        lo = math.ceil(centre - inner / BIN_WIDTH_RAD)
-        hi = math.floor(centre + inner / BIN_WIDTH_RAD)
+        if 2.0 * inner < BIN_WIDTH_RAD:  # one bin must cover every bearing of the spread
+            if inner < spread:
+                continue
+            sure = (inner - spread) / BIN_WIDTH_RAD
+            if math.floor(centre + sure) < math.ceil(centre - sure):
+                continue
+        half = (inner + spread) / BIN_WIDTH_RAD
+        lo = math.ceil(centre - half)
+        hi = math.floor(centre + half)
         if hi < lo:
             continue
         d_min = math.inf

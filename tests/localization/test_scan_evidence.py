@@ -109,8 +109,27 @@ def test_refutation_needs_every_beam_on_the_housing_to_pass():
 def test_beyond_the_scanners_resolution_there_is_no_free_space_evidence():
     # beyond R / sin(0.25 deg) = 7.4 m a housing is narrower than one 0.5 deg footprint
     ranges = cast(ANGLES, np.zeros((0, 3)), wall_m=9.5)
-    assert factors(component(7.0, 0.0), ranges)[1][0] > 0.999
-    assert factors(component(7.6, 0.0), ranges)[1][0] == 0.0
+    assert factors(component(7.0, 0.0, var=1e-8), ranges)[1][0] > 0.999
+    assert factors(component(7.6, 0.0, var=1e-8), ranges)[1][0] == 0.0
+    # beyond 3.7 m a housing fits between two bins: with a 1 cm spread (3 sigmas = 0.25 deg
+    # at 7 m) it may sit where no bin is whole on it, so the scan cannot refute it; at 3.5 m
+    # every bearing has such a bin
+    assert factors(component(7.0, 0.0, var=1e-4), ranges)[1][0] == 0.0
+    assert factors(component(3.5, 0.0, var=1e-4), ranges)[1][0] > 0.999
+
+
+@pytest.mark.parametrize("r", [1.0, 2.0, 3.0])
+def test_a_teammate_off_the_mean_by_its_spread_is_not_refuted(r):
+    """The housing may be anywhere within k sigmas tangentially: a 3 cm-std component whose
+    teammate is 7 cm (2.3 sigmas) to the side is not refuted, though the bins at its mean
+    are free; the same scan does refute a component with a 2 mm std there."""
+    beside = np.array([[r, 0.07, HOUSING]])
+    ranges = cast(ANGLES, beside, wall_m=4.0)
+    mean_bins = np.abs(ANGLES) < math.asin(HOUSING / r) - math.radians(0.25)
+    assert (ranges[mean_bins] > r).all()  # the bins at the mean passed beyond it
+    visible, free = factors(component(r, 0.0, var=0.03**2), ranges)
+    assert free[0] < 0.01 and visible[0] > 0.99
+    assert factors(component(r, 0.0, var=0.002**2), ranges)[1][0] > 0.99
 
 
 def test_a_component_behind_the_first_surface_is_hidden():
@@ -154,8 +173,8 @@ def test_compiled_factors_equal_the_reference():
     table = np.empty((6, n))
     table[0] = rng.uniform(0.1, 1.0, n)
     table[1:3] = np.concatenate([circles[:, :2].T, rng.uniform(-4, 4, (2, n - 12))], axis=1)
-    a = rng.uniform(1e-4, 0.05, n)
-    b = rng.uniform(1e-4, 0.05, n)
+    a = rng.uniform(1e-6, 2e-3, n)
+    b = rng.uniform(1e-6, 2e-3, n)
     table[3], table[5] = a, b
     table[4] = rng.uniform(-0.5, 0.5, n) * np.sqrt(a * b)
     pose = np.array([0.05, -0.02, 0.1])
