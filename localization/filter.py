@@ -409,10 +409,10 @@ class RobotCentricPHD:
         (the camera's view; the scan memory's pose is shifted alike)."""
         cfg = self.config
         table = self._table
-        detection_prob = self._model.camera(table) * self._visibility(table, offset)
+        detection_prob = self._model.camera(table)
         if brg.shape[0] == 0:
             out = table.copy()
-            out[ROW_W] = self._missed_only(table, detection_prob)
+            out[ROW_W] = self._missed_only(table, detection_prob * self._visibility(table, offset))
         else:
             out, explained = phd.camera_update(
                 table,
@@ -422,6 +422,8 @@ class RobotCentricPHD:
                 cfg.camera_clutter_total_per_rad,
                 cfg.min_range_m,
                 cfg.missed_detection == "bernoulli",
+                # each copy against the scan where it would be: see phd.camera_update
+                (lambda t: self._visibility(t, offset)) if self._scan_on() else None,
             )
             if cfg.camera_birth == "ray":
                 # Bearings the mixture does not explain start tracks along their rays; they

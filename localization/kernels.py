@@ -676,10 +676,12 @@ def _camera_update(tab, n, brg, fp, ip, memory, ox, oy):
     prune = fp[F_PRUNE]
     scan = ip[I_SCAN_EVIDENCE] and memory[0] != 0.0
     pd = _camera_pd(tab, n, fp)
+    # missed copies: P_d V(prior); detected copies: P_d V(posterior) (phd.camera_update)
+    missed_pd = pd.copy()
     if scan:
-        pd *= _scan_factors(tab, n, memory, ox, oy, fp)[0]
+        missed_pd *= _scan_factors(tab, n, memory, ox, oy, fp)[0]
     if m == 0:
-        return _missed_only(tab, n, pd, prune, ip[I_MISSED_BERNOULLI], tab)
+        return _missed_only(tab, n, missed_pd, prune, ip[I_MISSED_BERNOULLI], tab)
     kappa = fp[F_KAPPA_C]
     min_r2 = fp[F_MIN_RANGE] * fp[F_MIN_RANGE]
     detected = np.empty((n, m))
@@ -722,10 +724,12 @@ def _camera_update(tab, n, brg, fp, ip, memory, ox, oy):
             detected[i, h] = math.exp(exponent) * norm * pd_w
             post_means[0, i, h] = x + g0 * innov
             post_means[1, i, h] = y + g1 * innov
+    if scan:
+        _times_posterior_visibility(detected, post_means, post_covs, n, m, memory, ox, oy, fp)
     out, k, explained = _posterior(
         tab,
         n,
-        pd,
+        missed_pd,
         detected,
         post_means,
         post_covs,
@@ -734,11 +738,42 @@ def _camera_update(tab, n, brg, fp, ip, memory, ox, oy):
         -1,
         ip[I_MISSED_BERNOULLI],
         tab,
-        pd,
+        missed_pd,
     )
     if ip[I_CAMERA_BIRTH]:
         return _with_ray_births(out, k, brg, explained, fp, ip, memory, scan, ox, oy)
     return out, k
+
+
+@njit(cache=True)
+def _times_posterior_visibility(detected, post_means, post_covs, n, m, memory, ox, oy, fp):
+    """``detected (n, m)`` times each detected copy's visibility against the scan memory
+    (only the pairs with ``detected > 0``: the others' means were never written)."""
+    n_pairs = 0
+    for i in range(n):
+        for h in range(m):
+            n_pairs += detected[i, h] > 0.0
+    if n_pairs == 0:
+        return
+    pairs = np.empty((N_ROWS, n_pairs))
+    col = 0
+    for i in range(n):
+        for h in range(m):
+            if detected[i, h] > 0.0:
+                pairs[0, col] = 1.0
+                pairs[1, col] = post_means[0, i, h]
+                pairs[2, col] = post_means[1, i, h]
+                pairs[3, col] = post_covs[0, i]
+                pairs[4, col] = post_covs[1, i]
+                pairs[5, col] = post_covs[2, i]
+                col += 1
+    visible = _scan_factors(pairs, n_pairs, memory, ox, oy, fp)[0]
+    col = 0
+    for i in range(n):
+        for h in range(m):
+            if detected[i, h] > 0.0:
+                detected[i, h] *= visible[col]
+                col += 1
 
 
 @njit(cache=True)

@@ -17,31 +17,45 @@ found the first surface at some range ``d``; both sensors sit on the robot's axi
   survival probability.
 
 Per component (mean ``m``, covariance ``P``), from the scanner's position, with ``r`` the
-range, ``theta`` the bearing, ``s^2 = u^T P u + sigma_r(d)^2`` the radial variance plus the
-scanner's range noise (``u`` the unit bearing vector, ``sigma_r(d) = a + b d^2``), ``R`` the
-housing radius and ``k`` the margin in sigmas:
+range, ``theta`` the bearing, ``sigma_r(d) = a + b d^2`` the scanner's range noise at range
+``d``, ``s^2 = u^T P u + sigma_r(d)^2`` the component's radial variance plus that (``u`` the
+unit bearing vector), ``sigma_t^2 = v^T P v`` its tangential variance (``v`` perpendicular to
+``u``), ``R`` the housing radius and ``k`` the margin in sigmas:
 
-* ``alpha = asin(R / r)`` is the housing's angular half-width;
-* ``delta = k sigma_t / r`` is the bearing's spread, ``sigma_t^2 = v^T P v`` the tangential
-  variance (``v`` perpendicular to ``u``): the housing may be at any bearing within
-  ``theta +- delta``, as it may be anywhere within ``k`` sigmas radially. Without it a
-  well-tracked teammate 2 cm off its mean at 2 m (0.6 deg) falls between the two or three
-  bins that would see it, and the scan "refutes" it;
-* ``V = Phi((d_max + R - r) / s + k)`` with ``d_max`` the farthest return over the bins that
-  overlap ``[theta - alpha - delta, theta + alpha + delta]`` (a teammate is hidden only if
-  even the farthest beam across it stopped short);
-* ``P_free = Phi((d_min - r) / s - k)`` with ``d_min`` the nearest return over the bins whose
-  whole footprint lies on the housing at some bearing of the spread,
-  ``|c_b - theta| + footprint / 2 <= alpha + delta`` (every one of them passed beyond the
-  housing's centre), provided every bearing of the spread has such a bin. No evidence
-  beyond ``R / sin(footprint / 2)`` (7.4 m for the X4), nor where a housing in the spread
-  could sit between two bins (beyond 3.7 m, where the bins are wider apart than a
+* ``alpha = asin(R / r)`` is the housing's angular half-width.
+* **Visibility** ``V``: a housing at range ``rho`` behind a first surface ``d`` is seen with
+  probability ``Phi((d + R - rho) / sigma_r(d) + k)`` (hidden only ``k`` sensor sigmas behind
+  the surface, so a housing's own returns never hide it), with ``d = d_max`` the farthest
+  return over the bins that overlap ``[beta - alpha, beta + alpha]`` at its bearing ``beta``
+  (hidden only if even the farthest beam across it stopped short). ``V`` is that averaged
+  over the component: over ``rho`` exactly (the probit-Gaussian integral,
+  ``Phi((d + R - r + k sigma_r(d)) / s)``), and over ``beta`` by quadrature on candidate
+  bearings a quarter bin apart within ``+-4 sigma_t / r``, weighted by the bearing's Gaussian.
+  A component behind a red decoy is thus hidden except where its bearing spread clears the
+  decoy's edge (a Monte Carlo test checks the average).
+* **Free space** ``P_free = Phi((d_min - r) / s - k)``, with ``d_min`` the nearest return over
+  the bins whose whole footprint lies on the housing at some bearing within ``theta +- delta``,
+  ``delta = k sigma_t / r``: ``|c_b - theta| + footprint / 2 <= alpha + delta`` (every one of
+  them passed beyond the housing's centre), provided every bearing of the spread has such a
+  bin. The margin is ``k`` sigmas of the component *and* the sensor, and the bearing is
+  covered to ``k`` sigmas rather than averaged: unlike ``V``, a wrong ``P_free`` destroys a
+  teammate's weight. Without the spread, a well-tracked teammate 2 cm off its mean at 2 m
+  (0.6 deg) fell between the two or three bins that would see it, and the scan "refuted" it.
+  No evidence beyond ``R / sin(footprint / 2)`` (7.4 m for the X4), nor where a housing in the
+  spread could sit between two bins (beyond 3.7 m, where the bins are wider apart than a
   housing's inner width, unless one bin covers the whole spread).
 
 A bin without a valid return (nothing in range, a blind-sector pillar, an interference null,
-a mixed edge pixel) is unknown: ``V = 1`` and ``P_free = 0`` for every component whose window
-touches it. A teammate on the scan is safe: its own housing returns ``d = r - R``, so ``V >=
-Phi(k)`` and ``P_free <= Phi(-R / s - k)``.
+a mixed edge pixel) is unknown: a candidate bearing whose window touches one counts as
+visible, and ``P_free = 0`` for every component whose window touches one. A teammate on the
+scan is safe: its own housing returns ``d = r - R``, so ``V >= Phi(k sigma_r / s)`` and
+``P_free <= Phi(-R / s - k)``.
+
+The camera update (:func:`localization.phd.camera_update`) uses ``V`` twice: a missed copy
+with ``P_d V(prior)``, each detected copy with ``P_d V(its posterior)``. The bearing says
+where along its ray the target would be, so the occluder that matters is the one on that
+bearing: a component behind the red object that explains a bearing gets only ``V`` of its
+support.
 
 The scan is kept as a **profile**: :data:`N_BINS` bins of 0.5 deg (the X4's resolution), bin
 ``b`` centred on ``-pi + b 2 pi / N_BINS`` in the scanner's frame, holding the farthest valid
@@ -97,6 +111,15 @@ _TWO_PI = 2.0 * math.pi
 # Widest tangential spread, rad: with the housing's half-width (<= pi / 2) a window then
 # covers the whole scan, and no wider window is needed.
 _MAX_SPREAD = 0.5 * math.pi
+# The visibility averages over candidate bearings a quarter bin apart (a window's reach
+# changes within a bin: bin centres alone would under-reach by half a bin on average), over
+# +-4 sigmas of the bearing (the occluder's edge is often in the tails), at most a quarter
+# turn each side (an integer cap: no rounding decides how many candidates there are).
+_CANDIDATES_PER_BIN = 4
+_CANDIDATE_STEP_RAD = BIN_WIDTH_RAD / _CANDIDATES_PER_BIN
+_BEARING_SIGMAS = 4.0
+_CUT_DENSITY = math.exp(-0.5 * _BEARING_SIGMAS**2)
+_MAX_STEPS = N_BINS // 4 * _CANDIDATES_PER_BIN
 
 
 # ---------------------------------------------------------------------- numpy reference
@@ -189,18 +212,44 @@ def scan_factors(
         known = (hi >= lo) & ~(inside & (ranges <= 0.0)).any(axis=1)
         return ranges, known
 
-    def scale(d: np.ndarray) -> np.ndarray:
-        noise = range_std_m + range_std_quadratic_per_m * d * d
-        return np.maximum(np.sqrt(radial_var + noise * noise), _MIN_STD_M)
+    def noise_std(d: np.ndarray) -> np.ndarray:
+        return range_std_m + range_std_quadratic_per_m * d * d
 
-    outer = (alpha + spread) / BIN_WIDTH_RAD
-    wide, known = window(
-        np.floor(centre - outer + 0.5).astype(np.intp),
-        np.floor(centre + outer + 0.5).astype(np.intp),
+    def scale(d: np.ndarray, var: np.ndarray) -> np.ndarray:
+        return np.maximum(np.sqrt(var + noise_std(d) ** 2), _MIN_STD_M)
+
+    # Visibility: the housing's window at each candidate bearing, a quarter bin apart over
+    # +-4 sigmas of the bearing, weighted by its Gaussian (offsets in quarter bins, (n, C)).
+    bearing_std = np.sqrt(np.maximum(tangential_var, 0.0)) / r
+    steps = np.minimum(
+        np.floor(_BEARING_SIGMAS * bearing_std / _CANDIDATE_STEP_RAD), _MAX_STEPS
+    ).astype(np.intp)
+    offsets = np.arange(-int(steps.max(initial=0)), int(steps.max(initial=0)) + 1)
+    use = np.abs(offsets)[None, :] <= steps[:, None]
+    z = offsets[None, :] * _CANDIDATE_STEP_RAD / np.maximum(bearing_std, _MIN_STD_M)[:, None]
+    # The Gaussian minus its value at the cut, so a candidate enters with weight 0 as the
+    # spread grows (no jump); a single candidate (no spread) keeps weight 1.
+    cut = _CUT_DENSITY * (steps > 0)
+    weight = np.where(use, np.maximum(np.exp(-0.5 * z * z) - cut[:, None], 0.0), 0.0)
+    weight /= weight.sum(axis=1, keepdims=True)
+    candidate = centre[:, None] + offsets[None, :] / _CANDIDATES_PER_BIN
+    lo = np.floor(candidate - (alpha / BIN_WIDTH_RAD)[:, None] + 0.5).astype(np.intp)
+    hi = np.floor(candidate + (alpha / BIN_WIDTH_RAD)[:, None] + 0.5).astype(np.intp)
+    bins = lo[..., None] + np.arange(int((hi - lo).max(initial=0)) + 1)
+    inside = bins <= hi[..., None]
+    wide = np.where(inside, profile[bins % N_BINS], np.nan)
+    known = ~(inside & (wide <= 0.0)).any(axis=2)
+    d_max = np.nanmax(np.where(known[..., None], wide, 1.0), axis=2)
+    per_bearing = np.where(
+        known,
+        _phi(
+            (d_max + target_radius_m - r[:, None] + margin_sigmas * noise_std(d_max))
+            / scale(d_max, radial_var[:, None])
+        ),
+        1.0,
     )
-    ok = known & ~near
-    d_max = np.nanmax(np.where(ok[:, None], wide, 1.0), axis=1)
-    visible[ok] = _phi((d_max + target_radius_m - r) / scale(d_max) + margin_sigmas)[ok]
+    # 1 minus the hidden share: exactly 1 where nothing hides it
+    visible = np.where(near, 1.0, 1.0 - (weight * (1.0 - per_bearing)).sum(axis=1))
     half = (np.maximum(inner, 0.0) + spread) / BIN_WIDTH_RAD
     central, known = window(
         np.ceil(centre - half).astype(np.intp), np.floor(centre + half).astype(np.intp)
@@ -214,7 +263,7 @@ def scan_factors(
     )
     ok = known & ~near & (inner >= 0.0) & covered
     d_min = np.nanmin(np.where(ok[:, None], central, 1.0), axis=1)
-    free[ok] = _phi((d_min - r) / scale(d_min) - margin_sigmas)[ok]
+    free[ok] = _phi((d_min - r) / scale(d_min, radial_var) - margin_sigmas)[ok]
     return visible, free
 
 
@@ -299,20 +348,33 @@ def scan_factors_into(
         theta = math.atan2(dy, dx) - psi
         alpha = math.asin(min(1.0, radius / r))
         centre = (theta + math.pi) / BIN_WIDTH_RAD
-        outer = (alpha + spread) / BIN_WIDTH_RAD
-        lo = math.floor(centre - outer + 0.5)
-        hi = math.floor(centre + outer + 0.5)
-        d_max = 0.0
-        known = True
-        for b in range(lo, hi + 1):
-            d = memory[4 + b % N_BINS]
-            if d <= 0.0:
-                known = False
-                break
-            d_max = max(d_max, d)
-        if known:
-            s = max(math.sqrt(radial_var + (std0 + std2 * d_max * d_max) ** 2), _MIN_STD_M)
-            visible[i] = _phi_nb((d_max + radius - r) / s + k)
+        bearing_std = math.sqrt(max(tangential_var, 0.0)) / r
+        steps = int(
+            min(math.floor(_BEARING_SIGMAS * bearing_std / _CANDIDATE_STEP_RAD), _MAX_STEPS)
+        )
+        cut = _CUT_DENSITY if steps > 0 else 0.0
+        total = 0.0
+        hidden = 0.0
+        for j in range(-steps, steps + 1):
+            z = 0.0 if j == 0 else j * _CANDIDATE_STEP_RAD / max(bearing_std, _MIN_STD_M)
+            weight = max(math.exp(-0.5 * z * z) - cut, 0.0)
+            candidate = centre + j / _CANDIDATES_PER_BIN
+            lo = math.floor(candidate - alpha / BIN_WIDTH_RAD + 0.5)
+            hi = math.floor(candidate + alpha / BIN_WIDTH_RAD + 0.5)
+            d_max = 0.0
+            known = True
+            for b in range(lo, hi + 1):
+                d = memory[4 + b % N_BINS]
+                if d <= 0.0:
+                    known = False
+                    break
+                d_max = max(d_max, d)
+            if known:
+                noise = std0 + std2 * d_max * d_max
+                s = max(math.sqrt(radial_var + noise * noise), _MIN_STD_M)
+                hidden += weight * (1.0 - _phi_nb((d_max + radius - r + k * noise) / s))
+            total += weight
+        visible[i] = 1.0 - hidden / total
         inner = alpha - 0.5 * footprint
         if inner < 0.0:
             continue

@@ -135,11 +135,40 @@ def test_a_teammate_off_the_mean_by_its_spread_is_not_refuted(r):
 def test_a_component_behind_the_first_surface_is_hidden():
     ranges = cast(ANGLES, np.zeros((0, 3)), wall_m=2.0)
     visible, free = factors(component(2.8, 0.0, var=0.01), ranges)
-    # (d + R - r) / s + k with s = sqrt(0.01 + sigma_r(2)^2): far below 0
-    s = math.sqrt(0.01 + (0.01 + 0.0025 * 4.0) ** 2)
-    expected = 0.5 * math.erfc(-((2.0 + HOUSING - 2.8) / s + 3.0) / math.sqrt(2.0))
-    assert visible[0] == pytest.approx(expected, rel=1e-9) and visible[0] < 0.05
+    # (d + R - r + k sigma_r(d)) / s with s = sqrt(0.01 + sigma_r(d)^2): far below 0 (every
+    # bearing of the spread sees the same wall)
+    noise = 0.01 + 0.0025 * 2.0**2
+    s = math.sqrt(0.01 + noise**2)
+    expected = 0.5 * math.erfc(-((2.0 + HOUSING - 2.8 + 3.0 * noise) / s) / math.sqrt(2.0))
+    assert visible[0] == pytest.approx(expected, rel=1e-9) and visible[0] < 0.001
     assert free[0] < 1e-12
+
+
+@pytest.mark.parametrize("behind", [0.1, 0.3, 0.6])
+def test_the_visibility_is_the_pointwise_model_averaged_over_the_component(behind):
+    """``V`` is ``E[Phi((d_max(x) + R - |x|) / sigma_r(d) + k)]`` over ``x ~ N(m, P)``, with
+    ``d_max(x)`` the farthest return across a housing at ``x``: checked by Monte Carlo for a
+    component behind a red-decoy-sized occluder, which hides only part of its bearing spread."""
+    from scipy.special import ndtr
+
+    occluder = np.array([[1.0, 0.0, 0.06]])
+    ranges = cast(ANGLES, occluder, wall_m=2.6)
+    profile = scan_profile(ANGLES, ranges)
+    r = 1.0 + behind
+    sd_r, sd_t = 0.08, 0.04
+    visible = factors(np.array([[1.0], [r], [0.0], [sd_r**2], [0.0], [sd_t**2]]), ranges)[0][0]
+    rng = np.random.default_rng(5)
+    x = rng.normal([r, 0.0], [sd_r, sd_t], size=(20_000, 2))
+    rho = np.hypot(x[:, 0], x[:, 1])
+    centre = (np.arctan2(x[:, 1], x[:, 0]) + math.pi) / BIN_WIDTH_RAD
+    alpha = np.arcsin(HOUSING / rho) / BIN_WIDTH_RAD
+    lo, hi = np.floor(centre - alpha + 0.5).astype(int), np.floor(centre + alpha + 0.5).astype(int)
+    windows = zip(lo, hi, strict=True)
+    d_max = np.array([profile[np.arange(a, b + 1) % N_BINS].max() for a, b in windows])
+    noise = 0.01 + 0.0025 * d_max**2
+    expected = ndtr((d_max + HOUSING - rho) / noise + 3.0).mean()
+    assert 0.02 < expected < 0.98  # partly hidden: the spread matters
+    assert visible == pytest.approx(expected, abs=0.02), (visible, expected)
 
 
 def test_unknown_bins_give_no_evidence():
