@@ -7,6 +7,8 @@
 - :mod:`swarm_core.geometry`: angles and planar frames.
 - :mod:`swarm_core.validation`: argument checks whose errors name the field and the value.
 - :mod:`swarm_core.threads`: the compiled kernels' threading defaults (set on import).
+- :mod:`swarm_core.kernel_stamp`: the kernels' on-disk cache, invalidated when any kernel
+  source of the project changes (installed on import).
 
 It imports no simulator, filter, ROS or RL code, so the simulator (``swarm_env``), the
 localizers (``localization``) and the bridge (``hardware_bridge``) all build on it without
@@ -14,3 +16,8 @@ importing each other.
 """
 
 from swarm_core import threads as _threads  # noqa: F401  (OpenMP wait policy, before numba)
+
+# isort: split
+from swarm_core import kernel_stamp as _kernel_stamp  # after threads: it imports numba
+
+_kernel_stamp.install()  # before any package's @njit(cache=True) picks its cache locator
