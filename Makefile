@@ -31,6 +31,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_bank.py --json runs/bench/bank.json
 	$(PY) benchmarks/bench_phd_vs_stonesoup.py --json runs/bench/phd_vs_stonesoup.json
 	$(PY) benchmarks/bench_scaling.py --json runs/bench/scaling.json
+	$(PY) benchmarks/bench_feed_profiles.py --sizes 20,1000
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .

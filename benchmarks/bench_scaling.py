@@ -189,7 +189,7 @@ def feed_paths(n_robots: int, n_steps: int, repeats: int) -> dict:
         for s in steps:
             f = SwarmFeed.from_world_step(s, ids)
             stale = [tuple(x) + drop for x in f.stale]
-            packed.append(SwarmFeed(f.time_s, f.measurements, stale).packed())
+            packed.append(SwarmFeed(f.time_s, f.measurements, stale).packed(bank.reads_scans))
         t = time.process_time()
         for p in packed:
             bank._run_encoded(p.encoded, p.robots)

@@ -199,6 +199,12 @@ class PHDBank:
 
     # ------------------------------------------------------------------ state access
     @property
+    def reads_scans(self) -> bool:
+        """Whether the lidar calls' scan profiles are used (``config.scan_evidence``); a
+        :class:`~localization.feed.SwarmFeed` packs them only then."""
+        return bool(self.config.scan_evidence)
+
+    @property
     def counts(self) -> np.ndarray:
         """Number of components per robot, shape ``(R,)`` (a copy)."""
         return self._counts.astype(np.intp)
@@ -586,7 +592,7 @@ def run_packed(bank: Any, calls: Any) -> bool:
     """Run ``calls`` on ``bank`` (a :class:`PHDBank` or a ``PMBBank``) from their packed arrays
     if they are a checked :meth:`SwarmFeed.calls() <localization.feed.SwarmFeed.calls>`
     (:func:`packed_of`); False (nothing done) otherwise."""
-    packed = packed_of(calls, bank.n_robots)
+    packed = packed_of(calls, bank.n_robots, bank.reads_scans)
     if packed is None:
         return False
     if packed.robots:
@@ -595,14 +601,14 @@ def run_packed(bank: Any, calls: Any) -> bool:
     return True
 
 
-def packed_of(calls: Any, n_robots: int) -> Any:
+def packed_of(calls: Any, n_robots: int, scan_profiles: bool = True) -> Any:
     """The :class:`~localization.feed.PackedCalls` behind ``calls`` when it is a
     :meth:`SwarmFeed.calls() <localization.feed.SwarmFeed.calls>` of ``n_robots`` robots whose
-    arrays pass :func:`all_finite`; else None (the caller encodes the tuples, whose checks
-    name any bad value)."""
+    arrays pass :func:`all_finite` (with the scan profiles only if ``scan_profiles``); else None
+    (the caller encodes the tuples, whose checks name any bad value)."""
     if calls.__class__ is not FeedCalls or len(calls) != n_robots:
         return None
-    packed = calls.feed.packed()
+    packed = calls.feed.packed(scan_profiles)
     if packed is None or not all_finite(packed.encoded):
         return None
     return packed

@@ -79,7 +79,7 @@ class SwarmFeed:
     compensate_motion: bool = True
     comms: Sequence[tuple[Broadcast, ...]] = ()
     _calls: list = field(default_factory=list, init=False, repr=False, compare=False)
-    _packed: list = field(default_factory=list, init=False, repr=False, compare=False)
+    _packed: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @classmethod
     def from_world_step(
@@ -146,13 +146,16 @@ class SwarmFeed:
             )
         return self._calls
 
-    def packed(self) -> PackedCalls | None:
+    def packed(self, scan_profiles: bool = True) -> PackedCalls | None:
         """Every robot's calls as the flat arrays the compiled banks run
-        (:func:`pack_calls`, computed once), or None where that path cannot vouch for its
-        input (the banks then encode :meth:`call_lists`, which names the bad value)."""
-        if not self._packed:
-            self._packed.append(pack_calls(self.measurements, self.stale, self.compensate_motion))
-        return self._packed[0]
+        (:func:`pack_calls`, computed once per ``scan_profiles``), or None where that path
+        cannot vouch for its input (the banks then encode :meth:`call_lists`, which names the
+        bad value). A bank that does not read the scans asks for ``scan_profiles=False``."""
+        if scan_profiles not in self._packed:
+            self._packed[scan_profiles] = pack_calls(
+                self.measurements, self.stale, self.compensate_motion, scan_profiles
+            )
+        return self._packed[scan_profiles]
 
 
 class FeedCalls(Sequence):
@@ -316,10 +319,13 @@ def pack_calls(
     measurements: Sequence[RobotMeasurements],
     stale: Sequence[tuple[str, ...]],
     compensate_motion: bool = True,
+    scan_profiles: bool = True,
 ) -> PackedCalls | None:
     """Every robot's :func:`localizer_calls`, encoded for the compiled banks in one pass over
     the swarm: no call tuple is made, the merge by stamp is one ``lexsort`` and the sensor
-    poses one compiled pass (:func:`_motion_poses`).
+    poses one compiled pass (:func:`_motion_poses`). With ``scan_profiles=False`` the lidar
+    calls carry no profile (flags 0, a ``(0, N_BINS)`` array): at 1000 robots binning every
+    scan costs ~5 ms per step that a filter without ``scan_evidence`` never reads.
 
     The result equals, array for array and bit for bit, the bank's encoding of
     ``[localizer_calls(m, s, compensate_motion) for m, s in zip(measurements, stale)]``
@@ -366,12 +372,14 @@ def pack_calls(
     if not set(map(type, stamp_list)) <= _STAMP_TYPES:
         return None  # ints, bools, strings...: the tuple path's checks decide
     try:
-        return _pack(odo, lid, cam, per_robot, stamp_list, compensate_motion)
+        return _pack(odo, lid, cam, per_robot, stamp_list, compensate_motion, scan_profiles)
     except (ValueError, TypeError, IndexError):
         return None  # a malformed array: the tuple path names it
 
 
-def _pack(odo, lid, cam, per_robot, stamp_list, compensate_motion) -> PackedCalls | None:
+def _pack(
+    odo, lid, cam, per_robot, stamp_list, compensate_motion, scan_profiles
+) -> PackedCalls | None:
     """:func:`pack_calls` past its checks: ``per_robot (3, R)`` records of each kind per
     robot, ``stamp_list`` every record's stamp (odometry, lidar, camera, robot-major)."""
     n_o, n_l, n_c = len(odo), len(lid), len(cam)
@@ -415,7 +423,8 @@ def _pack(odo, lid, cam, per_robot, stamp_list, compensate_motion) -> PackedCall
     lidar_stop = np.cumsum(n_points, dtype=np.int64)
     null_stop = np.cumsum(n_nulls, dtype=np.int64)
     camera_stop = np.cumsum(n_bearings, dtype=np.int64)
-    if n_l:
+    has_profile = np.full(n_l, int(scan_profiles), dtype=np.int64)
+    if n_l and scan_profiles:
         scans = [lid[i] for i in l_src.tolist()]
         angles = [rec.angles_rad for rec in scans]
         ranges = [rec.ranges_m for rec in scans]
@@ -449,7 +458,7 @@ def _pack(odo, lid, cam, per_robot, stamp_list, compensate_motion) -> PackedCall
         c_has,
         s_stamp,
         profiles,
-        np.ones(n_l, dtype=np.int64),
+        has_profile,
     )
     max_points = int(n_points.max()) if n_l else 0
     return PackedCalls(encoded, max_points, np.unique(robots).tolist())

@@ -197,6 +197,10 @@ class PMBBank:
         )
         return f
 
+    #: The PMB does not use the scan profiles (see :mod:`localization.pmb.filter`): a
+    #: :class:`~localization.feed.SwarmFeed` does not pack them for it.
+    reads_scans = False
+
     # ------------------------------------------------------------------ steps
     def apply(self, calls: Sequence[Sequence[tuple]]) -> None:
         """Run each robot's calls in order, all robots in one compiled batch.

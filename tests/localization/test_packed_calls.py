@@ -5,6 +5,7 @@ encoding of ``localizer_calls`` array for array, bit for bit, and fall back to t
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -19,8 +20,10 @@ from localization.feed import (
     localizer_calls,
     pack_calls,
 )
-from localization.pmb import PMBBank
+from localization.pmb import PMBBank, PMBConfig
+from localization.scan_evidence import N_BINS
 from swarm_core.records import CameraRecord, LidarRecord, OdometryRecord, RobotMeasurements
+from swarm_env.config import SIMULATOR_PHD
 
 
 def tuple_encoding(feed: SwarmFeed) -> tuple:
@@ -178,10 +181,27 @@ def test_single_kind_feeds_take_the_packed_path(records):
     assert_same_encoding(packed.encoded, tuple_encoding(feed))
 
 
-@pytest.mark.parametrize("family", ["phd-lc", "pmb-lc"])
+def test_scan_profiles_are_packed_only_when_asked():
+    rng = np.random.default_rng(5)
+    records = RobotMeasurements([odo(0.2, rng)], [lidar(0.1, rng), lidar(0.15, rng)], [])
+    feed = SwarmFeed(0.2, [records, records], [(), ()])
+    full, bare = feed.packed(), feed.packed(scan_profiles=False)
+    assert feed.packed() is full and feed.packed(scan_profiles=False) is bare  # cached
+    assert full.encoded[18].shape == (4, N_BINS) and (full.encoded[19] == 1).all()
+    assert bare.encoded[18].shape == (0, N_BINS) and (bare.encoded[19] == 0).all()
+    for k, (a, b) in enumerate(zip(full.encoded, bare.encoded, strict=True)):
+        if k not in (18, 19):
+            assert np.array_equal(a, b), k
+    assert PHDBank(PHDConfig(), 2).reads_scans is False
+    assert PHDBank(PHDConfig(scan_evidence=True), 2).reads_scans is True
+    assert PMBBank(PMBConfig(), 2).reads_scans is False
+
+
+@pytest.mark.parametrize("family", ["phd-lc", "pmb-lc", "phd-scan"])
 def test_env_rollout_is_bit_identical_to_the_tuple_path(family, monkeypatch):
     """A seeded env with the packed feed (the default) and one forced down the tuple path
-    hold the same filter bits at every step, and the default makes no call tuple at all."""
+    hold the same filter bits at every step, and the default makes no call tuple at all.
+    ``phd-scan``: the GM-PHD with the scan evidence, the one bank that is packed the scans."""
     import localization.bank
     import localization.feed
     from swarm_env import parallel_env
@@ -192,7 +212,11 @@ def test_env_rollout_is_bit_identical_to_the_tuple_path(family, monkeypatch):
                 m.setattr(localization.feed, "localizer_calls", _no_tuples)
             else:
                 m.setattr(localization.bank, "packed_of", lambda *a: None)  # both banks'
-            env = parallel_env("sim-6m-20", localizer=family)
+            if family == "phd-scan":
+                scan = dataclasses.replace(SIMULATOR_PHD, scan_evidence=True)
+                env = parallel_env("sim-6m-20", localizer="phd", phd=scan)
+            else:
+                env = parallel_env("sim-6m-20", localizer=family)
             env.reset(seed=4)
             rng = np.random.default_rng(4)
             out = []
