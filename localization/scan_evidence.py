@@ -30,7 +30,8 @@ unit bearing vector), ``sigma_t^2 = v^T P v`` its tangential variance (``v`` per
   (hidden only if even the farthest beam across it stopped short). ``V`` is that averaged
   over the component: over ``rho`` exactly (the probit-Gaussian integral,
   ``Phi((d + R - r + k sigma_r(d)) / s)``), and over ``beta`` by quadrature on candidate
-  bearings a quarter bin apart within ``+-4 sigma_t / r``, weighted by the bearing's Gaussian.
+  bearings within ``+-4 sigma_t / r`` (a quarter bin apart, at most 129), weighted by the
+  bearing's Gaussian.
   A component behind a red decoy is thus hidden except where its bearing spread clears the
   decoy's edge (a Monte Carlo test checks the average).
 * **Free space** ``P_free = Phi((d_min - r) / s - k)``, with ``d_min`` the nearest return over
@@ -111,15 +112,16 @@ _TWO_PI = 2.0 * math.pi
 # Widest tangential spread, rad: with the housing's half-width (<= pi / 2) a window then
 # covers the whole scan, and no wider window is needed.
 _MAX_SPREAD = 0.5 * math.pi
-# The visibility averages over candidate bearings a quarter bin apart (a window's reach
-# changes within a bin: bin centres alone would under-reach by half a bin on average), over
-# +-4 sigmas of the bearing (the occluder's edge is often in the tails), at most a quarter
-# turn each side (an integer cap: no rounding decides how many candidates there are).
-_CANDIDATES_PER_BIN = 4
-_CANDIDATE_STEP_RAD = BIN_WIDTH_RAD / _CANDIDATES_PER_BIN
+# The visibility averages over candidate bearings within +-4 sigmas of the bearing (an
+# occluder's edge is often in the tails), a quarter bin apart (a window's reach changes
+# within a bin: bin centres alone would under-reach by half a bin on average), or, when that
+# would take more than 64 each side, 64 evenly over the spread (at most a quarter turn):
+# the quadrature then has 129 points, whatever the spread, and the count never depends on a
+# rounding.
+_CANDIDATE_STEP_RAD = BIN_WIDTH_RAD / 4
 _BEARING_SIGMAS = 4.0
 _CUT_DENSITY = math.exp(-0.5 * _BEARING_SIGMAS**2)
-_MAX_STEPS = N_BINS // 4 * _CANDIDATES_PER_BIN
+_MAX_CANDIDATES = 64
 
 
 # ---------------------------------------------------------------------- numpy reference
@@ -221,18 +223,25 @@ def scan_factors(
     # Visibility: the housing's window at each candidate bearing, a quarter bin apart over
     # +-4 sigmas of the bearing, weighted by its Gaussian (offsets in quarter bins, (n, C)).
     bearing_std = np.sqrt(np.maximum(tangential_var, 0.0)) / r
-    steps = np.minimum(
-        np.floor(_BEARING_SIGMAS * bearing_std / _CANDIDATE_STEP_RAD), _MAX_STEPS
-    ).astype(np.intp)
+    reach = _BEARING_SIGMAS * bearing_std
+    wide_spread = reach >= _MAX_CANDIDATES * _CANDIDATE_STEP_RAD
+    steps = np.where(wide_spread, _MAX_CANDIDATES, np.floor(reach / _CANDIDATE_STEP_RAD)).astype(
+        np.intp
+    )
+    step_rad = np.where(
+        wide_spread,
+        np.minimum(reach, _MAX_SPREAD) / _MAX_CANDIDATES,
+        _CANDIDATE_STEP_RAD,
+    )
     offsets = np.arange(-int(steps.max(initial=0)), int(steps.max(initial=0)) + 1)
     use = np.abs(offsets)[None, :] <= steps[:, None]
-    z = offsets[None, :] * _CANDIDATE_STEP_RAD / np.maximum(bearing_std, _MIN_STD_M)[:, None]
+    z = offsets[None, :] * (step_rad / np.maximum(bearing_std, _MIN_STD_M))[:, None]
     # The Gaussian minus its value at the cut, so a candidate enters with weight 0 as the
     # spread grows (no jump); a single candidate (no spread) keeps weight 1.
     cut = _CUT_DENSITY * (steps > 0)
     weight = np.where(use, np.maximum(np.exp(-0.5 * z * z) - cut[:, None], 0.0), 0.0)
     weight /= weight.sum(axis=1, keepdims=True)
-    candidate = centre[:, None] + offsets[None, :] / _CANDIDATES_PER_BIN
+    candidate = centre[:, None] + offsets[None, :] * (step_rad / BIN_WIDTH_RAD)[:, None]
     lo = np.floor(candidate - (alpha / BIN_WIDTH_RAD)[:, None] + 0.5).astype(np.intp)
     hi = np.floor(candidate + (alpha / BIN_WIDTH_RAD)[:, None] + 0.5).astype(np.intp)
     bins = lo[..., None] + np.arange(int((hi - lo).max(initial=0)) + 1)
@@ -349,16 +358,20 @@ def scan_factors_into(
         alpha = math.asin(min(1.0, radius / r))
         centre = (theta + math.pi) / BIN_WIDTH_RAD
         bearing_std = math.sqrt(max(tangential_var, 0.0)) / r
-        steps = int(
-            min(math.floor(_BEARING_SIGMAS * bearing_std / _CANDIDATE_STEP_RAD), _MAX_STEPS)
-        )
+        reach = _BEARING_SIGMAS * bearing_std
+        if reach >= _MAX_CANDIDATES * _CANDIDATE_STEP_RAD:
+            steps = _MAX_CANDIDATES
+            step_rad = min(reach, _MAX_SPREAD) / _MAX_CANDIDATES
+        else:
+            steps = int(math.floor(reach / _CANDIDATE_STEP_RAD))
+            step_rad = _CANDIDATE_STEP_RAD
         cut = _CUT_DENSITY if steps > 0 else 0.0
         total = 0.0
         hidden = 0.0
         for j in range(-steps, steps + 1):
-            z = 0.0 if j == 0 else j * _CANDIDATE_STEP_RAD / max(bearing_std, _MIN_STD_M)
+            z = 0.0 if j == 0 else j * (step_rad / max(bearing_std, _MIN_STD_M))
             weight = max(math.exp(-0.5 * z * z) - cut, 0.0)
-            candidate = centre + j / _CANDIDATES_PER_BIN
+            candidate = centre + j * (step_rad / BIN_WIDTH_RAD)
             lo = math.floor(candidate - alpha / BIN_WIDTH_RAD + 0.5)
             hi = math.floor(candidate + alpha / BIN_WIDTH_RAD + 0.5)
             d_max = 0.0
