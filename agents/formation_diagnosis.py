@@ -84,6 +84,12 @@ def diagnose(
 
     if not 0 <= from_step < max_steps:
         raise ValueError(f"--from-step must be in [0, {max_steps}), got {from_step}")
+    fixed = {"preset", "task", "observation", "max_steps"} & set(env_overrides or {})
+    if fixed:
+        raise ValueError(
+            f"--env-overrides may not set {sorted(fixed)}: the diagnosis sets them (use --preset, "
+            "--observation, --max-steps)"
+        )
     env = parallel_env(
         preset=preset,
         task="formation",

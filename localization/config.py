@@ -253,7 +253,8 @@ class PHDConfig:
         Use the lidar scan's raw ranges (:mod:`localization.scan_evidence`): a component in the
         free space the beams crossed loses weight (``1 - P_free``), and one behind the scan's
         first surface is hidden from both sensors (``P_d`` times the visibility). Needs the
-        scan in the lidar calls (every :class:`~localization.feed.SwarmFeed` passes it).
+        scan in the lidar calls (a :class:`~localization.feed.SwarmFeed` packs it for a bank
+        whose ``reads_scans`` is True, i.e. with this on; its call tuples always carry it).
         Default False: the seed's filter. The GM-PHD engines only (the PMB ignores it).
     scan_target_radius_m : float
         Radius of what the lidar sees of a teammate (seed 000: the X4's 65 mm housing).
@@ -264,8 +265,12 @@ class PHDConfig:
         Angular width of one beam's sample (the X4: 0.5 deg); only bins whose whole footprint
         lies on the housing can refute it.
     scan_margin_sigmas : float
-        Margin ``k`` of the visibility and free-space tests, in radial sigmas: a teammate on the
-        scan keeps ``V >= Phi(k)`` and ``P_free <= Phi(-k)`` (``k = 3``: 0.13 %).
+        Margin ``k`` of the visibility and free-space tests: a housing is hidden only ``k`` of
+        the scanner's range sigmas behind the first surface; free space refutes a component
+        only ``k`` sigmas (its own and the scanner's, radially, and ``k`` tangential sigmas
+        in bearing) in front of the returns. A teammate on the scan keeps ``P_free <=
+        Phi(-k)`` (``k = 3``: 0.13 %); its ``V`` is at least ``Phi(k sigma_r / s)``, near
+        ``Phi(k)`` for a well-localised one (module :mod:`localization.scan_evidence`).
     prune_threshold : float
         Components with a lower weight are dropped after each update (mass is lost).
         Must be > 0 (zero-weight components are always dropped).

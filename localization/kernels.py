@@ -30,7 +30,9 @@ Encoding of a batch of ``Q`` calls (all arrays, built by :class:`~localization.P
 * advance ``j`` (:data:`ADVANCE`): ``stamps[j]``, the time (s) the robot's clock moves to,
   adding the process noise that accrued since (``time_update == "measurement"``);
 * ``profiles (L, N_BINS)`` with flags ``lidar_has_profile (L,)``: lidar call ``j``'s scan
-  profile (:mod:`localization.scan_evidence`), which becomes the robot's scan memory.
+  profile (:mod:`localization.scan_evidence`), which becomes the robot's scan memory; a
+  batch for a bank without ``scan_evidence`` may carry ``(0, N_BINS)`` and all flags 0 (the
+  profiles are read only where the flag is set).
 
 Model parameters travel as one float vector ``fparams`` and one int vector ``iparams``
 indexed by the ``F_*`` and ``I_*`` constants below, each declared once with its transform of

@@ -30,8 +30,8 @@ unit bearing vector), ``sigma_t^2 = v^T P v`` its tangential variance (``v`` per
   (hidden only if even the farthest beam across it stopped short). ``V`` is that averaged
   over the component: over ``rho`` exactly (the probit-Gaussian integral,
   ``Phi((d + R - r + k sigma_r(d)) / s)``), and over ``beta`` by quadrature on candidate
-  bearings within ``+-4 sigma_t / r`` (a quarter bin apart, at most 129), weighted by the
-  bearing's Gaussian.
+  bearings within ``+-4 sigma_t / r`` (a quarter bin apart; at most 129, spread evenly and
+  clamped to a quarter turn each side when wider), weighted by the bearing's Gaussian.
   A component behind a red decoy is thus hidden except where its bearing spread clears the
   decoy's edge (a Monte Carlo test checks the average).
 * **Free space** ``P_free = Phi((d_min - r) / s - k)``, with ``d_min`` the nearest return over
@@ -49,8 +49,10 @@ unit bearing vector), ``sigma_t^2 = v^T P v`` its tangential variance (``v`` per
 A bin without a valid return (nothing in range, a blind-sector pillar, an interference null,
 a mixed edge pixel) is unknown: a candidate bearing whose window touches one counts as
 visible, and ``P_free = 0`` for every component whose window touches one. A teammate on the
-scan is safe: its own housing returns ``d = r - R``, so ``V >= Phi(k sigma_r / s)`` and
-``P_free <= Phi(-R / s - k)``.
+scan keeps its weight: its own housing returns ``d = r - R``, so ``P_free <= Phi(-R / s -
+k)``. Its visibility is at least ``Phi(k sigma_r / s)``: near ``Phi(k)`` for a well-localised
+component, lower for a wide one (radial std 0.1 m at 1 m: ``s ~ 0.1``, ``sigma_r ~ 0.012``,
+about 0.64), whose mass partly lies behind the surface the teammate itself returned.
 
 The camera update (:func:`localization.phd.camera_update`) uses ``V`` twice: a missed copy
 with ``P_d V(prior)``, each detected copy with ``P_d V(its posterior)``. The bearing says

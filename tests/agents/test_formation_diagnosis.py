@@ -50,3 +50,15 @@ def test_diagnose_runs_and_its_shares_add_up():
         assert sum(out["spurious_share"].values()) == pytest.approx(1.0)
     with pytest.raises(ValueError, match="from-step"):
         diagnose("lab-3m-4", [200], from_step=30, max_steps=30)
+
+
+def test_env_overrides_reach_the_env_and_cannot_replace_the_diagnosis_settings():
+    out = diagnose(
+        "lab-3m-4", [200], from_step=0, max_steps=5, env_overrides={"phd": {"scan_evidence": True}}
+    )
+    assert out["observer_steps"] == 4 * 5
+    # the env's own validation sees the override (the filter's config names the field)
+    with pytest.raises(ValueError, match="scan_margin_sigmas"):
+        diagnose("lab-3m-4", [200], 0, 5, env_overrides={"phd": {"scan_margin_sigmas": -1.0}})
+    with pytest.raises(ValueError, match=r"may not set \['task'\]"):
+        diagnose("lab-3m-4", [200], from_step=0, max_steps=5, env_overrides={"task": "wander"})

@@ -198,15 +198,19 @@ def test_compiled_factors_equal_the_reference():
     ranges = cast(ANGLES, circles, wall_m=3.2)
     ranges[rng.random(N_BINS) < 0.05] = 0.0
     profile = scan_profile(ANGLES, ranges)
+    pose = np.array([0.05, -0.02, 0.1])
     n = 300
     table = np.empty((6, n))
     table[0] = rng.uniform(0.1, 1.0, n)
     table[1:3] = np.concatenate([circles[:, :2].T, rng.uniform(-4, 4, (2, n - 12))], axis=1)
     a = rng.uniform(1e-6, 2e-3, n)
     b = rng.uniform(1e-6, 2e-3, n)
+    # the edge cases: very wide (the spread's clamp), a point mass, inside min_range
+    a[12:20], b[12:20] = rng.uniform(0.5, 20.0, 8), rng.uniform(0.5, 20.0, 8)
+    a[20:24], b[20:24] = 0.0, 0.0
+    table[1:3, 24:28] = pose[:2, None] + rng.uniform(-0.05, 0.05, (2, 4))
     table[3], table[5] = a, b
     table[4] = rng.uniform(-0.5, 0.5, n) * np.sqrt(a * b)
-    pose = np.array([0.05, -0.02, 0.1])
     memory = np.concatenate([[1.0], pose + [0.3, -0.1, 0.0], profile])
     ref = scan_factors(table, pose, profile, **PARAMS)
     visible, free = np.empty(n), np.empty(n)
@@ -215,6 +219,7 @@ def test_compiled_factors_equal_the_reference():
     assert np.allclose(visible, ref[0], rtol=0, atol=1e-12)
     assert np.allclose(free, ref[1], rtol=0, atol=1e-12)
     assert 0.05 < (ref[1] > 0.5).mean() < 0.95 and (ref[0] < 0.5).any()  # both exercised
+    assert (ref[0][24:28] == 1.0).all() and (ref[1][24:28] == 0.0).all()  # inside min_range
 
 
 # ---------------------------------------------------------------------- the simulator
@@ -223,8 +228,9 @@ def test_no_teammate_is_refuted_at_its_true_position():
     step (the truth is the step's end, the scan its own instant; collisions turn robots that
     are told to drive straight): every teammate within 3 m that also held still is, at its
     true position (with a tracked teammate's 3 cm spread), not refuted, and points halfway
-    along valid beams are. A turning robot's scan is skewed and is not checked here: the head
-    takes 0.14 s per revolution (``localization.scan_evidence``, "Left out")."""
+    along valid beams are. A turning observer is not checked here: the truth is only known
+    at the step's end, which it has already turned away from (the scan itself is a snapshot
+    of one substep)."""
     from swarm_core.world import relative_positions
     from swarm_env import parallel_env
 
@@ -355,3 +361,12 @@ def test_bad_scan_profile_is_refused_before_any_change():
     assert np.array_equal(bank.__getstate__()["scan_memory"], before)
     with pytest.raises(ValueError, match="scan_profile"):
         RobotCentricPHD(ON).update_lidar(np.zeros((0, 2)), scan_profile=np.zeros(3))
+
+
+def test_a_record_whose_angles_and_ranges_differ_is_refused():
+    """A driver that reports 720 angles and 719 ranges: named, not read out of bounds."""
+    from swarm_core.records import LidarRecord
+
+    record = LidarRecord(0.5, ANGLES, np.ones(N_BINS - 1), np.ones(N_BINS - 1), [], [])
+    with pytest.raises(ValueError, match=r"angles_rad and ranges_m .* \(720,\) and \(719,\)"):
+        scan_profile_of(record)
