@@ -4,10 +4,11 @@ Every hot-path kernel is ``@njit(cache=True)``: the first process compiles it (a
 for all of them on a 2-core VM) and writes it to numba's cache; later processes load it in ~2 s.
 numba keeps the cache next to the source (``__pycache__/*.nbi`` index + ``*.nbc`` code), or
 under ``$NUMBA_CACHE_DIR`` when that is set (read once, when numba is imported). An entry is
-reused while every kernel source of the project is unchanged (a content hash over all of them,
-:mod:`swarm_core.kernel_stamp`: a kernel carries the code of the kernels it calls from other
-modules), so it survives a reinstall that leaves the sources alone; any change to a kernel
-source compiles every kernel once more.
+reused while every kernel source of the project, and every project module those import, is
+unchanged (a content hash over all of them, :mod:`swarm_core.kernel_stamp`: a kernel carries
+the code of the kernels it calls from other modules and the constants it reads), so it
+survives a reinstall that leaves the sources alone; any change to one of them compiles every
+kernel once more.
 
 :func:`status` inspects that state without compiling anything; :func:`first_use_note` is the
 one-line message :func:`swarm_env.parallel_env` prints when a process is about to compile.
