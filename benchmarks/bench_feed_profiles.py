@@ -15,32 +15,19 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_scaling import PRESET_OF  # noqa: E402  (the presets of the scaling benchmark)
+from bench_scaling import random_motion  # noqa: E402  (the scaling benchmark's envs)
 
 from localization.feed import SwarmFeed  # noqa: E402
-from swarm_env import parallel_env  # noqa: E402
 
 
 def measure(n_robots: int, n_steps: int = 8, repeats: int = 4) -> dict[bool, list[float]]:
     """CPU ms per step of ``SwarmFeed.packed(flag)`` for both flags, ``repeats`` times each,
     on ``n_steps`` recorded steps of random motion (seed 0) after 5 warm-up steps."""
-    env = parallel_env(PRESET_OF[n_robots], max_steps=1_000_000)
-    env.reset(seed=0)
-    rng = np.random.default_rng(0)
-    high = np.array([0.3, 1.5])
-
-    def actions() -> dict:
-        return dict(zip(env.agents, rng.uniform(-high, high, (len(env.agents), 2)), strict=True))
-
+    env, step = random_motion(n_robots)
     for _ in range(5):
-        env.step(actions())
-    steps = []
-    for _ in range(n_steps):
-        env.step(actions())
-        steps.append(env.last_world_step)
+        step()
+    steps = [step() for _ in range(n_steps)]
     ids = env.possible_agents
     env.close()
     out: dict[bool, list[float]] = {True: [], False: []}

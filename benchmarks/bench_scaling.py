@@ -139,6 +139,26 @@ def measure(
     }
 
 
+def random_motion(n_robots: int) -> tuple:
+    """The env of ``n_robots`` robots (:data:`PRESET_OF`, seed 0) and ``step()``, which steps
+    it once with uniform random actions (seed 0) and returns its ``WorldStep``."""
+    import numpy as np
+
+    from swarm_env import parallel_env
+
+    env = parallel_env(PRESET_OF[n_robots], max_steps=1_000_000)
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    high = np.array([0.3, 1.5])
+
+    def step():
+        actions = rng.uniform(-high, high, (len(env.agents), 2))
+        env.step(dict(zip(env.agents, actions, strict=True)))
+        return env.last_world_step
+
+    return env, step
+
+
 def feed_paths(n_robots: int, n_steps: int, repeats: int) -> dict:
     """The filters alone, the two ways into the compiled bank, in this process: the call tuples
     (``feed.call_lists()``, re-read by the bank's batch encoder) against the packed arrays
@@ -147,26 +167,13 @@ def feed_paths(n_robots: int, n_steps: int, repeats: int) -> dict:
     times; CPU seconds per env step, and the kernel alone. Both must end in the same bits."""
     import copy
 
-    import numpy as np
-
     from localization.feed import SwarmFeed
-    from swarm_env import parallel_env
 
-    env = parallel_env(PRESET_OF[n_robots], max_steps=1_000_000)
-    env.reset(seed=0)
-    rng = np.random.default_rng(0)
-    high = np.array([0.3, 1.5])
-
-    def actions() -> dict:
-        return dict(zip(env.agents, rng.uniform(-high, high, (len(env.agents), 2)), strict=True))
-
+    env, step = random_motion(n_robots)
     for _ in range(20):
-        env.step(actions())
+        step()
     start_bank = copy.deepcopy(env.localizer.bank)
-    steps = []
-    for _ in range(n_steps):
-        env.step(actions())
-        steps.append(env.last_world_step)
+    steps = [step() for _ in range(n_steps)]
     ids = env.possible_agents
     out: dict = {"n_robots": n_robots, "steps": n_steps, "tuples_ms": [], "packed_ms": []}
     for _ in range(repeats):

@@ -679,9 +679,7 @@ def _camera_update(tab, n, brg, fp, ip, memory, ox, oy):
     scan = ip[I_SCAN_EVIDENCE] and memory[0] != 0.0
     pd = _camera_pd(tab, n, fp)
     # missed copies: P_d V(prior); detected copies: P_d V(posterior) (phd.camera_update)
-    missed_pd = pd.copy()
-    if scan:
-        missed_pd *= _scan_factors(tab, n, memory, ox, oy, fp)[0]
+    missed_pd = pd * _scan_factors(tab, n, memory, ox, oy, fp)[0] if scan else pd
     if m == 0:
         return _missed_only(tab, n, missed_pd, prune, ip[I_MISSED_BERNOULLI], tab)
     kappa = fp[F_KAPPA_C]

@@ -106,6 +106,7 @@ def sources_stamp(root: Path, packages: tuple[str, ...] = PACKAGES) -> str:
 
 @functools.lru_cache(maxsize=4)
 def _stamp_of(files: tuple[tuple[str, int, int], ...]) -> str:
+    """:func:`sources_stamp` of :data:`ROOT`; ``files`` (path, mtime, size) is the cache key."""
     return sources_stamp(ROOT)
 
 
