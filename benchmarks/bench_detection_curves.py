@@ -17,7 +17,9 @@ What it measures (no timing; every figure is a statistic of the simulated sensor
 * **Camera clutter** per radian in ``seed-sim`` (the simulator itself: 20 robots wandering in
   random arenas with their red decoys): bearings from red decoys, random false blobs, and
   teammates beyond the lidar's 50 % range (bearings the lidar-initialised filter does not
-  track), per frame and per radian.
+  track), per frame and per radian. Also the lidar's wide objects (compact clusters wider than
+  a housing, ``localization.object_clutter``): per scan, the non-teammate blobs on each per
+  frame, their spread about its centre, and the share of the decoys' blobs they explain.
 
 Then fits the seed's sigmoid ``1 / (offset + exp(slope (r - midpoint)))`` (eqs. 19 and 30,
 ``offset >= 1``) to both measured curves by least squares, and prints them beside the seed's
@@ -45,6 +47,8 @@ if str(ROOT) not in sys.path:
 
 from scipy.optimize import curve_fit  # noqa: E402
 
+from localization.object_clutter import wide_objects  # noqa: E402
+from localization.scan_evidence import scan_profile  # noqa: E402
 from swarm_core.perception.lidar_features import extract_clusters  # noqa: E402
 from swarm_env.config import make_config  # noqa: E402
 from swarm_env.sensors.camera import CameraSensor  # noqa: E402
@@ -53,6 +57,7 @@ from swarm_env.world.scene_builder import HOUSING_RADIUS_M, make_pair_scene  # n
 from swarm_env.world.sim import SimWorld  # noqa: E402
 
 RANGES_M = np.round(np.arange(0.25, 5.51, 0.125), 3)
+WIDTH_EDGES_M = (0.0, 0.08, 0.1, 0.12, 0.14, 0.2, 0.3)  # compact clusters by width
 MATCH_GATE_M = 0.15
 
 
@@ -182,21 +187,27 @@ def fit_bearing_noise(camera: dict, radius_m: float, min_pd: float = 0.9) -> tup
 
 
 def camera_clutter(cfg, seed: int, episodes: int, steps: int, lidar_r50_m: float) -> dict:
-    """Non-teammate camera bearings per frame in ``seed-sim`` (the simulator's own arenas)."""
+    """Non-teammate camera bearings per frame in ``seed-sim`` (the simulator's own arenas), and
+    how many of them the lidar places: each robot also scans at the frame's instant, and its
+    wide objects (:func:`~swarm_core.perception.lidar_features.extract_wide_objects` on the
+    scan's profile, as the filters run it: ``localization.object_clutter.wide_objects``) are
+    matched to the blobs within their angular half-width (+ 0.01 rad) of their centre."""
     world = SimWorld(cfg)
     counts = {"frames": 0, "red_decoy": 0, "random": 0, "teammate": 0, "teammate_beyond": 0}
-    errs = []
+    wide = {"objects": 0, "non_teammate_blobs": 0, "teammate_blobs": 0, "red_decoy_blobs": 0}
+    errs, offsets, by_width = [], [], []
     for ep in range(episodes):
         rng = np.random.default_rng(seed + ep)
         world.reset(rng)
         cmd = np.tile([0.2, 0.0], (world.n_agents, 1))
+        robots = np.arange(world.n_agents)
         for _ in range(steps):
             cmd[:, 1] = np.clip(cmd[:, 1] + rng.normal(0.0, 0.3, world.n_agents), -1.0, 1.0)
             world.step(cmd)
             poses = world.poses()
             scene = world.scene(poses)
-            robots = np.arange(world.n_agents)
             batch = world.camera.observe(scene, robots, rng)
+            scans = world.lidar.scan(scene, robots, np.full(robots.size, world.time_s), rng)
             owner = np.asarray(scene.circle_owner)
             for k, (bear, src) in enumerate(zip(batch.bearings, batch.sources, strict=True)):
                 counts["frames"] += 1
@@ -211,8 +222,52 @@ def camera_clutter(cfg, seed: int, episodes: int, steps: int, lidar_r50_m: float
                 true = np.arctan2(*(scene.circle_xy[mates] - poses[k, :2]).T[::-1]) - poses[k, 2]
                 sel = np.isin(src, mates)
                 errs.extend(((bear[sel] - true + np.pi) % (2 * np.pi) - np.pi).tolist())
+                # Blobs on the scan's wide objects.
+                profile = scan_profile(world.lidar.angles_rad, scans.ranges_m[k])
+                objects = wide_objects(profile)
+                wide["objects"] += objects.shape[0]
+                if not objects.shape[0] or not bear.size:
+                    continue
+                centre = np.arctan2(objects[:, 1], objects[:, 0])
+                off = (bear[:, None] - centre[None, :] + np.pi) % (2 * np.pi) - np.pi
+                near = np.abs(off) <= objects[None, :, 2] + 0.01
+                on = near.any(axis=1)
+                mate = np.zeros(bear.size, dtype=bool)
+                mate[src >= 0] = owner[src[src >= 0]] >= 0
+                decoy = (src >= 0) & ~mate
+                wide["non_teammate_blobs"] += int((on & ~mate).sum())
+                wide["teammate_blobs"] += int((on & mate).sum())
+                wide["red_decoy_blobs"] += int((on & decoy).sum())
+                # Per object, by width (all compact clusters up to 0.3 m): which are clutter?
+                every = wide_objects(profile, max_width_m=0.3)
+                c_all = np.arctan2(every[:, 1], every[:, 0])
+                off_all = (bear[:, None] - c_all[None, :] + np.pi) % (2 * np.pi) - np.pi
+                near_all = np.abs(off_all) <= every[None, :, 2] + 0.01
+                widths = 2.0 * np.hypot(every[:, 0], every[:, 1]) * np.sin(every[:, 2])
+                for o in range(every.shape[0]):
+                    by_width.append(
+                        (widths[o], (near_all[:, o] & ~mate).sum(), (near_all[:, o] & mate).sum())
+                    )
+                for h in np.flatnonzero(on & ~mate):
+                    o = np.argmin(np.abs(off[h]))
+                    offsets.append(off[h, o] / objects[o, 2])
     frames = counts["frames"]
     per_frame = {k: v / frames for k, v in counts.items() if k != "frames"}
+    table = np.array(by_width, dtype=float).reshape(-1, 3)
+    width_bins = []
+    for lo, hi in zip(WIDTH_EDGES_M[:-1], WIDTH_EDGES_M[1:], strict=True):
+        sel = (table[:, 0] >= lo) & (table[:, 0] < hi)
+        width_bins.append(
+            {
+                "width_m": [lo, hi],
+                "objects": int(sel.sum()),
+                "non_teammate_blobs_per_object": float(table[sel, 1].mean())
+                if sel.any()
+                else None,
+                "teammate_blobs_per_object": float(table[sel, 2].mean()) if sel.any() else None,
+            }
+        )
+    explained = wide["red_decoy_blobs"] / max(counts["red_decoy"], 1)
     return {
         "frames": frames,
         "per_frame": per_frame,
@@ -223,6 +278,23 @@ def camera_clutter(cfg, seed: int, episodes: int, steps: int, lidar_r50_m: float
         / (2 * np.pi),
         "bearing_std_deg_seed_sim": float(np.degrees(np.sqrt(np.mean(np.square(errs))))),
         "lidar_r50_m": lidar_r50_m,
+        "wide_objects": {
+            **wide,
+            "per_scan": wide["objects"] / frames,
+            "non_teammate_blobs_per_object": wide["non_teammate_blobs"] / max(wide["objects"], 1),
+            "teammate_blobs_per_object": wide["teammate_blobs"] / max(wide["objects"], 1),
+            "red_decoy_blobs_explained": explained,
+            "offset_std_half_widths": float(np.std(offsets)) if offsets else float("nan"),
+            "by_width": width_bins,
+            # The uniform rest: decoy blobs no wide object explains, random blobs, teammates
+            # beyond the lidar.
+            "per_rad_uniform_rest": (
+                per_frame["red_decoy"] * (1.0 - explained)
+                + per_frame["random"]
+                + per_frame["teammate_beyond"]
+            )
+            / (2 * np.pi),
+        },
     }
 
 
@@ -356,6 +428,24 @@ def main(argv: list[str] | None = None) -> int:
         f"{r50:.2f} m -> {clutter['per_rad_with_untracked']:.4f} /rad with them; teammate "
         f"bearing RMS error {clutter['bearing_std_deg_seed_sim']:.3f} deg"
     )
+    wo = clutter["wide_objects"]
+    print(
+        f"wide objects (localization.object_clutter): {wo['per_scan']:.2f} per scan, "
+        f"{wo['non_teammate_blobs_per_object']:.3f} non-teammate blobs per object per frame "
+        f"({wo['teammate_blobs_per_object']:.3f} teammates'), spread "
+        f"{wo['offset_std_half_widths']:.3f} half-widths; they explain "
+        f"{100 * wo['red_decoy_blobs_explained']:.0f} % of the red decoys' blobs; uniform rest "
+        f"{wo['per_rad_uniform_rest']:.4f} /rad"
+    )
+    print("| compact cluster width (m) | clusters | non-teammate blobs / frame | teammates' |")
+    print("|---|---|---|---|")
+    for b in wo["by_width"]:
+        if b["objects"]:
+            print(
+                f"| {b['width_m'][0]:.2f}-{b['width_m'][1]:.2f} | {b['objects']} "
+                f"| {b['non_teammate_blobs_per_object']:.3f} "
+                f"| {b['teammate_blobs_per_object']:.3f} |"
+            )
     if args.figure:
         plot(lidar, camera, lidar_fit, camera_fit, args.figure)
         print(f"figure: {args.figure}")

@@ -46,7 +46,7 @@ from .filter import (
     checked_scan_profile,
 )
 from .mixture import N_ROWS, ROW_W, GaussianMixture
-from .scan_evidence import MEMORY_LEN, N_BINS
+from .scan_evidence import MEMORY_LEN, N_BINS, scan_memory_from_state
 
 __all__ = ["PHDBank", "PHDBankView"]
 
@@ -132,7 +132,7 @@ class PHDBank:
         if "clock" in state:  # absent from states pickled before the clock existed
             self._clock = np.array(state["clock"], dtype=float)
         if "scan_memory" in state:  # absent from states pickled before the scan evidence
-            self._scan_memory = np.array(state["scan_memory"], dtype=float)
+            self._scan_memory = scan_memory_from_state(state["scan_memory"])
 
     # ------------------------------------------------------------------ construction / export
     @classmethod
@@ -175,7 +175,7 @@ class PHDBank:
         self._pending[r, : births.shape[0]] = births
         self._pending_counts[r] = births.shape[0]
         self._clock[r] = state["clock"]
-        self._scan_memory[r] = state["scan_memory"]
+        self._scan_memory[r] = scan_memory_from_state(state["scan_memory"])
         self._mixtures[r] = None
 
     def to_filter(self, robot: int) -> RobotCentricPHD:
@@ -200,9 +200,10 @@ class PHDBank:
     # ------------------------------------------------------------------ state access
     @property
     def reads_scans(self) -> bool:
-        """Whether the lidar calls' scan profiles are used (``config.scan_evidence``); a
-        :class:`~localization.feed.SwarmFeed` packs them only then."""
-        return bool(self.config.scan_evidence)
+        """Whether the lidar calls' scan profiles are used (``config.reads_scans``: the scan
+        evidence or the wide objects' camera clutter); a :class:`~localization.feed.SwarmFeed`
+        packs them only then."""
+        return self.config.reads_scans
 
     @property
     def counts(self) -> np.ndarray:

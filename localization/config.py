@@ -256,6 +256,22 @@ class PHDConfig:
         scan in the lidar calls (a :class:`~localization.feed.SwarmFeed` packs it for a bank
         whose ``reads_scans`` is True, i.e. with this on; its call tuples always carry it).
         Default False: the seed's filter. The GM-PHD engines only (the PMB ignores it).
+    camera_clutter_per_wide_object : float
+        Camera blobs per frame that are not teammates, per compact object wider than a housing
+        in the last scan (:mod:`localization.object_clutter`): the camera clutter intensity
+        rises on those objects' bearings by this many blobs, spread as their measured blobs
+        are. Needs the scan, as ``scan_evidence`` does (:attr:`reads_scans`). Default 0 (off,
+        the seed's uniform clutter); the simulator's is measured
+        (``swarm_env.config.SIM_CAMERA_CLUTTER_PER_WIDE_OBJECT``). The GM-PHD engines only.
+    camera_wide_object_std_fraction : float
+        Std of those blobs' bearings about the object's centre, in the object's angular
+        half-widths (added in quadrature to the camera's constant bearing variance).
+    camera_clutter_wide_object_share_per_rad : float
+        The part of ``camera_clutter_intensity`` (1/rad) that the wide objects account for:
+        where they are modelled (``camera_clutter_per_wide_object`` > 0) the uniform part
+        is ``camera_clutter_intensity`` minus this (:attr:`camera_clutter_uniform_per_rad`),
+        and a filter that ignores them (the PMB) keeps the whole. At most
+        ``camera_clutter_intensity``.
     scan_target_radius_m : float
         Radius of what the lidar sees of a teammate (seed 000: the X4's 65 mm housing).
     scan_range_noise_std_m, scan_range_noise_quadratic_per_m : float
@@ -331,6 +347,9 @@ class PHDConfig:
     missed_detection: str = "phd"
     lidar_missed_moments: bool = False
     scan_evidence: bool = False
+    camera_clutter_per_wide_object: float = 0.0
+    camera_wide_object_std_fraction: float = 0.28
+    camera_clutter_wide_object_share_per_rad: float = 0.0
     scan_target_radius_m: float = 0.0325
     scan_range_noise_std_m: float = 0.01
     scan_range_noise_quadratic_per_m: float = 0.0025
@@ -387,6 +406,8 @@ class PHDConfig:
             "camera_untracked_density_per_m2",
             "camera_untracked_min_range_m",
             "camera_noise_width_fraction",
+            "camera_clutter_per_wide_object",
+            "camera_clutter_wide_object_share_per_rad",
         ):
             if getattr(self, name) < 0.0:
                 raise ValueError(f"PHDConfig.{name} must be >= 0, got {getattr(self, name)!r}")
@@ -409,6 +430,7 @@ class PHDConfig:
             ("scan_range_noise_quadratic_per_m", 0.0, 10.0),
             ("scan_beam_footprint_deg", 0.0, 10.0),
             ("scan_margin_sigmas", 0.0, 10.0),
+            ("camera_wide_object_std_fraction", 0.0, 10.0),
         ):
             value = getattr(self, name)
             if not low <= value <= high:
@@ -431,6 +453,12 @@ class PHDConfig:
             value = getattr(self, name)
             if not 0.0 <= value < 1e3:
                 raise ValueError(f"PHDConfig.{name} must be in [0, 1000), got {value!r}")
+        if self.camera_clutter_wide_object_share_per_rad > self.camera_clutter_intensity:
+            raise ValueError(
+                "PHDConfig.camera_clutter_wide_object_share_per_rad must be at most "
+                f"camera_clutter_intensity ({self.camera_clutter_intensity!r}), got "
+                f"{self.camera_clutter_wide_object_share_per_rad!r}"
+            )
         if not 0.0 < self.prune_threshold < 1.0:
             raise ValueError(
                 f"PHDConfig.prune_threshold must be in (0, 1), got {self.prune_threshold!r}"
@@ -479,6 +507,26 @@ class PHDConfig:
         r = np.maximum(np.asarray(range_m, dtype=float), self.min_range_m)
         width = 2.0 * np.arcsin(np.minimum(1.0, self.camera_target_radius_m / r))
         return self.camera_noise_var_rad2 + (self.camera_noise_width_fraction * width) ** 2
+
+    @property
+    def camera_clutter_uniform_per_rad(self) -> float:
+        """The uniform camera clutter of a filter that models the wide objects (1/rad):
+        :attr:`camera_clutter_total_per_rad` less the objects' share, when they are on."""
+        total = self.camera_clutter_total_per_rad
+        if self.models_wide_objects:
+            return total - self.camera_clutter_wide_object_share_per_rad
+        return total
+
+    @property
+    def models_wide_objects(self) -> bool:
+        """Whether camera updates use the wide objects' clutter (a rate > 0, and a camera)."""
+        return self.camera_clutter_per_wide_object > 0.0 and self.mode != "lidar-only"
+
+    @property
+    def reads_scans(self) -> bool:
+        """Whether the filter keeps each lidar call's scan profile (``scan_evidence``, or
+        :attr:`models_wide_objects`)."""
+        return bool(self.scan_evidence) or self.models_wide_objects
 
     @property
     def camera_clutter_total_per_rad(self) -> float:

@@ -36,13 +36,20 @@ import numpy as np
 
 from swarm_core.validation import as_float_array
 
-from . import phd
+from . import object_clutter, phd
 from .config import CAMERA_BIRTH_RADIAL_STD_FRACTION, PHDConfig, config_with_overrides
 from .detection import DetectionModel
 from .frames import bearings_to_filter_frame, points_to_filter_frame
 from .mixture import ROW_PXX, ROW_W, ROW_X, ROW_Y, GaussianMixture, empty_table
 from .reducer import reduce
-from .scan_evidence import MEMORY_LEN, N_BINS, move_scan_pose, scan_factors
+from .scan_evidence import (
+    MEMORY_LEN,
+    N_BINS,
+    WIDE_OBJECTS_AT,
+    move_scan_pose,
+    scan_factors,
+    scan_memory_from_state,
+)
 
 __all__ = ["RobotCentricPHD"]
 
@@ -97,7 +104,8 @@ class RobotCentricPHD:
         self._pending_births = np.empty((0, 2))
         self._mixture: GaussianMixture | None = None
         self._clock = phd.ProcessClock()
-        # The last lidar scan (localization.scan_evidence): [has_scan, x, y, psi, profile].
+        # The last lidar scan (localization.scan_evidence): [has_scan, x, y, psi, profile,
+        # wide objects (localization.object_clutter)].
         self._scan = np.zeros(MEMORY_LEN)
 
     # ------------------------------------------------------------------ state
@@ -211,7 +219,7 @@ class RobotCentricPHD:
         if "clock" in state:  # absent from states pickled before the clock existed
             self._clock = phd.ProcessClock.from_array(state["clock"])
         if "scan_memory" in state:  # absent from states pickled before the scan evidence
-            self._scan = np.array(state["scan_memory"], dtype=float)
+            self._scan = scan_memory_from_state(state["scan_memory"])
 
     # ------------------------------------------------------------------ steps
     def predict(self, odometry: np.ndarray) -> None:
@@ -317,12 +325,18 @@ class RobotCentricPHD:
         if pose is not None:
             pts = points_to_filter_frame(pts, pose)
             nulls = None if nulls is None else bearings_to_filter_frame(nulls, pose)
-        if self.config.scan_evidence:  # the memory is kept only where it is used
+        if self.config.reads_scans:  # the memory is kept only where it is used
             self._scan = np.zeros(MEMORY_LEN)
-        if self.config.scan_evidence and profile is not None:
+        if self.config.reads_scans and profile is not None:
             self._scan[0] = 1.0
             self._scan[1:4] = 0.0 if pose is None else pose
-            self._scan[4:] = profile
+            self._scan[4:WIDE_OBJECTS_AT] = profile
+            if self.config.models_wide_objects:
+                objects = object_clutter.wide_objects(profile)
+                self._scan[WIDE_OBJECTS_AT] = objects.shape[0]
+                self._scan[WIDE_OBJECTS_AT + 1 : WIDE_OBJECTS_AT + 1 + objects.size] = (
+                    objects.ravel()
+                )
         cfg = self.config
         table = self._table
         bernoulli = cfg.missed_detection == "bernoulli"
@@ -419,7 +433,15 @@ class RobotCentricPHD:
                 brg,
                 detection_prob,
                 cfg.camera_bearing_var(np.hypot(table[ROW_X], table[ROW_Y])),
-                cfg.camera_clutter_total_per_rad,
+                object_clutter.clutter_density(
+                    brg,
+                    self._scan,
+                    offset,
+                    cfg.camera_clutter_uniform_per_rad,
+                    cfg.camera_clutter_per_wide_object,
+                    cfg.camera_wide_object_std_fraction,
+                    cfg.camera_noise_var_rad2,
+                ),
                 cfg.min_range_m,
                 cfg.missed_detection == "bernoulli",
                 # each copy against the scan where it would be: see phd.camera_update

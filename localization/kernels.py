@@ -48,8 +48,9 @@ from numba import njit, prange
 
 from .config import CAMERA_BIRTH_RADIAL_STD_FRACTION, PROCESS_CLOCK_RESET_S, PHDConfig
 from .mixture import N_ROWS
+from .object_clutter import clutter_density_into, wide_objects_into
 from .phd import GH_NODES, GH_WEIGHTS
-from .scan_evidence import move_scan_pose_in_place, scan_factors_into
+from .scan_evidence import WIDE_OBJECTS_AT, move_scan_pose_in_place, scan_factors_into
 
 __all__ = [
     "PREDICT",
@@ -117,8 +118,11 @@ F_CAMERA_TARGET_RADIUS = _F.slot(lambda c: c.camera_target_radius_m)
 F_CPD_OFFSET = _F.slot(lambda c: c.camera_pd_offset)
 F_CPD_SLOPE = _F.slot(lambda c: c.camera_pd_slope_per_m)
 F_CPD_MID = _F.slot(lambda c: c.camera_pd_midpoint_m)
-# false blobs + untracked teammates (PHDConfig.camera_clutter_total_per_rad)
+# false blobs + untracked teammates (PHDConfig.camera_clutter_total_per_rad: the PMB's)
 F_KAPPA_C = _F.slot(lambda c: c.camera_clutter_total_per_rad)
+# the same less the wide objects' share where they are modelled (the GM-PHD's;
+# PHDConfig.camera_clutter_uniform_per_rad)
+F_KAPPA_C_UNIFORM = _F.slot(lambda c: c.camera_clutter_uniform_per_rad)
 F_PRUNE = _F.slot(lambda c: c.prune_threshold)
 F_MERGE = _F.slot(lambda c: c.merge_threshold)
 F_MIN_RANGE = _F.slot(lambda c: c.min_range_m)
@@ -132,6 +136,8 @@ F_SCAN_STD0 = _F.slot(lambda c: c.scan_range_noise_std_m)
 F_SCAN_STD2 = _F.slot(lambda c: c.scan_range_noise_quadratic_per_m)
 F_SCAN_FOOTPRINT = _F.slot(lambda c: math.radians(c.scan_beam_footprint_deg))
 F_SCAN_MARGIN = _F.slot(lambda c: c.scan_margin_sigmas)
+F_WIDE_CLUTTER = _F.slot(lambda c: c.camera_clutter_per_wide_object * c.models_wide_objects)
+F_WIDE_STD_FRACTION = _F.slot(lambda c: c.camera_wide_object_std_fraction)
 N_FPARAMS = len(_F.transforms)
 
 _I = _Slots(np.int64)  # iparams (flags are 0 / 1)
@@ -440,9 +446,10 @@ def _posterior(
     """GM-PHD weights (Vo & Ma Table I), pruned: the kept missed copies, then the kept
     detected copies in component-major order (the reference's column order, minus the pruned).
 
-    ``detected (n, M)`` holds ``P_d w N`` per pair, ``post_means (2, n, M)`` (read only where
-    ``detected > 0``), ``post_covs (3, n)``; ``dropped_missed`` is a component whose missed
-    copy is not kept (-1: none); ``bernoulli``: missed copies get
+    ``kappa (M,)`` is each measurement's clutter intensity; ``detected (n, M)`` holds
+    ``P_d w N`` per pair, ``post_means (2, n, M)`` (read only where ``detected > 0``),
+    ``post_covs (3, n)``; ``dropped_missed`` is a component whose missed copy is not kept
+    (-1: none); ``bernoulli``: missed copies get
     :func:`localization.phd.missed_weights`; the missed copies take their ``P_d`` from
     ``missed_pd`` and their means and covariances from ``missed_tab`` (``pd`` and ``tab``, or
     :func:`_missed_moments`'). Returns the ``(6, k)`` table, ``k`` and ``explained (M,)``.
@@ -456,7 +463,7 @@ def _posterior(
     inv_denom = np.empty(m)
     for h in range(m):
         # Guard: zero clutter and underflowed likelihoods give weights 0, not 0/0.
-        inv_denom[h] = 1.0 / max(sums[h] + kappa, _TINY)
+        inv_denom[h] = 1.0 / max(sums[h] + kappa[h], _TINY)
         explained[h] = sums[h] * inv_denom[h]
     weights = np.empty(n + n * m)
     k = 0
@@ -465,7 +472,7 @@ def _posterior(
         if bernoulli:
             evidence = 0.0  # w_i Lambda_i
             for h in range(m):
-                others = max(sums[h] - detected[i, h], 0.0) + kappa
+                others = max(sums[h] - detected[i, h], 0.0) + kappa[h]
                 evidence += detected[i, h] / max(others, _TINY)
             w = _bernoulli_missed(tab[0, i], missed_pd[i], evidence)
         weights[i] = 0.0 if i == dropped_missed else w
@@ -646,7 +653,7 @@ def _lidar_update(tab, n, pts, nulls, fp, ip, sector_scaled, sector_inv_var, mem
         detected,
         post_means,
         post_covs,
-        kappa,
+        np.full(m, kappa),
         prune,
         n if fixed_birth else -1,
         ip[I_MISSED_BERNOULLI],
@@ -682,7 +689,21 @@ def _camera_update(tab, n, brg, fp, ip, memory, ox, oy):
     missed_pd = pd * _scan_factors(tab, n, memory, ox, oy, fp)[0] if scan else pd
     if m == 0:
         return _missed_only(tab, n, missed_pd, prune, ip[I_MISSED_BERNOULLI], tab)
-    kappa = fp[F_KAPPA_C]
+    kappa = fp[F_KAPPA_C_UNIFORM]
+    # Per bearing: the uniform kappa_C plus the wide objects' blobs (object_clutter); the
+    # uniform part alone bounds the pairs dropped below (kappa_h >= kappa_C).
+    kappas = np.full(m, kappa)
+    if fp[F_WIDE_CLUTTER] > 0.0:
+        clutter_density_into(
+            kappas,
+            brg,
+            memory,
+            ox,
+            oy,
+            fp[F_WIDE_CLUTTER],
+            fp[F_WIDE_STD_FRACTION],
+            fp[F_CAMERA_VAR],
+        )
     min_r2 = fp[F_MIN_RANGE] * fp[F_MIN_RANGE]
     detected = np.empty((n, m))
     post_means = np.empty((2, n, m))
@@ -733,7 +754,7 @@ def _camera_update(tab, n, brg, fp, ip, memory, ox, oy):
         detected,
         post_means,
         post_covs,
-        kappa,
+        kappas,
         prune,
         -1,
         ip[I_MISSED_BERNOULLI],
@@ -974,7 +995,8 @@ def _remember_scan(memory, profiles, has_profile, poses, has_pose, j):
     memory[0] = 1.0
     for k in range(3):
         memory[1 + k] = poses[j, k] if has_pose[j] else 0.0
-    memory[4:] = profiles[j]
+    memory[4:WIDE_OBJECTS_AT] = profiles[j]
+    memory[WIDE_OBJECTS_AT:] = 0.0  # no wide objects until object_clutter extracts them
 
 
 @njit(cache=True)
@@ -1146,8 +1168,10 @@ def _apply_call(
         nul = nulls[null_start[j] : null_stop[j]]
         if lidar_has_pose[j]:
             pts, nul = _to_filter_frame(pts, nul, lidar_pose[j])
-        if ip[I_SCAN_EVIDENCE]:  # without it the scan is not needed: no 720-float copy
+        if ip[I_SCAN_EVIDENCE] or fp[F_WIDE_CLUTTER] > 0.0:  # else no 720-float copy
             _remember_scan(memory, profiles, lidar_has_profile, lidar_pose, lidar_has_pose, j)
+            if fp[F_WIDE_CLUTTER] > 0.0 and memory[0] != 0.0:
+                wide_objects_into(memory)
         cand, n_cand, explained = _lidar_update(
             tab,
             n,

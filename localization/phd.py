@@ -167,7 +167,7 @@ def _posterior_table(
     post_means: np.ndarray,
     post_covs: np.ndarray,
     likelihood: np.ndarray,
-    clutter_intensity: float,
+    clutter_intensity: float | np.ndarray,
     bernoulli: bool = False,
     missed: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -185,8 +185,8 @@ def _posterior_table(
         Updated covariances per component.
     likelihood : ndarray, shape (N, M)
         Measurement likelihood per (component, measurement).
-    clutter_intensity : float
-        ``kappa`` in the measurement's units.
+    clutter_intensity : float or ndarray, shape (M,)
+        ``kappa`` in the measurement's units, or one per measurement.
     bernoulli : bool
         Missed copies with :func:`missed_weights`' Bernoulli weights instead of the PHD's.
     missed : (missed_prob (N,), missed_table (6, N)), optional
@@ -452,7 +452,7 @@ def camera_update(
     bearings: np.ndarray,
     detection_prob: np.ndarray,
     noise_var: float,
-    clutter_intensity: float,
+    clutter_intensity: float | np.ndarray,
     min_range_m: float,
     bernoulli: bool = False,
     visibility: Callable[[np.ndarray], np.ndarray] | None = None,
@@ -469,8 +469,9 @@ def camera_update(
         Camera ``P_d`` per prior component, in ``[0, 1]``.
     noise_var : float
         ``R_C`` (rad^2).
-    clutter_intensity : float
-        ``kappa_C`` (1/rad).
+    clutter_intensity : float or ndarray, shape (M,)
+        ``kappa_C`` (1/rad), or one per bearing (the wide objects' clutter,
+        :mod:`localization.object_clutter`).
     min_range_m : float
         Floor on ``||m||`` for the bearing Jacobian (m).
     bernoulli : bool

@@ -95,19 +95,29 @@ __all__ = [
     "N_BINS",
     "BIN_WIDTH_RAD",
     "MEMORY_LEN",
+    "MAX_WIDE_OBJECTS",
+    "WIDE_OBJECTS_AT",
     "scan_profile",
     "scan_factors",
     "move_scan_pose",
     "profile_into",
     "profiles_of",
     "scan_factors_into",
+    "scan_memory_from_state",
 ]
 
 #: Bins of a scan profile: 0.5 deg each, the YDLidar X4's angular resolution.
 N_BINS = 720
 BIN_WIDTH_RAD = 2.0 * math.pi / N_BINS
-#: A filter's scan memory: ``[has_scan, x_m, y_m, psi_rad, profile (N_BINS,)]``.
-MEMORY_LEN = 4 + N_BINS
+#: Most wide objects a scan memory keeps (:mod:`localization.object_clutter`; a ``seed-sim``
+#: scan shows 1.2 on average).
+MAX_WIDE_OBJECTS = 32
+#: Where the wide objects start in a scan memory: a count, then ``[x_m, y_m, half_angle_rad]``
+#: per object, in the scanner's frame.
+WIDE_OBJECTS_AT = 4 + N_BINS
+#: A filter's scan memory: ``[has_scan, x_m, y_m, psi_rad, profile (N_BINS,), n_wide,
+#: wide objects (MAX_WIDE_OBJECTS x 3)]``.
+MEMORY_LEN = WIDE_OBJECTS_AT + 1 + 3 * MAX_WIDE_OBJECTS
 _INV_SQRT2 = 1.0 / math.sqrt(2.0)
 _MIN_STD_M = 1e-9  # a noiseless scanner and a point-mass component: no 0 / 0
 _TWO_PI = 2.0 * math.pi
@@ -124,6 +134,22 @@ _CANDIDATE_STEP_RAD = BIN_WIDTH_RAD / 4
 _BEARING_SIGMAS = 4.0
 _CUT_DENSITY = math.exp(-0.5 * _BEARING_SIGMAS**2)
 _MAX_CANDIDATES = 64
+
+
+def scan_memory_from_state(value) -> np.ndarray:
+    """A saved scan memory ``(..., L)`` as one of today's ``(..., MEMORY_LEN)``: a memory saved
+    before the wide objects (``L = 4 + N_BINS``) gets none; the next scan brings them."""
+    memory = np.array(value, dtype=float)
+    length = memory.shape[-1]
+    if length == MEMORY_LEN:
+        return memory
+    if length != WIDE_OBJECTS_AT:
+        raise ValueError(
+            f"scan_memory: last axis of {length} entries, expected {MEMORY_LEN} (or "
+            f"{WIDE_OBJECTS_AT} from before the wide objects)"
+        )
+    pad = np.zeros(memory.shape[:-1] + (MEMORY_LEN - length,))
+    return np.concatenate([memory, pad], axis=-1)
 
 
 # ---------------------------------------------------------------------- numpy reference

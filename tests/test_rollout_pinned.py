@@ -36,15 +36,27 @@ def rollout_hash(steps: int = 60, seed: int = 3, **kwargs) -> str:
 
 # 2026-12-02: the lidar extractor's angular extent test (red decoys no longer pass) changed
 # all four; with LidarFeatureConfig(extent_test=False) the previous hashes are reproduced.
+# 2026-12-02, later: the simulator's GM-PHD models the wide objects' camera clutter
+# (localization.object_clutter), which changed the two phd-lc hashes; with
+# phd={"camera_clutter_per_wide_object": 0.0} the previous ones are reproduced (pinned below).
 PINNED = {
-    "phd-lc": ({"localizer": "phd-lc"}, "7afbfc3a156d5beb"),
+    "phd-lc": ({"localizer": "phd-lc"}, "0b818fe10e6ba33f"),
     "phd-lo": ({"localizer": "phd-lo"}, "9036cdcfb8a75603"),
     "pmb-lc": ({"localizer": "pmb-lc"}, "ab75e7e85c9fc94d"),
     "measurements": ({"observation": "measurements", "localize": False}, "459595779851be71"),
-    # The rule before the extent test still reproduces its rollout bit for bit.
+    # The rules before the extent test and before the wide objects still reproduce their
+    # rollouts bit for bit.
     "phd-lc-width-only": (
-        {"localizer": "phd-lc", "lidar_features": {"extent_test": False}},
+        {
+            "localizer": "phd-lc",
+            "lidar_features": {"extent_test": False},
+            "phd": {"camera_clutter_per_wide_object": 0.0},
+        },
         "50fca56a0405e160",
+    ),
+    "phd-lc-uniform-clutter": (
+        {"localizer": "phd-lc", "phd": {"camera_clutter_per_wide_object": 0.0}},
+        "7afbfc3a156d5beb",
     ),
 }
 

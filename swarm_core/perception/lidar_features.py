@@ -205,19 +205,55 @@ def extract_clusters(
         Cluster width = distance between its first and last return; centre = the point at
         the circular-mean bearing and mean range, plus ``housing_radius_m`` along that bearing.
     """
+    return _extract(angles_rad, ranges_m, config, 0.0, "extract_clusters")
+
+
+def extract_wide_objects(
+    angles_rad: np.ndarray,
+    ranges_m: np.ndarray,
+    config: LidarFeatureConfig | None = None,
+    max_width_m: float = 0.3,
+) -> LidarDetections:
+    """Compact objects of K scans that the robot test rejects: clusters that pass every rule
+    of :func:`extract_clusters` (beams, foreground, range) except the housing's width or
+    angular extent, up to ``max_width_m`` end to end (the arena's 120 mm red decoys, posts and
+    pillars wider than a housing, a box's narrow face). The filters read them as places a
+    camera blob may come from that is not a teammate
+    (``localization.PHDConfig.camera_clutter_per_wide_object``).
+
+    Returns
+    -------
+    LidarDetections
+        As :func:`extract_clusters`'s, but each centre is pushed half the cluster's width
+        (not a housing radius) behind its mean return.
+    """
+    if not max_width_m > 0.0:
+        raise ValueError(f"extract_wide_objects: max_width_m must be > 0, got {max_width_m!r}")
+    return _extract(angles_rad, ranges_m, config, float(max_width_m), "extract_wide_objects")
+
+
+def _extract(angles_rad, ranges_m, config, wider_than_housing_up_to, caller) -> LidarDetections:
     cfg = config if config is not None else LidarFeatureConfig()
     ranges = np.ascontiguousarray(np.atleast_2d(np.asarray(ranges_m, dtype=np.float64)))
     angles = np.asarray(angles_rad, dtype=np.float64).reshape(-1)
     n_scans, n_beams = ranges.shape
     if angles.shape[0] != n_beams:
-        raise ValueError(
-            f"extract_clusters: {angles.shape[0]} angles for ranges of shape {ranges.shape}"
-        )
+        raise ValueError(f"{caller}: {angles.shape[0]} angles for ranges of shape {ranges.shape}")
     cos_a, sin_a = _directions(angles)
     xy, scan, width, count = _cluster_kernel(
         ranges,
         cos_a,
         sin_a,
+        *cluster_rule(cfg),
+        wider_than_housing_up_to,
+    )
+    return LidarDetections(xy_m=xy, scan_index=scan, width_m=width, n_beams=count, n_scans=n_scans)
+
+
+def cluster_rule(cfg: LidarFeatureConfig) -> tuple:
+    """``cfg`` as :func:`_cluster_kernel`'s rule arguments (``jump_threshold`` to
+    ``foreground_only``), the form in which compiled callers pass it on."""
+    return (
         cfg.jump_threshold_m,
         cfg.jump_range_gain,
         cfg.max_width_m,
@@ -230,7 +266,6 @@ def extract_clusters(
         math.radians(cfg.beam_footprint_deg),
         bool(cfg.foreground_only),
     )
-    return LidarDetections(xy_m=xy, scan_index=scan, width_m=width, n_beams=count, n_scans=n_scans)
 
 
 _DIRECTIONS: list = [None, None, None]  # angles, cos, sin of the last call (a copy)
@@ -261,18 +296,25 @@ def _cluster_kernel(
     extent_test,
     footprint,
     foreground_only,
+    wider_than_housing_up_to,
 ):
     """Robot-like clusters of K scans: ``ranges`` (K, B) m (0 = no return), beam directions
-    ``cos_a``, ``sin_a`` (B,). A cluster of mean range r is kept when its width is at most
-    ``max_width + width_tol_const + width_tol_quadratic r^2`` and, with ``extent_test``, its
-    returns' angular spread plus ``footprint`` (rad) fits the angle a ``max_width`` housing
-    subtends at its range (see :class:`LidarFeatureConfig`).
+    ``cos_a``, ``sin_a`` (B,). A cluster of mean range r is robot-like when its width is at
+    most ``max_width + width_tol_const + width_tol_quadratic r^2`` and, with ``extent_test``,
+    its returns' angular spread plus ``footprint`` (rad) fits the angle a ``max_width``
+    housing subtends at its range (see :class:`LidarFeatureConfig`).
+
+    With ``wider_than_housing_up_to`` > 0 (m) the test is inverted: the clusters kept are the
+    ones that pass every other rule but are *not* robot-like, up to that end-to-end width
+    (:func:`extract_wide_objects`), and their centre is pushed half their width behind the
+    mean return instead of ``housing_radius``.
 
     Returns ``xy`` (M, 2) m, ``scan`` (M,), ``width`` (M,) m and ``count`` (M,) beams, sorted
     by scan then bearing. Each scan is walked once from its first cluster start (a valid beam
     not linked to its predecessor), so a cluster through the +/-pi seam is one piece.
     """
     n_scans, n_beams = ranges.shape
+    wide = wider_than_housing_up_to > 0.0
     # link[k, b]: beam b continues the cluster of beam b-1 (b = 0 links to B-1: the seam).
     # Branch-free (`&` on the comparisons): returns and gaps alternate unpredictably.
     link = np.empty((n_scans, n_beams), dtype=np.bool_)
@@ -332,18 +374,22 @@ def _cluster_kernel(
             if n < min_beams:
                 continue
             mean_r = sum_r / n
-            if not w <= max_width + width_tol_const + width_tol_quadratic * mean_r * mean_r:
+            robot_like = w <= max_width + width_tol_const + width_tol_quadratic * mean_r * mean_r
+            if wide:
+                if not w <= wider_than_housing_up_to:
+                    continue
+            elif not robot_like:
                 continue
             if foreground_only:
                 # Neighbours just outside: farther, or no return, for a standalone object.
                 before, after = r[s - 1], r[nxt]
                 if not (before == 0.0 or before > r_s) or not (after == 0.0 or after > r_e):
                     continue
-            centre_r = mean_r + housing_radius
+            centre_r = mean_r + (0.5 * w if wide else housing_radius)
             if not centre_r <= tracking_range:
                 continue
             phi = math.atan2(sum_s, sum_c)
-            if extent_test:
+            if extent_test and robot_like:
                 # The tolerances hold n_sigmas sqrt(2) sigma(r): the centre may be n_sigmas
                 # sigma(r) nearer than measured, which widens the housing's subtense.
                 near = (width_tol_const + width_tol_quadratic * mean_r * mean_r) / math.sqrt(2.0)
@@ -355,8 +401,9 @@ def _cluster_kernel(
                         cos_a[e] * cos_a[s] + sin_a[e] * sin_a[s],
                     )
                 )
-                if not spread + footprint <= subtense:
-                    continue
+                robot_like = spread + footprint <= subtense
+            if robot_like == wide:
+                continue
             # Insert in bearing order (stable; a seam cluster is walked last but may be first).
             j = m - m_scan
             while j > 0 and bearing[j - 1] > phi:

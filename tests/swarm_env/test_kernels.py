@@ -17,6 +17,7 @@ from swarm_core.geometry import wrap_angle
 from swarm_core.perception.lidar_features import (
     LidarFeatureConfig,
     extract_clusters,
+    extract_wide_objects,
     null_beams,
     null_bearings,
 )
@@ -326,8 +327,10 @@ def test_wrap_matches_wrap_angle():
 # --------------------------------------------------------------------------- feature extractor
 
 
-def reference_clusters(angles, ranges, cfg):
-    """The vectorised numpy extractor the kernel replaced (xy, scan, width, count)."""
+def reference_clusters(angles, ranges, cfg, wide_up_to=0.0):
+    """The vectorised numpy extractor the kernel replaced (xy, scan, width, count); with
+    ``wide_up_to`` > 0, the clusters the robot test rejects up to that width instead
+    (``extract_wide_objects``)."""
     ranges = np.atleast_2d(ranges)
     n_scans, n_beams = ranges.shape
     valid = ranges > 0.0
@@ -360,26 +363,30 @@ def reference_clusters(angles, ranges, cfg):
     ).reshape(-1)
     sigma = cfg.range_noise_std_m + cfg.range_noise_quadratic_per_m * mean_r**2
     limit = cfg.max_width_m + cfg.width_noise_sigmas * math.sqrt(2.0) * sigma
-    keep = (count >= cfg.min_beams) & (width <= limit) & (count < n_beams)
+    robot_like = width <= limit
+    keep = (count >= cfg.min_beams) & (count < n_beams)
+    keep &= (width <= wide_up_to) if wide_up_to > 0.0 else robot_like
     if cfg.foreground_only:
         before = ranges[s_rows, s_cols - 1]
         after = ranges[s_rows, (e_wrapped + 1) % n_beams]
         keep &= ((before == 0.0) | (before > r_s)) & ((after == 0.0) | (after > r_e))
     out = []
-    for row, col, n, w in zip(s_rows[keep], s_cols[keep], count[keep], width[keep], strict=True):
+    rows = zip(s_rows[keep], s_cols[keep], count[keep], width[keep], robot_like[keep], strict=True)
+    for row, col, n, w, fits in rows:
         beams = (col + np.arange(n)) % n_beams
         bearing = math.atan2(sin_a[beams].sum(), cos_a[beams].sum())
         mean_range = ranges[row, beams].mean()
-        centre = mean_range + cfg.housing_radius_m
-        if cfg.extent_test:
+        centre = mean_range + (0.5 * w if wide_up_to > 0.0 else cfg.housing_radius_m)
+        if cfg.extent_test and fits:
             # The returns' angular spread plus one footprint must fit a housing's subtense,
             # its centre up to n_sigmas sigma(r) nearer than measured.
             sigma = cfg.range_noise_std_m + cfg.range_noise_quadratic_per_m * mean_range**2
             nearest = max(centre - cfg.width_noise_sigmas * sigma, 1e-9)
             subtense = 2.0 * math.asin(min(0.5 * cfg.max_width_m / nearest, 1.0))
             spread = abs(wrap_angle(angles[beams[-1]] - angles[beams[0]]))
-            if not spread + math.radians(cfg.beam_footprint_deg) <= subtense:
-                continue
+            fits = spread + math.radians(cfg.beam_footprint_deg) <= subtense
+        if fits == (wide_up_to > 0.0):
+            continue
         if centre <= cfg.tracking_range_m:
             out.append(
                 (row, bearing, centre * math.cos(bearing), centre * math.sin(bearing), w, n)
@@ -436,6 +443,14 @@ def test_cluster_kernel_matches_the_vectorised_extractor(cfg):
         )
         np.testing.assert_allclose(got.width_m, [d[4] for d in ref], atol=1e-12)
         assert got.n_beams.tolist() == [d[5] for d in ref]
+        for up_to in (0.15, 0.3):  # the rejected ones: extract_wide_objects
+            got = extract_wide_objects(angles, ranges, cfg, up_to)
+            ref = reference_clusters(angles, ranges, cfg, up_to)
+            assert got.scan_index.tolist() == [d[0] for d in ref]
+            np.testing.assert_allclose(
+                got.xy_m, np.array([d[2:4] for d in ref]).reshape(-1, 2), atol=1e-12
+            )
+            assert got.n_beams.tolist() == [d[5] for d in ref]
     seam = extract_clusters(angles, random_scans(rng)[2:3], LidarFeatureConfig())
     assert seam.xy_m.shape == (1, 2) and seam.xy_m[0, 0] < -0.9  # behind the robot, at -x
 
