@@ -132,7 +132,13 @@ class PHDBank:
         if "clock" in state:  # absent from states pickled before the clock existed
             self._clock = np.array(state["clock"], dtype=float)
         if "scan_memory" in state:  # absent from states pickled before the scan evidence
-            self._scan_memory = scan_memory_from_state(state["scan_memory"])
+            memory = scan_memory_from_state(state["scan_memory"])
+            if memory.shape != (self.n_robots, MEMORY_LEN):
+                raise ValueError(
+                    f"scan_memory: shape {memory.shape} for {self.n_robots} robots, expected "
+                    f"{(self.n_robots, MEMORY_LEN)}"
+                )
+            self._scan_memory = memory
 
     # ------------------------------------------------------------------ construction / export
     @classmethod
@@ -168,6 +174,7 @@ class PHDBank:
                 f"f has {n} components, more than max_components {self.config.max_components}"
             )
         births = np.asarray(state["pending_births"], dtype=float).reshape(-1, 2)
+        memory = scan_memory_from_state(state["scan_memory"])  # checked before any change
         self._reserve_pending(births.shape[0])
         self._table[:, r, :n] = table
         self._table[:, r, n:] = 0.0
@@ -175,7 +182,7 @@ class PHDBank:
         self._pending[r, : births.shape[0]] = births
         self._pending_counts[r] = births.shape[0]
         self._clock[r] = state["clock"]
-        self._scan_memory[r] = scan_memory_from_state(state["scan_memory"])
+        self._scan_memory[r] = memory
         self._mixtures[r] = None
 
     def to_filter(self, robot: int) -> RobotCentricPHD:

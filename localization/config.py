@@ -254,7 +254,8 @@ class PHDConfig:
         free space the beams crossed loses weight (``1 - P_free``), and one behind the scan's
         first surface is hidden from both sensors (``P_d`` times the visibility). Needs the
         scan in the lidar calls (a :class:`~localization.feed.SwarmFeed` packs it for a bank
-        whose ``reads_scans`` is True, i.e. with this on; its call tuples always carry it).
+        whose ``reads_scans`` is True, with this on or ``camera_clutter_per_wide_object`` > 0;
+        its call tuples always carry it).
         Default False: the seed's filter. The GM-PHD engines only (the PMB ignores it).
     camera_clutter_per_wide_object : float
         Camera blobs per frame that are not teammates, per compact object wider than a housing

@@ -334,7 +334,8 @@ def pack_calls(
     the swarm: no call tuple is made, the merge by stamp is one ``lexsort`` and the sensor
     poses one compiled pass (:func:`_motion_poses`). With ``scan_profiles=False`` the lidar
     calls carry no profile (flags 0, a ``(0, N_BINS)`` array): at 1000 robots binning every
-    scan costs ~7 ms per step that a filter without ``scan_evidence`` never reads.
+    scan costs ~7 ms per step that a filter which does not read scans never uses
+    (``PHDConfig.reads_scans``: ``scan_evidence`` or the wide objects' camera clutter).
 
     With ``scan_profiles`` (the default) the result equals, array for array and bit for bit,
     the bank's encoding of

@@ -308,10 +308,12 @@ class RobotCentricPHD:
             filter's frame first (:mod:`localization.frames`).
         scan_profile : array_like, shape (N_BINS,), optional
             The scan's :func:`~localization.scan_evidence.scan_profile` (m, 0 = unknown).
-            With ``config.scan_evidence`` it becomes the filter's scan memory, the lidar's
+            With ``config.reads_scans`` it becomes the filter's scan memory, with its wide
+            objects (:mod:`localization.object_clutter`) where ``models_wide_objects``: later
+            camera frames take their clutter from it, and with ``scan_evidence`` the lidar's
             ``P_d`` is times each component's visibility, the weights after the update are
-            times ``1 - P_free``, and later camera frames are judged against it. Without
-            one the filter has no scan until the next.
+            times ``1 - P_free``, and camera frames are judged against it. Without one the
+            filter has no scan until the next.
 
         Raises
         ------
@@ -437,7 +439,10 @@ class RobotCentricPHD:
                     brg,
                     self._scan,
                     offset,
-                    cfg.camera_clutter_uniform_per_rad,
+                    # without a scan the objects are unknown: the whole uniform clutter
+                    cfg.camera_clutter_uniform_per_rad
+                    if self._scan[0]
+                    else cfg.camera_clutter_total_per_rad,
                     cfg.camera_clutter_per_wide_object,
                     cfg.camera_wide_object_std_fraction,
                     cfg.camera_noise_var_rad2,
@@ -514,7 +519,7 @@ class RobotCentricPHD:
         return scan_factors(
             table,
             pose,
-            self._scan[4:],
+            self._scan[4:WIDE_OBJECTS_AT],
             cfg.scan_target_radius_m,
             cfg.scan_range_noise_std_m,
             cfg.scan_range_noise_quadratic_per_m,

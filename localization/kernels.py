@@ -30,8 +30,9 @@ Encoding of a batch of ``Q`` calls (all arrays, built by :class:`~localization.P
 * advance ``j`` (:data:`ADVANCE`): ``stamps[j]``, the time (s) the robot's clock moves to,
   adding the process noise that accrued since (``time_update == "measurement"``);
 * ``profiles (L, N_BINS)`` with flags ``lidar_has_profile (L,)``: lidar call ``j``'s scan
-  profile (:mod:`localization.scan_evidence`), which becomes the robot's scan memory; a
-  batch for a bank without ``scan_evidence`` may carry ``(0, N_BINS)`` and all flags 0 (the
+  profile (:mod:`localization.scan_evidence`), which becomes the robot's scan memory (with
+  its wide objects, :mod:`localization.object_clutter`); a batch for a bank that does not
+  read scans (``PHDConfig.reads_scans``) may carry ``(0, N_BINS)`` and all flags 0 (the
   profiles are read only where the flag is set).
 
 Model parameters travel as one float vector ``fparams`` and one int vector ``iparams``
@@ -689,9 +690,10 @@ def _camera_update(tab, n, brg, fp, ip, memory, ox, oy):
     missed_pd = pd * _scan_factors(tab, n, memory, ox, oy, fp)[0] if scan else pd
     if m == 0:
         return _missed_only(tab, n, missed_pd, prune, ip[I_MISSED_BERNOULLI], tab)
-    kappa = fp[F_KAPPA_C_UNIFORM]
     # Per bearing: the uniform kappa_C plus the wide objects' blobs (object_clutter); the
-    # uniform part alone bounds the pairs dropped below (kappa_h >= kappa_C).
+    # uniform part alone bounds the pairs dropped below (kappa_h >= kappa_C). Without a scan
+    # the objects are unknown, and the uniform part is the whole (the PMB's).
+    kappa = fp[F_KAPPA_C_UNIFORM] if memory[0] != 0.0 else fp[F_KAPPA_C]
     kappas = np.full(m, kappa)
     if fp[F_WIDE_CLUTTER] > 0.0:
         clutter_density_into(

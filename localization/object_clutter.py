@@ -20,8 +20,10 @@ angular half-width in the scan, ``s0^2`` the camera's constant bearing variance,
 (``PHDConfig.camera_clutter_per_wide_object``) the blobs per frame per wide object that are not
 teammates, and ``f`` (``PHDConfig.camera_wide_object_std_fraction``) the spread of those blobs
 about the object's centre in half-widths. Both are measured in ``seed-sim``
-(``benchmarks/bench_detection_curves.py``): ``lambda = 0.72``, ``f = 0.28``. The uniform part
-then no longer counts the decoy blobs the objects explain (69 % of them).
+(``benchmarks/bench_detection_curves.py``): ``lambda = 0.878``, ``f = 0.280``. The uniform part
+then no longer counts the decoy blobs the objects explain (67 % of them,
+``PHDConfig.camera_clutter_wide_object_share_per_rad``), except before the first scan (or
+after a lidar call without one), when the objects are unknown and it is the whole.
 
 A teammate's bearing at a wide object's is rarely lost: in front of the object it hides it from
 the lidar (no wide object), behind it is hidden from the camera too, and within the lidar's

@@ -75,8 +75,10 @@ arise there; on a real robot, de-skewing needs each beam's time (``LaserScan.tim
 and the odometry's turn rate. Also left out: other robots' motion since the scan (0.04 m at
 0.3 m/s), and low obstacles the camera sees over (the simulator's decoy posts): a teammate
 hidden from the lidar by one loses its camera updates while it is hidden, never its weight.
-Why it is off in the simulator's filter (``swarm_env.config.SIMULATOR_PHD``): measured, it
-does not make the agents' estimate better (``docs/localization.md``).
+Why it is off in the simulator's filter (``swarm_env.config.SIMULATOR_PHD``): alone it did not
+make the agents' estimate better; with the wide objects' camera clutter
+(:mod:`localization.object_clutter`) it does, at several times the filter's cost
+(``docs/localization.md``).
 
 This module holds the numpy reference (:func:`scan_profile`, :func:`scan_factors`) and the
 compiled versions the banks call (:func:`profile_into`, :func:`scan_factors_into`), checked
@@ -110,7 +112,7 @@ __all__ = [
 N_BINS = 720
 BIN_WIDTH_RAD = 2.0 * math.pi / N_BINS
 #: Most wide objects a scan memory keeps (:mod:`localization.object_clutter`; a ``seed-sim``
-#: scan shows 1.2 on average).
+#: scan shows 0.94 on average). Beyond it, the first by bearing from -pi are kept.
 MAX_WIDE_OBJECTS = 32
 #: Where the wide objects start in a scan memory: a count, then ``[x_m, y_m, half_angle_rad]``
 #: per object, in the scanner's frame.
@@ -138,18 +140,37 @@ _MAX_CANDIDATES = 64
 
 def scan_memory_from_state(value) -> np.ndarray:
     """A saved scan memory ``(..., L)`` as one of today's ``(..., MEMORY_LEN)``: a memory saved
-    before the wide objects (``L = 4 + N_BINS``) gets none; the next scan brings them."""
+    before the wide objects (``L = 4 + N_BINS``) gets none; the next scan brings them.
+
+    Raises
+    ------
+    ValueError
+        For another length, a non-finite entry, a has-scan flag other than 0 / 1, or a count of
+        wide objects the memory cannot hold (the compiled filters index by it)."""
     memory = np.array(value, dtype=float)
-    length = memory.shape[-1]
-    if length == MEMORY_LEN:
-        return memory
-    if length != WIDE_OBJECTS_AT:
+    length = memory.shape[-1] if memory.ndim else 0
+    if length not in (MEMORY_LEN, WIDE_OBJECTS_AT):
         raise ValueError(
             f"scan_memory: last axis of {length} entries, expected {MEMORY_LEN} (or "
             f"{WIDE_OBJECTS_AT} from before the wide objects)"
         )
-    pad = np.zeros(memory.shape[:-1] + (MEMORY_LEN - length,))
-    return np.concatenate([memory, pad], axis=-1)
+    if length == WIDE_OBJECTS_AT:
+        pad = np.zeros(memory.shape[:-1] + (MEMORY_LEN - length,))
+        memory = np.concatenate([memory, pad], axis=-1)
+    # The compiled filters index the objects by this count: it must be one they can hold.
+    count = memory[..., WIDE_OBJECTS_AT]
+    flags = memory[..., 0]
+    if (
+        not np.isfinite(memory).all()
+        or not np.isin(flags, (0.0, 1.0)).all()
+        or not ((count == np.round(count)) & (count >= 0) & (count <= MAX_WIDE_OBJECTS)).all()
+    ):
+        raise ValueError(
+            "scan_memory: needs finite entries, a has-scan flag of 0 or 1 and a whole number "
+            f"of wide objects in [0, {MAX_WIDE_OBJECTS}], got flags {np.unique(flags)[:5]} and "
+            f"counts {np.unique(count)[:5]}"
+        )
+    return memory
 
 
 # ---------------------------------------------------------------------- numpy reference
@@ -362,8 +383,9 @@ def scan_factors_into(
     visible, free, tab, n, memory, ox, oy, radius, std0, std2, footprint, k, min_range
 ):
     """:func:`scan_factors` of ``tab``'s first ``n`` columns against ``memory`` (a filter's
-    ``[has_scan, x, y, psi, profile]``), the table's frame being the filter's shifted by
-    ``(-ox, -oy)`` (a camera update's view). Writes ``visible (n,)`` and ``free (n,)``."""
+    ``[has_scan, x, y, psi, profile, wide objects]``), the table's frame being the filter's
+    shifted by ``(-ox, -oy)`` (a camera update's view). Writes ``visible (n,)`` and
+    ``free (n,)``."""
     for i in range(n):
         visible[i] = 1.0
         free[i] = 0.0

@@ -275,10 +275,11 @@ SIMULATOR_PHD = PHDConfig(
     # The scan's raw ranges as negative information (localization.scan_evidence), matched to
     # the simulated X4 but off. Alone it removed 80 % of the shadows behind the red decoys,
     # but the camera then kept that mass on the decoy itself (lab-3m-4 validation formation
-    # error 0.086 -> 0.132 m). With the wide objects' clutter above it helps (GOSPA 0.294 ->
-    # 0.263 m, validation formation error 0.078 -> 0.062 m, held out 0.150 -> 0.135 m) but
-    # costs 10x the filters' time (docs/localization.md, "The scan's negative information";
-    # docs/results.md, round 5): off until that cost is cut.
+    # error 0.086 -> 0.132 m). With the wide objects' clutter above it helps (GOSPA 0.293 ->
+    # 0.263 m, validation formation error 0.077 -> 0.062 m, held out 0.150 -> 0.135 m) but
+    # the bearing quadrature cost 10x the filters' time when measured without the wide
+    # objects (docs/localization.md, "The scan's negative information"; docs/results.md,
+    # round 5): off until that cost is cut.
     scan_evidence=False,
     scan_target_radius_m=RobotConfig().housing_radius_m,
     scan_range_noise_std_m=LidarConfig().range_noise_std_m,

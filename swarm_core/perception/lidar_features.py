@@ -212,7 +212,8 @@ def extract_wide_objects(
     angles_rad: np.ndarray,
     ranges_m: np.ndarray,
     config: LidarFeatureConfig | None = None,
-    max_width_m: float = 0.3,
+    *,
+    max_width_m: float,
 ) -> LidarDetections:
     """Compact objects of K scans that the robot test rejects: clusters that pass every rule
     of :func:`extract_clusters` (beams, foreground, range) except the housing's width or
@@ -385,7 +386,10 @@ def _cluster_kernel(
                 before, after = r[s - 1], r[nxt]
                 if not (before == 0.0 or before > r_s) or not (after == 0.0 or after > r_e):
                     continue
-            centre_r = mean_r + (0.5 * w if wide else housing_radius)
+            # The robot test judges a housing's centre in both modes, so that the wide objects
+            # are exactly the clusters it rejects; a wide object is reported at its own centre.
+            housing_r = mean_r + housing_radius
+            centre_r = mean_r + 0.5 * w if wide else housing_r
             if not centre_r <= tracking_range:
                 continue
             phi = math.atan2(sum_s, sum_c)
@@ -393,7 +397,7 @@ def _cluster_kernel(
                 # The tolerances hold n_sigmas sqrt(2) sigma(r): the centre may be n_sigmas
                 # sigma(r) nearer than measured, which widens the housing's subtense.
                 near = (width_tol_const + width_tol_quadratic * mean_r * mean_r) / math.sqrt(2.0)
-                half = 0.5 * max_width / max(centre_r - near, 1e-9)
+                half = 0.5 * max_width / max(housing_r - near, 1e-9)
                 subtense = 2.0 * math.asin(half) if half < 1.0 else math.pi
                 spread = abs(
                     math.atan2(

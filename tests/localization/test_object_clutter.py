@@ -28,9 +28,7 @@ from localization.scan_evidence import (
 )
 from swarm_env.config import SIMULATOR_PHD
 
-from .test_scan_evidence import ANGLES, HOUSING, cast
-
-DECOY = 0.06  # the arena's red decoys (radius, m)
+from .test_scan_evidence import ANGLES, DECOY, HOUSING, cast, scanned_calls
 
 
 def memory_of(ranges: np.ndarray, pose=(0.0, 0.0, 0.0)) -> np.ndarray:
@@ -144,37 +142,6 @@ def test_a_camera_bearing_on_a_decoy_no_longer_confirms_a_component_there():
     assert weights[0.72] < 0.5 * weights[0.0]
 
 
-def decoy_calls(rng: np.random.Generator, n_robots: int, steps: int):
-    """Random per-robot calls whose scans show teammates and red decoys, and whose camera
-    frames see both."""
-    mates = rng.uniform(-2.5, 2.5, size=(n_robots, 4, 2))
-    decoys = rng.uniform(-3.0, 3.0, size=(n_robots, 2, 2))
-    calls = [[] for _ in range(n_robots)]
-    for r in range(n_robots):
-        for _ in range(steps):
-            kind = rng.choice(["predict", "lidar", "camera"], p=[0.3, 0.35, 0.35])
-            pose = rng.normal(0.0, [0.03, 0.01, 0.1]) if rng.random() < 0.5 else None
-            if kind == "predict":
-                calls[r].append(("predict", rng.normal(0.0, [0.03, 0.01, 0.05])))
-            elif kind == "lidar":
-                seen = mates[r, rng.random(4) < 0.7]
-                circles = np.concatenate(
-                    [
-                        np.column_stack([seen, np.full(len(seen), HOUSING)]),
-                        np.column_stack([decoys[r], np.full(2, DECOY)]),
-                    ]
-                )
-                ranges = cast(ANGLES, circles, wall_m=float(rng.uniform(2.0, 3.5)))
-                profile = scan_profile(ANGLES, ranges) if rng.random() < 0.9 else None
-                pts = seen + rng.normal(0.0, 0.02, seen.shape)
-                calls[r].append(("lidar", pts, None, pose, profile))
-            else:
-                tg = np.concatenate([mates[r], decoys[r]])[rng.integers(0, 6, 5)]
-                brg = np.arctan2(tg[:, 1], tg[:, 0]) + rng.normal(0.0, 0.01, len(tg))
-                calls[r].append(("camera", brg, pose))
-    return calls
-
-
 @pytest.mark.parametrize(
     "config",
     [
@@ -189,7 +156,7 @@ def decoy_calls(rng: np.random.Generator, n_robots: int, steps: int):
 def test_bank_matches_reference_filters(config):
     rng = np.random.default_rng(3)
     n_robots = 4
-    calls = decoy_calls(rng, n_robots, 70)
+    calls = scanned_calls(rng, n_robots, 70, decoys=2)
     filters = [RobotCentricPHD(config) for _ in range(n_robots)]
     for f, seq in zip(filters, calls, strict=True):
         run_calls(f, seq)
@@ -244,3 +211,55 @@ def test_only_a_filter_with_a_camera_keeps_the_scan_for_the_objects():
 def test_impossible_settings_are_refused_naming_the_field(field, value):
     with pytest.raises(ValueError, match=field):
         PHDConfig(**{field: value})
+
+
+def test_an_object_across_the_seam_is_one_bump():
+    # An object straight behind (bearing pi): the bearings just either side of +-pi see it alike.
+    memory = memory_of(cast(ANGLES, np.array([[-2.0, 0.0, DECOY]]), 0.0))
+    assert memory[WIDE_OBJECTS_AT] == 1
+    brg = np.array([math.pi - 0.002, -math.pi + 0.002, -math.pi, 0.0])
+    ref = clutter_density(brg, memory, np.zeros(2), 0.5, 0.878, 0.28, 1e-7)
+    out = np.full(4, 0.5)
+    clutter_density_into(out, brg, memory, 0.0, 0.0, 0.878, 0.28, 1e-7)
+    np.testing.assert_allclose(out, ref, rtol=1e-12)
+    assert ref[0] == pytest.approx(ref[1], rel=0.05) and ref[2] > 10.0 and ref[3] == 0.5
+
+
+def test_before_the_first_scan_the_camera_uses_the_whole_uniform_clutter():
+    mixture = GaussianMixture(np.array([0.4]), np.array([[1.5, 0.3]]), 1e-3 * np.eye(2)[None])
+    brg = np.array([math.atan2(0.3, 1.5) + 0.002, 1.0])
+    tables = []
+    for per_object in (0.0, 0.878):
+        config = dataclasses.replace(SIMULATOR_PHD, camera_clutter_per_wide_object=per_object)
+        f = RobotCentricPHD(config)  # no scan yet
+        f.set_mixture(mixture)
+        bank = PHDBank(config, 1)
+        bank.load_filter(0, f)
+        f.update_camera(brg)
+        bank.apply([[("camera", brg, None)]])
+        np.testing.assert_allclose(bank.table(0), f.table, rtol=0, atol=1e-12)
+        tables.append(f.table)
+    np.testing.assert_array_equal(tables[0], tables[1])
+
+
+def test_a_bank_state_from_before_the_wide_objects_loads_and_a_bad_one_is_refused():
+    config = dataclasses.replace(SIMULATOR_PHD, camera_clutter_per_wide_object=0.878)
+    bank = PHDBank(config, 3)
+    bank.apply(scanned_calls(np.random.default_rng(2), 3, 20, decoys=1))
+    state = bank.__getstate__()
+    old = dict(state, scan_memory=state["scan_memory"][:, :WIDE_OBJECTS_AT])
+    loaded = PHDBank.__new__(PHDBank)
+    loaded.__setstate__(old)
+    assert loaded.__getstate__()["scan_memory"][:, WIDE_OBJECTS_AT:].sum() == 0.0
+    bad = state["scan_memory"].copy()
+    bad[0, WIDE_OBJECTS_AT] = 40  # more objects than a memory holds: would read past the row
+    with pytest.raises(ValueError, match="scan_memory"):
+        PHDBank.__new__(PHDBank).__setstate__(dict(state, scan_memory=bad))
+    f = bank.to_filter(1)
+    f_state = f.__getstate__()
+    f_state["scan_memory"] = bad[0]
+    before = bank.table(1).copy()
+    broken = RobotCentricPHD(config)
+    with pytest.raises(ValueError, match="scan_memory"):
+        broken.__setstate__(f_state)
+    np.testing.assert_array_equal(bank.table(1), before)

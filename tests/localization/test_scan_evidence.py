@@ -25,6 +25,7 @@ from localization.scan_evidence import (
 from swarm_env.config import SIMULATOR_PHD
 
 HOUSING = 0.0325
+DECOY = 0.06  # the arena's red decoys (radius, m)
 ANGLES = -np.pi + np.arange(N_BINS) * BIN_WIDTH_RAD  # the simulated X4's beams
 PARAMS = dict(
     target_radius_m=HOUSING,
@@ -275,12 +276,16 @@ def test_no_teammate_is_refuted_at_its_true_position():
 
 
 # ---------------------------------------------------------------------- the bank
-def scanned_calls(rng: np.random.Generator, n_robots: int, steps: int):
+def scanned_calls(rng: np.random.Generator, n_robots: int, steps: int, decoys: int = 0):
     """Random per-robot call lists whose lidar calls carry scans of each robot's targets (and of
-    clutter that the scans then refute), with and without sensor poses and profiles."""
+    clutter that the scans then refute), with and without sensor poses and profiles; with
+    ``decoys``, that many red-decoy-sized cylinders per robot stand in every scan and the
+    camera frames see them too."""
     targets = rng.uniform(-2.5, 2.5, size=(n_robots, 6, 2))
+    decoy_xy = rng.uniform(-3.0, 3.0, size=(n_robots, decoys, 2)) if decoys else None
     calls = [[] for _ in range(n_robots)]
     for r in range(n_robots):
+        seen_by_camera = targets[r] if decoys == 0 else np.concatenate([targets[r], decoy_xy[r]])
         for _ in range(steps):
             kind = rng.choice(["predict", "lidar", "camera"], p=[0.3, 0.35, 0.35])
             pose = rng.normal(0.0, [0.03, 0.01, 0.1]) if rng.random() < 0.5 else None
@@ -292,12 +297,16 @@ def scanned_calls(rng: np.random.Generator, n_robots: int, steps: int):
                 if rng.random() < 0.4:  # clutter the scan will refute later
                     pts = np.concatenate([pts, rng.uniform(-2.0, 2.0, (2, 2))])
                 circles = np.column_stack([seen, np.full(len(seen), HOUSING)])
+                if decoys:
+                    circles = np.concatenate(
+                        [circles, np.column_stack([decoy_xy[r], np.full(decoys, DECOY)])]
+                    )
                 ranges = cast(ANGLES, circles, wall_m=float(rng.uniform(2.0, 3.5)))
                 ranges[rng.random(N_BINS) < 0.03] = 0.0
                 profile = scan_profile(ANGLES, ranges) if rng.random() < 0.9 else None
                 calls[r].append(("lidar", pts, None, pose, profile))
             else:
-                tg = targets[r, rng.integers(0, 6, int(rng.integers(0, 8)))]
+                tg = seen_by_camera[rng.integers(0, len(seen_by_camera), int(rng.integers(0, 8)))]
                 brg = np.arctan2(tg[:, 1], tg[:, 0]) + rng.normal(0.0, 0.03, len(tg))
                 calls[r].append(("camera", brg, pose))
     return calls

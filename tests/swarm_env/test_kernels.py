@@ -34,6 +34,7 @@ from swarm_env.sensors.lidar import (
 )
 from swarm_env.sensors.odometry import pulses_to_delta
 from swarm_env.world.scene import Scene
+from swarm_env.world.scene_builder import HOUSING_RADIUS_M
 from swarm_env.world.sim import _drive_velocities, _due_readings
 from tests.swarm_env.scene_factory import (
     EXACT_LIDAR as EXACT,
@@ -381,7 +382,8 @@ def reference_clusters(angles, ranges, cfg, wide_up_to=0.0):
             # The returns' angular spread plus one footprint must fit a housing's subtense,
             # its centre up to n_sigmas sigma(r) nearer than measured.
             sigma = cfg.range_noise_std_m + cfg.range_noise_quadratic_per_m * mean_range**2
-            nearest = max(centre - cfg.width_noise_sigmas * sigma, 1e-9)
+            housing = mean_range + cfg.housing_radius_m  # the robot test's centre, either mode
+            nearest = max(housing - cfg.width_noise_sigmas * sigma, 1e-9)
             subtense = 2.0 * math.asin(min(0.5 * cfg.max_width_m / nearest, 1.0))
             spread = abs(wrap_angle(angles[beams[-1]] - angles[beams[0]]))
             fits = spread + math.radians(cfg.beam_footprint_deg) <= subtense
@@ -444,7 +446,7 @@ def test_cluster_kernel_matches_the_vectorised_extractor(cfg):
         np.testing.assert_allclose(got.width_m, [d[4] for d in ref], atol=1e-12)
         assert got.n_beams.tolist() == [d[5] for d in ref]
         for up_to in (0.15, 0.3):  # the rejected ones: extract_wide_objects
-            got = extract_wide_objects(angles, ranges, cfg, up_to)
+            got = extract_wide_objects(angles, ranges, cfg, max_width_m=up_to)
             ref = reference_clusters(angles, ranges, cfg, up_to)
             assert got.scan_index.tolist() == [d[0] for d in ref]
             np.testing.assert_allclose(
@@ -453,6 +455,28 @@ def test_cluster_kernel_matches_the_vectorised_extractor(cfg):
             assert got.n_beams.tolist() == [d[5] for d in ref]
     seam = extract_clusters(angles, random_scans(rng)[2:3], LidarFeatureConfig())
     assert seam.xy_m.shape == (1, 2) and seam.xy_m[0, 0] < -0.9  # behind the robot, at -x
+
+
+def test_no_cluster_is_both_a_robot_and_a_wide_object():
+    """The wide objects are exactly what the robot test rejects: a noisy housing near the
+    ranges where its subtense crosses a beam step (1.8-2.6 m) is one or the other, never both
+    (a teammate reported as a wide object would turn its own camera bearing into clutter)."""
+    angles = LidarSensor(LidarConfig()).angles_rad
+    rng = np.random.default_rng(4)
+    n = 2000
+    centre = rng.uniform(1.8, 2.6, n)[:, None]
+    phase = rng.uniform(-np.pi, np.pi, n)[:, None]
+    miss = centre * np.sin(angles[None, :] - phase)  # beam's distance from the housing's centre
+    along = centre * np.cos(angles[None, :] - phase)
+    hit = (np.abs(miss) <= HOUSING_RADIUS_M) & (along > 0)
+    clean = along - np.sqrt(np.maximum(HOUSING_RADIUS_M**2 - miss**2, 0.0))
+    noise = rng.normal(0.0, 1.0, clean.shape) * (0.01 + 0.0025 * clean**2)
+    ranges = np.where(hit, clean + noise, 0.0)
+    robots = extract_clusters(angles, ranges)
+    wide = extract_wide_objects(angles, ranges, max_width_m=0.3)
+    both = np.intersect1d(robots.scan_index, wide.scan_index)
+    assert both.size == 0, both[:10]
+    assert robots.scan_index.size > 100 and wide.scan_index.size > 10  # both sides exercised
 
 
 # --------------------------------------------------------------------------- camera
