@@ -5,6 +5,7 @@ with one line; during the save they are ignored."""
 from __future__ import annotations
 
 import signal
+import sys
 from typing import Any
 
 __all__ = ["Interrupts", "set_signal", "signal_interrupt"]
@@ -43,10 +44,20 @@ class Interrupts:
         self.ignore = ignore
         self.received: str | None = None
         self._old: dict[int, Any] = {}
+        self._old_unraisable: Any = None
 
     def _handle(self, signum: int, frame: Any) -> None:
         self.received = self.received or signal.Signals(signum).name
         raise KeyboardInterrupt
+
+    def _unraisable(self, unraisable: Any) -> None:
+        # A signal that lands in a finalizer or a C callback (seen in CI: pymunk's ffi.gc
+        # callback freeing a body) raises there, where Python cannot propagate it: it prints
+        # "Exception ignored ..." with a traceback and drops it. ``received`` is set, and the
+        # trainers stop on it at their next step (their backstops), so say nothing.
+        if isinstance(unraisable.exc_value, KeyboardInterrupt) and self.received:
+            return
+        self._old_unraisable(unraisable)
 
     def __enter__(self) -> Interrupts:
         handler = signal.SIG_IGN if self.ignore else self._handle
@@ -54,8 +65,12 @@ class Interrupts:
             old = set_signal(signum, handler)
             if old is not None:
                 self._old[signum] = old
+        if self._old and not self.ignore:
+            self._old_unraisable, sys.unraisablehook = sys.unraisablehook, self._unraisable
         return self
 
     def __exit__(self, *exc: Any) -> None:
         for signum, old in self._old.items():
             set_signal(signum, old)
+        if self._old_unraisable is not None:
+            sys.unraisablehook, self._old_unraisable = self._old_unraisable, None

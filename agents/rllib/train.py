@@ -330,6 +330,9 @@ def _train(
                     if max_wall_s is not None and time.perf_counter() - start > max_wall_s:
                         print(f"stopping: wall-time budget of {max_wall_s:.0f} s reached")
                         break
+                    if interrupts.received:  # backstop: an interrupt that library code dropped
+                        interrupted = interrupts.received
+                        break
             except (KeyboardInterrupt, SystemError) as exc:
                 if not signal_interrupt(exc):
                     raise
