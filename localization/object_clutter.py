@@ -12,7 +12,7 @@ extract_wide_objects`): a **wide object**. Each filter extracts the wide objects
 scan once, into its scan memory, and a camera frame's clutter intensity at bearing ``beta``
 becomes
 
-``kappa(beta) = kappa_C + lambda * sum_o N(beta; beta_o, (f alpha_o)^2 + s0^2)``
+``kappa(beta) = kappa_C - share + lambda * sum_o N(beta; beta_o, (f alpha_o)^2 + s0^2)``
 
 with ``beta_o`` the object's bearing from the camera (the scan's pose moves with the odometry,
 so a frame taken between two scans is judged from where the camera is), ``alpha_o`` its
@@ -69,19 +69,8 @@ WIDE_OBJECT_MAX_WIDTH_M = 0.12
 BIN_ANGLES_RAD = -math.pi + BIN_WIDTH_RAD * np.arange(N_BINS)
 _BIN_COS = np.cos(BIN_ANGLES_RAD)
 _BIN_SIN = np.sin(BIN_ANGLES_RAD)
-(
-    _JUMP,
-    _JUMP_GAIN,
-    _MAX_WIDTH,
-    _WIDTH_TOL0,
-    _WIDTH_TOL2,
-    _MIN_BEAMS,
-    _HOUSING_RADIUS,
-    _TRACKING_RANGE,
-    _EXTENT_TEST,
-    _FOOTPRINT,
-    _FOREGROUND,
-) = cluster_rule(LidarFeatureConfig())
+# The default extractor's rule, as _cluster_kernel's flat arguments (a compile-time constant).
+_RULE = cluster_rule(LidarFeatureConfig())
 _INV_SQRT_TWO_PI = 1.0 / math.sqrt(2.0 * math.pi)
 
 
@@ -133,23 +122,7 @@ def wide_objects_into(memory):
     ``[x, y, half_angle]`` rows)."""
     ranges = np.empty((1, N_BINS))
     ranges[0, :] = memory[4 : 4 + N_BINS]
-    xy, _, width, _ = _cluster_kernel(
-        ranges,
-        _BIN_COS,
-        _BIN_SIN,
-        _JUMP,
-        _JUMP_GAIN,
-        _MAX_WIDTH,
-        _WIDTH_TOL0,
-        _WIDTH_TOL2,
-        _MIN_BEAMS,
-        _HOUSING_RADIUS,
-        _TRACKING_RANGE,
-        _EXTENT_TEST,
-        _FOOTPRINT,
-        _FOREGROUND,
-        WIDE_OBJECT_MAX_WIDTH_M,
-    )
+    xy, _, width, _ = _cluster_kernel(ranges, _BIN_COS, _BIN_SIN, *_RULE, WIDE_OBJECT_MAX_WIDTH_M)
     count = min(xy.shape[0], MAX_WIDE_OBJECTS)
     memory[WIDE_OBJECTS_AT] = count
     for o in range(count):
