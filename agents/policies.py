@@ -6,6 +6,7 @@ optional ``reset(seed)``.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -16,6 +17,8 @@ from swarm_phd.runner import random_policy
 SCRIPTED: dict[str, Callable[..., scripted.ScriptedPolicy]] = {
     "wander": scripted.WanderPolicy.for_env,
     "formation": scripted.FormationPolicy.for_env,
+    # The same, turning its lidar's blind sectors off its teammates once it has arrived.
+    "formation-sensing": functools.partial(scripted.FormationPolicy.for_env, sensing_turn=True),
     "exploration": scripted.DispersionPolicy.for_env,
     "encirclement": scripted.EncirclementPolicy.for_env,
     "anti-symmetry": scripted.AntiSymmetryPolicy.for_env,
@@ -62,6 +65,7 @@ def policy_observation(spec: str) -> str | None:
 
         registry = SCRIPTED if spec.startswith("scripted:") else TEACHERS
         factory = registry.get(spec.split(":", 1)[1])
+        factory = getattr(factory, "func", factory)  # a functools.partial of a for_env
         modes = getattr(getattr(factory, "__self__", None), "observation_modes", None)
         return modes[0] if modes else None
     return None

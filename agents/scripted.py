@@ -184,6 +184,50 @@ def estimated_centroid(points: np.ndarray, weights: np.ndarray) -> np.ndarray:
     return (weights[:, None] * points).sum(axis=0) / (1.0 + weights.sum())
 
 
+#: Candidate turns of :meth:`VectorFieldPolicy.sensing_turn`, 1 deg apart (rad).
+_SENSING_TURNS_RAD = np.radians(np.arange(-90.0, 90.5, 1.0))
+_SENSING_NO_TURN = int(np.argmin(np.abs(_SENSING_TURNS_RAD)))
+
+
+def expected_lidar_detections(
+    points: np.ndarray, weights: np.ndarray, turns_rad: np.ndarray, model: Any
+) -> np.ndarray:
+    """Expected lidar detections per scan of the estimated teammates ``points`` (K, 2) (body
+    frame, m) with ``weights`` (K,), if the robot turned in place by each of ``turns_rad``
+    (D,) (counter-clockwise): ``sum_k w_k P_range(r_k) P_blind(beta_k - turn)``, shape (D,).
+
+    ``P_range`` and ``P_blind`` are the filter's own range and blind-sector factors of
+    ``model`` (a :class:`~localization.config.PHDConfig`; seed eq. 18 without the occlusion
+    and interference factors, which a turn does not change)."""
+    from localization.detection import inverse_sigmoid
+
+    ranges = np.hypot(points[:, 0], points[:, 1])
+    in_range = inverse_sigmoid(
+        ranges, model.lidar_pd_offset, model.lidar_pd_slope_per_m, model.lidar_pd_midpoint_m
+    )
+    if model.lidar_pd_model == "constant":
+        in_range = (ranges <= model.lidar_range_m) * model.lidar_detection_probability
+    bearings = np.arctan2(points[:, 1], points[:, 0])[None, :] - turns_rad[:, None]
+    blind = lidar_blind_sector_factor(bearings.ravel(), model)
+    return (blind.reshape(len(turns_rad), -1) * (weights * in_range)[None, :]).sum(axis=1)
+
+
+def lidar_blind_sector_factor(bearings_rad: np.ndarray, model: Any) -> np.ndarray:
+    """The filter's lidar blind-sector factor (seed eq. 18's product over the sectors of
+    ``model``, a :class:`~localization.config.PHDConfig`) at body-frame ``bearings_rad`` (N,):
+    shape (N,), 1 in the lidar's view, near 0 behind a camera pillar."""
+    from localization.detection import blind_sector_factor
+
+    bearings_rad = np.asarray(bearings_rad, dtype=float)
+    centres = np.radians(np.asarray(model.blind_sector_centers_deg, dtype=float))
+    if not len(centres):
+        return np.ones(len(bearings_rad))
+    sigmas = 0.5 * np.radians(np.asarray(model.blind_sector_widths_deg, dtype=float))
+    directions = np.stack([np.cos(centres), np.sin(centres)], axis=1)
+    units = np.stack([np.cos(bearings_rad), np.sin(bearings_rad)])
+    return blind_sector_factor(units, directions, (1.0 / sigmas**2)[:, None])
+
+
 def lidar_points(scan: tuple[np.ndarray, np.ndarray] | None, max_range_m: float) -> np.ndarray:
     """Valid lidar returns closer than ``max_range_m`` as body-frame points (P, 2)."""
     if scan is None:
@@ -214,6 +258,14 @@ class VectorFieldPolicy(ScriptedPolicy):
         ``omega = heading_gain * heading error``.
     deadband_mps : float
         ``|u|`` below this is treated as "arrived": the robot stops (no dithering on noise).
+    sensing_model : PHDConfig or None
+        With a filter config (``for_env(..., sensing_turn=True)`` passes ``env.config.phd``),
+        an arrived robot turns in place (:meth:`sensing_turn`) so that its lidar's blind
+        sectors and range, as that config models them, cover the fewest of its estimated
+        teammates. ``None`` (default): it stands still.
+    sensing_margin : float
+        The turn must gain at least this many expected lidar detections per scan over the
+        current heading (hysteresis: no turning back and forth on noise).
     """
 
     observation_modes = ("phd", "truth")
@@ -230,8 +282,12 @@ class VectorFieldPolicy(ScriptedPolicy):
         deadband_mps: float = 0.02,
         seed: int | None = 0,
         n_sectors: int = 0,
+        sensing_model: Any = None,
+        sensing_margin: float = 0.2,
     ) -> None:
         super().__init__(max_speed_mps, max_turn_rate_radps)
+        self.sensing_model = sensing_model
+        self.sensing_margin = sensing_margin
         self.top_k = top_k
         self.n_sectors = n_sectors  # lidar sector table in the observation (skipped)
         self.min_weight = min_weight
@@ -243,7 +299,11 @@ class VectorFieldPolicy(ScriptedPolicy):
         self.reset(seed)
 
     @classmethod
-    def for_env(cls, env: Any, **kwargs: Any) -> ScriptedPolicy:
+    def for_env(cls, env: Any, sensing_turn: bool = False, **kwargs: Any) -> ScriptedPolicy:
+        """The controller for ``env``; ``sensing_turn``: arrived robots turn their lidar's
+        blind sectors off their teammates, as ``env.config.phd`` models them."""
+        if sensing_turn:
+            kwargs.setdefault("sensing_model", env.config.phd)
         mode = env.config.observation
         if mode not in cls.observation_modes:
             raise ValueError(
@@ -276,7 +336,33 @@ class VectorFieldPolicy(ScriptedPolicy):
                 continue
             u = u + self.avoidance(self._scan.get(agent))
             actions[agent] = self.to_unicycle(u)
+            if self.sensing_model is not None and not actions[agent].any():
+                actions[agent] = self.sensing_turn(table)
         return actions
+
+    def sensing_turn(self, table: np.ndarray) -> np.ndarray:
+        """``[0, omega]`` turning in place towards the heading, within +-90 deg (the robot
+        drives both ways, so that covers every direction of travel), at which the lidar would
+        detect the most estimated teammates per scan (:func:`expected_lidar_detections`), if
+        it gains ``sensing_margin`` detections over the current heading; else ``[0, 0]``.
+
+        Why: the lidar is blind behind the four camera pillars (+-45, +-135 deg), exactly where
+        a robot that drove radially into a square formation sees its two neighbours; it then
+        holds them by bearing alone, and loses them (``docs/results.md``, round 6)."""
+        points, weights = estimated_neighbours(table, self.min_weight)
+        stop = np.zeros(2, dtype=np.float32)
+        if not len(points):
+            return stop
+        gain = expected_lidar_detections(points, weights, _SENSING_TURNS_RAD, self.sensing_model)
+        # Prefer the smallest turn among near-equal ones (0.01 detections per radian).
+        best = int(np.argmax(gain - 0.01 * np.abs(_SENSING_TURNS_RAD)))
+        if gain[best] - gain[_SENSING_NO_TURN] < self.sensing_margin:
+            return stop
+        omega = self.heading_gain * _SENSING_TURNS_RAD[best]
+        return np.array(
+            [0.0, np.clip(omega, -self.max_turn_rate_radps, self.max_turn_rate_radps)],
+            dtype=np.float32,
+        )
 
     def desired_velocity(
         self, agent: str, table: np.ndarray, odometry: np.ndarray, features: np.ndarray
