@@ -1,9 +1,9 @@
-"""Where the scripted formation controller's error comes from: its centroid estimate.
+"""Where the scripted formation controller's error comes from, and which teammates it loses.
 
 ``scripted:formation`` steers each robot to the circle around the swarm's centroid *as the
 robot estimates it* (:func:`agents.scripted.estimated_centroid` over the confident components
-of its own PHD table). This tool runs that controller on the PHD observation and, for every
-robot and step from ``--from-step`` on (the settled formation), compares:
+of its own PHD table). This tool runs that controller (or ``--policy``) on the PHD observation
+and, for every robot and step from ``--from-step`` on (the settled formation), compares:
 
 - each true teammate's position with the nearest confident component (how well the robot
   localizes its teammates);
@@ -12,16 +12,18 @@ robot and step from ``--from-step`` on (the settled formation), compares:
   ``--match-m``; an oracle no robot has), with the controller's weights and with weight 1;
 - every confident component that sits on no teammate, by what it sits on
   (:func:`classify_components`): a decoy post, a red decoy, a wall, or nothing known;
-- every **lost** teammate (no confident component within ``--match-m`` of it): how far it is
-  (beyond the lidar's tracking range or not), whether the camera reported a blob on its bearing
-  that step, and what holds that bearing instead (:func:`lost_teammate_cause`): the confident
-  component nearest the bearing within ``--bearing-window-deg``, classified as above, or none.
+- every **lost** teammate (no confident component within ``--match-m`` of it): whether it is
+  beyond the lidar's range (the filter's range factor of ``P_d`` below 0.5), whether the camera
+  reported a blob on its bearing that step, and what holds that bearing instead
+  (:func:`bearing_holder`): the confident component nearest the bearing within
+  ``--bearing-window-deg``, classified as above and in front of the teammate or behind, or none.
   A decoy post on the bearing is the case a bearing-only camera cannot undo: the lidar reports
   the post as a housing, the teammate behind it lends it every camera frame, and the teammate's
   own bearing is then explained, so no track starts behind the post;
 - every teammate within the lidar's range, on one of its blind sectors (the filter's own
-  blind-sector factor below 0.5 at the true bearing: behind a camera pillar) or in its view, and
-  how often each is lost.
+  blind-sector factor below 0.5 at the true bearing: behind a camera pillar) or in its view: how
+  often each is lost, and how often the lidar detects it against how often the filter expects
+  it to (:class:`LostTeammateTally`).
 
 ``--policy scripted:formation-sensing`` runs the controller that turns its blind sectors off
 its teammates instead.
@@ -40,12 +42,9 @@ from typing import Any
 
 import numpy as np
 
-from agents.scripted import (
-    estimated_centroid,
-    estimated_neighbours,
-    lidar_blind_sector_factor,
-    split_observation,
-)
+from agents.scripted import estimated_centroid, estimated_neighbours, split_observation
+from localization.detection import DetectionModel
+from swarm_core.geometry import wrap_angle
 from swarm_core.world import relative_positions
 
 KINDS = ("post", "red_decoy", "wall", "other")
@@ -89,28 +88,163 @@ def classify_components(
     return kind
 
 
-def lost_teammate_cause(
-    teammate_body: np.ndarray,
-    components_body: np.ndarray,
-    component_kinds: np.ndarray,
-    bearing_window_rad: float,
-) -> str:
-    """What holds the bearing of a teammate the robot lost: the kind (one of
-    :data:`LOST_CAUSES`) of the confident component whose bearing is nearest the teammate's,
-    among those within ``bearing_window_rad`` of it, or ``"none"``.
+def bearing_holder(
+    teammate_body: np.ndarray, components_body: np.ndarray, bearing_window_rad: float
+) -> int:
+    """Index of the component whose bearing is nearest the teammate's, among those within
+    ``bearing_window_rad`` (in (0, pi]) of it, or -1: what holds a lost teammate's bearing.
 
-    ``teammate_body`` (2,) and ``components_body`` (M, 2) are in the observer's body frame (m);
-    ``component_kinds`` (M,) from :func:`classify_components` (``"teammate"`` there is another
-    teammate: the lost one has no component within the match radius)."""
+    ``teammate_body`` (2,) and ``components_body`` (M, 2) are in the observer's body frame (m)."""
+    if not 0.0 < bearing_window_rad <= np.pi:
+        raise ValueError(f"bearing_window_rad must be in (0, pi], got {bearing_window_rad}")
     components_body = np.asarray(components_body, dtype=float).reshape(-1, 2)
     if not len(components_body):
-        return "none"
-    bearing = np.arctan2(teammate_body[1], teammate_body[0])
+        return -1
     offset = np.abs(
-        np.angle(np.exp(1j * (np.arctan2(components_body[:, 1], components_body[:, 0]) - bearing)))
+        wrap_angle(
+            np.arctan2(components_body[:, 1], components_body[:, 0])
+            - np.arctan2(teammate_body[1], teammate_body[0])
+        )
     )
     nearest = int(np.argmin(offset))
-    return str(component_kinds[nearest]) if offset[nearest] <= bearing_window_rad else "none"
+    return nearest if offset[nearest] <= bearing_window_rad else -1
+
+
+class LostTeammateTally:
+    """Counts, over observer-steps, the teammates each observer lost (what holds their
+    bearing, how far they are, whether the camera saw them) and the teammates within its
+    lidar's range (on a blind sector or in view: lost how often, detected how often against
+    the filter's ``P_d``, and the blind-sector factor measured against the filter's by bearing
+    offset from the nearest sector centre). See the module doc; :meth:`summary` gives the
+    shares.
+
+    "Within the lidar's range" is the filter's own range factor of ``P_d`` at least 0.5
+    (:meth:`~localization.detection.DetectionModel.lidar_range_factor`); "on a blind sector" its
+    blind-sector factor below 0.5 at the teammate's true bearing."""
+
+    GROUPS = ("blind", "in_view")
+    #: Bins of a teammate's bearing offset from the nearest blind-sector centre (deg).
+    OFFSET_BINS_DEG = (0.0, 2.0, 4.0, 6.0, 8.0, 10.0, 12.0, 15.0, 20.0, 180.0)
+
+    def __init__(
+        self, detection: DetectionModel, match_m: float, bearing_window_rad: float
+    ) -> None:
+        self.detection = detection
+        self.match_m = match_m
+        self.bearing_window_rad = bearing_window_rad
+        self.lost = dict.fromkeys(LOST_CAUSES, 0)
+        self.lost_beyond_range = dict.fromkeys(LOST_CAUSES, 0)
+        self.lost_holder_in_front = dict.fromkeys(LOST_CAUSES, 0)
+        self.lost_camera_seen = 0
+        self.in_range = dict.fromkeys(self.GROUPS, 0)
+        self.in_range_lost = dict.fromkeys(self.GROUPS, 0)
+        self.scans = dict.fromkeys(self.GROUPS, 0)
+        self.predicted_detections = dict.fromkeys(self.GROUPS, 0.0)
+        self.detections = dict.fromkeys(self.GROUPS, 0)
+        # Per offset bin: sum over scans of P_range, of P_range * P_blind, and detections.
+        n_bins = len(self.OFFSET_BINS_DEG) - 1
+        self.offset_range_weight = np.zeros(n_bins)
+        self.offset_predicted = np.zeros(n_bins)
+        self.offset_detections = np.zeros(n_bins)
+        self._centres_rad = np.radians(np.asarray(detection.config.blind_sector_centers_deg))
+
+    def add(
+        self,
+        teammates_body: np.ndarray,
+        lost: np.ndarray,
+        components_body: np.ndarray,
+        component_kinds: np.ndarray,
+        info: dict[str, Any],
+    ) -> None:
+        """One observer-step: its teammates (K, 2) and which of them it lost (K,) bool, its
+        confident components (M, 2) (all body frame, m) and their kinds (M,)
+        (:func:`classify_components`), and its ``infos`` entry (the step's camera frames and
+        lidar scans)."""
+        ranges = np.hypot(teammates_body[:, 0], teammates_body[:, 1])
+        p_range = self.detection.lidar_range_factor(ranges)
+        bearings = np.arctan2(teammates_body[:, 1], teammates_body[:, 0])
+        p_blind = self.detection.lidar_blind_sector_factor(bearings)
+        near = p_range >= 0.5
+        scans = info["measurements"]["lidar"]
+        detected = np.zeros(len(teammates_body), dtype=int)  # scans with a detection on each
+        for scan in scans:
+            detected += _detected(scan["detections"], teammates_body, self.match_m)
+        if len(self._centres_rad) and len(scans):
+            offset = np.degrees(
+                np.min(np.abs(wrap_angle(bearings[:, None] - self._centres_rad[None, :])), axis=1)
+            )
+            bins = np.digitize(offset, self.OFFSET_BINS_DEG) - 1
+            ok = near & (bins < len(self.offset_predicted))
+            np.add.at(self.offset_range_weight, bins[ok], p_range[ok] * len(scans))
+            np.add.at(self.offset_predicted, bins[ok], (p_range * p_blind)[ok] * len(scans))
+            np.add.at(self.offset_detections, bins[ok], detected[ok])
+        for group, on in (("blind", near & (p_blind < 0.5)), ("in_view", near & (p_blind >= 0.5))):
+            self.in_range[group] += int(on.sum())
+            self.in_range_lost[group] += int((on & lost).sum())
+            self.scans[group] += int(on.sum()) * len(scans)
+            self.predicted_detections[group] += float((p_range * p_blind)[on].sum()) * len(scans)
+            self.detections[group] += int(detected[on].sum())
+        for j in np.flatnonzero(lost):
+            holder = bearing_holder(teammates_body[j], components_body, self.bearing_window_rad)
+            cause = "none" if holder < 0 else str(component_kinds[holder])
+            self.lost[cause] += 1
+            self.lost_beyond_range[cause] += int(not near[j])
+            self.lost_holder_in_front[cause] += int(
+                holder >= 0 and np.hypot(*components_body[holder]) < ranges[j]
+            )
+            self.lost_camera_seen += int(
+                _blob_on_bearing(info, teammates_body[j], self.bearing_window_rad)
+            )
+
+    def summary(self, observer_steps: int) -> dict[str, dict[str, Any]]:
+        """``lost_teammates`` (per observer-step, and shares of the losses) and
+        ``teammates_in_lidar_range`` (shares of the in-range teammate-steps; detections per
+        scan, predicted by the filter's ``P_d`` of a lone component at the true position, and
+        measured: scans with an extracted detection within the match radius)."""
+        n_lost = sum(self.lost.values())
+        n_near = sum(self.in_range.values())
+        weight = self.offset_range_weight
+        by_cause = {k: max(1, v) for k, v in self.lost.items()}
+        return {
+            "lost_teammates": {
+                "per_observer_step": n_lost / max(1, observer_steps),
+                "beyond_lidar_range_share": sum(self.lost_beyond_range.values()) / max(1, n_lost),
+                "camera_blob_on_bearing_share": self.lost_camera_seen / max(1, n_lost),
+                "bearing_held_by_share": {k: v / max(1, n_lost) for k, v in self.lost.items()},
+                "beyond_lidar_range_share_by_holder": {
+                    k: v / by_cause[k] for k, v in self.lost_beyond_range.items()
+                },
+                "holder_in_front_share_by_holder": {
+                    k: v / by_cause[k] for k, v in self.lost_holder_in_front.items()
+                },
+            },
+            "teammates_in_lidar_range": {
+                "lidar_range_m": _half_pd_range_m(self.detection),
+                "per_observer_step": n_near / max(1, observer_steps),
+                "on_blind_sector_share": self.in_range["blind"] / max(1, n_near),
+                "lost_share": sum(self.in_range_lost.values()) / max(1, n_near),
+                **{
+                    f"lost_share_{where}": self.in_range_lost[g] / max(1, self.in_range[g])
+                    for g, where in zip(self.GROUPS, ("on_blind_sector", "in_view"), strict=True)
+                },
+                "losses_on_blind_sector_share": self.in_range_lost["blind"]
+                / max(1, sum(self.in_range_lost.values())),
+                "lidar_pd_predicted_per_scan": {
+                    g: self.predicted_detections[g] / max(1, self.scans[g]) for g in self.GROUPS
+                },
+                "lidar_detected_per_scan": {
+                    g: self.detections[g] / max(1, self.scans[g]) for g in self.GROUPS
+                },
+                # The blind-sector factor by bearing offset from the nearest sector centre:
+                # measured (detections / sum of P_range over scans) and the filter's model.
+                "blind_sector_factor_by_offset": {
+                    "offset_bins_deg": list(self.OFFSET_BINS_DEG),
+                    "measured": list(self.offset_detections / np.maximum(weight, 1e-12)),
+                    "modelled": list(self.offset_predicted / np.maximum(weight, 1e-12)),
+                    "scans_weighted_by_p_range": list(weight),
+                },
+            },
+        }
 
 
 def diagnose(
@@ -136,6 +270,8 @@ def diagnose(
         raise ValueError(f"--policy must be one of {FORMATION_CONTROLLERS}, got {policy!r}")
     if not 0.0 < bearing_window_deg <= 180.0:
         raise ValueError(f"--bearing-window-deg must be in (0, 180], got {bearing_window_deg}")
+    if not match_m > 0.0:
+        raise ValueError(f"--match-m must be > 0, got {match_m}")
     if not 0 <= from_step < max_steps:
         raise ValueError(f"--from-step must be in [0, {max_steps}), got {from_step}")
     fixed = {"preset", "task", "observation", "max_steps"} & set(env_overrides or {})
@@ -152,6 +288,7 @@ def diagnose(
         **(env_overrides or {}),
     )
     controller = load_policy(policy, env)
+    top_k, n_sectors, min_weight = controller.top_k, controller.n_sectors, controller.min_weight
     arena = env.config.arena
     half = (0.5 * arena.width_m, 0.5 * arena.height_m)
     errors: dict[str, list[float]] = {"controller": [], "oracle": [], "oracle_weight_1": []}
@@ -159,14 +296,9 @@ def diagnose(
     counts = dict.fromkeys(KINDS, 0)
     formation: list[float] = []
     observer_steps = 0
-    lost = dict.fromkeys(LOST_CAUSES, 0)
-    lost_beyond_lidar = dict.fromkeys(LOST_CAUSES, 0)
-    lost_camera_seen = 0
-    lidar_range_m = env.config.phd.lidar_range_m
-    # Teammates within the lidar's range: on a blind sector or in view, and lost or not.
-    in_range = {"blind": 0, "in_view": 0}
-    in_range_lost = {"blind": 0, "in_view": 0}
-    window_rad = np.radians(bearing_window_deg)
+    tally = LostTeammateTally(
+        DetectionModel(env.config.phd), match_m, np.radians(bearing_window_deg)
+    )
     for seed in seeds:
         controller.reset(seed)
         obs, infos = env.reset(seed=seed)
@@ -177,40 +309,25 @@ def diagnose(
                 truth = env.last_world_step.truth
                 poses = truth.poses[: len(env.possible_agents)]
                 centroid = relative_positions(poses, poses[:, :2].mean(axis=0, keepdims=True))
+                bodies = relative_positions(poses, poses[:, :2])  # (N, N, 2): j in i's frame
                 formation.append(float(env.task.errors(poses[:, :2])[0].mean()))
                 for i, agent in enumerate(env.possible_agents):
                     observer_steps += 1
-                    table = split_observation(obs[agent], controller.top_k, controller.n_sectors)[
-                        0
-                    ]
-                    pts, w = estimated_neighbours(
-                        table, controller.min_weight, reference_variance_m2=0.02
-                    )
+                    table = split_observation(obs[agent], top_k, n_sectors)[0]
+                    pts, w = estimated_neighbours(table, min_weight, reference_variance_m2=0.02)
                     c, s = np.cos(poses[i, 2]), np.sin(poses[i, 2])
                     world = poses[i, :2] + pts @ np.array([[c, s], [-s, c]])
                     others = np.delete(poses[:, :2], i, axis=0)
                     kind = classify_components(world, others, layout, half, match_m)
                     for k in KINDS:
                         counts[k] += int((kind == k).sum())
+                    lost = np.ones(len(others), dtype=bool)
                     if len(world):
                         gap = np.linalg.norm(others[:, None, :] - world[None, :, :], axis=2)
                         teammate_errors.append(gap.min(axis=1))
+                        lost = gap.min(axis=1) > match_m
                     mate = kind == "teammate"
-                    teammates_body = (others - poses[i, :2]) @ np.array([[c, -s], [s, c]])
-                    unmatched = _unmatched(teammates_body, pts, match_m)
-                    near = np.hypot(*teammates_body.T) <= lidar_range_m
-                    bearings = np.arctan2(teammates_body[:, 1], teammates_body[:, 0])
-                    blind = lidar_blind_sector_factor(bearings, env.config.phd) < 0.5
-                    for name, on in (("blind", near & blind), ("in_view", near & ~blind)):
-                        in_range[name] += int(on.sum())
-                        in_range_lost[name] += int((on & unmatched).sum())
-                    for j in np.flatnonzero(unmatched):
-                        cause = lost_teammate_cause(teammates_body[j], pts, kind, window_rad)
-                        lost[cause] += 1
-                        lost_beyond_lidar[cause] += int(not near[j])
-                        lost_camera_seen += int(
-                            _blob_on_bearing(infos[agent], teammates_body[j], window_rad)
-                        )
+                    tally.add(np.delete(bodies[i], i, axis=0), lost, pts, kind, infos[agent])
                     true_c = centroid[i, 0]
                     for name, value in (
                         ("controller", estimated_centroid(pts, w)),
@@ -221,7 +338,6 @@ def diagnose(
             obs, _, _, _, infos = env.step(actions)
     env.close()
     spurious = sum(counts.values())
-    n_lost = sum(lost.values())
     return {
         "preset": preset,
         "seeds": seeds,
@@ -238,32 +354,25 @@ def diagnose(
         "spurious_per_observer_step": spurious / max(1, observer_steps),
         "spurious_share": {k: counts[k] / max(1, spurious) for k in KINDS},
         "observer_steps": observer_steps,
-        "lost_teammates": {
-            "per_observer_step": n_lost / max(1, observer_steps),
-            "beyond_lidar_range_share": sum(lost_beyond_lidar.values()) / max(1, n_lost),
-            "camera_blob_on_bearing_share": lost_camera_seen / max(1, n_lost),
-            "bearing_held_by_share": {k: lost[k] / max(1, n_lost) for k in LOST_CAUSES},
-            "beyond_lidar_range_share_by_holder": {
-                k: lost_beyond_lidar[k] / max(1, lost[k]) for k in LOST_CAUSES
-            },
-        },
-        "teammates_in_lidar_range": {
-            "on_blind_sector_share": in_range["blind"] / max(1, sum(in_range.values())),
-            "lost_share_on_blind_sector": in_range_lost["blind"] / max(1, in_range["blind"]),
-            "lost_share_in_view": in_range_lost["in_view"] / max(1, in_range["in_view"]),
-            "lost_share": sum(in_range_lost.values()) / max(1, sum(in_range.values())),
-            "losses_on_blind_sector_share": in_range_lost["blind"]
-            / max(1, sum(in_range_lost.values())),
-        },
+        **tally.summary(observer_steps),
     }
 
 
-def _unmatched(teammates_body: np.ndarray, components_body: np.ndarray, match_m: float):
-    """(K,) bool: teammates with no component within ``match_m`` (both body frame, m)."""
-    if not len(components_body):
-        return np.ones(len(teammates_body), dtype=bool)
-    gap = np.linalg.norm(teammates_body[:, None, :] - components_body[None, :, :], axis=2)
-    return gap.min(axis=1) > match_m
+def _detected(detections: np.ndarray, points: np.ndarray, match_m: float) -> np.ndarray:
+    """(K,) bool: whether one of a scan's extracted ``detections`` (D, 2) lies within
+    ``match_m`` of each of ``points`` (K, 2) (both body frame, m)."""
+    detections = np.asarray(detections, dtype=float).reshape(-1, 2)
+    if not len(detections) or not len(points):
+        return np.zeros(len(points), dtype=bool)
+    gap = np.linalg.norm(points[:, None, :] - detections[None, :, :], axis=2)
+    return gap.min(axis=1) <= match_m
+
+
+def _half_pd_range_m(detection: DetectionModel) -> float:
+    """The range (m, to 1 mm) beyond which the filter's lidar range factor falls below 0.5."""
+    ranges = np.arange(0.0, 50.0, 0.001)
+    below = np.flatnonzero(detection.lidar_range_factor(ranges) < 0.5)
+    return float(ranges[below[0]]) if len(below) else float("inf")
 
 
 def _blob_on_bearing(info: dict[str, Any], teammate_body: np.ndarray, window_rad: float) -> bool:
@@ -272,7 +381,7 @@ def _blob_on_bearing(info: dict[str, Any], teammate_body: np.ndarray, window_rad
     bearing = np.arctan2(teammate_body[1], teammate_body[0])
     for frame in info["measurements"].get("camera", ()):
         blobs = np.asarray(frame["bearings_rad"], dtype=float)
-        if len(blobs) and np.min(np.abs(np.angle(np.exp(1j * (blobs - bearing))))) <= window_rad:
+        if len(blobs) and np.min(np.abs(wrap_angle(blobs - bearing))) <= window_rad:
             return True
     return False
 
@@ -301,17 +410,20 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--out", default=None, help="JSON summary file")
     args = parser.parse_args(argv)
-    summary = diagnose(
-        args.preset,
-        parse_seeds(args.seeds),
-        args.from_step,
-        args.max_steps,
-        args.match_m,
-        args.observation,
-        parse_json_object(args.env_overrides, "--env-overrides"),
-        args.bearing_window_deg,
-        args.policy,
-    )
+    try:
+        summary = diagnose(
+            args.preset,
+            parse_seeds(args.seeds),
+            from_step=args.from_step,
+            max_steps=args.max_steps,
+            match_m=args.match_m,
+            observation=args.observation,
+            env_overrides=parse_json_object(args.env_overrides, "--env-overrides"),
+            bearing_window_deg=args.bearing_window_deg,
+            policy=args.policy,
+        )
+    except ValueError as err:
+        parser.error(str(err))
     print(json.dumps(summary, indent=2))
     if args.out:
         from swarm_core.atomic_files import write_json_atomically

@@ -11,6 +11,8 @@ from typing import Any
 
 import numpy as np
 
+from localization.config import PHDConfig
+from localization.detection import DetectionModel
 from swarm_core.geometry import wrap_angle
 from swarm_env.observation import ESTIMATE_COLUMNS
 
@@ -190,42 +192,26 @@ _SENSING_NO_TURN = int(np.argmin(np.abs(_SENSING_TURNS_RAD)))
 
 
 def expected_lidar_detections(
-    points: np.ndarray, weights: np.ndarray, turns_rad: np.ndarray, model: Any
+    points: np.ndarray, weights: np.ndarray, turns_rad: np.ndarray, detection: DetectionModel
 ) -> np.ndarray:
     """Expected lidar detections per scan of the estimated teammates ``points`` (K, 2) (body
     frame, m) with ``weights`` (K,), if the robot turned in place by each of ``turns_rad``
-    (D,) (counter-clockwise): ``sum_k w_k P_range(r_k) P_blind(beta_k - turn)``, shape (D,).
+    (D,) (rad, counter-clockwise: a bearing ``beta`` becomes ``beta - turn``), shape (D,):
+    ``sum_k w_k P_range(r_k) P_blind(beta_k - turn)``.
 
-    ``P_range`` and ``P_blind`` are the filter's own range and blind-sector factors of
-    ``model`` (a :class:`~localization.config.PHDConfig`; seed eq. 18 without the occlusion
-    and interference factors, which a turn does not change)."""
-    from localization.detection import inverse_sigmoid
-
-    ranges = np.hypot(points[:, 0], points[:, 1])
-    in_range = inverse_sigmoid(
-        ranges, model.lidar_pd_offset, model.lidar_pd_slope_per_m, model.lidar_pd_midpoint_m
-    )
-    if model.lidar_pd_model == "constant":
-        in_range = (ranges <= model.lidar_range_m) * model.lidar_detection_probability
+    ``P_range`` and ``P_blind`` are the filter's own range and blind-sector factors
+    (``detection``, the filter's :class:`~localization.detection.DetectionModel`; seed eq. 18
+    without the occlusion and interference factors, which a turn does not change). Under the
+    constant ``P_d`` model the filter has no blind sectors, so no turn gains anything."""
+    points = np.asarray(points, dtype=float).reshape(-1, 2)
+    weights = np.asarray(weights, dtype=float)
+    turns_rad = np.asarray(turns_rad, dtype=float)
+    if weights.shape != (len(points),):
+        raise ValueError(f"weights must have shape ({len(points)},), got {weights.shape}")
+    in_range = detection.lidar_range_factor(np.hypot(points[:, 0], points[:, 1]))
     bearings = np.arctan2(points[:, 1], points[:, 0])[None, :] - turns_rad[:, None]
-    blind = lidar_blind_sector_factor(bearings.ravel(), model)
-    return (blind.reshape(len(turns_rad), -1) * (weights * in_range)[None, :]).sum(axis=1)
-
-
-def lidar_blind_sector_factor(bearings_rad: np.ndarray, model: Any) -> np.ndarray:
-    """The filter's lidar blind-sector factor (seed eq. 18's product over the sectors of
-    ``model``, a :class:`~localization.config.PHDConfig`) at body-frame ``bearings_rad`` (N,):
-    shape (N,), 1 in the lidar's view, near 0 behind a camera pillar."""
-    from localization.detection import blind_sector_factor
-
-    bearings_rad = np.asarray(bearings_rad, dtype=float)
-    centres = np.radians(np.asarray(model.blind_sector_centers_deg, dtype=float))
-    if not len(centres):
-        return np.ones(len(bearings_rad))
-    sigmas = 0.5 * np.radians(np.asarray(model.blind_sector_widths_deg, dtype=float))
-    directions = np.stack([np.cos(centres), np.sin(centres)], axis=1)
-    units = np.stack([np.cos(bearings_rad), np.sin(bearings_rad)])
-    return blind_sector_factor(units, directions, (1.0 / sigmas**2)[:, None])
+    blind = detection.lidar_blind_sector_factor(bearings.ravel()).reshape(bearings.shape)
+    return (blind * (weights * in_range)[None, :]).sum(axis=1)
 
 
 def lidar_points(scan: tuple[np.ndarray, np.ndarray] | None, max_range_m: float) -> np.ndarray:
@@ -261,11 +247,11 @@ class VectorFieldPolicy(ScriptedPolicy):
     sensing_model : PHDConfig or None
         With a filter config (``for_env(..., sensing_turn=True)`` passes ``env.config.phd``),
         an arrived robot turns in place (:meth:`sensing_turn`) so that its lidar's blind
-        sectors and range, as that config models them, cover the fewest of its estimated
-        teammates. ``None`` (default): it stands still.
+        sectors, as that config models them, cover the fewest of its estimated teammates.
+        ``None`` (default): it stands still.
     sensing_margin : float
         The turn must gain at least this many expected lidar detections per scan over the
-        current heading (hysteresis: no turning back and forth on noise).
+        current heading (>= 0; hysteresis: no turning back and forth on noise).
     """
 
     observation_modes = ("phd", "truth")
@@ -282,12 +268,19 @@ class VectorFieldPolicy(ScriptedPolicy):
         deadband_mps: float = 0.02,
         seed: int | None = 0,
         n_sectors: int = 0,
-        sensing_model: Any = None,
+        sensing_model: PHDConfig | None = None,
         sensing_margin: float = 0.2,
     ) -> None:
+        if sensing_model is not None and not isinstance(sensing_model, PHDConfig):
+            raise TypeError(
+                f"sensing_model must be a PHDConfig or None, got {type(sensing_model).__name__}"
+            )
+        if not (np.isfinite(sensing_margin) and sensing_margin >= 0.0):
+            raise ValueError(f"sensing_margin must be finite and >= 0, got {sensing_margin}")
         super().__init__(max_speed_mps, max_turn_rate_radps)
         self.sensing_model = sensing_model
         self.sensing_margin = sensing_margin
+        self._sensing_detection = None if sensing_model is None else DetectionModel(sensing_model)
         self.top_k = top_k
         self.n_sectors = n_sectors  # lidar sector table in the observation (skipped)
         self.min_weight = min_weight
@@ -341,10 +334,12 @@ class VectorFieldPolicy(ScriptedPolicy):
         return actions
 
     def sensing_turn(self, table: np.ndarray) -> np.ndarray:
-        """``[0, omega]`` turning in place towards the heading, within +-90 deg (the robot
-        drives both ways, so that covers every direction of travel), at which the lidar would
-        detect the most estimated teammates per scan (:func:`expected_lidar_detections`), if
-        it gains ``sensing_margin`` detections over the current heading; else ``[0, 0]``.
+        """``[0, omega]`` turning in place towards the heading, within +-90 deg, at which the
+        lidar would detect the most estimated teammates per scan
+        (:func:`expected_lidar_detections`), if it gains ``sensing_margin`` detections over the
+        current heading; else ``[0, 0]``. +-90 deg reaches every heading of a sector layout
+        that repeats every 180 deg (the seed's +-45, +-135 deg); an asymmetric layout can have
+        its best heading beyond it.
 
         Why: the lidar is blind behind the four camera pillars (+-45, +-135 deg), exactly where
         a robot that drove radially into a square formation sees its two neighbours; it then
@@ -353,7 +348,9 @@ class VectorFieldPolicy(ScriptedPolicy):
         stop = np.zeros(2, dtype=np.float32)
         if not len(points):
             return stop
-        gain = expected_lidar_detections(points, weights, _SENSING_TURNS_RAD, self.sensing_model)
+        gain = expected_lidar_detections(
+            points, weights, _SENSING_TURNS_RAD, self._sensing_detection
+        )
         # Prefer the smallest turn among near-equal ones (0.01 detections per radian).
         best = int(np.argmax(gain - 0.01 * np.abs(_SENSING_TURNS_RAD)))
         if gain[best] - gain[_SENSING_NO_TURN] < self.sensing_margin:

@@ -41,6 +41,7 @@ __all__ = [
     "unit_bearings",
     "angular_bump",
     "blind_sector_factor",
+    "blind_sector_geometry",
     "occlusion_factor",
     "interference_factor",
     "DetectionModel",
@@ -214,6 +215,15 @@ def interference_factor(
     return np.multiply.reduce(1.0 - depth * bump, axis=0)
 
 
+def blind_sector_geometry(config: PHDConfig) -> tuple[np.ndarray, np.ndarray]:
+    """``(directions, inv_var)`` of ``config``'s lidar blind sectors: the unit vectors of their
+    centres ``alpha_k``, shape (K, 2), and ``1 / sigma_k^2`` with ``sigma_k = beta_k / 2``
+    (rad^-2), shape (K,)."""
+    centres = np.radians(np.asarray(config.blind_sector_centers_deg, dtype=float))
+    sigmas = 0.5 * np.radians(np.asarray(config.blind_sector_widths_deg, dtype=float))
+    return np.stack((np.cos(centres), np.sin(centres)), axis=1).reshape(-1, 2), 1.0 / sigmas**2
+
+
 class DetectionModel:
     """Survival, lidar and camera detection probabilities built from a :class:`PHDConfig`.
 
@@ -237,10 +247,8 @@ class DetectionModel:
 
     def __init__(self, config: PHDConfig) -> None:
         self.config = config
-        centres = np.radians(np.asarray(config.blind_sector_centers_deg, dtype=float))
-        sigmas = 0.5 * np.radians(np.asarray(config.blind_sector_widths_deg, dtype=float))
-        self._sector_dirs = np.stack((np.cos(centres), np.sin(centres)), axis=1)  # (K, 2)
-        self._sector_inv_var = (1.0 / sigmas**2)[:, None]  # (K, 1)
+        self._sector_dirs, inv_var = blind_sector_geometry(config)  # (K, 2), (K,)
+        self._sector_inv_var = inv_var[:, None]  # (K, 1)
         self._sector_scaled = self._sector_dirs * self._sector_inv_var
         self._occlusion_inv_var = 1.0 / math.radians(config.occlusion_std_deg) ** 2
         self._interference_inv_var = 1.0 / math.radians(config.interference_std_deg) ** 2
@@ -280,12 +288,9 @@ class DetectionModel:
         """
         cfg = self.config
         if cfg.lidar_pd_model == "constant":
-            ranges = np.hypot(table[ROW_X], table[ROW_Y])
-            return (ranges <= cfg.lidar_range_m) * cfg.lidar_detection_probability
+            return self.lidar_range_factor(np.hypot(table[ROW_X], table[ROW_Y]))
         ranges, units = unit_bearings(table[ROW_X : ROW_Y + 1], cfg.min_range_m)
-        pd = inverse_sigmoid(
-            ranges, cfg.lidar_pd_offset, cfg.lidar_pd_slope_per_m, cfg.lidar_pd_midpoint_m
-        )
+        pd = self.lidar_range_factor(ranges)
         if self._sector_dirs.shape[0]:
             pd *= blind_sector_factor(
                 units, self._sector_dirs, self._sector_inv_var, self._sector_scaled
@@ -304,6 +309,29 @@ class DetectionModel:
             )
         # Every factor is in [0, 1] by construction, so the product needs no final clip.
         return pd
+
+    def lidar_range_factor(self, ranges_m: np.ndarray) -> np.ndarray:
+        """The range part of :meth:`lidar`'s ``P_d`` at ``ranges_m`` (N,) (m), shape (N,): seed
+        eq. 19's sigmoid, or the constant model's ``P_d`` within ``lidar_range_m`` (0 beyond)."""
+        cfg = self.config
+        ranges_m = np.asarray(ranges_m, dtype=float)
+        if cfg.lidar_pd_model == "constant":
+            return (ranges_m <= cfg.lidar_range_m) * cfg.lidar_detection_probability
+        return inverse_sigmoid(
+            ranges_m, cfg.lidar_pd_offset, cfg.lidar_pd_slope_per_m, cfg.lidar_pd_midpoint_m
+        )
+
+    def lidar_blind_sector_factor(self, bearings_rad: np.ndarray) -> np.ndarray:
+        """The blind-sector part of :meth:`lidar`'s ``P_d`` at body-frame ``bearings_rad``
+        (N,), shape (N,): 0 at a sector's centre, 1 in the lidar's view. The constant model
+        has no sectors (1 everywhere), as in :meth:`lidar`."""
+        bearings_rad = np.asarray(bearings_rad, dtype=float)
+        if self.config.lidar_pd_model == "constant" or not self._sector_dirs.shape[0]:
+            return np.ones(bearings_rad.shape)
+        units = np.stack((np.cos(bearings_rad), np.sin(bearings_rad)))
+        return blind_sector_factor(
+            units, self._sector_dirs, self._sector_inv_var, self._sector_scaled
+        )
 
     def camera(self, table: np.ndarray) -> np.ndarray:
         """Camera ``P_d`` per component (seed eqs. 29-30), in ``[0, 1]``.

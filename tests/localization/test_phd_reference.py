@@ -213,6 +213,33 @@ def test_blind_sector_pd_vanishes_at_centre_and_recovers():
     assert np.isclose(1 - pd[1] / range_factor, math.exp(-(d**2) / (2 * sigma**2)), rtol=1e-4)
 
 
+@pytest.mark.parametrize("pd_model", ["seed", "constant"])
+def test_lidar_pd_is_its_range_factor_times_its_blind_sector_factor(pd_model):
+    """For a lone component (no occlusion) ``lidar`` is the product of the two public factors
+    (what ``agents.scripted.expected_lidar_detections`` uses); the constant model has no
+    sectors, and the seed model's vanish at their centres."""
+    cfg = PHDConfig(lidar_pd_model=pd_model)
+    model = DetectionModel(cfg)
+    rng = np.random.default_rng(7)
+    ranges = rng.uniform(0.2, 3.0, 50)
+    bearings = rng.uniform(-math.pi, math.pi, 50)
+    lone = [
+        model.lidar(
+            table_from_arrays(
+                np.ones(1), np.array([[r * math.cos(b), r * math.sin(b)]]), 0.01 * np.eye(2)[None]
+            ),
+            None,
+        )[0]
+        for r, b in zip(ranges, bearings, strict=True)
+    ]
+    product = model.lidar_range_factor(ranges) * model.lidar_blind_sector_factor(bearings)
+    np.testing.assert_allclose(product, lone, rtol=1e-9, atol=1e-12)
+    centres = np.radians(cfg.blind_sector_centers_deg)
+    expected = np.ones(4) if pd_model == "constant" else np.zeros(4)
+    np.testing.assert_allclose(model.lidar_blind_sector_factor(centres), expected, atol=1e-12)
+    np.testing.assert_allclose(model.lidar_blind_sector_factor(centres + math.pi / 4), 1.0)
+
+
 def test_occlusion_hides_the_farther_component():
     cfg = PHDConfig()
     model = DetectionModel(cfg)
