@@ -48,6 +48,7 @@ import numpy as np
 from numba import njit, prange
 
 from .config import CAMERA_BIRTH_RADIAL_STD_FRACTION, PROCESS_CLOCK_RESET_S, PHDConfig
+from .detection import blind_sector_geometry
 from .mixture import N_ROWS
 from .object_clutter import clutter_density_into, wide_objects_into
 from .phd import GH_NODES, GH_WEIGHTS
@@ -174,14 +175,8 @@ def pack_params(config: PHDConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
     The blind sectors are given as unit centre directions scaled by ``1 / sigma^2``
     (``sigma = width / 2``), as :class:`~localization.detection.DetectionModel` keeps them.
     """
-    c = config
-    f = _F.pack(c)
-    i = _I.pack(c)
-    centres = np.radians(np.asarray(c.blind_sector_centers_deg, dtype=float))
-    sigmas = 0.5 * np.radians(np.asarray(c.blind_sector_widths_deg, dtype=float))
-    inv_var = 1.0 / sigmas**2
-    scaled = np.stack((np.cos(centres), np.sin(centres)), axis=1) * inv_var[:, None]
-    return f, i, scaled.reshape(-1, 2), inv_var
+    directions, inv_var = blind_sector_geometry(config)
+    return _F.pack(config), _I.pack(config), directions * inv_var[:, None], inv_var
 
 
 # ---------------------------------------------------------------------- detection factors
