@@ -164,6 +164,7 @@ class LostTeammateTally:
         p_range = self.detection.lidar_range_factor(ranges)
         bearings = np.arctan2(teammates_body[:, 1], teammates_body[:, 0])
         p_blind = self.detection.lidar_blind_sector_factor(bearings)
+        p_d = p_range * p_blind  # a lone component at the true position
         near = p_range >= 0.5
         scans = info["measurements"]["lidar"]
         detected = np.zeros(len(teammates_body), dtype=int)  # scans with a detection on each
@@ -176,13 +177,13 @@ class LostTeammateTally:
             bins = np.digitize(offset, self.OFFSET_BINS_DEG) - 1
             ok = near & (bins < len(self.offset_predicted))
             np.add.at(self.offset_range_weight, bins[ok], p_range[ok] * len(scans))
-            np.add.at(self.offset_predicted, bins[ok], (p_range * p_blind)[ok] * len(scans))
+            np.add.at(self.offset_predicted, bins[ok], p_d[ok] * len(scans))
             np.add.at(self.offset_detections, bins[ok], detected[ok])
         for group, on in (("blind", near & (p_blind < 0.5)), ("in_view", near & (p_blind >= 0.5))):
             self.in_range[group] += int(on.sum())
             self.in_range_lost[group] += int((on & lost).sum())
             self.scans[group] += int(on.sum()) * len(scans)
-            self.predicted_detections[group] += float((p_range * p_blind)[on].sum()) * len(scans)
+            self.predicted_detections[group] += float(p_d[on].sum()) * len(scans)
             self.detections[group] += int(detected[on].sum())
         for j in np.flatnonzero(lost):
             holder = bearing_holder(teammates_body[j], components_body, self.bearing_window_rad)
