@@ -163,7 +163,7 @@ class LostTeammateTally:
         ranges = np.hypot(teammates_body[:, 0], teammates_body[:, 1])
         p_range = self.detection.lidar_range_factor(ranges)
         bearings = np.arctan2(teammates_body[:, 1], teammates_body[:, 0])
-        p_blind = self.detection.lidar_blind_sector_factor(bearings)
+        p_blind = self.detection.lidar_blind_sector_factor(bearings, ranges)
         p_d = p_range * p_blind  # a lone component at the true position
         near = p_range >= 0.5
         scans = info["measurements"]["lidar"]

@@ -168,15 +168,31 @@ def estimated_neighbours(
     ``w / (1 + (sxx + syy) / reference_variance_m2)``: a camera-only track (bearing known, range
     drifting) then counts little next to a lidar-confirmed one.
     """
-    keep = (
-        (table[:, _VALID] > 0.5)
-        & (table[:, _W] >= min_weight)
-        & (np.maximum(table[:, _SXX], table[:, _SYY]) <= max_variance_m2)
-    )
+    keep = confident_rows(table, min_weight, max_variance_m2)
     weights = table[keep, _W].copy()
     if reference_variance_m2 is not None:
         weights /= 1.0 + (table[keep, _SXX] + table[keep, _SYY]) / reference_variance_m2
     return table[keep][:, [_X, _Y]], weights
+
+
+def confident_rows(
+    table: np.ndarray, min_weight: float = 0.5, max_variance_m2: float = 0.5
+) -> np.ndarray:
+    """Which rows (K,) of a PHD table :func:`estimated_neighbours` keeps (bool)."""
+    return (
+        (table[:, _VALID] > 0.5)
+        & (table[:, _W] >= min_weight)
+        & (np.maximum(table[:, _SXX], table[:, _SYY]) <= max_variance_m2)
+    )
+
+
+def bearing_std(rows: np.ndarray) -> np.ndarray:
+    """Bearing standard deviations (M,) (rad) of PHD table rows (M, 7):
+    ``sqrt(u_perp' P u_perp) / r`` with ``u`` the unit bearing (ranges floored at 1 cm)."""
+    ranges = np.maximum(np.hypot(rows[:, _X], rows[:, _Y]), 0.01)
+    ux, uy = rows[:, _X] / ranges, rows[:, _Y] / ranges
+    var = uy * uy * rows[:, _SXX] - 2.0 * ux * uy * rows[:, _SXY] + ux * ux * rows[:, _SYY]
+    return np.sqrt(np.maximum(var, 0.0)) / ranges
 
 
 def estimated_centroid(points: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -192,11 +208,16 @@ _SENSING_NO_TURN = int(np.argmin(np.abs(_SENSING_TURNS_RAD)))
 
 
 def expected_lidar_detections(
-    points: np.ndarray, weights: np.ndarray, turns_rad: np.ndarray, detection: DetectionModel
+    points: np.ndarray,
+    weights: np.ndarray,
+    turns_rad: np.ndarray,
+    detection: DetectionModel,
+    bearing_std_rad: np.ndarray | float = 0.0,
 ) -> np.ndarray:
     """Expected lidar detections per scan of the estimated teammates ``points`` (K, 2) (body
-    frame, m) with ``weights`` (K,), if the robot turned in place by each of ``turns_rad``
-    (D,) (rad, counter-clockwise: a bearing ``beta`` becomes ``beta - turn``), shape (D,):
+    frame, m) with ``weights`` (K,) and bearing stds ``bearing_std_rad`` (K,) (rad), if the
+    robot turned in place by each of ``turns_rad`` (D,) (rad, counter-clockwise: a bearing
+    ``beta`` becomes ``beta - turn``), shape (D,):
     ``sum_k w_k P_range(r_k) P_blind(beta_k - turn)``.
 
     ``P_range`` and ``P_blind`` are the filter's own range and blind-sector factors
@@ -208,9 +229,14 @@ def expected_lidar_detections(
     turns_rad = np.asarray(turns_rad, dtype=float)
     if weights.shape != (len(points),):
         raise ValueError(f"weights must have shape ({len(points)},), got {weights.shape}")
-    in_range = detection.lidar_range_factor(np.hypot(points[:, 0], points[:, 1]))
+    ranges = np.hypot(points[:, 0], points[:, 1])
+    in_range = detection.lidar_range_factor(ranges)
     bearings = np.arctan2(points[:, 1], points[:, 0])[None, :] - turns_rad[:, None]
-    blind = detection.lidar_blind_sector_factor(bearings.ravel()).reshape(bearings.shape)
+    blind = detection.lidar_blind_sector_factor(
+        bearings.ravel(),
+        np.broadcast_to(ranges, bearings.shape).ravel(),
+        np.broadcast_to(bearing_std_rad, bearings.shape).ravel(),
+    ).reshape(bearings.shape)
     return (blind * (weights * in_range)[None, :]).sum(axis=1)
 
 
@@ -344,12 +370,18 @@ class VectorFieldPolicy(ScriptedPolicy):
         Why: the lidar is blind behind the four camera pillars (+-45, +-135 deg), exactly where
         a robot that drove radially into a square formation sees its two neighbours; it then
         holds them by bearing alone, and loses them (``docs/results.md``, round 6)."""
-        points, weights = estimated_neighbours(table, self.min_weight)
+        rows = table[confident_rows(table, self.min_weight)]
         stop = np.zeros(2, dtype=np.float32)
-        if not len(points):
+        if not len(rows):
             return stop
+        # Each teammate's own bearing uncertainty: a turn that leaves it just past a notch
+        # edge it may really be inside gains less than one that clears it.
         gain = expected_lidar_detections(
-            points, weights, _SENSING_TURNS_RAD, self._sensing_detection
+            rows[:, [_X, _Y]],
+            rows[:, _W],
+            _SENSING_TURNS_RAD,
+            self._sensing_detection,
+            bearing_std(rows),
         )
         # Prefer the smallest turn among near-equal ones (0.01 detections per radian).
         best = int(np.argmax(gain - 0.01 * np.abs(_SENSING_TURNS_RAD)))

@@ -29,7 +29,7 @@ import numpy as np
 
 from localization import PHDBank, PHDConfig, RobotCentricPHD
 from localization.feed import localizer_calls
-from localization.frames import bearings_to_filter_frame, points_to_filter_frame
+from localization.registry import run_calls
 from swarm_env import parallel_env
 from swarm_env.config import SIMULATOR_PHD
 from swarm_phd.runner import random_policy
@@ -54,20 +54,9 @@ def record_calls(preset: str, duration_s: float, seed: int) -> tuple[list, float
 
 
 def run_filters(filters: list[RobotCentricPHD], calls: list) -> None:
-    """The calls on reference filters, measurements moved by their sensor poses first."""
+    """Each robot's calls on its reference filter (:func:`localization.registry.run_calls`)."""
     for f, seq in zip(filters, calls, strict=True):
-        for c in seq:
-            if c[0] == "predict":
-                f.predict(c[1])
-            elif c[0] == "lidar":
-                pts, nulls, pose = c[1], c[2], c[3] if len(c) > 3 else None
-                if pose is not None:
-                    pts = points_to_filter_frame(pts, pose)
-                    nulls = None if nulls is None else bearings_to_filter_frame(nulls, pose)
-                f.update_lidar(pts, nulls)
-            else:
-                brg, pose = c[1], c[2] if len(c) > 2 else None
-                f.update_camera(brg if pose is None else bearings_to_filter_frame(brg, pose))
+        run_calls(f, seq)
 
 
 def _overrides(items: list[str]) -> dict:

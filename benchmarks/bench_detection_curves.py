@@ -11,6 +11,11 @@ What it measures (no timing; every figure is a statistic of the simulated sensor
   lidar-visible cylinder of the arena's ``red_decoy_radius_m`` (60 mm); and, for housings and
   decoys, the rate without the extractor's angular extent test
   (``LidarFeatureConfig.extent_test``).
+* **Lidar blind sectors' notch**: the housing at 0.6, 1, 1.5 and 2 m, at random offsets 0-9 deg
+  from a random blind sector's centre, no interference; per 1 deg bin the detection rate over
+  the full-view rate (20-40 deg off the centres), beside the filter's ``"visible-width"`` factor
+  (derived, not fitted: ``docs/localization.md``, "The blind sectors' notch") and the seed's
+  bump.
 * **Camera** ``P_d(r)``: a teammate's red strip (the simulator's ``camera_holder_radius_m``)
   at range ``r``, free line of sight; detected = a blob from that strip. Also the bearing
   error of the detected blobs.
@@ -47,11 +52,13 @@ if str(ROOT) not in sys.path:
 
 from scipy.optimize import curve_fit  # noqa: E402
 
+from localization.detection import DetectionModel  # noqa: E402
 from localization.object_clutter import wide_objects  # noqa: E402
 from localization.scan_evidence import scan_profile  # noqa: E402
 from swarm_core.perception.lidar_features import extract_clusters  # noqa: E402
-from swarm_env.config import make_config  # noqa: E402
+from swarm_env.config import SIMULATOR_PHD, make_config  # noqa: E402
 from swarm_env.sensors.camera import CameraSensor  # noqa: E402
+from swarm_env.sensors.detection_trials import lidar_detects  # noqa: E402
 from swarm_env.sensors.lidar import LidarSensor  # noqa: E402
 from swarm_env.world.scene_builder import HOUSING_RADIUS_M, make_pair_scene  # noqa: E402
 from swarm_env.world.sim import SimWorld  # noqa: E402
@@ -141,6 +148,39 @@ def lidar_curve(cfg, rng, n_pairs: int, target_radius_m: float | None = None) ->
         out["range_m"].append(float(r))
         out["returns_mean"].append(float(counts.mean()))
         out["returns_expected"].append(max(expected, 0.0))
+    return out
+
+
+NOTCH_RANGES_M = (0.6, 1.0, 1.5, 2.0)
+NOTCH_BINS_DEG = np.arange(0.0, 9.01, 1.0)
+
+
+def blind_sector_notch(rng, n_pairs: int) -> dict:
+    """The lidar's detection rate by offset from a blind sector's centre over its full-view
+    rate, per range, beside the filter's notch and the seed's bump (both at the true bearing)."""
+    notch = DetectionModel(SIMULATOR_PHD)
+    bump = DetectionModel(dataclasses.replace(SIMULATOR_PHD, blind_sector_model="seed"))
+    centres = np.asarray(SIMULATOR_PHD.blind_sector_centers_deg)
+    out = {"offset_bins_deg": NOTCH_BINS_DEG.tolist(), "ranges": []}
+    for r in NOTCH_RANGES_M:
+        offsets = rng.uniform(0.0, 9.0, n_pairs)
+        sides = rng.choice(centres, n_pairs) + rng.choice([-1.0, 1.0], n_pairs) * offsets
+        in_view = rng.choice(centres, n_pairs // 4) + rng.uniform(20.0, 40.0, n_pairs // 4)
+        found = lidar_detects(r, np.radians(np.concatenate((sides, in_view))), rng)
+        full_view = float(found[n_pairs:].mean())
+        bins = np.digitize(offsets, NOTCH_BINS_DEG) - 1
+        at = np.radians(45.0 + offsets)
+        ranges = np.full(n_pairs, r)
+        models = {"model": notch, "seed_bump": bump}
+        row = {"range_m": r, "full_view": full_view, "measured": []}
+        row.update({name: [] for name in models})
+        factor = {name: m.lidar_blind_sector_factor(at, ranges) for name, m in models.items()}
+        for b in range(len(NOTCH_BINS_DEG) - 1):
+            sel = bins == b
+            row["measured"].append(float(found[:n_pairs][sel].mean()) / max(full_view, 1e-12))
+            for name in models:
+                row[name].append(float(factor[name][sel].mean()))
+        out["ranges"].append(row)
     return out
 
 
@@ -360,6 +400,7 @@ def main(argv: list[str] | None = None) -> int:
     lidar = lidar_curve(cfg, rng, args.pairs)
     camera = camera_curve(cfg, rng, args.pairs)
     red_decoy = lidar_curve(cfg, rng, args.pairs, cfg.arena.red_decoy_radius_m)
+    notch = blind_sector_notch(rng, args.pairs)
     r = np.asarray(lidar["range_m"])
     lidar_fit, lidar_rms = fit_sigmoid(r, np.asarray(lidar["pd"]), (1.0, 8.0, 2.0))
     camera_fit, camera_rms = fit_sigmoid(r, np.asarray(camera["pd"]), (1.05, 5.0, 4.0))
@@ -404,6 +445,22 @@ def main(argv: list[str] | None = None) -> int:
             f"| {rr:.1f} | {lidar['pd'][i]:.3f} | {lidar['pd_width_only'][i]:.3f} "
             f"| {red_decoy['pd'][i]:.3f} | {red_decoy['pd_width_only'][i]:.3f} |"
         )
+    print(
+        "\nLidar blind sectors' notch: detection rate over the full-view rate / the filter's "
+        "visible-width factor / the seed's bump, by offset from a sector centre"
+    )
+    print(
+        "| range (m) | full view | "
+        + " | ".join(f"{lo:.0f}-{lo + 1:.0f} deg" for lo in NOTCH_BINS_DEG[:-1])
+        + " |"
+    )
+    print("|---|---|" + "---|" * (len(NOTCH_BINS_DEG) - 1))
+    for row in notch["ranges"]:
+        cells = " | ".join(
+            f"{m:.2f} / {v:.2f} / {b:.2f}"
+            for m, v, b in zip(row["measured"], row["model"], row["seed_bump"], strict=True)
+        )
+        print(f"| {row['range_m']:.1f} | {row['full_view']:.3f} | {cells} |")
     print(
         "lidar range factor fit (offset, slope /m, midpoint m) = "
         f"({lidar_fit[0]:.4f}, {lidar_fit[1]:.3f}, {lidar_fit[2]:.3f}), RMS residual "
@@ -457,6 +514,7 @@ def main(argv: list[str] | None = None) -> int:
                     "lidar": lidar,
                     "camera": camera,
                     "red_decoy_lidar": red_decoy,
+                    "lidar_blind_sector_notch": notch,
                     "lidar_fit": lidar_fit,
                     "lidar_fit_rms": lidar_rms,
                     "lidar_r50_m": r50,

@@ -132,13 +132,7 @@ class PHDBank:
         if "clock" in state:  # absent from states pickled before the clock existed
             self._clock = np.array(state["clock"], dtype=float)
         if "scan_memory" in state:  # absent from states pickled before the scan evidence
-            memory = scan_memory_from_state(state["scan_memory"])
-            if memory.shape != (self.n_robots, MEMORY_LEN):
-                raise ValueError(
-                    f"scan_memory: shape {memory.shape} for {self.n_robots} robots, expected "
-                    f"{(self.n_robots, MEMORY_LEN)}"
-                )
-            self._scan_memory = memory
+            self._scan_memory = bank_scan_memory(state["scan_memory"], self.n_robots)
 
     # ------------------------------------------------------------------ construction / export
     @classmethod
@@ -430,7 +424,7 @@ class PHDBank:
 
     def _run_encoded(self, encoded: tuple[np.ndarray, ...], robots: Any) -> None:
         """Run validated ``encoded`` calls touching ``robots``; pending room reserved."""
-        fparams, iparams, sector_scaled, sector_inv_var = self._params
+        fparams, iparams, sector_scaled, sector_params = self._params
         kernels.apply_calls(
             self._table,
             self._counts,
@@ -442,7 +436,7 @@ class PHDBank:
             fparams,
             iparams,
             sector_scaled,
-            sector_inv_var,
+            sector_params,
         )
         mixtures = self._mixtures
         for r in robots:
@@ -637,6 +631,23 @@ def all_finite(encoded: tuple[np.ndarray, ...]) -> bool:
         )
         and (profiles.size == 0 or profiles.min() >= 0.0)
     )
+
+
+def bank_scan_memory(value: Any, n_robots: int) -> np.ndarray:
+    """A bank's saved scan memories as today's ``(n_robots, MEMORY_LEN)``
+    (:func:`~localization.scan_evidence.scan_memory_from_state`, which names what is wrong).
+
+    Raises
+    ------
+    ValueError
+        Also for a shape that does not hold one memory per robot."""
+    memory = scan_memory_from_state(value)
+    if memory.shape != (n_robots, MEMORY_LEN):
+        raise ValueError(
+            f"scan_memory: shape {memory.shape} for {n_robots} robots, expected "
+            f"{(n_robots, MEMORY_LEN)}"
+        )
+    return memory
 
 
 def new_clock(n_robots: int) -> np.ndarray:

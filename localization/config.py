@@ -33,6 +33,8 @@ __all__ = [
     "MODES",
     "BIRTH_MODELS",
     "LIDAR_PD_MODELS",
+    "BLIND_SECTOR_MODELS",
+    "LIDAR_BEAM_PHASES",
     "SURVIVAL_MODELS",
     "CAMERA_BIRTH_MODELS",
     "MISSED_DETECTION_MODELS",
@@ -47,6 +49,17 @@ BIRTH_MODELS = ("fixed", "measurement")
 #: ``"seed"``: product of range x blind sectors x occlusion x interference (eq. 18).
 #: ``"constant"``: ``lidar_detection_probability`` inside ``lidar_range_m``, 0 outside.
 LIDAR_PD_MODELS = ("seed", "constant")
+#: The lidar's blind-sector factor (``lidar_pd_model == "seed"``). ``"seed"``: eq. 20, a bump
+#: ``1 - bump(theta - alpha; sigma = width / 2)`` per sector. ``"visible-width"``: the
+#: probability that the part of a teammate's housing outside the sector still gives
+#: ``lidar_min_returns`` whole-footprint returns, from the scanner's beam geometry, averaged
+#: over the component's bearing uncertainty (``localization.detection.visible_width_factor``).
+BLIND_SECTOR_MODELS = ("seed", "visible-width")
+#: Where the lidar's beams fall from one turn to the next. ``"drifting"``: anywhere (a real
+#: X4's sample angles drift with its motor speed), so the first beam past a sector edge is
+#: uniform within a spacing of it. ``"fixed"``: at the same body-frame bearings
+#: ``-pi + k * lidar_beam_spacing_deg`` every turn (the simulated X4).
+LIDAR_BEAM_PHASES = ("drifting", "fixed")
 #: ``"seed"``: inverse sigmoid of range (eq. 10). ``"constant"``: ``survival_probability``.
 SURVIVAL_MODELS = ("seed", "constant")
 #: ``"none"``: only the lidar starts tracks (the seed). ``"ray"``: an unexplained camera
@@ -137,26 +150,37 @@ class PHDConfig:
     lidar_pd_offset, lidar_pd_slope_per_m, lidar_pd_midpoint_m : float
         Range factor ``1 / (offset + exp(slope * (||m|| - midpoint)))``. Seed eq. 19 (1.02, 8,
         1.5: ``P_d`` = 0.5 at 1.5 m, 0.05 at 1.9 m) describes the seed's hardware. The
-        simulator's lidar does not fade with range but the feature extractor drops every
-        detection beyond ``LidarFeatureConfig.tracking_range_m`` = 2 m, so the simulator
-        presets use 1.0, 20, 2.0: ~1 up to 1.8 m, 0.5 at 2 m, 0.12 at 2.1 m (the slope
-        spreads the edge over about two lidar-noise standard deviations of a component
-        mean). Measured in ``seed-sim`` (60 s, all neighbour-scans): the simulator's
-        detection rate per 0.25 m bin from 0.25 to 2 m is 0.98, 0.92, 0.88, 0.83, 0.81,
-        0.78, 0.71 (0.001 beyond), and the product of the other factors (blind sectors x
-        occlusion by the true neighbours x interference) is 0.84, 0.83, 0.82, 0.79, 0.77,
-        0.76, 0.73: the range factor of the simulator is 1.0 up to 2 m, then 0. With the
-        seed's factor the filter inflates the weight of every teammate at 1.5-2 m towards
-        ``1/P_d`` (lidar-only weight sum within 2 m: 2.3x the truth; 1.06x with the matched
-        factor).
+        simulator presets use the fit to the simulated X4's measured curve, 1.0, 8.78, 2.14
+        (``swarm_env.config.SIM_LIDAR_PD_*``: 1 up to 1.86 m, 0.73 at 2 m, 0 from 2.48 m).
+        With the seed's factor the filter inflates the weight of every teammate at 1.5-2 m
+        towards ``1/P_d``.
     lidar_detection_probability : float
         Constant ``P_d`` used by ``lidar_pd_model == "constant"``.
     lidar_range_m : float
         Detection range of the ``"constant"`` model (seed: effective tracking range 2 m).
     blind_sector_centers_deg, blind_sector_widths_deg : tuple of float
-        Lidar blind sectors caused by the camera pillars, robot frame, degrees. Each sector
-        multiplies ``P_d`` by ``1 - bump(bearing - centre; sigma = width / 2)`` with a bump of
-        peak 1, so ``P_d -> 0`` at the sector centre. Must match the simulator's lidar.
+        Lidar blind sectors caused by the camera pillars, robot frame, degrees: a beam whose
+        bearing is within half a width of a centre returns nothing. Must match the lidar.
+    blind_sector_model : str
+        How a sector removes detections (see ``BLIND_SECTOR_MODELS``). ``"seed"``: each
+        sector multiplies ``P_d`` by ``1 - bump(bearing - centre; sigma = width / 2)`` with a
+        bump of peak 1, so ``P_d -> 0`` at the sector centre. ``"visible-width"``: a teammate
+        is detected when the beams outside the sector that fall wholly on its housing
+        (radius ``scan_target_radius_m``, footprint ``scan_beam_footprint_deg``, spacing
+        ``lidar_beam_spacing_deg``) number at least ``lidar_min_returns``. That is a notch as
+        wide as the sector plus the housing's half-width, with edges ``<= 0.5 deg`` wide. The
+        seed's bump (sigma 5 deg) is wrong for the simulated X4: measured 0.04 at 2-4 deg
+        from a centre against the bump's 0.17, and 0.93 at 6-8 deg against 0.62
+        (``docs/localization.md``, "The blind sectors' notch").
+    lidar_beam_spacing_deg : float
+        Angle between consecutive lidar beams (the X4: 720 per turn, 0.5 deg).
+    lidar_min_returns : int
+        Returns the feature extractor needs for a teammate
+        (``LidarFeatureConfig.min_beams``: 3).
+    lidar_beam_phase : str
+        ``"drifting"`` or ``"fixed"`` (see ``LIDAR_BEAM_PHASES``): with fixed beams the
+        ``"visible-width"`` notch's edges are steps at the first beams past each sector's
+        edges; with drifting beams, ramps one spacing wide.
     occlusion_std_deg : float
         Angular std of the occlusion bump (seed eqs. 21-22: 3 deg).
     occlusion_min_separation_m : float
@@ -263,23 +287,26 @@ class PHDConfig:
         rises on those objects' bearings by this many blobs, spread as their measured blobs
         are. Needs the scan, as ``scan_evidence`` does (:attr:`reads_scans`). Default 0 (off,
         the seed's uniform clutter); the simulator's is measured
-        (``swarm_env.config.SIM_CAMERA_CLUTTER_PER_WIDE_OBJECT``). The GM-PHD engines only.
+        (``swarm_env.config.SIM_CAMERA_CLUTTER_PER_WIDE_OBJECT``). The GM-PHD and the PMB
+        engines.
     camera_wide_object_std_fraction : float
         Std of those blobs' bearings about the object's centre, in the object's angular
         half-widths (added in quadrature to the camera's constant bearing variance).
     camera_clutter_wide_object_share_per_rad : float
         The part of ``camera_clutter_intensity`` (1/rad) that the wide objects account for:
         where they are modelled (``camera_clutter_per_wide_object`` > 0) the uniform part
-        is ``camera_clutter_intensity`` minus this (:attr:`camera_clutter_uniform_per_rad`),
-        and a filter that ignores them (the PMB) keeps the whole. At most
+        is ``camera_clutter_intensity`` minus this (:attr:`camera_clutter_uniform_per_rad`);
+        before a filter's first scan the objects are unknown and it keeps the whole. At most
         ``camera_clutter_intensity``.
     scan_target_radius_m : float
-        Radius of what the lidar sees of a teammate (seed 000: the X4's 65 mm housing).
+        Radius of what the lidar sees of a teammate (seed 000: the X4's 65 mm housing); the
+        scan evidence and the ``"visible-width"`` blind sectors.
     scan_range_noise_std_m, scan_range_noise_quadratic_per_m : float
         The scanner's range noise std ``a + b d^2`` at range ``d`` (the X4's, as
         ``swarm_env.sensors.lidar.LidarConfig``: 1 cm + 0.0025 /m).
     scan_beam_footprint_deg : float
-        Angular width of one beam's sample (the X4: 0.5 deg); only bins whose whole footprint
+        Angular width of one beam's sample (the X4: 0.5 deg), for the scan evidence and the
+        ``"visible-width"`` blind sectors; only bins whose whole footprint
         lies on the housing can refute it.
     scan_margin_sigmas : float
         Margin ``k`` of the visibility and free-space tests: a housing is hidden only ``k`` of
@@ -325,6 +352,10 @@ class PHDConfig:
     lidar_range_m: float = 2.0
     blind_sector_centers_deg: tuple[float, ...] = (45.0, 135.0, -135.0, -45.0)
     blind_sector_widths_deg: tuple[float, ...] = (10.0, 10.0, 10.0, 10.0)
+    blind_sector_model: str = "seed"
+    lidar_beam_spacing_deg: float = 0.5
+    lidar_min_returns: int = 3
+    lidar_beam_phase: str = "drifting"
     occlusion_std_deg: float = 3.0
     occlusion_min_separation_m: float = 0.1
     interference_depth: float = 0.6
@@ -367,6 +398,8 @@ class PHDConfig:
         _check_choice("survival_model", self.survival_model, SURVIVAL_MODELS)
         _check_choice("birth", self.birth, BIRTH_MODELS)
         _check_choice("lidar_pd_model", self.lidar_pd_model, LIDAR_PD_MODELS)
+        _check_choice("blind_sector_model", self.blind_sector_model, BLIND_SECTOR_MODELS)
+        _check_choice("lidar_beam_phase", self.lidar_beam_phase, LIDAR_BEAM_PHASES)
         _check_choice("camera_birth", self.camera_birth, CAMERA_BIRTH_MODELS)
         _check_choice("missed_detection", self.missed_detection, MISSED_DETECTION_MODELS)
         _check_choice("time_update", self.time_update, TIME_UPDATE_MODELS)
@@ -430,6 +463,7 @@ class PHDConfig:
             ("scan_range_noise_std_m", 0.0, 10.0),
             ("scan_range_noise_quadratic_per_m", 0.0, 10.0),
             ("scan_beam_footprint_deg", 0.0, 10.0),
+            ("lidar_beam_spacing_deg", 1e-3, 10.0),
             ("scan_margin_sigmas", 0.0, 10.0),
             ("camera_wide_object_std_fraction", 0.0, 10.0),
         ):
@@ -473,6 +507,11 @@ class PHDConfig:
             raise ValueError(
                 "PHDConfig.max_components must be an int in [1, 10000], got "
                 f"{self.max_components!r}"
+            )
+        value = self.lidar_min_returns
+        if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 100:
+            raise ValueError(
+                f"PHDConfig.lidar_min_returns must be an int in [1, 100], got {value!r}"
             )
         value = self.camera_birth_components
         if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 64:

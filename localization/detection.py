@@ -21,6 +21,8 @@ Corrections to the seed (see ``docs/localization.md``):
 * eq. 23 (interference) is also written as a sum; we use the product over null-return
   bearings ``b`` of ``1 - depth * bump(theta - b; c)``.
 * Each occlusion factor ``1 - w_j bump`` is clipped at 0: merged weights can exceed 1.
+* The blind sectors' bump is the seed's; ``blind_sector_model="visible-width"`` replaces it
+  with the notch that the scanner's beam geometry gives (:func:`visible_width_factor`).
 
 References
 ----------
@@ -32,9 +34,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.special import ndtr
+
+from swarm_core.geometry import wrap_angle
 
 from .config import PHDConfig
-from .mixture import ROW_W, ROW_X, ROW_Y
+from .mixture import ROW_PXX, ROW_PXY, ROW_PYY, ROW_W, ROW_X, ROW_Y
 
 __all__ = [
     "inverse_sigmoid",
@@ -42,13 +47,21 @@ __all__ = [
     "angular_bump",
     "blind_sector_factor",
     "blind_sector_geometry",
+    "expected_ramp",
+    "visible_width_factor",
+    "blind_sector_first_beams",
     "occlusion_factor",
     "interference_factor",
     "DetectionModel",
 ]
 
+_INV_SQRT_TWO_PI = 1.0 / math.sqrt(2.0 * math.pi)
 # exp(x) overflows above ~709; clip the sigmoid exponent (far components get P ~ 0 either way).
 _MAX_EXP = 700.0
+# expected_ramp: a ramp narrower than this (rad) is a step, and stds are floored at this (rad),
+# so the ramp's difference quotient never divides a rounding error by a vanishing width.
+RAMP_MIN_WIDTH_RAD = 1e-6
+RAMP_MIN_STD_RAD = 1e-12
 
 
 def inverse_sigmoid(
@@ -149,6 +162,125 @@ def blind_sector_factor(
     return np.multiply.reduce(1.0 - bump, axis=0)
 
 
+def expected_ramp(
+    mean: np.ndarray, std: np.ndarray, start: np.ndarray, width: np.ndarray
+) -> np.ndarray:
+    """``E[clip((X - start) / width, 0, 1)]`` for ``X ~ N(mean, std^2)``, elementwise.
+
+    With ``G(m) = E[max(Y, 0)] = m Phi(m / std) + std phi(m / std)`` for ``Y ~ N(m, std^2)``,
+    the ramp is ``(max(x, 0) - max(x - width, 0)) / width`` of ``x = X - start``, so its
+    expectation is ``(G(mean - start) - G(mean - start - width)) / width``. A ramp narrower
+    than ``RAMP_MIN_WIDTH_RAD`` is a step: ``Phi((mean - start) / std)``. ``std`` is floored
+    at ``RAMP_MIN_STD_RAD`` (``std -> 0`` evaluates the ramp at ``mean``). Arguments broadcast;
+    angles in rad.
+    """
+    std = np.maximum(std, RAMP_MIN_STD_RAD)
+    x = np.asarray(mean - start, dtype=float)
+    is_step = width < RAMP_MIN_WIDTH_RAD
+    safe_width = np.where(is_step, 1.0, width)
+    z0 = x / std
+    z1 = (x - safe_width) / std
+    g0 = x * ndtr(z0) + std * np.exp(-0.5 * z0 * z0) * _INV_SQRT_TWO_PI
+    g1 = (x - safe_width) * ndtr(z1) + std * np.exp(-0.5 * z1 * z1) * _INV_SQRT_TWO_PI
+    return np.clip(np.where(is_step, ndtr(z0), (g0 - g1) / safe_width), 0.0, 1.0)
+
+
+def visible_width_factor(
+    offsets_rad: np.ndarray,
+    ranges_m: np.ndarray,
+    bearing_std_rad: np.ndarray,
+    half_widths_rad: np.ndarray,
+    first_beams_rad: tuple[np.ndarray, np.ndarray],
+    edge_ramp_rad: float,
+    target_radius_m: float,
+    footprint_rad: float,
+    spacing_rad: float,
+    min_returns: int,
+) -> np.ndarray:
+    """The ``"visible-width"`` blind-sector factor of one sector: the probability that a
+    housing at signed bearing ``offsets_rad`` from the sector's centre still gives
+    ``min_returns`` returns, given that it would in full view. Arguments broadcast.
+
+    Derivation (the X4 of ``swarm_env.sensors.lidar``; ``f`` the footprint, ``Delta`` the beam
+    spacing, ``n`` the minimum returns, ``h`` the sector's half-width). A housing of radius
+    ``R`` at range ``r`` spans ``+/- a``, ``a = asin(R / r)``, about its bearing ``s``; a beam
+    returns from it when its whole footprint is on it, i.e. its centre is within
+    ``[s - a + f/2, s + a - f/2]``, and when that centre is outside the sector ``[-h, h]``.
+    Beyond ``+h`` the beams that can return start at ``e`` (``first_beams_rad[0]``) and come
+    every ``Delta``: at least ``n`` of them fall on the housing when
+    ``s + a - f/2 >= e + (n - 1) Delta``, a step at ``s0 = e - a + f/2 + (n - 1) Delta``. With
+    fixed beams ``e`` is the first beam past the edge (``edge_ramp_rad`` = 0). With drifting
+    beams ``e`` is uniform on ``(h, h + Delta]``, which turns the step into the ramp
+    ``clip((s - s0) / Delta, 0, 1)`` with ``e = h`` (``edge_ramp_rad`` = ``Delta``). Once the
+    housing clears the sector (``s1 = h + a - f/2``) the count is the full view's, which the
+    filter's range factor carries: the factor is 1 from ``s1`` on, so the step or ramp is cut
+    there (a housing that gives fewer than ``n`` returns even in full view has a step at
+    ``s1``). The side beyond ``-h`` is the mirror image (``-s``, ``first_beams_rad[1]``); the
+    factor takes the larger. It is averaged over the component's bearing,
+    ``s ~ N(offset, bearing_std^2)`` (:func:`expected_ramp`): the notch's edges (``<= Delta``
+    = 0.5 deg) are narrower than a typical component's bearing uncertainty.
+
+    Parameters
+    ----------
+    offsets_rad : ndarray
+        Component bearing minus the sector centre, wrapped to ``[-pi, pi)`` (rad).
+    ranges_m : ndarray
+        Component ranges (m).
+    bearing_std_rad : ndarray
+        Component bearing standard deviations (rad; 0 evaluates at the mean).
+    half_widths_rad : ndarray
+        Sector half-widths ``h`` (rad).
+    first_beams_rad : (ndarray, ndarray)
+        ``e`` beyond ``+h`` and beyond ``-h`` (rad, both positive; see
+        :func:`blind_sector_first_beams`).
+    edge_ramp_rad : float
+        Width of the edge's ramp: ``Delta`` (drifting beams) or 0 (fixed beams).
+    target_radius_m, footprint_rad, spacing_rad, min_returns
+        ``R`` (m), ``f``, ``Delta`` (rad) and ``n``.
+
+    Returns
+    -------
+    ndarray
+        Factor in ``[0, 1]``, broadcast shape of the arguments.
+    """
+    ratio = np.minimum(target_radius_m / np.maximum(ranges_m, 1e-12), 1.0)
+    half_angle = np.arcsin(ratio)
+    clear = half_widths_rad + half_angle - 0.5 * footprint_rad
+    sides = []
+    for sign, first in ((1.0, first_beams_rad[0]), (-1.0, first_beams_rad[1])):
+        start = first - half_angle + 0.5 * footprint_rad + (min_returns - 1) * spacing_rad
+        width = np.clip(clear - start, 0.0, edge_ramp_rad)
+        sides.append(
+            expected_ramp(sign * offsets_rad, bearing_std_rad, np.minimum(start, clear), width)
+        )
+    return np.maximum(sides[0], sides[1])
+
+
+def blind_sector_first_beams(config: PHDConfig) -> tuple[np.ndarray, float]:
+    """``(first_beams (K, 2), edge_ramp_rad)`` of ``config``'s blind sectors for
+    :func:`visible_width_factor`: per sector, the offsets from its centre (rad, positive) of
+    the first beams that can return beyond its ``+`` and ``-`` edges, and the edges' ramp.
+
+    Fixed beams (``lidar_beam_phase == "fixed"``) sit at ``-pi + k 2 pi / B``,
+    ``B = round(360 / lidar_beam_spacing_deg)``, and a beam is blind within half a width of a
+    centre, edges included: the simulator's rule (``swarm_core.perception.blind_sectors``),
+    evaluated here with its expressions so both sides of an edge round alike. Drifting beams
+    start at the edge itself, with a ramp one spacing wide.
+    """
+    centres = np.radians(np.asarray(config.blind_sector_centers_deg, dtype=float))
+    halves = 0.5 * np.radians(np.asarray(config.blind_sector_widths_deg, dtype=float))
+    spacing = math.radians(config.lidar_beam_spacing_deg)
+    if config.lidar_beam_phase == "drifting":
+        return np.stack((halves, halves), axis=1).reshape(-1, 2), spacing
+    n_beams = round(360.0 / config.lidar_beam_spacing_deg)
+    angles = -np.pi + np.arange(n_beams) * (2.0 * np.pi / n_beams)
+    offsets = wrap_angle(angles[:, None] - centres)  # (B, K)
+    visible = ~(np.abs(offsets) <= halves)
+    plus = np.where(visible & (offsets > 0.0), offsets, np.inf).min(axis=0)
+    minus = np.where(visible & (offsets < 0.0), -offsets, np.inf).min(axis=0)
+    return np.stack((plus, minus), axis=1).reshape(-1, 2), 0.0
+
+
 def occlusion_factor(
     units: np.ndarray,
     ranges: np.ndarray,
@@ -241,6 +373,9 @@ class DetectionModel:
         "_sector_dirs",
         "_sector_inv_var",
         "_sector_scaled",
+        "_sector_half_widths",
+        "_sector_first_beams",
+        "_sector_edge_ramp",
         "_occlusion_inv_var",
         "_interference_inv_var",
     )
@@ -250,6 +385,11 @@ class DetectionModel:
         self._sector_dirs, inv_var = blind_sector_geometry(config)  # (K, 2), (K,)
         self._sector_inv_var = inv_var[:, None]  # (K, 1)
         self._sector_scaled = self._sector_dirs * self._sector_inv_var
+        self._sector_half_widths = 0.5 * np.radians(
+            np.asarray(config.blind_sector_widths_deg, dtype=float)
+        ).reshape(-1, 1)  # (K, 1)
+        first_beams, self._sector_edge_ramp = blind_sector_first_beams(config)
+        self._sector_first_beams = (first_beams[:, :1], first_beams[:, 1:])  # (K, 1) each
         self._occlusion_inv_var = 1.0 / math.radians(config.occlusion_std_deg) ** 2
         self._interference_inv_var = 1.0 / math.radians(config.interference_std_deg) ** 2
 
@@ -292,9 +432,18 @@ class DetectionModel:
         ranges, units = unit_bearings(table[ROW_X : ROW_Y + 1], cfg.min_range_m)
         pd = self.lidar_range_factor(ranges)
         if self._sector_dirs.shape[0]:
-            pd *= blind_sector_factor(
-                units, self._sector_dirs, self._sector_inv_var, self._sector_scaled
-            )
+            if cfg.blind_sector_model == "seed":
+                pd *= blind_sector_factor(
+                    units, self._sector_dirs, self._sector_inv_var, self._sector_scaled
+                )
+            else:
+                # u_perp' P u_perp / d^2 with u = m / d, d = max(||m||, min_range_m)
+                bearing_var = (
+                    units[1] ** 2 * table[ROW_PXX]
+                    - 2.0 * units[0] * units[1] * table[ROW_PXY]
+                    + units[0] ** 2 * table[ROW_PYY]
+                ) / np.maximum(ranges, cfg.min_range_m) ** 2
+                pd *= self._visible_width_factor(units, ranges, np.sqrt(bearing_var))
         if table.shape[1] > 1:
             pd *= occlusion_factor(
                 units,
@@ -321,17 +470,55 @@ class DetectionModel:
             ranges_m, cfg.lidar_pd_offset, cfg.lidar_pd_slope_per_m, cfg.lidar_pd_midpoint_m
         )
 
-    def lidar_blind_sector_factor(self, bearings_rad: np.ndarray) -> np.ndarray:
-        """The blind-sector part of :meth:`lidar`'s ``P_d`` at body-frame ``bearings_rad``
-        (N,), shape (N,): 0 at a sector's centre, 1 in the lidar's view. The constant model
-        has no sectors (1 everywhere), as in :meth:`lidar`."""
+    def lidar_blind_sector_factor(
+        self,
+        bearings_rad: np.ndarray,
+        ranges_m: np.ndarray,
+        bearing_std_rad: np.ndarray | float = 0.0,
+    ) -> np.ndarray:
+        """The blind-sector part of :meth:`lidar`'s ``P_d`` for components at body-frame
+        ``bearings_rad`` (N,) and ``ranges_m`` (N,) (m) with bearing stds ``bearing_std_rad``
+        (rad; 0: the factor at the bearing itself), shape (N,): 1 in the lidar's view, 0 at a
+        sector's centre. The ``"seed"`` bump ignores range and std. The constant model has no
+        sectors (1 everywhere), as in :meth:`lidar`."""
         bearings_rad = np.asarray(bearings_rad, dtype=float)
         if self.config.lidar_pd_model == "constant" or not self._sector_dirs.shape[0]:
             return np.ones(bearings_rad.shape)
         units = np.stack((np.cos(bearings_rad), np.sin(bearings_rad)))
-        return blind_sector_factor(
-            units, self._sector_dirs, self._sector_inv_var, self._sector_scaled
+        if self.config.blind_sector_model == "seed":
+            return blind_sector_factor(
+                units, self._sector_dirs, self._sector_inv_var, self._sector_scaled
+            )
+        return self._visible_width_factor(
+            units,
+            np.broadcast_to(np.asarray(ranges_m, dtype=float), bearings_rad.shape),
+            np.broadcast_to(np.asarray(bearing_std_rad, dtype=float), bearings_rad.shape),
         )
+
+    def _visible_width_factor(
+        self, units: np.ndarray, ranges_m: np.ndarray, bearing_std_rad: np.ndarray
+    ) -> np.ndarray:
+        """Product over sectors of :func:`visible_width_factor` for unit bearings (2, N)."""
+        cfg = self.config
+        dirs = self._sector_dirs  # (K, 2)
+        # signed angle from each sector centre to each bearing, (K, N)
+        offsets = np.arctan2(
+            dirs[:, :1] * units[1] - dirs[:, 1:] * units[0],
+            dirs[:, :1] * units[0] + dirs[:, 1:] * units[1],
+        )
+        factors = visible_width_factor(
+            offsets,
+            ranges_m,
+            bearing_std_rad,
+            self._sector_half_widths,
+            self._sector_first_beams,
+            self._sector_edge_ramp,
+            cfg.scan_target_radius_m,
+            math.radians(cfg.scan_beam_footprint_deg),
+            math.radians(cfg.lidar_beam_spacing_deg),
+            cfg.lidar_min_returns,
+        )
+        return np.multiply.reduce(factors, axis=0)
 
     def camera(self, table: np.ndarray) -> np.ndarray:
         """Camera ``P_d`` per component (seed eqs. 29-30), in ``[0, 1]``.

@@ -328,17 +328,7 @@ class RobotCentricPHD:
             pts = points_to_filter_frame(pts, pose)
             nulls = None if nulls is None else bearings_to_filter_frame(nulls, pose)
         if self.config.reads_scans:  # the memory is kept only where it is used
-            self._scan = np.zeros(MEMORY_LEN)
-        if self.config.reads_scans and profile is not None:
-            self._scan[0] = 1.0
-            self._scan[1:4] = 0.0 if pose is None else pose
-            self._scan[4:WIDE_OBJECTS_AT] = profile
-            if self.config.models_wide_objects:
-                objects = object_clutter.wide_objects(profile)
-                self._scan[WIDE_OBJECTS_AT] = objects.shape[0]
-                self._scan[WIDE_OBJECTS_AT + 1 : WIDE_OBJECTS_AT + 1 + objects.size] = (
-                    objects.ravel()
-                )
+            self._scan = scan_memory_of(profile, pose, self.config.models_wide_objects)
         cfg = self.config
         table = self._table
         bernoulli = cfg.missed_detection == "bernoulli"
@@ -435,18 +425,7 @@ class RobotCentricPHD:
                 brg,
                 detection_prob,
                 cfg.camera_bearing_var(np.hypot(table[ROW_X], table[ROW_Y])),
-                object_clutter.clutter_density(
-                    brg,
-                    self._scan,
-                    offset,
-                    # without a scan the objects are unknown: the whole uniform clutter
-                    cfg.camera_clutter_uniform_per_rad
-                    if self._scan[0]
-                    else cfg.camera_clutter_total_per_rad,
-                    cfg.camera_clutter_per_wide_object,
-                    cfg.camera_wide_object_std_fraction,
-                    cfg.camera_noise_var_rad2,
-                ),
+                object_clutter.camera_clutter(cfg, brg, self._scan, offset),
                 cfg.min_range_m,
                 cfg.missed_detection == "bernoulli",
                 # each copy against the scan where it would be: see phd.camera_update
@@ -599,6 +578,27 @@ def checked_scan_profile(value: Any) -> np.ndarray:
         bad = float(profile[profile < 0.0][0])
         raise ValueError(f"scan_profile ranges must be >= 0 m (0 = unknown), got {bad!r}")
     return profile
+
+
+def scan_memory_of(
+    profile: np.ndarray | None, pose: np.ndarray | None, with_wide_objects: bool
+) -> np.ndarray:
+    """A filter's scan memory ``(MEMORY_LEN,)`` (:mod:`localization.scan_evidence`) after a
+    lidar call: ``[1, x, y, psi]`` of the pose the scan was taken from (the filter's origin
+    without one), its ``profile (N_BINS,)`` and, ``with_wide_objects``, the profile's wide
+    objects (:func:`localization.object_clutter.wide_objects`). A call without a profile
+    leaves no scan (all zeros): an older one would be judged from the wrong place and time."""
+    memory = np.zeros(MEMORY_LEN)
+    if profile is None:
+        return memory
+    memory[0] = 1.0
+    memory[1:4] = 0.0 if pose is None else pose
+    memory[4:WIDE_OBJECTS_AT] = profile
+    if with_wide_objects:
+        objects = object_clutter.wide_objects(profile)
+        memory[WIDE_OBJECTS_AT] = objects.shape[0]
+        memory[WIDE_OBJECTS_AT + 1 : WIDE_OBJECTS_AT + 1 + objects.size] = objects.ravel()
+    return memory
 
 
 def checked_pose(value: Any) -> np.ndarray | None:

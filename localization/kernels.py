@@ -48,7 +48,12 @@ import numpy as np
 from numba import njit, prange
 
 from .config import CAMERA_BIRTH_RADIAL_STD_FRACTION, PROCESS_CLOCK_RESET_S, PHDConfig
-from .detection import blind_sector_geometry
+from .detection import (
+    RAMP_MIN_STD_RAD,
+    RAMP_MIN_WIDTH_RAD,
+    blind_sector_first_beams,
+    blind_sector_geometry,
+)
 from .mixture import N_ROWS
 from .object_clutter import clutter_density_into, wide_objects_into
 from .phd import GH_NODES, GH_WEIGHTS
@@ -120,10 +125,10 @@ F_CAMERA_TARGET_RADIUS = _F.slot(lambda c: c.camera_target_radius_m)
 F_CPD_OFFSET = _F.slot(lambda c: c.camera_pd_offset)
 F_CPD_SLOPE = _F.slot(lambda c: c.camera_pd_slope_per_m)
 F_CPD_MID = _F.slot(lambda c: c.camera_pd_midpoint_m)
-# false blobs + untracked teammates (PHDConfig.camera_clutter_total_per_rad: the PMB's)
+# false blobs + untracked teammates (PHDConfig.camera_clutter_total_per_rad)
 F_KAPPA_C = _F.slot(lambda c: c.camera_clutter_total_per_rad)
-# the same less the wide objects' share where they are modelled (the GM-PHD's;
-# PHDConfig.camera_clutter_uniform_per_rad)
+# the same less the wide objects' share where they are modelled
+# (PHDConfig.camera_clutter_uniform_per_rad)
 F_KAPPA_C_UNIFORM = _F.slot(lambda c: c.camera_clutter_uniform_per_rad)
 F_PRUNE = _F.slot(lambda c: c.prune_threshold)
 F_MERGE = _F.slot(lambda c: c.merge_threshold)
@@ -140,6 +145,9 @@ F_SCAN_FOOTPRINT = _F.slot(lambda c: math.radians(c.scan_beam_footprint_deg))
 F_SCAN_MARGIN = _F.slot(lambda c: c.scan_margin_sigmas)
 F_WIDE_CLUTTER = _F.slot(lambda c: c.camera_clutter_per_wide_object * c.models_wide_objects)
 F_WIDE_STD_FRACTION = _F.slot(lambda c: c.camera_wide_object_std_fraction)
+F_BEAM_SPACING = _F.slot(lambda c: math.radians(c.lidar_beam_spacing_deg))
+F_MIN_RETURNS = _F.slot(lambda c: float(c.lidar_min_returns))
+F_EDGE_RAMP = _F.slot(lambda c: blind_sector_first_beams(c)[1])
 N_FPARAMS = len(_F.transforms)
 
 _I = _Slots(np.int64)  # iparams (flags are 0 / 1)
@@ -155,6 +163,7 @@ I_CBIRTH_COMPONENTS = _I.slot(lambda c: c.camera_birth_components)
 I_MISSED_BERNOULLI = _I.slot(lambda c: c.missed_detection == "bernoulli")
 I_LIDAR_MISSED_MOMENTS = _I.slot(lambda c: c.lidar_missed_moments and c.lidar_pd_model == "seed")
 I_SCAN_EVIDENCE = _I.slot(lambda c: c.scan_evidence)
+I_BLIND_VISIBLE_WIDTH = _I.slot(lambda c: c.blind_sector_model == "visible-width")
 N_IPARAMS = len(_I.transforms)
 
 _TINY = 1e-300  # as localization.gaussian.TINY: floor of every divisor
@@ -167,16 +176,22 @@ _DROP_FRACTION = 1e-20  # see _negligible_exponent (or the prune threshold, if l
 _TWO_PI = 2.0 * math.pi
 _INV_TWO_PI = 1.0 / _TWO_PI
 _INV_SQRT_TWO_PI = 1.0 / math.sqrt(_TWO_PI)
+_INV_SQRT_TWO = 1.0 / math.sqrt(2.0)
 
 
 def pack_params(config: PHDConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``(fparams, iparams, sector_scaled (S, 2), sector_inv_var (S,))`` of ``config``.
+    """``(fparams, iparams, sector_scaled (S, 2), sector_params (S, 3))`` of ``config``.
 
     The blind sectors are given as unit centre directions scaled by ``1 / sigma^2``
-    (``sigma = width / 2``), as :class:`~localization.detection.DetectionModel` keeps them.
+    (``sigma = width / 2``), as :class:`~localization.detection.DetectionModel` keeps them,
+    and per sector ``[1 / sigma^2, first beam past the + edge, first beam past the - edge]``
+    (rad, :func:`~localization.detection.blind_sector_first_beams`). ``sigma`` is also the
+    sector's half-width, which the ``"visible-width"`` model reads from the same arrays.
     """
     directions, inv_var = blind_sector_geometry(config)
-    return _F.pack(config), _I.pack(config), directions * inv_var[:, None], inv_var
+    first_beams, _ = blind_sector_first_beams(config)
+    sector_params = np.concatenate((inv_var[:, None], first_beams), axis=1).reshape(-1, 3)
+    return _F.pack(config), _I.pack(config), directions * inv_var[:, None], sector_params
 
 
 # ---------------------------------------------------------------------- detection factors
@@ -225,7 +240,61 @@ def _apply_occlusion(pd, tab, n, ranges, units, inv_var, separation):
 
 
 @njit(cache=True)
-def _lidar_pd(tab, n, nulls, fp, ip, sector_scaled, sector_inv_var):
+def _ramp_g(x, std):
+    """``E[max(Y, 0)]`` for ``Y ~ N(x, std^2)``."""
+    z = x / std
+    return (
+        x * 0.5 * math.erfc(-z * _INV_SQRT_TWO) + std * math.exp(-0.5 * z * z) * _INV_SQRT_TWO_PI
+    )
+
+
+@njit(cache=True)
+def _expected_ramp(mean, std, start, width):
+    """:func:`localization.detection.expected_ramp` of scalars."""
+    std = max(std, RAMP_MIN_STD_RAD)
+    x = mean - start
+    if width < RAMP_MIN_WIDTH_RAD:
+        return 0.5 * math.erfc(-x / std * _INV_SQRT_TWO)
+    value = (_ramp_g(x, std) - _ramp_g(x - width, std)) / width
+    return min(max(value, 0.0), 1.0)
+
+
+@njit(cache=True)
+def _visible_width_blind(ux, uy, r, d, pxx, pxy, pyy, fp, sector_scaled, sector_params):
+    """Product over sectors of :func:`localization.detection.visible_width_factor` for the
+    component with unit bearing ``(ux, uy)`` (``m / d``), range ``r`` and covariance ``P``."""
+    std = math.sqrt(max(uy * uy * pxx - 2.0 * ux * uy * pxy + ux * ux * pyy, 0.0)) / d
+    half_angle = math.asin(min(fp[F_SCAN_RADIUS] / max(r, 1e-12), 1.0))
+    # start of each side's step or ramp, less the first beam past the edge
+    lead = (
+        -half_angle + 0.5 * fp[F_SCAN_FOOTPRINT] + (fp[F_MIN_RETURNS] - 1.0) * fp[F_BEAM_SPACING]
+    )
+    ramp = fp[F_EDGE_RAMP]
+    reach = 9.0 * max(std, RAMP_MIN_STD_RAD)  # Phi(-9) ~ 1e-19: beyond it a ramp is 0 or 1
+    blind = 1.0
+    for k in range(sector_params.shape[0]):
+        inv_var = sector_params[k, 0]
+        half_width = 1.0 / math.sqrt(inv_var)  # sigma = width / 2 (pack_params)
+        dx = sector_scaled[k, 0] / inv_var
+        dy = sector_scaled[k, 1] / inv_var
+        offset = math.atan2(dx * uy - dy * ux, dx * ux + dy * uy)
+        clear = half_width + half_angle - 0.5 * fp[F_SCAN_FOOTPRINT]
+        if abs(offset) - clear > reach:
+            continue  # 9 sigmas clear of the sector: its side's ramp is 1, the factor 1
+        start_plus = sector_params[k, 1] + lead
+        start_minus = sector_params[k, 2] + lead
+        plus = _expected_ramp(
+            offset, std, min(start_plus, clear), min(max(clear - start_plus, 0.0), ramp)
+        )
+        minus = _expected_ramp(
+            -offset, std, min(start_minus, clear), min(max(clear - start_minus, 0.0), ramp)
+        )
+        blind *= max(plus, minus)
+    return blind
+
+
+@njit(cache=True)
+def _lidar_pd(tab, n, nulls, fp, ip, sector_scaled, sector_params):
     pd = np.empty(n)
     if ip[I_LIDAR_PD_CONSTANT]:
         for i in range(n):
@@ -233,18 +302,31 @@ def _lidar_pd(tab, n, nulls, fp, ip, sector_scaled, sector_inv_var):
             pd[i] = fp[F_LPD_CONST] if inside else 0.0
         return pd
     ranges, units = _units(tab, n, fp[F_MIN_RANGE])
-    n_sectors = sector_inv_var.shape[0]
+    n_sectors = sector_params.shape[0]
     depth = fp[F_INT_DEPTH]
     int_inv_var = fp[F_INT_INV_VAR]
     for i in range(n):
         p = _inverse_sigmoid(ranges[i], fp[F_LPD_OFFSET], fp[F_LPD_SLOPE], fp[F_LPD_MID])
-        if n_sectors:
+        if n_sectors and ip[I_BLIND_VISIBLE_WIDTH]:
+            p *= _visible_width_blind(
+                units[0, i],
+                units[1, i],
+                ranges[i],
+                max(ranges[i], fp[F_MIN_RANGE]),
+                tab[3, i],
+                tab[4, i],
+                tab[5, i],
+                fp,
+                sector_scaled,
+                sector_params,
+            )
+        elif n_sectors:
             blind = 1.0
             for k in range(n_sectors):
                 exponent = (
                     sector_scaled[k, 0] * units[0, i]
                     + sector_scaled[k, 1] * units[1, i]
-                    - sector_inv_var[k]
+                    - sector_params[k, 0]
                 )
                 if exponent > _NEGLIGIBLE_EXPONENT:
                     blind *= 1.0 - math.exp(exponent)
@@ -569,7 +651,7 @@ def _missed_moments(tab, n, pd, fp):
 
 
 @njit(cache=True)
-def _lidar_update(tab, n, pts, nulls, fp, ip, sector_scaled, sector_inv_var, memory):
+def _lidar_update(tab, n, pts, nulls, fp, ip, sector_scaled, sector_params, memory):
     """Lidar GM-PHD update (H = I), pruned, then the scan's free-space evidence
     (``memory``: the robot's scan memory, :mod:`localization.scan_evidence`). Returns
     (table, k, explained (M,))."""
@@ -577,7 +659,7 @@ def _lidar_update(tab, n, pts, nulls, fp, ip, sector_scaled, sector_inv_var, mem
     prune = fp[F_PRUNE]
     scan = ip[I_SCAN_EVIDENCE] and memory[0] != 0.0
     if m == 0:
-        pd = _lidar_pd(tab, n, nulls, fp, ip, sector_scaled, sector_inv_var)
+        pd = _lidar_pd(tab, n, nulls, fp, ip, sector_scaled, sector_params)
         if scan:
             pd *= _scan_factors(tab, n, memory, 0.0, 0.0, fp)[0]
         if ip[I_LIDAR_MISSED_MOMENTS]:
@@ -599,7 +681,7 @@ def _lidar_update(tab, n, pts, nulls, fp, ip, sector_scaled, sector_inv_var, mem
         prior[3, n] = fp[F_BIRTH_VAR]
         prior[4, n] = 0.0
         prior[5, n] = fp[F_BIRTH_VAR]
-    pd = _lidar_pd(prior, n1, nulls, fp, ip, sector_scaled, sector_inv_var)
+    pd = _lidar_pd(prior, n1, nulls, fp, ip, sector_scaled, sector_params)
     if scan:
         pd *= _scan_factors(prior, n1, memory, 0.0, 0.0, fp)[0]
     r = fp[F_LIDAR_VAR]
@@ -672,6 +754,27 @@ def camera_bearing_var(range_m, fp):
 
 
 @njit(cache=True)
+def camera_clutter(brg, memory, ox, oy, fp):
+    """The camera clutter intensity (1/rad) at each bearing ``brg (M,)`` seen from ``(ox, oy)``:
+    the uniform ``kappa_C`` plus the blobs of the scan ``memory``'s wide objects
+    (:func:`localization.object_clutter.clutter_density`). Without a scan the objects are
+    unknown, and the uniform part is the whole. Shared by the GM-PHD and the PMB banks."""
+    kappas = np.full(brg.shape[0], fp[F_KAPPA_C_UNIFORM] if memory[0] != 0.0 else fp[F_KAPPA_C])
+    if fp[F_WIDE_CLUTTER] > 0.0:
+        clutter_density_into(
+            kappas,
+            brg,
+            memory,
+            ox,
+            oy,
+            fp[F_WIDE_CLUTTER],
+            fp[F_WIDE_STD_FRACTION],
+            fp[F_CAMERA_VAR],
+        )
+    return kappas
+
+
+@njit(cache=True)
 def _camera_update(tab, n, brg, fp, ip, memory, ox, oy):
     """Camera EKF bearing GM-PHD update (+ ray births), pruned. Returns (table, k).
 
@@ -685,22 +788,9 @@ def _camera_update(tab, n, brg, fp, ip, memory, ox, oy):
     missed_pd = pd * _scan_factors(tab, n, memory, ox, oy, fp)[0] if scan else pd
     if m == 0:
         return _missed_only(tab, n, missed_pd, prune, ip[I_MISSED_BERNOULLI], tab)
-    # Per bearing: the uniform kappa_C plus the wide objects' blobs (object_clutter); the
-    # uniform part alone bounds the pairs dropped below (kappa_h >= kappa_C). Without a scan
-    # the objects are unknown, and the uniform part is the whole (the PMB's).
+    # The uniform part alone bounds the pairs dropped below (kappa_h >= kappa_C).
     kappa = fp[F_KAPPA_C_UNIFORM] if memory[0] != 0.0 else fp[F_KAPPA_C]
-    kappas = np.full(m, kappa)
-    if fp[F_WIDE_CLUTTER] > 0.0:
-        clutter_density_into(
-            kappas,
-            brg,
-            memory,
-            ox,
-            oy,
-            fp[F_WIDE_CLUTTER],
-            fp[F_WIDE_STD_FRACTION],
-            fp[F_CAMERA_VAR],
-        )
+    kappas = camera_clutter(brg, memory, ox, oy, fp)
     min_r2 = fp[F_MIN_RANGE] * fp[F_MIN_RANGE]
     detected = np.empty((n, m))
     post_means = np.empty((2, n, m))
@@ -1058,7 +1148,7 @@ def apply_calls(
     fp,
     ip,
     sector_scaled,
-    sector_inv_var,
+    sector_params,
 ):
     """Run ``Q`` encoded calls (module docstring) on the bank state, in place.
 
@@ -1100,7 +1190,7 @@ def apply_calls(
                 fp,
                 ip,
                 sector_scaled,
-                sector_inv_var,
+                sector_params,
             )
 
 
@@ -1117,7 +1207,7 @@ def _apply_call(
     fp,
     ip,
     sector_scaled,
-    sector_inv_var,
+    sector_params,
 ):
     """Call ``q`` of :func:`apply_calls` on its robot's slice of the state."""
     (
@@ -1177,7 +1267,7 @@ def _apply_call(
             fp,
             ip,
             sector_scaled,
-            sector_inv_var,
+            sector_params,
             memory,
         )
         if measurement_birth:

@@ -57,6 +57,7 @@ __all__ = [
     "wide_objects_into",
     "clutter_density",
     "clutter_density_into",
+    "camera_clutter",
 ]
 
 #: Widest cluster counted as a wide object, end to end (m): the red decoys' diameter. Measured
@@ -113,6 +114,26 @@ def clutter_density(
     d = np.angle(np.exp(1j * (bearings[:, None] - np.arctan2(y, x)[None, :])))
     out += per_object * (np.exp(-0.5 * d * d / var) / np.sqrt(2.0 * math.pi * var)).sum(axis=1)
     return out
+
+
+def camera_clutter(
+    config, bearings: np.ndarray, memory: np.ndarray, offset: np.ndarray
+) -> np.ndarray:
+    """A filter's camera clutter intensity ``(M,)`` (1/rad) at ``bearings`` seen from
+    ``offset`` (2,): :func:`clutter_density` with ``config``'s (a ``PHDConfig``) uniform part
+    and wide objects. Without a scan the objects are unknown, and the uniform part is the
+    whole. The numpy reference of ``localization.kernels.camera_clutter``, for both filters."""
+    return clutter_density(
+        bearings,
+        memory,
+        offset,
+        config.camera_clutter_uniform_per_rad
+        if memory[0]
+        else config.camera_clutter_total_per_rad,
+        config.camera_clutter_per_wide_object,
+        config.camera_wide_object_std_fraction,
+        config.camera_noise_var_rad2,
+    )
 
 
 # ---------------------------------------------------------------------- compiled

@@ -39,23 +39,35 @@ def rollout_hash(steps: int = 60, seed: int = 3, **kwargs) -> str:
 # 2026-12-02, later: the simulator's GM-PHD models the wide objects' camera clutter
 # (localization.object_clutter), which changed the two phd-lc hashes; with
 # phd={"camera_clutter_per_wide_object": 0.0} the previous ones are reproduced (pinned below).
+# 2026-12-03: the simulator's filters model the lidar's blind sectors as the notch of its
+# geometry (blind_sector_model="visible-width"), and the PMB the wide objects' camera clutter,
+# which changed the three localizer hashes; with phd={"blind_sector_model": "seed"} (and, for
+# the PMB, "camera_clutter_per_wide_object": 0.0) the previous ones are reproduced (pinned
+# below).
+SEED_BUMP = {"blind_sector_model": "seed"}
 PINNED = {
-    "phd-lc": ({"localizer": "phd-lc"}, "0b818fe10e6ba33f"),
-    "phd-lo": ({"localizer": "phd-lo"}, "9036cdcfb8a75603"),
-    "pmb-lc": ({"localizer": "pmb-lc"}, "ab75e7e85c9fc94d"),
+    "phd-lc": ({"localizer": "phd-lc"}, "b948ac0939f55fc1"),
+    "phd-lo": ({"localizer": "phd-lo"}, "45edff300b93f00e"),
+    "pmb-lc": ({"localizer": "pmb-lc"}, "d96f98eb1e6b1deb"),
     "measurements": ({"observation": "measurements", "localize": False}, "459595779851be71"),
-    # The rules before the extent test and before the wide objects still reproduce their
-    # rollouts bit for bit.
+    # The models before the notch, before the extent test and before the wide objects still
+    # reproduce their rollouts bit for bit.
+    "phd-lc-bump": ({"localizer": "phd-lc", "phd": SEED_BUMP}, "0b818fe10e6ba33f"),
+    "phd-lo-bump": ({"localizer": "phd-lo", "phd": SEED_BUMP}, "9036cdcfb8a75603"),
+    "pmb-lc-bump-uniform-clutter": (
+        {"localizer": "pmb-lc", "phd": {**SEED_BUMP, "camera_clutter_per_wide_object": 0.0}},
+        "ab75e7e85c9fc94d",
+    ),
     "phd-lc-width-only": (
         {
             "localizer": "phd-lc",
             "lidar_features": {"extent_test": False},
-            "phd": {"camera_clutter_per_wide_object": 0.0},
+            "phd": {**SEED_BUMP, "camera_clutter_per_wide_object": 0.0},
         },
         "50fca56a0405e160",
     ),
     "phd-lc-uniform-clutter": (
-        {"localizer": "phd-lc", "phd": {"camera_clutter_per_wide_object": 0.0}},
+        {"localizer": "phd-lc", "phd": {**SEED_BUMP, "camera_clutter_per_wide_object": 0.0}},
         "7afbfc3a156d5beb",
     ),
 }

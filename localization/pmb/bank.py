@@ -23,8 +23,9 @@ from typing import Any
 
 import numpy as np
 
-from ..bank import _Batch, all_finite, new_clock, run_packed
+from ..bank import _Batch, all_finite, bank_scan_memory, new_clock, run_packed
 from ..mixture import N_ROWS, ROW_W, GaussianMixture
+from ..scan_evidence import MEMORY_LEN, scan_memory_from_state
 from . import kernels
 from .config import PMBConfig, pmb_config
 from .filter import RobotCentricPMB, estimate_table
@@ -69,6 +70,8 @@ class PMBBank:
         self._pending = np.zeros((r, 8, 2))
         self._pending_counts = np.zeros(r, dtype=np.int64)
         self._clock = new_clock(r)  # process-noise clock per robot (localization.kernels)
+        # Each robot's last scan with its wide objects (RobotCentricPMB's scan memory).
+        self._scan_memory = np.zeros((r, MEMORY_LEN))
         self._mixtures: list[GaussianMixture | None] = [None] * r
         self.views = [PMBBankView(self, i) for i in range(r)]
 
@@ -83,6 +86,7 @@ class PMBBank:
             "pending": self._pending,
             "pending_counts": self._pending_counts,
             "clock": self._clock,
+            "scan_memory": self._scan_memory,
         }
 
     def __setstate__(self, state: dict[str, Any]) -> None:
@@ -95,6 +99,8 @@ class PMBBank:
         self._pending_counts = np.array(state["pending_counts"], dtype=np.int64)
         if "clock" in state:  # absent from states pickled before the clock existed
             self._clock = np.array(state["clock"], dtype=float)
+        if "scan_memory" in state:  # absent from states pickled before the wide objects
+            self._scan_memory = bank_scan_memory(state["scan_memory"], self.n_robots)
 
     # ------------------------------------------------------------------ state access
     @property
@@ -147,6 +153,7 @@ class PMBBank:
         self._poisson_counts[rob] = 0
         self._pending_counts[rob] = 0
         self._clock[rob] = new_clock(1)
+        self._scan_memory[rob] = 0.0
         for r in rob.tolist():
             self._mixtures[r] = None
 
@@ -158,6 +165,7 @@ class PMBBank:
             raise ValueError("f must be a RobotCentricPMB with the bank's config")
         state = f.__getstate__()
         t, p, b = state["tracks"], state["poisson"], state["pending_births"]
+        memory = scan_memory_from_state(state["scan_memory"])  # checked before any change
         self._reserve_pending(b.shape[0])
         self._tracks[:, r] = 0.0
         self._tracks[:, r, : t.shape[1]] = t
@@ -168,6 +176,7 @@ class PMBBank:
         self._pending[r, : b.shape[0]] = b
         self._pending_counts[r] = b.shape[0]
         self._clock[r] = state["clock"]
+        self._scan_memory[r] = memory
         self._mixtures[r] = None
 
     @classmethod
@@ -193,13 +202,17 @@ class PMBBank:
                 "poisson": self.poisson_table(robot),
                 "pending_births": self.pending_births(robot),
                 "clock": self._clock[self._robot(robot)].copy(),
+                "scan_memory": self._scan_memory[self._robot(robot)].copy(),
             }
         )
         return f
 
-    #: The PMB does not use the scan profiles (see :mod:`localization.pmb.filter`): a
-    #: :class:`~localization.feed.SwarmFeed` does not pack them for it.
-    reads_scans = False
+    @property
+    def reads_scans(self) -> bool:
+        """Whether the lidar calls' scan profiles are used: for the wide objects' camera
+        clutter (``config.phd.models_wide_objects``); the scan evidence is the GM-PHD's
+        only. A :class:`~localization.feed.SwarmFeed` packs them only then."""
+        return self.config.phd.models_wide_objects
 
     # ------------------------------------------------------------------ steps
     def apply(self, calls: Sequence[Sequence[tuple]]) -> None:
@@ -252,6 +265,7 @@ class PMBBank:
             self._pending,
             self._pending_counts,
             self._clock,
+            self._scan_memory,
             encoded,
             *self._params,
         )

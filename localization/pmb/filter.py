@@ -15,7 +15,8 @@ Each step::
                    -> Kalman likelihoods, gate -> LBP marginals -> moment-matched Bernoullis,
                    one new Bernoulli per measurement from the Poisson, Poisson missed copies
                    -> recycle r < threshold into the Poisson -> reduce the Poisson
-    update_camera: the same with the GM-PHD's EKF bearing update and camera P_d
+    update_camera: the same with the GM-PHD's EKF bearing update and camera P_d, and the
+                   clutter of each bearing from the last scan's wide objects (as the GM-PHD's)
     estimate:      tracks with r >= threshold
 
 Every public method validates all of its inputs before touching any state. The derivation is in
@@ -38,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from .. import phd
+from .. import object_clutter, phd
 from ..detection import DetectionModel
 from ..filter import (
     _checked_angles,
@@ -48,6 +49,7 @@ from ..filter import (
     _shifted,
     checked_pose,
     checked_scan_profile,
+    scan_memory_of,
 )
 from ..frames import bearings_to_filter_frame, points_to_filter_frame
 from ..gaussian import bearing_update, position_update
@@ -64,6 +66,7 @@ from ..mixture import (
     empty_table,
 )
 from ..reducer import reduce
+from ..scan_evidence import MEMORY_LEN, move_scan_pose, scan_memory_from_state
 from .association import lbp_marginals
 from .config import pmb_config
 
@@ -131,6 +134,7 @@ class RobotCentricPMB:
         "_fixed_birth",
         "_mixture",
         "_clock",
+        "_scan",
     )
 
     def __init__(self, config: Any = None, **overrides: Any) -> None:
@@ -151,6 +155,9 @@ class RobotCentricPMB:
         self._pending_births = np.empty((0, 2))
         self._mixture: GaussianMixture | None = None
         self._clock = phd.ProcessClock()
+        # The last lidar scan with its wide objects (localization.object_clutter), kept only
+        # where the camera clutter reads them (PHDConfig.models_wide_objects).
+        self._scan = np.zeros(MEMORY_LEN)
 
     def set_state(self, tracks: GaussianMixture, poisson: GaussianMixture | None = None) -> None:
         """Load tracks (weights = existence probabilities in ``[0, 1]``) and optionally a Poisson
@@ -241,6 +248,7 @@ class RobotCentricPMB:
             "poisson": self._poisson,
             "pending_births": self._pending_births,
             "clock": self._clock.as_array(),
+            "scan_memory": self._scan,
         }
 
     def __setstate__(self, state: dict[str, Any]) -> None:
@@ -250,6 +258,8 @@ class RobotCentricPMB:
         self._pending_births = np.array(state["pending_births"], dtype=float).reshape(-1, 2)
         if "clock" in state:  # absent from states pickled before the clock existed
             self._clock = phd.ProcessClock.from_array(state["clock"])
+        if "scan_memory" in state:  # absent from states pickled before the wide objects
+            self._scan = scan_memory_from_state(state["scan_memory"])
 
     def __copy__(self) -> RobotCentricPMB:
         # Tables are never mutated in place: a shallow copy is an independent filter.
@@ -263,6 +273,7 @@ class RobotCentricPMB:
         new._tracks = self._tracks.copy()
         new._poisson = self._poisson.copy()
         new._pending_births = self._pending_births.copy()
+        new._scan = self._scan.copy()
         new._mixture = None
         return new
 
@@ -299,6 +310,9 @@ class RobotCentricPMB:
         if poisson.shape[1] > cfg.max_components:
             poisson = reduce(poisson, cfg.prune_threshold, cfg.merge_threshold, cfg.max_components)
         self._tracks, self._poisson = tracks, poisson
+        if self._scan[0]:  # the scan was taken from a place the frame has moved away from
+            self._scan = self._scan.copy()
+            self._scan[1:4] = move_scan_pose(self._scan[1:4], odo)
         self._pending_births = np.empty((0, 2))
         self._mixture = None
 
@@ -337,14 +351,19 @@ class RobotCentricPMB:
             ``[x_m, y_m, psi_rad]`` in the filter's frame the scan was taken from; points and
             null bearings are moved into the filter's frame (:mod:`localization.frames`).
         scan_profile : array_like, shape (N_BINS,), optional
-            Validated and not used: the scan evidence (``PHDConfig.scan_evidence``) is the
-            GM-PHD's only, as the compiled PMB bank ignores it.
+            The scan's :func:`~localization.scan_evidence.scan_profile` (m, 0 = unknown).
+            Where the camera clutter models the wide objects
+            (``PHDConfig.models_wide_objects``) it becomes the filter's scan memory with its
+            wide objects, from which later camera frames take their clutter; without one
+            the filter has no scan until the next. The scan evidence
+            (``PHDConfig.scan_evidence``) is the GM-PHD's only.
         """
         pts = _checked_points(points)
-        if scan_profile is not None:
-            checked_scan_profile(scan_profile)
+        profile = None if scan_profile is None else checked_scan_profile(scan_profile)
         nulls = None if null_bearings is None else _checked_angles(null_bearings, "null_bearings")
         pose = checked_pose(sensor_pose)
+        if self.config.phd.models_wide_objects:  # the memory is kept only where it is used
+            self._scan = scan_memory_of(profile, pose, True)
         if pose is not None:
             pts = points_to_filter_frame(pts, pose)
             nulls = None if nulls is None else bearings_to_filter_frame(nulls, pose)
@@ -395,7 +414,7 @@ class RobotCentricPMB:
         if pose is None or not pose[:2].any():
             if pose is not None:
                 brg = bearings_to_filter_frame(brg, pose)
-            self._camera_update(brg)
+            self._camera_update(brg, np.zeros(2))
             return
         brg = bearings_to_filter_frame(brg, pose)
         # Seen from the camera: shift the whole state, update, shift back (the update is
@@ -403,13 +422,15 @@ class RobotCentricPMB:
         self._tracks = _shifted(self._tracks, -pose[:2])
         self._poisson = _shifted(self._poisson, -pose[:2])
         try:
-            self._camera_update(brg)
+            self._camera_update(brg, pose[:2])
         finally:
             self._tracks = _shifted(self._tracks, pose[:2])
             self._poisson = _shifted(self._poisson, pose[:2])
             self._mixture = None
 
-    def _camera_update(self, brg: np.ndarray) -> None:
+    def _camera_update(self, brg: np.ndarray, offset: np.ndarray) -> None:
+        """The update of the tracks and the Poisson intensity, whose frame is the filter's
+        shifted by ``-offset`` (2,) (the camera's view; the scan memory's pose is read alike)."""
         cfg = self.config.phd
         union = np.concatenate((self._tracks, self._poisson), axis=1)
         pd = self._model.camera(union)
@@ -431,7 +452,7 @@ class RobotCentricPMB:
             post_covs,
             lik,
             scale,
-            cfg.camera_clutter_total_per_rad,
+            object_clutter.camera_clutter(cfg, brg, self._scan, offset),  # per bearing
         )
 
     def estimate(self, threshold: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
@@ -457,14 +478,15 @@ class RobotCentricPMB:
         post_covs: np.ndarray,
         lik: np.ndarray,
         scale: np.ndarray,
-        kappa: float,
+        kappa: float | np.ndarray,
     ) -> np.ndarray:
         """Track-oriented PMB update from per-component likelihoods; returns ``explained (M,)``.
 
         ``union`` is ``[tracks | poisson]`` ``(6, N + K)`` (``poisson`` may end with the fixed
         birth, whose missed part is dropped), ``pd (N + K,)``, ``post_means (2, N + K, M)``,
         ``post_covs (3, N + K)``, ``lik (N + K, M)``, ``scale (N + K,)``: ``lik * scale`` is
-        ``exp(-q / 2)`` for the gate.
+        ``exp(-q / 2)`` for the gate; ``kappa`` the clutter intensity, one or per measurement
+        ``(M,)``.
         """
         cfg = self.config
         n = self._tracks.shape[1]

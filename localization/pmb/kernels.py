@@ -13,7 +13,9 @@ Calls are encoded exactly as for the GM-PHD bank (:mod:`localization.kernels`, b
 
 State per robot ``r``: tracks ``(6, R, max_tracks)`` (rows ``r, x, y, Pxx, Pxy, Pyy``, first
 ``track_counts[r]`` columns), Poisson intensity ``(6, R, max_components)`` (first
-``poisson_counts[r]``), pending measurement births ``(R, P, 2)``.
+``poisson_counts[r]``), pending measurement births ``(R, P, 2)``, and the scan memory
+``(R, MEMORY_LEN)`` whose wide objects place part of the camera clutter (as the GM-PHD bank's;
+kept only where ``PHDConfig.models_wide_objects``).
 """
 
 from __future__ import annotations
@@ -26,7 +28,6 @@ from numba import njit, prange
 from .. import kernels as gk
 from ..kernels import (
     ADVANCE,
-    F_KAPPA_C,
     F_KAPPA_L,
     F_LIDAR_VAR,
     F_MBIRTH_MAX_EXPLAINED,
@@ -35,6 +36,7 @@ from ..kernels import (
     F_MERGE,
     F_MIN_RANGE,
     F_PRUNE,
+    F_WIDE_CLUTTER,
     I_BIRTH_FIXED,
     I_BIRTH_MEASUREMENT,
     I_LIDAR_ONLY,
@@ -43,9 +45,11 @@ from ..kernels import (
     PREDICT,
     _camera_pd,
     _lidar_pd,
+    _remember_scan,
     _to_filter_frame,
     advance_clock,
     camera_bearing_var,
+    camera_clutter,
     diffuse,
     frame_change,
     predict_process_var,
@@ -55,6 +59,8 @@ from ..kernels import (
     shift_means_in_place,
 )
 from ..mixture import N_ROWS
+from ..object_clutter import wide_objects_into
+from ..scan_evidence import move_scan_pose_in_place
 from .config import PMBConfig
 
 __all__ = ["pack_pmb_params", "apply_calls"]
@@ -71,7 +77,7 @@ _INV_SQRT_TWO_PI = 1.0 / math.sqrt(_TWO_PI)
 
 
 def pack_pmb_params(config: PMBConfig) -> tuple[np.ndarray, ...]:
-    """``(fparams, iparams, sector_scaled, sector_inv_var, pf, pi)`` of ``config``."""
+    """``(fparams, iparams, sector_scaled, sector_params, pf, pi)`` of ``config``."""
     pf = np.array([-0.5 * config.gate_mahalanobis2, config.bp_tolerance, config.recycle_threshold])
     pi = np.array([config.bp_max_iterations, config.max_tracks], dtype=np.int64)
     return (*gk.pack_params(config.phd), pf, pi)
@@ -212,7 +218,8 @@ def _core(union, nt, k_stored, pd, lik, post_means, post_covs, kappa, pf, pi):
     """Track-oriented PMB update (RobotCentricPMB._update) given gated likelihoods.
 
     ``union (6, nt + K)`` = tracks then Poisson (K >= k_stored: a fixed birth may follow the
-    stored Poisson components); ``lik (nt + K, M)`` is 0 for gated pairs. Returns
+    stored Poisson components); ``lik (nt + K, M)`` is 0 for gated pairs; ``kappa (M,)`` the
+    clutter intensity of each measurement. Returns
     ``(tracks (6, A), A, missed Poisson (6, k_stored), explained (M,))`` before recycling.
     """
     total = union.shape[1]
@@ -227,7 +234,7 @@ def _core(union, nt, k_stored, pd, lik, post_means, post_covs, kappa, pf, pi):
             e[j] += lik[nt + kk, j] * pd_w[nt + kk]
     c = np.empty(m)
     for j in range(m):
-        c[j] = kappa + e[j]
+        c[j] = kappa[j] + e[j]
     miss = np.empty(nt)
     psi = np.empty((nt, m))
     for i in range(nt):
@@ -366,7 +373,7 @@ def _union(tracks, nt, pois, npz, extra):
 
 
 @njit(cache=True)
-def _lidar(tracks, nt, pois, npz, pts, nulls, fp, ip, sector_scaled, sector_inv_var, pf, pi):
+def _lidar(tracks, nt, pois, npz, pts, nulls, fp, ip, sector_scaled, sector_params, pf, pi):
     m = pts.shape[0]
     fixed = ip[I_BIRTH_FIXED] and m > 0
     union = _union(tracks, nt, pois, npz, 1 if fixed else 0)
@@ -379,7 +386,7 @@ def _lidar(tracks, nt, pois, npz, pts, nulls, fp, ip, sector_scaled, sector_inv_
         union[4, col] = 0.0
         union[5, col] = fp[gk.F_BIRTH_VAR]
     total = union.shape[1]
-    pd = _lidar_pd(union, total, nulls, fp, ip, sector_scaled, sector_inv_var)
+    pd = _lidar_pd(union, total, nulls, fp, ip, sector_scaled, sector_params)
     r = fp[F_LIDAR_VAR]
     gate = pf[P_GATE_EXPONENT]
     lik = np.zeros((total, m))
@@ -411,14 +418,16 @@ def _lidar(tracks, nt, pois, npz, pts, nulls, fp, ip, sector_scaled, sector_inv_
             post_means[0, i, h] = pts[h, 0] + (2.0 * r) * e0
             post_means[1, i, h] = pts[h, 1] + (2.0 * r) * e1
     out, n_out, missed, explained = _core(
-        union, nt, npz, pd, lik, post_means, post_covs, fp[F_KAPPA_L], pf, pi
+        union, nt, npz, pd, lik, post_means, post_covs, np.full(m, fp[F_KAPPA_L]), pf, pi
     )
     t, n_t, p, n_p = _finish(out, n_out, missed, fp, ip, pf, pi)
     return t, n_t, p, n_p, explained
 
 
 @njit(cache=True)
-def _camera(tracks, nt, pois, npz, brg, fp, ip, pf, pi):
+def _camera(tracks, nt, pois, npz, brg, fp, ip, pf, pi, memory, ox, oy):
+    """The camera update of the state seen from the camera at ``(ox, oy)`` (the filter's frame
+    shifted by ``(-ox, -oy)``, which is how the scan ``memory``'s pose is read)."""
     m = brg.shape[0]
     union = _union(tracks, nt, pois, npz, 0)
     total = union.shape[1]
@@ -461,9 +470,8 @@ def _camera(tracks, nt, pois, npz, brg, fp, ip, pf, pi):
             lik[i, h] = math.exp(exponent) * norm
             post_means[0, i, h] = x + g0 * innov
             post_means[1, i, h] = y + g1 * innov
-    out, n_out, missed, _ = _core(
-        union, nt, npz, pd, lik, post_means, post_covs, fp[F_KAPPA_C], pf, pi
-    )
+    kappa = camera_clutter(brg, memory, ox, oy, fp)  # per bearing, as the GM-PHD's
+    out, n_out, missed, _ = _core(union, nt, npz, pd, lik, post_means, post_covs, kappa, pf, pi)
     return _finish(out, n_out, missed, fp, ip, pf, pi)
 
 
@@ -477,11 +485,12 @@ def apply_calls(
     pending,
     pending_counts,
     clock,
+    scan_memory,
     calls,
     fp,
     ip,
     sector_scaled,
-    sector_inv_var,
+    sector_params,
     pf,
     pi,
 ):
@@ -498,11 +507,12 @@ def apply_calls(
                 pending,
                 pending_counts,
                 clock,
+                scan_memory,
                 calls,
                 fp,
                 ip,
                 sector_scaled,
-                sector_inv_var,
+                sector_params,
                 pf,
                 pi,
             )
@@ -518,11 +528,12 @@ def _apply_call(
     pending,
     pending_counts,
     clock,
+    scan_memory,
     calls,
     fp,
     ip,
     sector_scaled,
-    sector_inv_var,
+    sector_params,
     pf,
     pi,
 ):
@@ -545,8 +556,8 @@ def _apply_call(
         camera_pose,
         camera_has_pose,
         stamps,
-        _profiles,  # the scan evidence is the GM-PHD's only (PHDConfig.scan_evidence)
-        _has_profile,
+        profiles,  # for the wide objects only: the scan evidence is the GM-PHD's
+        lidar_has_profile,
     ) = calls
     r = robots[q]
     kind = kinds[q]
@@ -555,6 +566,7 @@ def _apply_call(
     npz = poisson_counts[r]
     tab = tracks[:, r, :nt]
     pois = poisson[:, r, :npz]
+    memory = scan_memory[r]
     if kind == ADVANCE:
         var = advance_clock(clock, r, stamps[j], fp, ip)
         diffuse(tab, nt, var)
@@ -566,13 +578,19 @@ def _apply_call(
             tab, nt, pois, npz, pending[r], pending_counts[r], odometry[j], q_var, fp, ip
         )
         pending_counts[r] = 0
+        if memory[0] != 0.0:
+            move_scan_pose_in_place(memory, odometry[j])
     elif kind == LIDAR:
         pts = points[lidar_start[j] : lidar_stop[j]]
         nul = nulls[null_start[j] : null_stop[j]]
         if lidar_has_pose[j]:
             pts, nul = _to_filter_frame(pts, nul, lidar_pose[j])
+        if fp[F_WIDE_CLUTTER] > 0.0:  # else no 720-float copy (RobotCentricPMB.update_lidar)
+            _remember_scan(memory, profiles, lidar_has_profile, lidar_pose, lidar_has_pose, j)
+            if memory[0] != 0.0:
+                wide_objects_into(memory)
         t, n_t, p, n_p, explained = _lidar(
-            tab, nt, pois, npz, pts, nul, fp, ip, sector_scaled, sector_inv_var, pf, pi
+            tab, nt, pois, npz, pts, nul, fp, ip, sector_scaled, sector_params, pf, pi
         )
         if ip[I_BIRTH_MEASUREMENT]:
             b = 0
@@ -600,11 +618,14 @@ def _apply_call(
                 ip,
                 pf,
                 pi,
+                memory,
+                sx,
+                sy,
             )
             shift_means_in_place(t, n_t, sx, sy)
             shift_means_in_place(p, n_p, sx, sy)
         else:
-            t, n_t, p, n_p = _camera(tab, nt, pois, npz, brg, fp, ip, pf, pi)
+            t, n_t, p, n_p = _camera(tab, nt, pois, npz, brg, fp, ip, pf, pi, memory, 0.0, 0.0)
     tracks[:, r, :n_t] = t[:, :n_t]
     tracks[:, r, n_t:] = 0.0
     track_counts[r] = n_t

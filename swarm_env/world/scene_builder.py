@@ -176,6 +176,15 @@ def make_arena_scene(
 PAIR_SPACING_M = 25.0
 
 
+def _bearing_outside(rng: np.random.Generator, centers: np.ndarray, half: np.ndarray) -> float:
+    """A uniform bearing (rad) outside the sectors ``centers +/- half`` (rad), by rejection."""
+    while True:
+        bearing = rng.uniform(-np.pi, np.pi)
+        off = np.abs((bearing - centers + np.pi) % (2 * np.pi) - np.pi)
+        if not (off <= half).any():
+            return bearing
+
+
 def make_pair_scene(
     rng: np.random.Generator,
     range_m: float,
@@ -183,13 +192,15 @@ def make_pair_scene(
     strip_radius_m: float = STRIP_RADIUS_M,
     avoid_centers_deg: tuple[float, ...] = (),
     avoid_half_widths_deg: tuple[float, ...] = (),
+    bearings_rad: np.ndarray | None = None,
 ) -> tuple[Scene, np.ndarray]:
     """``n_pairs`` isolated (observer, target) robot pairs, the target at ``range_m``.
 
     Robot ``2 p`` observes robot ``2 p + 1``; pairs sit on a grid ``PAIR_SPACING_M`` apart, so
     no sensor sees another pair. Each observer has a random yaw (so a random beam phase) and
     its target a random bearing, uniform outside the robot-frame sectors ``avoid_centers_deg``
-    +/- ``avoid_half_widths_deg`` (e.g. the lidar's blind sectors).
+    +/- ``avoid_half_widths_deg`` (e.g. the lidar's blind sectors), or the given
+    ``bearings_rad`` (n_pairs,) (robot frame, rad).
 
     Returns
     -------
@@ -201,15 +212,18 @@ def make_pair_scene(
     side = int(math.ceil(math.sqrt(n_pairs)))
     centers = np.deg2rad(np.asarray(avoid_centers_deg, dtype=np.float64))
     half = np.deg2rad(np.asarray(avoid_half_widths_deg, dtype=np.float64))
+    if bearings_rad is not None and np.shape(bearings_rad) != (n_pairs,):
+        raise ValueError(
+            f"bearings_rad must have shape ({n_pairs},), got {np.shape(bearings_rad)}"
+        )
     bearings = np.empty(n_pairs)
     for p in range(n_pairs):
         ox, oy = (p % side) * PAIR_SPACING_M, (p // side) * PAIR_SPACING_M
         yaw = rng.uniform(-np.pi, np.pi)
-        while True:
-            bearing = rng.uniform(-np.pi, np.pi)
-            off = np.abs((bearing - centers + np.pi) % (2 * np.pi) - np.pi)
-            if not (off <= half).any():
-                break
+        if bearings_rad is None:
+            bearing = _bearing_outside(rng, centers, half)
+        else:
+            bearing = float(bearings_rad[p])
         bearings[p] = bearing
         b.add_robot(ox, oy, yaw_rad=yaw, strip_radius_m=strip_radius_m)
         b.add_robot(

@@ -11,6 +11,7 @@ from agents.policies import SCRIPTED, load_policy, policy_observation
 from agents.scripted import (
     EncirclementPolicy,
     FormationPolicy,
+    bearing_std,
     expected_count,
     expected_lidar_detections,
     internal_minimum,
@@ -218,17 +219,23 @@ def test_expected_lidar_detections_by_hand():
     """One teammate on a blind sector's centre (45 deg) at 1 m: the filter's blind factor is 0
     there, so no detection is expected until the robot turns it away; a 45 deg
     counter-clockwise turn puts it dead ahead, where the expectation is w * P_range(1 m) times
-    the other three sectors' factors (1 - exp((cos(delta) - 1) / sigma^2)), sigma = 5 deg.
-    Under the constant P_d model the filter has no sectors: every turn expects the same."""
+    the other three sectors' factors: 1 for the X4's notch (``"visible-width"``, 0 only within
+    about 5 deg of a centre), ``1 - exp((cos(delta) - 1) / sigma^2)``, sigma = 5 deg, for the
+    seed's bump. Under the constant P_d model the filter has no sectors: every turn expects the
+    same."""
     from localization.detection import DetectionModel, inverse_sigmoid
     from swarm_env.config import SIMULATOR_PHD as phd
 
     point = np.array([[np.cos(np.pi / 4), np.sin(np.pi / 4)]])
     turns = np.radians([0.0, 45.0])
-    got = expected_lidar_detections(point, np.array([0.8]), turns, DetectionModel(phd))
     in_range = inverse_sigmoid(
         np.array([1.0]), phd.lidar_pd_offset, phd.lidar_pd_slope_per_m, phd.lidar_pd_midpoint_m
     )[0]
+    got = expected_lidar_detections(point, np.array([0.8]), turns, DetectionModel(phd), 0.02)
+    assert got[0] == pytest.approx(0.0, abs=1e-4)  # 1.1 deg of bearing std: 4 sigma inside
+    assert got[1] == pytest.approx(0.8 * in_range)
+    bump = DetectionModel(dataclasses.replace(phd, blind_sector_model="seed"))
+    got = expected_lidar_detections(point, np.array([0.8]), turns, bump)
     inv_var = 1.0 / np.radians(5.0) ** 2
     factors = [1.0 - np.exp((np.cos(np.radians(a)) - 1.0) * inv_var) for a in (45, 135, 135, 45)]
     assert got[0] == pytest.approx(0.0, abs=1e-12)
@@ -238,6 +245,13 @@ def test_expected_lidar_detections_by_hand():
     np.testing.assert_allclose(flat, 0.8 * phd.lidar_detection_probability)
     with pytest.raises(ValueError, match=r"weights must have shape \(1,\)"):
         expected_lidar_detections(point, [0.8, 0.1], turns, constant)
+
+
+def test_bearing_std_of_table_rows_by_hand():
+    """A component at (0, 2) m with sxx = 0.04 m^2 has a bearing std of 0.2 / 2 = 0.1 rad
+    (the x axis is across its bearing); along the bearing (syy) adds nothing."""
+    rows = np.array([[1.0, 0.0, 2.0, 0.04, 0.0, 0.5, 1.0], [1.0, 3.0, 0.0, 0.0, 0.0, 0.09, 1.0]])
+    np.testing.assert_allclose(bearing_std(rows), [0.1, 0.1])
 
 
 @pytest.mark.parametrize("bearing_deg, sign", [(48.0, -1.0), (42.0, 1.0), (-48.0, 1.0)])
@@ -267,7 +281,9 @@ def test_sensing_turn_takes_the_neighbours_of_a_square_off_the_blind_sectors():
     """Facing the centre of a square formation (radius 1.1 m), the two neighbours sit at +-45
     deg, on the pillars' blind sectors, and the opposite robot at 2.2 m is at the edge of the
     lidar's range (P_range 0.37): only it is expected to be detected. The controller turns in
-    place (v = 0) by about 22 deg, which clears both neighbours; once turned, it stands still."""
+    place (v = 0) by about 10 deg: the notch of the X4's geometry ends 5.5 deg from a centre at
+    1.56 m, and the components' bearing std (1.2 deg) asks for a few more degrees of margin.
+    That clears both neighbours; once turned, it stands still."""
     from swarm_env.config import SIMULATOR_PHD as phd
 
     chord = 1.1 * np.sqrt(2.0)
@@ -276,7 +292,7 @@ def test_sensing_turn_takes_the_neighbours_of_a_square_off_the_blind_sectors():
     policy = FormationPolicy(top_k=4, sensing_model=phd)
     action = policy.sensing_turn(_table_of(square))
     turn = action[1] / policy.heading_gain
-    assert action[0] == 0.0 and 15.0 < abs(np.degrees(turn)) < 30.0, np.degrees(turn)
+    assert action[0] == 0.0 and 7.0 < abs(np.degrees(turn)) < 15.0, np.degrees(turn)
     c, s = np.cos(turn), np.sin(turn)
     turned = [(c * x + s * y, -s * x + c * y) for x, y in square]  # bearings minus the turn
     np.testing.assert_array_equal(policy.sensing_turn(_table_of(turned)), [0.0, 0.0])
@@ -286,9 +302,9 @@ def test_sensing_turn_takes_the_neighbours_of_a_square_off_the_blind_sectors():
 
 def test_formation_sensing_keeps_teammates_out_of_the_blind_sectors():
     """In a settled lab-3m-4 formation the plain controller leaves teammates within the
-    lidar's range on its blind sectors for about a fifth of the time; the sensing turn at least
-    halves that (the diagnosis' measure; 21.7 % -> 10.5 % over seeds 200-209, docs/results.md
-    round 6), and loses fewer of them."""
+    lidar's range in its blind sectors' notches (P_blind < 0.5) for about a sixth of the time;
+    the sensing turn lowers that and loses fewer of them (the diagnosis' measures; seed 201:
+    15.8 % -> 11.4 % in a notch, 6.4 % -> 3.6 % lost; docs/results.md round 8)."""
     from agents.formation_diagnosis import diagnose
 
     near = {
@@ -296,5 +312,5 @@ def test_formation_sensing_keeps_teammates_out_of_the_blind_sectors():
         for spec in ("scripted:formation", "scripted:formation-sensing")
     }
     plain, sensing = near["scripted:formation"], near["scripted:formation-sensing"]
-    assert sensing["on_blind_sector_share"] < 0.5 * plain["on_blind_sector_share"], near
+    assert sensing["on_blind_sector_share"] < 0.8 * plain["on_blind_sector_share"], near
     assert sensing["lost_share"] < plain["lost_share"], near

@@ -127,6 +127,15 @@ CONFIGS = {
         lidar_missed_moments=True, missed_detection="bernoulli", lidar_pd_midpoint_m=1.0
     ),
     "bernoulli-fixed": PHDConfig(missed_detection="bernoulli"),
+    # the blind sectors' notch from the beam geometry, averaged over each component's bearing;
+    # wide sectors so that many components sit on a notch's edges
+    "visible-width": PHDConfig(birth="measurement", blind_sector_model="visible-width"),
+    "visible-width-wide-sectors": PHDConfig(
+        blind_sector_model="visible-width",
+        blind_sector_centers_deg=(30.0, 150.0, -90.0),
+        blind_sector_widths_deg=(40.0, 60.0, 50.0),
+        lidar_min_returns=5,
+    ),
     "bernoulli-ray-constant": PHDConfig(
         missed_detection="bernoulli",
         camera_birth="ray",

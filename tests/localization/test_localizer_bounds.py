@@ -21,7 +21,7 @@ import pytest
 from localization import PHDConfig
 from localization.detection import DetectionModel, inverse_sigmoid
 from localization.feed import SwarmFeed
-from localization.mixture import ROW_W
+from localization.mixture import ROW_PXX, ROW_PYY, ROW_W
 from localization.registry import LOCALIZERS, make_localizer, oracle_range_bearing
 from swarm_core.records import (
     Broadcast,
@@ -212,6 +212,21 @@ def _lowest_expected_pd(cfg, table: np.ndarray, pd: np.ndarray) -> np.ndarray:
     return g * f_far
 
 
+def _lowest_pd_after_advance(model: DetectionModel, table: np.ndarray, lid) -> np.ndarray:
+    """A lower bound of ``P_d`` at the scan: the ``"visible-width"`` blind-sector factor
+    averages over each component's bearing, which the advance before the scan may widen by
+    up to two periods' process noise. The average moves monotonically with the std (the
+    ramp's second derivative is a +/- pair of deltas), so the lower of the two ends bounds it."""
+    nulls = lid.null_bearings_rad if lid.null_bearings_rad.size else None
+    pd = model.lidar(table, nulls)
+    if model.config.blind_sector_model == "visible-width":
+        widened = table.copy()
+        widened[ROW_PXX] += 2.0 * model.config.process_noise_std_m**2
+        widened[ROW_PYY] += 2.0 * model.config.process_noise_std_m**2
+        pd = np.minimum(pd, model.lidar(widened, nulls))
+    return pd
+
+
 def check_common(loc, after: dict, r: int) -> None:
     t = after["table"]
     assert np.all(np.isfinite(t)), f"{loc.name} robot {r}: non-finite table"
@@ -229,7 +244,7 @@ def check_gm_phd(loc, before, after, kind, rec, r, state) -> None:
         bound = _survival_max(cfg) * w0 + _births(cfg, state)
     elif rec.lidar:
         lid = rec.lidar[0]
-        pd = model.lidar(t0, lid.null_bearings_rad if lid.null_bearings_rad.size else None)
+        pd = _lowest_pd_after_advance(model, t0, lid)
         if cfg.lidar_missed_moments and cfg.lidar_pd_model == "seed":
             pd = _lowest_expected_pd(cfg, t0, pd)
         bound = _missed_bound(t0[ROW_W], pd, bern).sum() + lid.detections.shape[0]
@@ -263,7 +278,7 @@ def check_pmb(loc, before, after, kind, rec, r, state) -> None:
         bound = _survival_max(cfg) * n0 + _births(cfg, state)
     elif rec.lidar:
         lid = rec.lidar[0]
-        pd = model.lidar(moment, lid.null_bearings_rad if lid.null_bearings_rad.size else None)
+        pd = _lowest_pd_after_advance(model, moment, lid)
         bound = t0[ROW_W].sum() + (p0[ROW_W] * (1.0 - pd[t0.shape[1] :])).sum()
         bound += lid.detections.shape[0]
         assert np.all(t1[ROW_W] >= fcfg.recycle_threshold)  # recycled below it
@@ -292,9 +307,7 @@ def check_id_phd(loc, before, after, kind, rec, r, state) -> None:
         bound = cfg.survival_probability * (w0 + cfg.birth_weight * state["pending"])
     elif rec.lidar:
         lid = rec.lidar[0]
-        pd = DetectionModel(cfg.detection).lidar(
-            before["full_table"], lid.null_bearings_rad if lid.null_bearings_rad.size else None
-        )
+        pd = _lowest_pd_after_advance(DetectionModel(cfg.detection), before["full_table"], lid)
         bound = (before["full_w"] * (1.0 - pd)).sum() + lid.detections.shape[0]
         assert np.all(after["full_w"] >= cfg.prune_threshold)
     else:  # camera frames are not used

@@ -18,6 +18,7 @@ from localization.object_clutter import (
     wide_objects,
     wide_objects_into,
 )
+from localization.pmb import PMBBank, PMBConfig, RobotCentricPMB
 from localization.registry import run_calls
 from localization.scan_evidence import (
     BIN_WIDTH_RAD,
@@ -263,3 +264,72 @@ def test_a_bank_state_from_before_the_wide_objects_loads_and_a_bad_one_is_refuse
     with pytest.raises(ValueError, match="scan_memory"):
         broken.__setstate__(f_state)
     np.testing.assert_array_equal(bank.table(1), before)
+
+
+# ---------------------------------------------------------------------- the PMB
+@pytest.mark.parametrize(
+    "phd",
+    [
+        SIMULATOR_PHD,
+        dataclasses.replace(SIMULATOR_PHD, mode="lidar-only"),  # keeps no scan
+        PHDConfig(birth="fixed", camera_clutter_per_wide_object=2.0),
+    ],
+    ids=["simulator", "lidar-only", "fixed-birth"],
+)
+def test_pmb_bank_matches_reference_filters(phd):
+    """The PMB's compiled bank against its numpy reference with the wide objects' clutter:
+    tracks, Poisson intensity and scan memory, on scans with red decoys that the camera sees."""
+    rng = np.random.default_rng(5)
+    n_robots = 4
+    calls = scanned_calls(rng, n_robots, 70, decoys=2)
+    config = PMBConfig(phd=phd)
+    filters = [RobotCentricPMB(config) for _ in range(n_robots)]
+    for f, seq in zip(filters, calls, strict=True):
+        run_calls(f, seq)
+    bank = PMBBank(config, n_robots)
+    assert bank.reads_scans == phd.models_wide_objects
+    bank.apply(calls)
+    found = []
+    for r, f in enumerate(filters):
+        for a, b in ((f.table, bank.table(r)), (f.poisson_table, bank.poisson_table(r))):
+            assert a.shape == b.shape, (r, a.shape, b.shape)
+            np.testing.assert_allclose(b, a, rtol=0, atol=1e-10)
+        memory = bank.to_filter(r).__getstate__()["scan_memory"]
+        np.testing.assert_allclose(memory, f.__getstate__()["scan_memory"], rtol=0, atol=1e-12)
+        found.append(memory[WIDE_OBJECTS_AT])
+    assert max(len(f) for f in filters) > 0
+    assert (max(found) > 0) == phd.models_wide_objects  # the density was exercised
+
+
+def test_pmb_camera_bearing_on_a_decoy_no_longer_confirms_a_track_there():
+    """As the GM-PHD's: a track sitting on a red decoy is confirmed by the decoy's blob under
+    the uniform clutter; with the decoy's own clutter the blob is explained instead."""
+    decoy = np.array([1.8, 0.6])
+    ranges = cast(ANGLES, np.array([[*decoy, DECOY]]), wall_m=0.0)
+    brg = np.array([math.atan2(decoy[1], decoy[0])])
+    existence = {}
+    for per_object in (0.0, 0.72):
+        phd = dataclasses.replace(SIMULATOR_PHD, camera_clutter_per_wide_object=per_object)
+        f = RobotCentricPMB(PMBConfig(phd=phd))
+        f.set_state(GaussianMixture(np.array([0.3]), decoy[None, :], 1e-3 * np.eye(2)[None]))
+        f.update_lidar(np.zeros((0, 2)), scan_profile=scan_profile(ANGLES, ranges))
+        f.update_camera(brg)
+        existence[per_object] = f.table[0].sum()
+    assert existence[0.0] > 0.3
+    assert existence[0.72] < 0.5 * existence[0.0]
+
+
+def test_a_pmb_bank_state_from_before_the_wide_objects_loads():
+    config = PMBConfig(phd=SIMULATOR_PHD)
+    bank = PMBBank(config, 3)
+    bank.apply(scanned_calls(np.random.default_rng(2), 3, 20, decoys=1))
+    state = bank.__getstate__()
+    assert state["scan_memory"][:, WIDE_OBJECTS_AT].max() > 0
+    old = {k: v for k, v in state.items() if k != "scan_memory"}
+    loaded = PMBBank.__new__(PMBBank)
+    loaded.__setstate__(old)
+    assert not loaded.__getstate__()["scan_memory"].any()  # no scan until the next one
+    bad = state["scan_memory"].copy()
+    bad[0, WIDE_OBJECTS_AT] = 40  # more objects than a memory holds
+    with pytest.raises(ValueError, match="scan_memory"):
+        PMBBank.__new__(PMBBank).__setstate__(dict(state, scan_memory=bad))

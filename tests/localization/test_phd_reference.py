@@ -213,16 +213,24 @@ def test_blind_sector_pd_vanishes_at_centre_and_recovers():
     assert np.isclose(1 - pd[1] / range_factor, math.exp(-(d**2) / (2 * sigma**2)), rtol=1e-4)
 
 
-@pytest.mark.parametrize("pd_model", ["seed", "constant"])
-def test_lidar_pd_is_its_range_factor_times_its_blind_sector_factor(pd_model):
+@pytest.mark.parametrize(
+    ("pd_model", "blind_model"),
+    [("seed", "seed"), ("seed", "visible-width"), ("constant", "seed")],
+)
+def test_lidar_pd_is_its_range_factor_times_its_blind_sector_factor(pd_model, blind_model):
     """For a lone component (no occlusion) ``lidar`` is the product of the two public factors
-    (what ``agents.scripted.expected_lidar_detections`` uses); the constant model has no
-    sectors, and the seed model's vanish at their centres."""
-    cfg = PHDConfig(lidar_pd_model=pd_model)
+    (what ``agents.scripted.expected_lidar_detections`` uses, with the component's bearing
+    std); the constant model has no sectors, and the seed model's vanish at their centres."""
+    cfg = PHDConfig(lidar_pd_model=pd_model, blind_sector_model=blind_model)
     model = DetectionModel(cfg)
     rng = np.random.default_rng(7)
     ranges = rng.uniform(0.2, 3.0, 50)
     bearings = rng.uniform(-math.pi, math.pi, 50)
+    # a quarter of them within 8 deg of a sector centre, where the notch's edges are
+    near = rng.choice(np.radians(cfg.blind_sector_centers_deg), 12) + np.radians(
+        rng.uniform(-8.0, 8.0, 12)
+    )
+    bearings[:12] = near
     lone = [
         model.lidar(
             table_from_arrays(
@@ -232,12 +240,19 @@ def test_lidar_pd_is_its_range_factor_times_its_blind_sector_factor(pd_model):
         )[0]
         for r, b in zip(ranges, bearings, strict=True)
     ]
-    product = model.lidar_range_factor(ranges) * model.lidar_blind_sector_factor(bearings)
+    bearing_std = 0.1 / np.maximum(ranges, cfg.min_range_m)  # sqrt(0.01) m across the bearing
+    product = model.lidar_range_factor(ranges) * model.lidar_blind_sector_factor(
+        bearings, ranges, bearing_std
+    )
     np.testing.assert_allclose(product, lone, rtol=1e-9, atol=1e-12)
     centres = np.radians(cfg.blind_sector_centers_deg)
     expected = np.ones(4) if pd_model == "constant" else np.zeros(4)
-    np.testing.assert_allclose(model.lidar_blind_sector_factor(centres), expected, atol=1e-12)
-    np.testing.assert_allclose(model.lidar_blind_sector_factor(centres + math.pi / 4), 1.0)
+    np.testing.assert_allclose(
+        model.lidar_blind_sector_factor(centres, np.ones(4)), expected, atol=1e-12
+    )
+    np.testing.assert_allclose(
+        model.lidar_blind_sector_factor(centres + math.pi / 4, np.ones(4)), 1.0
+    )
 
 
 def test_occlusion_hides_the_farther_component():

@@ -100,6 +100,14 @@ CONFIGS = {
             birth="measurement",
         )
     ),
+    "visible-width": PMBConfig(
+        phd=phd(
+            birth="measurement",
+            blind_sector_model="visible-width",
+            blind_sector_centers_deg=(30.0, 150.0, -90.0),
+            blind_sector_widths_deg=(40.0, 60.0, 50.0),
+        )
+    ),
     "track-cap": PMBConfig(phd=phd(birth="measurement", max_components=5), max_tracks=3),
     "range-noise": PMBConfig(
         phd=phd(birth="measurement", camera_noise_std_deg=2.0, camera_noise_width_fraction=0.5)
