@@ -167,8 +167,9 @@ class PHDConfig:
         bump of peak 1, so ``P_d -> 0`` at the sector centre. ``"visible-width"``: a teammate
         is detected when the beams outside the sector that fall wholly on its housing
         (radius ``scan_target_radius_m``, footprint ``scan_beam_footprint_deg``, spacing
-        ``lidar_beam_spacing_deg``) number at least ``lidar_min_returns``. That is a notch as
-        wide as the sector plus the housing's half-width, with edges ``<= 0.5 deg`` wide. The
+        ``lidar_beam_spacing_deg``) number at least ``lidar_min_returns``. That is a notch
+        with edges ``<= 0.5 deg`` wide, ending where enough of the housing clears the sector
+        (the X4 at 1 m: 4.9 deg from the centre of a 10 deg sector). The
         seed's bump (sigma 5 deg) is wrong for the simulated X4: measured 0.04 at 2-4 deg
         from a centre against the bump's 0.17, and 0.93 at 6-8 deg against 0.62
         (``docs/localization.md``, "The blind sectors' notch").
@@ -508,6 +509,13 @@ class PHDConfig:
                 "PHDConfig.max_components must be an int in [1, 10000], got "
                 f"{self.max_components!r}"
             )
+        if self.lidar_beam_phase == "fixed":
+            turns = 360.0 / self.lidar_beam_spacing_deg
+            if abs(turns - round(turns)) > 1e-9 * turns:
+                raise ValueError(
+                    "PHDConfig.lidar_beam_spacing_deg must divide 360 with fixed beams "
+                    f"(lidar_beam_phase='fixed'), got {self.lidar_beam_spacing_deg!r}"
+                )
         value = self.lidar_min_returns
         if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 100:
             raise ValueError(

@@ -215,15 +215,19 @@ def visible_width_factor(
     housing clears the sector (``s1 = h + a - f/2``) the count is the full view's, which the
     filter's range factor carries: the factor is 1 from ``s1`` on, so the step or ramp is cut
     there (a housing that gives fewer than ``n`` returns even in full view has a step at
-    ``s1``). The side beyond ``-h`` is the mirror image (``-s``, ``first_beams_rad[1]``); the
-    factor takes the larger. It is averaged over the component's bearing,
-    ``s ~ N(offset, bearing_std^2)`` (:func:`expected_ramp`): the notch's edges (``<= Delta``
-    = 0.5 deg) are narrower than a typical component's bearing uncertainty.
+    ``s1``). The side beyond ``-h`` is the mirror image (``-s``, ``first_beams_rad[1]``). At
+    a given bearing the factor is the larger side; the two are both non-zero only where a
+    housing wider than the sector shows on both sides, and then both are 1 (the null returns
+    of the blind beams split the cluster, so the sides do not add up). It is averaged over
+    the component's bearing, ``s ~ N(offset, bearing_std^2)``: the notch's edges (``<=
+    Delta`` = 0.5 deg) are narrower than a typical component's bearing uncertainty. The
+    average of the larger side is the sum of the sides' averages (:func:`expected_ramp`)
+    where they do not overlap, capped at 1 where they do: ``min(E[plus] + E[minus], 1)``.
 
     Parameters
     ----------
     offsets_rad : ndarray
-        Component bearing minus the sector centre, wrapped to ``[-pi, pi)`` (rad).
+        Component bearing minus the sector centre, wrapped to ``(-pi, pi]`` (rad).
     ranges_m : ndarray
         Component ranges (m).
     bearing_std_rad : ndarray
@@ -253,7 +257,7 @@ def visible_width_factor(
         sides.append(
             expected_ramp(sign * offsets_rad, bearing_std_rad, np.minimum(start, clear), width)
         )
-    return np.maximum(sides[0], sides[1])
+    return np.minimum(sides[0] + sides[1], 1.0)
 
 
 def blind_sector_first_beams(config: PHDConfig) -> tuple[np.ndarray, float]:
@@ -443,7 +447,9 @@ class DetectionModel:
                     - 2.0 * units[0] * units[1] * table[ROW_PXY]
                     + units[0] ** 2 * table[ROW_PYY]
                 ) / np.maximum(ranges, cfg.min_range_m) ** 2
-                pd *= self._visible_width_factor(units, ranges, np.sqrt(bearing_var))
+                pd *= self._visible_width_factor(
+                    units, ranges, np.sqrt(np.maximum(bearing_var, 0.0))
+                )
         if table.shape[1] > 1:
             pd *= occlusion_factor(
                 units,

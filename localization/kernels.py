@@ -289,7 +289,7 @@ def _visible_width_blind(ux, uy, r, d, pxx, pxy, pyy, fp, sector_scaled, sector_
         minus = _expected_ramp(
             -offset, std, min(start_minus, clear), min(max(clear - start_minus, 0.0), ramp)
         )
-        blind *= max(plus, minus)
+        blind *= min(plus + minus, 1.0)  # the average of the larger side (reference)
     return blind
 
 

@@ -183,3 +183,23 @@ def test_the_notch_matches_the_simulated_lidar(range_m):
         )
         worst_bump = max(worst_bump, abs(found[sel].mean() - bumped[sel].mean()))
     assert worst_bump > 0.1
+
+
+def test_fixed_beams_must_tile_the_turn():
+    with pytest.raises(ValueError, match="lidar_beam_spacing_deg must divide 360"):
+        PHDConfig(lidar_beam_phase="fixed", lidar_beam_spacing_deg=0.7)
+    PHDConfig(lidar_beam_phase="drifting", lidar_beam_spacing_deg=0.7)  # any spacing drifts
+
+
+def test_an_uncertain_bearing_averages_the_larger_side():
+    """At the sector centre the housing is hidden, but a component 5.7 deg uncertain in bearing
+    may be on either side of the notch: the average of the larger side is the sum of the two
+    sides' averages (Monte Carlo over the bearing, 200 000 draws), not the larger average."""
+    draws = np.random.default_rng(0).normal(0.0, 5.7, 200_000)
+    sampled = float(
+        visible_width_factor(
+            draws * DEG, 1.0, 0.0, 5.0 * DEG, (5.5 * DEG, 5.5 * DEG), 0.0, **X4
+        ).mean()
+    )
+    assert notch(0.0, 1.0, std_deg=5.7, first_beam_deg=5.5) == pytest.approx(sampled, abs=0.005)
+    assert sampled > 0.35  # the larger side's average alone would give 0.20
