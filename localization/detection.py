@@ -389,9 +389,8 @@ class DetectionModel:
         self._sector_dirs, inv_var = blind_sector_geometry(config)  # (K, 2), (K,)
         self._sector_inv_var = inv_var[:, None]  # (K, 1)
         self._sector_scaled = self._sector_dirs * self._sector_inv_var
-        self._sector_half_widths = 0.5 * np.radians(
-            np.asarray(config.blind_sector_widths_deg, dtype=float)
-        ).reshape(-1, 1)  # (K, 1)
+        # sigma = width / 2 is the half-width, read back as the compiled kernel reads it
+        self._sector_half_widths = 1.0 / np.sqrt(self._sector_inv_var)  # (K, 1)
         first_beams, self._sector_edge_ramp = blind_sector_first_beams(config)
         self._sector_first_beams = (first_beams[:, :1], first_beams[:, 1:])  # (K, 1) each
         self._occlusion_inv_var = 1.0 / math.radians(config.occlusion_std_deg) ** 2
