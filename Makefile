@@ -28,6 +28,7 @@ bench: $(STAMP)
 	$(VENV)/bin/swarm-phd bench --json runs/bench/env.json
 	$(PY) benchmarks/bench_sensors.py
 	$(PY) benchmarks/bench_detection_curves.py --json runs/bench/detection_curves.json
+	$(PY) benchmarks/bench_lidar_pd_calibration.py --json runs/bench/lidar_pd_calibration.json
 	$(PY) benchmarks/bench_bank.py --json runs/bench/bank.json
 	$(PY) benchmarks/bench_phd_vs_stonesoup.py --json runs/bench/phd_vs_stonesoup.json
 	$(PY) benchmarks/bench_scaling.py --json runs/bench/scaling.json

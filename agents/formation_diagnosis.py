@@ -23,7 +23,11 @@ and, for every robot and step from ``--from-step`` on (the settled formation), c
 - every teammate within the lidar's range, on one of its blind sectors (the filter's own
   blind-sector factor below 0.5 at the true bearing: behind a camera pillar) or in its view: how
   often each is lost, and how often the lidar detects it against how often the filter expects
-  it to (:class:`LostTeammateTally`).
+  it to (:class:`LostTeammateTally`);
+- every lidar scan against the truth at its own instant (``sensor_stats``): how often a
+  teammate within the localization range (2 m) was missed, and why (hidden from the beams,
+  nulled by interference, or dropped by the extractor:
+  :data:`~swarm_env.world.diagnostics.LIDAR_MISS_CAUSES`).
 
 ``--policy scripted:formation-sensing`` runs the controller that turns its blind sectors off
 its teammates instead.
@@ -44,8 +48,10 @@ import numpy as np
 
 from agents.scripted import estimated_centroid, estimated_neighbours, split_observation
 from localization.detection import DetectionModel
+from localization.mixture import ROW_W, ROW_X, ROW_Y
 from swarm_core.geometry import wrap_angle
 from swarm_core.world import relative_positions
+from swarm_env.world.diagnostics import LIDAR_MISS_CAUSES, SensorStats
 
 KINDS = ("post", "red_decoy", "wall", "other")
 #: The controllers the diagnosis can run (it reads their estimate the way they do).
@@ -140,6 +146,7 @@ class LostTeammateTally:
         self.in_range_lost = dict.fromkeys(self.GROUPS, 0)
         self.scans = dict.fromkeys(self.GROUPS, 0)
         self.predicted_detections = dict.fromkeys(self.GROUPS, 0.0)
+        self.predicted_with_nulls = dict.fromkeys(self.GROUPS, 0.0)
         self.detections = dict.fromkeys(self.GROUPS, 0)
         # Per offset bin: sum over scans of P_range, of P_range * P_blind, and detections.
         n_bins = len(self.OFFSET_BINS_DEG) - 1
@@ -164,12 +171,18 @@ class LostTeammateTally:
         p_range = self.detection.lidar_range_factor(ranges)
         bearings = np.arctan2(teammates_body[:, 1], teammates_body[:, 0])
         p_blind = self.detection.lidar_blind_sector_factor(bearings, ranges)
-        p_d = p_range * p_blind  # a lone component at the true position
+        p_d = p_range * p_blind  # a lone component at the true position, no nulls
         near = p_range >= 0.5
         scans = info["measurements"]["lidar"]
+        # The filter's whole P_d (range, notch, occlusion among the teammates, and the
+        # interference of each scan's null returns) for components of weight 1 at the true
+        # positions: what the filter expects when its estimate is right.
+        truth_table = components_at(teammates_body)
         detected = np.zeros(len(teammates_body), dtype=int)  # scans with a detection on each
+        p_d_scans = np.zeros(len(teammates_body))  # sum over scans of the whole P_d
         for scan in scans:
             detected += _detected(scan["detections"], teammates_body, self.match_m)
+            p_d_scans += self.detection.lidar(truth_table, np.asarray(scan["null_bearings_rad"]))
         if len(self._centres_rad) and len(scans):
             offset = np.degrees(
                 np.min(np.abs(wrap_angle(bearings[:, None] - self._centres_rad[None, :])), axis=1)
@@ -184,6 +197,7 @@ class LostTeammateTally:
             self.in_range_lost[group] += int((on & lost).sum())
             self.scans[group] += int(on.sum()) * len(scans)
             self.predicted_detections[group] += float(p_d[on].sum()) * len(scans)
+            self.predicted_with_nulls[group] += float(p_d_scans[on].sum())
             self.detections[group] += int(detected[on].sum())
         for j in np.flatnonzero(lost):
             holder = bearing_holder(teammates_body[j], components_body, self.bearing_window_rad)
@@ -200,8 +214,10 @@ class LostTeammateTally:
     def summary(self, observer_steps: int) -> dict[str, dict[str, Any]]:
         """``lost_teammates`` (per observer-step, and shares of the losses) and
         ``teammates_in_lidar_range`` (shares of the in-range teammate-steps; detections per
-        scan, predicted by the filter's ``P_d`` of a lone component at the true position, and
-        measured: scans with an extracted detection within the match radius)."""
+        scan, predicted by the filter's ``P_d`` of a lone component at the true position
+        (range and notch), by its whole ``P_d`` at the true positions (also occlusion among
+        the teammates and each scan's null returns), and measured: scans with an extracted
+        detection within the match radius)."""
         n_lost = sum(self.lost.values())
         n_near = sum(self.in_range.values())
         weight = self.offset_range_weight
@@ -232,6 +248,9 @@ class LostTeammateTally:
                 / max(1, sum(self.in_range_lost.values())),
                 "lidar_pd_predicted_per_scan": {
                     g: self.predicted_detections[g] / max(1, self.scans[g]) for g in self.GROUPS
+                },
+                "lidar_pd_predicted_with_nulls_per_scan": {
+                    g: self.predicted_with_nulls[g] / max(1, self.scans[g]) for g in self.GROUPS
                 },
                 "lidar_detected_per_scan": {
                     g: self.detections[g] / max(1, self.scans[g]) for g in self.GROUPS
@@ -275,17 +294,20 @@ def diagnose(
         raise ValueError(f"--match-m must be > 0, got {match_m}")
     if not 0 <= from_step < max_steps:
         raise ValueError(f"--from-step must be in [0, {max_steps}), got {from_step}")
-    fixed = {"preset", "task", "observation", "max_steps"} & set(env_overrides or {})
+    fixed = {"preset", "task", "observation", "max_steps", "sensor_stats"} & set(
+        env_overrides or {}
+    )
     if fixed:
         raise ValueError(
             f"--env-overrides may not set {sorted(fixed)}: the diagnosis sets them (use --preset, "
-            "--observation, --max-steps)"
+            "--observation, --max-steps; sensor_stats is always on)"
         )
     env = parallel_env(
         preset=preset,
         task="formation",
         observation=observation,
         max_steps=max_steps,
+        sensor_stats=True,  # the lidar's misses against the truth, by cause
         **(env_overrides or {}),
     )
     controller = load_policy(policy, env)
@@ -300,12 +322,21 @@ def diagnose(
     tally = LostTeammateTally(
         DetectionModel(env.config.phd), match_m, np.radians(bearing_window_deg)
     )
+    lidar_counts = dict.fromkeys(_lidar_count_keys(), 0)
     for seed in seeds:
         controller.reset(seed)
         obs, infos = env.reset(seed=seed)
-        layout = env.unwrapped.world.layout
+        world_model = env.unwrapped.world
+        layout = world_model.layout
+        # The scans the scored observations read: those of the periods that end at steps
+        # from_step .. max_steps - 1 (the last period's scans reach no scored observation).
+        before = after = _lidar_counts(world_model.stats["lidar"])
         for t in range(max_steps):
             actions = controller(obs, infos)
+            if t == from_step - 1:
+                before = _lidar_counts(world_model.stats["lidar"])
+            if t == max_steps - 1:
+                after = _lidar_counts(world_model.stats["lidar"])
             if t >= from_step:
                 truth = env.last_world_step.truth
                 poses = truth.poses[: len(env.possible_agents)]
@@ -337,10 +368,15 @@ def diagnose(
                     ):
                         errors[name].append(float(np.linalg.norm(value - true_c)))
             obs, _, _, _, infos = env.step(actions)
+        for key in lidar_counts:
+            lidar_counts[key] += after[key] - before[key]
     env.close()
+    in_range = max(1, lidar_counts["targets_in_range"])
     spurious = sum(counts.values())
     return {
         "preset": preset,
+        "policy": policy,
+        "observation": observation,
         "seeds": seeds,
         "from_step": from_step,
         "formation_error_m": float(np.mean(formation)),
@@ -356,7 +392,38 @@ def diagnose(
         "spurious_share": {k: counts[k] / max(1, spurious) for k in KINDS},
         "observer_steps": observer_steps,
         **tally.summary(observer_steps),
+        # Every scan that the scored observations read, against the truth at its instant, all
+        # bearings within the localization range (swarm_env.world.diagnostics): missed, and why.
+        "lidar_scans_vs_truth": {
+            "range_m": env.config.localization_range_m,
+            "targets_in_range": lidar_counts["targets_in_range"],
+            "missed_rate": lidar_counts["missed"] / in_range,
+            "missed_rate_by_cause": {c: lidar_counts[c] / in_range for c in LIDAR_MISS_CAUSES},
+        },
     }
+
+
+def _lidar_count_keys() -> tuple[str, ...]:
+    return ("targets_in_range", "missed", *LIDAR_MISS_CAUSES)
+
+
+def _lidar_counts(stats: SensorStats) -> dict[str, int]:
+    """The running counts of the simulator's lidar statistics that the diagnosis differences."""
+    return {
+        "targets_in_range": stats.targets_in_range,
+        "missed": stats.missed,
+        **{c: stats.missed_by_cause.get(c, 0) for c in LIDAR_MISS_CAUSES},
+    }
+
+
+def components_at(points_body: np.ndarray) -> np.ndarray:
+    """A filter's component table (6, K) with weight 1 and no spread at ``points_body``
+    (K, 2) (body frame, m): a filter whose estimate is exactly right, for asking its detection
+    model what it expects there."""
+    table = np.zeros((6, len(points_body)))
+    table[ROW_W] = 1.0
+    table[[ROW_X, ROW_Y]] = np.asarray(points_body, dtype=float).T
+    return table
 
 
 def _detected(detections: np.ndarray, points: np.ndarray, match_m: float) -> np.ndarray:

@@ -31,15 +31,22 @@ def check_probability(name: str, value: float) -> None:
         raise ValueError(f"{name} must be a probability in [0, 1], got {value!r}")
 
 
+#: The narrowest blind sector accepted (deg): far below a beam spacing (0.5 deg on the X4),
+#: and wide enough that ``1 / sigma^2`` (rad^-2) keeps the sector's geometry to ~1e-10.
+MIN_BLIND_SECTOR_WIDTH_DEG = 1e-3
+
+
 def check_blind_sectors(owner: str, centers_deg: object, widths_deg: object) -> None:
     """Raise ``ValueError`` unless the blind sectors ``centers_deg`` / ``widths_deg`` are valid.
 
     One rule for every user of the camera-pillar sectors (the simulated lidar, the filter's
     blind-sector factor, the perception code on real robots), so a value accepted by one is
     accepted by all: two tuples of finite numbers (degrees, robot frame) of equal length, each
-    width in ``(0, 360)``. A width of 0 is rejected (the filter's factor divides by it); no
-    sectors at all is written as two empty tuples. ``owner`` prefixes the field names in the
-    message, e.g. ``"LidarConfig"``.
+    width in ``[MIN_BLIND_SECTOR_WIDTH_DEG, 360)``. A width of 0 is rejected (the filter's
+    factor divides by it), and so is a width too small to be a pillar: the compiled filter
+    keeps each sector as ``1 / sigma^2`` and recovers its direction and half-width from it,
+    which loses precision as ``sigma`` goes to 0. No sectors at all is written as two empty
+    tuples. ``owner`` prefixes the field names in the message, e.g. ``"LidarConfig"``.
     """
     for name, value in (
         ("blind_sector_centers_deg", centers_deg),
@@ -57,8 +64,11 @@ def check_blind_sectors(owner: str, centers_deg: object, widths_deg: object) -> 
             f"{widths_deg!r} for blind_sector_centers_deg={centers_deg!r}"
         )
     for width in widths_deg:  # type: ignore[union-attr]
-        if not 0.0 < width < 360.0:
-            raise ValueError(f"{owner}.blind_sector_widths_deg must be in (0, 360), got {width!r}")
+        if not MIN_BLIND_SECTOR_WIDTH_DEG <= width < 360.0:
+            raise ValueError(
+                f"{owner}.blind_sector_widths_deg must be in [{MIN_BLIND_SECTOR_WIDTH_DEG}, 360) "
+                f"deg, got {width!r}"
+            )
 
 
 def as_float_array(value: object, name: str) -> np.ndarray:

@@ -107,6 +107,9 @@ def run(args: argparse.Namespace) -> int:
             f"{s['false_positive_rate']:14.1%}   {s['missed_detection_rate']:11.1%} "
             f"(<= {s['range_m']:.1f} m)"
         )
+        if "missed_rate_by_cause" in s:
+            causes = ", ".join(f"{c} {r:.1%}" for c, r in s["missed_rate_by_cause"].items())
+            print(f"  {'':<10} missed by cause: {causes}")
     summary = {
         "steps": result.steps,
         "sim_time_s": result.sim_time_s,

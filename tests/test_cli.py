@@ -81,6 +81,12 @@ def test_demo_tiny_writes_frames_the_comparison_and_the_measured_over_count(tmp_
     assert "\r" not in captured.err
     for name in ("demo.gif", "snapshot.png", "comparison.png", "demo.json"):
         assert (out / name).stat().st_size > 0
+    # The lidar's misses split by cause (they sum to its missed rate).
+    lidar = json.loads((out / "demo.json").read_text())["sensors"]["lidar"]
+    causes = lidar["missed_rate_by_cause"]
+    assert set(causes) == {"hidden", "interfered", "extractor"}
+    assert sum(causes.values()) == pytest.approx(lidar["missed_detection_rate"])
+    assert "missed by cause: hidden" in captured.out
     metrics = json.loads((out / "localization" / "metrics.json").read_text())
     bias = metrics["localizers"]["phd-lc"]["cardinality"]["in_range_bias"]
     assert f"LC's weight in range is {bias:+.2f} teammates" in captured.out

@@ -32,7 +32,7 @@ from swarm_env.sensors.camera import CameraSensor
 from swarm_env.sensors.lidar import LidarSensor
 from swarm_env.sensors.odometry import WheelEncoders
 from swarm_env.world.arena import Layout, sample_layout, wall_segments
-from swarm_env.world.diagnostics import SensorStats
+from swarm_env.world.diagnostics import LidarScanObserver, LidarScanTruth, SensorStats
 from swarm_env.world.scene import Scene
 
 # Lidar return intensity of each surface (arbitrary units, as the YDLidar reports them).
@@ -91,6 +91,10 @@ class SimWorld:
         self.last_camera: dict[int, CameraRecord] = {}
         self._scene_cache = {}  # Scene constants of this layout (see _scene_constants)
         self.stats = self._new_stats()
+        #: Called with every period's :class:`LidarScanTruth` (calibration and diagnostics;
+        #: none by default, when the truth per scan is not computed). Not kept by pickling:
+        #: an env rebuilds its world when unpickled.
+        self.lidar_scan_observers: list[LidarScanObserver] = []
         self.radio = SwarmRadio(config.comms, self.robot_ids) if config.comms.enabled else None
         # Wall-clock seconds spent per part and lidar scans run (for the benchmark).
         self.timing = {"physics_s": 0.0, "lidar_s": 0.0, "camera_s": 0.0, "lidar_scans": 0}
@@ -368,6 +372,7 @@ class SimWorld:
         make, angles = LidarRecord._make, batch.angles_rad
         stamps = scan_stamps.tolist()
         rows = zip(robots.tolist(), stamps, batch.ranges_m, batch.intensities, strict=True)
+        records = []
         for k, (i, stamp, ranges, intensities) in enumerate(rows):
             record = make(
                 stamp,
@@ -378,13 +383,32 @@ class SimWorld:
                 null_bearings[bounds[k] : bounds[k + 1]],
             )
             out[i].append(record)
+            records.append(record)
             self.last_lidar[i] = record
         self.timing["lidar_s"] += time.perf_counter() - t0
         self.timing["lidar_scans"] += int(robots.size)
-        if self.config.sensor_stats:
-            rel = self._relative_at(poses)
-            for k, (i, sub) in enumerate(zip(robots.tolist(), when.tolist(), strict=True)):
-                self.stats["lidar"].add_points(detections[k], _others(rel[sub], i))
+        if self.config.sensor_stats or self.lidar_scan_observers:
+            arrays = {
+                "robots": robots.copy(),
+                "relative_xy": self._relative_at(poses)[when, robots],  # (K, N+E, 2)
+                "beams_reaching": batch.owner_beam_counts(n_total, after_interference=False),
+                "beams_returned": batch.owner_beam_counts(n_total, after_interference=True),
+            }
+            for array in arrays.values():
+                array.setflags(write=False)
+            truth = LidarScanTruth(**arrays, records=tuple(records))
+            if self.config.sensor_stats:
+                min_beams = self.config.lidar_features.min_beams
+                for k, i in enumerate(robots.tolist()):
+                    self.stats["lidar"].add_points(
+                        detections[k],
+                        np.delete(truth.relative_xy[k], i, axis=0),
+                        np.delete(truth.beams_reaching[k], i),
+                        np.delete(truth.beams_returned[k], i),
+                        min_beams=min_beams,
+                    )
+            for observer in self.lidar_scan_observers:
+                observer(truth)
         return out
 
     def _read_cameras(self, scene, poses, stamps, robots, when) -> list[list[CameraRecord]]:

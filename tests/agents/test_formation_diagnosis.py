@@ -87,14 +87,20 @@ def test_bearing_holder_by_hand():
         bearing_holder(teammate, components, -0.1)
 
 
-def _info(camera_bearings, lidar_detections):
+def _info(camera_bearings, lidar_detections, lidar_nulls=None):
     """An ``infos[agent]`` entry with the given camera frames (lists of bearings, rad) and
-    lidar scans (lists of (x, y) detections, body frame, m)."""
+    lidar scans (lists of (x, y) detections, body frame, m; and of null-return bearings, rad,
+    none by default)."""
+    nulls = lidar_nulls or [[] for _ in lidar_detections]
     return {
         "measurements": {
             "camera": [{"bearings_rad": np.asarray(b, dtype=float)} for b in camera_bearings],
             "lidar": [
-                {"detections": np.asarray(d, dtype=float).reshape(-1, 2)} for d in lidar_detections
+                {
+                    "detections": np.asarray(d, dtype=float).reshape(-1, 2),
+                    "null_bearings_rad": np.asarray(n, dtype=float),
+                }
+                for d, n in zip(lidar_detections, nulls, strict=True)
             ],
         }
     }
@@ -104,7 +110,7 @@ def test_lost_teammate_tally_by_hand():
     """Three teammates of one observer: A at 1 m on the +45 deg sector (lost: a wall component
     on its bearing, farther), B at 1 m dead ahead (held; detected in 1 of 2 scans), C at 2.5 m
     (beyond the lidar; lost behind a post at 1.2 m that the camera's blob on C's bearing
-    feeds)."""
+    feeds). The second scan has a null return on B's bearing (interference)."""
     phd = SIMULATOR_PHD
     detection = DetectionModel(phd)
     tally = LostTeammateTally(detection, match_m=0.15, bearing_window_rad=np.radians(3.0))
@@ -112,7 +118,7 @@ def test_lost_teammate_tally_by_hand():
     teammates = np.array([a, [1.0, 0.0], [-2.5, 0.0]])
     components = np.array([1.6 * a, [1.0, 0.01], [-1.2, 0.01]])
     kinds = np.array(["wall", "teammate", "post"], dtype=object)
-    info = _info([[np.pi - 0.01], [0.3]], [[[1.02, 0.0]], [[0.5, 0.5]]])
+    info = _info([[np.pi - 0.01], [0.3]], [[[1.02, 0.0]], [[0.5, 0.5]]], [[], [0.0]])
     tally.add(teammates, np.array([True, False, True]), components, kinds, info)
     out = tally.summary(observer_steps=1)
     lost, near = out["lost_teammates"], out["teammates_in_lidar_range"]
@@ -140,6 +146,11 @@ def test_lost_teammate_tally_by_hand():
     p_range = detection.lidar_range_factor(np.array([1.0]))[0]
     assert near["lidar_pd_predicted_per_scan"]["in_view"] == pytest.approx(p_range)
     assert near["lidar_pd_predicted_per_scan"]["blind"] == pytest.approx(0.0, abs=1e-9)
+    # With the nulls: scan 1 expects B with P_range, scan 2 with P_range (1 - depth) (the
+    # null sits on B's bearing); A, C and B are 45 deg or more apart, so none occludes another.
+    with_nulls = near["lidar_pd_predicted_with_nulls_per_scan"]
+    assert with_nulls["in_view"] == pytest.approx(p_range * (2.0 - phd.interference_depth) / 2)
+    assert with_nulls["blind"] == pytest.approx(0.0, abs=1e-9)
     assert near["lidar_detected_per_scan"] == {"blind": 0.0, "in_view": 0.5}
     profile = near["blind_sector_factor_by_offset"]  # A at offset 0 (bin 0), B at 45 deg
     assert profile["measured"][0] == 0.0 and profile["modelled"][0] == pytest.approx(0, abs=1e-9)
@@ -163,6 +174,17 @@ def test_lost_teammates_on_the_post_seed_and_on_the_truth():
     near = out["teammates_in_lidar_range"]
     predicted, detected = near["lidar_pd_predicted_per_scan"], near["lidar_detected_per_scan"]
     assert abs(predicted["in_view"] - detected["in_view"]) < 0.1, near
+    # Every scan against the truth: the causes split the missed rate; the posts and the
+    # pillars hide teammates from the beams.
+    scans = out["lidar_scans_vs_truth"]
+    # Only the scans the 20 scored observations read: at most one 7 Hz scan per 0.1 s period
+    # per robot, each with 3 teammates (the whole 170-step episode would count 8x more).
+    assert 0 < scans["targets_in_range"] <= 20 * 4 * 3, scans
+    assert sum(scans["missed_rate_by_cause"].values()) == pytest.approx(scans["missed_rate"])
+    assert scans["missed_rate_by_cause"]["hidden"] > 0.0, scans
+    # The nulls and the occlusion only lower what the filter expects.
+    with_nulls = near["lidar_pd_predicted_with_nulls_per_scan"]
+    assert with_nulls["in_view"] <= predicted["in_view"] + 1e-12, near
     with pytest.raises(ValueError, match="bearing-window-deg"):
         diagnose("lab-3m-4", [200], from_step=0, max_steps=5, bearing_window_deg=0.0)
     with pytest.raises(ValueError, match="--policy must be one of"):

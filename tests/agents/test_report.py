@@ -1,4 +1,5 @@
-"""The results tables of ``agents.sb3.report``: pooling runs over training seeds."""
+"""The results tables of ``agents.sb3.report``: pooling runs over training seeds, and
+pairing policies with the baselines by seed."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agents.sb3.report import markdown_table, pooled
+from agents.sb3.report import markdown_table, paired_differences, paired_table, pooled
 
 
 def _result(values):
@@ -35,6 +36,76 @@ def test_markdown_table_has_a_row_per_policy_and_a_pooled_row_per_group():
     assert len(lines) == 2 + 3 + 1
     assert "0.200 ± 0.100" in lines[2]  # a.zip: mean 0.2, std 0.1
     assert "**0.250 ±" in lines[-1] and "2 training seeds" in lines[-1]
+
+
+def test_paired_differences_by_hand():
+    """Two runs of a group (per-seed mean [0.15, 0.35, 0.25, 0.25]) against baseline b
+    [0.2, 0.4, 0.3, 0.2]: differences [-0.05, -0.05, -0.05, +0.05], mean -0.025, sample std
+    0.05, SE 0.025, better on 3 of 4 seeds, within 2 SE. Baseline c = b - 0.1 on every seed
+    is better than b beyond any SE (SE 0); a higher-is-better metric flips the counts."""
+    policies = {
+        "a0.zip": _result([0.1, 0.3, 0.2, 0.2]),
+        "a1.zip": _result([0.2, 0.4, 0.3, 0.3]),
+        "b": _result([0.2, 0.4, 0.3, 0.2]),
+        "c": _result([0.1, 0.3, 0.2, 0.1]),
+    }
+    rows = paired_differences(
+        policies, {"g": ["a0.zip", "a1.zip"]}, ["b", "c"], "formation_error_m"
+    )
+    by_pair = {(r["policy"], r["baseline"]): r for r in rows}
+    assert set(by_pair) == {("g", "b"), ("g", "c"), ("c", "b")}  # b - c is not repeated
+    gb = by_pair[("g", "b")]
+    assert gb["mean_difference"] == pytest.approx(-0.025)
+    assert gb["standard_error"] == pytest.approx(0.025)
+    assert (gb["seeds_better"], gb["n_seeds"], gb["verdict"]) == (3, 4, "within 2 SE")
+    cb = by_pair[("c", "b")]
+    assert cb["mean_difference"] == pytest.approx(-0.1)
+    assert cb["standard_error"] == pytest.approx(0.0, abs=1e-12)
+    assert cb["seeds_better"] == 4 and cb["verdict"] == "better"
+    # episode_return = -10 x error: higher is better, so the same pairs count the other way
+    rows = paired_differences(policies, {"g": ["a0.zip", "a1.zip"]}, ["b"], "episode_return")
+    assert rows[0]["mean_difference"] == pytest.approx(0.25)
+    assert rows[0]["seeds_better"] == 3 and rows[0]["verdict"] == "within 2 SE"
+    far = {"a": _result([0.1, 0.1, 0.1, 0.12]), "b": _result([0.3, 0.31, 0.3, 0.3])}
+    assert paired_differences(far, {"g": ["a"]}, ["b"], "formation_error_m")[0]["verdict"] == (
+        "better"
+    )
+    assert paired_differences(far, {"g": ["b"]}, ["a"], "formation_error_m")[0]["verdict"] == (
+        "worse"
+    )
+    table = paired_table(by_pair.values(), "formation_error_m").strip().splitlines()
+    assert len(table) == 2 + 3 and "| g − b | -0.0250 | 0.0250 | 3 of 4 | within 2 SE |" in table
+
+
+def test_paired_differences_reproduce_round_8s_table():
+    """docs/results.md round 8 paired its formation scores by hand; the function gives the
+    same three pairs from that round's report."""
+    import json
+
+    results = json.loads(
+        (
+            Path(__file__).parents[2] / "docs/results/results_formation_round8_sensing.json"
+        ).read_text()
+    )
+    policies = results["policies"]
+    runs = [s for s in policies if s.startswith("runs/")]
+    bases = ["scripted:formation", "scripted:formation-sensing"]
+    rows = paired_differences(policies, {"residual": runs}, bases, "formation_error_m")
+    got = {
+        (r["policy"], r["baseline"]): (
+            round(r["mean_difference"], 4),
+            round(r["standard_error"], 4),
+        )
+        for r in rows
+    }
+    assert got == {
+        ("residual", "scripted:formation"): (-0.0032, 0.0034),
+        ("residual", "scripted:formation-sensing"): (-0.0013, 0.0045),
+        ("scripted:formation-sensing", "scripted:formation"): (-0.0018, 0.0037),
+    }
+    policies = dict(policies, **{bases[0]: dict(policies[bases[0]], seeds=[1, 2, 3])})
+    with pytest.raises(ValueError, match="same seeds"):
+        paired_differences(policies, {"residual": runs}, bases, "formation_error_m")
 
 
 def _fake_run(tmp_path, scores: dict[str, float], final_steps: int):

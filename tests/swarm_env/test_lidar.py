@@ -733,7 +733,8 @@ def test_footprint_drops_the_edge_beams_of_a_circle_only():
 @pytest.mark.parametrize(
     ("centers", "widths", "match"),
     [
-        ((45.0,), (0.0,), r"LidarConfig.blind_sector_widths_deg must be in \(0, 360\)"),
+        ((45.0,), (0.0,), r"LidarConfig.blind_sector_widths_deg must be in \[0.001, 360\)"),
+        ((45.0,), (1e-200,), r"must be in \[0.001, 360\) deg, got 1e-200"),
         ((45.0,), (360.0,), "blind_sector_widths_deg"),
         ((45.0, 90.0), (10.0,), "one width per centre"),
         ([45.0], [10.0], "blind_sector_centers_deg must be a tuple"),
