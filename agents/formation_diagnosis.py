@@ -55,7 +55,11 @@ from swarm_env.world.diagnostics import LIDAR_MISS_CAUSES, SensorStats
 
 KINDS = ("post", "red_decoy", "wall", "other")
 #: The controllers the diagnosis can run (it reads their estimate the way they do).
-FORMATION_CONTROLLERS = ("scripted:formation", "scripted:formation-sensing")
+FORMATION_CONTROLLERS = (
+    "scripted:formation",
+    "scripted:formation-sensing",
+    "scripted:formation-sensing-hold",
+)
 #: What holds a lost teammate's bearing: a confident component on one of :data:`KINDS`, on
 #: another teammate, or no confident component at all.
 LOST_CAUSES = ("teammate", *KINDS, "none")

@@ -278,6 +278,13 @@ class VectorFieldPolicy(ScriptedPolicy):
     sensing_margin : float
         The turn must gain at least this many expected lidar detections per scan over the
         current heading (>= 0; hysteresis: no turning back and forth on noise).
+    restart_mps : float or None
+        Arrival hysteresis: a robot that has stopped (``|u|`` below ``deadband_mps``) moves
+        again only once ``|u|`` exceeds this (>= ``deadband_mps``). ``None`` (default): it moves
+        again at ``deadband_mps``. Why: a correction just above the deadband that points
+        sideways turns a differential drive at up to ``max_turn_rate_radps``, so a robot that
+        chases its centroid estimate's noise (~4 cm, ``docs/results.md`` round 6) keeps
+        turning, and its lidar's blind sectors sweep over its teammates (round 9).
     """
 
     observation_modes = ("phd", "truth")
@@ -296,6 +303,7 @@ class VectorFieldPolicy(ScriptedPolicy):
         n_sectors: int = 0,
         sensing_model: PHDConfig | None = None,
         sensing_margin: float = 0.2,
+        restart_mps: float | None = None,
     ) -> None:
         if sensing_model is not None and not isinstance(sensing_model, PHDConfig):
             raise TypeError(
@@ -303,6 +311,14 @@ class VectorFieldPolicy(ScriptedPolicy):
             )
         if not (np.isfinite(sensing_margin) and sensing_margin >= 0.0):
             raise ValueError(f"sensing_margin must be finite and >= 0, got {sensing_margin}")
+        if restart_mps is not None and not (
+            np.isfinite(restart_mps) and deadband_mps <= restart_mps
+        ):
+            raise ValueError(
+                f"restart_mps must be None or finite and >= deadband_mps={deadband_mps}, got "
+                f"{restart_mps}"
+            )
+        self.restart_mps = restart_mps
         super().__init__(max_speed_mps, max_turn_rate_radps)
         self.sensing_model = sensing_model
         self.sensing_margin = sensing_margin
@@ -338,6 +354,7 @@ class VectorFieldPolicy(ScriptedPolicy):
         self._scan: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self._wander = WanderPolicy(self.max_speed_mps, self.max_turn_rate_radps, seed=seed)
         self.wandering = set()
+        self._stopped: set[str] = set()  # agents that arrived and have not moved since
 
     def __call__(self, observations, infos):
         actions = {}
@@ -352,9 +369,19 @@ class VectorFieldPolicy(ScriptedPolicy):
             if u is None:  # nothing to act on: search (the seed's random walk)
                 actions[agent] = self._wander._act(agent)
                 self.wandering.add(agent)
+                self._stopped.discard(agent)
                 continue
             u = u + self.avoidance(self._scan.get(agent))
-            actions[agent] = self.to_unicycle(u)
+            holding = (
+                self.restart_mps is not None
+                and agent in self._stopped
+                and np.linalg.norm(u) < self.restart_mps
+            )
+            actions[agent] = np.zeros(2, dtype=np.float32) if holding else self.to_unicycle(u)
+            if actions[agent].any():
+                self._stopped.discard(agent)
+            else:
+                self._stopped.add(agent)
             if self.sensing_model is not None and not actions[agent].any():
                 actions[agent] = self.sensing_turn(table)
         return actions

@@ -9,6 +9,7 @@ import pytest
 
 from agents.policies import SCRIPTED, load_policy, policy_observation
 from agents.scripted import (
+    TABLE_COLUMNS,
     EncirclementPolicy,
     FormationPolicy,
     bearing_std,
@@ -275,6 +276,38 @@ def test_sensing_turn_settings_are_checked():
         FormationPolicy(sensing_margin=float("nan"))
     with pytest.raises(TypeError, match="sensing_model must be a PHDConfig or None, got dict"):
         FormationPolicy(sensing_model={"lidar_pd_model": "seed"})
+
+
+def test_arrival_hysteresis_by_hand():
+    """With ``restart_mps`` 0.05 a robot that stopped (|u| < 0.02 m/s) holds for a pull of
+    0.03 m/s and moves again at 0.06; once moving it follows 0.03. Without it (the default) the
+    0.03 pull moves a stopped robot at once."""
+
+    class Fixed(FormationPolicy):
+        pull = np.zeros(2)
+
+        def desired_velocity(self, agent, table, odometry, features):
+            return self.pull
+
+    obs = {"ugv_0": np.zeros(4 * TABLE_COLUMNS + 4, dtype=np.float32)}
+
+    def v_after(policy, pull):
+        policy.pull = np.array(pull)
+        return float(policy(obs, {})["ugv_0"][0])
+
+    hold, plain = Fixed(top_k=4, restart_mps=0.05), Fixed(top_k=4)
+    for policy in (hold, plain):
+        assert v_after(policy, (0.01, 0.0)) == 0.0  # below the deadband: stop
+    assert v_after(hold, (0.03, 0.0)) == 0.0
+    assert v_after(plain, (0.03, 0.0)) == pytest.approx(0.03)
+    assert v_after(hold, (0.06, 0.0)) == pytest.approx(0.06)
+    assert v_after(hold, (0.03, 0.0)) == pytest.approx(0.03)  # moving: no hysteresis
+    hold.reset()
+    assert v_after(hold, (0.03, 0.0)) == pytest.approx(0.03)  # a new episode starts moving
+    with pytest.raises(ValueError, match="restart_mps must be None or finite and >= deadband"):
+        FormationPolicy(restart_mps=0.01)
+    with pytest.raises(ValueError, match="restart_mps"):
+        FormationPolicy(restart_mps=float("inf"))
 
 
 def test_sensing_turn_takes_the_neighbours_of_a_square_off_the_blind_sectors():
