@@ -282,11 +282,10 @@ def diagnose(
     bearing_window_deg: float = 3.0,
     policy: str = "scripted:formation",
 ) -> dict[str, Any]:
-    """Run ``policy`` (a formation controller: ``scripted:formation`` or
-    ``scripted:formation-sensing``) on ``observation`` (``"phd"``, or ``"truth"`` as a check:
-    every component is then a teammate) for ``seeds``, in ``preset`` with ``env_overrides``
-    (``parallel_env`` keywords); the module doc's figures (medians and means in metres, counts
-    per observer-step)."""
+    """Run ``policy`` (one of :data:`FORMATION_CONTROLLERS`) on ``observation`` (``"phd"``,
+    or ``"truth"`` as a check: every component is then a teammate) for ``seeds``, in
+    ``preset`` with ``env_overrides`` (``parallel_env`` keywords); the module doc's figures
+    (medians and means in metres, counts per observer-step)."""
     from agents.policies import load_policy
     from swarm_env import parallel_env
 

@@ -19,9 +19,9 @@ SCRIPTED: dict[str, Callable[..., scripted.ScriptedPolicy]] = {
     "formation": scripted.FormationPolicy.for_env,
     # The same, turning its lidar's blind sectors off its teammates once it has arrived.
     "formation-sensing": functools.partial(scripted.FormationPolicy.for_env, sensing_turn=True),
-    # ... holding its heading once arrived: it moves again only for a pull of 5 cm/s, a 6 cm
-    # centroid error at k_p = 0.8 (1.5x the median error of its centroid estimate, 0.042 m,
-    # docs/results.md round 6), not for the estimate's noise (round 9).
+    # ... holding its position once arrived: it moves again only for a pull of 5 cm/s, not
+    # for its estimate's noise (docs/results.md round 9: 0.05 chosen on validation seeds
+    # 200-209 from {0.05, 0.08}; a 6 cm radial error at k_p = 0.8).
     "formation-sensing-hold": functools.partial(
         scripted.FormationPolicy.for_env, sensing_turn=True, restart_mps=0.05
     ),

@@ -280,11 +280,14 @@ class VectorFieldPolicy(ScriptedPolicy):
         current heading (>= 0; hysteresis: no turning back and forth on noise).
     restart_mps : float or None
         Arrival hysteresis: a robot that has stopped (``|u|`` below ``deadband_mps``) moves
-        again only once ``|u|`` exceeds this (>= ``deadband_mps``). ``None`` (default): it moves
-        again at ``deadband_mps``. Why: a correction just above the deadband that points
-        sideways turns a differential drive at up to ``max_turn_rate_radps``, so a robot that
-        chases its centroid estimate's noise (~4 cm, ``docs/results.md`` round 6) keeps
-        turning, and its lidar's blind sectors sweep over its teammates (round 9).
+        again only once its desired velocity's ``|u|`` reaches this (> ``deadband_mps``), or
+        as soon as the lidar pushes it away from something (avoidance is never held).
+        ``None`` (default): it moves again at ``deadband_mps``. Why: a correction just above
+        the deadband that points sideways turns a differential drive at up to
+        ``max_turn_rate_radps``, so a robot that chases its centroid estimate's noise keeps
+        turning, and its lidar's blind sectors sweep over its teammates (``docs/results.md``,
+        round 9). The stopped state is the controller's own history: a residual policy on top
+        of it does not see it.
     """
 
     observation_modes = ("phd", "truth")
@@ -312,11 +315,14 @@ class VectorFieldPolicy(ScriptedPolicy):
         if not (np.isfinite(sensing_margin) and sensing_margin >= 0.0):
             raise ValueError(f"sensing_margin must be finite and >= 0, got {sensing_margin}")
         if restart_mps is not None and not (
-            np.isfinite(restart_mps) and deadband_mps <= restart_mps
+            isinstance(restart_mps, (int, float))
+            and not isinstance(restart_mps, bool)
+            and np.isfinite(restart_mps)
+            and deadband_mps < restart_mps
         ):
             raise ValueError(
-                f"restart_mps must be None or finite and >= deadband_mps={deadband_mps}, got "
-                f"{restart_mps}"
+                f"restart_mps must be None or a finite number > deadband_mps={deadband_mps}, "
+                f"got {restart_mps!r}"
             )
         self.restart_mps = restart_mps
         super().__init__(max_speed_mps, max_turn_rate_radps)
@@ -371,12 +377,14 @@ class VectorFieldPolicy(ScriptedPolicy):
                 self.wandering.add(agent)
                 self._stopped.discard(agent)
                 continue
-            u = u + self.avoidance(self._scan.get(agent))
+            push = self.avoidance(self._scan.get(agent))
             holding = (
                 self.restart_mps is not None
                 and agent in self._stopped
                 and np.linalg.norm(u) < self.restart_mps
+                and not push.any()  # obstacle avoidance is never held back
             )
+            u = u + push
             actions[agent] = np.zeros(2, dtype=np.float32) if holding else self.to_unicycle(u)
             if actions[agent].any():
                 self._stopped.discard(agent)

@@ -279,9 +279,11 @@ def test_sensing_turn_settings_are_checked():
 
 
 def test_arrival_hysteresis_by_hand():
-    """With ``restart_mps`` 0.05 a robot that stopped (|u| < 0.02 m/s) holds for a pull of
-    0.03 m/s and moves again at 0.06; once moving it follows 0.03. Without it (the default) the
-    0.03 pull moves a stopped robot at once."""
+    """With ``restart_mps`` 0.05 a robot that stopped (|u| < 0.02 m/s) holds still for a pull
+    of 0.03 m/s, straight or sideways, and moves again at 0.06; once moving it follows 0.03.
+    The sensing turn keeps it stopped; a lidar push, a wander step and a new episode do not.
+    Without ``restart_mps`` (the default) the 0.03 pull moves a stopped robot at once."""
+    from swarm_env.config import SIMULATOR_PHD
 
     class Fixed(FormationPolicy):
         pull = np.zeros(2)
@@ -291,23 +293,37 @@ def test_arrival_hysteresis_by_hand():
 
     obs = {"ugv_0": np.zeros(4 * TABLE_COLUMNS + 4, dtype=np.float32)}
 
-    def v_after(policy, pull):
-        policy.pull = np.array(pull)
-        return float(policy(obs, {})["ugv_0"][0])
+    def act(policy, pull):
+        policy.pull = None if pull is None else np.array(pull)
+        return policy(obs, {})["ugv_0"]
 
     hold, plain = Fixed(top_k=4, restart_mps=0.05), Fixed(top_k=4)
     for policy in (hold, plain):
-        assert v_after(policy, (0.01, 0.0)) == 0.0  # below the deadband: stop
-    assert v_after(hold, (0.03, 0.0)) == 0.0
-    assert v_after(plain, (0.03, 0.0)) == pytest.approx(0.03)
-    assert v_after(hold, (0.06, 0.0)) == pytest.approx(0.06)
-    assert v_after(hold, (0.03, 0.0)) == pytest.approx(0.03)  # moving: no hysteresis
+        np.testing.assert_array_equal(act(policy, (0.01, 0.0)), [0.0, 0.0])  # deadband: stop
+    np.testing.assert_array_equal(act(hold, (0.03, 0.0)), [0.0, 0.0])
+    np.testing.assert_array_equal(act(hold, (0.0, 0.03)), [0.0, 0.0])  # no turn to go sideways
+    assert act(plain, (0.0, 0.03))[1] > 0.0  # the plain controller turns towards it
+    assert act(hold, (0.06, 0.0))[0] == pytest.approx(0.06)
+    assert act(hold, (0.03, 0.0))[0] == pytest.approx(0.03)  # moving: no hysteresis
+    act(hold, (0.01, 0.0))  # stopped again
     hold.reset()
-    assert v_after(hold, (0.03, 0.0)) == pytest.approx(0.03)  # a new episode starts moving
-    with pytest.raises(ValueError, match="restart_mps must be None or finite and >= deadband"):
+    assert act(hold, (0.03, 0.0))[0] == pytest.approx(0.03)  # a new episode starts moving
+    act(hold, (0.01, 0.0))
+    assert act(hold, None)[0] != 0.0  # nothing estimated: it wanders...
+    assert act(hold, (0.03, 0.0))[0] == pytest.approx(0.03)  # ...and is no longer stopped
+    act(hold, (0.01, 0.0))
+    hold._scan["ugv_0"] = (np.array([0.0]), np.array([0.15]))  # a return 0.15 m ahead
+    assert act(hold, (0.03, 0.0))[0] < 0.0  # the push is never held back: it backs away
+    # The sensing turn rotates a stopped robot in place without ending its stop.
+    sensing = Fixed(top_k=4, restart_mps=0.05, sensing_model=SIMULATOR_PHD)
+    sensing.sensing_turn = lambda table: np.array([0.0, 0.5], dtype=np.float32)
+    np.testing.assert_array_equal(act(sensing, (0.01, 0.0)), [0.0, 0.5])
+    np.testing.assert_array_equal(act(sensing, (0.03, 0.0)), [0.0, 0.5])  # still held
+    with pytest.raises(ValueError, match="restart_mps must be None or a finite number > dead"):
         FormationPolicy(restart_mps=0.01)
-    with pytest.raises(ValueError, match="restart_mps"):
-        FormationPolicy(restart_mps=float("inf"))
+    for bad in (float("inf"), 0.02, True, "0.05"):
+        with pytest.raises(ValueError, match="restart_mps"):
+            FormationPolicy(restart_mps=bad)
 
 
 def test_sensing_turn_takes_the_neighbours_of_a_square_off_the_blind_sectors():
