@@ -9,7 +9,8 @@ and, for every robot and step from ``--from-step`` on (the settled formation), c
   localizes its teammates);
 - the controller's centroid estimate with the true centroid (both in the robot's body frame);
 - the same estimate from only the components that sit on a true teammate (within
-  ``--match-m``; an oracle no robot has), with the controller's weights and with weight 1;
+  ``--match-m``; an oracle no robot has), with the controller's weights and with weight 1
+  (neither oracle rescales to the swarm size, as the ``*-known-n`` controllers do);
 - every confident component that sits on no teammate, by what it sits on
   (:func:`classify_components`): a decoy post, a red decoy, a wall, or nothing known;
 - every **lost** teammate (no confident component within ``--match-m`` of it): whether it is
@@ -24,17 +25,23 @@ and, for every robot and step from ``--from-step`` on (the settled formation), c
   blind-sector factor below 0.5 at the true bearing: behind a camera pillar) or in its view: how
   often each is lost, and how often the lidar detects it against how often the filter expects
   it to (:class:`LostTeammateTally`);
+- each robot's signed radial error ``||p_i - c|| - r`` against the true centroid (positive:
+  outside the circle), and the confident components' weight sums, raw and after the
+  controller's spread discount, by how many there are: a weight sum below the teammates in
+  sight shrinks the controller's centroid towards the robot and parks it outside the circle
+  (the ``*-known-n`` controllers rescale it; ``docs/results.md``, round 10);
 - every lidar scan against the truth at its own instant (``sensor_stats``): how often a
   teammate within the localization range (2 m) was missed, and why (hidden from the beams,
   nulled by interference, or dropped by the extractor:
   :data:`~swarm_env.world.diagnostics.LIDAR_MISS_CAUSES`).
 
-``--policy scripted:formation-sensing`` runs the controller that turns its blind sectors off
-its teammates instead.
+``--policy`` runs another of :data:`FORMATION_CONTROLLERS` instead: e.g.
+``scripted:formation-sensing`` turns its blind sectors off its teammates, the ``*-known-n``
+ones scale their centroid to the swarm size.
 
     python -m agents.formation_diagnosis --preset lab-3m-4 --seeds 200-204 --from-step 150
 
-Figures of ``docs/results.md`` (rounds 3-6); a JSON summary with ``--out``.
+Figures of ``docs/results.md`` (rounds 3-10); a JSON summary with ``--out``.
 """
 
 from __future__ import annotations
@@ -59,6 +66,9 @@ FORMATION_CONTROLLERS = (
     "scripted:formation",
     "scripted:formation-sensing",
     "scripted:formation-sensing-hold",
+    "scripted:formation-known-n",
+    "scripted:formation-sensing-known-n",
+    "scripted:formation-sensing-hold-known-n",
 )
 #: What holds a lost teammate's bearing: a confident component on one of :data:`KINDS`, on
 #: another teammate, or no confident component at all.
@@ -313,6 +323,11 @@ def diagnose(
         sensor_stats=True,  # the lidar's misses against the truth, by cause
         **(env_overrides or {}),
     )
+    if env.task.shape != "circle":
+        env.close()
+        raise ValueError(
+            f"the diagnosis scores the circle formation; task_params set shape={env.task.shape!r}"
+        )
     controller = load_policy(policy, env)
     top_k, n_sectors, min_weight = controller.top_k, controller.n_sectors, controller.min_weight
     arena = env.config.arena
@@ -321,6 +336,10 @@ def diagnose(
     teammate_errors: list[np.ndarray] = []
     counts = dict.fromkeys(KINDS, 0)
     formation: list[float] = []
+    radial: list[np.ndarray] = []  # per step (N,): ||p_i - c|| - r, m
+    # Per number of confident components: observer-steps, and their weight sums (raw, and
+    # after the controller's spread discount).
+    by_count: dict[int, list[float]] = {}
     observer_steps = 0
     tally = LostTeammateTally(
         DetectionModel(env.config.phd), match_m, np.radians(bearing_window_deg)
@@ -346,10 +365,15 @@ def diagnose(
                 centroid = relative_positions(poses, poses[:, :2].mean(axis=0, keepdims=True))
                 bodies = relative_positions(poses, poses[:, :2])  # (N, N, 2): j in i's frame
                 formation.append(float(env.task.errors(poses[:, :2])[0].mean()))
+                radial.append(centroid_distance(poses) - env.task.radius_m)
                 for i, agent in enumerate(env.possible_agents):
                     observer_steps += 1
-                    table = split_observation(obs[agent], top_k, n_sectors)[0]
+                    table, _, features = split_observation(obs[agent], top_k, n_sectors)
                     pts, w = estimated_neighbours(table, min_weight, reference_variance_m2=0.02)
+                    tally_row = by_count.setdefault(len(pts), [0, 0.0, 0.0])
+                    tally_row[0] += 1
+                    tally_row[1] += float(estimated_neighbours(table, min_weight)[1].sum())
+                    tally_row[2] += float(w.sum())
                     c, s = np.cos(poses[i, 2]), np.sin(poses[i, 2])
                     world = poses[i, :2] + pts @ np.array([[c, s], [-s, c]])
                     others = np.delete(poses[:, :2], i, axis=0)
@@ -365,7 +389,7 @@ def diagnose(
                     tally.add(np.delete(bodies[i], i, axis=0), lost, pts, kind, infos[agent])
                     true_c = centroid[i, 0]
                     for name, value in (
-                        ("controller", estimated_centroid(pts, w)),
+                        ("controller", controller.centroid(pts, w, features)),
                         ("oracle", estimated_centroid(pts[mate], w[mate])),
                         ("oracle_weight_1", estimated_centroid(pts[mate], np.ones(mate.sum()))),
                     ):
@@ -380,6 +404,7 @@ def diagnose(
         "preset": preset,
         "policy": policy,
         "observation": observation,
+        "env_overrides": env_overrides or {},
         "seeds": seeds,
         "from_step": from_step,
         "formation_error_m": float(np.mean(formation)),
@@ -390,6 +415,15 @@ def diagnose(
         "centroid_error_m": {
             name: {"median": float(np.median(v)), "mean": float(np.mean(v))}
             for name, v in errors.items()
+        },
+        "radial_error_m": _radial_summary(np.concatenate(radial or [np.zeros(0)])),
+        "confident_components": {
+            str(n): {
+                "share": row[0] / max(1, observer_steps),
+                "weight_sum": row[1] / row[0],
+                "weight_sum_discounted": row[2] / row[0],
+            }
+            for n, row in sorted(by_count.items())
         },
         "spurious_per_observer_step": spurious / max(1, observer_steps),
         "spurious_share": {k: counts[k] / max(1, spurious) for k in KINDS},
@@ -403,6 +437,27 @@ def diagnose(
             "missed_rate": lidar_counts["missed"] / in_range,
             "missed_rate_by_cause": {c: lidar_counts[c] / in_range for c in LIDAR_MISS_CAUSES},
         },
+    }
+
+
+def centroid_distance(poses: np.ndarray) -> np.ndarray:
+    """Each robot's distance (N,) (m) to the swarm's true centroid; ``poses`` (N, 3)."""
+    xy = poses[:, :2]
+    return np.linalg.norm(xy - xy.mean(axis=0), axis=1)
+
+
+def _radial_summary(signed: np.ndarray) -> dict[str, float]:
+    """Signed radial errors (m) -> mean, median, mean of the absolute value (the formation
+    error), and the 10th and 90th percentiles."""
+    if not len(signed):
+        return {}
+    p10, p90 = np.percentile(signed, [10, 90])
+    return {
+        "signed_mean": float(signed.mean()),
+        "median": float(np.median(signed)),
+        "abs_mean": float(np.abs(signed).mean()),
+        "p10": float(p10),
+        "p90": float(p90),
     }
 
 

@@ -249,6 +249,41 @@ def _make_env(preset: str | None, task: str | None, policy: str, **overrides: An
     return parallel_env(preset or "seed-sim", task=task or "wander", **overrides)
 
 
+#: The figures :func:`seed_figures` gives per seed (keys of ``results["localizers"][name]
+#: ["per_seed"]``), each as in :meth:`SeedScorer.summary` over that seed alone.
+PER_SEED_FIGURES = ("gospa_mean_m", "pooled_per_observer_median_pct", "pct_pair_steps_err_gt_30cm")
+
+
+def seed_counts(scorer: SeedScorer) -> tuple[float, int, np.ndarray, np.ndarray]:
+    """The running totals of ``scorer`` that :func:`seed_figures` differences: GOSPA sum,
+    observer-steps, and per observer (R,) the in-range pair-steps above 0.30 m and all of them."""
+    return (
+        scorer.gospa_sum,
+        scorer.observer_steps,
+        scorer.large_steps.sum(axis=1),
+        scorer.in_range_steps.sum(axis=1),
+    )
+
+
+def seed_figures(before: tuple, after: tuple) -> dict[str, float]:
+    """:data:`PER_SEED_FIGURES` of the steps scored between two :func:`seed_counts`: mean
+    GOSPA (m), the median over observers of each one's % of in-range pair-steps above 0.30 m
+    (``pooled_per_observer``'s median), and that % over all pairs (NaN: nothing in range)."""
+    gospa = after[0] - before[0]
+    steps = after[1] - before[1]
+    large = after[2] - before[2]
+    in_range = after[3] - before[3]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        per_observer = np.where(in_range > 0, 100.0 * large / np.maximum(in_range, 1), np.nan)
+    finite = per_observer[np.isfinite(per_observer)]
+    total = in_range.sum()
+    return {
+        "gospa_mean_m": float(gospa / steps) if steps else math.nan,
+        "pooled_per_observer_median_pct": float(np.median(finite)) if finite.size else math.nan,
+        "pct_pair_steps_err_gt_30cm": float(100.0 * large.sum() / total) if total else math.nan,
+    }
+
+
 def evaluate_localization(
     preset: str,
     duration_s: float,
@@ -265,8 +300,9 @@ def evaluate_localization(
     -------
     dict
         ``{"config": ..., "localizers": {name: SeedScorer.summary() (+ "at_camera_range":
-        the same at 3 m for camera localizers)}, "identity": {...} (identity-aware
-        localizers), "task": {...}, "wall_time_s": ...}``
+        the same at 3 m for camera localizers, + "per_seed": [{"seed", *PER_SEED_FIGURES}]
+        per finished seed)}, "identity": {...} (identity-aware localizers), "task": {...},
+        "wall_time_s": ...}``
     """
     from agents.policies import load_policy
 
@@ -297,6 +333,9 @@ def evaluate_localization(
     paths: list[np.ndarray] = []
     estimates: dict[str, list[np.ndarray]] = {name: [] for name in localizers}
     task_metrics: list[dict[str, float]] = []
+    # Each localizer's headline figures per seed (the scorers' counts before and after it),
+    # so that two motions scored on the same seeds can be compared seed by seed.
+    per_seed: dict[str, list[dict[str, float]]] = {name: [] for name in localizers}
     # Each localizer's step time (not in the results: they must not depend on the machine).
     cost_s = dict.fromkeys(localizers, 0.0)
     n_done = 0
@@ -319,6 +358,7 @@ def evaluate_localization(
             act = load_policy(policy, env)
             if hasattr(act, "reset"):
                 act.reset(seed)
+            counts_before = {name: seed_counts(scorers[name]) for name in localizers}
             obs, infos = env.reset(seed=seed)
             for _ in progress.sim_steps(
                 n_steps, env.config.control_period_s, f"seed {seed}", leave=False
@@ -363,15 +403,42 @@ def evaluate_localization(
                     paths.append(truth.poses[:, :2].copy())
                 n_done += 1
             task_metrics.append(env.task.metrics())
+            for name in localizers:
+                per_seed[name].append(
+                    {
+                        "seed": seed,
+                        **seed_figures(counts_before[name], seed_counts(scorers[name])),
+                    }
+                )
             finished.append(seed)
+            # One snapshot, so that a Ctrl-C restores seeds, scores and per-seed figures that
+            # agree (an interrupt during the copy keeps the previous snapshot whole).
             saved = copy.deepcopy(
-                (scorers, camera_scorers, id_scorers, task_metrics, paths, estimates)
+                (
+                    scorers,
+                    camera_scorers,
+                    id_scorers,
+                    task_metrics,
+                    paths,
+                    estimates,
+                    per_seed,
+                    finished,
+                )
             )
     except KeyboardInterrupt:
         if saved is None:
             raise
         interrupted = True
-        scorers, camera_scorers, id_scorers, task_metrics, paths, estimates = saved
+        (
+            scorers,
+            camera_scorers,
+            id_scorers,
+            task_metrics,
+            paths,
+            estimates,
+            per_seed,
+            finished,
+        ) = saved
         print(
             f"swarm-phd evaluate: interrupted; scoring the {len(finished)} finished seed(s) "
             f"{finished}",
@@ -404,6 +471,7 @@ def evaluate_localization(
                     if name in camera_scorers
                     else {}
                 ),
+                "per_seed": per_seed[name],
             }
             for name in localizers
         },

@@ -24,6 +24,7 @@ def test_interrupt_scores_the_finished_seeds(tmp_path, monkeypatch):
         "lab-3m-4", 1.0, ["phd-lc"], [0, 1, 2], out_dir=tmp_path
     )
     assert results["config"]["seeds"] == [0]
+    assert [d["seed"] for d in results["localizers"]["phd-lc"]["per_seed"]] == [0]
     assert results["config"]["interrupted"] is True
     assert results["config"]["seeds_requested"] == [0, 1, 2]
     on_disk = json.loads((tmp_path / "metrics.json").read_text())

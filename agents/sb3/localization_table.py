@@ -8,7 +8,9 @@ the first model's env): the per-agent episode return and the task metric, mean Â
 seeds (:func:`agents.sb3.report.score`), and the localization metrics of
 :func:`swarm_phd.evaluate.evaluate_localization` on the same motion (every robot runs each of
 ``--localizers`` on the records of that motion): GOSPA (m) and the pooled per-observer share
-of pair-steps with error above 0.30 m (median observer). Models run in the env they were
+of pair-steps with error above 0.30 m (median observer), and the same per seed, from which
+every policy is compared with every earlier one paired by seed (mean difference, SE, seeds
+better: :func:`paired_localization`). Models run in the env they were
 trained in; ``scripted:*`` and ``random`` in the first model's env (its task, task parameters
 and overrides; observation as the policy needs). Writes ``results_<name>.json`` and
 ``results_<name>.md``.
@@ -23,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from agents.sb3.report import score
+from agents.sb3.report import paired_differences, paired_table, score
 from swarm_phd.sweep import parse_seeds
 
 
@@ -68,8 +70,54 @@ def policy_row(
         row["localizers"][name] = {
             "gospa_m": m["gospa"]["mean_m"],
             "pct_above_0.30m": m["pooled_per_observer"]["median"],
+            "per_seed": m["per_seed"],
         }
     return row
+
+
+#: The per-seed localization figures that :func:`paired_localization` pairs, with the row
+#: figure each one is the per-seed version of.
+PAIRED_FIGURES = {
+    "gospa_m": "gospa_mean_m",
+    "pct_above_0.30m": "pooled_per_observer_median_pct",
+}
+
+
+def paired_localization(
+    rows: list[dict[str, Any]], localizers: list[str], seeds: list[int], metric: str
+) -> dict[str, list[dict[str, Any]]]:
+    """Every policy against every earlier one, paired by held-out seed
+    (:func:`agents.sb3.report.paired_differences`): the task ``metric`` (key ``metric``) and
+    each localizer's per-seed GOSPA and % of pair-steps above 0.30 m (the median observer's,
+    per seed; keys ``"<localizer> <figure>"``)."""
+    specs = [r["policy"] for r in rows]
+    task = {r["policy"]: {"seeds": seeds, "per_seed": r["per_seed"]} for r in rows}
+    out = {metric: paired_differences(task, {}, specs, metric)}
+    for name in localizers:
+        for figure, per_seed_key in PAIRED_FIGURES.items():
+            policies = {
+                r["policy"]: {
+                    "seeds": [d["seed"] for d in r["localizers"][name]["per_seed"]],
+                    "per_seed": [
+                        {figure: d[per_seed_key]} for d in r["localizers"][name]["per_seed"]
+                    ],
+                }
+                for r in rows
+            }
+            for spec, p in policies.items():
+                if p["seeds"] != seeds:
+                    raise ValueError(
+                        f"{spec}: localization scored on seeds {p['seeds']}, not {seeds}"
+                    )
+                missing = [
+                    seed
+                    for seed, d in zip(seeds, p["per_seed"], strict=True)
+                    if not np.isfinite(d[figure])
+                ]
+                if missing:  # nothing in range on a seed: a mean over seeds would be NaN
+                    raise ValueError(f"{spec}: no {name} {figure} on seeds {missing}")
+            out[f"{name} {figure}"] = paired_differences(policies, {}, specs, figure)
+    return out
 
 
 def markdown(rows: list[dict[str, Any]], metric: str, localizers: list[str]) -> str:
@@ -111,13 +159,20 @@ def main(argv: list[str] | None = None) -> int:
     for spec in args.policies:
         rows.append(policy_row(spec, base, seeds, localizers, args.metric))
         r = rows[-1]
+        for name in localizers:  # an interrupted evaluation scores fewer seeds: stop now
+            scored = [d["seed"] for d in r["localizers"][name]["per_seed"]]
+            if scored != seeds:
+                raise ValueError(f"{spec}: {name} scored on seeds {scored}, not {seeds}")
         print(spec, r["episode_return"], r[args.metric], r["localizers"], flush=True)
+    paired = paired_localization(rows, localizers, seeds, args.metric)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / f"results_{args.name}.json").write_text(
-        json.dumps({"seeds": seeds, "env_kwargs": base, "rows": rows}, indent=2)
+        json.dumps({"seeds": seeds, "env_kwargs": base, "rows": rows, "paired": paired}, indent=2)
     )
     table = markdown(rows, args.metric, localizers)
+    for key, pairs in paired.items():
+        table += f"\n{key}, paired by seed:\n\n" + paired_table(pairs, key.split()[-1])
     (out / f"results_{args.name}.md").write_text(table)
     print(table)
     return 0

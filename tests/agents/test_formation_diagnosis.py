@@ -8,6 +8,7 @@ import pytest
 from agents.formation_diagnosis import (
     LostTeammateTally,
     bearing_holder,
+    centroid_distance,
     classify_components,
     diagnose,
 )
@@ -47,6 +48,20 @@ def test_on_true_neighbours_every_component_is_a_teammate():
     assert out["teammate_error_m"]["median"] == pytest.approx(0.0, abs=1e-5)
     errors = out["centroid_error_m"]
     assert errors["controller"] == errors["oracle"]
+    for n, row in out["confident_components"].items():  # the truth's weights are all 1
+        assert row["weight_sum"] == pytest.approx(int(n))
+
+
+def test_centroid_distance_by_hand():
+    poses = np.array([[0.0, 0.0, 1.0], [2.0, 0.0, 0.0], [1.0, 3.0, 2.0]])  # centroid (1, 1)
+    np.testing.assert_allclose(
+        centroid_distance(poses), [np.sqrt(2.0), np.sqrt(2.0), 2.0], rtol=0, atol=1e-12
+    )
+
+
+def test_the_diagnosis_refuses_the_lattice():
+    with pytest.raises(ValueError, match="shape='lattice'"):
+        diagnose("lab-3m-4", [200], 0, 5, env_overrides={"task_params": {"shape": "lattice"}})
 
 
 def test_diagnose_runs_and_its_shares_add_up():
@@ -55,6 +70,12 @@ def test_diagnose_runs_and_its_shares_add_up():
     assert set(out["centroid_error_m"]) == {"controller", "oracle", "oracle_weight_1"}
     if out["spurious_per_observer_step"] > 0:
         assert sum(out["spurious_share"].values()) == pytest.approx(1.0)
+    # The formation error is the mean of the radial errors' absolute values.
+    assert out["radial_error_m"]["abs_mean"] == pytest.approx(out["formation_error_m"])
+    counts = out["confident_components"]
+    assert sum(row["share"] for row in counts.values()) == pytest.approx(1.0)
+    for row in counts.values():  # the spread discount only lowers a weight
+        assert row["weight_sum_discounted"] <= row["weight_sum"]
     with pytest.raises(ValueError, match="from-step"):
         diagnose("lab-3m-4", [200], from_step=30, max_steps=30)
 

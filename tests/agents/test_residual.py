@@ -160,7 +160,17 @@ def test_train_residual_saves_a_model_that_starts_as_the_scripted_controller(tmp
         )
         == 0
     )
-    rows = json.loads((out / "results_t.json").read_text())["rows"]
+    table = json.loads((out / "results_t.json").read_text())
+    rows = table["rows"]
+    # Paired by seed: the task metric and each localization figure, model - scripted = 0.
+    assert set(table["paired"]) == {
+        "formation_error_m",
+        "phd-lc gospa_m",
+        "phd-lc pct_above_0.30m",
+    }
+    for pairs in table["paired"].values():
+        assert [(p["policy"], p["baseline"]) for p in pairs] == [("scripted:formation", str(path))]
+        assert pairs[0]["mean_difference"] == 0.0
     assert rows[0]["formation_error_m"] == rows[1]["formation_error_m"]
     assert rows[0]["formation_error_m"][0] == rows[0]["formation_error_m_evaluate"]
     assert rows[0]["localizers"] == rows[1]["localizers"]

@@ -216,6 +216,33 @@ def _table_of(points, weight=1.0, top_k=4):
     return table
 
 
+def test_swarm_size_centroid_by_hand():
+    """N = 4, r = 0.8 m: the robot at the origin, its three teammates at (0.9, +-0.8) and
+    (1.7, 0), so the true centroid of all four is (0.875, 0) and the robot is 7.5 cm too far
+    out: the pull is k_p (0.875 - 0.8) = 0.06 m/s forward. Its PHD
+    weights them 0.8, 0.727 after the spread discount: the plain centroid
+    ``sum w m / (1 + sum w)`` = (0.80, 0) says it has arrived. Scaled to the known N the
+    weights sum to N - 1 = 3 and the centroid is the true one. Fewer than N - 1 components, or
+    weights already summing to N - 1, are left as they are."""
+    features = np.array([0.8, 2.0 * 0.8 * np.sin(np.pi / 4)])
+    mates = [(0.9, 0.8), (1.7, 0.0), (0.9, -0.8)]
+    plain = FormationPolicy(top_k=4)
+    known_n = FormationPolicy(top_k=4, swarm_size_centroid=True)
+    assert plain.swarm_size_centroid is False
+    table = _table_of(mates, weight=0.8)
+    np.testing.assert_allclose(
+        known_n.desired_velocity("a", table, None, features), [0.06, 0.0], atol=1e-12
+    )
+    assert abs(plain.desired_velocity("a", table, None, features)[0]) < 0.005
+    lattice = FormationPolicy(top_k=4, shape="lattice")  # one feature [d]: no N to read
+    np.testing.assert_array_equal(lattice.centroid(np.zeros((0, 2)), np.zeros(0), [0.6]), [0, 0])
+    for unscaled in (_table_of(mates[:2], weight=0.8), _table_of(mates, weight=1.2)):
+        np.testing.assert_array_equal(
+            known_n.desired_velocity("a", unscaled, None, features),
+            plain.desired_velocity("a", unscaled, None, features),
+        )
+
+
 def test_expected_lidar_detections_by_hand():
     """One teammate on a blind sector's centre (45 deg) at 1 m: the filter's blind factor is 0
     there, so no detection is expected until the robot turns it away; a 45 deg

@@ -123,22 +123,36 @@ def test_compiled_equals_the_reference():
         np.testing.assert_allclose(out, ref, rtol=1e-12, atol=1e-12)
 
 
-def test_a_camera_bearing_on_a_decoy_no_longer_confirms_a_component_there():
-    """The weight after one frame, hand-derived: ``P_d w g / (kappa_h + P_d w g)``, with the
-    density at the bearing against the uniform ``kappa_C``."""
+def _phd_on_decoy(phd, mixture, profile):
+    f = RobotCentricPHD(phd)
+    f.update_lidar(np.zeros((0, 2)), scan_profile=profile)
+    f.set_mixture(mixture)
+    return f
+
+
+def _pmb_on_decoy(phd, mixture, profile):
+    f = RobotCentricPMB(PMBConfig(phd=phd))
+    f.set_state(mixture)
+    f.update_lidar(np.zeros((0, 2)), scan_profile=profile)
+    return f
+
+
+@pytest.mark.parametrize("on_decoy", [_phd_on_decoy, _pmb_on_decoy], ids=["gm-phd", "pmb"])
+def test_a_camera_bearing_on_a_decoy_no_longer_confirms_an_estimate_there(on_decoy):
+    """A component (GM-PHD) or track (PMB) of weight 0.3 on a red decoy, after a scan that
+    shows the decoy as a wide object: under the uniform clutter the decoy's camera blob
+    confirms it (the weight after one frame, ``P_d w g / (kappa_h + P_d w g)``, rises); with
+    the decoy's own clutter the density at the bearing explains the blob instead."""
     decoy = np.array([1.8, 0.6])
     ranges = cast(ANGLES, np.array([[*decoy, DECOY]]), wall_m=0.0)
     brg = np.array([math.atan2(decoy[1], decoy[0])])
+    mixture = GaussianMixture(np.array([0.3]), decoy[None, :], 1e-3 * np.eye(2)[None])
     weights = {}
     for per_object in (0.0, 0.72):
-        config = dataclasses.replace(SIMULATOR_PHD, camera_clutter_per_wide_object=per_object)
-        f = RobotCentricPHD(config)
-        f.update_lidar(np.zeros((0, 2)), scan_profile=scan_profile(ANGLES, ranges))
-        f.set_mixture(GaussianMixture(np.array([0.3]), decoy[None, :], 1e-3 * np.eye(2)[None]))
+        phd = dataclasses.replace(SIMULATOR_PHD, camera_clutter_per_wide_object=per_object)
+        f = on_decoy(phd, mixture, scan_profile(ANGLES, ranges))
         f.update_camera(brg)
         weights[per_object] = f.table[0].sum()
-    # The uniform clutter lets the bearing confirm the component; the decoy's own clutter
-    # explains the bearing instead.
     assert weights[0.0] > 0.3
     assert weights[0.72] < 0.5 * weights[0.0]
 
@@ -299,24 +313,6 @@ def test_pmb_bank_matches_reference_filters(phd):
         found.append(memory[WIDE_OBJECTS_AT])
     assert max(len(f) for f in filters) > 0
     assert (max(found) > 0) == phd.models_wide_objects  # the density was exercised
-
-
-def test_pmb_camera_bearing_on_a_decoy_no_longer_confirms_a_track_there():
-    """As the GM-PHD's: a track sitting on a red decoy is confirmed by the decoy's blob under
-    the uniform clutter; with the decoy's own clutter the blob is explained instead."""
-    decoy = np.array([1.8, 0.6])
-    ranges = cast(ANGLES, np.array([[*decoy, DECOY]]), wall_m=0.0)
-    brg = np.array([math.atan2(decoy[1], decoy[0])])
-    existence = {}
-    for per_object in (0.0, 0.72):
-        phd = dataclasses.replace(SIMULATOR_PHD, camera_clutter_per_wide_object=per_object)
-        f = RobotCentricPMB(PMBConfig(phd=phd))
-        f.set_state(GaussianMixture(np.array([0.3]), decoy[None, :], 1e-3 * np.eye(2)[None]))
-        f.update_lidar(np.zeros((0, 2)), scan_profile=scan_profile(ANGLES, ranges))
-        f.update_camera(brg)
-        existence[per_object] = f.table[0].sum()
-    assert existence[0.0] > 0.3
-    assert existence[0.72] < 0.5 * existence[0.0]
 
 
 def test_a_pmb_bank_state_from_before_the_wide_objects_loads():
