@@ -25,9 +25,9 @@ SCRIPTED: dict[str, Callable[..., scripted.ScriptedPolicy]] = {
     "formation-sensing-hold": functools.partial(
         scripted.FormationPolicy.for_env, sensing_turn=True, restart_mps=0.05
     ),
-    # ... each with its centroid scaled to the known swarm size N (the PHD's weights on real
-    # teammates average 0.8, which shrank the centroid towards the robot: docs/results.md,
-    # round 10).
+    # ... each with its centroid scaled to the known swarm size N (after the spread discount
+    # the weights of the teammates in sight average 0.8, which shrank the centroid towards
+    # the robot: docs/results.md, round 10).
     "formation-known-n": functools.partial(
         scripted.FormationPolicy.for_env, swarm_size_centroid=True
     ),
