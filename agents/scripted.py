@@ -206,8 +206,8 @@ def estimated_centroid(
     spurious one (a decoy post's) is scaled up with the rest."""
     total = weights.sum()
     if swarm_size is not None and len(weights) >= swarm_size - 1 and 0.0 < total < swarm_size - 1:
-        weights = weights * ((swarm_size - 1) / total)
-    return (weights[:, None] * points).sum(axis=0) / (1.0 + weights.sum())
+        weights, total = weights * ((swarm_size - 1) / total), swarm_size - 1
+    return (weights[:, None] * points).sum(axis=0) / (1.0 + total)
 
 
 #: Candidate turns of :meth:`VectorFieldPolicy.sensing_turn`, 1 deg apart (rad).

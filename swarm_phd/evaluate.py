@@ -339,7 +339,9 @@ def evaluate_localization(
     # Each localizer's step time (not in the results: they must not depend on the machine).
     cost_s = dict.fromkeys(localizers, 0.0)
     n_done = 0
-    # Ctrl-C keeps the finished seeds: the scores are saved after each seed and restored.
+    # Ctrl-C keeps the finished seeds: the scorers are saved after each seed and restored, and
+    # the per-seed lists cut back to the seeds they were saved with. (The trajectory and the
+    # estimates are of the first seed only, complete before anything is saved.)
     finished: list[int] = []
     saved: tuple | None = None
     interrupted = False
@@ -411,34 +413,14 @@ def evaluate_localization(
                     }
                 )
             finished.append(seed)
-            # One snapshot, so that a Ctrl-C restores seeds, scores and per-seed figures that
-            # agree (an interrupt during the copy keeps the previous snapshot whole).
-            saved = copy.deepcopy(
-                (
-                    scorers,
-                    camera_scorers,
-                    id_scorers,
-                    task_metrics,
-                    paths,
-                    estimates,
-                    per_seed,
-                    finished,
-                )
-            )
+            saved = (copy.deepcopy((scorers, camera_scorers, id_scorers)), len(finished))
     except KeyboardInterrupt:
         if saved is None:
             raise
         interrupted = True
-        (
-            scorers,
-            camera_scorers,
-            id_scorers,
-            task_metrics,
-            paths,
-            estimates,
-            per_seed,
-            finished,
-        ) = saved
+        (scorers, camera_scorers, id_scorers), n_saved = saved
+        for done in (finished, task_metrics, *per_seed.values()):
+            del done[n_saved:]
         print(
             f"swarm-phd evaluate: interrupted; scoring the {len(finished)} finished seed(s) "
             f"{finished}",

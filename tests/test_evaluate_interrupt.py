@@ -42,3 +42,22 @@ def test_interrupt_before_any_seed_finishes_propagates(monkeypatch):
     monkeypatch.setattr(evaluation.SwarmFeed, "from_world_step", staticmethod(interrupting))
     with pytest.raises(KeyboardInterrupt):
         evaluation.evaluate_localization("lab-3m-4", 1.0, ["phd-lc"], [0, 1])
+
+
+def test_interrupt_between_two_localizers_per_seed_figures_keeps_them_aligned(monkeypatch):
+    """Ctrl-C after the first localizer's figures of seed 1 are in, before the second's: both
+    keep seed 0 only, as the restored scores do."""
+    calls = {"n": 0}
+    real = evaluation.seed_figures
+
+    def interrupting(before, after):
+        calls["n"] += 1
+        if calls["n"] == 4:  # two localizers per seed: the second one's, on seed 1
+            raise KeyboardInterrupt
+        return real(before, after)
+
+    monkeypatch.setattr(evaluation, "seed_figures", interrupting)
+    results = evaluation.evaluate_localization("lab-3m-4", 1.0, ["phd-lc", "phd-lo"], [0, 1, 2])
+    assert results["config"]["seeds"] == [0]
+    for name in ("phd-lc", "phd-lo"):
+        assert [d["seed"] for d in results["localizers"][name]["per_seed"]] == [0]
