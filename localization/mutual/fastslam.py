@@ -183,24 +183,18 @@ class FastSLAMLocalizer:
         pos = np.concatenate([self.mu_r[..., :2], self.mu_f], axis=1)  # (P, L, 2)
         cov = np.concatenate([self.cov_r[..., :2, :2], self.cov_f], axis=1)  # (P, L, 2, 2)
         exists = np.concatenate([self.init_r, self.active_f], axis=1) & ~used
-        s = cov + self._r_meas
-        det = s[..., 0, 0] * s[..., 1, 1] - s[..., 0, 1] * s[..., 1, 0]
-        inv = (
-            np.stack(
-                [
-                    np.stack([s[..., 1, 1], -s[..., 0, 1]], -1),
-                    np.stack([-s[..., 1, 0], s[..., 0, 0]], -1),
-                ],
-                -2,
-            )
-            / det[..., None, None]
-        )
-        e = z - pos
-        maha = np.einsum("pli,plij,plj->pl", e, inv, e)
+        s = cov + self._r_meas  # (P, L, 2, 2), symmetric
+        sxx, sxy, syy = s[..., 0, 0], s[..., 0, 1], s[..., 1, 1]
+        det = sxx * syy - sxy * sxy
+        ex, ey = z[0] - pos[..., 0], z[1] - pos[..., 1]
+        maha = (syy * ex * ex - 2.0 * sxy * ex * ey + sxx * ey * ey) / det  # e' S^-1 e
         ll = np.where(exists, -0.5 * maha - np.log(2 * math.pi * np.sqrt(det)), -np.inf)
-        ll_new = np.full((p, 1), math.log(cfg.new_density_per_m2))
-        opts = np.concatenate([ll, ll_new], axis=1)  # (P, L + 1)
-        total = logsumexp(opts, axis=1)
+        opts = np.empty((p, ll.shape[1] + 1))
+        opts[:, :-1] = ll
+        opts[:, -1] = math.log(cfg.new_density_per_m2)
+        # Row-wise log-sum-exp; the finite "new" option bounds every row's maximum from below.
+        top = opts.max(axis=1)
+        total = top + np.log(np.exp(opts - top[:, None]).sum(axis=1))  # (P,)
         self.logw += total
         prob = np.exp(opts - total[:, None])
         cdf = np.cumsum(prob, axis=1)

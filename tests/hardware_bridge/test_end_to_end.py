@@ -23,15 +23,18 @@ SEED = 0
 N_STEPS = 80  # 8 s of real time, 4 robots (seed-lab)
 
 # Stated margin: over the same 8 s from the same arena and start poses, the bridge's
-# localization may be this much worse than the pure simulator's (timing jitter, the records
-# dropped between steps for honest timing, float32 messages). A frame or sign error in the
-# bridge gives ~40 % large-error time and ~0.13 m median error, far outside it.
-MARGIN_LARGE_ERROR_PCT = 10.0  # percentage points of (neighbour, step) pairs with error > 0.3 m
+# localization may be this much worse than the pure simulator's. Measured on a quiet 2-core
+# machine (docs/hardware.md, "Localization over the loopback"): the simulator scores 2.2 % large
+# error, 96.4 % accurate and a 0.022 m median here; 14 live runs scored 3.6-12.0 %, 70.8-88.3 %
+# and 0.036-0.043 m (the live run's trajectory and its step boundaries differ from run to run;
+# at load average 9-10, 73-91 % accurate).
+# The simulator alone spans 0.8-15.5 % large error over seeds 0-9. A frame or sign error in the
+# bridge gives ~40 % large-error time and a ~0.13 m median error, far outside these margins.
+MARGIN_LARGE_ERROR_PCT = 15.0  # percentage points of (neighbour, step) pairs with error > 0.3 m
 MARGIN_MEDIAN_ERROR_M = 0.03
-# Percentage points within 0.1 m. On a 2-core machine at load average 9-10 the bridge scored
-# 73-91 % against the simulator's 94 % (the loopback's real-time sim lags and resyncs; the same
-# spread with the bridge code before issue 18); a frame error is caught by the two margins above.
-MARGIN_ACCURATE_PCT = 25.0
+# Percentage points within 0.1 m. The bound stays above 50 %, so any fault that puts the median
+# error above 0.1 m fails it; the live runs' lowest (70.8 %, seen once) is 9 points inside it.
+MARGIN_ACCURATE_PCT = 35.0
 
 
 class _SameArenaSim(SimWorld):
@@ -101,6 +104,7 @@ def test_bridge_runs_the_scripted_policy_and_localizes_like_the_simulator(
         sim,
     )
     assert got["median_error_m"] <= sim["median_error_m"] + MARGIN_MEDIAN_ERROR_M, (got, sim)
+    assert sim["percent_accurate"] - MARGIN_ACCURATE_PCT > 50.0  # the margin's own premise
     assert got["percent_accurate"] >= sim["percent_accurate"] - MARGIN_ACCURATE_PCT, (got, sim)
 
 

@@ -60,3 +60,43 @@ def test_config_rejects_bad_values():
         FastSLAMConfig(n_particles=0)
     with pytest.raises(ValueError, match="detection_std_m"):
         FastSLAMConfig(detection_std_m=-0.1)
+
+
+def test_detection_weight_is_the_marginal_likelihood_by_hand():
+    """A particle's log-weight grows by the detection's marginal likelihood: the sum over the
+    landmarks it may come from of N(z; m, P + R), plus the "new" density. Written out here
+    with scipy's Gaussian, for a teammate, a feature and a landmark already used by the scan."""
+    from scipy.stats import multivariate_normal
+
+    loc = FastSLAMLocalizer(
+        "ugv_0",
+        ("ugv_0", "ugv_1", "ugv_2"),
+        FastSLAMConfig(n_particles=2, max_features=2),
+        np.random.default_rng(0),
+    )
+    loc.init_r[:] = [[True, True], [True, False]]
+    loc.mu_r[:, 0] = [[1.0, 0.2, 0.3], [0.9, -0.1, 1.0]]
+    loc.mu_r[:, 1] = [[-0.5, 1.0, 0.0], [0.0, 0.0, 0.0]]
+    loc.cov_r[0, 0] = [[0.02, 0.005, 0.0], [0.005, 0.01, 0.0], [0.0, 0.0, 0.1]]
+    loc.active_f[:, 0] = True
+    loc.mu_f[:, 0] = [[1.2, 0.0], [0.8, 0.3]]
+    loc.cov_f[:, 0] = 0.04 * np.eye(2)
+    used = np.zeros((2, 4), dtype=bool)
+    used[1, 2] = True  # particle 1's feature took an earlier detection of this scan
+    z = np.array([1.05, 0.12])
+    r_meas = loc.config.detection_std_m**2 * np.eye(2)
+    before = loc.logw.copy()
+    loc._update_detection(z, used)
+
+    def n(mean, cov):
+        return multivariate_normal(mean, cov + r_meas).pdf(z)
+
+    density = loc.config.new_density_per_m2
+    expected = [
+        n([1.0, 0.2], [[0.02, 0.005], [0.005, 0.01]])
+        + n([-0.5, 1.0], np.eye(2))
+        + n([1.2, 0.0], 0.04 * np.eye(2))
+        + density,
+        n([0.9, -0.1], np.eye(2)) + density,
+    ]
+    np.testing.assert_allclose(loc.logw - before, np.log(expected), rtol=1e-12)
