@@ -2,9 +2,11 @@
 
 ``--loopback`` is a dry run: it starts the loopback robot server (the simulator behind a
 rosbridge-compatible websocket on 127.0.0.1) in this process and drives it exactly as it would
-drive robots. ``--host H --robots ugv_0,ugv_1`` drives real robots (a non-loopback host needs
-``--allow-remote``). Prints localization metrics (when motion capture gives ground truth) and
-the bridge's message counters.
+drive robots. Its robots carry the simulator's sensors, so the filter gets the preset's
+simulator model (``make_config(preset).phd``); real robots get the seed's hardware model
+(:func:`hardware_bridge.real_env`). ``--host H --robots ugv_0,ugv_1`` drives real robots (a
+non-loopback host needs ``--allow-remote``). Prints localization metrics (when motion capture
+gives ground truth) and the bridge's message counters.
 """
 
 from __future__ import annotations
@@ -116,6 +118,7 @@ def run(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace) -> int:
     from agents.scripted import WanderPolicy
     from hardware_bridge import real_env
+    from swarm_env.config import make_config
     from swarm_phd.episode import format_metrics, run_episode
 
     if args.steps < 1:
@@ -152,6 +155,8 @@ def _run(args: argparse.Namespace) -> int:
             )
     elif args.faults:
         raise ValueError("--faults only applies to --loopback")
+    # The filter's sensor model is the one of the robots' sensors: simulated ones on loopback.
+    model = {"phd": make_config(args.preset).phd} if args.loopback else {}
     env = None
     try:
         env = real_env(
@@ -164,6 +169,7 @@ def _run(args: argparse.Namespace) -> int:
             bridge=bridge,
             max_steps=args.steps,
             localizer=args.localizer,
+            **model,
         )
         policy = WanderPolicy.for_env(env, seed=args.seed) if args.policy == "wander" else None
         if args.max_speed is not None and policy is not None:
@@ -175,7 +181,8 @@ def _run(args: argparse.Namespace) -> int:
         if not args.json:
             print(
                 f"bridge: {len(env.possible_agents)} robots {env.possible_agents} at "
-                f"{host}:{port}, {args.steps} steps of {env.config.control_period_s} s"
+                f"{host}:{port}, {args.steps} steps of {env.config.control_period_s} s, "
+                f"{'the simulator' if args.loopback else 'the seed hardware'}'s sensor model"
             )
         start = time.monotonic()
         result = run_episode(env, policy, args.steps, seed=args.seed)
@@ -196,6 +203,7 @@ def _run(args: argparse.Namespace) -> int:
         "stale_steps": result.stale_steps,
         "counters": counters,
         "timing": timing,
+        "sensor_model": "simulator" if args.loopback else "seed-hardware",
         "rejected_messages": sum(
             v for k, v in counters.items() if k.endswith(".invalid") or k == "transport.malformed"
         ),
