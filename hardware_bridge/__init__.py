@@ -139,6 +139,7 @@ def _open_real_world(robots, config, host, port, allow_remote, bridge_cfg, recor
             stale_mocap_s=bridge_cfg.stale_mocap_s,
             use_mocap=bridge_cfg.use_mocap,
             uav_id=bridge_cfg.uav_id,
+            odometry_jump_factor=bridge_cfg.odometry_jump_factor,
         )
     try:
         return RealWorld(

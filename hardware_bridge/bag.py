@@ -336,6 +336,7 @@ class BagRecorder:
         stale_mocap_s: float = 0.5,
         use_mocap: bool = True,
         uav_id: str | None = None,
+        odometry_jump_factor: float = 3.0,
     ) -> None:
         from rosbags.rosbag2 import Writer
 
@@ -354,6 +355,9 @@ class BagRecorder:
                     "config": config_to_dict(config),
                     "stale_mocap_s": stale_mocap_s,
                     "use_mocap": use_mocap,
+                    # The live assembler's odometry plausibility, so the replay integrates the
+                    # same increments.
+                    "odometry_jump_factor": odometry_jump_factor,
                     **({} if uav_id is None else {"uav": uav_id}),
                 }
             ),
@@ -522,8 +526,8 @@ def read_meta(path: str | Path) -> dict[str, Any]:
         raise BagError(metafile, f"swarm-phd metadata: {exc}") from None
     if len(set(robots)) != len(robots):
         raise BagError(metafile, f"swarm-phd metadata: duplicate robot ids {robots}")
-    for key in ("stale_mocap_s",):
-        value = meta.get(key, 0.5)
+    for key, default in (("stale_mocap_s", 0.5), ("odometry_jump_factor", 3.0)):
+        value = meta.get(key, default)
         if type(value) not in (int, float) or not value > 0 or value != value:
             raise BagError(
                 metafile, f"swarm-phd metadata: {key} must be a number > 0, got {value!r}"
@@ -585,8 +589,10 @@ class ReplayWorld:
             ) from None
         self.stale_mocap_s = float(meta.get("stale_mocap_s", 0.5))
         self.use_mocap = bool(meta.get("use_mocap", True))
+        # Bags from before it was recorded: the factor's default of that time.
+        self.odometry_jump_factor = float(meta.get("odometry_jump_factor", 3.0))
         self.counters = Counters()
-        self.assembler = RecordAssembler(self.robot_ids, self.config, counters=self.counters)
+        self.assembler = self.make_assembler(self.config)
         self.relay = TeammateRelay(self.robot_ids) if self.config.comms.enabled else None
         self.problems: list[str] = []  # first few skip details, for the report
         markers, messages = self._read()
@@ -859,6 +865,12 @@ class ReplayWorld:
         self._markers = kept
         self._groups = groups
 
+    def make_assembler(self, config: SwarmConfig) -> RecordAssembler:
+        """The live run's record assembler (its odometry plausibility), for ``config``."""
+        return RecordAssembler(
+            self.robot_ids, config, jump_factor=self.odometry_jump_factor, counters=self.counters
+        )
+
     # ------------------------------------------------------------------ World API
     @property
     def n_episodes(self) -> int:
@@ -973,12 +985,12 @@ def replay_env(
     config = make_config(config=world.config, **overrides)
     if config is not world.config:
         world.config = config
-        world.assembler = RecordAssembler(world.robot_ids, config, counters=world.counters)
+        world.assembler = world.make_assembler(config)
     max_steps = overrides.get("max_steps")
     if max_steps is None:
         config = dataclasses.replace(config, max_steps=max(1, world.n_steps(0)))
         world.config = config
-        world.assembler = RecordAssembler(world.robot_ids, config, counters=world.counters)
+        world.assembler = world.make_assembler(config)
     return SwarmEnv(
         config=config,
         task=task,

@@ -114,6 +114,11 @@ CORRUPTIONS = [
         _custom('{"robots": ["ugv_0"], "config": {}, "stale_mocap_s": NaN}'),
         "error",
     ),
+    (
+        "jump_factor_negative",
+        _custom('{"robots": ["ugv_0"], "config": {}, "odometry_jump_factor": -1}'),
+        "error",
+    ),
     ("metadata_version_wrong_type", _meta("version: 8", "version: eight"), "error"),
     (
         "metadata_topics_wrong_type",

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from hardware_bridge import real_env
-from hardware_bridge.bag import BagError, ReplayWorld
+from hardware_bridge.bag import BagError, ReplayWorld, replay_env
 from hardware_bridge.faults import CORRUPTIONS, copy_bag
 from swarm_phd.cli import main
 from swarm_phd.export_bag import export_sim_episode
@@ -114,6 +114,38 @@ def test_recording_survives_an_exception_in_step(loopback, tmp_path, monkeypatch
         env.close()
     world = ReplayWorld(bag)
     assert world.n_steps() == 5 and not world.skipped()
+
+
+@pytest.mark.timeout(60)
+def test_replay_judges_odometry_with_the_recorded_jump_factor(loopback, tmp_path):
+    """A bag remembers the bridge's ``odometry_jump_factor``: with a factor so tight that a
+    spin at full turn rate looks like a jump, the replay refuses the same increments as the
+    live run did (with the default 3.0 it would integrate them, and feed other odometry)."""
+    server = loopback()
+    bag = tmp_path / "spin"
+    env = real_env(
+        port=server.port,
+        preset="seed-lab",
+        record=str(bag),
+        max_steps=1000,
+        bridge={"odometry_jump_factor": 0.1},
+    )
+    try:
+        env.reset(seed=0)
+        turn = env.config.robot.max_turn_rate_radps
+        for _ in range(15):
+            env.step({a: np.array([0.0, turn]) for a in env.agents})
+        live = env.world.counters_snapshot().get("odometry.implausible", 0)
+    finally:
+        env.close()
+    assert live > 0
+    replay = replay_env(bag)
+    assert replay.world.assembler.jump_factor == 0.1
+    replay.reset()
+    while replay.agents:
+        replay.step({a: np.zeros(2) for a in replay.agents})
+    assert replay.world.counters.get("odometry.implausible") == live
+    replay.close()
 
 
 # ---------------------------------------------------------------------------- corruption
