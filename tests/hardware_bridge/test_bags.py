@@ -140,12 +140,14 @@ def test_replay_judges_odometry_with_the_recorded_jump_factor(loopback, tmp_path
         env.close()
     assert live > 0
     replay = replay_env(bag)
-    assert replay.world.assembler.jump_factor == 0.1
-    replay.reset()
-    while replay.agents:
-        replay.step({a: np.zeros(2) for a in replay.agents})
-    assert replay.world.counters.get("odometry.implausible") == live
-    replay.close()
+    try:
+        assert replay.world.assembler.jump_factor == 0.1
+        replay.reset()
+        while replay.agents:
+            replay.step({a: np.zeros(2) for a in replay.agents})
+        assert replay.world.counters.get("odometry.implausible") == live
+    finally:
+        replay.close()
 
 
 # ---------------------------------------------------------------------------- corruption
