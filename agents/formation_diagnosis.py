@@ -69,6 +69,7 @@ FORMATION_CONTROLLERS = (
     "scripted:formation-known-n",
     "scripted:formation-sensing-known-n",
     "scripted:formation-sensing-hold-known-n",
+    "scripted:formation-known-n-fast",
 )
 #: What holds a lost teammate's bearing: a confident component on one of :data:`KINDS`, on
 #: another teammate, or no confident component at all.

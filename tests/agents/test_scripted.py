@@ -243,6 +243,44 @@ def test_swarm_size_centroid_by_hand():
         )
 
 
+def test_fast_known_n_controller_doubles_the_pull_until_it_saturates():
+    """``scripted:formation-known-n-fast`` is ``formation-known-n`` with k_p 1.6: on the
+    by-hand case above the pull is 1.6 * 0.075 = 0.12 m/s, twice the 0.06 m/s, and the 2 cm/s
+    deadband is crossed from a 1.25 cm error on (2.5 cm at k_p 0.8). Far off, both saturate at
+    the speed limit in the same direction."""
+    env = parallel_env("lab-3m-4", task="formation", observation="phd")
+    try:
+        fast = load_policy("scripted:formation-known-n-fast", env)
+        known_n = load_policy("scripted:formation-known-n", env)
+    finally:
+        env.close()
+    assert (fast.k_p, fast.swarm_size_centroid, fast.sensing_model) == (1.6, True, None)
+    features = np.array([0.8, 2.0 * 0.8 * np.sin(np.pi / 4)])
+    table = np.zeros((fast.top_k, 7))
+    table[:4] = _table_of([(0.9, 0.8), (1.7, 0.0), (0.9, -0.8)], weight=0.8)
+    np.testing.assert_allclose(
+        fast.desired_velocity("a", table, None, features), [0.12, 0.0], atol=1e-12
+    )
+    np.testing.assert_allclose(
+        known_n.desired_velocity("a", table, None, features), [0.06, 0.0], atol=1e-12
+    )
+    # Teammates moved by dx put the robot 0.075 + 0.75 dx outside the circle. 1 cm out: below
+    # the deadband for both. 1.5 cm: only the fast one moves.
+    for error_m, fast_moves in ((0.010, False), (0.015, True)):
+        shifted = table.copy()
+        shifted[:3, 1] += (error_m - 0.075) / 0.75
+        u_fast = fast.desired_velocity("a", shifted, None, features)
+        u_slow = known_n.desired_velocity("a", shifted, None, features)
+        assert bool(fast.to_unicycle(u_fast).any()) is fast_moves
+        assert not known_n.to_unicycle(u_slow).any()
+    far = table.copy()
+    far[:3, 1] += 2.0
+    u_fast = fast.desired_velocity("a", far, None, features)
+    u_slow = known_n.desired_velocity("a", far, None, features)
+    np.testing.assert_allclose(np.linalg.norm(u_fast), fast.max_speed_mps)
+    np.testing.assert_allclose(u_fast, u_slow, atol=1e-12)
+
+
 def test_expected_lidar_detections_by_hand():
     """One teammate on a blind sector's centre (45 deg) at 1 m: the filter's blind factor is 0
     there, so no detection is expected until the robot turns it away; a 45 deg
