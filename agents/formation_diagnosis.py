@@ -9,8 +9,9 @@ and, for every robot and step from ``--from-step`` on (the settled formation), c
   localizes its teammates);
 - the controller's centroid estimate with the true centroid (both in the robot's body frame);
 - the same estimate from only the components that sit on a true teammate (within
-  ``--match-m``; an oracle no robot has), with the controller's weights and with weight 1
-  (neither oracle rescales to the swarm size, as the ``*-known-n`` controllers do);
+  ``--match-m``; an oracle no robot has), with the controller's weights and with weight 1,
+  each by the controller's own centroid rule (:func:`centroid_estimates`: a ``*-known-n``
+  controller's oracle also scales its weights to the swarm size);
 - every confident component that sits on no teammate, by what it sits on
   (:func:`classify_components`): a decoy post, a red decoy, a wall, or nothing known;
 - every **lost** teammate (no confident component within ``--match-m`` of it): whether it is
@@ -53,7 +54,7 @@ from typing import Any
 
 import numpy as np
 
-from agents.scripted import estimated_centroid, estimated_neighbours, split_observation
+from agents.scripted import estimated_neighbours, split_observation
 from localization.detection import DetectionModel
 from localization.mixture import ROW_W, ROW_X, ROW_Y
 from swarm_core.geometry import wrap_angle
@@ -389,11 +390,9 @@ def diagnose(
                     mate = kind == "teammate"
                     tally.add(np.delete(bodies[i], i, axis=0), lost, pts, kind, infos[agent])
                     true_c = centroid[i, 0]
-                    for name, value in (
-                        ("controller", controller.centroid(pts, w, features)),
-                        ("oracle", estimated_centroid(pts[mate], w[mate])),
-                        ("oracle_weight_1", estimated_centroid(pts[mate], np.ones(mate.sum()))),
-                    ):
+                    for name, value in centroid_estimates(
+                        controller, pts, w, mate, features
+                    ).items():
                         errors[name].append(float(np.linalg.norm(value - true_c)))
             obs, _, _, _, infos = env.step(actions)
         for key in lidar_counts:
@@ -438,6 +437,22 @@ def diagnose(
             "missed_rate": lidar_counts["missed"] / in_range,
             "missed_rate_by_cause": {c: lidar_counts[c] / in_range for c in LIDAR_MISS_CAUSES},
         },
+    }
+
+
+def centroid_estimates(
+    controller: Any, points: np.ndarray, weights: np.ndarray, mate: np.ndarray, features: Any
+) -> dict[str, np.ndarray]:
+    """The robot's centroid estimate (2,) by ``controller``'s own rule
+    (``controller.centroid``), from its confident components ``points`` (M, 2) with
+    ``weights`` (M,) (``"controller"``), and from only those on a true teammate (``mate``, (M,)
+    bool): with their weights (``"oracle"``) and with weight 1 (``"oracle_weight_1"``). A
+    ``*-known-n`` controller's rule scales the weights to the swarm size, so its oracles do."""
+    ones = np.ones(int(mate.sum()))
+    return {
+        "controller": controller.centroid(points, weights, features),
+        "oracle": controller.centroid(points[mate], weights[mate], features),
+        "oracle_weight_1": controller.centroid(points[mate], ones, features),
     }
 
 

@@ -84,6 +84,8 @@ def run(args: argparse.Namespace) -> int:
         "--warm-start": getattr(args, "warm_start", None) is not None,
         "--residual": getattr(args, "residual", None) is not None,
         "--residual-observes-base": getattr(args, "residual_observes_base", False),
+        "--residual-mode": getattr(args, "residual_mode", "add") != "add",
+        "--sde": getattr(args, "sde", False),
         "--critic-state": getattr(args, "critic_state", False),
         "--critic-warmup": bool(getattr(args, "critic_warmup", 0)),
         "--recurrent": getattr(args, "recurrent", False),

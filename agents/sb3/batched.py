@@ -63,6 +63,9 @@ class BatchedSwarmVecEnv(VecEnv):
         With ``residual``: append the scripted command, in unit scale ``base / high`` (2
         entries in [-1, 1]), to the observation, so the correction can depend on it directly
         (the policy would otherwise have to recompute the controller from the observation).
+    residual_mode : str
+        With ``residual``: ``"add"`` (the correction is added) or ``"gain"`` (it scales each
+        command by ``4 ** correction``); :func:`agents.sb3.residual.compose`.
     critic_state : bool
         Append each agent's true-state block for a centralised critic
         (:mod:`agents.sb3.central_critic`; simulation only): the observation space grows by
@@ -77,9 +80,15 @@ class BatchedSwarmVecEnv(VecEnv):
         residual: str | None = None,
         critic_state: bool = False,
         residual_observes_base: bool = False,
+        residual_mode: str = "add",
     ) -> None:
+        from agents.sb3.residual import check_residual_mode
+
         if residual_observes_base and residual is None:
             raise ValueError("residual_observes_base needs a residual (--residual scripted:NAME)")
+        if check_residual_mode(residual_mode) != "add" and residual is None:
+            raise ValueError(f"residual_mode {residual_mode!r} needs a residual")
+        self.residual_mode = residual_mode
         if isinstance(n_copies, bool) or not isinstance(n_copies, int) or n_copies < 1:
             raise ValueError(f"n_copies must be an int >= 1, got {n_copies!r}")
         kwargs = dict(env_kwargs)
@@ -172,7 +181,7 @@ class BatchedSwarmVecEnv(VecEnv):
 
                 base = self._base_commands[k]
                 commands = {
-                    a: compose(base[a], actions[k * n + i], self._high)
+                    a: compose(base[a], actions[k * n + i], self._high, self.residual_mode)
                     for i, a in enumerate(env.possible_agents)
                 }
             else:
@@ -318,6 +327,7 @@ def make_batched_vec_env(
     residual: str | None = None,
     critic_state: bool = False,
     residual_observes_base: bool = False,
+    residual_mode: str = "add",
 ):
     """:class:`BatchedSwarmVecEnv` wrapped in SB3's ``VecMonitor`` (episode statistics)."""
     from stable_baselines3.common.vec_env import VecMonitor
@@ -329,5 +339,6 @@ def make_batched_vec_env(
         residual=residual,
         critic_state=critic_state,
         residual_observes_base=residual_observes_base,
+        residual_mode=residual_mode,
     )
     return VecMonitor(venv, filename=monitor_file)

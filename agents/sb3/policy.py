@@ -8,6 +8,8 @@ carries one extra member, ``swarm_phd.json`` (SB3's loader ignores it)::
      "action_scale": "unit",         # the policy acts in [-1, 1]; scaled by [v_max, omega_max]
      "residual": "scripted:NAME",    # optional, a residual policy (agents.sb3.residual):
                                      # command = clip(scripted + policy, -1, 1) x high
+     "residual_mode": "gain",        # optional ("add" if absent): the correction scales the
+                                     # scripted command by 4**correction (agents.sb3.residual)
      "residual_observes_base": true, # optional: the scripted command / high is appended to
                                      # the observation (agents.sb3.residual)
      "critic_dims": P,               # optional, a centralised critic's block
@@ -120,6 +122,11 @@ class SB3Policy:
         #: Entries of a centralised critic's block, padded with zeros (the actor ignores them).
         self.critic_dims = int(meta.get("critic_dims", 0))
         self.recurrent = bool(meta.get("recurrent", False))
+        self.last_correction: dict[str, np.ndarray] = {}
+        from agents.sb3.residual import check_residual_mode
+
+        #: How the correction acts on the base's command (``agents.sb3.residual.compose``).
+        self.residual_mode = check_residual_mode(meta.get("residual_mode", "add"))
         #: Recurrent models: each agent's LSTM state ``(h, c)``, each (layers, hidden); an
         #: agent without one starts its episode at the next call.
         self._memory: dict[str, tuple[np.ndarray, np.ndarray]] = {}
@@ -159,8 +166,15 @@ class SB3Policy:
         else:
             actions, _ = self.model.predict(batch, deterministic=self.deterministic)
         if base is not None:
+            #: The correction of this call per agent, unit scale, clipped as ``compose`` clips
+            #: it (read by :mod:`agents.sb3.residual_gains`).
+            self.last_correction = {
+                a: np.clip(np.asarray(actions[k], np.float64), -1.0, 1.0)
+                for k, a in enumerate(agents)
+            }
             return {
-                a: compose(base[a], actions[k], self.action_high) for k, a in enumerate(agents)
+                a: compose(base[a], actions[k], self.action_high, self.residual_mode)
+                for k, a in enumerate(agents)
             }
         return {a: scale_actions(actions[k], self.action_high) for k, a in enumerate(agents)}
 

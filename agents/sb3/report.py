@@ -363,8 +363,13 @@ def main(argv: list[str] | None = None) -> int:
         results["policies"][spec] = score(spec, read_metadata(spec)["env_kwargs"], seeds)
         print(spec, results["policies"][spec]["mean"])
         group = re.sub(r"_s\d+$", "", run.name)
-        residual = read_metadata(spec).get("residual")
-        kind = f"residual PPO ({residual} + learned correction)" if residual else "PPO"
+        meta = read_metadata(spec)
+        residual = meta.get("residual")
+        kind = "PPO"
+        if residual:
+            gain = meta.get("residual_mode") == "gain"
+            how = "x learned gain" if gain else "+ learned correction"
+            kind = f"residual PPO ({residual} {how})"
         clone = run / "warm_start.zip"
         if Path(spec) == clone:  # selection chose the warm start itself: label it so
             kind = "warm start only"

@@ -5,6 +5,16 @@ Robot Control"; Silver et al. 2018, "Residual Policy Learning"): the action sent
 
     a = clip(b(o) + c_theta(o) * high, -high, high)      high = [v_max, omega_max]
 
+(``--residual-mode add``, the default), or, with ``--residual-mode gain``,
+
+    a = clip(b(o) * GAIN_RANGE ** c_theta(o), -high, high)      (per axis, GAIN_RANGE = 4)
+
+a state-dependent gain on each of the controller's two commands, from 1/4 to 4 times: a
+correction of 0.5 on ``v`` doubles the controller's pull. An additive correction that would do
+the same must grow with the command itself, which PPO's exploration at a fixed std does not
+find (docs/results.md, round 12); the gain mode makes "pull harder" one constant direction
+of the action. A base command of zero stays zero (the gain cannot start a stopped robot).
+
 where ``b`` is a hand-written controller (here ``scripted:NAME`` from
 :data:`agents.policies.SCRIPTED`, which reads the robot's own PHD table and lidar scan) and
 ``c_theta`` is the PPO policy (unit scale, clipped to [-1, 1]). The correction's mean starts
@@ -42,16 +52,39 @@ def check_residual(spec: Any) -> str:
     return spec
 
 
-def compose(base: np.ndarray, correction: np.ndarray, high: np.ndarray) -> np.ndarray:
-    """The residual command ``clip(base + clip(correction, -1, 1) * high, -high, high)``.
+#: How the correction acts on the scripted command (``--residual-mode``; module doc).
+RESIDUAL_MODES = ("add", "gain")
+#: ``--residual-mode gain``: a correction of +-1 multiplies a command by this or divides it.
+GAIN_RANGE = 4.0
+
+
+def check_residual_mode(mode: Any) -> str:
+    """``mode`` if it is one of :data:`RESIDUAL_MODES`, else ``ValueError``."""
+    if mode not in RESIDUAL_MODES:
+        raise ValueError(f"--residual-mode must be one of {RESIDUAL_MODES}, got {mode!r}")
+    return mode
+
+
+def compose(
+    base: np.ndarray, correction: np.ndarray, high: np.ndarray, mode: str = "add"
+) -> np.ndarray:
+    """The residual command: ``clip(base + clip(correction, -1, 1) * high, -high, high)``
+    (``mode="add"``) or ``clip(base * GAIN_RANGE ** clip(correction, -1, 1), -high, high)``
+    (``mode="gain"``).
 
     ``base``: the scripted controller's command in env units ``[v_mps, omega_radps]``;
     ``correction``: the policy's output in unit scale; ``high``: ``[v_max, omega_max]``; all
-    broadcast, (..., 2); float32 out. The sum is formed in env units so that a zero correction
-    returns the scripted command bit for bit (a unit-scale round trip would not)."""
+    broadcast, (..., 2); float32 out. Both are formed in env units so that a zero correction
+    returns the scripted command bit for bit (a unit-scale round trip would not; ``4 ** 0`` is
+    exactly 1)."""
     high = np.asarray(high, dtype=np.float64)
-    c = np.clip(np.asarray(correction, dtype=np.float64), -1.0, 1.0) * high
-    return np.clip(np.asarray(base, dtype=np.float64) + c, -high, high).astype(np.float32)
+    c = np.clip(np.asarray(correction, dtype=np.float64), -1.0, 1.0)
+    base = np.asarray(base, dtype=np.float64)
+    if check_residual_mode(mode) == "gain":
+        command = base * np.power(GAIN_RANGE, c)
+    else:
+        command = base + c * high
+    return np.clip(command, -high, high).astype(np.float32)
 
 
 def base_in_unit_scale(base: Any, high: np.ndarray) -> np.ndarray:

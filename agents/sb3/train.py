@@ -120,6 +120,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="initial log-std of the residual correction (unit action scale)",
     )
     parser.add_argument(
+        "--sde",
+        action="store_true",
+        help="generalised state-dependent exploration (gSDE, Raffin et al. 2022): the "
+        "exploration noise is a random linear map of the policy's last hidden layer, drawn "
+        "per agent once per rollout, so a perturbation persists for --n-steps steps instead "
+        "of changing every step. The log-std (--residual-log-std with --residual) is then "
+        "per hidden unit: the action's noise std is exp(log_std) times that layer's norm",
+    )
+    parser.add_argument(
+        "--residual-mode",
+        choices=("add", "gain"),
+        default="add",
+        help="with --residual: add the correction to the scripted command (add), or scale "
+        "each of its two commands by 4**correction, from 1/4 to 4 times (gain)",
+    )
+    parser.add_argument(
         "--residual-observes-base",
         action="store_true",
         help="with --residual: append the scripted command (unit scale) to the policy's "
@@ -231,6 +247,8 @@ def run(args: argparse.Namespace) -> int:
         "clip_range": args.clip_range,
         "target_kl": args.target_kl,
     }
+    if args.sde:
+        ppo_kwargs["use_sde"] = True
     warm = None
     if args.warm_start is not None:
         warm = {
@@ -260,6 +278,7 @@ def run(args: argparse.Namespace) -> int:
         residual_log_std=args.residual_log_std,
         critic_state=args.critic_state,
         residual_observes_base=args.residual_observes_base,
+        residual_mode=args.residual_mode,
         lstm_hidden=_lstm_hidden(args),
     )
     return EXIT_CODES.get(interrupted, 0) if interrupted else 0
@@ -284,6 +303,7 @@ def _vec_env(
     residual: str | None = None,
     critic_state: bool = False,
     residual_observes_base: bool = False,
+    residual_mode: str = "add",
 ):
     """The training VecEnv (``--vec``): batched in-process copies or SuperSuit's."""
     from agents.sb3.adapter import make_vec_env
@@ -299,6 +319,7 @@ def _vec_env(
             residual=residual,
             critic_state=critic_state,
             residual_observes_base=residual_observes_base,
+            residual_mode=residual_mode,
         )
     return make_vec_env(
         env_kwargs, n_copies=n_copies, num_cpus=num_cpus, seed=seed, monitor_file=monitor
@@ -352,6 +373,7 @@ def _train(
     residual_log_std: float = -1.5,
     critic_state: bool = False,
     residual_observes_base: bool = False,
+    residual_mode: str = "add",
     lstm_hidden: int | None = None,
 ) -> tuple[Path, str | None]:
     """Train; return the path of ``model.zip`` and the signal that interrupted it (or None).
@@ -362,7 +384,8 @@ def _train(
     rollouts update only the value function. ``residual``: ``"scripted:NAME"`` trains a
     residual policy (:mod:`agents.sb3.residual`; correction mean 0 and log-std
     ``residual_log_std`` at the start; ``residual_observes_base`` appends the scripted command
-    to the policy's observation). ``critic_state``: a centralised critic that also reads
+    to the policy's observation; ``residual_mode`` ``"gain"`` scales the command instead of
+    adding to it). ``critic_state``: a centralised critic that also reads
     the true state (:mod:`agents.sb3.central_critic`). ``lstm_hidden``: recurrent PPO
     (sb3-contrib ``RecurrentPPO``, an LSTM of that many units in the actor and in the critic,
     after the extractor); the model's metadata says ``"recurrent": true``.
@@ -383,6 +406,16 @@ def _train(
             raise ValueError(f"{flag} must be a finite number > 0, got {v!r}")
     if residual_observes_base and residual is None:
         raise ValueError("--residual-observes-base needs --residual scripted:NAME")
+    from agents.sb3.residual import check_residual_mode
+
+    if check_residual_mode(residual_mode) != "add":
+        if residual is None:
+            raise ValueError(f"--residual-mode {residual_mode} needs --residual scripted:NAME")
+        if warm_start is not None:
+            raise ValueError(
+                f"--residual-mode {residual_mode} and --warm-start exclude each other (the "
+                "clone fits an additive correction)"
+            )
     if residual is not None:
         from agents.sb3.residual import check_residual
 
@@ -397,6 +430,17 @@ def _train(
             )
         if extractor != "sets":
             raise ValueError(f"--critic-state needs --extractor sets, got {extractor!r}")
+    if (ppo_kwargs or {}).get("use_sde"):
+        for flag, on in (
+            ("--warm-start", warm_start is not None),
+            ("--critic-state", critic_state),
+            ("--recurrent", lstm_hidden is not None),
+        ):
+            if on:
+                raise ValueError(
+                    f"--sde and {flag} exclude each other (that policy's action noise is the "
+                    "per-step Gaussian)"
+                )
     if lstm_hidden is not None:
         if isinstance(lstm_hidden, bool) or not isinstance(lstm_hidden, int) or lstm_hidden < 1:
             raise ValueError(f"--lstm-hidden must be an int >= 1, got {lstm_hidden!r}")
@@ -463,6 +507,9 @@ def _train(
         "clip_range": 0.2,
         **(ppo_kwargs or {}),
     }
+    if ppo.get("use_sde"):
+        # One exploration matrix per agent per rollout (SB3 resamples it at each rollout).
+        ppo.setdefault("sde_sample_freq", -1)
     if extractor not in ("sets", "mlp"):
         raise ValueError(f"extractor must be 'sets' or 'mlp', got {extractor!r}")
     if extractor == "sets" and env_kwargs.get("observation", "phd") == "measurements":
@@ -472,7 +519,8 @@ def _train(
         )
     policy_kwargs: dict[str, Any] = {
         "net_arch": {"pi": [128, 128], "vf": [128, 128]},
-        "log_std_init": -0.5,
+        # gSDE's log-std is per hidden unit: SB3's default -2 (noise std exp(-2) x |latent|).
+        "log_std_init": -2.0 if ppo.get("use_sde") else -0.5,
     }
     if warm_start is not None or critic_warmup or residual is not None:
         # The value loss must not move the (cloned) actor's features: separate extractors.
@@ -505,6 +553,7 @@ def _train(
             "critic_state": critic_state,
             "critic_dims": critic_dims,
             "residual_observes_base": residual_observes_base,
+            "residual_mode": residual_mode if residual else None,
             "recurrent": lstm_hidden is not None,
             "lstm_hidden": lstm_hidden,
             "policy_kwargs": {
@@ -530,6 +579,7 @@ def _train(
             residual,
             critic_state,
             residual_observes_base,
+            residual_mode,
         )
     finally:
         if previous_sigint is not None:
@@ -562,6 +612,8 @@ def _train(
             out_meta["residual"] = residual
         if residual_observes_base:
             out_meta["residual_observes_base"] = True
+        if residual is not None and residual_mode != "add":
+            out_meta["residual_mode"] = residual_mode
         if critic_dims:
             out_meta["critic_dims"] = critic_dims
         if lstm_hidden is not None:

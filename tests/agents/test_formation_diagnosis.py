@@ -9,6 +9,7 @@ from agents.formation_diagnosis import (
     LostTeammateTally,
     bearing_holder,
     centroid_distance,
+    centroid_estimates,
     classify_components,
     diagnose,
 )
@@ -50,6 +51,41 @@ def test_on_true_neighbours_every_component_is_a_teammate():
     assert errors["controller"] == errors["oracle"]
     for n, row in out["confident_components"].items():  # the truth's weights are all 1
         assert row["weight_sum"] == pytest.approx(int(n))
+
+
+def test_oracle_centroids_follow_the_controllers_rule_by_hand():
+    """Four confident components of weight 0.6 in a 4-robot swarm, the last spurious. The plain
+    controller's oracle keeps the weights (``0.6 sum m / (1 + 1.8)``); the known-N controller's
+    scales its three teammates to weight 1 each (``sum m / 4``), as its own centroid does with
+    all four (weights 0.75)."""
+    from agents.policies import load_policy
+    from swarm_env import parallel_env
+
+    env = parallel_env(preset="lab-3m-4", task="formation")
+    features = np.array([0.6, 2 * 0.6 * np.sin(np.pi / 4)])  # [r, s*] of N = 4
+    pts = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.5, 0.5]])
+    w = np.full(4, 0.6)
+    mate = np.array([True, True, True, False])
+    plain = centroid_estimates(load_policy("scripted:formation", env), pts, w, mate, features)
+    known = centroid_estimates(
+        load_policy("scripted:formation-known-n", env), pts, w, mate, features
+    )
+    env.close()
+    want = {
+        "plain": {
+            "controller": [0.3 / 3.4, 0.9 / 3.4],
+            "oracle": [0.0, 0.6 / 2.8],
+            "oracle_weight_1": [0.0, 0.25],
+        },
+        "known": {
+            "controller": [0.75 * 0.5 / 4, 0.75 * 1.5 / 4],
+            "oracle": [0.0, 0.25],
+            "oracle_weight_1": [0.0, 0.25],
+        },
+    }
+    for name, got in (("plain", plain), ("known", known)):
+        for key, value in want[name].items():
+            np.testing.assert_allclose(got[key], value, rtol=0, atol=1e-12, err_msg=key)
 
 
 def test_centroid_distance_by_hand():
