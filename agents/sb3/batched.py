@@ -57,8 +57,9 @@ class BatchedSwarmVecEnv(VecEnv):
         Copy ``k`` is reset with ``seed + k`` at the first :meth:`reset`.
     residual : str or None
         ``"scripted:NAME"``: a residual policy (:mod:`agents.sb3.residual`): each copy's
-        command is ``clip(scripted(obs, infos) + action x high, -high, high)``, the scripted
-        controller (one per copy) reading that copy's last observations and infos.
+        command is ``clip(scripted(obs, infos) + action x high, -high, high)`` (or the gain
+        of ``residual_mode``), the scripted controller (one per copy) reading that copy's last
+        observations and infos.
     residual_observes_base : bool
         With ``residual``: append the scripted command, in unit scale ``base / high`` (2
         entries in [-1, 1]), to the observation, so the correction can depend on it directly

@@ -7,7 +7,7 @@ carries one extra member, ``swarm_phd.json`` (SB3's loader ignores it)::
      "obs_norm": {"mean": [...], "var": [...], "clip": 10.0, "epsilon": 1e-8} | null,
      "action_scale": "unit",         # the policy acts in [-1, 1]; scaled by [v_max, omega_max]
      "residual": "scripted:NAME",    # optional, a residual policy (agents.sb3.residual):
-                                     # command = clip(scripted + policy, -1, 1) x high
+                                     # command = clip(scripted + c x high, -high, high)
      "residual_mode": "gain",        # optional ("add" if absent): the correction scales the
                                      # scripted command by 4**correction (agents.sb3.residual)
      "residual_observes_base": true, # optional: the scripted command / high is appended to
@@ -122,6 +122,8 @@ class SB3Policy:
         #: Entries of a centralised critic's block, padded with zeros (the actor ignores them).
         self.critic_dims = int(meta.get("critic_dims", 0))
         self.recurrent = bool(meta.get("recurrent", False))
+        #: A residual's correction per agent at the last call, unit scale, clipped to
+        #: [-1, 1] as ``compose`` clips it (read by :mod:`agents.sb3.residual_gains`).
         self.last_correction: dict[str, np.ndarray] = {}
         from agents.sb3.residual import check_residual_mode
 
@@ -166,8 +168,6 @@ class SB3Policy:
         else:
             actions, _ = self.model.predict(batch, deterministic=self.deterministic)
         if base is not None:
-            #: The correction of this call per agent, unit scale, clipped as ``compose`` clips
-            #: it (read by :mod:`agents.sb3.residual_gains`).
             self.last_correction = {
                 a: np.clip(np.asarray(actions[k], np.float64), -1.0, 1.0)
                 for k, a in enumerate(agents)

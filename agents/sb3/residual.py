@@ -5,7 +5,18 @@ Robot Control"; Silver et al. 2018, "Residual Policy Learning"): the action sent
 
     a = clip(b(o) + c_theta(o) * high, -high, high)      high = [v_max, omega_max]
 
-(``--residual-mode add``, the default), or, with ``--residual-mode gain``,
+where ``b`` is a hand-written controller (here ``scripted:NAME`` from
+:data:`agents.policies.SCRIPTED`, which reads the robot's own PHD table and lidar scan) and
+``c_theta`` is the PPO policy (unit scale, clipped to [-1, 1]). The correction's mean starts
+at exactly zero (:func:`zero_correction`), so before any update the deterministic residual
+policy *is* the scripted controller, and PPO only has to learn where the controller is wrong.
+The policy network sees the env's observation, not ``b``'s internal state (the scripted
+controller's random-walk generator, its full lidar scan); ``SwarmConfig.lidar_sectors`` gives
+it the scan summarised in sectors, and ``--residual-observes-base`` gives it ``b``'s command
+itself (:func:`base_in_unit_scale`, appended to the observation).
+
+That is ``--residual-mode add``, the default. With ``--residual-mode gain`` the correction
+scales the command instead:
 
     a = clip(b(o) * GAIN_RANGE ** c_theta(o), -high, high)      (per axis, GAIN_RANGE = 4)
 
@@ -13,22 +24,13 @@ a state-dependent gain on each of the controller's two commands, from 1/4 to 4 t
 correction of 0.5 on ``v`` doubles the controller's pull. An additive correction that would do
 the same must grow with the command itself, which PPO's exploration at a fixed std does not
 find (docs/results.md, round 12); the gain mode makes "pull harder" one constant direction
-of the action. A base command of zero stays zero (the gain cannot start a stopped robot).
-
-where ``b`` is a hand-written controller (here ``scripted:NAME`` from
-:data:`agents.policies.SCRIPTED`, which reads the robot's own PHD table and lidar scan) and
-``c_theta`` is the PPO policy (unit scale, clipped to [-1, 1]). The correction's mean starts
-at exactly zero
-(:func:`zero_correction`), so before any update the deterministic residual policy *is* the
-scripted controller, and PPO only has to learn where the controller is wrong. The policy
-network sees the env's observation, not ``b``'s internal state (the scripted controller's
-random-walk generator, its full lidar scan); ``SwarmConfig.lidar_sectors`` gives it the scan
-summarised in sectors, and ``--residual-observes-base`` gives it ``b``'s command itself
-(:func:`base_in_unit_scale`, appended to the observation).
+of the action (PPO did not find that either: round 13). A base command of zero stays zero
+(the gain cannot start a stopped robot).
 
 Training: ``swarm-phd train --residual scripted:formation`` (batched VecEnv only: the base
 needs each copy's ``infos``). Evaluation: the model zip's ``swarm_phd.json`` says
-``"residual": "scripted:formation"`` and :class:`agents.sb3.policy.SB3Policy` adds the base.
+``"residual": "scripted:formation"`` (and ``"residual_mode"`` if not ``add``), and
+:class:`agents.sb3.policy.SB3Policy` composes the base and the correction the same way.
 """
 
 from __future__ import annotations

@@ -116,8 +116,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--residual-log-std",
         type=float,
-        default=-1.5,
-        help="initial log-std of the residual correction (unit action scale)",
+        default=None,
+        help="initial log-std of the residual correction (unit action scale; default -1.5, "
+        "std 0.22). With --sde it is per hidden unit, and the default is -3.0: about the "
+        "same action std, the formation policy's hidden layer having a norm of about 4.5",
     )
     parser.add_argument(
         "--sde",
@@ -370,7 +372,7 @@ def _train(
     warm_start: dict[str, Any] | None = None,
     critic_warmup: int = 0,
     residual: str | None = None,
-    residual_log_std: float = -1.5,
+    residual_log_std: float | None = None,
     critic_state: bool = False,
     residual_observes_base: bool = False,
     residual_mode: str = "add",
@@ -383,7 +385,8 @@ def _train(
     writes ``warm_start.zip`` and ``warm_start.json``). ``critic_warmup``: that many first PPO
     rollouts update only the value function. ``residual``: ``"scripted:NAME"`` trains a
     residual policy (:mod:`agents.sb3.residual`; correction mean 0 and log-std
-    ``residual_log_std`` at the start; ``residual_observes_base`` appends the scripted command
+    ``residual_log_std`` at the start, by default -1.5, or -3.0 per hidden unit with gSDE
+    (``ppo_kwargs["use_sde"]``); ``residual_observes_base`` appends the scripted command
     to the policy's observation; ``residual_mode`` ``"gain"`` scales the command instead of
     adding to it). ``critic_state``: a centralised critic that also reads
     the true state (:mod:`agents.sb3.central_critic`). ``lstm_hidden``: recurrent PPO
@@ -416,6 +419,8 @@ def _train(
                 f"--residual-mode {residual_mode} and --warm-start exclude each other (the "
                 "clone fits an additive correction)"
             )
+    if residual_log_std is None:
+        residual_log_std = -3.0 if (ppo_kwargs or {}).get("use_sde") else -1.5
     if residual is not None:
         from agents.sb3.residual import check_residual
 
@@ -438,8 +443,9 @@ def _train(
         ):
             if on:
                 raise ValueError(
-                    f"--sde and {flag} exclude each other (that policy's action noise is the "
-                    "per-step Gaussian)"
+                    f"--sde and {flag} exclude each other (not built or tested together: "
+                    "the clone, the centralised critic and the LSTM policy are fitted and "
+                    "tested with the per-step Gaussian)"
                 )
     if lstm_hidden is not None:
         if isinstance(lstm_hidden, bool) or not isinstance(lstm_hidden, int) or lstm_hidden < 1:

@@ -220,15 +220,26 @@ def test_train_residual_saves_a_model_that_starts_as_the_scripted_controller(tmp
     assert "| scripted:formation |" in (out / "results_t.md").read_text()
 
 
-def test_gain_mode_model_zip_scales_the_scripted_command(tmp_path):
+def test_gain_mode_model_zip_scales_the_scripted_command(tmp_path, monkeypatch):
     """A ``--residual-mode gain`` model says so in its zip, and the evaluated policy applies
     the gain: with its correction's mean set to ``[0.5, 0]`` it sends the scripted command
     with the speed doubled (clipped) and the turn rate unchanged."""
     import torch
 
+    import agents.sb3.batched as batched
     from agents.sb3.policy import load_sb3_policy, read_metadata
 
+    built = []  # the training VecEnvs: the mode must reach them, not only the metadata
+    make = batched.make_batched_vec_env
+
+    def spy(*args, **kwargs):
+        venv = make(*args, **kwargs)
+        built.append(venv.venv.residual_mode)
+        return venv
+
+    monkeypatch.setattr(batched, "make_batched_vec_env", spy)
     path = train_frozen_residual(tmp_path / "run", residual_mode="gain")
+    assert built == ["gain"]
     assert read_metadata(path)["residual_mode"] == "gain"
     learned = load_sb3_policy(path, parallel_env(**KWARGS))
     assert learned.residual_mode == "gain"
@@ -252,18 +263,23 @@ def test_gain_mode_model_zip_scales_the_scripted_command(tmp_path):
     assert moving > 0
     # agents.sb3.residual_gains reads the gains back: 1 for the zero correction, [2, 1] here.
     from agents.sb3.policy import write_metadata
-    from agents.sb3.residual_gains import applied_gains, main
+    from agents.sb3.residual_gains import main, requested_gains
 
-    np.testing.assert_array_equal(applied_gains(path, [100]), np.ones((4 * 15, 2)))
+    np.testing.assert_array_equal(requested_gains(path, [100]), np.ones((4 * 15, 2)))
     doubled = tmp_path / "doubled.zip"
     learned.model.save(doubled)
     write_metadata(doubled, read_metadata(path))
-    np.testing.assert_allclose(applied_gains(doubled, [100, 101]), [[2.0, 1.0]] * (2 * 4 * 15))
+    np.testing.assert_allclose(requested_gains(doubled, [100, 101]), [[2.0, 1.0]] * (2 * 4 * 15))
     assert main([str(doubled), "--seeds", "100", "--out", str(tmp_path / "g.json")]) == 0
     summary = json.loads((tmp_path / "g.json").read_text())["models"][str(doubled)]
     assert summary["speed"]["mean"] == pytest.approx(2.0) and summary["agent_steps"] == 60
+    additive = train_frozen_residual(tmp_path / "add")
+    with pytest.raises(ValueError, match="not a --residual-mode gain model: residual_mode 'add'"):
+        requested_gains(additive, [100])
+    # A wrong model anywhere in the list is refused before any model runs.
     with pytest.raises(ValueError, match="not a --residual-mode gain model"):
-        applied_gains(train_frozen_residual(tmp_path / "add"), [100])
+        main([str(doubled), str(additive), "--out", str(tmp_path / "h.json")])
+    assert not (tmp_path / "h.json").exists()
 
 
 SDE = {"ppo_kwargs": {"use_sde": True}}
@@ -309,12 +325,12 @@ def test_cli_refuses_gain_mode_and_sde_on_rllib(tmp_path, capsys, flags):
 
 def test_sde_residual_starts_as_its_base_and_records_the_noise(tmp_path):
     """``--sde``: SB3's gSDE with one exploration matrix per agent per rollout
-    (``sde_sample_freq -1``), a per-hidden-unit log-std (128 x 2, set to the residual's
-    ``residual_log_std``), and still a zero correction at the start: the saved deterministic
-    policy is the scripted controller."""
+    (``sde_sample_freq -1``), a per-hidden-unit log-std (128 x 2, at the residual's default
+    for gSDE, -3: about the per-step default's action std), and still a zero correction at
+    the start: the saved deterministic policy is the scripted controller."""
     from agents.sb3.policy import load_sb3_policy
 
-    path = train_frozen_residual(tmp_path / "run", residual_log_std=-3.0, sde=True)
+    path = train_frozen_residual(tmp_path / "run", sde=True)  # default log-std -3 with gSDE
     config = json.loads((tmp_path / "run" / "train_config.json").read_text())
     assert config["ppo"]["use_sde"] is True and config["ppo"]["sde_sample_freq"] == -1
     learned = load_sb3_policy(path, parallel_env(**KWARGS))
