@@ -266,6 +266,17 @@ def select_model(run_dir: Path, seeds: list[int], metric: str) -> tuple[Path, li
     return Path(best["model"]), scored
 
 
+def policy_kind(meta: dict[str, Any]) -> str:
+    """A trained model's label in tables, from its ``swarm_phd.json`` ``meta``: ``"PPO"``, or
+    ``"residual PPO (scripted:NAME + learned correction)"`` (``x learned gain`` for a
+    ``--residual-mode gain`` model)."""
+    residual = meta.get("residual")
+    if not residual:
+        return "PPO"
+    how = "x learned gain" if meta.get("residual_mode") == "gain" else "+ learned correction"
+    return f"residual PPO ({residual} {how})"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--runs", nargs="+", required=True)
@@ -364,12 +375,7 @@ def main(argv: list[str] | None = None) -> int:
         print(spec, results["policies"][spec]["mean"])
         group = re.sub(r"_s\d+$", "", run.name)
         meta = read_metadata(spec)
-        residual = meta.get("residual")
-        kind = "PPO"
-        if residual:
-            gain = meta.get("residual_mode") == "gain"
-            how = "x learned gain" if gain else "+ learned correction"
-            kind = f"residual PPO ({residual} {how})"
+        kind = policy_kind(meta)
         clone = run / "warm_start.zip"
         if Path(spec) == clone:  # selection chose the warm start itself: label it so
             kind = "warm start only"
@@ -380,7 +386,8 @@ def main(argv: list[str] | None = None) -> int:
             )
             groups.setdefault(f"warm start only {group}", []).append(str(clone))
             print(clone, results["policies"][str(clone)]["mean"])
-        curves[("residual PPO " if residual else "PPO ") + run.name] = monitor_curve(run)
+        label = "residual PPO " if meta.get("residual") else "PPO "
+        curves[label + run.name] = monitor_curve(run)
         if args.checkpoints:
             results.setdefault("checkpoints", {})[run.name] = [
                 (s, r["mean"])

@@ -32,20 +32,19 @@ def requested_gains(path: str | Path, seeds: list[int]) -> np.ndarray:
     from agents.sb3.policy import load_sb3_policy, read_metadata
     from swarm_env import parallel_env
 
-    meta = read_metadata(check_gain_model(path))
+    env = parallel_env(**read_metadata(check_gain_model(path))["env_kwargs"])
     gains = []
-    for seed in seeds:
-        env = parallel_env(**meta["env_kwargs"])
-        try:
-            policy = load_sb3_policy(path, env)
+    try:
+        policy = load_sb3_policy(path, env)  # once: reset() reseeds it per episode
+        for seed in seeds:
             policy.reset(seed)
             obs, infos = env.reset(seed=seed)
             while env.agents:
                 actions = policy(obs, infos)
                 gains.extend(policy.last_correction[a] for a in obs)
                 obs, _, _, _, infos = env.step(actions)
-        finally:
-            env.close()
+    finally:
+        env.close()
     return np.power(GAIN_RANGE, np.asarray(gains, np.float64).reshape(-1, 2))
 
 

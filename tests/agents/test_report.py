@@ -8,7 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agents.sb3.report import markdown_table, paired_differences, paired_table, pooled
+from agents.sb3.report import (
+    markdown_table,
+    paired_differences,
+    paired_table,
+    policy_kind,
+    pooled,
+)
 
 
 def _result(values):
@@ -162,3 +168,11 @@ def test_select_on_must_not_share_the_scoring_seeds(tmp_path):
 
     with pytest.raises(ValueError, match="select-on"):
         main(["--runs", str(tmp_path), "--seeds", "100-109", "--select-on", "105-115"])
+
+
+def test_policy_kind_names_how_the_residual_acts():
+    assert policy_kind({}) == "PPO"
+    add = {"residual": "scripted:formation"}
+    assert policy_kind(add) == "residual PPO (scripted:formation + learned correction)"
+    gain = {**add, "residual_mode": "gain"}
+    assert policy_kind(gain) == "residual PPO (scripted:formation x learned gain)"
