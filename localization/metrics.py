@@ -56,6 +56,7 @@ __all__ = [
     "gospa",
     "in_range_mask",
     "closest_component_errors",
+    "closest_component_errors_padded",
     "extract_estimates",
     "LocalizationScorer",
     "SeedScorer",
@@ -269,6 +270,34 @@ def closest_component_errors(
     if means.shape[0] == 0:
         return np.full(pts.shape[0], np.inf)
     return _distances(pts, means).min(axis=1)
+
+
+def closest_component_errors_padded(
+    points: np.ndarray, weights: np.ndarray, means: np.ndarray, min_weight: float = 0.1
+) -> np.ndarray:
+    """:func:`closest_component_errors` of every robot at once (the matching rule of
+    :meth:`SeedScorer.update`).
+
+    Parameters
+    ----------
+    points : array_like, shape (R, K, 2)
+        Per robot r, K true positions in r's frame (m).
+    weights, means : ndarray, shapes (R, C) and (R, C, 2)
+        Every robot's zero-padded mixture in its own frame (:func:`pad_mixtures`, or
+        :func:`weights_means_from_table` of a localizer's ``padded_tables()``).
+    min_weight : float
+        Only components with weight ``> min_weight`` count (seed: 0.1).
+
+    Returns
+    -------
+    ndarray, shape (R, K)
+        Distances (m) to the robot's closest qualifying component; ``inf`` where none qualifies.
+    """
+    pts = np.asarray(points, dtype=float)
+    if pts.shape[1] == 0 or weights.shape[1] == 0:
+        return np.full(pts.shape[:2], np.inf)
+    d2 = ((pts[:, :, None, :] - means[:, None, :, :]) ** 2).sum(axis=3)  # (R, K, C)
+    return np.sqrt(np.where((weights > min_weight)[:, None, :], d2, np.inf).min(axis=2))
 
 
 def extract_estimates(

@@ -163,6 +163,11 @@ class SwarmEnv(ParallelEnv):
             )
         self.render_mode = render_mode
         self.task = make_task(task, **(task_params or {}))
+        if self.task.needs_estimates and not self.config.localize:
+            raise ValueError(
+                f"task {self.task.name!r}: localization_term='estimate' scores the robots' own "
+                "estimates, which localize=False switches off"
+            )
         self.world: World = (
             world if world is not None else SimWorld(self.config, n_extra=self.task.n_extra_robots)
         )
@@ -345,6 +350,8 @@ class SwarmEnv(ParallelEnv):
         infos)`` of the step :meth:`step_world` made."""
         with self._halting_on_error():
             step = self._last_step
+            if self.task.needs_estimates:  # the estimate after this step's update
+                self.task.observe_estimates(*self.localizer.padded_tables())
             rewards_arr = self.task.rewards(step.truth, self._last_commands)
             term = np.broadcast_to(
                 np.asarray(self.task.terminated(step.truth), dtype=bool),

@@ -240,10 +240,14 @@ def _make_env(preset: str | None, task: str | None, policy: str, **overrides: An
 
         observation = policy_observation(policy)
         if observation is None:
-            # Policies that ignore the observation: skip the env's own filters, the evaluation
-            # runs its own banks of filters below.
+            # Policies that ignore the observation: skip the env's own filters (the evaluation
+            # runs its own banks of filters below) unless the task's reward scores them.
+            from swarm_env.tasks import task_needs_estimates
+
             overrides.setdefault("observation", "measurements")
-            overrides.setdefault("localize", False)
+            overrides.setdefault(
+                "localize", task_needs_estimates(task or "wander", overrides.get("task_params"))
+            )
         else:  # e.g. scripted:formation acts on the robot's own PHD estimate
             overrides.setdefault("observation", observation)
     return parallel_env(preset or "seed-sim", task=task or "wander", **overrides)

@@ -50,17 +50,20 @@ def score(
     """Mean/std over seeds of the task metrics and of the per-agent episode return."""
     from agents.policies import load_policy
     from swarm_env import parallel_env
+    from swarm_env.tasks import task_needs_estimates
 
     kwargs = dict(env_kwargs)
     spec = policy_spec
+    # A localization term on the estimate needs the filters whatever the policy reads.
+    needs = task_needs_estimates(kwargs.get("task", "wander"), kwargs.get("task_params"))
     if spec.endswith("@truth"):
         spec = spec[: -len("@truth")]
-        kwargs.update(observation="truth", localize=False)
+        kwargs.update(observation="truth", localize=needs)
     elif not spec.endswith(".zip"):
         from agents.policies import policy_observation
 
         mode = policy_observation(spec)
-        kwargs.update(observation=mode or "measurements", localize=mode == "phd")
+        kwargs.update(observation=mode or "measurements", localize=mode == "phd" or needs)
     env = parallel_env(**kwargs)
     policy = load_policy(spec, env)
     n_steps = n_steps or env.config.max_steps

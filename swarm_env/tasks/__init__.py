@@ -29,4 +29,12 @@ def make_task(name: str | Task, **params: Any) -> Task:
     return TASKS[name](**params)
 
 
-__all__ = ["TASKS", "Task", "make_task"]
+def task_needs_estimates(name: str | Task, params: dict[str, Any] | None = None) -> bool:
+    """Whether task ``name`` with ``params`` scores the robots' own estimates (a localization
+    term ``localization_term="estimate"``), so its env must run the filters (``localize``)
+    even for a policy that ignores the observation."""
+    task = name if isinstance(name, Task) else make_task(name, **(params or {}))
+    return task.needs_estimates
+
+
+__all__ = ["TASKS", "Task", "make_task", "task_needs_estimates"]

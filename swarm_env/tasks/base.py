@@ -62,6 +62,14 @@ class Task:
         """Reward per agent, shape (N,). ``actions`` are the clipped commands, shape (N, 2)."""
         return np.zeros(len(actions))
 
+    #: Whether :meth:`observe_estimates` must be called before every :meth:`rewards`.
+    needs_estimates = False
+
+    def observe_estimates(self, table: np.ndarray, counts: np.ndarray) -> None:
+        """The env's localizer after this step's update, ``padded_tables()``: ``table``
+        (6, R, C), ``counts`` (R,), each robot's components in its own frame. Called just
+        before :meth:`rewards` when :attr:`needs_estimates`."""
+
     def terminated(self, truth: GroundTruth | None) -> np.ndarray | bool:
         """Termination per agent (N,) bool, or one bool for the whole swarm."""
         return False

@@ -21,10 +21,11 @@ just above the chassis' enclosing radius of 0.143 m): a robot pressed against ei
 whatever its heading. The obstacles come from the World's ``layout`` at ``reset`` (the
 simulator's); without one (real robots) only robots and walls count.
 
-Optional localization term (``localization_weight`` = w > 0): ``r_i -= w u_i`` with ``u_i`` the
-fraction of i's teammates that its lidar and camera did not both detect at their last tick
-(:func:`~swarm_env.tasks.common.unseen_fraction`). Spreading out covers cells but loses sight of
-teammates; the term prices that. Off by default; when on, the metrics add ``unseen_fraction``.
+Optional localization term (``localization_weight`` = w > 0): ``r_i -= w u_i``, ``u_i`` in [0, 1]
+(:mod:`swarm_env.tasks.localization_term`: teammates unseen by lidar and camera, or, with
+``localization_term="estimate"``, misplaced by i's own estimate). Spreading out covers cells but
+loses sight of teammates; the term prices that. Off by default; when on, the metrics add the
+episode mean of ``u``.
 
 Termination: the whole swarm, once the covered fraction reaches ``target_coverage``.
 Truncation: ``max_steps`` of the config. No task features (F = 0): a robot cannot sense the
@@ -40,7 +41,8 @@ import numpy as np
 
 from swarm_core.world import GroundTruth
 from swarm_env.tasks.base import Task
-from swarm_env.tasks.common import check_param, collisions, unseen_fraction
+from swarm_env.tasks.common import check_param, collisions
+from swarm_env.tasks.localization_term import LocalizationTerm
 
 if TYPE_CHECKING:
     from swarm_env.world.arena import Layout
@@ -67,6 +69,8 @@ class ExplorationTask(Task):
         0.16 m (the chassis' enclosing radius is 0.143 m).
     localization_weight : float
         Weight of the optional localization term (default 0, see the module doc).
+    localization_term : {"unseen", "estimate"}
+        What the term charges (:mod:`swarm_env.tasks.localization_term`), default "unseen".
     """
 
     name = "exploration"
@@ -80,6 +84,7 @@ class ExplorationTask(Task):
         collision_distance_m: float = 0.3,
         wall_margin_m: float = 0.16,
         localization_weight: float = 0.0,
+        localization_term: str = "unseen",
         **params: Any,
     ) -> None:
         super().__init__(**params)
@@ -95,10 +100,8 @@ class ExplorationTask(Task):
             self.name, "collision_distance_m", collision_distance_m, 0.0, 5.0
         )
         self.wall_margin_m = check_param(self.name, "wall_margin_m", wall_margin_m, 0.0, 5.0)
-        self.localization_weight = check_param(
-            self.name, "localization_weight", localization_weight, 0.0, 1e3
-        )
-        self._unseen: list[float] = []
+        self.localization = LocalizationTerm(self.name, localization_weight, localization_term)
+        self.localization_weight = self.localization.weight
         self._arena: Any = None
         self._layout: Layout | None = None
         self.covered = np.zeros((0, 0), dtype=bool)
@@ -127,7 +130,7 @@ class ExplorationTask(Task):
         self._collision_steps = 0
         self._steps = 0
         self._robot_steps = 0
-        self._unseen = []
+        self.localization.reset()
         if truth is not None:
             self._cover(truth.poses[:, :2])  # the start cells are free: no reward for them
 
@@ -162,11 +165,7 @@ class ExplorationTask(Task):
         self._steps += 1
         self._robot_steps += len(xy)
         reward = self.coverage_reward * new - self.collision_penalty * hit.astype(float)
-        if self.localization_weight:
-            unseen = unseen_fraction(truth)
-            self._unseen.append(float(unseen.mean()))
-            reward = reward - self.localization_weight * unseen
-        return reward
+        return reward - self.localization.penalty(truth)
 
     def terminated(self, truth: GroundTruth | None) -> bool:
         return truth is not None and self.coverage >= self.target_coverage
@@ -177,5 +176,12 @@ class ExplorationTask(Task):
         return {
             "coverage": self.coverage,
             "collision_rate": self._collision_steps / max(1, self._robot_steps),
-            **({"unseen_fraction": float(np.mean(self._unseen))} if self._unseen else {}),
+            **self.localization.metrics(),
         }
+
+    @property
+    def needs_estimates(self) -> bool:
+        return self.localization.needs_estimates
+
+    def observe_estimates(self, table: np.ndarray, counts: np.ndarray) -> None:
+        self.localization.observe_estimates(table, counts)

@@ -17,10 +17,12 @@ Optional shaping (``progress_weight`` = k > 0, for training): with ``e_i`` the b
 removed in this step. It is potential-based (potential ``-k e_i``, discount 1), so it does not
 change which policy is optimal, but it credits each agent's own motion at once.
 
-Optional localization term (``localization_weight`` = w > 0): ``r_i -= w u_i`` with ``u_i`` the
-fraction of i's teammates that its lidar and camera did not both detect at their last tick
-(:func:`~swarm_env.tasks.common.unseen_fraction`): motion that keeps teammates measured keeps
-them localized. Off by default; when on, the metrics add ``unseen_fraction`` (episode mean).
+Optional localization term (``localization_weight`` = w > 0): ``r_i -= w u_i``, ``u_i`` in [0, 1]
+(:mod:`swarm_env.tasks.localization_term`): with ``localization_term="unseen"`` (default) the
+fraction of i's teammates that its lidar and camera did not both detect at their last tick; with
+``"estimate"`` the fraction that i's own estimate misplaces by more than 0.30 m (the seed's
+scoring). Motion that keeps teammates measured keeps them localized. Off by default; when on,
+the metrics add the episode mean of ``u`` (``unseen_fraction`` or ``mislocalized_fraction``).
 
 Termination: never (holding the formation is the task). Truncation: ``max_steps`` of the config.
 
@@ -44,8 +46,8 @@ from swarm_env.tasks.common import (
     check_choice,
     check_param,
     pairwise_distances,
-    unseen_fraction,
 )
+from swarm_env.tasks.localization_term import LocalizationTerm
 
 if TYPE_CHECKING:
     from swarm_env.world.arena import Layout
@@ -64,6 +66,8 @@ class FormationTask(Task):
         Weight of the optional shaping term (default 0, see the module doc).
     localization_weight : float
         Weight of the optional localization term (default 0, see the module doc).
+    localization_term : {"unseen", "estimate"}
+        What the term charges (:mod:`swarm_env.tasks.localization_term`), default "unseen".
     radius_m : float
         Circle radius (circle only), default 0.8 m.
     spacing_m : float
@@ -82,15 +86,14 @@ class FormationTask(Task):
         spacing_weight: float | None = None,
         progress_weight: float = 0.0,
         localization_weight: float = 0.0,
+        localization_term: str = "unseen",
         **params: Any,
     ) -> None:
         super().__init__(**params)
         self.shape = check_choice(self.name, "shape", shape, SHAPES)
         self.progress_weight = check_param(self.name, "progress_weight", progress_weight, 0.0, 1e3)
-        self.localization_weight = check_param(
-            self.name, "localization_weight", localization_weight, 0.0, 1e3
-        )
-        self._unseen: list[float] = []
+        self.localization = LocalizationTerm(self.name, localization_weight, localization_term)
+        self.localization_weight = self.localization.weight
         self._previous: np.ndarray | None = None
         if self.shape == "circle":
             if spacing_m is not None:
@@ -159,7 +162,7 @@ class FormationTask(Task):
     ) -> None:
         self._errors = []
         self._spacing_errors = []
-        self._unseen = []
+        self.localization.reset()
         self._previous = None
         if truth is not None:
             shape_err, spacing_err = self.errors(truth.poses[:, :2])
@@ -188,11 +191,7 @@ class FormationTask(Task):
         if self.progress_weight and self._previous is not None and len(self._previous) == len(err):
             reward = reward + self.progress_weight * (self._previous - err)
         self._previous = err
-        if self.localization_weight:
-            unseen = unseen_fraction(truth)
-            self._unseen.append(float(unseen.mean()))
-            reward = reward - self.localization_weight * unseen
-        return reward
+        return reward - self.localization.penalty(truth)
 
     def critic_features(self, truth: GroundTruth) -> np.ndarray:
         xy = truth.poses[:, :2]
@@ -211,8 +210,15 @@ class FormationTask(Task):
             "final_formation_error_m": float(np.mean(self._errors[-tail:])),
             "spacing_error_m": float(np.mean(self._spacing_errors)),
             "final_spacing_error_m": float(np.mean(self._spacing_errors[-tail:])),
-            **({"unseen_fraction": float(np.mean(self._unseen))} if self._unseen else {}),
+            **self.localization.metrics(),
         }
+
+    @property
+    def needs_estimates(self) -> bool:
+        return self.localization.needs_estimates
+
+    def observe_estimates(self, table: np.ndarray, counts: np.ndarray) -> None:
+        self.localization.observe_estimates(table, counts)
 
 
 def target_chord(radius_m: float, n: int) -> float:

@@ -176,3 +176,32 @@ def test_policy_kind_names_how_the_residual_acts():
     assert policy_kind(add) == "residual PPO (scripted:formation + learned correction)"
     gain = {**add, "residual_mode": "gain"}
     assert policy_kind(gain) == "residual PPO (scripted:formation x learned gain)"
+
+
+ESTIMATE_TERM = {"localization_weight": 1.0, "localization_term": "estimate"}
+
+
+@pytest.mark.parametrize("spec", ["scripted:wander", "scripted:formation-known-n@truth"])
+def test_score_keeps_the_filters_on_when_the_reward_scores_the_estimate(spec):
+    # Policies that read no estimate (wander; a controller on the truth) switch the env's
+    # filters off, but a localization term on the estimate needs them: scored, not refused.
+    from agents.sb3.report import score
+
+    kwargs = {"preset": "lab-3m-4", "task": "formation", "task_params": ESTIMATE_TERM}
+    out = score(spec, {**kwargs, "max_steps": 4}, [0])
+    assert 0.0 <= out["per_seed"][0]["mislocalized_fraction"] <= 1.0
+
+
+def test_evaluate_keeps_the_filters_on_when_the_reward_scores_the_estimate():
+    from swarm_phd.evaluate import evaluate_localization
+
+    out = evaluate_localization(
+        "lab-3m-4",
+        0.5,
+        ["phd-lc"],
+        [0],
+        policy="scripted:wander",
+        task="formation",
+        task_params=ESTIMATE_TERM,
+    )
+    assert 0.0 <= out["task"]["mislocalized_fraction"] <= 1.0

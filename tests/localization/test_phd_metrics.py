@@ -51,6 +51,30 @@ def test_closest_component_error_ignores_light_components_and_is_inf_safe():
     assert metrics.in_range_mask([[1.0, 1.0], [1.5, 1.5]]).tolist() == [True, False]
 
 
+def test_closest_component_errors_padded_is_the_per_robot_reference_and_the_seed_scorer():
+    # Every robot at once must give closest_component_errors robot by robot, and the errors
+    # SeedScorer.update scores on the pairs in range: the localization term and the evaluation
+    # share one matching rule (weight > 0.1, closest component).
+    rng = np.random.default_rng(7)
+    r, c = 5, 6
+    counts = np.array([0, 1, 3, 6, 4])
+    weights = np.where(np.arange(c) < counts[:, None], rng.uniform(0, 1, (r, c)), 0.0)
+    means = rng.uniform(-2, 2, (r, c, 2))
+    rel = rng.uniform(-2, 2, (r, r, 2))
+    err = metrics.closest_component_errors_padded(rel, weights, means, 0.1)
+    assert err.shape == (r, r)
+    for i in range(r):
+        k = counts[i]
+        mix = GaussianMixture(weights[i, :k], means[i, :k], np.tile(np.eye(2), (k, 1, 1)))
+        np.testing.assert_allclose(err[i], metrics.closest_component_errors(rel[i], mix))
+    assert np.isinf(err[0]).all()  # no component at all
+    in_range = metrics.in_range_pairs(rel, 2.0)
+    scored = metrics.SeedScorer(r, range_m=2.0).update(rel, in_range, weights, means)
+    np.testing.assert_allclose(scored[in_range], err[in_range])
+    empty = metrics.closest_component_errors_padded(rel, np.zeros((r, 0)), np.zeros((r, 0, 2)))
+    assert empty.shape == (r, r) and np.isinf(empty).all()
+
+
 def test_scorer_accumulates_percentages_and_cardinality():
     scorer = metrics.LocalizationScorer()
     good = GaussianMixture(np.array([1.0]), np.array([[1.0, 0.0]]), np.eye(2)[None] * 0.01)

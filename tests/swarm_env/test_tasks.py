@@ -400,3 +400,90 @@ def test_localization_term_in_the_simulator():
     expected = -(shape_err + env.task.spacing_weight * spacing_err) - unseen_fraction(t)
     np.testing.assert_allclose([rewards[a] for a in env.possible_agents], expected, rtol=1e-6)
     assert 0.0 <= env.task.metrics()["unseen_fraction"] <= 1.0
+
+
+# ------------------------------------------------------------------ estimate term
+def _table(rows_per_robot, width=3):
+    """A padded (6, R, width) table and counts from per-robot ``[(w, x, y), ...]``."""
+    table = np.zeros((6, len(rows_per_robot), width))
+    counts = np.array([len(rows) for rows in rows_per_robot])
+    for r, rows in enumerate(rows_per_robot):
+        for k, (w, x, y) in enumerate(rows):
+            table[:3, r, k] = w, x, y
+    return table, counts
+
+
+def _estimate_case():
+    # Robots at (0, 0) yaw 0, (1, 0) yaw 0 and (0, 1) yaw pi/2. In robot 2's frame (x along
+    # world +y), teammate 0 is at (-1, 0) and teammate 1 at (-1, -1).
+    t = truth([[0, 0], [1, 0], [0, 1]], yaw=[0, 0, math.pi / 2])
+    table, counts = _table(
+        [
+            # robot 0: teammate 1 exact; teammate 2 (0, 1) 0.4 m off -> 1 of 2 misplaced
+            [(1.0, 1.0, 0.0), (1.0, 0.0, 1.4)],
+            # robot 1: teammate 0 (-1, 0) only by a light component (0.05 <= 0.1), teammate 2
+            # (-1, 1) exact -> 1 of 2
+            [(0.05, -1.0, 0.0), (0.5, -1.0, 1.0)],
+            # robot 2: 0.1 m and 0.25 m off -> none
+            [(0.9, -1.0, 0.1), (1.0, -1.0, -1.25)],
+        ]
+    )
+    table[:3, 1, 2] = 1.0, -1.0, 0.0  # past robot 1's count: padding, must not count
+    return t, table, counts
+
+
+def test_mislocalized_fraction_hand_computed():
+    from swarm_env.tasks.localization_term import mislocalized_fraction
+
+    t, table, counts = _estimate_case()
+    np.testing.assert_allclose(mislocalized_fraction(t, table, counts), [0.5, 0.5, 0.0])
+    # Extra task robots after the R filtered ones are not teammates.
+    t_extra = dataclasses.replace(t, poses=np.r_[t.poses, [[0.5, 0.5, 0.0]]])
+    np.testing.assert_allclose(mislocalized_fraction(t_extra, table, counts), [0.5, 0.5, 0.0])
+    lone_table, lone_counts = _table([[]])
+    assert mislocalized_fraction(truth([[0, 0]]), lone_table, lone_counts).tolist() == [0.0]
+
+
+@pytest.mark.parametrize("name", ["formation", "exploration"])
+def test_estimate_term_subtracts_the_mislocalized_fraction(name):
+    t, table, counts = _estimate_case()
+    plain = make_task(name)
+    weighted = make_task(name, localization_weight=2.0, localization_term="estimate")
+    assert weighted.needs_estimates and not plain.needs_estimates
+    assert not make_task(name, localization_term="estimate").needs_estimates  # weight 0: off
+    for task in (plain, weighted):
+        task.reset(t, RNG, ARENA)
+    base = plain.rewards(t, np.zeros((3, 2)))
+    weighted.observe_estimates(table, counts)
+    np.testing.assert_allclose(
+        weighted.rewards(t, np.zeros((3, 2))), base - 2.0 * np.array([0.5, 0.5, 0.0])
+    )
+    assert weighted.metrics()["mislocalized_fraction"] == pytest.approx(1 / 3)
+    assert "unseen_fraction" not in weighted.metrics()
+    # Each reward needs this step's estimate: a stale one is refused, not reused.
+    with pytest.raises(RuntimeError, match="estimate"):
+        weighted.rewards(t, np.zeros((3, 2)))
+    with pytest.raises(ValueError, match="localization_term"):
+        make_task(name, localization_weight=1.0, localization_term="gospa")
+
+
+def test_estimate_term_in_the_simulator():
+    # The env hands its localizer's tables to the task after the update: the reward is the
+    # plain task's minus w * the fraction the robot's own PHD misplaces.
+    from swarm_env.tasks.localization_term import mislocalized_fraction
+
+    params = {"localization_weight": 1.0, "localization_term": "estimate"}
+    env = parallel_env("lab-3m-4", task="formation", task_params=params)
+    env.reset(seed=3)
+    for _ in range(20):
+        _, rewards, _, _, _ = env.step({a: np.array([0.1, 0.2]) for a in env.agents})
+    t = env.last_world_step.truth
+    shape_err, spacing_err = env.task.errors(t.poses[:, :2])
+    lost = mislocalized_fraction(t, *env.localizer.padded_tables())
+    expected = -(shape_err + env.task.spacing_weight * spacing_err) - lost
+    np.testing.assert_allclose([rewards[a] for a in env.possible_agents], expected, rtol=1e-5)
+    assert 0.0 <= env.task.metrics()["mislocalized_fraction"] <= 1.0
+    with pytest.raises(ValueError, match="localize=False"):
+        parallel_env(
+            "lab-3m-4", task="formation", task_params=params, observation="truth", localize=False
+        )
