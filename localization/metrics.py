@@ -51,6 +51,8 @@ from .mixture import GaussianMixture
 
 __all__ = [
     "DEFAULT_RANGE_M",
+    "LARGE_ERROR_M",
+    "MIN_COMPONENT_WEIGHT",
     "GospaResult",
     "ospa",
     "gospa",
@@ -68,6 +70,10 @@ __all__ = [
 
 #: Default "in range" radius: the lidar's effective tracking range in the seed (m).
 DEFAULT_RANGE_M = 2.0
+#: The seeds' scoring: a teammate's error is "large" above this (m, seed fig. 7) ...
+LARGE_ERROR_M = 0.30
+#: ... measured to its closest component of weight (or existence) above this.
+MIN_COMPONENT_WEIGHT = 0.1
 
 
 def _points(value: np.ndarray, name: str) -> np.ndarray:
@@ -245,7 +251,7 @@ def in_range_mask(relative_positions: np.ndarray, range_m: float = DEFAULT_RANGE
 
 
 def closest_component_errors(
-    truth: np.ndarray, mixture: GaussianMixture, min_weight: float = 0.1
+    truth: np.ndarray, mixture: GaussianMixture, min_weight: float = MIN_COMPONENT_WEIGHT
 ) -> np.ndarray:
     """Seed per-robot error: distance from each true neighbour to the closest component.
 
@@ -273,7 +279,10 @@ def closest_component_errors(
 
 
 def closest_component_errors_padded(
-    points: np.ndarray, weights: np.ndarray, means: np.ndarray, min_weight: float = 0.1
+    points: np.ndarray,
+    weights: np.ndarray,
+    means: np.ndarray,
+    min_weight: float = MIN_COMPONENT_WEIGHT,
 ) -> np.ndarray:
     """:func:`closest_component_errors` of every robot at once (the matching rule of
     :meth:`SeedScorer.update`).
@@ -370,9 +379,9 @@ class LocalizationScorer:
 
     n_observers: int | None = None
     _: KW_ONLY
-    error_threshold_m: float = 0.30
+    error_threshold_m: float = LARGE_ERROR_M
     accurate_threshold_m: float = 0.10
-    min_weight: float = 0.1
+    min_weight: float = MIN_COMPONENT_WEIGHT
     cardinality_range_m: float | None = DEFAULT_RANGE_M
     extraction_threshold: float = 0.5
     gospa_c: float = 1.0
@@ -692,10 +701,10 @@ class SeedScorer:
         range_m: float = DEFAULT_RANGE_M,
         *,
         trace_observer: int | None = 0,
-        error_threshold_m: float = 0.30,
+        error_threshold_m: float = LARGE_ERROR_M,
         accurate_threshold_m: float = 0.10,
         bearing_threshold_deg: float = 7.0,
-        min_weight: float = 0.1,
+        min_weight: float = MIN_COMPONENT_WEIGHT,
         over_pct: float = 25.0,
         gospa_c: float = 1.0,
         gospa_p: float = 2.0,

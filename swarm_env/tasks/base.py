@@ -15,6 +15,7 @@ import numpy as np
 from swarm_core.world import GroundTruth
 
 if TYPE_CHECKING:
+    from swarm_env.tasks.localization_term import LocalizationTerm
     from swarm_env.world.arena import Layout
 
 
@@ -62,13 +63,20 @@ class Task:
         """Reward per agent, shape (N,). ``actions`` are the clipped commands, shape (N, 2)."""
         return np.zeros(len(actions))
 
-    #: Whether :meth:`observe_estimates` must be called before every :meth:`rewards`.
-    needs_estimates = False
+    #: The task's optional localization term (tasks that offer ``localization_weight``).
+    localization: LocalizationTerm | None = None
+
+    @property
+    def needs_estimates(self) -> bool:
+        """Whether :meth:`observe_estimates` must be called before every :meth:`rewards`."""
+        return self.localization is not None and self.localization.needs_estimates
 
     def observe_estimates(self, table: np.ndarray, counts: np.ndarray) -> None:
         """The env's localizer after this step's update, ``padded_tables()``: ``table``
         (6, R, C), ``counts`` (R,), each robot's components in its own frame. Called just
         before :meth:`rewards` when :attr:`needs_estimates`."""
+        if self.localization is not None:
+            self.localization.observe_estimates(table, counts)
 
     def terminated(self, truth: GroundTruth | None) -> np.ndarray | bool:
         """Termination per agent (N,) bool, or one bool for the whole swarm."""

@@ -178,10 +178,3 @@ class ExplorationTask(Task):
             "collision_rate": self._collision_steps / max(1, self._robot_steps),
             **self.localization.metrics(),
         }
-
-    @property
-    def needs_estimates(self) -> bool:
-        return self.localization.needs_estimates
-
-    def observe_estimates(self, table: np.ndarray, counts: np.ndarray) -> None:
-        self.localization.observe_estimates(table, counts)

@@ -213,13 +213,6 @@ class FormationTask(Task):
             **self.localization.metrics(),
         }
 
-    @property
-    def needs_estimates(self) -> bool:
-        return self.localization.needs_estimates
-
-    def observe_estimates(self, table: np.ndarray, counts: np.ndarray) -> None:
-        self.localization.observe_estimates(table, counts)
-
 
 def target_chord(radius_m: float, n: int) -> float:
     """Distance between neighbours of ``n`` robots evenly spread on a circle (0 for n < 2)."""

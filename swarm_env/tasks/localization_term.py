@@ -22,23 +22,24 @@ from typing import Any
 
 import numpy as np
 
-from localization.metrics import closest_component_errors_padded, weights_means_from_table
+from localization.metrics import (
+    LARGE_ERROR_M,
+    MIN_COMPONENT_WEIGHT,
+    closest_component_errors_padded,
+    weights_means_from_table,
+)
 from swarm_core.world import relative_positions
 from swarm_env.tasks.common import check_choice, check_param, unseen_fraction
 
 LOCALIZATION_TERMS = ("unseen", "estimate")
-
-#: The seed's per-pair scoring: an error above 0.30 m, components of weight > 0.1 only.
-ERROR_THRESHOLD_M = 0.30
-MIN_WEIGHT = 0.1
 
 
 def mislocalized_fraction(
     truth: Any,
     table: np.ndarray,
     counts: np.ndarray,
-    threshold_m: float = ERROR_THRESHOLD_M,
-    min_weight: float = MIN_WEIGHT,
+    threshold_m: float = LARGE_ERROR_M,
+    min_weight: float = MIN_COMPONENT_WEIGHT,
 ) -> np.ndarray:
     """Per robot i: the fraction of its R - 1 teammates with no component of weight
     ``> min_weight`` within ``threshold_m`` of their true position, shape (R,), in [0, 1]
