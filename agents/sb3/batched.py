@@ -158,10 +158,24 @@ class BatchedSwarmVecEnv(VecEnv):
         return self._high.copy()
 
     # ------------------------------------------------------------------ VecEnv API
-    def reset(self) -> np.ndarray:
+    def reset(self, copy_seeds: Sequence[int] | None = None) -> np.ndarray:
+        """Reset every copy; ``copy_seeds`` (one int per copy) overrides the constructor's
+        seed and :meth:`seed`, e.g. to give two copies the same episode (common random
+        numbers, :mod:`agents.sb3.paired_returns`)."""
         seeds = [None if self._next_seed is None else self._next_seed + k for k in self._copies]
         if any(s is not None for s in self._seeds):  # VecEnv.seed() was called: per entry
             seeds = [self._seeds[k * self.agents_per_copy] for k in self._copies]
+        if copy_seeds is not None:
+            copy_seeds = list(copy_seeds)
+            if len(copy_seeds) != len(self.envs) or not all(
+                isinstance(s, (int, np.integer)) and not isinstance(s, bool) and s >= 0
+                for s in copy_seeds
+            ):
+                raise ValueError(
+                    f"copy_seeds must be {len(self.envs)} ints >= 0 (one per copy), "
+                    f"got {copy_seeds!r}"
+                )
+            seeds = [int(s) for s in copy_seeds]
         self._next_seed = None
         obs = self._reset_copies(self._copies, seeds)
         self._reset_seeds()

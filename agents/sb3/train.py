@@ -42,7 +42,8 @@ EXIT_CODES = {"SIGINT": 130, "SIGTERM": 143}
 DEFAULT_MAX_STEPS = 300
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
+def add_env_arguments(parser: argparse.ArgumentParser) -> None:
+    """The env's flags (task, observation, preset, overrides): :func:`env_kwargs_from_args`."""
     parser.add_argument("--task", default="formation", help="task name (see swarm_env.tasks)")
     parser.add_argument(
         "--task-params",
@@ -63,6 +64,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="{}",
         help='JSON dict of further SwarmConfig overrides, e.g. \'{"arena": {"n_boxes": 0}}\'',
     )
+    parser.add_argument(
+        "--lidar-sectors",
+        type=int,
+        default=None,
+        help="add the robot's own lidar scan as S sector minima to the observation "
+        "(SwarmConfig.lidar_sectors; default: the preset's, 0)",
+    )
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_env_arguments(parser)
     parser.add_argument("--timesteps", type=int, default=200_000, help="agent transitions")
     parser.add_argument("--out", required=True, help="run directory, e.g. runs/formation_phd")
     parser.add_argument("--seed", type=int, default=0, help="random seed")
@@ -162,13 +174,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=None,
         help="with --recurrent: LSTM hidden units (default 64)",
-    )
-    parser.add_argument(
-        "--lidar-sectors",
-        type=int,
-        default=None,
-        help="add the robot's own lidar scan as S sector minima to the observation "
-        "(SwarmConfig.lidar_sectors; default: the preset's, 0)",
     )
     parser.add_argument(
         "--bc-steps", type=int, default=40_000, help="demonstration agent transitions"
