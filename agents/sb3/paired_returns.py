@@ -1,7 +1,7 @@
 """How much return a change of a scripted base's gains is worth, against the return's noise.
 
     python -m agents.sb3.paired_returns --base scripted:formation-known-n --speed-gains 2 1 \\
-        --seeds 300-339 --task-params '{"progress_weight": 10}' --lidar-sectors 16
+        --preset lab-3m-4 --seeds 300-339 --task-params '{"progress_weight": 10}'
 
 For every seed two copies of the env run the same episode (same seed: the same layout, start
 poses and random draws until the two closed loops part) under the base controller, one with
@@ -12,9 +12,12 @@ the two arms share cancels in their difference. Reported, on the per-agent train
 summed over the episode (what PPO's returns are made of, undiscounted):
 
 - each arm's mean per-agent return, and the paired difference A − B with its SE over seeds;
-- ``agent_return_sd``: the spread of one arm's per-agent return (the noise one agent-episode
-  carries), and ``agent_return_correlation`` between the arms (0: pairing removes nothing;
-  the variance of a paired difference is ``2 (1 - rho)`` times one arm's);
+- ``agent_return_sd``: the spread of a per-agent return (the noise one agent-episode carries,
+  pooled over both arms), and ``agent_return_correlation`` between the arms' per-agent
+  returns (0: pairing removes nothing; 1: the arms move together);
+- ``episode_return_sd`` and ``episode_return_correlation``: the same for the episode's mean
+  over its agents, the level the SE and the episode counts below are taken at (a paired
+  difference's variance is ``2 (1 - rho)`` times one arm's, with this ``rho``);
 - ``episodes_for_2se_paired`` / ``_unpaired``: the episodes (per arm) for the difference of
   episode means to reach 2 SE, with and without the pairing. A policy gradient sees a smaller
   change than A vs B (its exploration noise), with less pairing than this.
@@ -56,12 +59,15 @@ def paired_returns(
     from agents.sb3.batched import BatchedSwarmVecEnv
     from agents.sb3.residual import check_residual
 
-    check_residual(base)
+    check_residual(base, field="base")
     corrections = [
         _gain_corrections(f"gains_{arm}", g) for arm, g in (("a", gains_a), ("b", gains_b))
     ]
-    if not seeds:
-        raise ValueError("seeds must not be empty")
+    seeds = list(seeds)
+    if len(seeds) < 2 or not all(
+        isinstance(s, (int, np.integer)) and not isinstance(s, bool) and s >= 0 for s in seeds
+    ):
+        raise ValueError(f"seeds must be at least 2 ints >= 0, got {seeds!r}")
     n_pairs = min(_SEEDS_PER_CALL, len(seeds))
     venv = BatchedSwarmVecEnv(
         env_kwargs, 2 * n_pairs, seed=None, residual=base, residual_mode="gain"
@@ -111,6 +117,7 @@ def summarise_pairs(returns_a: np.ndarray, returns_b: np.ndarray) -> dict[str, f
         "agent_return_sd": float(np.sqrt(0.5 * (a.var(ddof=1) + b.var(ddof=1)))),
         "agent_return_correlation": float(np.corrcoef(a.ravel(), b.ravel())[0, 1]),
         "episode_return_sd": sd_episode,
+        "episode_return_correlation": float(np.corrcoef(a.mean(axis=1), b.mean(axis=1))[0, 1]),
         "episodes_for_2se_paired": episodes(sd_paired),
         # Two independent arms: the difference's variance is twice one arm's.
         "episodes_for_2se_unpaired": episodes(math.sqrt(2.0) * sd_episode),
@@ -119,7 +126,10 @@ def summarise_pairs(returns_a: np.ndarray, returns_b: np.ndarray) -> dict[str, f
 
 def _gain_corrections(name: str, gains: tuple[float, float]) -> np.ndarray:
     """The gain residual's correction ``log_4(gain)`` per command; refuses what it cannot send."""
-    g = np.asarray(gains, dtype=np.float64)
+    try:
+        g = np.asarray(gains, dtype=np.float64)
+    except (TypeError, ValueError):
+        g = np.full(1, np.nan)  # not numbers: refused below with the field's name
     if (
         g.shape != (2,)
         or not np.all(np.isfinite(g))
@@ -156,8 +166,9 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"{args.base} x gains {gains_a} - x gains {gains_b}, {len(seeds)} seeds: per-agent return "
         f"{summary['difference']:+.2f} (SE {summary['difference_se']:.2f}); one agent-episode's "
-        f"sd {summary['agent_return_sd']:.1f}, arms' correlation "
-        f"{summary['agent_return_correlation']:.2f}; episodes for 2 SE: "
+        f"sd {summary['agent_return_sd']:.1f}; arms' correlation "
+        f"{summary['agent_return_correlation']:.2f} per agent, "
+        f"{summary['episode_return_correlation']:.2f} per episode; episodes for 2 SE: "
         f"{summary['episodes_for_2se_paired']:.0f} paired, "
         f"{summary['episodes_for_2se_unpaired']:.0f} unpaired",
         flush=True,

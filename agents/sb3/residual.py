@@ -40,16 +40,17 @@ from typing import Any
 import numpy as np
 
 
-def check_residual(spec: Any) -> str:
-    """``spec`` if it names a scripted controller (``"scripted:NAME"``), else ``ValueError``."""
+def check_residual(spec: Any, field: str = "--residual") -> str:
+    """``spec`` if it names a scripted controller (``"scripted:NAME"``), else ``ValueError``
+    naming ``field``."""
     from agents.policies import SCRIPTED
 
     if not isinstance(spec, str) or not spec.startswith("scripted:"):
-        raise ValueError(f"--residual must be 'scripted:NAME', got {spec!r}")
+        raise ValueError(f"{field} must be 'scripted:NAME', got {spec!r}")
     name = spec.split(":", 1)[1]
     if name not in SCRIPTED:
         raise ValueError(
-            f"--residual: unknown scripted policy {name!r}; choose from {sorted(SCRIPTED)}"
+            f"{field}: unknown scripted policy {name!r}; choose from {sorted(SCRIPTED)}"
         )
     return spec
 

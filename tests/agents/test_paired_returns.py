@@ -36,6 +36,12 @@ def test_summary_by_hand():
     # Per-agent variances 20/3 and 34/15.
     assert s["agent_return_sd"] == pytest.approx(math.sqrt((20 / 3 + 34 / 15) / 2))
     assert s["return_a"] == pytest.approx(20 / 6) and s["return_b"] == pytest.approx(14 / 6)
+    # Episode means (2, 6, 2) and (1, 4, 2): covariance 10/3 over sqrt(48/9 x 21/9).
+    assert s["episode_return_correlation"] == pytest.approx((10 / 3) / math.sqrt(48 * 21 / 81))
+    assert s["agent_return_correlation"] == pytest.approx(np.corrcoef(a.ravel(), b.ravel())[0, 1])
+    same = pr.summarise_pairs(a, a)  # no difference: no number of episodes resolves it
+    assert same["difference"] == 0.0 and same["episodes_for_2se_paired"] == math.inf
+    assert same["agent_return_correlation"] == pytest.approx(1.0)
     with pytest.raises(ValueError, match="seeds >= 2"):
         pr.summarise_pairs(a[:1], b[:1])
 
@@ -56,13 +62,35 @@ def test_equal_gains_give_equal_returns_and_a_gain_changes_only_its_arm():
     assert a2.mean() > a.mean()
 
 
+def test_an_arm_is_the_base_run_alone():
+    """Arm B at gains (1, 1) sums the same rewards, final step included, as the residual base
+    with a zero correction in a VecEnv of its own, reset with that seed."""
+    seeds = [5, 9]
+    _, b = pr.paired_returns(KWARGS, BASE, (0.5, 2.0), (1.0, 1.0), seeds)
+    for row, seed in zip(b, seeds, strict=True):
+        venv = BatchedSwarmVecEnv(KWARGS, 1, seed=seed, residual=BASE, residual_mode="gain")
+        venv.reset()
+        total = np.zeros(venv.num_envs)
+        for _ in range(KWARGS["max_steps"]):
+            _, rewards, dones, _ = venv.step(np.zeros((venv.num_envs, 2), np.float32))
+            total += rewards
+        assert dones.all()
+        venv.close()
+        np.testing.assert_array_equal(row, total)
+
+
 def test_bad_input_is_refused():
     with pytest.raises(ValueError, match="gains_a"):
         pr.paired_returns(KWARGS, BASE, (5.0, 1.0), (1.0, 1.0), [0, 1])
     with pytest.raises(ValueError, match="gains_b"):
         pr.paired_returns(KWARGS, BASE, (1.0, 1.0), (1.0, float("nan")), [0, 1])
-    with pytest.raises(ValueError, match="scripted"):
+    with pytest.raises(ValueError, match="gains_a"):
+        pr.paired_returns(KWARGS, BASE, ("fast", 1.0), (1.0, 1.0), [0, 1])
+    with pytest.raises(ValueError, match="base must be 'scripted:NAME'"):
         pr.paired_returns(KWARGS, "random", (1.0, 1.0), (1.0, 1.0), [0, 1])
+    for seeds in ([3], [0, -1], [0, 1.5]):
+        with pytest.raises(ValueError, match="seeds must be at least 2 ints"):
+            pr.paired_returns(KWARGS, BASE, (1.0, 1.0), (1.0, 1.0), seeds)
     venv = BatchedSwarmVecEnv(KWARGS, 2, seed=0)
     with pytest.raises(ValueError, match="copy_seeds must be 2 ints"):
         venv.reset(copy_seeds=[1])
