@@ -91,8 +91,12 @@ def policy_observation(spec: str) -> str | None:
     if spec.startswith(("scripted:", "privileged:")):
         from agents.sb3.privileged import TEACHERS
 
+        name = spec.split(":", 1)[1]
+        if spec.startswith("privileged:") and name.endswith("@truth"):
+            # The controller on the true table, inside an env on the estimate.
+            return policy_observation("scripted:" + name[: -len("@truth")])
         registry = SCRIPTED if spec.startswith("scripted:") else TEACHERS
-        factory = registry.get(spec.split(":", 1)[1])
+        factory = registry.get(name)
         factory = getattr(factory, "func", factory)  # a functools.partial of a for_env
         modes = getattr(getattr(factory, "__self__", None), "observation_modes", None)
         return modes[0] if modes else None

@@ -11,8 +11,18 @@ A student distilled from it (``swarm-phd train --residual scripted:formation --w
 privileged:formation``: the correction is fitted to ``teacher - scripted`` by DAgger,
 :mod:`agents.sb3.warm_start`) acts on the robot's own observation only.
 
-Teachers are named ``privileged:NAME`` (:data:`TEACHERS`); they read ``infos[agent]["truth"]
-["neighbours_xy"]`` (true positions of every robot in the agent's frame, itself at the origin).
+A second kind of teacher, ``privileged:NAME@truth`` (any controller ``NAME`` of
+:data:`agents.policies.SCRIPTED`), runs ``scripted:NAME`` on the table of the true neighbours
+within the lidar's range, the table ``observation="truth"`` gives, while the env (and the
+student) stays on the estimate. It is what ``scripted:NAME@truth`` scores, as a teacher whose
+labels fall on the states the student reaches from its own estimate. Its correction of the
+base ``scripted:NAME`` is what the estimate costs that controller: lost teammates, mostly
+(``docs/results.md``, rounds 12 and 16).
+
+Teachers are named ``privileged:NAME`` (:data:`TEACHERS`) or ``privileged:NAME@truth``; they
+read ``infos[agent]["truth"]["neighbours_xy"]`` (true positions of every robot in the agent's
+frame, itself at the origin) and, for ``@truth``, ``infos[agent]["truth"]["in_range"]
+["lidar"]`` (which robots are within the lidar's range).
 """
 
 from __future__ import annotations
@@ -22,9 +32,16 @@ from typing import Any
 import numpy as np
 
 from agents.scripted import TABLE_COLUMNS, FormationPolicy
-from swarm_env.observation import ESTIMATE_COLUMNS
+from swarm_env.observation import ESTIMATE_COLUMNS, truth_table
 
-__all__ = ["OracleFormationTeacher", "TEACHERS", "drop_spurious_rows", "load_teacher"]
+__all__ = [
+    "OracleFormationTeacher",
+    "TEACHERS",
+    "TruthTableTeacher",
+    "drop_spurious_rows",
+    "load_teacher",
+    "with_truth_table",
+]
 
 _X, _Y, _VALID = (ESTIMATE_COLUMNS.index(c) for c in ("x_m", "y_m", "valid"))
 
@@ -47,6 +64,59 @@ def drop_spurious_rows(
     d = np.linalg.norm(table[:, None, [_X, _Y]] - mates[None, :, :], axis=2).min(axis=1)
     table[d > match_m, _VALID] = 0.0
     return out
+
+
+def with_truth_table(
+    obs: np.ndarray, neighbours_xy: np.ndarray, in_range: np.ndarray, top_k: int
+) -> np.ndarray:
+    """A copy of a ``"phd"`` observation whose neighbour table is replaced by the true
+    neighbours within range, nearest first (:func:`swarm_env.observation.truth_table`: the
+    rows ``observation="truth"`` gives); every other entry (odometry, lidar sectors, task
+    features) is kept.
+
+    ``obs`` (D,); ``neighbours_xy`` (N, 2) every robot's true position in the agent's body
+    frame (m), the agent itself at the origin; ``in_range`` (N,) bool, False for the agent."""
+    out = np.array(obs, dtype=np.float32, copy=True)
+    mates = np.asarray(neighbours_xy, dtype=np.float64).reshape(-1, 2)
+    mask = np.asarray(in_range, dtype=bool).reshape(-1)
+    if mask.shape[0] != mates.shape[0]:
+        raise ValueError(f"truth in_range has {mask.shape[0]} entries for {mates.shape[0]} robots")
+    out[: TABLE_COLUMNS * top_k] = truth_table(mates[mask], top_k).reshape(-1)
+    return out
+
+
+class TruthTableTeacher:
+    """``privileged:NAME@truth``: the scripted controller ``NAME`` acting on the true
+    neighbours within its lidar's range instead of its estimate (module doc).
+
+    Wraps a built controller; its per-agent state, ``reset`` and ``wandering`` are the
+    controller's. Refuses to run without ground truth in ``infos`` (a real robot has none)."""
+
+    def __init__(self, controller: Any, name: str) -> None:
+        self.controller = controller
+        self.name = f"{name}@truth"
+        self.top_k = controller.top_k
+
+    @property
+    def wandering(self) -> Any:
+        return self.controller.wandering
+
+    def reset(self, seed: int | None = None) -> None:
+        self.controller.reset(seed)
+
+    def __call__(self, observations, infos):
+        swapped = {}
+        for agent, obs in observations.items():
+            truth = (infos or {}).get(agent, {}).get("truth")
+            if truth is None or "lidar" not in truth.get("in_range", {}):
+                raise ValueError(
+                    f"privileged:{self.name} reads ground truth: infos[{agent!r}] has no "
+                    "'truth' with 'in_range'['lidar']"
+                )
+            swapped[agent] = with_truth_table(
+                obs, truth["neighbours_xy"], truth["in_range"]["lidar"], self.top_k
+            )
+        return self.controller(swapped, infos)
 
 
 class OracleFormationTeacher(FormationPolicy):
@@ -78,13 +148,25 @@ TEACHERS = {"formation": OracleFormationTeacher.for_env}
 
 
 def load_teacher(spec: str, env: Any) -> Any:
-    """A teacher for ``env``: ``"scripted:NAME"`` (:func:`agents.policies.load_policy`) or
-    ``"privileged:NAME"`` (:data:`TEACHERS`)."""
+    """A teacher for ``env``: ``"scripted:NAME"`` (:func:`agents.policies.load_policy`),
+    ``"privileged:NAME"`` (:data:`TEACHERS`) or ``"privileged:NAME@truth"``
+    (:class:`TruthTableTeacher` of ``scripted:NAME``)."""
     if isinstance(spec, str) and spec.startswith("privileged:"):
         name = spec.split(":", 1)[1]
+        if name.endswith("@truth"):
+            from agents.policies import SCRIPTED
+
+            base = name[: -len("@truth")]
+            if base not in SCRIPTED:
+                raise ValueError(
+                    f"unknown controller {base!r} in privileged teacher {spec!r}; choose "
+                    f"from {sorted(SCRIPTED)}"
+                )
+            return TruthTableTeacher(SCRIPTED[base](env), base)
         if name not in TEACHERS:
             raise ValueError(
-                f"unknown privileged teacher {name!r}; choose from {sorted(TEACHERS)}"
+                f"unknown privileged teacher {name!r}; choose from {sorted(TEACHERS)} "
+                "or NAME@truth for a scripted controller NAME"
             )
         return TEACHERS[name](env)
     from agents.policies import load_policy

@@ -56,7 +56,9 @@ def score(
     spec = policy_spec
     # A localization term on the estimate needs the filters whatever the policy reads.
     needs = task_needs_estimates(kwargs.get("task", "wander"), kwargs.get("task_params"))
-    if spec.endswith("@truth"):
+    # scripted:NAME@truth runs in an env on the truth; privileged:NAME@truth reads the truth
+    # from its infos, in an env on the estimate (the next branch).
+    if spec.startswith("scripted:") and spec.endswith("@truth"):
         spec = spec[: -len("@truth")]
         kwargs.update(observation="truth", localize=needs)
     elif not spec.endswith(".zip"):

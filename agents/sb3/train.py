@@ -114,9 +114,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="scripted:NAME",
         help="behaviour-clone this teacher (on the same observation) before PPO "
-        "(agents.sb3.warm_start): scripted:NAME, or privileged:NAME (reads ground truth, "
-        "agents.sb3.privileged); with --residual the clone is the correction from the "
-        "scripted base to the teacher",
+        "(agents.sb3.warm_start): scripted:NAME, or privileged:NAME / privileged:NAME@truth "
+        "(read ground truth, agents.sb3.privileged); with --residual the clone is the "
+        "correction from the scripted base to the teacher",
     )
     parser.add_argument(
         "--residual",

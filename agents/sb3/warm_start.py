@@ -53,6 +53,7 @@ __all__ = [
     "collect_demonstrations",
     "fit_actor",
     "actor_mean",
+    "correction_labels",
     "fit_report",
     "warm_start",
     "DEMO_SEED_BASE",
@@ -83,7 +84,8 @@ class Demonstrations:
 
 def _teacher_infos(env: Any) -> dict[str, dict[str, Any]]:
     """What a teacher reads from ``infos``: each agent's latest sensor records, and (for the
-    privileged teachers) the true positions of every robot in its frame."""
+    privileged teachers) the true positions of every robot in its frame and which of them each
+    sensor has in range (the env's own ``infos[agent]["truth"]`` entries of those names)."""
     from swarm_env.env import measurements_as_dict
 
     step = env.last_world_step
@@ -92,8 +94,10 @@ def _teacher_infos(env: Any) -> dict[str, dict[str, Any]]:
     for a in env.agents:
         infos[a] = {"measurements": measurements_as_dict(step.measurements.get(a, empty))}
         if step.truth is not None:
+            i = env.possible_agents.index(a)
             infos[a]["truth"] = {
-                "neighbours_xy": step.truth.relative_xy[env.possible_agents.index(a)]
+                "neighbours_xy": step.truth.relative_xy[i],
+                "in_range": {k: v[i] for k, v in step.truth.in_range.items()},
             }
     return infos
 
@@ -166,16 +170,13 @@ def collect_demonstrations(
             for k, env in enumerate(venv.envs):
                 rows = obs[k * n : (k + 1) * n, :d_env]  # the env's own observation
                 act = teachers[k](dict(zip(env.agents, rows, strict=True)), _teacher_infos(env))
-                labels[k * n : (k + 1) * n] = [act[a] for a in env.agents]
-                if residual is not None:
-                    # Where the teacher random-walks it draws from its own generator, not the
-                    # base's: no correction to learn there (label 0).
-                    base = venv.scripted_commands(k)
-                    labels[k * n : (k + 1) * n] = [
-                        np.zeros(2) if a in teachers[k].wandering else act[a] - base[a]
-                        for a in env.agents
-                    ]
-            labels = np.clip(labels / high, -1.0, 1.0).astype(np.float32)
+                if residual is None:  # the teacher's command, in unit scale
+                    unit = np.array([act[a] for a in env.agents], np.float32) / high
+                    labels[k * n : (k + 1) * n] = np.clip(unit, -1.0, 1.0)
+                else:
+                    labels[k * n : (k + 1) * n] = correction_labels(
+                        act, venv.scripted_commands(k), teachers[k].wandering, env.agents, high
+                    )
             all_obs.append(obs.astype(np.float32))
             all_act.append(labels)
             drive = labels if learner is None else np.asarray(learner(obs), np.float32)
@@ -186,6 +187,26 @@ def collect_demonstrations(
         return Demonstrations(np.concatenate(all_obs), np.concatenate(all_act))
     finally:
         venv.close()
+
+
+def correction_labels(
+    teacher: dict[str, Any],
+    base: dict[str, Any],
+    wandering: Any,
+    agents: list[str],
+    high: np.ndarray,
+) -> np.ndarray:
+    """Residual distillation labels (A, 2) for ``agents``: the correction that turns the base's
+    command into the teacher's, ``clip((teacher - base) / high, -1, 1)`` (commands
+    ``[v_mps, omega_radps]``; ``high`` their bounds), and 0 for the agents in ``wandering``:
+    where the teacher random-walks it draws from its own generator, not the base's, so there
+    is no correction to learn."""
+    # float32 before the division, as the labels of every earlier round were computed.
+    out = np.array(
+        [np.zeros(2) if a in wandering else np.subtract(teacher[a], base[a]) for a in agents],
+        dtype=np.float32,
+    ).reshape(len(agents), 2)
+    return np.clip(out / high, -1.0, 1.0).astype(np.float32)
 
 
 def actor_mean(policy: Any, obs: Any) -> Any:

@@ -9,7 +9,7 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
-from agents.sb3.privileged import drop_spurious_rows, load_teacher  # noqa: E402
+from agents.sb3.privileged import drop_spurious_rows, load_teacher, with_truth_table  # noqa: E402
 from agents.scripted import TABLE_COLUMNS  # noqa: E402
 from swarm_env import parallel_env  # noqa: E402
 from swarm_env.observation import ESTIMATE_COLUMNS  # noqa: E402
@@ -117,3 +117,58 @@ def test_the_teacher_is_a_named_policy_for_scoring():
     teacher = load_policy("privileged:formation", env)
     obs, infos = env.reset(seed=1)
     assert set(teacher(obs, infos)) == set(obs)
+
+
+def test_truth_table_teacher_equals_the_controller_on_the_truth_observation():
+    """`privileged:NAME@truth` inside an env on the estimate commands what `scripted:NAME`
+    commands in the same state on `observation="truth"`: same seed, same world, so the two
+    envs' truth, lidar and odometry agree, and only the table differs."""
+    from agents.policies import load_policy, policy_observation
+
+    name = "formation-known-n-fast"
+    assert policy_observation(f"privileged:{name}@truth") == "phd"
+    on_estimate = parallel_env(**{**KWARGS, "observation": "phd", "max_steps": 40})
+    on_truth = parallel_env(**{**KWARGS, "observation": "truth", "max_steps": 40})
+    teacher = load_policy(f"privileged:{name}@truth", on_estimate)
+    scripted = load_policy(f"scripted:{name}", on_truth)
+    obs_e, infos_e = on_estimate.reset(seed=5)
+    obs_t, infos_t = on_truth.reset(seed=5)
+    teacher.reset(5)
+    scripted.reset(5)
+    k = on_estimate.config.top_k
+    compared = 0
+    while on_estimate.agents:  # the whole episode
+        act_e, act_t = teacher(obs_e, infos_e), scripted(obs_t, infos_t)
+        for agent in obs_e:
+            np.testing.assert_array_equal(act_e[agent], act_t[agent])
+            # The swapped observation is the truth env's, entry for entry.
+            truth = infos_e[agent]["truth"]
+            xy, in_range = truth["neighbours_xy"], truth["in_range"]["lidar"]
+            swapped = with_truth_table(obs_e[agent], xy, in_range, k)
+            np.testing.assert_array_equal(swapped, obs_t[agent])
+            compared += 1
+        # Both envs step with the same commands: their worlds stay identical.
+        obs_e, _, _, _, infos_e = on_estimate.step(act_e)
+        obs_t, _, _, _, infos_t = on_truth.step(act_t)
+        assert on_estimate.agents == on_truth.agents
+    assert compared == 40 * len(on_estimate.possible_agents)
+    obs_e, _ = on_estimate.reset(seed=6)
+    with pytest.raises(ValueError, match="in_range"):
+        teacher(obs_e, {a: {"truth": {"neighbours_xy": np.zeros((4, 2))}} for a in obs_e})
+    with pytest.raises(ValueError, match="unknown controller 'nope'"):
+        load_teacher("privileged:nope@truth", on_estimate)
+
+
+def test_truth_table_teacher_corrects_the_base_where_the_estimate_differs():
+    """The labels of `privileged:NAME@truth` on the base `scripted:NAME` are the corrections the
+    estimate costs: near 0 where the estimate has every teammate within centimetres, large
+    where it has lost one (or not yet found it, early in an episode)."""
+    from agents.sb3.warm_start import collect_demonstrations
+
+    name = "formation-known-n-fast"
+    demos = collect_demonstrations(
+        KWARGS, f"privileged:{name}@truth", 320, n_copies=2, residual=f"scripted:{name}"
+    )
+    assert len(demos) == 320
+    assert np.abs(demos.actions).max() > 0.05
+    assert (np.abs(demos.actions) < 0.02).all(axis=1).any()  # some states: nearly the same
