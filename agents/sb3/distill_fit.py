@@ -5,19 +5,24 @@
 
 The model's scripted base (its zip's ``residual``) drives the robots for every seed, on the
 model's own env, so every policy is asked about the same states: the ones the base reaches.
+With ``--drive student`` the student drives instead: its fit on its own closed-loop states.
 At every agent-step the teacher's label is the warm start's
 (:func:`agents.sb3.warm_start.correction_labels`: ``clip((teacher - base) / high, -1, 1)``,
 unit scale) and the student's answer is its correction (the policy's ``last_correction``).
 Steps where the teacher random-walks are left out (their label is 0 by construction).
 
-Printed per phase (``--phases``, step bounds): the labels' mean magnitude, the squared error
-of answering 0 (the base itself) and of the student, ``R^2 = 1 - student / zero`` (against 0,
-not against the labels' mean, so it says how much of the teacher's correction the student
-carries), and the least-squares slope of the teacher's and the student's command on the
-base's (1: the command follows the base's; 0: unrelated to it). A student whose slope is
-well below 1 where the teacher's is near 0 has learnt to shrink the base's command: the
-mean-squared-optimal answer where the estimate's error is not predictable from the table,
-and not a closed-loop improvement (``docs/results.md``, round 16).
+Printed per phase (``--phases``, step bounds): the labels' mean magnitude; ``R^2 = 1 -
+student / zero``, the share of the labels' mean square the student's correction explains
+(against answering 0, the base itself; a student carrying a fixed fraction ``c`` of every
+label scores ``1 - (1 - c)^2``); the least-squares slopes of the teacher's and the student's
+command on the base's (1: the command follows the base's; 0: unrelated to it; the teacher's
+command is taken as base + label, which the label's clipping at full scale slightly biases);
+and ``R^2`` *beyond the base*: the same share for the part of the label that a straight line
+in the base's command does not explain (both the label and the student's correction with
+their own regression on the base removed). A student with a high ``R^2``, a slope near the
+teacher's and ``R^2`` beyond the base near 0 has learnt how the teacher's command depends on
+the base's (for a teacher that ignores a noisy base: to cancel it), not what else the teacher
+knows (``docs/results.md``, round 16).
 """
 
 from __future__ import annotations
@@ -36,8 +41,11 @@ __all__ = ["collect_fit", "phase_table", "main"]
 DEFAULT_PHASES = (0, 25, 50, 100, 150)
 
 
-def collect_fit(model: str | Path, teacher: str, seeds: list[int]) -> dict[str, np.ndarray]:
-    """Roll out ``model``'s base on ``seeds`` and record, per agent-step (M rows):
+def collect_fit(
+    model: str | Path, teacher: str, seeds: list[int], drive: str = "base"
+) -> dict[str, np.ndarray]:
+    """Roll out ``model``'s base (``drive="base"``) or the model itself (``"student"``) on
+    ``seeds`` and record, per agent-step (M rows):
     ``step`` (M,), ``label`` (M, 2) the teacher's correction, ``correction`` (M, 2) the
     student's, ``base`` (M, 2) the base's command, unit scale (``[v, omega] / high``, clipped),
     and ``wandering`` (M,) bool: the teacher random-walks."""
@@ -47,9 +55,18 @@ def collect_fit(model: str | Path, teacher: str, seeds: list[int]) -> dict[str, 
     from agents.sb3.warm_start import correction_labels
     from swarm_env import parallel_env
 
+    if drive not in ("base", "student"):
+        raise ValueError(f"drive must be 'base' or 'student', got {drive!r}")
     meta = read_metadata(model)
     if not meta.get("residual"):
         raise ValueError(f"{str(model)!r} is not a residual model: it has no scripted base")
+    mode = meta.get("residual_mode", "add")
+    if mode != "add":
+        # A gain residual's correction is an exponent, not comparable with additive labels.
+        raise ValueError(
+            f"{str(model)!r} has residual_mode {mode!r}; distill_fit compares additive "
+            "corrections (residual_mode 'add')"
+        )
     env = parallel_env(**meta["env_kwargs"])
     try:
         student = load_sb3_policy(model, env)
@@ -66,7 +83,7 @@ def collect_fit(model: str | Path, teacher: str, seeds: list[int]) -> dict[str, 
             step = 0
             while env.agents:
                 commands = base(obs, infos)
-                student(obs, infos)
+                acted = student(obs, infos)
                 taught = tutor(obs, infos)
                 agents = list(obs)
                 out["label"].append(
@@ -76,7 +93,7 @@ def collect_fit(model: str | Path, teacher: str, seeds: list[int]) -> dict[str, 
                 out["base"].append(base_in_unit_scale([commands[a] for a in agents], high))
                 out["wandering"].append([a in tutor.wandering for a in agents])
                 out["step"].append(np.full(len(agents), step))
-                obs, _, _, _, infos = env.step(commands)
+                obs, _, _, _, infos = env.step(commands if drive == "base" else acted)
                 step += 1
     finally:
         env.close()
@@ -96,12 +113,22 @@ def _slope(x: np.ndarray, y: np.ndarray) -> float:
     return float(dx @ (y - y.mean()) / ss) if ss > 0 else float("nan")
 
 
+def _detrended(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``y`` minus its least-squares line in ``x`` (``y`` minus its mean if ``x`` is constant)."""
+    slope = _slope(x, y)
+    if not np.isfinite(slope):
+        return y - y.mean()
+    return y - y.mean() - slope * (x - x.mean())
+
+
 def phase_table(fit: dict[str, np.ndarray], phases=DEFAULT_PHASES) -> list[dict[str, Any]]:
     """Per phase ``[phases[i], phases[i + 1])`` (the last open-ended), over the rows where
     the teacher does not random-walk: ``n``, and per action dimension (``_v``, ``_omega``)
     ``label_abs`` mean |label|, ``mse_zero`` mean label^2, ``mse_student`` mean (label -
-    correction)^2, ``r2 = 1 - mse_student / mse_zero``, and the slopes of the teacher's
-    (base + label) and the student's (base + correction) command on the base's."""
+    correction)^2, ``r2 = 1 - mse_student / mse_zero``, ``r2_beyond_base`` the same for the
+    label and correction each with its least-squares line in the base's command removed,
+    ``sd_base`` the base command's standard deviation, and the slopes of the teacher's (base +
+    label) and the student's (base + correction) command on the base's."""
     bounds = [int(p) for p in phases]
     if not bounds or bounds != sorted(set(bounds)) or bounds[0] < 0:
         raise ValueError(f"phases must be increasing step numbers >= 0, got {list(phases)!r}")
@@ -122,6 +149,12 @@ def phase_table(fit: dict[str, np.ndarray], phases=DEFAULT_PHASES) -> list[dict[
             row[f"mse_zero_{name}"] = zero
             row[f"mse_student_{name}"] = student
             row[f"r2_{name}"] = 1.0 - student / zero if zero > 0 else float("nan")
+            left = _detrended(base[:, j], label[:, j])
+            left_student = _detrended(base[:, j], corr[:, j])
+            spread = float(np.mean(left**2))
+            missed = float(np.mean((left - left_student) ** 2))
+            row[f"r2_beyond_base_{name}"] = 1.0 - missed / spread if spread > 0 else float("nan")
+            row[f"sd_base_{name}"] = float(base[:, j].std())
             row[f"slope_teacher_{name}"] = _slope(base[:, j], base[:, j] + label[:, j])
             row[f"slope_student_{name}"] = _slope(base[:, j], base[:, j] + corr[:, j])
         rows.append(row)
@@ -130,18 +163,21 @@ def phase_table(fit: dict[str, np.ndarray], phases=DEFAULT_PHASES) -> list[dict[
 
 def markdown(rows: list[dict[str, Any]]) -> str:
     head = (
-        "| steps | n | abs label v / omega | R^2 v / omega | slope on base, teacher v / omega "
-        "| slope on base, student v / omega |\n|---|---|---|---|---|---|\n"
+        "| steps | n | abs label v / omega | R^2 v / omega | R^2 beyond the base v / omega "
+        "| sd base v / omega | slope on base, teacher v / omega "
+        "| slope on base, student v / omega |\n|---|---|---|---|---|---|---|---|\n"
     )
     lines = []
     for r in rows:
         span = f"{r['from_step']}-{'' if r['to_step'] is None else r['to_step']}"
         if r["n"] == 0:
-            lines.append(f"| {span} | 0 | | | | |")
+            lines.append(f"| {span} | 0 | | | | | | |")
             continue
         lines.append(
             f"| {span} | {r['n']} | {r['label_abs_v']:.3f} / {r['label_abs_omega']:.3f} "
             f"| {r['r2_v']:.2f} / {r['r2_omega']:.2f} "
+            f"| {r['r2_beyond_base_v']:.2f} / {r['r2_beyond_base_omega']:.2f} "
+            f"| {r['sd_base_v']:.3f} / {r['sd_base_omega']:.3f} "
             f"| {r['slope_teacher_v']:.2f} / {r['slope_teacher_omega']:.2f} "
             f"| {r['slope_student_v']:.2f} / {r['slope_student_omega']:.2f} |"
         )
@@ -153,12 +189,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "models", nargs="+", help="residual model zips (warm_start.zip, model.zip)"
     )
-    parser.add_argument("--teacher", required=True, help="privileged:NAME, NAME@truth, scripted:")
+    parser.add_argument(
+        "--teacher", required=True, help="scripted:NAME, privileged:NAME or privileged:NAME@truth"
+    )
     parser.add_argument("--seeds", default="200-204")
     parser.add_argument(
         "--phases",
         default=",".join(map(str, DEFAULT_PHASES)),
         help="comma-separated first steps of the phases",
+    )
+    parser.add_argument(
+        "--drive",
+        choices=("base", "student"),
+        default="base",
+        help="who drives the robots: the base (every model asked about the same states) or "
+        "each student (its own closed-loop states)",
     )
     parser.add_argument("--out", default=None, help="also write the tables as JSON here")
     args = parser.parse_args(argv)
@@ -171,13 +216,16 @@ def main(argv: list[str] | None = None) -> int:
     for model in args.models:
         if not Path(model).is_file():
             parser.error(f"model {model!r} does not exist")
-        rows = phase_table(collect_fit(model, args.teacher, seeds), phases)
+        rows = phase_table(collect_fit(model, args.teacher, seeds, args.drive), phases)
         results[model] = rows
-        print(f"{model} (teacher {args.teacher}, seeds {args.seeds})")
+        print(f"{model} (teacher {args.teacher}, seeds {args.seeds}, {args.drive} driving)")
         print(markdown(rows))
     if args.out:
         Path(args.out).write_text(
-            json.dumps({"teacher": args.teacher, "seeds": seeds, "models": results}, indent=1)
+            json.dumps(
+                {"teacher": args.teacher, "seeds": seeds, "drive": args.drive, "models": results},
+                indent=1,
+            )
         )
     return 0
 

@@ -12,12 +12,14 @@ privileged:formation``: the correction is fitted to ``teacher - scripted`` by DA
 :mod:`agents.sb3.warm_start`) acts on the robot's own observation only.
 
 A second kind of teacher, ``privileged:NAME@truth`` (any controller ``NAME`` of
-:data:`agents.policies.SCRIPTED`), runs ``scripted:NAME`` on the table of the true neighbours
-within the lidar's range, the table ``observation="truth"`` gives, while the env (and the
-student) stays on the estimate. It is what ``scripted:NAME@truth`` scores, as a teacher whose
-labels fall on the states the student reaches from its own estimate. Its correction of the
-base ``scripted:NAME`` is what the estimate costs that controller: lost teammates, mostly
-(``docs/results.md``, rounds 12 and 16).
+:data:`agents.policies.SCRIPTED` that acts on the neighbour table), runs ``scripted:NAME`` on
+the table of the true neighbours within the lidar's range, the table ``observation="truth"``
+gives, while the env (and the student) stays on the estimate. It is what
+``scripted:NAME@truth`` scores, as a teacher whose labels fall on the states the student
+reaches from its own estimate. Its correction of the base ``scripted:NAME`` is what the
+estimate costs that controller: lost teammates, mostly (``docs/results.md``, rounds 12 and
+16). The table is not clipped to the observation space's bounds (20 m) as the truth encoder
+clips it: a teammate in lidar range never reaches them.
 
 Teachers are named ``privileged:NAME`` (:data:`TEACHERS`) or ``privileged:NAME@truth``; they
 read ``infos[agent]["truth"]["neighbours_xy"]`` (true positions of every robot in the agent's
@@ -162,7 +164,14 @@ def load_teacher(spec: str, env: Any) -> Any:
                     f"unknown controller {base!r} in privileged teacher {spec!r}; choose "
                     f"from {sorted(SCRIPTED)}"
                 )
-            return TruthTableTeacher(SCRIPTED[base](env), base)
+            controller = SCRIPTED[base](env)
+            if "truth" not in getattr(controller, "observation_modes", ()):
+                raise ValueError(
+                    f"privileged teacher {spec!r}: scripted:{base} reads no neighbour table, "
+                    "so there is no truth to give it (NAME@truth needs a controller that "
+                    "acts on the estimate)"
+                )
+            return TruthTableTeacher(controller, base)
         if name not in TEACHERS:
             raise ValueError(
                 f"unknown privileged teacher {name!r}; choose from {sorted(TEACHERS)} "

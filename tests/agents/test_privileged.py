@@ -157,6 +157,43 @@ def test_truth_table_teacher_equals_the_controller_on_the_truth_observation():
         teacher(obs_e, {a: {"truth": {"neighbours_xy": np.zeros((4, 2))}} for a in obs_e})
     with pytest.raises(ValueError, match="unknown controller 'nope'"):
         load_teacher("privileged:nope@truth", on_estimate)
+    with pytest.raises(ValueError, match="scripted:wander reads no neighbour table"):
+        load_teacher("privileged:wander@truth", on_estimate)
+
+
+def test_the_truth_teacher_scores_as_the_controller_on_the_truth():
+    """`report.score("privileged:NAME@truth")` runs in an env on the estimate and reads the
+    truth from its infos; `scripted:NAME@truth` runs in an env on the truth: same world,
+    same commands, same scores."""
+    from agents.sb3.report import score
+
+    kwargs = {**KWARGS, "max_steps": 20}
+    name = "formation-known-n-fast"
+    teacher = score(f"privileged:{name}@truth", kwargs, [100, 101])
+    scripted = score(f"scripted:{name}@truth", kwargs, [100, 101])
+    assert teacher["per_seed"] == scripted["per_seed"]
+    on_estimate = score(f"scripted:{name}", kwargs, [100, 101])
+    assert on_estimate["per_seed"] != teacher["per_seed"]
+
+
+def test_correction_labels_are_the_earlier_inline_formula():
+    """Bit for bit what collect_demonstrations computed before the labels were factored out:
+    the difference stored as float32, then divided by the float64 bounds and clipped."""
+    from agents.sb3.warm_start import correction_labels
+
+    rng = np.random.default_rng(0)
+    agents = [f"robot_{i}" for i in range(64)]
+    teacher = {a: rng.normal(0.0, 1.0, 2) for a in agents}
+    base = {a: rng.normal(0.0, 1.0, 2) for a in agents}
+    wandering = set(agents[::5])
+    high = np.array([0.3, 1.5])
+    earlier = np.zeros((len(agents), 2), np.float32)
+    earlier[:] = [np.zeros(2) if a in wandering else teacher[a] - base[a] for a in agents]
+    earlier = np.clip(earlier / high, -1.0, 1.0).astype(np.float32)
+    got = correction_labels(teacher, base, wandering, agents, high)
+    assert got.dtype == np.float32
+    np.testing.assert_array_equal(got, earlier)
+    assert (got[::5] == 0).all() and (np.abs(got) == 1.0).any()  # wandering rows; clipping
 
 
 def test_truth_table_teacher_corrects_the_base_where_the_estimate_differs():
