@@ -112,6 +112,8 @@ class BatchedSwarmVecEnv(VecEnv):
             )
             for k in range(n_copies)
         ]
+        #: Each copy's infos for its current observation (:meth:`copy_infos`).
+        self._infos: list[dict[str, dict[str, Any]]] = [{} for _ in range(n_copies)]
         first = self.envs[0]
         self.agents_per_copy = n
         self._high = np.array(first.action_space(first.possible_agents[0]).high, np.float64)
@@ -142,6 +144,12 @@ class BatchedSwarmVecEnv(VecEnv):
             self._base_commands: list[dict[str, np.ndarray] | None] = [None] * n_copies
             self._episodes = [0] * n_copies
             self._base_seed = 0 if seed is None else int(seed)
+
+    def copy_infos(self, copy: int) -> dict[str, dict[str, Any]]:
+        """The env's own ``infos`` for copy ``copy``'s current observation (what its last
+        reset or step returned: sensor records and, in simulation, ground truth). The VecEnv
+        does not pass them to SB3; a teacher labelling the copy reads them here."""
+        return self._infos[copy]
 
     def scripted_commands(self, copy: int) -> dict[str, np.ndarray]:
         """The residual base's commands ``[v_mps, omega_radps]`` per agent for copy ``copy``'s
@@ -213,6 +221,7 @@ class BatchedSwarmVecEnv(VecEnv):
         ended = []
         for k, env in enumerate(self.envs):
             o, r, term, trunc, step_infos = env.finish_step()
+            self._infos[k] = step_infos
             base = None
             if self._bases is not None and (env.agents or self.base_dims):
                 # (on a terminal obs only to fill its entries: the reset below reseeds the base)
@@ -317,6 +326,7 @@ class BatchedSwarmVecEnv(VecEnv):
         out = {}
         for k, s in zip(copies, seeds, strict=True):
             obs, infos = self.envs[k].finish_reset()
+            self._infos[k] = infos
             base = None
             if self._bases is not None:
                 if s is None:

@@ -46,8 +46,6 @@ from typing import Any
 
 import numpy as np
 
-from swarm_core.records import RobotMeasurements
-
 __all__ = [
     "Demonstrations",
     "collect_demonstrations",
@@ -80,26 +78,6 @@ class Demonstrations:
         return Demonstrations(
             np.concatenate([self.obs, other.obs]), np.concatenate([self.actions, other.actions])
         )
-
-
-def _teacher_infos(env: Any) -> dict[str, dict[str, Any]]:
-    """What a teacher reads from ``infos``: each agent's latest sensor records, and (for the
-    privileged teachers) the true positions of every robot in its frame and which of them each
-    sensor has in range (the env's own ``infos[agent]["truth"]`` entries of those names)."""
-    from swarm_env.env import measurements_as_dict
-
-    step = env.last_world_step
-    empty = RobotMeasurements()
-    infos = {}
-    for a in env.agents:
-        infos[a] = {"measurements": measurements_as_dict(step.measurements.get(a, empty))}
-        if step.truth is not None:
-            i = env.possible_agents.index(a)
-            infos[a]["truth"] = {
-                "neighbours_xy": step.truth.relative_xy[i],
-                "in_range": {k: v[i] for k, v in step.truth.in_range.items()},
-            }
-    return infos
 
 
 def collect_demonstrations(
@@ -169,7 +147,7 @@ def collect_demonstrations(
             labels = np.zeros((venv.num_envs, 2), np.float32)
             for k, env in enumerate(venv.envs):
                 rows = obs[k * n : (k + 1) * n, :d_env]  # the env's own observation
-                act = teachers[k](dict(zip(env.agents, rows, strict=True)), _teacher_infos(env))
+                act = teachers[k](dict(zip(env.agents, rows, strict=True)), venv.copy_infos(k))
                 if residual is None:  # the teacher's command, in unit scale
                     unit = np.array([act[a] for a in env.agents], np.float32) / high
                     labels[k * n : (k + 1) * n] = np.clip(unit, -1.0, 1.0)

@@ -7,6 +7,8 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
+from gymnasium.utils.env_checker import data_equivalence  # noqa: E402
+
 from agents.sb3.adapter import scale_actions  # noqa: E402
 from agents.sb3.batched import BatchedSwarmVecEnv  # noqa: E402
 from swarm_env import parallel_env  # noqa: E402
@@ -26,7 +28,8 @@ def test_batched_copies_equal_lone_envs_bit_for_bit(localizer):
     assert (vec.shared is None) == (localizer is not None)
     n = vec.agents_per_copy
     lone = [parallel_env(**kwargs) for _ in range(k_copies)]
-    lone_obs = [env.reset(seed=7 + k)[0] for k, env in enumerate(lone)]
+    first = [env.reset(seed=7 + k) for k, env in enumerate(lone)]
+    lone_obs, lone_infos = [o for o, _ in first], [i for _, i in first]
     obs = vec.reset()
     rng = np.random.default_rng(0)
     # As TrainingWrapper: the policy's [-1, 1] scaled by the (float32) action-space bounds.
@@ -35,6 +38,8 @@ def test_batched_copies_equal_lone_envs_bit_for_bit(localizer):
         for k, env in enumerate(lone):
             expected = np.stack([lone_obs[k][a] for a in env.possible_agents])
             np.testing.assert_array_equal(obs[k * n : (k + 1) * n], expected, err_msg=f"t={t}")
+            # The copy's infos (what a teacher reads) are the lone env's for the same obs.
+            assert data_equivalence(vec.copy_infos(k), lone_infos[k]), f"t={t}, copy {k}"
         actions = rng.uniform(-1, 1, (vec.num_envs, 2)).astype(np.float32)
         obs, rewards, dones, infos = vec.step(actions)
         for k, env in enumerate(lone):
@@ -42,7 +47,7 @@ def test_batched_copies_equal_lone_envs_bit_for_bit(localizer):
                 a: scale_actions(actions[k * n + i], high)
                 for i, a in enumerate(env.possible_agents)
             }
-            o, r, term, trunc, _ = env.step(cmds)
+            o, r, term, trunc, lone_infos[k] = env.step(cmds)
             for i, a in enumerate(env.possible_agents):
                 assert rewards[k * n + i] == np.float32(r[a])
                 assert dones[k * n + i] == (term[a] or trunc[a])
@@ -50,7 +55,7 @@ def test_batched_copies_equal_lone_envs_bit_for_bit(localizer):
                 for i, a in enumerate(env.possible_agents):
                     np.testing.assert_array_equal(infos[k * n + i]["terminal_observation"], o[a])
                     assert infos[k * n + i]["TimeLimit.truncated"] is True
-                o, _ = env.reset()
+                o, lone_infos[k] = env.reset()
             lone_obs[k] = o
     vec.close()
 
