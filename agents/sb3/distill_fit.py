@@ -129,11 +129,10 @@ def phase_table(fit: dict[str, np.ndarray], phases=DEFAULT_PHASES) -> list[dict[
     label and correction each with its least-squares line in the base's command removed,
     ``sd_base`` the base command's standard deviation, and the slopes of the teacher's (base +
     label) and the student's (base + correction) command on the base's."""
-    bounds = [int(p) for p in phases]
-    if not bounds or bounds != sorted(set(bounds)) or bounds[0] < 0:
-        raise ValueError(f"phases must be increasing step numbers >= 0, got {list(phases)!r}")
+    from agents.sb3.report import phase_spans
+
     rows = []
-    for lo, hi in zip(bounds, [*bounds[1:], None], strict=True):
+    for lo, hi in phase_spans(phases):
         m = ~fit["wandering"] & (fit["step"] >= lo)
         if hi is not None:
             m &= fit["step"] < hi

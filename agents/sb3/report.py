@@ -11,6 +11,9 @@ recorded and drawn). A markdown table (mean +- std over the held-out seeds, and 
 runs) is printed and written to ``results_<name>.md``, with a second one that pairs every
 learned group and baseline with every baseline by seed (:func:`paired_differences`: the mean
 difference, its standard error and on how many seeds the policy is better).
+``--phases 0,150`` also scores the metric over phases of the episode (steps 0-149 and 150 to
+the end: ``formation_error_m@0-150``, ``formation_error_m@150-``, from the task's per-step
+series), with a paired table per phase.
 
 Every policy runs on the same held-out seeds (not used in training: training seeds its copies
 from 0..n_copies-1 and continues their generators), in the env its model was trained in, for one
@@ -44,10 +47,48 @@ HIGHER_IS_BETTER = (
 )
 
 
+def higher_is_better(metric: str) -> bool:
+    """Whether more of ``metric`` (or of its phase, ``NAME@LO-HI``) is better."""
+    return metric.split("@", 1)[0] in HIGHER_IS_BETTER
+
+
+def phase_key(name: str, lo: int, hi: int | None) -> str:
+    """``formation_error_m@150-300``; the last, open-ended phase ``formation_error_m@150-``."""
+    return f"{name}@{lo}-{'' if hi is None else hi}"
+
+
+def phase_spans(phases: Any) -> list[tuple[int, int | None]]:
+    """First steps ``[0, 150]`` -> spans ``[(0, 150), (150, None)]`` (the last open-ended);
+    ValueError unless they are increasing integers >= 0."""
+    bounds = [int(p) for p in phases]
+    if not bounds or bounds != sorted(set(bounds)) or bounds[0] < 0:
+        raise ValueError(f"phases must be increasing step numbers >= 0, got {list(phases)!r}")
+    return list(zip(bounds, [*bounds[1:], None], strict=True))
+
+
+def phase_metrics(series: dict[str, np.ndarray], phases: list[int]) -> dict[str, float]:
+    """Each per-step series (``Task.step_series``, index t: the step t + 1 ends) averaged over
+    the phases ``[phases[i], phases[i + 1])`` (the last open-ended), keyed by
+    :func:`phase_key`; NaN for a phase the episode did not reach."""
+    spans = phase_spans(phases)
+    out = {}
+    for name, values in series.items():
+        for lo, hi in spans:
+            part = np.asarray(values, dtype=float)[lo:hi]
+            out[phase_key(name, lo, hi)] = float(part.mean()) if part.size else float("nan")
+    return out
+
+
 def score(
-    policy_spec: str, env_kwargs: dict[str, Any], seeds: list[int], n_steps: int | None = None
+    policy_spec: str,
+    env_kwargs: dict[str, Any],
+    seeds: list[int],
+    n_steps: int | None = None,
+    phases: list[int] | None = None,
 ) -> dict[str, Any]:
-    """Mean/std over seeds of the task metrics and of the per-agent episode return."""
+    """Mean/std over seeds of the task metrics and of the per-agent episode return; with
+    ``phases`` (first steps), also of each per-step task series over each phase
+    (:func:`phase_metrics`, e.g. ``formation_error_m@150-``)."""
     from agents.policies import load_policy
     from swarm_env import parallel_env
     from swarm_env.tasks import task_needs_estimates
@@ -84,7 +125,8 @@ def score(
             total += float(np.mean(list(rewards.values()))) if rewards else 0.0
             if hasattr(env.task, "coverage"):
                 curve.append(float(env.task.coverage))
-        per_seed.append({**env.task.metrics(), "episode_return": total})
+        by_phase = phase_metrics(env.task.step_series(), phases) if phases else {}
+        per_seed.append({**env.task.metrics(), **by_phase, "episode_return": total})
         if curve:  # an episode ended early at the target: coverage stays where it was
             curves.append(curve + [curve[-1]] * (n_steps - len(curve)))
     env.close()
@@ -140,7 +182,7 @@ def paired_differences(
     def per_seed(specs: list[str]) -> np.ndarray:
         return np.mean([[d[metric] for d in policies[s]["per_seed"]] for s in specs], axis=0)
 
-    sign = 1.0 if metric in HIGHER_IS_BETTER else -1.0  # positive sign * diff = better
+    sign = 1.0 if higher_is_better(metric) else -1.0  # positive sign * diff = better
     # (contender, its specs, the baselines it is paired with): each learned group against
     # every baseline, and each pair of baselines once (the later one against the earlier).
     pairs = [(name, specs, baselines) for name, specs in groups.items() if specs]
@@ -255,7 +297,7 @@ def select_model(run_dir: Path, seeds: list[int], metric: str) -> tuple[Path, li
     to the earlier model."""
     from agents.sb3.policy import read_metadata
 
-    sign = -1.0 if metric in HIGHER_IS_BETTER else 1.0
+    sign = -1.0 if higher_is_better(metric) else 1.0
     scored = []
     for steps, path in run_models(run_dir):
         result = score(str(path), read_metadata(path)["env_kwargs"], seeds)
@@ -280,6 +322,28 @@ def policy_kind(meta: dict[str, Any]) -> str:
         return "PPO"
     how = "x learned gain" if meta.get("residual_mode") == "gain" else "+ learned correction"
     return f"residual PPO ({residual} {how})"
+
+
+def phase_means_table(
+    results: dict[str, Any], keys: list[str], groups: dict[str, list[str]]
+) -> str:
+    """Rows ``policy | mean +- std`` of each phase metric in ``keys``, plus one pooled row per
+    group of several runs."""
+    lines = ["| policy | " + " | ".join(keys) + " |", "|---" * (len(keys) + 1) + "|"]
+    for spec, r in results.items():
+        cells = [f"{r['mean'][k]:.3f} ± {r['std'][k]:.3f}" for k in keys]
+        lines.append(f"| {spec} | " + " | ".join(cells) + " |")
+    for name, specs in groups.items():
+        if len(specs) < 2:
+            continue
+        cells = []
+        for k in keys:
+            p = pooled([results[s] for s in specs], k)
+            cells.append(f"**{p['mean']:.3f} ± {p['std']:.3f}**")
+        lines.append(
+            f"| **{name}** ({len(specs)} training seeds, pooled) | " + " | ".join(cells) + " |"
+        )
+    return "\n".join(lines) + "\n"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -308,6 +372,14 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--name", default="formation", help="output file prefix")
     parser.add_argument("--metric", default="formation_error_m", help="task metric of the table")
+    parser.add_argument(
+        "--phases",
+        default=None,
+        metavar="STEPS",
+        help="comma-separated first steps of phases of the episode, e.g. 0,150: also score "
+        "--metric over each phase (from the task's per-step series, e.g. "
+        "formation_error_m@150-), with a paired table per phase",
+    )
     parser.add_argument(
         "--baseline-overrides",
         default="{}",
@@ -345,6 +417,13 @@ def main(argv: list[str] | None = None) -> int:
     from agents.sb3.policy import read_metadata
 
     seeds = parse_seeds(args.seeds)
+    phases = None
+    if args.phases is not None:
+        try:
+            phases = [int(p) for p in args.phases.split(",")]
+            phase_spans(phases)
+        except ValueError:
+            parser.error(f"--phases must be increasing integers >= 0, got {args.phases!r}")
     validation = None if args.select_on is None else parse_seeds(args.select_on, "--select-on")
     if validation is not None and set(validation) & set(seeds):
         raise ValueError(
@@ -362,7 +441,7 @@ def main(argv: list[str] | None = None) -> int:
     # Runs named <group>_s<seed> (one per training seed) are pooled per group.
     groups: dict[str, list[str]] = {}
     for spec in args.baselines:
-        results["policies"][spec] = score(spec, env_kwargs, seeds)
+        results["policies"][spec] = score(spec, env_kwargs, seeds, phases=phases)
         print(spec, results["policies"][spec]["mean"])
     curves = {}
     for run in runs:
@@ -376,7 +455,9 @@ def main(argv: list[str] | None = None) -> int:
             }
             print(f"{run.name}: selected {chosen} on seeds {args.select_on}")
             spec = str(chosen)
-        results["policies"][spec] = score(spec, read_metadata(spec)["env_kwargs"], seeds)
+        results["policies"][spec] = score(
+            spec, read_metadata(spec)["env_kwargs"], seeds, phases=phases
+        )
         print(spec, results["policies"][spec]["mean"])
         group = re.sub(r"_s\d+$", "", run.name)
         meta = read_metadata(spec)
@@ -387,7 +468,7 @@ def main(argv: list[str] | None = None) -> int:
         groups.setdefault(f"{kind} {group}", []).append(spec)
         if args.warm_start and clone.is_file() and Path(spec) != clone:
             results["policies"][str(clone)] = score(
-                str(clone), read_metadata(clone)["env_kwargs"], seeds
+                str(clone), read_metadata(clone)["env_kwargs"], seeds, phases=phases
             )
             groups.setdefault(f"warm start only {group}", []).append(str(clone))
             print(clone, results["policies"][str(clone)]["mean"])
@@ -419,10 +500,30 @@ def main(argv: list[str] | None = None) -> int:
     results["paired"] = paired_differences(
         results["policies"], groups, list(args.baselines), args.metric
     )
-    (out / f"results_{args.name}.json").write_text(json.dumps(results, indent=2))
     table = markdown_table(results["policies"], args.metric, groups)
     if results["paired"]:
         table += "\n" + paired_table(results["paired"], args.metric)
+    if phases:
+        keys = [phase_key(args.metric, lo, hi) for lo, hi in phase_spans(phases)]
+        missing = [
+            k
+            for k in keys
+            if k not in results["policies"][next(iter(results["policies"]))]["mean"]
+        ]
+        if missing:
+            raise ValueError(
+                f"--phases: the task has no per-step series for --metric {args.metric!r} "
+                f"(Task.step_series); missing {missing}"
+            )
+        results["paired_by_phase"] = {
+            k: paired_differences(results["policies"], groups, list(args.baselines), k)
+            for k in keys
+        }
+        table += "\n" + phase_means_table(results["policies"], keys, groups)
+        for k, rows in results["paired_by_phase"].items():
+            if rows:
+                table += "\n" + paired_table(rows, k)
+    (out / f"results_{args.name}.json").write_text(json.dumps(results, indent=2))
     (out / f"results_{args.name}.md").write_text(table)
     print(table)
 

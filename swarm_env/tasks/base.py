@@ -86,6 +86,11 @@ class Task:
         """Episode metrics so far (e.g. final formation error), for evaluation tables."""
         return {}
 
+    def step_series(self) -> dict[str, np.ndarray]:
+        """The per-step values behind :meth:`metrics`' episode means, one entry per env step
+        so far (``{name: (T,)}``), for scoring phases of an episode. Default: none."""
+        return {}
+
     # -- training only ----------------------------------------------------------------------
     #: Width of :meth:`critic_features` (a class constant or set in ``__init__``).
     n_critic_features = 0

@@ -201,6 +201,13 @@ class FormationTask(Task):
         centroid = relative_positions(truth.poses, xy.mean(axis=0, keepdims=True))[:, 0]
         return np.column_stack([shape_err, spacing_err, centroid])
 
+    def step_series(self) -> dict[str, np.ndarray]:
+        """Per step: the swarm's mean shape error and spacing error (m), (T,) each."""
+        return {
+            "formation_error_m": np.asarray(self._errors, dtype=float),
+            "spacing_error_m": np.asarray(self._spacing_errors, dtype=float),
+        }
+
     def metrics(self) -> dict[str, float]:
         if not self._errors:
             return {}

@@ -205,3 +205,113 @@ def test_evaluate_keeps_the_filters_on_when_the_reward_scores_the_estimate():
         task_params=ESTIMATE_TERM,
     )
     assert 0.0 <= out["task"]["mislocalized_fraction"] <= 1.0
+
+
+def test_phase_metrics_average_each_series_over_each_phase():
+    from agents.sb3.report import phase_metrics, phase_spans
+
+    series = {"formation_error_m": np.array([1.0, 2.0, 3.0, 4.0, 5.0])}
+    out = phase_metrics(series, [0, 2])
+    assert out == {"formation_error_m@0-2": 1.5, "formation_error_m@2-": 4.0}
+    assert np.isnan(phase_metrics(series, [0, 9])["formation_error_m@9-"])  # never reached
+    assert phase_spans([0, 150, 200]) == [(0, 150), (150, 200), (200, None)]
+    for bad in ([150, 0], [], [-1, 5], [3, 3]):
+        with pytest.raises(ValueError, match="phases"):
+            phase_spans(bad)
+
+
+def test_step_series_has_one_error_per_step_after_it():
+    # Index t is the swarm's error after env step t + 1 (the reset's pose is not in it): the
+    # series is as long as the steps taken and its first entry is the first step's error.
+    from swarm_env import parallel_env
+
+    env = parallel_env(preset="lab-3m-4", task="formation", observation="truth", localize=False)
+    env.reset(seed=3)
+    first = env.task.errors(env.last_world_step.truth.poses[:, :2])[0].mean()
+    for t in range(4):
+        env.step({a: np.array([0.2, 0.5]) for a in env.agents})
+        series = env.task.step_series()
+        assert len(series["formation_error_m"]) == t + 1
+        shape, spacing = env.task.errors(env.last_world_step.truth.poses[:, :2])
+        assert series["formation_error_m"][-1] == pytest.approx(float(shape.mean()), abs=0)
+        assert series["spacing_error_m"][-1] == pytest.approx(float(spacing.mean()), abs=0)
+    assert series["formation_error_m"][0] != pytest.approx(float(first))  # the robots moved
+    env.close()
+
+
+def test_score_by_phase_splits_the_episode_mean():
+    # One phase from step 0 is the episode's own metric; two phases weighted by their lengths
+    # give it back, so the per-step series is the one the metric averages.
+    from agents.sb3.report import score
+
+    kwargs = {"preset": "lab-3m-4", "task": "formation", "max_steps": 12}
+    out = score("scripted:formation-known-n", kwargs, [0, 1], phases=[0, 5])
+    for d in out["per_seed"]:
+        whole = d["formation_error_m"]
+        assert (5 * d["formation_error_m@0-5"] + 7 * d["formation_error_m@5-"]) / 12 == (
+            pytest.approx(whole, rel=1e-12)
+        )
+        assert d["formation_error_m@0-5"] != pytest.approx(d["formation_error_m@5-"])
+        assert "spacing_error_m@5-" in d
+    plain = score("scripted:formation-known-n", kwargs, [0, 1])
+    assert [d["formation_error_m"] for d in plain["per_seed"]] == [
+        d["formation_error_m"] for d in out["per_seed"]
+    ]
+
+
+def test_report_phases_writes_a_paired_table_per_phase(tmp_path, monkeypatch):
+    # main() on a stub run: the scores come from a fake score(); the phase keys flow into the
+    # JSON and the markdown, paired per phase; bad phases and a metric without a per-step
+    # series are refused.
+    import json
+
+    import agents.sb3.report as report
+
+    run = tmp_path / "x_s0"
+    run.mkdir()
+    (run / "model.zip").write_bytes(b"")
+    (run / "monitor.csv").write_text("#\nr,l,t\n-1,300,1\n")
+    values = {
+        "scripted:a": [0.3, 0.2],
+        "scripted:b": [0.1, 0.1],
+        str(run / "model.zip"): [0.2, 0.1],
+    }
+
+    def fake_score(spec, env_kwargs, seeds, n_steps=None, phases=None):
+        late, early = values[spec], [v + 1.0 for v in values[spec]]
+        per_seed = [
+            {
+                "formation_error_m": (e + v) / 2,
+                "formation_error_m@0-5": e,
+                "formation_error_m@5-": v,
+                "episode_return": -v,
+            }
+            for e, v in zip(early, late, strict=True)
+        ]
+        keys = per_seed[0]
+        return {
+            "seeds": seeds,
+            "per_seed": per_seed,
+            "mean": {k: float(np.mean([d[k] for d in per_seed])) for k in keys},
+            "std": {k: float(np.std([d[k] for d in per_seed])) for k in keys},
+        }
+
+    monkeypatch.setattr(report, "score", fake_score)
+    monkeypatch.setattr(report, "read_metadata", lambda p: {"env_kwargs": {}}, raising=False)
+    import agents.sb3.policy as policy
+
+    monkeypatch.setattr(policy, "read_metadata", lambda p: {"env_kwargs": {}})
+    argv = ["--runs", str(run), "--baselines", "scripted:a", "scripted:b", "--seeds", "1-2"]
+    argv += ["--out", str(tmp_path), "--name", "ph", "--phases", "0,5"]
+    assert report.main(argv) == 0
+    saved = json.loads((tmp_path / "results_ph.json").read_text())
+    late = {
+        (r["policy"], r["baseline"]): r for r in saved["paired_by_phase"]["formation_error_m@5-"]
+    }
+    assert late[("scripted:b", "scripted:a")]["mean_difference"] == pytest.approx(-0.15)
+    md = (tmp_path / "results_ph.md").read_text()
+    assert "formation_error_m@0-5" in md and "formation_error_m@5-" in md
+    with pytest.raises(SystemExit):
+        report.main([*argv[:-1], "5,0"])
+    with pytest.raises(ValueError, match="step_series"):
+        report.main([*argv, "--metric", "episode_return"])  # no per-step series
