@@ -274,10 +274,13 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--train-seeds and --test-seeds share seeds {shared}")
     if args.epochs < 1:
         parser.error(f"--epochs must be >= 1, got {args.epochs}")
-    try:
+    from agents.sb3.report import phase_spans
+
+    try:  # checked before the rollouts, which take minutes
         phases = [int(p) for p in args.phases.split(",")]
+        phase_spans(phases)
     except ValueError:
-        parser.error(f"--phases must be comma-separated integers, got {args.phases!r}")
+        parser.error(f"--phases must be increasing integers >= 0, got {args.phases!r}")
     kinds = tuple(k.strip() for k in args.regressors.split(",") if k.strip())
     if not kinds or any(k not in KINDS for k in kinds):
         parser.error(f"--regressors must be some of {','.join(KINDS)}, got {args.regressors!r}")

@@ -111,6 +111,7 @@ def test_main_writes_every_regressors_tables(tmp_path):
         (["--train-seeds", "0-5", "--test-seeds", "5"], "share seeds [5]"),
         (["--regressors", "frame,lstm"], "--regressors"),
         (["--epochs", "0"], "--epochs"),
+        (["--phases", "150,0"], "--phases"),
     ],
 )
 def test_main_refuses_bad_arguments_naming_them(flags, message, capsys):
