@@ -59,7 +59,8 @@ def load_policy(spec: str, env: Any) -> Any:
     ``"random"``: uniform actions from the agents' seeded action spaces. ``"scripted:NAME"``: a
     controller from :data:`SCRIPTED`. ``"privileged:NAME"``: a training teacher that also reads
     the simulator's truth (:mod:`agents.sb3.privileged`; a reference, not deployable). Anything
-    ending in ``.zip``: a trained SB3 model.
+    ending in ``.zip``: a trained SB3 model; in ``.pt``: a recurrent residual student
+    (:mod:`agents.sb3.recurrent_student`).
     """
     if spec == "random":
         return random_policy(env)
@@ -72,6 +73,10 @@ def load_policy(spec: str, env: Any) -> Any:
         from agents.sb3.privileged import load_teacher
 
         return load_teacher(spec, env)
+    if spec.endswith(".pt"):  # a recurrent residual student (agents.sb3.recurrent_student)
+        from agents.sb3.recurrent_student import load_student
+
+        return load_student(spec, env)
     if spec.endswith(".zip"):
         if not Path(spec).is_file():
             raise ValueError(f"policy file {spec!r} does not exist")
@@ -79,7 +84,8 @@ def load_policy(spec: str, env: Any) -> Any:
 
         return load_sb3_policy(spec, env)
     raise ValueError(
-        "policy must be 'random', 'scripted:NAME', 'privileged:NAME' or a .zip model, "
+        "policy must be 'random', 'scripted:NAME', 'privileged:NAME', a .zip model or a .pt "
+        "recurrent student, "
         f"got {spec!r}"
     )
 
@@ -87,7 +93,12 @@ def load_policy(spec: str, env: Any) -> Any:
 def policy_observation(spec: str) -> str | None:
     """The observation mode a scripted policy reads (``"phd"`` for the controllers acting on
     the robot's PHD estimate), or ``None`` if it ignores the observation (``random``,
-    ``scripted:wander``: lidar only). Models carry their own mode (see ``agents.sb3.policy``)."""
+    ``scripted:wander``: lidar only). Models carry their own mode (see ``agents.sb3.policy``);
+    a recurrent student (``.pt``) reads its env's."""
+    if spec.endswith(".pt"):
+        from agents.sb3.recurrent_student import read_student_metadata
+
+        return read_student_metadata(spec)["env_kwargs"].get("observation", "phd")
     if spec.startswith(("scripted:", "privileged:")):
         from agents.sb3.privileged import TEACHERS
 

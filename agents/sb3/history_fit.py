@@ -51,13 +51,21 @@ __all__ = ["collect_sequences", "fit_regressors", "main"]
 
 
 def collect_sequences(
-    env_kwargs: dict[str, Any], base: str, teacher: str, seeds: list[int]
+    env_kwargs: dict[str, Any],
+    base: str,
+    teacher: str,
+    seeds: list[int],
+    student: Any = None,
 ) -> dict[str, np.ndarray]:
     """Roll out ``base`` on ``seeds`` and record, per agent-episode (S sequences of up to T
     steps, padded): ``obs`` (S, T, D) float32 the env's observation, ``base`` (S, T, 2) the
     base's command and ``label`` (S, T, 2) the teacher's correction, unit scale (``[v, omega]
     / high``, clipped), ``step`` (S, T) int, ``valid`` (S, T) bool (False on padding) and
-    ``wandering`` (S, T) bool (the teacher random-walks), plus ``seed`` (S,)."""
+    ``wandering`` (S, T) bool (the teacher random-walks), plus ``seed`` (S,).
+
+    With a ``student`` (:class:`agents.sb3.recurrent_student.RecurrentStudentPolicy`), the
+    student drives instead, on the same base commands (``student.correct``): DAgger's states,
+    with the teacher's labels still taken against the base."""
     from agents.sb3.privileged import load_teacher
     from agents.sb3.residual import ResidualBase, base_in_unit_scale
     from agents.sb3.warm_start import correction_labels
@@ -72,6 +80,8 @@ def collect_sequences(
         for seed in seeds:
             scripted.reset(seed)
             tutor.reset(seed)
+            if student is not None:
+                student.reset(seed)
             obs, infos = env.reset(seed=seed)
             rows: dict[str, dict[str, list]] = {
                 a: {"obs": [], "base": [], "label": [], "wandering": []} for a in env.agents
@@ -87,7 +97,8 @@ def collect_sequences(
                     r["base"].append(base_in_unit_scale(commands[a], high))
                     r["label"].append(labels[i])
                     r["wandering"].append(a in tutor.wandering)
-                obs, _, _, _, infos = env.step(commands)
+                drive = commands if student is None else student.correct(obs, commands)
+                obs, _, _, _, infos = env.step(drive)
             for r in rows.values():
                 episodes.append({**r, "seed": seed})
     finally:
@@ -143,6 +154,18 @@ def _regressor(observation_space: Any, kind: str, hidden: int = 64) -> Any:
                 nn.Linear(hidden, 2),
             )
 
+        def step(
+            self, obs: torch.Tensor, base: torch.Tensor, hidden: torch.Tensor | None
+        ) -> tuple[torch.Tensor, torch.Tensor]:
+            """One step of a ``history`` regressor for B sequences at once: ``obs`` (B, D),
+            ``base`` (B, 2), ``hidden`` (1, B, H) the GRU's state (None at a sequence's start)
+            -> corrections (B, 2) and the next state; equals :meth:`forward` step by step."""
+            if self.gru is None:
+                raise ValueError(f"only a 'history' regressor is stepped, this is {kind!r}")
+            z = torch.cat([self.encoder(obs), base], -1)
+            out, hidden = self.gru(z.unsqueeze(1), hidden)
+            return self.head(torch.cat([z, out[:, 0]], -1)), hidden
+
         def forward(
             self, obs: torch.Tensor, base: torch.Tensor, step: torch.Tensor
         ) -> torch.Tensor:
@@ -155,6 +178,54 @@ def _regressor(observation_space: Any, kind: str, hidden: int = 64) -> Any:
             return self.head(z)
 
     return Regressor()
+
+
+def sequence_tensors(data: dict[str, np.ndarray]) -> dict[str, Any]:
+    """:func:`collect_sequences`' arrays as the torch tensors a regressor trains on; ``mask``
+    (S, T) is 1 on the valid steps where the teacher does not random-walk."""
+    import torch
+
+    return {k: torch.as_tensor(data[k]) for k in ("obs", "base", "label")} | {
+        "step": torch.as_tensor(data["step"], dtype=torch.float32),
+        "mask": torch.as_tensor(data["valid"] & ~data["wandering"], dtype=torch.float32),
+    }
+
+
+def train_sequences(
+    model: Any,
+    tensors: dict[str, Any],
+    epochs: int,
+    batch_sequences: int = 8,
+    learning_rate: float = 1e-3,
+    seed: int = 0,
+) -> list[float]:
+    """Fit ``model`` (a :func:`_regressor`) in place to :func:`sequence_tensors`: masked MSE
+    over the valid, non-wandering steps, Adam, ``epochs`` passes in minibatches of
+    ``batch_sequences`` whole sequences shuffled by ``default_rng(seed)``. Returns each
+    epoch's mean minibatch loss."""
+    import torch
+
+    rng = np.random.default_rng(seed)
+    optim = torch.optim.Adam(model.parameters(), lr=learning_rate)
+    n_seq = tensors["obs"].shape[0]
+    model.train()
+    losses = []
+    for _ in range(epochs):
+        order = rng.permutation(n_seq)
+        total, batches = 0.0, 0
+        for start in range(0, n_seq, batch_sequences):
+            idx = torch.as_tensor(order[start : start + batch_sequences])
+            mask = tensors["mask"][idx]
+            pred = model(tensors["obs"][idx], tensors["base"][idx], tensors["step"][idx])
+            err = ((pred - tensors["label"][idx]) ** 2).sum(-1)
+            loss = (err * mask).sum() / mask.sum().clamp(min=1.0)
+            optim.zero_grad()
+            loss.backward()
+            optim.step()
+            total, batches = total + float(loss.detach()), batches + 1
+        losses.append(total / batches)
+    model.eval()
+    return losses
 
 
 def fit_regressors(
@@ -177,31 +248,10 @@ def fit_regressors(
     if unknown or not kinds:
         raise ValueError(f"regressors must be some of {KINDS}, got {list(kinds)!r}")
     torch.manual_seed(seed)
-    rng = np.random.default_rng(seed)
     models = {name: _regressor(observation_space, name) for name in kinds}
-    tensors = {
-        part: {k: torch.as_tensor(d[k]) for k in ("obs", "base", "label")}
-        | {
-            "step": torch.as_tensor(d["step"], dtype=torch.float32),
-            "mask": torch.as_tensor(d["valid"] & ~d["wandering"], dtype=torch.float32),
-        }
-        for part, d in (("train", train), ("test", test))
-    }
-    tr = tensors["train"]
-    optims = {n: torch.optim.Adam(m.parameters(), lr=learning_rate) for n, m in models.items()}
-    n_seq = tr["obs"].shape[0]
-    for _ in range(epochs):
-        order = rng.permutation(n_seq)
-        for start in range(0, n_seq, batch_sequences):
-            idx = torch.as_tensor(order[start : start + batch_sequences])
-            mask = tr["mask"][idx]
-            for name, model in models.items():
-                pred = model(tr["obs"][idx], tr["base"][idx], tr["step"][idx])
-                err = ((pred - tr["label"][idx]) ** 2).sum(-1)
-                loss = (err * mask).sum() / mask.sum().clamp(min=1.0)
-                optims[name].zero_grad()
-                loss.backward()
-                optims[name].step()
+    tensors = {part: sequence_tensors(d) for part, d in (("train", train), ("test", test))}
+    for model in models.values():  # the same minibatches for all: one generator each
+        train_sequences(model, tensors["train"], epochs, batch_sequences, learning_rate, seed)
     out: dict[str, dict[str, np.ndarray]] = {}
     with torch.no_grad():  # in chunks of sequences: the encoder's activations are large
         for name, model in models.items():

@@ -11,7 +11,9 @@ recorded and drawn). A markdown table (mean +- std over the held-out seeds, and 
 runs) is printed and written to ``results_<name>.md``, with a second one that pairs every
 learned group and baseline with every baseline by seed (:func:`paired_differences`: the mean
 difference, its standard error and on how many seeds the policy is better).
-``--phases 0,150`` also scores the metric over phases of the episode (steps 0-149 and 150 to
+``--group NAME=A,B`` scores more policies (models, recurrent students) pooled as one learned
+group; without ``--runs``, ``--env-from MODEL`` gives the env. ``--phases 0,150`` also scores
+the metric over phases of the episode (steps 0-149 and 150 to
 the end: ``formation_error_m@0-150``, ``formation_error_m@150-``, from the task's per-step
 series), with a paired table per phase.
 
@@ -348,11 +350,25 @@ def phase_means_table(
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--runs", nargs="+", required=True)
+    parser.add_argument("--runs", nargs="*", default=[], help="training run directories")
+    parser.add_argument(
+        "--env-from",
+        default=None,
+        help="without --runs: the model (.zip) or recurrent student (.pt) whose env the "
+        "baselines are scored in",
+    )
     parser.add_argument(
         "--baselines",
         nargs="*",
         default=["random", "scripted:formation", "scripted:formation@truth"],
+    )
+    parser.add_argument(
+        "--group",
+        nargs="*",
+        default=[],
+        metavar="NAME=SPEC,SPEC",
+        help="policies scored and pooled as one learned group, like the runs of one recipe "
+        "(e.g. recurrent students of several fit seeds: 'students=a.pt,b.pt,c.pt')",
     )
     parser.add_argument("--seeds", default="100-109")
     parser.add_argument("--out", default="docs/results")
@@ -433,8 +449,24 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     runs = [Path(r) for r in args.runs]
+    extra_groups: dict[str, list[str]] = {}
+    for item in args.group:
+        name, _, specs = item.partition("=")
+        members = [x for x in specs.split(",") if x]
+        if not name or not members or name in extra_groups:
+            parser.error(f"--group must be NAME=SPEC[,SPEC...] with distinct names, got {item!r}")
+        extra_groups[name] = members
     overrides = parse_json_object(args.baseline_overrides, "--baseline-overrides")
-    env_kwargs = read_metadata(runs[0] / "model.zip")["env_kwargs"]
+    if runs:
+        env_kwargs = read_metadata(runs[0] / "model.zip")["env_kwargs"]
+    elif args.env_from is None:
+        parser.error("give --runs, or --env-from MODEL: the env the baselines are scored in")
+    elif args.env_from.endswith(".pt"):
+        from agents.sb3.recurrent_student import read_student_metadata
+
+        env_kwargs = read_student_metadata(args.env_from)["env_kwargs"]
+    else:
+        env_kwargs = read_metadata(args.env_from)["env_kwargs"]
     env_kwargs = {k: v for k, v in env_kwargs.items() if k not in ("observation", "localize")}
     env_kwargs.update(overrides)
     results: dict[str, Any] = {"seeds": seeds, "env_kwargs": env_kwargs, "policies": {}}
@@ -491,6 +523,12 @@ def main(argv: list[str] | None = None) -> int:
                     final["mean"],
                 )
             )
+    for name, specs in extra_groups.items():
+        for spec in specs:
+            if spec not in results["policies"]:
+                results["policies"][spec] = score(spec, env_kwargs, seeds, phases=phases)
+                print(spec, results["policies"][spec]["mean"])
+        groups[name] = specs
     results["pooled"] = {
         name: pooled([results["policies"][s] for s in specs], args.metric)
         for name, specs in groups.items()

@@ -1,0 +1,348 @@
+"""A recurrent residual student: a GRU over the robot's own estimate, distilled by DAgger.
+
+    python -m agents.sb3.recurrent_student --preset lab-3m-4 --lidar-sectors 16 \
+        --base scripted:formation-known-n-fast \
+        --teacher privileged:formation-known-n-fast@truth \
+        --round-seeds 0-199 1000-1099 --val-seeds 200-209 --out runs/recurrent
+
+Round 17 measured offline that a causal GRU over the episode's estimates predicts about half of
+the settled speed correction of the controller on the truth beyond the base's command, and a
+quarter of its turn rate's, against a third and under a tenth for one frame
+(:mod:`agents.sb3.history_fit`, ``docs/results.md``). This trains that regressor as a policy:
+
+- the model is :mod:`agents.sb3.history_fit`'s ``history`` regressor (the students' Deep Sets
+  encoder of the observation and the base's command, a GRU, a 64-64 tanh head) and its output
+  is the residual's correction, unit scale: the command is ``base + correction * high``,
+  clipped (:func:`agents.sb3.residual.compose`); each agent keeps its own GRU state, reset
+  with the episode;
+- round 1 records ``--round-seeds``' first block of episodes with the base driving, round
+  ``r > 1`` the next block with round ``r - 1``'s student driving (DAgger: the states the
+  student reaches); the labels are the teacher's corrections against the base's command at
+  every state (:func:`agents.sb3.warm_start.correction_labels`); every round fits on all the
+  rounds' sequences so far, starting from the last round's weights (``--epochs`` for round 1,
+  ``--dagger-epochs`` after);
+- each round's student is saved (``student_round<r>.pt``, the last also as ``student.pt``)
+  with its env, base and teacher, and is scored in closed loop on ``--val-seeds`` per phase
+  of the episode, with the base beside it (``train_log.json``). Selecting on those seeds is
+  the user's choice; the final test belongs on seeds used nowhere here.
+- Each round's sequences are kept (``round<r>.npz``) and reused when the command is rerun
+  with the same env, base, teacher and seeds: a run stopped after a round resumes from it.
+
+Score a student like any policy: ``swarm-phd evaluate --policy runs/recurrent/student.pt`` or
+``python -m agents.sb3.report --env-from runs/recurrent/student.pt --baselines
+scripted:formation-known-n-fast runs/recurrent/student.pt --seeds ...``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from swarm_phd.sweep import parse_seeds
+
+__all__ = ["RecurrentStudentPolicy", "load_student", "read_student_metadata", "save_student"]
+
+#: The saved file's ``format`` field; a file without it is refused.
+FORMAT = "swarm-phd recurrent residual student v1"
+
+
+def save_student(
+    path: str | Path, model: Any, env_kwargs: dict[str, Any], base: str, **extra: Any
+) -> None:
+    """Write ``model`` (a ``history`` regressor) with what it needs to run: its env's kwargs,
+    its base's spec, its hidden width and the observation's length."""
+    import torch
+
+    torch.save(
+        {
+            "format": FORMAT,
+            "state_dict": model.state_dict(),
+            "hidden": int(model.gru.hidden_size),
+            "obs_dim": int(model.encoder_obs_dim),
+            "env_kwargs": env_kwargs,
+            "base": base,
+            **extra,
+        },
+        Path(path),
+    )
+
+
+def _read(path: str | Path) -> dict[str, Any]:
+    import torch
+
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"recurrent student {str(path)!r} does not exist")
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # a truncated file, a zip model renamed, ...
+        raise ValueError(f"{str(path)!r} is not a recurrent student file: {err}") from err
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise ValueError(f"{str(path)!r} is not a recurrent student file (format {FORMAT!r})")
+    return data
+
+
+def read_student_metadata(path: str | Path) -> dict[str, Any]:
+    """Everything a student file holds but its weights: ``env_kwargs``, ``base``, ``hidden``,
+    ``obs_dim`` and what its training added (``teacher``, ``round``, ...)."""
+    return {k: v for k, v in _read(path).items() if k != "state_dict"}
+
+
+def new_student(observation_space: Any, hidden: int = 64) -> Any:
+    """An untrained student: :mod:`agents.sb3.history_fit`'s ``history`` regressor."""
+    from agents.sb3.history_fit import _regressor
+
+    model = _regressor(observation_space, "history", hidden=hidden)
+    model.encoder_obs_dim = int(np.prod(observation_space.shape))
+    return model
+
+
+class RecurrentStudentPolicy:
+    """A student as a policy, ``(observations, infos) -> actions``, for one env.
+
+    Its base (a :class:`agents.sb3.residual.ResidualBase`) gives the command; the model, fed
+    the observation and that command, gives the correction. Each agent's GRU state is kept by
+    name from its first step and cleared by :meth:`reset` (the episode's start)."""
+
+    def __init__(self, model: Any, base: str, env: Any) -> None:
+        from agents.sb3.residual import ResidualBase
+
+        self.model = model.eval()
+        self.base = ResidualBase(base, env)
+        self.high = self.base.high
+        self.hidden: dict[str, Any] = {}
+
+    def reset(self, seed: int | None = None) -> None:
+        self.base.reset(seed)
+        self.hidden = {}
+
+    def correct(
+        self, observations: dict[str, np.ndarray], commands: dict[str, np.ndarray]
+    ) -> dict[str, np.ndarray]:
+        """The residual commands for the base's ``commands`` (env units, per agent), one GRU
+        step for every agent at once; float32 ``[v_mps, omega_radps]``."""
+        import torch
+
+        from agents.sb3.residual import base_in_unit_scale, compose
+
+        agents = list(observations)
+        if not agents:
+            return {}
+        obs = torch.as_tensor(np.stack([observations[a] for a in agents]), dtype=torch.float32)
+        base = np.stack([commands[a] for a in agents])
+        unit = torch.as_tensor(base_in_unit_scale(base, self.high))
+        zeros = torch.zeros(self.model.gru.hidden_size)
+        h = torch.stack([self.hidden.get(a, zeros) for a in agents]).unsqueeze(0)
+        with torch.no_grad():
+            correction, h = self.model.step(obs, unit, h)
+        for i, a in enumerate(agents):
+            self.hidden[a] = h[0, i]
+        actions = compose(base, correction.numpy(), self.high)
+        return {a: actions[i] for i, a in enumerate(agents)}
+
+    def __call__(
+        self, observations: dict[str, np.ndarray], infos: dict[str, dict[str, Any]] | None
+    ) -> dict[str, np.ndarray]:
+        return self.correct(observations, self.base(observations, infos))
+
+
+def load_student(path: str | Path, env: Any) -> RecurrentStudentPolicy:
+    """The student saved at ``path`` as a policy for ``env``; ValueError if ``env``'s
+    observation is not the length it was trained on."""
+    data = _read(path)
+    space = env.observation_space(env.possible_agents[0])
+    dim = int(np.prod(space.shape))
+    if dim != data["obs_dim"]:
+        raise ValueError(
+            f"recurrent student {str(path)!r} reads observations of length {data['obs_dim']}, "
+            f"this env gives {dim} (its env: {data['env_kwargs']})"
+        )
+    model = new_student(space, hidden=data["hidden"])
+    model.load_state_dict(data["state_dict"])
+    return RecurrentStudentPolicy(model, data["base"], env)
+
+
+def _round_data(
+    path: Path, key: dict[str, Any], collect: Any
+) -> tuple[dict[str, np.ndarray], bool]:
+    """A round's sequences: read from ``path`` if it was written with the same ``key`` (env,
+    base, teacher, seeds, driver), else collected and written. Returns them and whether they
+    were reused."""
+    meta = path.with_suffix(".json")
+    if path.is_file() and meta.is_file() and json.loads(meta.read_text()) == key:
+        with np.load(path) as f:
+            return {k: f[k] for k in f.files}, True
+    data = collect()
+    np.savez(path, **data)
+    meta.write_text(json.dumps(key))
+    return data, False
+
+
+def _digest(path: Path) -> str:
+    import hashlib
+
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _concat(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """Rounds' sequences as one set, padded to the longest."""
+    t_max = max(p["obs"].shape[1] for p in parts)
+    out: dict[str, list[np.ndarray]] = {}
+    for p in parts:
+        pad = t_max - p["obs"].shape[1]
+        for k, v in p.items():
+            if v.ndim >= 2 and pad:
+                width = [(0, 0), (0, pad)] + [(0, 0)] * (v.ndim - 2)
+                v = np.pad(v, width)
+                if k == "step":
+                    v[:, -pad:] = np.arange(p["obs"].shape[1], t_max)
+            out.setdefault(k, []).append(v)
+    return {k: np.concatenate(v) for k, v in out.items()}
+
+
+def main(argv: list[str] | None = None) -> int:
+    from agents.sb3.train import add_env_arguments, env_kwargs_from_args
+
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    add_env_arguments(parser)
+    parser.add_argument("--base", required=True, help="the residual's base, scripted:NAME")
+    parser.add_argument(
+        "--teacher", required=True, help="scripted:NAME, privileged:NAME or privileged:NAME@truth"
+    )
+    parser.add_argument(
+        "--round-seeds",
+        nargs="+",
+        default=["0-199", "1000-1099"],
+        help="one seed range per round: the first with the base driving, the rest DAgger",
+    )
+    parser.add_argument("--val-seeds", default="200-209", help="closed-loop score per round")
+    parser.add_argument(
+        "--phases", default="0,25,50,100,150", help="first steps of the scored phases"
+    )
+    parser.add_argument("--epochs", type=int, default=30, help="round 1's passes")
+    parser.add_argument("--dagger-epochs", type=int, default=10, help="later rounds' passes")
+    parser.add_argument("--fit-seed", type=int, default=0, help="torch and minibatch seed")
+    parser.add_argument("--torch-threads", type=int, default=1)
+    parser.add_argument("--out", required=True, help="directory for the students and data")
+    args = parser.parse_args(argv)
+    try:
+        rounds = [parse_seeds(s, "--round-seeds") for s in args.round_seeds]
+        val_seeds = parse_seeds(args.val_seeds, "--val-seeds")
+    except ValueError as err:
+        parser.error(str(err))
+    used = [s for r in rounds for s in r]
+    if len(set(used)) != len(used):
+        parser.error(f"--round-seeds repeat seeds: {args.round_seeds}")
+    if set(used) & set(val_seeds):
+        parser.error(
+            f"--val-seeds share seeds with --round-seeds: {sorted(set(used) & set(val_seeds))}"
+        )
+    for flag, value in (("--epochs", args.epochs), ("--dagger-epochs", args.dagger_epochs)):
+        if value < 1:
+            parser.error(f"{flag} must be >= 1, got {value}")
+    from agents.sb3.report import phase_spans, score
+
+    try:  # checked before the rollouts, which take minutes
+        phases = [int(p) for p in args.phases.split(",")]
+        phase_spans(phases)
+    except ValueError:
+        parser.error(f"--phases must be increasing integers >= 0, got {args.phases!r}")
+    from agents.sb3.residual import check_residual
+
+    try:
+        check_residual(args.base, "--base")
+    except ValueError as err:
+        parser.error(str(err))
+    import torch
+
+    from agents.sb3.history_fit import collect_sequences, sequence_tensors, train_sequences
+    from swarm_env import parallel_env
+
+    torch.set_num_threads(args.torch_threads)
+    env_kwargs = env_kwargs_from_args(args)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    probe = parallel_env(**env_kwargs)
+    space = probe.observation_space(probe.possible_agents[0])
+    probe.close()
+    torch.manual_seed(args.fit_seed)
+    model = new_student(space)
+    log: dict[str, Any] = {
+        "env_kwargs": env_kwargs,
+        "base": args.base,
+        "teacher": args.teacher,
+        "round_seeds": args.round_seeds,
+        "val_seeds": val_seeds,
+        "phases": phases,
+        "rounds": [],
+    }
+    t_base = time.perf_counter()
+    log["base_val"] = score(args.base, env_kwargs, val_seeds, phases=phases)["mean"]
+    print(f"base on {args.val_seeds}: {log['base_val']} ({time.perf_counter() - t_base:.0f} s)")
+    parts: list[dict[str, np.ndarray]] = []
+    for r, seeds in enumerate(rounds, start=1):
+        t0 = time.perf_counter()
+        driver = None
+        if r > 1:
+            env = parallel_env(**env_kwargs)
+            driver = load_student(out / f"student_round{r - 1}.pt", env)
+            env.close()
+        key = {
+            "env_kwargs": env_kwargs,
+            "base": args.base,
+            "teacher": args.teacher,
+            "seeds": seeds,
+            # the driving student by content: a refit one makes the round's data stale
+            "driver": "base" if r == 1 else _digest(out / f"student_round{r - 1}.pt"),
+        }
+        data, reused = _round_data(
+            out / f"round{r}.npz",
+            key,
+            lambda seeds=seeds, driver=driver: collect_sequences(
+                env_kwargs, args.base, args.teacher, seeds, student=driver
+            ),
+        )
+        parts.append(data)
+        t1 = time.perf_counter()
+        epochs = args.epochs if r == 1 else args.dagger_epochs
+        losses = train_sequences(
+            model, sequence_tensors(_concat(parts)), epochs, seed=args.fit_seed + r
+        )
+        t2 = time.perf_counter()
+        path = out / f"student_round{r}.pt"
+        save_student(path, model, env_kwargs, args.base, teacher=args.teacher, round=r)
+        val = score(str(path), env_kwargs, val_seeds, phases=phases)["mean"]
+        t3 = time.perf_counter()
+        log["rounds"].append(
+            {
+                "round": r,
+                "seeds": seeds,
+                "data_reused": reused,
+                "sequences": int(sum(p["obs"].shape[0] for p in parts)),
+                "losses": losses,
+                "collect_s": t1 - t0,
+                "fit_s": t2 - t1,
+                "val_s": t3 - t2,
+                "val": val,
+            }
+        )
+        (out / "train_log.json").write_text(json.dumps(log, indent=1))
+        print(
+            f"round {r}: {len(seeds)} episodes ({'reused' if reused else 'collected'}, "
+            f"{t1 - t0:.0f} s), fit {t2 - t1:.0f} s, loss {losses[-1]:.4f}; on "
+            f"{args.val_seeds}: {val['formation_error_m']:.4f} m "
+            f"(base {log['base_val']['formation_error_m']:.4f} m)"
+        )
+    save_student(
+        out / "student.pt", model, env_kwargs, args.base, teacher=args.teacher, round=len(rounds)
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,253 @@
+"""agents.sb3.recurrent_student: a GRU residual on the estimate, distilled by DAgger."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from agents.policies import load_policy, policy_observation  # noqa: E402
+from agents.sb3.history_fit import collect_sequences  # noqa: E402
+from agents.sb3.recurrent_student import (  # noqa: E402
+    RecurrentStudentPolicy,
+    load_student,
+    main,
+    new_student,
+    read_student_metadata,
+    save_student,
+)
+from agents.sb3.residual import ResidualBase, base_in_unit_scale, compose  # noqa: E402
+from swarm_env import parallel_env  # noqa: E402
+
+ENV = {"preset": "lab-3m-4", "task": "formation", "observation": "phd", "max_steps": 8}
+BASE = "scripted:formation-known-n-fast"
+TEACHER = "privileged:formation-known-n-fast@truth"
+
+
+@pytest.fixture(scope="module")
+def env():
+    e = parallel_env(**ENV)
+    yield e
+    e.close()
+
+
+def _student(env, seed=0, zero=False):
+    torch.manual_seed(seed)
+    model = new_student(env.observation_space(env.possible_agents[0]))
+    if zero:  # the head's last layer at 0: no correction at all
+        with torch.no_grad():
+            model.head[-1].weight.zero_()
+            model.head[-1].bias.zero_()
+    else:  # large enough corrections to change the motion within a few steps
+        with torch.no_grad():
+            model.head[-1].bias.copy_(torch.tensor([0.3, -0.4]))
+    return model.eval()
+
+
+def test_a_step_equals_the_sequence_forward(env):
+    # The policy runs the GRU one step at a time; training runs it over whole sequences.
+    model = _student(env)
+    rng = np.random.default_rng(0)
+    dim = env.observation_space(env.possible_agents[0]).shape[0]
+    obs = torch.as_tensor(rng.uniform(-1, 1, (3, 7, dim)), dtype=torch.float32)
+    base = torch.as_tensor(rng.uniform(-1, 1, (3, 7, 2)), dtype=torch.float32)
+    with torch.no_grad():
+        whole = model(obs, base, torch.zeros(3, 7))
+        h, steps = None, []
+        for t in range(7):
+            out, h = model.step(obs[:, t], base[:, t], h)
+            steps.append(out)
+    np.testing.assert_allclose(torch.stack(steps, 1).numpy(), whole.numpy(), atol=1e-6)
+
+
+def test_a_zero_correction_gives_the_base_command_bit_for_bit(env):
+    policy = RecurrentStudentPolicy(_student(env, zero=True), BASE, env)
+    base = ResidualBase(BASE, env)
+    policy.reset(3)
+    base.reset(3)
+    obs, infos = env.reset(seed=3)
+    for _ in range(4):
+        got, want = policy(obs, infos), base(obs, infos)
+        for a in obs:
+            assert np.array_equal(got[a], np.asarray(want[a], np.float32)), a
+        obs, _, _, _, infos = env.step(got)
+
+
+def test_the_closed_loop_keeps_each_agents_state_and_resets_it(env):
+    # Stepping agent by agent in closed loop gives what the model gives over each agent's
+    # recorded sequence from the episode's start: the GRU state is the agent's own, and
+    # reset() starts it again.
+    policy = RecurrentStudentPolicy(_student(env), BASE, env)
+    for seed in (1, 2):  # the second episode after a reset
+        policy.reset(seed)
+        obs, infos = env.reset(seed=seed)
+        seen = {a: {"obs": [], "base": [], "act": []} for a in env.agents}
+        while env.agents:
+            commands = policy.base(obs, infos)
+            actions = policy.correct(obs, commands)
+            for a in obs:
+                seen[a]["obs"].append(obs[a])
+                seen[a]["base"].append(base_in_unit_scale(commands[a], policy.high))
+                seen[a]["act"].append(actions[a])
+            obs, _, _, _, infos = env.step(actions)
+        for a, s in seen.items():
+            x = torch.as_tensor(np.stack(s["obs"])[None], dtype=torch.float32)
+            b = torch.as_tensor(np.stack(s["base"])[None])
+            with torch.no_grad():
+                corr = policy.model(x, b, torch.zeros(1, x.shape[1]))[0].numpy()
+            want = compose(np.stack(s["base"]) * policy.high, corr, policy.high)
+            np.testing.assert_allclose(np.stack(s["act"]), want, atol=1e-5, err_msg=a)
+            assert np.abs(corr).max() > 0.1  # the check is not vacuous
+
+
+def test_dagger_states_are_the_students_and_labels_stay_against_the_base(env):
+    seeds = [4]
+    by_base = collect_sequences(ENV, BASE, TEACHER, seeds)
+    zero = RecurrentStudentPolicy(_student(env, zero=True), BASE, env)
+    same = collect_sequences(ENV, BASE, TEACHER, seeds, student=zero)
+    for k in by_base:  # a student that corrects nothing drives as the base does
+        assert np.array_equal(by_base[k], same[k]), k
+    moving = RecurrentStudentPolicy(_student(env), BASE, env)
+    own = collect_sequences(ENV, BASE, TEACHER, seeds, student=moving)
+    assert own["obs"].shape == by_base["obs"].shape
+    assert not np.array_equal(own["obs"][:, 2:], by_base["obs"][:, 2:])  # other states
+    # ... and the labels are the teacher's correction of the base there, not of the student.
+    assert np.abs(own["label"]).max() <= 1.0
+    assert not np.allclose(own["label"], 0.0)
+
+
+def test_a_saved_student_loads_and_acts_the_same(env, tmp_path):
+    model = _student(env)
+    path = tmp_path / "s.pt"
+    save_student(path, model, ENV, BASE, teacher=TEACHER, round=2)
+    meta = read_student_metadata(path)
+    assert meta["env_kwargs"] == ENV and meta["base"] == BASE and meta["round"] == 2
+    assert policy_observation(str(path)) == "phd"
+    a, b = RecurrentStudentPolicy(model, BASE, env), load_policy(str(path), env)
+    assert isinstance(b, RecurrentStudentPolicy)
+    for p in (a, b):
+        p.reset(5)
+    obs, infos = env.reset(seed=5)
+    for _ in range(3):
+        got, want = b(obs, infos), a(obs, infos)
+        for agent in obs:
+            assert np.array_equal(got[agent], want[agent])
+        obs, _, _, _, infos = env.step(want)
+
+
+def test_bad_student_files_are_refused(env, tmp_path):
+    with pytest.raises(ValueError, match="does not exist"):
+        load_student(tmp_path / "missing.pt", env)
+    junk = tmp_path / "junk.pt"
+    junk.write_bytes(b"not a torch file")
+    with pytest.raises(ValueError, match="not a recurrent student"):
+        load_student(junk, env)
+    other = tmp_path / "other.pt"
+    torch.save({"state_dict": {}}, other)
+    with pytest.raises(ValueError, match="not a recurrent student"):
+        load_student(other, env)
+    # A student trained on another observation (fewer lidar sectors) says so.
+    wide = parallel_env(**ENV, lidar_sectors=16)
+    try:
+        path = tmp_path / "wide.pt"
+        save_student(path, _student(wide), {**ENV, "lidar_sectors": 16}, BASE)
+        with pytest.raises(ValueError, match="observations of length"):
+            load_student(path, env)
+    finally:
+        wide.close()
+
+
+ARGS = [
+    "--preset",
+    "lab-3m-4",
+    "--max-steps",
+    "8",
+    "--base",
+    BASE,
+    "--teacher",
+    TEACHER,
+    "--val-seeds",
+    "9",
+    "--phases",
+    "0,4",
+    "--epochs",
+    "2",
+    "--dagger-epochs",
+    "1",
+]
+
+
+def test_main_trains_two_rounds_and_resumes_from_kept_data(tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = [*ARGS, "--round-seeds", "0-1", "2", "--out", str(out)]
+    assert main(argv) == 0
+    for name in ("student_round1.pt", "student_round2.pt", "student.pt", "round1.npz"):
+        assert (out / name).is_file(), name
+    log = json.loads((out / "train_log.json").read_text())
+    assert [r["round"] for r in log["rounds"]] == [1, 2]
+    assert [r["sequences"] for r in log["rounds"]] == [8, 12]  # 4 robots per episode
+    assert not any(r["data_reused"] for r in log["rounds"])
+    assert "formation_error_m@4-" in log["rounds"][1]["val"]
+    assert "formation_error_m@4-" in log["base_val"]
+    assert read_student_metadata(out / "student.pt")["round"] == 2
+    assert main(argv) == 0  # rerun: round 1's data is kept and reused
+    log = json.loads((out / "train_log.json").read_text())
+    assert log["rounds"][0]["data_reused"]
+    # Other seeds for round 1: its data is collected again.
+    assert main([*ARGS, "--round-seeds", "0", "2", "--out", str(out)]) == 0
+    log = json.loads((out / "train_log.json").read_text())
+    assert not log["rounds"][0]["data_reused"] and log["rounds"][0]["sequences"] == 4
+
+
+@pytest.mark.parametrize(
+    ("extra", "flag"),
+    [
+        (["--round-seeds", "0-2", "2"], "--round-seeds"),
+        (["--round-seeds", "0-2", "--val-seeds", "1"], "--val-seeds"),
+        (["--round-seeds", "0", "--epochs", "0"], "--epochs"),
+        (["--round-seeds", "0", "--phases", "5,2"], "--phases"),
+        (["--round-seeds", "0", "--base", "random"], "--base"),
+    ],
+)
+def test_main_refuses_bad_arguments_before_any_rollout(tmp_path, capsys, extra, flag):
+    with pytest.raises(SystemExit):
+        main([*ARGS, "--out", str(tmp_path / "x"), *extra])
+    assert flag in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
+
+
+def test_report_scores_students_pooled_against_their_base_without_training_runs(
+    env, tmp_path, capsys
+):
+    from agents.sb3 import report
+
+    paths = [tmp_path / "s0.pt", tmp_path / "s1.pt"]
+    for seed, path in enumerate(paths):
+        save_student(path, _student(env, seed=seed), ENV, BASE)
+    argv = ["--baselines", BASE, "--seeds", "3-4", "--phases", "0,4"]
+    argv += ["--group", f"students={paths[0]},{paths[1]}", "--out", str(tmp_path), "--name", "rs"]
+    assert report.main([*argv, "--env-from", str(paths[0])]) == 0
+    saved = json.loads((tmp_path / "results_rs.json").read_text())
+    assert set(saved["policies"]) == {BASE, *map(str, paths)}
+    assert saved["env_kwargs"]["max_steps"] == 8
+    assert saved["groups"] == {"students": [str(p) for p in paths]}
+    (pair,) = saved["paired"]
+    assert (pair["policy"], pair["baseline"]) == ("students", BASE)
+    # The pooled difference is the students' per-seed mean against the base's, seed by seed.
+    per = {
+        p: [d["formation_error_m"] for d in saved["policies"][p]["per_seed"]]
+        for p in saved["policies"]
+    }
+    want = np.mean(np.mean([per[str(p)] for p in paths], axis=0) - np.array(per[BASE]))
+    assert pair["mean_difference"] == pytest.approx(want)
+    assert want != 0.0  # the students really drove (nonzero corrections)
+    assert "formation_error_m@4-" in saved["paired_by_phase"]
+    with pytest.raises(SystemExit):
+        report.main(argv)  # neither --runs nor --env-from: no env to score in
+    assert "--env-from" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        report.main([*argv, "--env-from", str(paths[0]), "--group", "nameless"])
+    assert "--group" in capsys.readouterr().err
