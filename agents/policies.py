@@ -90,6 +90,20 @@ def load_policy(spec: str, env: Any) -> Any:
     )
 
 
+def model_env_kwargs(spec: str) -> dict[str, Any] | None:
+    """The env kwargs a trained policy file was trained in (an SB3 ``.zip`` or a recurrent
+    student ``.pt``), or ``None`` for a policy by name."""
+    if spec.endswith(".zip"):
+        from agents.sb3.policy import read_metadata
+
+        return dict(read_metadata(spec)["env_kwargs"])
+    if spec.endswith(".pt"):
+        from agents.sb3.recurrent_student import read_student_metadata
+
+        return dict(read_student_metadata(spec)["env_kwargs"])
+    return None
+
+
 def policy_observation(spec: str) -> str | None:
     """The observation mode a scripted policy reads (``"phd"`` for the controllers acting on
     the robot's PHD estimate), or ``None`` if it ignores the observation (``random``,

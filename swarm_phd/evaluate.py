@@ -207,11 +207,9 @@ def shared_env_kwargs(
 ) -> dict[str, Any]:
     """Preset, task, task parameters and config overrides of ``policy``'s evaluation env, minus
     the observation mode (each policy brings its own): what a ``--compare`` run must share."""
-    kwargs: dict[str, Any] = {}
-    if policy.endswith(".zip"):
-        from agents.sb3.policy import read_metadata
+    from agents.policies import model_env_kwargs
 
-        kwargs = dict(read_metadata(policy)["env_kwargs"])
+    kwargs: dict[str, Any] = model_env_kwargs(policy) or {}
     if task is not None and task != kwargs.get("task", task):
         kwargs.pop("task_params", None)  # the model's parameters belong to its own task
     kwargs.update(overrides)
@@ -223,10 +221,10 @@ def shared_env_kwargs(
 
 
 def _make_env(preset: str | None, task: str | None, policy: str, **overrides: Any) -> SwarmEnv:
-    if policy.endswith(".zip"):
-        from agents.sb3.policy import read_metadata
+    from agents.policies import model_env_kwargs
 
-        model = dict(read_metadata(policy)["env_kwargs"])
+    model = model_env_kwargs(policy)
+    if model is not None:  # a trained model (.zip) or recurrent student (.pt): its own env
         model_preset = model.pop("preset", None)
         model_task = model.pop("task", "wander")
         model_params = model.pop("task_params", {})
@@ -436,7 +434,7 @@ def evaluate_localization(
             for name, c in cost_s.items()
         )
         print(f"swarm-phd evaluate: ms per env step (per observer): {cost}", file=sys.stderr)
-    preset = preset or ("sim-6m-20" if not policy.endswith(".zip") else _model_preset(policy))
+    preset = preset or _model_preset(policy)
     task = env.task.name
     results = {
         "config": {
@@ -481,9 +479,12 @@ def evaluate_localization(
 
 
 def _model_preset(policy: str) -> str:
-    from agents.sb3.policy import read_metadata
+    """The preset a trained policy file's env used (seed-sim if it names none); sim-6m-20 for a
+    policy by name."""
+    from agents.policies import model_env_kwargs
 
-    return read_metadata(policy)["env_kwargs"].get("preset", "seed-sim")
+    model = model_env_kwargs(policy)
+    return "sim-6m-20" if model is None else model.get("preset", "seed-sim")
 
 
 def comparison_rows(all_results: list[dict[str, Any]]) -> list[dict[str, Any]]:

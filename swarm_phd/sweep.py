@@ -450,10 +450,9 @@ def run_evaluate_ray(args: argparse.Namespace) -> int:
     preset = args.preset
     if preset is None:  # the serial command's default: the model's preset, else seed-sim
         preset = "seed-sim"
-        if args.policy.endswith(".zip"):
-            from agents.sb3.policy import read_metadata
+        from agents.policies import model_env_kwargs
 
-            preset = read_metadata(args.policy)["env_kwargs"].get("preset", preset)
+        preset = (model_env_kwargs(args.policy) or {}).get("preset", preset)
     points = grid(
         [preset],
         _names(args.localizer, "--localizer"),

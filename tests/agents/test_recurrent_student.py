@@ -251,3 +251,22 @@ def test_report_scores_students_pooled_against_their_base_without_training_runs(
     with pytest.raises(SystemExit):
         report.main([*argv, "--env-from", str(paths[0]), "--group", "nameless"])
     assert "--group" in capsys.readouterr().err
+
+
+def test_evaluate_runs_a_student_in_its_own_env(env, tmp_path):
+    from swarm_phd.evaluate import _make_env, _model_preset, evaluate_localization
+
+    path = tmp_path / "s.pt"
+    save_student(path, _student(env), {**ENV, "task_params": {"radius_m": 0.7}}, BASE)
+    made = _make_env(None, None, str(path))
+    try:  # the student's env: its preset, task, parameters and observation
+        assert made.config.n_robots == 4 and made.config.observation == "phd"
+        assert made.task.name == "formation" and made.task.radius_m == 0.7
+    finally:
+        made.close()
+    assert _model_preset(str(path)) == "lab-3m-4"
+    out = evaluate_localization(
+        "lab-3m-4", 0.5, ["phd-lc"], [0], policy=str(path), task="formation"
+    )
+    assert out["config"]["policy"] == str(path)
+    assert 0.0 <= out["task"]["formation_error_m"] < 5.0
