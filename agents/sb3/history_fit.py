@@ -283,22 +283,44 @@ def fit_rows(data: dict[str, np.ndarray], prediction: np.ndarray) -> dict[str, n
     }
 
 
-def main(argv: list[str] | None = None) -> int:
-    from agents.sb3.train import add_env_arguments, env_kwargs_from_args
+def distillation_parser(description: str) -> argparse.ArgumentParser:
+    """A parser with the env's flags, ``--base``, ``--teacher`` and ``--phases`` (checked by
+    :func:`parse_phases`): what the distillation tools share."""
+    from agents.sb3.train import add_env_arguments
 
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=description)
     add_env_arguments(parser)
     parser.add_argument("--base", required=True, help="the residual's base, scripted:NAME")
     parser.add_argument(
         "--teacher", required=True, help="scripted:NAME, privileged:NAME or privileged:NAME@truth"
     )
-    parser.add_argument("--train-seeds", default="0-99")
-    parser.add_argument("--test-seeds", default="200-209")
     parser.add_argument(
         "--phases",
         default=",".join(map(str, DEFAULT_PHASES)),
-        help="comma-separated first steps of the phases",
+        help="comma-separated first steps of the scored phases",
     )
+    return parser
+
+
+def parse_phases(parser: argparse.ArgumentParser, text: str) -> list[int]:
+    """``--phases`` as step numbers, or the parser's error (called before any rollout, which
+    takes minutes)."""
+    from agents.sb3.report import phase_spans
+
+    try:
+        phases = [int(p) for p in text.split(",")]
+        phase_spans(phases)
+    except ValueError:
+        parser.error(f"--phases must be increasing integers >= 0, got {text!r}")
+    return phases
+
+
+def main(argv: list[str] | None = None) -> int:
+    from agents.sb3.train import env_kwargs_from_args
+
+    parser = distillation_parser(__doc__.split("\n\n")[0])
+    parser.add_argument("--train-seeds", default="0-99")
+    parser.add_argument("--test-seeds", default="200-209")
     parser.add_argument("--epochs", type=int, default=30, help="passes over the sequences")
     parser.add_argument(
         "--regressors",
@@ -324,13 +346,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--train-seeds and --test-seeds share seeds {shared}")
     if args.epochs < 1:
         parser.error(f"--epochs must be >= 1, got {args.epochs}")
-    from agents.sb3.report import phase_spans
-
-    try:  # checked before the rollouts, which take minutes
-        phases = [int(p) for p in args.phases.split(",")]
-        phase_spans(phases)
-    except ValueError:
-        parser.error(f"--phases must be increasing integers >= 0, got {args.phases!r}")
+    phases = parse_phases(parser, args.phases)
     kinds = tuple(k.strip() for k in args.regressors.split(",") if k.strip())
     if not kinds or any(k not in KINDS for k in kinds):
         parser.error(f"--regressors must be some of {','.join(KINDS)}, got {args.regressors!r}")

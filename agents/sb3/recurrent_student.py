@@ -35,7 +35,6 @@ scripted:formation-known-n-fast runs/recurrent/student.pt --seeds ...``.
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from pathlib import Path
@@ -206,14 +205,10 @@ def _concat(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from agents.sb3.train import add_env_arguments, env_kwargs_from_args
+    from agents.sb3.history_fit import distillation_parser, parse_phases
+    from agents.sb3.train import env_kwargs_from_args
 
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    add_env_arguments(parser)
-    parser.add_argument("--base", required=True, help="the residual's base, scripted:NAME")
-    parser.add_argument(
-        "--teacher", required=True, help="scripted:NAME, privileged:NAME or privileged:NAME@truth"
-    )
+    parser = distillation_parser(__doc__.split("\n\n")[0])
     parser.add_argument(
         "--round-seeds",
         nargs="+",
@@ -221,9 +216,6 @@ def main(argv: list[str] | None = None) -> int:
         help="one seed range per round: the first with the base driving, the rest DAgger",
     )
     parser.add_argument("--val-seeds", default="200-209", help="closed-loop score per round")
-    parser.add_argument(
-        "--phases", default="0,25,50,100,150", help="first steps of the scored phases"
-    )
     parser.add_argument("--epochs", type=int, default=30, help="round 1's passes")
     parser.add_argument("--dagger-epochs", type=int, default=10, help="later rounds' passes")
     parser.add_argument("--fit-seed", type=int, default=0, help="torch and minibatch seed")
@@ -245,13 +237,9 @@ def main(argv: list[str] | None = None) -> int:
     for flag, value in (("--epochs", args.epochs), ("--dagger-epochs", args.dagger_epochs)):
         if value < 1:
             parser.error(f"{flag} must be >= 1, got {value}")
-    from agents.sb3.report import phase_spans, score
+    from agents.sb3.report import score
 
-    try:  # checked before the rollouts, which take minutes
-        phases = [int(p) for p in args.phases.split(",")]
-        phase_spans(phases)
-    except ValueError:
-        parser.error(f"--phases must be increasing integers >= 0, got {args.phases!r}")
+    phases = parse_phases(parser, args.phases)
     from agents.sb3.residual import check_residual
 
     try:
