@@ -153,6 +153,9 @@ class RecurrentStudentPolicy:
 def load_student(path: str | Path, env: Any) -> RecurrentStudentPolicy:
     """The student saved at ``path`` as a policy for ``env``; ValueError if ``env``'s
     observation is not the length it was trained on."""
+    import torch
+
+    torch.set_num_threads(1)  # one agent-step at a time: a thread pool would only spin
     data = _read(path)
     space = env.observation_space(env.possible_agents[0])
     dim = int(np.prod(space.shape))
@@ -298,6 +301,7 @@ def main(argv: list[str] | None = None) -> int:
         parts.append(data)
         t1 = time.perf_counter()
         epochs = args.epochs if r == 1 else args.dagger_epochs
+        torch.set_num_threads(args.torch_threads)  # loading a student set it to 1
         losses = train_sequences(
             model, sequence_tensors(_concat(parts)), epochs, seed=args.fit_seed + r
         )
