@@ -10,10 +10,10 @@ seeds (:func:`agents.sb3.report.score`), and the localization metrics of
 ``--localizers`` on the records of that motion): GOSPA (m) and the pooled per-observer share
 of pair-steps with error above 0.30 m (median observer), and the same per seed, from which
 every policy is compared with every earlier one paired by seed (mean difference, SE, seeds
-better: :func:`paired_localization`). Models run in the env they were
-trained in; ``scripted:*`` and ``random`` in the first model's env (its task, task parameters
-and overrides; observation as the policy needs). Writes ``results_<name>.json`` and
-``results_<name>.md``.
+better: :func:`paired_localization`). Models (``.zip``) and recurrent students (``.pt``) run
+in the env they were trained in; ``scripted:*`` and ``random`` in the first model's env (its
+task, task parameters and overrides; observation as the policy needs). Writes
+``results_<name>.json`` and ``results_<name>.md``.
 """
 
 from __future__ import annotations
@@ -33,17 +33,18 @@ def policy_row(
     spec: str, base_kwargs: dict[str, Any], seeds: list[int], localizers: list[str], metric: str
 ) -> dict[str, Any]:
     """Return, task metric and localization metrics of one policy (see the module doc)."""
-    from agents.sb3.policy import read_metadata
+    from agents.policies import model_env_kwargs
     from swarm_phd.evaluate import evaluate_localization
 
-    if spec.endswith(".zip"):
-        kwargs = dict(read_metadata(spec)["env_kwargs"])
+    model = model_env_kwargs(spec)  # a .zip model's or a .pt student's own env, else None
+    if model is not None:
+        kwargs = model
     else:
         kwargs = {k: v for k, v in base_kwargs.items() if k not in ("observation", "localize")}
     scored = score(spec, kwargs, seeds)
     n_steps = int(kwargs.get("max_steps", 300))
     eval_kwargs = {k: v for k, v in kwargs.items() if k not in ("preset", "task")}
-    if not spec.endswith(".zip"):
+    if model is None:
         eval_kwargs.pop("max_steps", None)
     loc = evaluate_localization(
         kwargs["preset"],
@@ -52,7 +53,7 @@ def policy_row(
         seeds,
         policy=spec,
         task=kwargs["task"],
-        **({} if spec.endswith(".zip") else eval_kwargs),
+        **({} if model is not None else eval_kwargs),
     )
     values = [d[metric] for d in scored["per_seed"]]
     returns = [d["episode_return"] for d in scored["per_seed"]]
@@ -140,19 +141,23 @@ def markdown(rows: list[dict[str, Any]], metric: str, localizers: list[str]) -> 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--policies", nargs="+", required=True, help="model.zip or scripted:*")
+    parser.add_argument(
+        "--policies", nargs="+", required=True, help="model.zip, student.pt or scripted:*"
+    )
     parser.add_argument("--seeds", default="100-109")
     parser.add_argument("--localizers", default="phd-lc", help="comma-separated")
     parser.add_argument("--metric", default="formation_error_m")
     parser.add_argument("--out", default="docs/results")
     parser.add_argument("--name", default="ablation")
     args = parser.parse_args(argv)
-    from agents.sb3.policy import read_metadata
+    from agents.policies import model_env_kwargs
 
-    models = [p for p in args.policies if p.endswith(".zip")]
+    models = [p for p in args.policies if p.endswith((".zip", ".pt"))]
     if not models:
-        raise ValueError("--policies needs at least one model.zip (its env is the table's env)")
-    base = dict(read_metadata(models[0])["env_kwargs"])
+        raise ValueError(
+            "--policies needs at least one model.zip or student.pt (its env is the table's env)"
+        )
+    base = model_env_kwargs(models[0])
     seeds = parse_seeds(args.seeds)
     localizers = [s.strip() for s in args.localizers.split(",") if s.strip()]
     rows = []

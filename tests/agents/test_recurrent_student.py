@@ -270,3 +270,18 @@ def test_evaluate_runs_a_student_in_its_own_env(env, tmp_path):
     )
     assert out["config"]["policy"] == str(path)
     assert 0.0 <= out["task"]["formation_error_m"] < 5.0
+
+
+def test_localization_table_scores_a_student_in_its_own_env(env, tmp_path):
+    from agents.sb3 import localization_table
+
+    path = tmp_path / "s.pt"
+    save_student(path, _student(env), ENV, BASE)
+    argv = ["--policies", str(path), BASE, "--seeds", "2", "--out", str(tmp_path)]
+    assert localization_table.main([*argv, "--name", "loc"]) == 0
+    saved = json.loads((tmp_path / "results_loc.json").read_text())
+    assert saved["env_kwargs"] == ENV  # the table's env is the student's
+    student, base = saved["rows"]
+    # The same rollouts scored twice: the task metric agrees between score and evaluate.
+    assert student["formation_error_m_evaluate"] == pytest.approx(student["formation_error_m"][0])
+    assert student["formation_error_m"] != base["formation_error_m"]  # it drove, not the base
