@@ -27,6 +27,8 @@ arrival times. Faults can be injected on the outgoing sensor messages (:class:`F
 
 The server runs its own asyncio loop in a daemon thread; :meth:`stop` takes the network down
 (the robots keep living), :meth:`start` brings it back on the same port, :meth:`close` ends it.
+:class:`LoopbackProcess` runs one in a process of its own, so that its real-time sim does not
+compete with the bridge for this process's GIL.
 """
 
 from __future__ import annotations
@@ -780,6 +782,91 @@ class LoopbackServer:
             delay = mono0 + step.time_s - time.monotonic()
             if delay > 0:
                 await asyncio.sleep(delay)
+
+
+class LoopbackProcess:
+    """A :class:`LoopbackServer` in a process of its own (``spawn``): its real-time sim does not
+    share this process's GIL and garbage collector with the bridge, as a real robot does not
+    share the host. For tests and dry runs whose timing must be the robots' own.
+
+    ``LoopbackProcess(preset, seed=0, **kwargs)`` takes :class:`LoopbackServer`'s arguments;
+    :meth:`start` returns the port, :meth:`close` stops the server and returns its figures
+    (``max_lag_s``: how late the sim published at worst; ``sim_steps``; ``counters``, e.g.
+    ``server.realtime_resyncs``)."""
+
+    def __init__(self, preset: str = "seed-lab", **kwargs: Any) -> None:
+        self.preset = preset
+        self.kwargs = kwargs
+        self.port: int | None = None
+        self._proc: Any = None
+        self._conn: Any = None
+
+    def start(self, timeout_s: float = 60.0) -> int:
+        import multiprocessing
+
+        ctx = multiprocessing.get_context("spawn")  # never fork a process with threads
+        self._conn, child = ctx.Pipe()
+        self._proc = ctx.Process(
+            target=_serve_loopback, args=(child, self.preset, self.kwargs), daemon=True
+        )
+        self._proc.start()
+        child.close()
+        if not self._conn.poll(timeout_s):
+            self._proc.kill()
+            raise TimeoutError(f"the loopback process did not start within {timeout_s} s")
+        reply = self._conn.recv()
+        if isinstance(reply, BaseException):
+            raise reply
+        self.port = int(reply)
+        return self.port
+
+    def close(self, timeout_s: float = 10.0) -> dict[str, Any]:
+        """Stop the server and its process; its figures (class doc), {} if it had died."""
+        if self._proc is None:
+            return {}
+        stats: dict[str, Any] = {}
+        try:
+            self._conn.send("close")
+            if self._conn.poll(timeout_s):
+                stats = self._conn.recv()
+        except (BrokenPipeError, EOFError, OSError):
+            pass
+        self._proc.join(timeout_s)
+        if self._proc.is_alive():
+            self._proc.kill()
+        self._proc = None
+        return stats
+
+    def __enter__(self) -> LoopbackProcess:
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _serve_loopback(conn: Any, preset: str, kwargs: dict[str, Any]) -> None:
+    """:class:`LoopbackProcess`'s child: serve until told to close, then report."""
+    try:
+        server = LoopbackServer(preset, **kwargs)
+        conn.send(server.start())
+    except BaseException as err:  # noqa: BLE001 - reported to the parent, which raises it
+        conn.send(err)
+        return
+    try:
+        conn.recv()
+    except EOFError:  # the parent is gone
+        pass
+    stats = {
+        "max_lag_s": server.max_lag_s,
+        "sim_steps": server.sim_steps,
+        "counters": server.counters.snapshot(),
+    }
+    server.close()
+    try:
+        conn.send(stats)
+    except (BrokenPipeError, OSError):
+        pass
 
 
 # ---------------------------------------------------------------------------- hostile inputs

@@ -25,8 +25,11 @@ quarter of its turn rate's, against a third and under a tenth for one frame
   with its env, base and teacher, and is scored in closed loop on ``--val-seeds`` per phase
   of the episode, with the base beside it (``train_log.json``). Selecting on those seeds is
   the user's choice; the final test belongs on seeds used nowhere here.
-- Each round's sequences are kept (``round<r>.npz``) and reused when the command is rerun
-  with the same env, base, teacher and seeds: a run stopped after a round resumes from it.
+- Each round's sequences are kept (``round<r>.npz``, with the key they were collected with)
+  and reused when the command is rerun with the same env, base, teacher and seeds, and, from
+  round 2, the same driving student (its weights' hash): round 1's always, a later round's
+  when the refit reproduces the student bit for bit (the same machine and ``--torch-threads``;
+  torch's sums are not bit-identical across thread counts). Every round is refitted.
 
 Score a student like any policy: ``swarm-phd evaluate --policy runs/recurrent/student.pt`` or
 ``python -m agents.sb3.report --env-from runs/recurrent/student.pt --baselines
@@ -174,21 +177,35 @@ def _round_data(
 ) -> tuple[dict[str, np.ndarray], bool]:
     """A round's sequences: read from ``path`` if it was written with the same ``key`` (env,
     base, teacher, seeds, driver), else collected and written. Returns them and whether they
-    were reused."""
+    were reused. The key is written last, after the data is complete: a run killed while
+    writing leaves no key, and its data is collected again."""
+    import os
+
     meta = path.with_suffix(".json")
     if path.is_file() and meta.is_file() and json.loads(meta.read_text()) == key:
         with np.load(path) as f:
             return {k: f[k] for k in f.files}, True
+    meta.unlink(missing_ok=True)
     data = collect()
-    np.savez(path, **data)
+    partial = path.with_name(path.stem + ".partial.npz")
+    np.savez(partial, **data)
+    os.replace(partial, path)
     meta.write_text(json.dumps(key))
     return data, False
 
 
 def _digest(path: Path) -> str:
+    """A hash of a saved student's weights (names, shapes and values, in name order): the same
+    for the same student whatever ``torch.save``'s container bytes."""
     import hashlib
 
-    return hashlib.sha256(path.read_bytes()).hexdigest()
+    state = _read(path)["state_dict"]
+    h = hashlib.sha256()
+    for name in sorted(state):
+        t = state[name].contiguous()
+        h.update(f"{name}{tuple(t.shape)}{t.dtype}".encode())
+        h.update(t.numpy().tobytes())
+    return h.hexdigest()
 
 
 def _concat(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
@@ -237,9 +254,15 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(
             f"--val-seeds share seeds with --round-seeds: {sorted(set(used) & set(val_seeds))}"
         )
-    for flag, value in (("--epochs", args.epochs), ("--dagger-epochs", args.dagger_epochs)):
+    for flag, value in (
+        ("--epochs", args.epochs),
+        ("--dagger-epochs", args.dagger_epochs),
+        ("--torch-threads", args.torch_threads),
+    ):
         if value < 1:
             parser.error(f"{flag} must be >= 1, got {value}")
+    if args.fit_seed < 0:
+        parser.error(f"--fit-seed must be >= 0, got {args.fit_seed}")
     from agents.sb3.report import score
 
     phases = parse_phases(parser, args.phases)
@@ -256,11 +279,18 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.set_num_threads(args.torch_threads)
     env_kwargs = env_kwargs_from_args(args)
+    probe = parallel_env(**env_kwargs)
+    try:
+        space = probe.observation_space(probe.possible_agents[0])
+        from agents.sb3.privileged import load_teacher
+
+        load_teacher(args.teacher, probe)  # a bad spec fails here, before any rollout
+    except ValueError as err:
+        parser.error(f"--teacher {args.teacher!r}: {err}")
+    finally:
+        probe.close()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    probe = parallel_env(**env_kwargs)
-    space = probe.observation_space(probe.possible_agents[0])
-    probe.close()
     torch.manual_seed(args.fit_seed)
     model = new_student(space)
     log: dict[str, Any] = {
@@ -269,6 +299,10 @@ def main(argv: list[str] | None = None) -> int:
         "teacher": args.teacher,
         "round_seeds": args.round_seeds,
         "val_seeds": val_seeds,
+        "fit_seed": args.fit_seed,
+        "epochs": args.epochs,
+        "dagger_epochs": args.dagger_epochs,
+        "torch_threads": args.torch_threads,
         "phases": phases,
         "rounds": [],
     }

@@ -11,8 +11,9 @@ recorded and drawn). A markdown table (mean +- std over the held-out seeds, and 
 runs) is printed and written to ``results_<name>.md``, with a second one that pairs every
 learned group and baseline with every baseline by seed (:func:`paired_differences`: the mean
 difference, its standard error and on how many seeds the policy is better).
-``--group NAME=A,B`` scores more policies (models, recurrent students) pooled as one learned
-group; without ``--runs``, ``--env-from MODEL`` gives the env. ``--phases 0,150`` also scores
+``--group NAME=A,B`` scores more policies (models, recurrent students: each in its own env,
+with ``--baseline-overrides``) pooled as one learned group; without ``--runs``, ``--env-from
+MODEL`` gives the baselines' env. ``--phases 0,150`` also scores
 the metric over phases of the episode (steps 0-149 and 150 to
 the end: ``formation_error_m@0-150``, ``formation_error_m@150-``, from the task's per-step
 series), with a paired table per phase.
@@ -364,11 +365,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument(
         "--group",
-        nargs="*",
+        nargs="+",
+        action="extend",
         default=[],
         metavar="NAME=SPEC,SPEC",
         help="policies scored and pooled as one learned group, like the runs of one recipe "
-        "(e.g. recurrent students of several fit seeds: 'students=a.pt,b.pt,c.pt')",
+        "(e.g. recurrent students of several fit seeds: 'students=a.pt,b.pt,c.pt'); each in "
+        "its own env (a model's or a student's) with --baseline-overrides",
     )
     parser.add_argument("--seeds", default="100-109")
     parser.add_argument("--out", default="docs/results")
@@ -400,8 +403,8 @@ def main(argv: list[str] | None = None) -> int:
         "--baseline-overrides",
         default="{}",
         metavar="JSON",
-        help="SwarmConfig overrides for the baselines' env only, e.g. '{\"localizer\": "
-        '"id-phd"}\' (models always run in their own env)',
+        help="SwarmConfig overrides for the baselines' and the --group members' env, e.g. "
+        '\'{"localizer": "id-phd"}\' (the --runs models always run in their own env)',
     )
     parser.add_argument(
         "--curves-only",
@@ -455,7 +458,12 @@ def main(argv: list[str] | None = None) -> int:
         members = [x for x in specs.split(",") if x]
         if not name or not members or name in extra_groups:
             parser.error(f"--group must be NAME=SPEC[,SPEC...] with distinct names, got {item!r}")
+        missing = [m for m in members if m.endswith((".zip", ".pt")) and not Path(m).is_file()]
+        if missing:  # before any scoring, which takes minutes
+            parser.error(f"--group {name}: no such file {missing}")
         extra_groups[name] = members
+    if runs and args.env_from is not None:
+        parser.error("--env-from is for reports without --runs (the first run gives the env)")
     overrides = parse_json_object(args.baseline_overrides, "--baseline-overrides")
     if runs:
         env_kwargs = read_metadata(runs[0] / "model.zip")["env_kwargs"]
@@ -523,10 +531,14 @@ def main(argv: list[str] | None = None) -> int:
                     final["mean"],
                 )
             )
+    from agents.policies import model_env_kwargs
+
     for name, specs in extra_groups.items():
         for spec in specs:
             if spec not in results["policies"]:
-                results["policies"][spec] = score(spec, env_kwargs, seeds, phases=phases)
+                own = model_env_kwargs(spec)  # a model's or a student's own env, else None
+                kwargs = env_kwargs if own is None else {**own, **overrides}
+                results["policies"][spec] = score(spec, kwargs, seeds, phases=phases)
                 print(spec, results["policies"][spec]["mean"])
         groups[name] = specs
     results["pooled"] = {

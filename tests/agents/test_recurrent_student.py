@@ -76,6 +76,23 @@ def test_a_zero_correction_gives_the_base_command_bit_for_bit(env):
         obs, _, _, _, infos = env.step(got)
 
 
+def test_each_agents_state_is_kept_by_name_whatever_the_order(env):
+    # The same steps with the agents listed in reverse order give each agent the same action:
+    # the GRU state follows the agent's name, not its position in the dict.
+    a, b = (RecurrentStudentPolicy(_student(env), BASE, env) for _ in range(2))
+    for p in (a, b):
+        p.reset(6)
+    obs, infos = env.reset(seed=6)
+    for _ in range(4):
+        commands = a.base(obs, infos)
+        b.base(obs, infos)  # keep b's scripted base in step with a's
+        forward = a.correct(obs, commands)
+        backward = b.correct(dict(reversed(obs.items())), dict(reversed(commands.items())))
+        for agent in obs:
+            np.testing.assert_allclose(backward[agent], forward[agent], atol=1e-6)
+        obs, _, _, _, infos = env.step(forward)
+
+
 def test_the_closed_loop_keeps_each_agents_state_and_resets_it(env):
     # Stepping agent by agent in closed loop gives what the model gives over each agent's
     # recorded sequence from the episode's start: the GRU state is the agent's own, and
@@ -114,9 +131,24 @@ def test_dagger_states_are_the_students_and_labels_stay_against_the_base(env):
     own = collect_sequences(ENV, BASE, TEACHER, seeds, student=moving)
     assert own["obs"].shape == by_base["obs"].shape
     assert not np.array_equal(own["obs"][:, 2:], by_base["obs"][:, 2:])  # other states
-    # ... and the labels are the teacher's correction of the base there, not of the student.
-    assert np.abs(own["label"]).max() <= 1.0
-    assert not np.allclose(own["label"], 0.0)
+    # ... and the labels are the teacher's correction of the base there, not of the student:
+    # replayed with the same student, clip((teacher - base) / high) step by step.
+    from agents.sb3.privileged import load_teacher
+    from agents.sb3.warm_start import correction_labels
+
+    base, tutor = ResidualBase(BASE, env), load_teacher(TEACHER, env)
+    again = RecurrentStudentPolicy(_student(env), BASE, env)
+    for p in (base, tutor, again):
+        p.reset(seeds[0])
+    obs, infos = env.reset(seed=seeds[0])
+    step = 0
+    while env.agents:
+        commands, taught = base(obs, infos), tutor(obs, infos)
+        want = correction_labels(taught, commands, tutor.wandering, list(obs), base.high)
+        np.testing.assert_array_equal(own["label"][:, step], want)
+        obs, _, _, _, infos = env.step(again.correct(obs, commands))
+        step += 1
+    assert step == own["obs"].shape[1] and not np.allclose(own["label"], 0.0)
 
 
 def test_a_saved_student_loads_and_acts_the_same(env, tmp_path):
@@ -193,9 +225,14 @@ def test_main_trains_two_rounds_and_resumes_from_kept_data(tmp_path, capsys):
     assert "formation_error_m@4-" in log["rounds"][1]["val"]
     assert "formation_error_m@4-" in log["base_val"]
     assert read_student_metadata(out / "student.pt")["round"] == 2
-    assert main(argv) == 0  # rerun: round 1's data is kept and reused
+    assert main(argv) == 0  # rerun: round 1's data is kept and reused, and round 2's, since
+    log = json.loads((out / "train_log.json").read_text())  # the refit student is the same
+    assert [r["data_reused"] for r in log["rounds"]] == [True, True]
+    assert log["fit_seed"] == 0 and log["epochs"] == 2 and log["dagger_epochs"] == 1
+    # Another fit seed: another round-1 student, so round 2's data is collected again.
+    assert main([*argv, "--fit-seed", "1"]) == 0
     log = json.loads((out / "train_log.json").read_text())
-    assert log["rounds"][0]["data_reused"]
+    assert [r["data_reused"] for r in log["rounds"]] == [True, False]
     # Other seeds for round 1: its data is collected again.
     assert main([*ARGS, "--round-seeds", "0", "2", "--out", str(out)]) == 0
     log = json.loads((out / "train_log.json").read_text())
@@ -210,6 +247,8 @@ def test_main_trains_two_rounds_and_resumes_from_kept_data(tmp_path, capsys):
         (["--round-seeds", "0", "--epochs", "0"], "--epochs"),
         (["--round-seeds", "0", "--phases", "5,2"], "--phases"),
         (["--round-seeds", "0", "--base", "random"], "--base"),
+        (["--round-seeds", "0", "--teacher", "privileged:nope"], "--teacher"),
+        (["--round-seeds", "0", "--fit-seed", "-2"], "--fit-seed"),
     ],
 )
 def test_main_refuses_bad_arguments_before_any_rollout(tmp_path, capsys, extra, flag):
@@ -251,6 +290,9 @@ def test_report_scores_students_pooled_against_their_base_without_training_runs(
     with pytest.raises(SystemExit):
         report.main([*argv, "--env-from", str(paths[0]), "--group", "nameless"])
     assert "--group" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # a missing member is named before any scoring
+        report.main([*argv, "--env-from", str(paths[0]), "--group", f"x={tmp_path}/gone.pt"])
+    assert "gone.pt" in capsys.readouterr().err
 
 
 def test_evaluate_runs_a_student_in_its_own_env(env, tmp_path):
@@ -268,8 +310,10 @@ def test_evaluate_runs_a_student_in_its_own_env(env, tmp_path):
     out = evaluate_localization(
         "lab-3m-4", 0.5, ["phd-lc"], [0], policy=str(path), task="formation"
     )
+    base = evaluate_localization("lab-3m-4", 0.5, ["phd-lc"], [0], policy=BASE, task="formation")
     assert out["config"]["policy"] == str(path)
-    assert 0.0 <= out["task"]["formation_error_m"] < 5.0
+    # Its own correction drove the robots: not the base's motion.
+    assert out["task"]["formation_error_m"] != base["task"]["formation_error_m"]
 
 
 def test_localization_table_scores_a_student_in_its_own_env(env, tmp_path):
