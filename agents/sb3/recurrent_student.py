@@ -23,7 +23,8 @@ quarter of its turn rate's, against a third and under a tenth for one frame
   ``--dagger-epochs`` after);
 - each round's student is saved (``student_round<r>.pt``, the last also as ``student.pt``)
   with its env, base and teacher, and is scored in closed loop on ``--val-seeds`` per phase
-  of the episode, with the base beside it (``train_log.json``). Selecting on those seeds is
+  of the episode, with the base beside it (``train_log.json``, drawn in ``train_log.png``;
+  several runs in one figure: :func:`plot_train_logs`). Selecting on those seeds is
   the user's choice; the final test belongs on seeds used nowhere here.
 - Each round's sequences are kept (``round<r>.npz``, with the key they were collected with)
   and reused when the command is rerun with the same env, base, teacher and seeds, and, from
@@ -47,7 +48,13 @@ import numpy as np
 
 from swarm_phd.sweep import parse_seeds
 
-__all__ = ["RecurrentStudentPolicy", "load_student", "read_student_metadata", "save_student"]
+__all__ = [
+    "RecurrentStudentPolicy",
+    "load_student",
+    "plot_train_logs",
+    "read_student_metadata",
+    "save_student",
+]
 
 #: The saved file's ``format`` field; a file without it is refused.
 FORMAT = "swarm-phd recurrent residual student v1"
@@ -224,6 +231,40 @@ def _concat(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
     return {k: np.concatenate(v) for k, v in out.items()}
 
 
+def plot_train_logs(logs: list[str | Path], figure: str | Path) -> None:
+    """Draw each run's validation score per DAgger round (``train_log.json`` files), over the
+    episode and once settled (the last phase), with its base's as a dashed line, to
+    ``figure`` (PNG): how DAgger rounds move a student."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import matplotlib.ticker
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4), squeeze=False)
+    for path in logs:
+        log = json.loads(Path(path).read_text())
+        metric = "formation_error_m"
+        settled = f"{metric}@{log['phases'][-1]}-"
+        label = Path(path).parent.name
+        if "fit_seed" in log:
+            label += f" (fit seed {log['fit_seed']})"
+        rounds = [r["round"] for r in log["rounds"]]
+        for ax, key in zip(axes[0], (metric, settled), strict=True):
+            line = ax.plot(rounds, [r["val"][key] for r in log["rounds"]], "o-", label=label)[0]
+            ax.axhline(log["base_val"][key], ls="--", color=line.get_color(), alpha=0.5)
+    for ax, title in zip(axes[0], ("episode", "settled (last phase)"), strict=True):
+        ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
+        ax.set_xlabel("DAgger round (1: the base's states only)")
+        ax.set_ylabel("formation error (m), validation seeds")
+        ax.set_title(f"recurrent student, {title}; dashed: the base")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(figure, dpi=110)
+    plt.close(fig)
+
+
 def main(argv: list[str] | None = None) -> int:
     from agents.sb3.history_fit import distillation_parser, parse_phases
     from agents.sb3.train import env_kwargs_from_args
@@ -358,6 +399,7 @@ def main(argv: list[str] | None = None) -> int:
             }
         )
         (out / "train_log.json").write_text(json.dumps(log, indent=1))
+        plot_train_logs([out / "train_log.json"], out / "train_log.png")
         print(
             f"round {r}: {len(seeds)} episodes ({'reused' if reused else 'collected'}, "
             f"{t1 - t0:.0f} s), fit {t2 - t1:.0f} s, loss {losses[-1]:.4f}; on "

@@ -216,7 +216,8 @@ def test_main_trains_two_rounds_and_resumes_from_kept_data(tmp_path, capsys):
     out = tmp_path / "run"
     argv = [*ARGS, "--round-seeds", "0-1", "2", "--out", str(out)]
     assert main(argv) == 0
-    for name in ("student_round1.pt", "student_round2.pt", "student.pt", "round1.npz"):
+    names = ("student_round1.pt", "student_round2.pt", "student.pt", "round1.npz")
+    for name in (*names, "train_log.png"):
         assert (out / name).is_file(), name
     log = json.loads((out / "train_log.json").read_text())
     assert [r["round"] for r in log["rounds"]] == [1, 2]
