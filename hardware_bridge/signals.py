@@ -40,6 +40,22 @@ def _raise_for(signum: int) -> None:
     raise Terminated(signum)
 
 
+def signal_cause(exc: BaseException | None) -> BaseException | None:
+    """The :class:`Terminated` or ``KeyboardInterrupt`` that ``exc`` was raised from, if any
+    (``exc`` itself, its ``__cause__`` or unsuppressed ``__context__``, transitively). A
+    handler that raises while C code is calling back into Python (numba loading a cached
+    kernel, for one) surfaces as a ``SystemError`` caused by the signal's exception; the
+    caller re-raises the cause."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, (Terminated, KeyboardInterrupt)):
+            return exc
+        seen.add(id(exc))
+        # As a traceback reads the chain: the cause, else the context unless suppressed.
+        exc = exc.__cause__ or (None if exc.__suppress_context__ else exc.__context__)
+    return None
+
+
 @contextmanager
 def critical() -> Iterator[None]:
     """Defer SIGINT/SIGTERM/SIGHUP exceptions to the end of this block (main thread only)."""

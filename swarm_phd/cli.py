@@ -245,6 +245,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as exc:  # bad input: a clear message, no traceback
         print(f"swarm-phd {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except SystemError as exc:
+        # SIGTERM/SIGINT raised inside a C callback (numba loading a kernel) arrives wrapped:
+        # exit as the signal asks (128 + signum), every finally having run on the way here.
+        from hardware_bridge.signals import signal_cause
+
+        cause = signal_cause(exc)
+        if cause is None:
+            raise
+        raise cause from exc
     finally:
         progress.set_quiet(False)
 

@@ -254,3 +254,39 @@ def test_progress_lines_when_not_a_tty_and_silent_when_quiet(monkeypatch):
     monkeypatch.setenv("SWARM_PHD_PROGRESS", "loud")
     with pytest.raises(ValueError, match="SWARM_PHD_PROGRESS"):
         progress.bar(1, "x")
+
+
+def test_a_signal_raised_inside_a_c_callback_still_exits_as_the_signal(monkeypatch, tmp_path):
+    # SIGTERM's Terminated raised while numba was loading a cached kernel reached the top as a
+    # SystemError caused by it (CI, 2026-12-05: export-bag exited 1, not 143). The command line
+    # re-raises the signal's exception, so the process exits 128 + 15 after every finally.
+    import swarm_phd.export_bag as export_bag
+    from hardware_bridge.signals import Terminated, signal_cause
+
+    def wrapped(args):
+        try:
+            raise Terminated(signal.SIGTERM)
+        except Terminated as err:
+            raise SystemError("returned a result with an exception set") from err
+
+    monkeypatch.setattr(export_bag, "run", wrapped)
+    with pytest.raises(Terminated) as caught:
+        main(["export-bag", "--out", str(tmp_path / "b")])
+    assert caught.value.code == 128 + signal.SIGTERM
+    # Found through __context__ too; a SystemError from anything else is not a signal.
+    try:
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            raise SystemError("implicit") from None
+    except SystemError as err:
+        assert signal_cause(err) is None  # "from None" hides the context: not ours to guess
+        assert isinstance(signal_cause(err.__context__), KeyboardInterrupt)
+    assert signal_cause(SystemError("other")) is None
+
+    def other(args):
+        raise SystemError("a real bug")
+
+    monkeypatch.setattr(export_bag, "run", other)
+    with pytest.raises(SystemError, match="a real bug"):
+        main(["export-bag", "--out", str(tmp_path / "c")])
