@@ -87,7 +87,9 @@ def test_export_bag_survives_sigterm(tmp_path):
     proc = _run_until_recorded(cmd + ["--duration", "100000"], bag, 20, 200.0)
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=30)
-    # Once (CI, 2026-12-03, a kernel compile beside it) this exited 1; keep its stderr.
+    # Twice (CI, 2026-12-03 and 12-05) this exited 1: SIGTERM's exception raised inside
+    # numba's kernel loading came out as a SystemError. The command line now re-raises the
+    # signal's exception (tests/test_cli.py); keep the stderr if it ever recurs.
     assert proc.returncode == 128 + signal.SIGTERM, err.decode()
     assert b"Traceback" not in err, err.decode()
     world = ReplayWorld(bag)
