@@ -254,8 +254,7 @@ def fit_regressors(
         train_sequences(model, tensors["train"], epochs, batch_sequences, learning_rate, seed)
     out: dict[str, dict[str, np.ndarray]] = {}
     with torch.no_grad():  # in chunks of sequences: the encoder's activations are large
-        for name, model in models.items():
-            model.eval()
+        for name, model in models.items():  # train_sequences left each in eval mode
             out[name] = {
                 part: np.concatenate(
                     [
