@@ -104,6 +104,25 @@ def model_env_kwargs(spec: str) -> dict[str, Any] | None:
     return None
 
 
+def trained_policy_env(
+    spec: str, preset: str | None = None, task: str | None = None, **overrides: Any
+) -> dict[str, Any] | None:
+    """The env kwargs a trained policy file (``.zip`` or ``.pt``) runs in: its own preset,
+    task, task parameters and observation settings, then ``overrides``. A ``preset`` or
+    ``task`` given replaces the model's; another task drops the model's task parameters (they
+    belong to its own task). ``None`` for a policy by name."""
+    model = model_env_kwargs(spec)
+    if model is None:
+        return None
+    model_preset = model.pop("preset", None)
+    model_task = model.pop("task", "wander")
+    model_params = model.pop("task_params", {})
+    if task is None or task == model_task:  # the model's observation includes its task
+        task = model_task
+        model["task_params"] = model_params
+    return {**model, **overrides, "preset": preset or model_preset, "task": task}
+
+
 def policy_observation(spec: str) -> str | None:
     """The observation mode a scripted policy reads (``"phd"`` for the controllers acting on
     the robot's PHD estimate), or ``None`` if it ignores the observation (``random``,

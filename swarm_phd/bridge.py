@@ -1,12 +1,15 @@
-"""``swarm-phd bridge``: run the scripted wander policy through the bridge env.
+"""``swarm-phd bridge``: drive robots through the bridge env with a policy (the scripted
+wander by default, any scripted controller, or a trained ``.zip`` model or ``.pt`` student).
 
 ``--loopback`` is a dry run: it starts the loopback robot server (the simulator behind a
 rosbridge-compatible websocket on 127.0.0.1) in this process and drives it exactly as it would
 drive robots. Its robots carry the simulator's sensors, so the filter gets the preset's
 simulator model (``make_config(preset).phd``); real robots get the seed's hardware model
 (:func:`hardware_bridge.real_env`). ``--host H --robots ugv_0,ugv_1`` drives real robots (a
-non-loopback host needs ``--allow-remote``). Prints localization metrics (when motion capture
-gives ground truth) and the bridge's message counters.
+non-loopback host needs ``--allow-remote``). A trained policy runs in its own env's task,
+observation and preset (``agents.policies.trained_policy_env``), on ``len(robots)`` robots.
+Prints localization metrics and the task's metrics (when motion capture gives ground truth)
+and the bridge's message counters.
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from pathlib import Path
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -35,15 +39,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="allow a non-loopback --host (rosbridge has no authentication)",
     )
-    parser.add_argument("--preset", default="seed-lab")
+    parser.add_argument(
+        "--preset", default=None, help="default: a trained policy's own preset, else lab-3m-4"
+    )
     parser.add_argument("--steps", type=int, default=100, help="env steps (default 100 = 10 s)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
         "--policy",
-        choices=("wander", "stop"),
         default="wander",
-        help="'stop' sends zero velocity (sensor check without motion)",
+        help="'wander' (default); 'stop' sends zero velocity (a sensor check without motion); "
+        "'random', 'scripted:NAME' (`swarm-phd list`) or a trained model.zip / student.pt, "
+        "which runs in its own task and observation",
     )
+    parser.add_argument(
+        "--task",
+        default=None,
+        help="the env's task, e.g. formation (default: a trained policy's own task, else wander)",
+    )
+    parser.add_argument("--task-params", default=None, help="task parameters as a JSON object")
     parser.add_argument(
         "--max-speed",
         type=float,
@@ -55,8 +68,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--localizer",
-        default="phd",
-        help="every robot's filter (`swarm-phd list`), e.g. phd-lc or pmb-lc",
+        default=None,
+        help="every robot's filter (`swarm-phd list`), e.g. phd-lc or pmb-lc (default: a "
+        "trained policy's own, else phd)",
     )
     parser.add_argument("--no-mocap", action="store_true", help="do not subscribe to mocap")
     parser.add_argument("--record", default=None, help="record the episode to this bag directory")
@@ -93,6 +107,50 @@ def _faults(text: str | None):
     return FaultConfig(**values)
 
 
+def bridge_env_kwargs(args: argparse.Namespace, robots: list[str] | None) -> dict:
+    """Preset, task, task parameters, localizer and observation settings of the bridge env
+    for ``args.policy``, checked before anything connects: a trained policy's own env (minus
+    its episode length, and its robot count when ``robots`` are named), a scripted
+    controller's observation mode, else the simulator's defaults."""
+    from agents.policies import SCRIPTED, policy_observation, trained_policy_env
+    from swarm_phd.sweep import parse_json_object
+
+    spec = args.policy
+    if spec.startswith("privileged:"):
+        raise ValueError(
+            f"--policy {spec!r} is a training teacher that reads the simulator's truth; it "
+            "cannot drive robots"
+        )
+    if spec.startswith("scripted:"):
+        if spec.split(":", 1)[1] not in SCRIPTED:
+            raise ValueError(
+                f"--policy: unknown scripted policy {spec!r}; choose from {sorted(SCRIPTED)}"
+            )
+    elif spec.endswith((".zip", ".pt")):
+        if not Path(spec).is_file():
+            raise ValueError(f"--policy: policy file {spec!r} does not exist")
+    elif spec not in ("wander", "stop", "random"):
+        raise ValueError(
+            "--policy must be 'wander', 'stop', 'random', 'scripted:NAME', a .zip model or a .pt "
+            f"student, got {spec!r}"
+        )
+    overrides: dict = {}
+    if args.task_params is not None:
+        overrides["task_params"] = parse_json_object(args.task_params, "--task-params")
+    kwargs = trained_policy_env(spec, args.preset, args.task, **overrides)
+    if kwargs is None:
+        kwargs = {**overrides, "preset": args.preset or "lab-3m-4", "task": args.task or "wander"}
+        observation = policy_observation(spec) if spec.startswith("scripted:") else None
+        if observation is not None:  # e.g. scripted:formation acts on the robot's PHD estimate
+            kwargs["observation"] = observation
+    kwargs.pop("max_steps", None)  # the bridge's episode is --steps long
+    kwargs.pop("localize", None)  # the bridge always localizes: it scores the robots' filters
+    if robots is not None:
+        kwargs.pop("n_robots", None)  # one agent per named robot
+    kwargs["localizer"] = args.localizer or kwargs.get("localizer") or "phd"
+    return kwargs
+
+
 def run(args: argparse.Namespace) -> int:
     """SIGINT, SIGTERM and SIGHUP stop the robots at once, close the bag (readable up to the
     last complete step) and exit with status 128 + the signal number, without a traceback."""
@@ -116,6 +174,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from agents.policies import load_policy
     from agents.scripted import WanderPolicy
     from hardware_bridge import real_env
     from swarm_env.config import make_config
@@ -123,6 +182,9 @@ def _run(args: argparse.Namespace) -> int:
 
     if args.steps < 1:
         raise ValueError(f"--steps must be >= 1, got {args.steps}")
+    robots = [r.strip() for r in args.robots.split(",") if r.strip()] if args.robots else None
+    env_kwargs = bridge_env_kwargs(args, robots)
+    preset = env_kwargs.pop("preset")
     bridge: dict = {"use_mocap": not args.no_mocap}
     if args.max_speed is not None:
         bridge["max_speed_mps"] = args.max_speed
@@ -134,14 +196,15 @@ def _run(args: argparse.Namespace) -> int:
     unstamped = tuple(r.strip() for r in args.unstamped_bearings.split(",") if r.strip())
     if unstamped:
         bridge["unstamped_bearings"] = unstamped
-    robots = [r.strip() for r in args.robots.split(",") if r.strip()] if args.robots else None
     server = None
     host, port = args.host, args.port
     if args.loopback:
         from hardware_bridge.loopback import LoopbackServer
 
+        sized = {"n_robots": env_kwargs["n_robots"]} if "n_robots" in env_kwargs else {}
         server = LoopbackServer(
-            args.preset,
+            preset,
+            **sized,
             seed=args.seed,
             faults=_faults(args.faults),
             unstamped_bearings=unstamped,
@@ -151,42 +214,50 @@ def _run(args: argparse.Namespace) -> int:
         if not args.json:
             print(
                 f"loopback robot server on ws://127.0.0.1:{port} ({len(server.robot_ids)} "
-                f"simulated robots, preset {args.preset})"
+                f"simulated robots, preset {preset})"
             )
     elif args.faults:
         raise ValueError("--faults only applies to --loopback")
     # The filter's sensor model is the one of the robots' sensors: simulated ones on loopback.
-    model = {"phd": make_config(args.preset).phd} if args.loopback else {}
+    if args.loopback:
+        env_kwargs["phd"] = make_config(preset).phd
     env = None
     try:
         env = real_env(
             robots=robots,
             host=host,
             port=port,
-            preset=args.preset,
+            preset=preset,
             allow_remote=args.allow_remote,
             record=args.record,
             bridge=bridge,
             max_steps=args.steps,
-            localizer=args.localizer,
-            **model,
+            **env_kwargs,
         )
-        policy = WanderPolicy.for_env(env, seed=args.seed) if args.policy == "wander" else None
-        if args.max_speed is not None and policy is not None:
-            policy = WanderPolicy(
-                max_speed_mps=min(args.max_speed, env.config.robot.max_speed_mps),
-                max_turn_rate_radps=env.config.robot.max_turn_rate_radps,
-                seed=args.seed,
-            )
+        if args.policy == "stop":
+            policy = None
+        elif args.policy == "wander":
+            policy = WanderPolicy.for_env(env, seed=args.seed)
+            if args.max_speed is not None:  # wander at the capped speed, not into the cap
+                policy = WanderPolicy(
+                    max_speed_mps=min(args.max_speed, env.config.robot.max_speed_mps),
+                    max_turn_rate_radps=env.config.robot.max_turn_rate_radps,
+                    seed=args.seed,
+                )
+        else:  # the bridge's limits and geofence clip whatever it commands
+            policy = load_policy(args.policy, env)
         if not args.json:
             print(
                 f"bridge: {len(env.possible_agents)} robots {env.possible_agents} at "
                 f"{host}:{port}, {args.steps} steps of {env.config.control_period_s} s, "
-                f"{'the simulator' if args.loopback else 'the seed hardware'}'s sensor model"
+                f"{'the simulator' if args.loopback else 'the seed hardware'}'s sensor model; "
+                f"policy {args.policy}, task {env.task.name}, observation "
+                f"{env.config.observation}, localizer {env.config.localizer}"
             )
         start = time.monotonic()
         result = run_episode(env, policy, args.steps, seed=args.seed)
         wall = time.monotonic() - start
+        task_metrics = env.task.metrics()
         world = env.world
         counters = world.counters_snapshot()
         timing = dict(world.timing)
@@ -200,6 +271,8 @@ def _run(args: argparse.Namespace) -> int:
         "steps": result.steps,
         "wall_s": round(wall, 3),
         "metrics": result.metrics,
+        "policy": args.policy,
+        "task": {"name": env.task.name, **task_metrics},
         "stale_steps": result.stale_steps,
         "counters": counters,
         "timing": timing,
@@ -225,6 +298,11 @@ def _run(args: argparse.Namespace) -> int:
     )
     print("localization (each robot's own PHD vs ground truth):")
     print(format_metrics(result.metrics))
+    if task_metrics:
+        print(
+            f"task {env.task.name}: "
+            + ", ".join(f"{k} = {v:.3f}" for k, v in task_metrics.items())
+        )
     print("stale sensor-steps:", result.stale_steps or "none")
     print("message counters:")
     for key, value in counters.items():

@@ -3,8 +3,9 @@ file only parses arguments, applies the shared defaults and dispatches.
 
 Shared by every command: defaults shown in ``--help``; ``--quiet`` (no progress bars or status
 lines, results only); one default preset, :data:`DEFAULT_PRESET`, for every simulation command
-(``bridge`` drives the lab robots and keeps ``lab-3m-4``; ``evaluate`` of a model.zip keeps
-the model's); ``swarm-phd list`` names the presets, tasks and localizers; ``--version``.
+(``bridge`` drives the lab robots and keeps ``lab-3m-4``; ``evaluate`` and ``bridge`` of a
+trained policy keep the policy's); ``swarm-phd list`` names the presets, tasks and
+localizers; ``--version``.
 """
 
 from __future__ import annotations

@@ -49,6 +49,8 @@ def run_episode(
     # Per observer, as ``swarm-phd evaluate`` scores the simulator.
     scorer = LocalizationScorer(n, cardinality_range_m=range_m)
     result = EpisodeResult()
+    if policy is not None and hasattr(policy, "reset"):  # e.g. a recurrent student's state
+        policy.reset(seed)
     obs, infos = env.reset(seed=seed)
     if trace:
         result.trace.append(snapshot_mixtures(env))

@@ -221,18 +221,11 @@ def shared_env_kwargs(
 
 
 def _make_env(preset: str | None, task: str | None, policy: str, **overrides: Any) -> SwarmEnv:
-    from agents.policies import model_env_kwargs
+    from agents.policies import trained_policy_env
 
-    model = model_env_kwargs(policy)
+    model = trained_policy_env(policy, preset, task, **overrides)
     if model is not None:  # a trained model (.zip) or recurrent student (.pt): its own env
-        model_preset = model.pop("preset", None)
-        model_task = model.pop("task", "wander")
-        model_params = model.pop("task_params", {})
-        if task is None or task == model_task:  # the model's observation includes its task
-            task = model_task
-            model["task_params"] = model_params
-        overrides = {**model, **overrides}
-        preset = preset or model_preset
+        preset, task, overrides = model.pop("preset"), model.pop("task"), model
     else:
         from agents.policies import policy_observation
 

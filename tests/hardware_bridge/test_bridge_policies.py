@@ -1,0 +1,130 @@
+"""``swarm-phd bridge --policy``: scripted controllers and trained policies drive the robots in
+their own env (task, observation, preset, localizer), and what cannot drive robots is refused
+before anything connects."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import pytest
+
+from swarm_phd import bridge
+from swarm_phd.cli import main
+
+torch = pytest.importorskip("torch")
+
+from agents.sb3.recurrent_student import new_student, save_student  # noqa: E402
+from swarm_env import parallel_env  # noqa: E402
+
+STUDENT_ENV = {
+    "preset": "lab-3m-4",
+    "task": "formation",
+    "task_params": {"radius_m": 0.7},
+    "observation": "phd",
+    "max_steps": 300,
+    "lidar_sectors": 16,
+    "n_robots": 4,
+}
+BASE = "scripted:formation-known-n-fast"
+
+
+@pytest.fixture(scope="module")
+def student(tmp_path_factory):
+    env = parallel_env(**STUDENT_ENV)
+    try:
+        torch.manual_seed(0)
+        model = new_student(env.observation_space(env.possible_agents[0])).eval()
+    finally:
+        env.close()
+    path = tmp_path_factory.mktemp("student") / "student.pt"
+    save_student(path, model, STUDENT_ENV, BASE)
+    return str(path)
+
+
+def _args(*argv: str) -> argparse.Namespace:
+    parser = argparse.ArgumentParser()
+    bridge.add_arguments(parser)
+    return parser.parse_args(["--loopback", *argv])
+
+
+def test_a_trained_student_runs_in_its_own_env_minus_its_episode_length(student):
+    kwargs = bridge.bridge_env_kwargs(_args("--policy", student), robots=None)
+    assert kwargs == {
+        "preset": "lab-3m-4",
+        "task": "formation",
+        "task_params": {"radius_m": 0.7},
+        "observation": "phd",
+        "lidar_sectors": 16,
+        "n_robots": 4,
+        "localizer": "phd",
+    }
+    # Named robots set the count; the command line's preset, localizer and task parameters win.
+    kwargs = bridge.bridge_env_kwargs(
+        _args(
+            "--policy", student, "--preset", "sim-6m-20", "--localizer", "pmb",
+            "--task-params", '{"radius_m": 0.5}',
+        ),
+        robots=["ugv_0", "ugv_1", "ugv_2"],
+    )  # fmt: skip
+    assert "n_robots" not in kwargs and kwargs["preset"] == "sim-6m-20"
+    assert kwargs["localizer"] == "pmb" and kwargs["task_params"] == {"radius_m": 0.5}
+
+
+def test_scripted_controllers_get_their_observation_and_wander_the_defaults():
+    kwargs = bridge.bridge_env_kwargs(
+        _args("--policy", "scripted:formation-known-n-fast", "--task", "formation"), None
+    )
+    assert kwargs == {
+        "preset": "lab-3m-4",
+        "task": "formation",
+        "observation": "phd",
+        "localizer": "phd",
+    }
+    for policy in ("wander", "stop", "random", "scripted:wander"):
+        kwargs = bridge.bridge_env_kwargs(_args("--policy", policy), None)
+        assert kwargs == {"preset": "lab-3m-4", "task": "wander", "localizer": "phd"}
+
+
+@pytest.mark.parametrize(
+    "policy, message",
+    [
+        ("privileged:formation-known-n-fast@truth", "simulator's truth"),
+        ("scripted:nope", "scripted:nope"),
+        ("gone.pt", "gone.pt"),
+        ("gone.zip", "gone.zip"),
+        ("fast", "'fast'"),
+    ],
+)
+def test_policies_that_cannot_drive_robots_are_refused_before_anything_starts(
+    policy, message, capsys
+):
+    with pytest.raises(ValueError, match="--policy"):
+        bridge.bridge_env_kwargs(_args("--policy", policy), None)
+    assert main(["bridge", "--loopback", "--policy", policy]) == 2
+    captured = capsys.readouterr()
+    assert message in captured.err
+    assert "loopback robot server" not in captured.out  # refused before the server started
+
+
+def test_bad_task_parameters_are_refused(capsys):
+    assert main(["bridge", "--loopback", "--task-params", "[1]"]) == 2
+    assert "--task-params" in capsys.readouterr().err
+
+
+@pytest.mark.timeout(120)
+def test_a_student_and_a_scripted_controller_drive_the_loopback_robots(student, capsys):
+    argv = ["bridge", "--loopback", "--steps", "15", "--json"]
+    assert main([*argv, "--policy", student]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["policy"] == student and out["steps"] == 15 and out["rejected_messages"] == 0
+    # The student's task, scored on the loopback's ground truth (its mocap).
+    assert out["task"]["name"] == "formation" and out["task"]["formation_error_m"] > 0
+    assert out["metrics"]["scored_observations"] > 0
+
+    assert main([*argv, "--policy", "scripted:formation-known-n-fast", "--task", "formation"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["task"]["name"] == "formation" and "spacing_error_m" in out["task"]
+    # Without --task the controller's task is missing: its own error names it.
+    assert main([*argv, "--policy", "scripted:formation-known-n-fast"]) == 2
+    assert "task='formation'" in capsys.readouterr().err
