@@ -1,0 +1,217 @@
+"""agents.sb3.recurrent_ppo: PPO fine-tuning of a recurrent residual student."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from agents.policies import load_policy  # noqa: E402
+from agents.sb3 import recurrent_ppo  # noqa: E402
+from agents.sb3.batched import BatchedSwarmVecEnv  # noqa: E402
+from agents.sb3.recurrent_student import (  # noqa: E402
+    _digest,
+    new_student,
+    read_student_metadata,
+    save_student,
+)
+from swarm_env import parallel_env  # noqa: E402
+
+ENV = {"preset": "lab-3m-4", "task": "formation", "observation": "phd", "max_steps": 6}
+BASE = "scripted:formation-known-n-fast"
+
+
+@pytest.fixture(scope="module")
+def space():
+    env = parallel_env(**ENV)
+    try:
+        return env.observation_space(env.possible_agents[0])
+    finally:
+        env.close()
+
+
+def _model(space, seed=0):
+    torch.manual_seed(seed)
+    model = new_student(space)
+    with torch.no_grad():  # corrections large enough to move the robots
+        model.head[-1].bias.copy_(torch.tensor([0.3, -0.4]))
+    return model.eval()
+
+
+@pytest.fixture
+def student(space, tmp_path):
+    path = tmp_path / "start.pt"
+    save_student(path, _model(space), ENV, BASE, teacher="privileged:x@truth", round=3)
+    return path
+
+
+def test_gae_matches_a_hand_derived_case():
+    rewards = np.array([[1.0], [2.0]])
+    values = np.array([[0.5], [1.0]])
+    # delta_1 = 2 + 0.9 * 3 - 1 = 3.7; delta_0 = 1 + 0.9 * 1 - 0.5 = 1.4;
+    # A_0 = 1.4 + 0.9 * 0.8 * 3.7 = 4.064.
+    adv, returns = recurrent_ppo.gae(rewards, values, np.array([3.0]), 0.9, 0.8)
+    np.testing.assert_allclose(adv[:, 0], [4.064, 3.7])
+    np.testing.assert_allclose(returns[:, 0], [4.564, 4.7])
+    # lambda = 1: the discounted return to the bootstrap, minus the value.
+    adv, _ = recurrent_ppo.gae(rewards, values, np.array([3.0]), 0.9, 1.0)
+    np.testing.assert_allclose(adv[0, 0], 1 + 0.9 * 2 + 0.81 * 3 - 0.5)
+
+
+def _args(**kw):
+    return argparse.Namespace(**({"gamma": 0.99, "gae_lambda": 0.95} | kw))
+
+
+@pytest.fixture
+def rollout_batch(space):
+    vec = BatchedSwarmVecEnv(
+        ENV, 2, seed=None, residual=BASE, residual_observes_base=True, critic_state=True
+    )
+    try:
+        model = _model(space)
+        log_std = torch.nn.Parameter(torch.full((2,), -1.0))
+        critic = recurrent_ppo.new_critic(space, vec.critic_dims)
+        data = recurrent_ppo.rollout(vec, model, log_std, [3, 4], torch.Generator().manual_seed(0))
+        values, last = recurrent_ppo._values(critic, data, model.encoder_obs_dim)
+        batch = recurrent_ppo._batch(data, values, last, _args())
+    finally:
+        vec.close()
+    return model, log_std, critic, data, batch
+
+
+def test_a_rollout_is_whole_episodes_whose_log_probs_the_update_recomputes(rollout_batch):
+    model, log_std, _, data, batch = rollout_batch
+    n_entries = 2 * 4  # copies x robots
+    assert data["rewards"].shape == (6, n_entries) and data["actions"].shape == (6, n_entries, 2)
+    assert data["last_obs"].shape == (n_entries, data["obs"].shape[-1])
+    # The update unrolls the GRU over the whole episode: the rollout's own log-probs, so the
+    # first ratio is 1 (PPO's clipping is measured from the policy that acted).
+    dim = model.encoder_obs_dim
+    obs = batch["obs"]
+    with torch.no_grad():
+        mean = model(obs[..., :dim], obs[..., dim : dim + 2], torch.zeros(obs.shape[:2]))
+        logp = torch.distributions.Normal(mean, log_std.exp()).log_prob(batch["actions"])
+    np.testing.assert_allclose(logp.sum(-1).numpy(), batch["logp"].numpy(), atol=1e-4)
+    # Advantages are normalised; the value targets are advantages plus values.
+    assert abs(float(batch["advantages"].mean())) < 1e-5
+    assert batch["left"][0, 0] == 1.0 and batch["left"][0, -1] == pytest.approx(1 / 6)
+
+
+def test_the_warmup_trains_the_critic_alone_then_the_actor_moves(rollout_batch):
+    model, log_std, critic, _, batch = rollout_batch
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    critic_before = [p.detach().clone() for p in critic.parameters()]
+    actor_optim = torch.optim.Adam([*model.parameters(), log_std], lr=1e-3)
+    critic_optim = torch.optim.Adam(critic.parameters(), lr=1e-3)
+    rng = np.random.default_rng(0)
+    stats = recurrent_ppo.ppo_update(
+        model, log_std, critic, None, critic_optim, batch, 2, 4, 0.1, 0.02, rng
+    )
+    assert stats["passes"] == 2 and stats["approx_kl"] == 0.0
+    for k, v in model.state_dict().items():
+        assert torch.equal(v, before[k]), k
+    assert any(
+        not torch.equal(a, b) for a, b in zip(critic.parameters(), critic_before, strict=True)
+    )
+    stats = recurrent_ppo.ppo_update(
+        model, log_std, critic, actor_optim, critic_optim, batch, 3, 4, 0.1, 1e3, rng
+    )
+    assert stats["passes"] == 3 and stats["approx_kl"] > 0
+    assert any(not torch.equal(v, before[k]) for k, v in model.state_dict().items())
+    # A tight KL target stops an iteration's passes early.
+    stats = recurrent_ppo.ppo_update(
+        model, log_std, critic, actor_optim, critic_optim, batch, 5, 4, 0.1, 1e-12, rng
+    )
+    assert stats["passes"] < 5
+
+
+TINY = ["--iterations", "2", "--n-copies", "2", "--critic-warmup", "1", "--eval-every", "1"]
+TINY += ["--val-seeds", "200", "--phases", "0,4", "--train-seeds-start", "7000"]
+
+
+def test_main_fine_tunes_saves_each_scored_student_and_is_reproducible(student, tmp_path):
+    out = tmp_path / "run"
+    argv = ["--student", str(student), "--out", str(out), *TINY]
+    assert recurrent_ppo.main([*argv, "--task-params", '{"progress_weight": 10}']) == 0
+    for name in ("student_it0.pt", "student_it1.pt", "student_it2.pt", "student.pt"):
+        assert (out / name).is_file(), name
+    log = json.loads((out / "train_log.json").read_text())
+    assert [it["iteration"] for it in log["iterations"]] == [1, 2]
+    assert [it["critic_only"] for it in log["iterations"]] == [True, False]
+    assert log["iterations"][1]["seeds"] == [7002, 7003]
+    assert [v["iteration"] for v in log["val"]] == [0, 1, 2]
+    assert "formation_error_m@4-" in log["val"][0] and log["interrupted"] is None
+    assert log["train_task_params"] == {"progress_weight": 10}
+    # The warm-up iteration leaves the student as it started; the PPO iteration moves it.
+    assert _digest(out / "student_it0.pt") == _digest(out / "student_it1.pt") == _digest(student)
+    assert _digest(out / "student.pt") == _digest(out / "student_it2.pt") != _digest(student)
+    meta = read_student_metadata(out / "student.pt")
+    # Its own env (the reward's parameters do not change what it observes), and its origin.
+    assert meta["env_kwargs"] == ENV and meta["reward_task_params"] == {"progress_weight": 10}
+    assert meta["iteration"] == 2 and meta["start_student"] == str(student)
+    env = parallel_env(**ENV)
+    try:
+        policy = load_policy(str(out / "student.pt"), env)
+        obs, infos = env.reset(seed=0)
+        assert set(policy(obs, infos)) == set(env.agents)
+    finally:
+        env.close()
+    # Same arguments, same student, bit for bit (seeded env, noise and minibatches).
+    again = tmp_path / "again"
+    argv = ["--student", str(student), "--out", str(again), *TINY]
+    assert recurrent_ppo.main([*argv, "--task-params", '{"progress_weight": 10}']) == 0
+    assert _digest(again / "student.pt") == _digest(out / "student.pt")
+
+
+def test_an_interrupt_saves_the_student_and_exits_130(student, tmp_path, monkeypatch, capsys):
+    real = recurrent_ppo.rollout
+    calls = []
+
+    def interrupted_rollout(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(recurrent_ppo, "rollout", interrupted_rollout)
+    out = tmp_path / "run"
+    assert recurrent_ppo.main(["--student", str(student), "--out", str(out), *TINY]) == 130
+    assert "SIGINT at iteration 2" in capsys.readouterr().err
+    log = json.loads((out / "train_log.json").read_text())
+    assert log["interrupted"] == "SIGINT" and len(log["iterations"]) == 1
+    assert read_student_metadata(out / "student.pt")["iteration"] == 2
+
+
+@pytest.mark.parametrize(
+    ("extra", "flag"),
+    [
+        (["--iterations", "0"], "--iterations"),
+        (["--learning-rate", "nan"], "--learning-rate"),
+        (["--gamma", "1.5"], "--gamma"),
+        (["--train-seeds-start", "199"], "--val-seeds"),
+        (["--task-params", "[1]"], "--task-params"),
+        (["--task-params", '{"shape": "blob"}'], "--task-params"),
+        (["--phases", "5,2"], "--phases"),
+        (["--log-std", "inf"], "--log-std"),
+    ],
+)
+def test_main_refuses_bad_arguments_before_any_rollout(student, tmp_path, capsys, extra, flag):
+    with pytest.raises(SystemExit):
+        recurrent_ppo.main(
+            ["--student", str(student), "--out", str(tmp_path / "x"), *TINY, *extra]
+        )
+    assert flag in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
+
+
+def test_a_missing_or_foreign_student_is_refused(tmp_path, capsys):
+    for path in (tmp_path / "gone.pt", tmp_path / "foreign.pt"):
+        if path.name == "foreign.pt":
+            torch.save({"format": "something else"}, path)
+        with pytest.raises(SystemExit):
+            recurrent_ppo.main(["--student", str(path), "--out", str(tmp_path / "x"), *TINY])
+        assert path.name in capsys.readouterr().err
