@@ -111,7 +111,7 @@ def test_the_warmup_trains_the_critic_alone_then_the_actor_moves(rollout_batch):
     stats = recurrent_ppo.ppo_update(
         model, log_std, critic, None, critic_optim, batch, 2, 4, 0.1, 0.02, rng
     )
-    assert stats["passes"] == 2 and stats["approx_kl"] == 0.0
+    assert stats["passes"] == 2 and stats["actor_steps"] == 0 and stats["approx_kl"] == 0.0
     for k, v in model.state_dict().items():
         assert torch.equal(v, before[k]), k
     assert any(
@@ -120,13 +120,14 @@ def test_the_warmup_trains_the_critic_alone_then_the_actor_moves(rollout_batch):
     stats = recurrent_ppo.ppo_update(
         model, log_std, critic, actor_optim, critic_optim, batch, 3, 4, 0.1, 1e3, rng
     )
-    assert stats["passes"] == 3 and stats["approx_kl"] > 0
+    assert stats["actor_steps"] == 3 * 2 and stats["approx_kl"] > 0  # 8 sequences, 4 a batch
     assert any(not torch.equal(v, before[k]) for k, v in model.state_dict().items())
-    # A tight KL target stops an iteration's passes early.
+    # A tight KL target stops the actor's update at the first minibatch past it (the policy
+    # that acted is no longer the current one); the critic's passes go on.
     stats = recurrent_ppo.ppo_update(
-        model, log_std, critic, actor_optim, critic_optim, batch, 5, 4, 0.1, 1e-12, rng
+        model, log_std, critic, actor_optim, critic_optim, batch, 5, 4, 0.1, 1e-6, rng
     )
-    assert stats["passes"] < 5
+    assert stats["actor_steps"] == 0 and stats["passes"] == 5 and stats["approx_kl"] > 1.5e-6
 
 
 TINY = ["--iterations", "2", "--n-copies", "2", "--critic-warmup", "1", "--eval-every", "1"]
