@@ -31,7 +31,8 @@ command) is trained by this short PPO loop:
 - every ``--eval-every`` iterations, and before the first, the student (its mean: the
   deployed policy) is saved (``student_it<k>.pt``) and scored in closed loop on
   ``--val-seeds``; the last iteration's is also ``student.pt``. ``train_log.json`` holds
-  every iteration's return, formation error, KL, clip fraction and wall time.
+  every iteration's return, formation error, KL, clip fraction and wall time, drawn with
+  the validation scores in ``train_log.png`` (several runs: :func:`plot_ppo_logs`).
   Ctrl-C or SIGTERM saves the current student as ``student.pt`` and exits 130 / 143.
 
 The saved student keeps its own env (the reward's task parameters do not change its
@@ -49,7 +50,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["gae", "main", "new_critic", "ppo_update", "rollout"]
+__all__ = ["gae", "main", "new_critic", "plot_ppo_logs", "ppo_update", "rollout"]
 
 
 def gae(
@@ -262,6 +263,50 @@ def _values(critic: Any, data: dict[str, np.ndarray], dim: int) -> tuple[np.ndar
     return values.numpy().astype(np.float64), last_values.numpy().astype(np.float64)
 
 
+def plot_ppo_logs(logs: list[str | Path], figure: str | Path) -> None:
+    """Draw each run's learning curves (``train_log.json`` files) to ``figure`` (PNG): the
+    training return per agent-episode and the training episodes' formation error (with the
+    exploration noise) per iteration, and the closed-loop validation score of the scored
+    students, with the base's as a dashed line."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4), squeeze=False)
+    for path in logs:
+        log = json.loads(Path(path).read_text())
+        label = f"{Path(path).parent.name} (fit seed {log['args']['fit_seed']})"
+        its = [it["iteration"] for it in log["iterations"]]
+        line = axes[0, 0].plot(its, [it["return_per_agent"] for it in log["iterations"]])[0]
+        color = line.get_color()
+        line.set_label(label)
+        axes[0, 1].plot(its, [it["formation_error_m"] for it in log["iterations"]], color=color)
+        val = log["val"]
+        axes[0, 2].plot(
+            [v["iteration"] for v in val],
+            [v["formation_error_m"] for v in val],
+            "o-",
+            color=color,
+            label=label,
+        )
+        axes[0, 2].axhline(log["base_val"]["formation_error_m"], ls="--", color=color, alpha=0.5)
+    titles = (
+        ("return per agent-episode", "training episodes (with exploration noise)"),
+        ("formation error (m)", "training episodes (with exploration noise)"),
+        ("formation error (m)", "validation seeds, the mean; dashed: the base"),
+    )
+    for ax, (ylabel, title) in zip(axes[0], titles, strict=True):
+        ax.set_xlabel("PPO iteration")
+        ax.set_ylabel(ylabel)
+        ax.set_title(title, fontsize=9)
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(figure, dpi=110)
+    plt.close(fig)
+
+
 def main(argv: list[str] | None = None) -> int:
     import argparse
 
@@ -414,6 +459,9 @@ def _train(parser, args, meta, reward_params, val_seeds, phases) -> int:
         val = score(str(path), env_kwargs, val_seeds, phases=phases)["mean"]
         torch.set_num_threads(args.torch_threads)
         log["val"].append({"iteration": iteration, **val})
+        if log["iterations"]:
+            (out / "train_log.json").write_text(json.dumps(log, indent=1))
+            plot_ppo_logs([out / "train_log.json"], out / "train_log.png")
         print(
             f"iteration {iteration}: on {args.val_seeds} {val['formation_error_m']:.4f} m "
             f"(base {log['base_val']['formation_error_m']:.4f} m)",

@@ -138,7 +138,8 @@ def test_main_fine_tunes_saves_each_scored_student_and_is_reproducible(student, 
     out = tmp_path / "run"
     argv = ["--student", str(student), "--out", str(out), *TINY]
     assert recurrent_ppo.main([*argv, "--task-params", '{"progress_weight": 10}']) == 0
-    for name in ("student_it0.pt", "student_it1.pt", "student_it2.pt", "student.pt"):
+    names = ("student_it0.pt", "student_it1.pt", "student_it2.pt", "student.pt", "train_log.png")
+    for name in names:
         assert (out / name).is_file(), name
     log = json.loads((out / "train_log.json").read_text())
     assert [it["iteration"] for it in log["iterations"]] == [1, 2]
