@@ -107,11 +107,30 @@ def _faults(text: str | None):
     return FaultConfig(**values)
 
 
-def bridge_env_kwargs(args: argparse.Namespace, robots: list[str] | None) -> dict:
+#: What a trained policy's own env settings carry to the robots: what it observes (the
+#: observation's mode and layout), its localizer and its robot count. The rest of a model's
+#: training overrides (speed limits, the filter's model, the arena, the control period...)
+#: would change the robots' safety caps or the filter, so they are not applied, and listed.
+MODEL_KEYS_ON_ROBOTS = (
+    "observation",
+    "top_k",
+    "lidar_sectors",
+    "lidar_sector_max_m",
+    "localizer",
+    "n_robots",
+)
+
+
+def bridge_env_kwargs(
+    args: argparse.Namespace, robots: list[str] | None
+) -> tuple[dict, list[str]]:
     """Preset, task, task parameters, localizer and observation settings of the bridge env
-    for ``args.policy``, checked before anything connects: a trained policy's own env (minus
-    its episode length, and its robot count when ``robots`` are named), a scripted
-    controller's observation mode, else the simulator's defaults."""
+    for ``args.policy``, and the trained policy's env settings left out
+    (:data:`MODEL_KEYS_ON_ROBOTS`), checked before anything connects: a trained policy's own
+    env (not its episode length, nor its robot count when ``robots`` are named), a scripted
+    controller's observation mode, else the simulator's defaults. The policy is built once on
+    a simulator with these settings, so one that cannot act on them (another observation size,
+    a controller without its task) is refused here too."""
     from agents.policies import SCRIPTED, policy_observation, trained_policy_env
     from swarm_phd.sweep import parse_json_object
 
@@ -137,18 +156,43 @@ def bridge_env_kwargs(args: argparse.Namespace, robots: list[str] | None) -> dic
     overrides: dict = {}
     if args.task_params is not None:
         overrides["task_params"] = parse_json_object(args.task_params, "--task-params")
-    kwargs = trained_policy_env(spec, args.preset, args.task, **overrides)
-    if kwargs is None:
+    model = trained_policy_env(spec, args.preset, args.task, **overrides)
+    dropped: list[str] = []
+    if model is None:
         kwargs = {**overrides, "preset": args.preset or "lab-3m-4", "task": args.task or "wander"}
         observation = policy_observation(spec) if spec.startswith("scripted:") else None
         if observation is not None:  # e.g. scripted:formation acts on the robot's PHD estimate
             kwargs["observation"] = observation
-    kwargs.pop("max_steps", None)  # the bridge's episode is --steps long
-    kwargs.pop("localize", None)  # the bridge always localizes: it scores the robots' filters
+    else:
+        kept = ("preset", "task", "task_params", *MODEL_KEYS_ON_ROBOTS)
+        kwargs = {k: v for k, v in model.items() if k in kept}
+        # Its episode length is --steps; the bridge always localizes (it scores the filters).
+        dropped = sorted(k for k in model if k not in kept and k not in ("max_steps", "localize"))
+        if kwargs.get("observation") == "truth":
+            raise ValueError(
+                f"--policy {spec!r} was trained on the true neighbour table "
+                "(observation='truth'); it cannot drive robots, which know only their estimate"
+            )
     if robots is not None:
         kwargs.pop("n_robots", None)  # one agent per named robot
     kwargs["localizer"] = args.localizer or kwargs.get("localizer") or "phd"
-    return kwargs
+    if spec not in ("wander", "stop"):
+        _check_policy_acts(spec, kwargs, robots, args.steps)
+    return kwargs, dropped
+
+
+def _check_policy_acts(spec: str, kwargs: dict, robots: list[str] | None, steps: int) -> None:
+    """Build ``spec`` on a simulator with the bridge env's settings (ValueError if it cannot
+    act there), before anything connects."""
+    from agents.policies import load_policy
+    from swarm_env import parallel_env
+
+    sized = {} if robots is None else {"n_robots": len(robots)}
+    probe = parallel_env(**{**kwargs, **sized, "max_steps": max(1, steps)})
+    try:
+        load_policy(spec, probe)
+    finally:
+        probe.close()
 
 
 def run(args: argparse.Namespace) -> int:
@@ -183,7 +227,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.steps < 1:
         raise ValueError(f"--steps must be >= 1, got {args.steps}")
     robots = [r.strip() for r in args.robots.split(",") if r.strip()] if args.robots else None
-    env_kwargs = bridge_env_kwargs(args, robots)
+    env_kwargs, not_applied = bridge_env_kwargs(args, robots)
     preset = env_kwargs.pop("preset")
     bridge: dict = {"use_mocap": not args.no_mocap}
     if args.max_speed is not None:
@@ -251,9 +295,11 @@ def _run(args: argparse.Namespace) -> int:
                 f"bridge: {len(env.possible_agents)} robots {env.possible_agents} at "
                 f"{host}:{port}, {args.steps} steps of {env.config.control_period_s} s, "
                 f"{'the simulator' if args.loopback else 'the seed hardware'}'s sensor model; "
-                f"policy {args.policy}, task {env.task.name}, observation "
+                f"preset {preset}; policy {args.policy}, task {env.task.name}, observation "
                 f"{env.config.observation}, localizer {env.config.localizer}"
             )
+            if not_applied:
+                print(f"the policy's training settings not applied on robots: {not_applied}")
         start = time.monotonic()
         result = run_episode(env, policy, args.steps, seed=args.seed)
         wall = time.monotonic() - start
@@ -272,6 +318,11 @@ def _run(args: argparse.Namespace) -> int:
         "wall_s": round(wall, 3),
         "metrics": result.metrics,
         "policy": args.policy,
+        "preset": preset,
+        "robots": list(env.possible_agents),
+        "observation": env.config.observation,
+        "localizer": env.config.localizer,
+        "policy_settings_not_applied": not_applied,
         "task": {"name": env.task.name, **task_metrics},
         "stale_steps": result.stale_steps,
         "counters": counters,

@@ -40,7 +40,8 @@ def run_episode(
     trace: bool = False,
     on_step: Callable[[int, dict], None] | None = None,
 ) -> EpisodeResult:
-    """Reset ``env``, run ``policy`` (``None``: zero commands) for up to ``n_steps`` steps and
+    """Reset ``env`` (and ``policy``, if it has a ``reset``, with the same ``seed``; not for
+    ``seed=None``), run ``policy`` (``None``: zero commands) for up to ``n_steps`` steps and
     score every step that has ground truth. Stops early at the end of the episode."""
     from localization.metrics import LocalizationScorer
 
@@ -49,7 +50,7 @@ def run_episode(
     # Per observer, as ``swarm-phd evaluate`` scores the simulator.
     scorer = LocalizationScorer(n, cardinality_range_m=range_m)
     result = EpisodeResult()
-    if policy is not None and hasattr(policy, "reset"):  # e.g. a recurrent student's state
+    if seed is not None and hasattr(policy, "reset"):  # e.g. a recurrent student's state
         policy.reset(seed)
     obs, infos = env.reset(seed=seed)
     if trace:

@@ -132,8 +132,18 @@ def rollout(vec: Any, model: Any, log_std: Any, seeds: list[int], generator: Any
         rows["logp"].append(logp.numpy())
         rows["rewards"].append(rewards.astype(np.float64))
         if dones.any():
+            step = len(rows["rewards"])
             if not dones.all():
-                raise ValueError("recurrent PPO needs every copy's episode to end together")
+                ended = sorted({b // vec.agents_per_copy for b in np.flatnonzero(dones)})
+                raise ValueError(
+                    f"copies {ended} ended at step {step} before the others: recurrent PPO "
+                    "needs every copy's episode to end together"
+                )
+            if not all(info.get("TimeLimit.truncated", False) for info in infos):
+                raise ValueError(
+                    f"the task terminated the episode at step {step}: recurrent PPO bootstraps "
+                    "the last state's value, which is right only at a time limit"
+                )
             last = np.stack([info["terminal_observation"] for info in infos])
             break
     return {k: np.stack(v) for k, v in rows.items()} | {"last_obs": last}
@@ -385,6 +395,11 @@ def main(argv: list[str] | None = None) -> int:
         meta = read_student_metadata(args.student)
     except ValueError as err:
         parser.error(str(err))
+    if Path(args.out).resolve() == Path(args.student).resolve().parent:
+        parser.error(
+            f"--out {args.out!r} holds --student {args.student!r}: its student.pt and "
+            "train_log.json would be overwritten; give another directory"
+        )
     train_end = args.train_seeds_start + args.iterations * args.n_copies
     overlap = sorted(set(val_seeds) & set(range(args.train_seeds_start, train_end)))
     if overlap:
@@ -400,9 +415,15 @@ def _train(parser, args, meta, reward_params, val_seeds, phases) -> int:
     from agents.sb3.batched import BatchedSwarmVecEnv
     from agents.sb3.recurrent_student import load_student, save_student
     from agents.sb3.report import score
+    from swarm_core.atomic_files import write_json_atomically
     from swarm_env import parallel_env
 
     env_kwargs = dict(meta["env_kwargs"])
+    if env_kwargs.get("task") != "formation":  # its log and scores are formation's
+        parser.error(
+            f"--student {args.student!r} acts on task {env_kwargs.get('task')!r}; recurrent "
+            "PPO trains formation students"
+        )
     train_kwargs = {
         **env_kwargs,
         "task_params": {**env_kwargs.get("task_params", {}), **reward_params},
@@ -411,6 +432,7 @@ def _train(parser, args, meta, reward_params, val_seeds, phases) -> int:
     try:
         student = load_student(args.student, probe)  # refuses a mismatched observation
         space = probe.observation_space(probe.possible_agents[0])
+        features = probe.task.features(len(probe.possible_agents))
     finally:
         probe.close()
     torch.set_num_threads(args.torch_threads)  # loading a student set it to 1
@@ -426,7 +448,18 @@ def _train(parser, args, meta, reward_params, val_seeds, phases) -> int:
             critic_state=True,
         )
     except ValueError as err:
-        parser.error(f"--task-params {json.dumps(reward_params)}: {err}")
+        parser.error(f"the training env with --task-params {json.dumps(reward_params)}: {err}")
+    first = vec.envs[0]
+    if first.observation_space(
+        first.possible_agents[0]
+    ).shape != space.shape or not np.array_equal(
+        first.task.features(vec.agents_per_copy), features
+    ):
+        vec.close()
+        parser.error(
+            f"--task-params {json.dumps(reward_params)} changes what the student observes (its "
+            "task's features or the observation's size); only the reward's terms may change"
+        )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     log_std = torch.nn.Parameter(torch.full((2,), float(args.log_std)))
@@ -460,7 +493,7 @@ def _train(parser, args, meta, reward_params, val_seeds, phases) -> int:
         torch.set_num_threads(args.torch_threads)
         log["val"].append({"iteration": iteration, **val})
         if log["iterations"]:
-            (out / "train_log.json").write_text(json.dumps(log, indent=1))
+            write_json_atomically(out / "train_log.json", log, indent=1)
             plot_ppo_logs([out / "train_log.json"], out / "train_log.png")
         print(
             f"iteration {iteration}: on {args.val_seeds} {val['formation_error_m']:.4f} m "
@@ -469,12 +502,14 @@ def _train(parser, args, meta, reward_params, val_seeds, phases) -> int:
         )
 
     interrupted = None
-    iteration = 0
+    iteration = completed = 0
     start = time.perf_counter()
     with Interrupts() as interrupts:
         try:
             save_and_score(0)
             for iteration in range(1, args.iterations + 1):
+                if interrupts.received:  # a signal that landed in a C callback was dropped
+                    raise KeyboardInterrupt
                 t0 = time.perf_counter()
                 first = args.train_seeds_start + (iteration - 1) * args.n_copies
                 seeds = list(range(first, first + args.n_copies))
@@ -515,7 +550,8 @@ def _train(parser, args, meta, reward_params, val_seeds, phases) -> int:
                         **stats,
                     }
                 )
-                (out / "train_log.json").write_text(json.dumps(log, indent=1))
+                completed = iteration
+                write_json_atomically(out / "train_log.json", log, indent=1)
                 if iteration % args.eval_every == 0 or iteration == args.iterations:
                     save_and_score(iteration)
         except (KeyboardInterrupt, SystemError) as exc:
@@ -525,16 +561,26 @@ def _train(parser, args, meta, reward_params, val_seeds, phases) -> int:
         interrupted = interrupted or interrupts.received
         with Interrupts(ignore=True):  # a second signal must not leave a half-written file
             model.eval()
+            # After an interrupt the weights are those of the last completed iteration plus
+            # whatever part of the next one's update ran (``interrupted_in``).
+            stopped = {"interrupted_in": iteration} if interrupted else {}
             save_student(
-                out / "student.pt", model, env_kwargs, meta["base"], iteration=iteration, **extra
+                out / "student.pt",
+                model,
+                env_kwargs,
+                meta["base"],
+                iteration=completed,
+                **stopped,
+                **extra,
             )
             log["wall_s"] = time.perf_counter() - start
             log["interrupted"] = interrupted
-            (out / "train_log.json").write_text(json.dumps(log, indent=1))
+            write_json_atomically(out / "train_log.json", log, indent=1)
             vec.close()
     if interrupted:
         print(
-            f"recurrent_ppo: {interrupted} at iteration {iteration}: saved {out / 'student.pt'}",
+            f"recurrent_ppo: {interrupted} in iteration {iteration} ({completed} completed): "
+            f"saved {out / 'student.pt'}",
             file=sys.stderr,
         )
         return 130 if interrupted == "SIGINT" else 143

@@ -182,10 +182,11 @@ def test_an_interrupt_saves_the_student_and_exits_130(student, tmp_path, monkeyp
     monkeypatch.setattr(recurrent_ppo, "rollout", interrupted_rollout)
     out = tmp_path / "run"
     assert recurrent_ppo.main(["--student", str(student), "--out", str(out), *TINY]) == 130
-    assert "SIGINT at iteration 2" in capsys.readouterr().err
+    assert "SIGINT in iteration 2 (1 completed)" in capsys.readouterr().err
     log = json.loads((out / "train_log.json").read_text())
     assert log["interrupted"] == "SIGINT" and len(log["iterations"]) == 1
-    assert read_student_metadata(out / "student.pt")["iteration"] == 2
+    meta = read_student_metadata(out / "student.pt")
+    assert meta["iteration"] == 1 and meta["interrupted_in"] == 2
 
 
 @pytest.mark.parametrize(
@@ -197,6 +198,10 @@ def test_an_interrupt_saves_the_student_and_exits_130(student, tmp_path, monkeyp
         (["--train-seeds-start", "199"], "--val-seeds"),
         (["--task-params", "[1]"], "--task-params"),
         (["--task-params", '{"shape": "blob"}'], "--task-params"),
+        # The reward may change, not what the student observes (the circle's radius, a
+        # lattice's layout): a student fine-tuned on another task would be deployed on its own.
+        (["--task-params", '{"radius_m": 1.0}'], "changes what the student observes"),
+        (["--task-params", '{"shape": "lattice"}'], "changes what the student observes"),
         (["--phases", "5,2"], "--phases"),
         (["--log-std", "inf"], "--log-std"),
     ],
@@ -208,6 +213,12 @@ def test_main_refuses_bad_arguments_before_any_rollout(student, tmp_path, capsys
         )
     assert flag in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
+
+
+def test_the_students_own_directory_is_refused_as_out(student, capsys):
+    with pytest.raises(SystemExit):
+        recurrent_ppo.main(["--student", str(student), "--out", str(student.parent), *TINY])
+    assert "would be overwritten" in capsys.readouterr().err
 
 
 def test_a_missing_or_foreign_student_is_refused(tmp_path, capsys):

@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import json
 
+import numpy as np
 import pytest
 
 from swarm_phd import bridge
@@ -24,7 +25,8 @@ STUDENT_ENV = {
     "observation": "phd",
     "max_steps": 300,
     "lidar_sectors": 16,
-    "n_robots": 4,
+    "n_robots": 3,
+    "control_period_s": 0.1,  # a training override the robots do not take
 }
 BASE = "scripted:formation-known-n-fast"
 
@@ -49,30 +51,31 @@ def _args(*argv: str) -> argparse.Namespace:
 
 
 def test_a_trained_student_runs_in_its_own_env_minus_its_episode_length(student):
-    kwargs = bridge.bridge_env_kwargs(_args("--policy", student), robots=None)
+    kwargs, dropped = bridge.bridge_env_kwargs(_args("--policy", student), robots=None)
     assert kwargs == {
         "preset": "lab-3m-4",
         "task": "formation",
         "task_params": {"radius_m": 0.7},
         "observation": "phd",
         "lidar_sectors": 16,
-        "n_robots": 4,
+        "n_robots": 3,
         "localizer": "phd",
     }
+    assert dropped == ["control_period_s"]  # listed, not applied to the robots
     # Named robots set the count; the command line's preset, localizer and task parameters win.
-    kwargs = bridge.bridge_env_kwargs(
+    kwargs, _ = bridge.bridge_env_kwargs(
         _args(
             "--policy", student, "--preset", "sim-6m-20", "--localizer", "pmb",
             "--task-params", '{"radius_m": 0.5}',
         ),
-        robots=["ugv_0", "ugv_1", "ugv_2"],
+        robots=["ugv_0", "ugv_1", "ugv_2", "ugv_3"],
     )  # fmt: skip
     assert "n_robots" not in kwargs and kwargs["preset"] == "sim-6m-20"
     assert kwargs["localizer"] == "pmb" and kwargs["task_params"] == {"radius_m": 0.5}
 
 
 def test_scripted_controllers_get_their_observation_and_wander_the_defaults():
-    kwargs = bridge.bridge_env_kwargs(
+    kwargs, _ = bridge.bridge_env_kwargs(
         _args("--policy", "scripted:formation-known-n-fast", "--task", "formation"), None
     )
     assert kwargs == {
@@ -82,8 +85,29 @@ def test_scripted_controllers_get_their_observation_and_wander_the_defaults():
         "localizer": "phd",
     }
     for policy in ("wander", "stop", "random", "scripted:wander"):
-        kwargs = bridge.bridge_env_kwargs(_args("--policy", policy), None)
+        kwargs, dropped = bridge.bridge_env_kwargs(_args("--policy", policy), None)
         assert kwargs == {"preset": "lab-3m-4", "task": "wander", "localizer": "phd"}
+        assert dropped == []
+
+
+@pytest.fixture(scope="module")
+def truth_student(student, tmp_path_factory):
+    from agents.sb3.recurrent_student import load_student
+
+    path = tmp_path_factory.mktemp("truth") / "truth.pt"
+    env = parallel_env(**STUDENT_ENV)
+    try:
+        model = load_student(student, env).model
+    finally:
+        env.close()
+    save_student(path, model, {**STUDENT_ENV, "observation": "truth"}, BASE)
+    return str(path)
+
+
+def test_a_policy_trained_on_the_truth_is_refused(truth_student, capsys):
+    assert main(["bridge", "--loopback", "--policy", truth_student]) == 2
+    captured = capsys.readouterr()
+    assert "observation='truth'" in captured.err and "loopback" not in captured.out
 
 
 @pytest.mark.parametrize(
@@ -112,19 +136,71 @@ def test_bad_task_parameters_are_refused(capsys):
     assert "--task-params" in capsys.readouterr().err
 
 
+def test_a_controller_without_its_task_is_refused_before_anything_starts(capsys):
+    # Built once on a simulator first: its own error names the task it needs.
+    assert main(["bridge", "--loopback", "--policy", "scripted:formation-known-n-fast"]) == 2
+    captured = capsys.readouterr()
+    assert "task='formation'" in captured.err and "loopback" not in captured.out
+
+
 @pytest.mark.timeout(120)
-def test_a_student_and_a_scripted_controller_drive_the_loopback_robots(student, capsys):
+def test_a_student_and_a_scripted_controller_drive_the_loopback_robots(
+    student, capsys, monkeypatch
+):
+    import agents.policies
+
+    calls: dict[str, int] = {}
+    load = agents.policies.load_policy
+
+    def counting_load(spec, env):  # counts the calls of the policy that drives the robots
+        policy = load(spec, env)
+
+        def act(obs, infos):
+            calls[spec] = calls.get(spec, 0) + 1
+            return policy(obs, infos)
+
+        act.reset = policy.reset
+        return act
+
+    monkeypatch.setattr(agents.policies, "load_policy", counting_load)
     argv = ["bridge", "--loopback", "--steps", "15", "--json"]
     assert main([*argv, "--policy", student]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["policy"] == student and out["steps"] == 15 and out["rejected_messages"] == 0
-    # The student's task, scored on the loopback's ground truth (its mocap).
+    assert calls[student] == 15  # it chose every command
+    # In its own env: its preset, task, observation and robot count (the loopback's too).
+    assert out["robots"] == ["ugv_0", "ugv_1", "ugv_2"] and out["preset"] == "lab-3m-4"
+    assert out["observation"] == "phd"
+    assert out["policy_settings_not_applied"] == ["control_period_s"]
+    # Its task, scored on the loopback's ground truth (its mocap).
     assert out["task"]["name"] == "formation" and out["task"]["formation_error_m"] > 0
     assert out["metrics"]["scored_observations"] > 0
 
-    assert main([*argv, "--policy", "scripted:formation-known-n-fast", "--task", "formation"]) == 0
+    spec = "scripted:formation-known-n-fast"
+    calls.clear()  # (the student's base is this controller, loaded the same way)
+    assert main([*argv, "--policy", spec, "--task", "formation"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["task"]["name"] == "formation" and "spacing_error_m" in out["task"]
-    # Without --task the controller's task is missing: its own error names it.
-    assert main([*argv, "--policy", "scripted:formation-known-n-fast"]) == 2
-    assert "task='formation'" in capsys.readouterr().err
+    assert calls[spec] == 15 and len(out["robots"]) == 4
+
+
+def test_run_episode_resets_the_policy_with_the_episodes_seed():
+    from swarm_phd.episode import run_episode
+
+    class Stay:
+        seeds: list = []
+
+        def reset(self, seed):
+            self.seeds.append(seed)
+
+        def __call__(self, obs, infos):
+            return {a: np.zeros(2, np.float32) for a in obs}
+
+    env = parallel_env("lab-3m-4", max_steps=5)
+    try:
+        policy = Stay()
+        run_episode(env, policy, 2, seed=7)
+        run_episode(env, policy, 2, seed=None)  # a replay's: the policy keeps its state
+    finally:
+        env.close()
+    assert policy.seeds == [7]
