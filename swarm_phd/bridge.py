@@ -42,7 +42,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--preset", default=None, help="default: a trained policy's own preset, else lab-3m-4"
     )
-    parser.add_argument("--steps", type=int, default=100, help="env steps (default 100 = 10 s)")
+    parser.add_argument(
+        "--steps",
+        type=int,
+        default=None,
+        help="env steps (default: a trained policy's episode length, else 100 = 10 s)",
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
         "--policy",
@@ -124,8 +129,9 @@ MODEL_KEYS_ON_ROBOTS = (
 def bridge_env_kwargs(
     args: argparse.Namespace, robots: list[str] | None
 ) -> tuple[dict, list[str]]:
-    """Preset, task, task parameters, localizer and observation settings of the bridge env
-    for ``args.policy``, and the trained policy's env settings left out
+    """Preset, task, task parameters, localizer, observation settings and episode length
+    (``max_steps``) of the bridge env for ``args.policy``, and the trained policy's env
+    settings left out
     (:data:`MODEL_KEYS_ON_ROBOTS`), checked before anything connects: a trained policy's own
     env (not its episode length, nor its robot count when ``robots`` are named), a scripted
     controller's observation mode, else the simulator's defaults. The policy is built once on
@@ -173,12 +179,16 @@ def bridge_env_kwargs(
                 f"--policy {spec!r} was trained on the true neighbour table "
                 "(observation='truth'); it cannot drive robots, which know only their estimate"
             )
+    # --steps, else a trained policy's episode length (what it was trained to do), else 10 s.
+    steps = args.steps if args.steps is not None else (model or {}).get("max_steps", 100)
+    if steps < 1:
+        raise ValueError(f"--steps must be >= 1, got {steps}")
     if robots is not None:
         kwargs.pop("n_robots", None)  # one agent per named robot
     kwargs["localizer"] = args.localizer or kwargs.get("localizer") or "phd"
     if spec not in ("wander", "stop"):
-        _check_policy_acts(spec, kwargs, robots, args.steps)
-    return kwargs, dropped
+        _check_policy_acts(spec, kwargs, robots, steps)
+    return {**kwargs, "max_steps": steps}, dropped
 
 
 def _check_policy_acts(spec: str, kwargs: dict, robots: list[str] | None, steps: int) -> None:
@@ -188,7 +198,7 @@ def _check_policy_acts(spec: str, kwargs: dict, robots: list[str] | None, steps:
     from swarm_env import parallel_env
 
     sized = {} if robots is None else {"n_robots": len(robots)}
-    probe = parallel_env(**{**kwargs, **sized, "max_steps": max(1, steps)})
+    probe = parallel_env(**{**kwargs, **sized, "max_steps": steps})
     try:
         load_policy(spec, probe)
     finally:
@@ -224,11 +234,9 @@ def _run(args: argparse.Namespace) -> int:
     from swarm_env.config import make_config
     from swarm_phd.episode import format_metrics, run_episode
 
-    if args.steps < 1:
-        raise ValueError(f"--steps must be >= 1, got {args.steps}")
     robots = [r.strip() for r in args.robots.split(",") if r.strip()] if args.robots else None
     env_kwargs, not_applied = bridge_env_kwargs(args, robots)
-    preset = env_kwargs.pop("preset")
+    preset, steps = env_kwargs.pop("preset"), env_kwargs.pop("max_steps")
     bridge: dict = {"use_mocap": not args.no_mocap}
     if args.max_speed is not None:
         bridge["max_speed_mps"] = args.max_speed
@@ -275,7 +283,7 @@ def _run(args: argparse.Namespace) -> int:
             allow_remote=args.allow_remote,
             record=args.record,
             bridge=bridge,
-            max_steps=args.steps,
+            max_steps=steps,
             **env_kwargs,
         )
         if args.policy == "stop":
@@ -293,7 +301,7 @@ def _run(args: argparse.Namespace) -> int:
         if not args.json:
             print(
                 f"bridge: {len(env.possible_agents)} robots {env.possible_agents} at "
-                f"{host}:{port}, {args.steps} steps of {env.config.control_period_s} s, "
+                f"{host}:{port}, {steps} steps of {env.config.control_period_s} s, "
                 f"{'the simulator' if args.loopback else 'the seed hardware'}'s sensor model; "
                 f"preset {preset}; policy {args.policy}, task {env.task.name}, observation "
                 f"{env.config.observation}, localizer {env.config.localizer}"
@@ -301,7 +309,7 @@ def _run(args: argparse.Namespace) -> int:
             if not_applied:
                 print(f"the policy's training settings not applied on robots: {not_applied}")
         start = time.monotonic()
-        result = run_episode(env, policy, args.steps, seed=args.seed)
+        result = run_episode(env, policy, steps, seed=args.seed)
         wall = time.monotonic() - start
         task_metrics = env.task.metrics()
         world = env.world

@@ -60,18 +60,20 @@ def test_a_trained_student_runs_in_its_own_env_minus_its_episode_length(student)
         "lidar_sectors": 16,
         "n_robots": 3,
         "localizer": "phd",
+        "max_steps": 300,  # its episode's length, unless --steps is given
     }
     assert dropped == ["control_period_s"]  # listed, not applied to the robots
     # Named robots set the count; the command line's preset, localizer and task parameters win.
     kwargs, _ = bridge.bridge_env_kwargs(
         _args(
             "--policy", student, "--preset", "sim-6m-20", "--localizer", "pmb",
-            "--task-params", '{"radius_m": 0.5}',
+            "--task-params", '{"radius_m": 0.5}', "--steps", "20",
         ),
         robots=["ugv_0", "ugv_1", "ugv_2", "ugv_3"],
     )  # fmt: skip
     assert "n_robots" not in kwargs and kwargs["preset"] == "sim-6m-20"
     assert kwargs["localizer"] == "pmb" and kwargs["task_params"] == {"radius_m": 0.5}
+    assert kwargs["max_steps"] == 20
 
 
 def test_scripted_controllers_get_their_observation_and_wander_the_defaults():
@@ -83,10 +85,16 @@ def test_scripted_controllers_get_their_observation_and_wander_the_defaults():
         "task": "formation",
         "observation": "phd",
         "localizer": "phd",
+        "max_steps": 100,
     }
     for policy in ("wander", "stop", "random", "scripted:wander"):
         kwargs, dropped = bridge.bridge_env_kwargs(_args("--policy", policy), None)
-        assert kwargs == {"preset": "lab-3m-4", "task": "wander", "localizer": "phd"}
+        assert kwargs == {
+            "preset": "lab-3m-4",
+            "task": "wander",
+            "localizer": "phd",
+            "max_steps": 100,
+        }
         assert dropped == []
 
 
@@ -131,9 +139,11 @@ def test_policies_that_cannot_drive_robots_are_refused_before_anything_starts(
     assert "loopback robot server" not in captured.out  # refused before the server started
 
 
-def test_bad_task_parameters_are_refused(capsys):
+def test_bad_task_parameters_and_steps_are_refused(capsys):
     assert main(["bridge", "--loopback", "--task-params", "[1]"]) == 2
     assert "--task-params" in capsys.readouterr().err
+    assert main(["bridge", "--loopback", "--steps", "0"]) == 2
+    assert "--steps must be >= 1, got 0" in capsys.readouterr().err
 
 
 def test_a_controller_without_its_task_is_refused_before_anything_starts(capsys):
