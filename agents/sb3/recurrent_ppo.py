@@ -79,8 +79,8 @@ def _critic_class():
     from agents.sb3.features import NeighbourSetExtractor
 
     class Critic(nn.Module):
-        """V(s) of one agent (module doc). ``obs`` (N, D), ``base`` (N, 2), ``state`` (N, P),
-        ``left`` (N,) the fraction of the episode still to come -> (N,)."""
+        """V(s) of one agent (module doc). ``obs`` (..., D), ``base`` (..., 2), ``state``
+        (..., P), ``left`` (...) the fraction of the episode still to come -> (...)."""
 
         def __init__(self, observation_space: Any, critic_dims: int, hidden: int = 64):
             super().__init__()
@@ -93,9 +93,11 @@ def _critic_class():
             )
 
         def forward(self, obs, base, state, left):
+            lead = left.shape  # any leading shape: the encoder takes rows
             # Positions in m, halved as the central critic does: the lab's ranges are ~0-3 m.
             s = self.state(torch.cat([state / 2.0, base, left.unsqueeze(-1)], -1))
-            return self.head(torch.cat([self.encoder(obs), s], -1)).squeeze(-1)
+            code = self.encoder(obs.reshape(-1, obs.shape[-1])).reshape(*lead, -1)
+            return self.head(torch.cat([code, s], -1)).squeeze(-1)
 
     return Critic
 
@@ -149,8 +151,14 @@ def rollout(vec: Any, model: Any, log_std: Any, seeds: list[int], generator: Any
     return {k: np.stack(v) for k, v in rows.items()} | {"last_obs": last}
 
 
-def _critic_inputs(obs: Any, dim: int, left: Any) -> tuple:
-    return obs[..., :dim], obs[..., dim : dim + 2], obs[..., dim + 2 :], left
+def _split(obs: Any, dim: int) -> tuple:
+    """A rollout row's parts: the env's observation, the base's command, the critic block."""
+    return obs[..., :dim], obs[..., dim : dim + 2], obs[..., dim + 2 :]
+
+
+def _time_left(t_max: int) -> np.ndarray:
+    """The fraction of a ``t_max``-step episode still to come at each step, (T,): 1 .. 1/T."""
+    return (t_max - np.arange(t_max)) / t_max
 
 
 def ppo_update(
@@ -190,13 +198,8 @@ def ppo_update(
         kls, clips, p_losses, v_losses = [], [], [], []
         for start in range(0, n_seq, batch_sequences):
             idx = torch.as_tensor(order[start : start + batch_sequences])
-            obs = batch["obs"][idx]
-            o, b, state, left = _critic_inputs(obs, dim, batch["left"][idx])
-            flat = (-1,)
-            value = critic(
-                o.reshape(*flat, dim), b.reshape(*flat, 2), state.reshape(*flat, state.shape[-1]),
-                left.reshape(flat),
-            ).reshape(len(idx), t_max)  # fmt: skip
+            o, b, state = _split(batch["obs"][idx], dim)
+            value = critic(o, b, state, batch["left"][idx])
             v_loss = ((value - batch["returns"][idx]) ** 2).mean()
             critic_optim.zero_grad()
             v_loss.backward()
@@ -244,7 +247,7 @@ def _batch(data: dict[str, np.ndarray], values: np.ndarray, last_values: np.ndar
     adv, returns = gae(data["rewards"], values, last_values, args.gamma, args.gae_lambda)
     norm = (adv - adv.mean()) / (adv.std() + 1e-8)
     t_max = data["rewards"].shape[0]
-    left = np.repeat(((t_max - np.arange(t_max)) / t_max)[:, None], values.shape[1], axis=1)
+    left = np.repeat(_time_left(t_max)[:, None], values.shape[1], axis=1)
 
     def seq(a: np.ndarray) -> Any:
         return torch.as_tensor(np.swapaxes(a, 0, 1).copy(), dtype=torch.float32)
@@ -264,12 +267,10 @@ def _values(critic: Any, data: dict[str, np.ndarray], dim: int) -> tuple[np.ndar
     import torch
 
     t_max, n = data["rewards"].shape
-    left = torch.as_tensor((t_max - np.arange(t_max)) / t_max, dtype=torch.float32)
+    left = torch.as_tensor(_time_left(t_max), dtype=torch.float32)[:, None].expand(t_max, n)
     with torch.no_grad():
-        obs = torch.as_tensor(data["obs"]).reshape(t_max * n, -1)
-        values = critic(*_critic_inputs(obs, dim, left.repeat_interleave(n))).reshape(t_max, n)
-        last = torch.as_tensor(data["last_obs"])
-        last_values = critic(*_critic_inputs(last, dim, torch.zeros(n)))
+        values = critic(*_split(torch.as_tensor(data["obs"]), dim), left)
+        last_values = critic(*_split(torch.as_tensor(data["last_obs"]), dim), torch.zeros(n))
     return values.numpy().astype(np.float64), last_values.numpy().astype(np.float64)
 
 
