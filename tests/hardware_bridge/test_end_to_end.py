@@ -66,16 +66,35 @@ def bridge_episode(tmp_path_factory):
         max_steps=10_000,
         phd=make_config("seed-lab").phd,  # as the simulator episode's filter
     )
+    stale_at: dict[int, dict[str, tuple[str, ...]]] = {}  # step -> {robot: stale sensors}
+
+    def note_stale(k, infos):
+        stale = {a: tuple(i["stale"]) for a, i in infos.items() if i.get("stale")}
+        if stale:
+            stale_at[k] = stale
+
     try:
         result = run_episode(
-            env, WanderPolicy.for_env(env, seed=SEED), N_STEPS, seed=SEED, trace=True
+            env,
+            WanderPolicy.for_env(env, seed=SEED),
+            N_STEPS,
+            seed=SEED,
+            trace=True,
+            on_step=note_stale,
         )
         counters = env.world.counters_snapshot()
         timing = dict(env.world.timing)
     finally:
         env.close()
         robots = server.close()
-    return {"result": result, "counters": counters, "timing": timing, "bag": bag, "robots": robots}
+    return {
+        "result": result,
+        "counters": counters,
+        "timing": timing,
+        "bag": bag,
+        "robots": robots,
+        "stale_at": stale_at,
+    }
 
 
 @pytest.fixture(scope="module")
@@ -98,7 +117,15 @@ def test_bridge_runs_the_scripted_policy_and_localizes_like_the_simulator(
     # Scored = every robot had a mocap pose <= 0.5 s old; on a loaded 2-core machine the
     # loopback's real-time sim can fall behind for a step or two.
     assert live.steps == N_STEPS and live.scored_steps >= N_STEPS - 4, (live.scored_steps, robots)
-    assert not live.stale_steps, f"sensors went stale on a healthy link: {live.stale_steps}"
+    # The same hiccup leaves every sensor of the starved robots > 0.5 s old for that step (CI,
+    # 2026-12-05: odometry, camera and mocap stale in one step, 79 of 80 scored). A broken link
+    # or a silent sensor is stale step after step (tests/hardware_bridge/test_faults.py), so
+    # staleness is allowed in as many steps as scoring allows to go unscored.
+    stale_at = bridge_episode["stale_at"]
+    assert len(stale_at) <= 4, f"sensors went stale on a healthy link: {stale_at}"
+    assert sum(live.stale_steps.values()) == sum(
+        len(s) for step in stale_at.values() for s in step.values()
+    )
     # The data really flowed: ~7 scans/s and 10 odometry/s per robot over 8 s.
     expected_scans = N_STEPS * 0.1 * 7 * 4
     assert counters["lidar.accepted"] >= 0.8 * expected_scans
