@@ -38,7 +38,11 @@ and, for every robot and step from ``--from-step`` on (the settled formation), c
 
 ``--policy`` runs another of :data:`FORMATION_CONTROLLERS` instead: e.g.
 ``scripted:formation-sensing`` turns its blind sectors off its teammates, the ``*-known-n``
-ones scale their centroid to the swarm size.
+ones scale their centroid to the swarm size. It also runs a learned residual on one of them
+(a recurrent student ``.pt`` or a residual ``.zip``), in the env it was trained in: the
+estimate is read, and the centroid estimated, as its base controller does, while the learned
+policy drives. ``commands`` summarises how each policy drives over the scored steps (mean
+speed, turn rate and the turn rate's change per step): what its motion does to the sensors.
 
     python -m agents.formation_diagnosis --preset lab-3m-4 --seeds 200-204 --from-step 150
 
@@ -284,25 +288,35 @@ class LostTeammateTally:
 
 
 def diagnose(
-    preset: str,
+    preset: str | None,
     seeds: list[int],
     from_step: int,
     max_steps: int = 300,
     match_m: float = 0.15,
-    observation: str = "phd",
+    observation: str | None = None,
     env_overrides: dict[str, Any] | None = None,
     bearing_window_deg: float = 3.0,
     policy: str = "scripted:formation",
 ) -> dict[str, Any]:
-    """Run ``policy`` (one of :data:`FORMATION_CONTROLLERS`) on ``observation`` (``"phd"``,
-    or ``"truth"`` as a check: every component is then a teammate) for ``seeds``, in
-    ``preset`` with ``env_overrides`` (``parallel_env`` keywords); the module doc's figures
-    (medians and means in metres, counts per observer-step)."""
-    from agents.policies import load_policy
+    """Run ``policy`` (one of :data:`FORMATION_CONTROLLERS`, or a ``.pt``/``.zip`` residual
+    on one of them) on ``observation`` (``"phd"``, or ``"truth"`` as a check: every component
+    is then a teammate; ``None``: a model's own, else ``"phd"``) for ``seeds``, in ``preset``
+    (``None``: a model's own, else ``"lab-3m-4"``) with ``env_overrides`` (``parallel_env``
+    keywords); the module doc's figures (medians and means in metres, counts per
+    observer-step)."""
+    from agents.policies import load_policy, trained_policy_env
     from swarm_env import parallel_env
 
-    if policy not in FORMATION_CONTROLLERS:
-        raise ValueError(f"--policy must be one of {FORMATION_CONTROLLERS}, got {policy!r}")
+    learned = policy.endswith((".pt", ".zip"))
+    if not learned and policy not in FORMATION_CONTROLLERS:
+        raise ValueError(
+            f"--policy must be one of {FORMATION_CONTROLLERS} or a .pt/.zip residual on one "
+            f"of them, got {policy!r}"
+        )
+    if learned and not Path(policy).is_file():
+        raise ValueError(f"--policy file {policy!r} does not exist")
+    if observation not in (None, "phd", "truth"):
+        raise ValueError(f"--observation must be 'phd' or 'truth', got {observation!r}")
     if not 0.0 < bearing_window_deg <= 180.0:
         raise ValueError(f"--bearing-window-deg must be in (0, 180], got {bearing_window_deg}")
     if not match_m > 0.0:
@@ -317,21 +331,38 @@ def diagnose(
             f"--env-overrides may not set {sorted(fixed)}: the diagnosis sets them (use --preset, "
             "--observation, --max-steps; sensor_stats is always on)"
         )
-    env = parallel_env(
-        preset=preset,
+    # A learned policy runs in the env it was trained in (its preset, observation settings and
+    # task parameters); the diagnosis's own settings go on top.
+    kwargs = (trained_policy_env(policy, preset=preset, task="formation") or {}) if learned else {}
+    if kwargs.get("task") not in (None, "formation"):
+        raise ValueError(f"--policy {policy!r} was trained on task {kwargs['task']!r}")
+    kwargs.update(env_overrides or {})
+    kwargs.update(
+        preset=kwargs.get("preset") or preset or "lab-3m-4",
         task="formation",
-        observation=observation,
+        observation=observation or kwargs.get("observation", "phd"),
         max_steps=max_steps,
         sensor_stats=True,  # the lidar's misses against the truth, by cause
-        **(env_overrides or {}),
     )
+    if kwargs["observation"] not in ("phd", "truth"):
+        raise ValueError(
+            f"--policy {policy!r} reads observation {kwargs['observation']!r}; the diagnosis "
+            "reads the PHD table (or the truth)"
+        )
+    env = parallel_env(**kwargs)
     if env.task.shape != "circle":
         env.close()
         raise ValueError(
             f"the diagnosis scores the circle formation; task_params set shape={env.task.shape!r}"
         )
-    controller = load_policy(policy, env)
+    try:
+        driver = load_policy(policy, env)
+        controller = estimate_reader(policy, driver)
+    except Exception:
+        env.close()
+        raise
     top_k, n_sectors, min_weight = controller.top_k, controller.n_sectors, controller.min_weight
+    commands = _CommandTally(env.possible_agents)
     arena = env.config.arena
     half = (0.5 * arena.width_m, 0.5 * arena.height_m)
     errors: dict[str, list[float]] = {"controller": [], "oracle": [], "oracle_weight_1": []}
@@ -348,15 +379,18 @@ def diagnose(
     )
     lidar_counts = dict.fromkeys(_lidar_count_keys(), 0)
     for seed in seeds:
-        controller.reset(seed)
+        driver.reset(seed)
         obs, infos = env.reset(seed=seed)
         world_model = env.unwrapped.world
         layout = world_model.layout
         # The scans the scored observations read: those of the periods that end at steps
         # from_step .. max_steps - 1 (the last period's scans reach no scored observation).
         before = after = _lidar_counts(world_model.stats["lidar"])
+        commands.new_episode()
         for t in range(max_steps):
-            actions = controller(obs, infos)
+            actions = driver(obs, infos)
+            if t >= from_step:
+                commands.add(actions)
             if t == from_step - 1:
                 before = _lidar_counts(world_model.stats["lidar"])
             if t == max_steps - 1:
@@ -401,9 +435,9 @@ def diagnose(
     in_range = max(1, lidar_counts["targets_in_range"])
     spurious = sum(counts.values())
     return {
-        "preset": preset,
+        "preset": kwargs["preset"],
         "policy": policy,
-        "observation": observation,
+        "observation": kwargs["observation"],
         "env_overrides": env_overrides or {},
         "seeds": seeds,
         "from_step": from_step,
@@ -428,6 +462,7 @@ def diagnose(
         "spurious_per_observer_step": spurious / max(1, observer_steps),
         "spurious_share": {k: counts[k] / max(1, spurious) for k in KINDS},
         "observer_steps": observer_steps,
+        "commands": commands.summary(),
         **tally.summary(observer_steps),
         # Every scan that the scored observations read, against the truth at its instant, all
         # bearings within the localization range (swarm_env.world.diagnostics): missed, and why.
@@ -438,6 +473,55 @@ def diagnose(
             "missed_rate_by_cause": {c: lidar_counts[c] / in_range for c in LIDAR_MISS_CAUSES},
         },
     }
+
+
+def estimate_reader(spec: str, driver: Any) -> Any:
+    """The scripted controller whose reading of the estimate the diagnosis uses: ``driver``
+    itself for a scripted ``spec``, a learned residual's base controller for a model.
+    ValueError if that is not one of :data:`FORMATION_CONTROLLERS`."""
+    if spec in FORMATION_CONTROLLERS:
+        return driver
+    base = getattr(driver, "base", None)
+    if base is None or base.spec not in FORMATION_CONTROLLERS:
+        raise ValueError(
+            f"--policy {spec!r} is not a residual on a formation controller (its base: "
+            f"{getattr(base, 'spec', None)!r}; the diagnosis needs one of "
+            f"{FORMATION_CONTROLLERS})"
+        )
+    return base.policy
+
+
+class _CommandTally:
+    """How a policy drives: per agent-step of the scored window, its commanded speed (m/s),
+    turn rate (rad/s) and the turn rate's change from the agent's previous scored step."""
+
+    def __init__(self, agents: list[str]) -> None:
+        self.agents = list(agents)
+        self.v: list[np.ndarray] = []
+        self.omega: list[np.ndarray] = []
+        self.d_omega: list[np.ndarray] = []
+        self.previous: np.ndarray | None = None
+
+    def new_episode(self) -> None:
+        self.previous = None
+
+    def add(self, actions: dict[str, np.ndarray]) -> None:
+        cmd = np.array([np.asarray(actions[a], dtype=np.float64) for a in self.agents])
+        self.v.append(np.abs(cmd[:, 0]))
+        self.omega.append(np.abs(cmd[:, 1]))
+        if self.previous is not None:
+            self.d_omega.append(np.abs(cmd[:, 1] - self.previous))
+        self.previous = cmd[:, 1]
+
+    def summary(self) -> dict[str, float]:
+        def mean(parts: list[np.ndarray]) -> float:
+            return float(np.concatenate(parts).mean()) if parts else float("nan")
+
+        return {
+            "mean_abs_speed_mps": mean(self.v),
+            "mean_abs_turn_rate_radps": mean(self.omega),
+            "mean_abs_turn_rate_change_radps": mean(self.d_omega),
+        }
 
 
 def centroid_estimates(
@@ -532,13 +616,19 @@ def main(argv: list[str] | None = None) -> int:
     from swarm_phd.sweep import parse_json_object, parse_seeds
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--preset", default="lab-3m-4")
+    parser.add_argument("--preset", default=None, help="default: a model's own, else lab-3m-4")
     parser.add_argument("--seeds", default="200-204")
     parser.add_argument("--from-step", type=int, default=150, help="first step scored")
     parser.add_argument("--max-steps", type=int, default=300)
     parser.add_argument("--match-m", type=float, default=0.15, help="'on a teammate' radius")
-    parser.add_argument("--observation", default="phd", choices=["phd", "truth"])
-    parser.add_argument("--policy", default="scripted:formation", choices=FORMATION_CONTROLLERS)
+    parser.add_argument(
+        "--observation", default=None, choices=["phd", "truth"], help="default: a model's own"
+    )
+    parser.add_argument(
+        "--policy",
+        default="scripted:formation",
+        help=f"one of {', '.join(FORMATION_CONTROLLERS)}, or a .pt/.zip residual on one of them",
+    )
     parser.add_argument(
         "--bearing-window-deg",
         type=float,

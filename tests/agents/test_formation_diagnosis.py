@@ -7,6 +7,7 @@ import pytest
 
 from agents.formation_diagnosis import (
     LostTeammateTally,
+    _CommandTally,
     bearing_holder,
     centroid_distance,
     centroid_estimates,
@@ -248,3 +249,86 @@ def test_lost_teammates_on_the_post_seed_and_on_the_truth():
         diagnose("lab-3m-4", [200], from_step=0, max_steps=5, policy="scripted:wander")
     with pytest.raises(ValueError, match="--match-m must be > 0, got 0.0"):
         diagnose("lab-3m-4", [200], from_step=0, max_steps=5, match_m=0.0)
+
+
+STUDENT_ENV = {
+    "preset": "lab-3m-4",
+    "task": "formation",
+    "task_params": {"progress_weight": 10.0},
+    "observation": "phd",
+    "max_steps": 300,
+    "lidar_sectors": 16,
+    "n_robots": 3,
+}
+
+
+def _student(tmp_path, bias, base="scripted:formation-known-n-fast"):
+    """A recurrent student whose correction is ``bias`` everywhere (weights zeroed)."""
+    import torch
+
+    from agents.sb3.recurrent_student import new_student, save_student
+    from swarm_env import parallel_env
+
+    env = parallel_env(**STUDENT_ENV)
+    try:
+        model = new_student(env.observation_space(env.possible_agents[0]))
+    finally:
+        env.close()
+    with torch.no_grad():
+        model.head[-1].weight.zero_()
+        model.head[-1].bias.copy_(torch.tensor(bias))
+    path = tmp_path / f"student_{bias[0]}_{bias[1]}.pt"
+    save_student(path, model.eval(), STUDENT_ENV, base)
+    return str(path)
+
+
+def test_a_student_runs_in_its_own_env_and_reads_the_estimate_as_its_base(tmp_path):
+    """A zero correction drives exactly as the base does, in the student's env (3 robots, 16
+    lidar sectors): every figure equals the base's run in that env. A non-zero one drives
+    differently, and the command tally shows it."""
+    student = _student(tmp_path, [0.0, 0.0])
+    got = diagnose(None, [200], from_step=10, max_steps=25, policy=student)
+    base = diagnose(
+        "lab-3m-4",
+        [200],
+        from_step=10,
+        max_steps=25,
+        policy="scripted:formation-known-n-fast",
+        env_overrides={k: STUDENT_ENV[k] for k in ("task_params", "lidar_sectors", "n_robots")},
+    )
+    assert got["observer_steps"] == 3 * 15  # the student's 3 robots, not the preset's 4
+    assert got["preset"] == "lab-3m-4" and got["observation"] == "phd"
+    for key in base:
+        if key not in ("policy", "env_overrides"):
+            assert got[key] == base[key], key
+    # The full speed limit taken off every command (a closed-loop base cannot undo it): the
+    # robots crawl (0.09 against 0.20 m/s here) and the formation suffers.
+    braking = _student(tmp_path, [-1.0, 0.0])
+    moved = diagnose(None, [200], from_step=10, max_steps=25, policy=braking)
+    assert moved["commands"]["mean_abs_speed_mps"] < base["commands"]["mean_abs_speed_mps"] - 0.05
+    assert moved["formation_error_m"] > base["formation_error_m"]
+
+
+def test_the_diagnosis_refuses_a_model_it_cannot_read(tmp_path):
+    with pytest.raises(ValueError, match="does not exist"):
+        diagnose(None, [200], 0, 5, policy=str(tmp_path / "missing.pt"))
+    with pytest.raises(ValueError, match="must be one of"):
+        diagnose(None, [200], 0, 5, policy="scripted:wander")
+    not_formation = _student(tmp_path, [0.0, 0.0], base="scripted:wander")
+    with pytest.raises(ValueError, match="not a residual on a formation controller"):
+        diagnose(None, [200], 0, 5, policy=not_formation)
+    with pytest.raises(ValueError, match="observation must be"):
+        diagnose(None, [200], 0, 5, observation="pmb")
+
+
+def test_command_tally_by_hand():
+    tally = _CommandTally(["a", "b"])
+    tally.new_episode()
+    tally.add({"a": np.array([0.1, 0.5]), "b": np.array([-0.2, -0.1])})
+    tally.add({"a": np.array([0.3, -0.5]), "b": np.array([0.0, 0.1])})
+    tally.new_episode()  # no change across episodes
+    tally.add({"a": np.array([0.0, 1.0]), "b": np.array([0.0, 0.0])})
+    out = tally.summary()
+    assert out["mean_abs_speed_mps"] == pytest.approx((0.1 + 0.2 + 0.3) / 6)
+    assert out["mean_abs_turn_rate_radps"] == pytest.approx((0.5 + 0.1 + 0.5 + 0.1 + 1.0) / 6)
+    assert out["mean_abs_turn_rate_change_radps"] == pytest.approx((1.0 + 0.2) / 2)
