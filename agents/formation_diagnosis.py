@@ -304,7 +304,7 @@ def diagnose(
     (``None``: a model's own, else ``"lab-3m-4"``) with ``env_overrides`` (``parallel_env``
     keywords); the module doc's figures (medians and means in metres, counts per
     observer-step)."""
-    from agents.policies import load_policy, trained_policy_env
+    from agents.policies import model_env_kwargs, trained_policy_env
     from swarm_env import parallel_env
 
     learned = policy.endswith((".pt", ".zip"))
@@ -331,14 +331,24 @@ def diagnose(
             f"--env-overrides may not set {sorted(fixed)}: the diagnosis sets them (use --preset, "
             "--observation, --max-steps; sensor_stats is always on)"
         )
-    # A learned policy runs in the env it was trained in (its preset, observation settings and
-    # task parameters); the diagnosis's own settings go on top.
-    kwargs = (trained_policy_env(policy, preset=preset, task="formation") or {}) if learned else {}
-    if kwargs.get("task") not in (None, "formation"):
-        raise ValueError(f"--policy {policy!r} was trained on task {kwargs['task']!r}")
+    # A learned policy runs in the env it was trained in (its preset, robot count, observation
+    # settings and task parameters); the diagnosis's own settings go on top.
+    kwargs: dict[str, Any] = {}
+    if learned:
+        model_task = (model_env_kwargs(policy) or {}).get("task", "wander")
+        if model_task != "formation":
+            raise ValueError(
+                f"--policy {policy!r} was trained on task {model_task!r}; the diagnosis runs "
+                "the formation task"
+            )
+        kwargs = trained_policy_env(policy, preset=preset) or {}
+    elif preset is None:
+        preset = "lab-3m-4"
+    if preset is not None:
+        kwargs["preset"] = preset
+    # (a model saved without a preset was trained in parallel_env's default, and runs there)
     kwargs.update(env_overrides or {})
     kwargs.update(
-        preset=kwargs.get("preset") or preset or "lab-3m-4",
         task="formation",
         observation=observation or kwargs.get("observation", "phd"),
         max_steps=max_steps,
@@ -349,18 +359,45 @@ def diagnose(
             f"--policy {policy!r} reads observation {kwargs['observation']!r}; the diagnosis "
             "reads the PHD table (or the truth)"
         )
+    if kwargs["observation"] == "phd":
+        kwargs["localize"] = True  # a model trained on the truth was saved without filters
     env = parallel_env(**kwargs)
-    if env.task.shape != "circle":
+    try:
+        return _diagnose_in(
+            env,
+            kwargs,
+            policy,
+            seeds,
+            from_step,
+            max_steps,
+            match_m,
+            env_overrides,
+            bearing_window_deg,
+        )
+    finally:
         env.close()
+
+
+def _diagnose_in(
+    env: Any,
+    kwargs: dict[str, Any],
+    policy: str,
+    seeds: list[int],
+    from_step: int,
+    max_steps: int,
+    match_m: float,
+    env_overrides: dict[str, Any] | None,
+    bearing_window_deg: float,
+) -> dict[str, Any]:
+    """:func:`diagnose` in ``env``, built from ``kwargs``; the caller closes it."""
+    from agents.policies import load_policy
+
+    if env.task.shape != "circle":
         raise ValueError(
             f"the diagnosis scores the circle formation; task_params set shape={env.task.shape!r}"
         )
-    try:
-        driver = load_policy(policy, env)
-        controller = estimate_reader(policy, driver)
-    except Exception:
-        env.close()
-        raise
+    driver = load_policy(policy, env)
+    controller = estimate_reader(policy, driver)
     top_k, n_sectors, min_weight = controller.top_k, controller.n_sectors, controller.min_weight
     commands = _CommandTally(env.possible_agents)
     arena = env.config.arena
@@ -431,14 +468,15 @@ def diagnose(
             obs, _, _, _, infos = env.step(actions)
         for key in lidar_counts:
             lidar_counts[key] += after[key] - before[key]
-    env.close()
     in_range = max(1, lidar_counts["targets_in_range"])
     spurious = sum(counts.values())
     return {
-        "preset": kwargs["preset"],
+        "preset": kwargs.get("preset", "sim-6m-20"),  # parallel_env's default
         "policy": policy,
         "observation": kwargs["observation"],
         "env_overrides": env_overrides or {},
+        # the env as run: a model's own settings included
+        "env_kwargs": {k: v for k, v in kwargs.items() if k != "sensor_stats"},
         "seeds": seeds,
         "from_step": from_step,
         "formation_error_m": float(np.mean(formation)),
@@ -492,8 +530,9 @@ def estimate_reader(spec: str, driver: Any) -> Any:
 
 
 class _CommandTally:
-    """How a policy drives: per agent-step of the scored window, its commanded speed (m/s),
-    turn rate (rad/s) and the turn rate's change from the agent's previous scored step."""
+    """How a policy drives: per agent-step of the scored window, the magnitudes of its
+    commanded speed (m/s), of its turn rate (rad/s) and of the turn rate's change from the
+    agent's previous scored step (rad/s per control step)."""
 
     def __init__(self, agents: list[str]) -> None:
         self.agents = list(agents)
@@ -622,7 +661,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-steps", type=int, default=300)
     parser.add_argument("--match-m", type=float, default=0.15, help="'on a teammate' radius")
     parser.add_argument(
-        "--observation", default=None, choices=["phd", "truth"], help="default: a model's own"
+        "--observation",
+        default=None,
+        choices=["phd", "truth"],
+        help="default: a model's own, else phd",
     )
     parser.add_argument(
         "--policy",

@@ -262,8 +262,9 @@ STUDENT_ENV = {
 }
 
 
-def _student(tmp_path, bias, base="scripted:formation-known-n-fast"):
-    """A recurrent student whose correction is ``bias`` everywhere (weights zeroed)."""
+def _student(tmp_path, bias, base="scripted:formation-known-n-fast", saved_env=None):
+    """A recurrent student whose correction is ``bias`` everywhere (weights zeroed), saved
+    with ``saved_env`` as its env (default: the one it was built in)."""
     import torch
 
     from agents.sb3.recurrent_student import new_student, save_student
@@ -277,8 +278,8 @@ def _student(tmp_path, bias, base="scripted:formation-known-n-fast"):
     with torch.no_grad():
         model.head[-1].weight.zero_()
         model.head[-1].bias.copy_(torch.tensor(bias))
-    path = tmp_path / f"student_{bias[0]}_{bias[1]}.pt"
-    save_student(path, model.eval(), STUDENT_ENV, base)
+    path = tmp_path / f"student_{bias[0]}_{bias[1]}_{base.split(':')[1]}_{id(saved_env)}.pt"
+    save_student(path, model.eval(), saved_env or STUDENT_ENV, base)
     return str(path)
 
 
@@ -299,10 +300,11 @@ def test_a_student_runs_in_its_own_env_and_reads_the_estimate_as_its_base(tmp_pa
     assert got["observer_steps"] == 3 * 15  # the student's 3 robots, not the preset's 4
     assert got["preset"] == "lab-3m-4" and got["observation"] == "phd"
     for key in base:
-        if key not in ("policy", "env_overrides"):
+        if key not in ("policy", "env_overrides", "env_kwargs"):
             assert got[key] == base[key], key
-    # The full speed limit taken off every command (a closed-loop base cannot undo it): the
-    # robots crawl (0.09 against 0.20 m/s here) and the formation suffers.
+    assert got["env_kwargs"] == {**base["env_kwargs"], "task_params": {"progress_weight": 10.0}}
+    # The full speed limit taken off every command (a closed-loop base cannot undo it): every
+    # command reverses, at |v| 0.09 against the base's 0.20 m/s here, and the formation suffers.
     braking = _student(tmp_path, [-1.0, 0.0])
     moved = diagnose(None, [200], from_step=10, max_steps=25, policy=braking)
     assert moved["commands"]["mean_abs_speed_mps"] < base["commands"]["mean_abs_speed_mps"] - 0.05
@@ -319,6 +321,33 @@ def test_the_diagnosis_refuses_a_model_it_cannot_read(tmp_path):
         diagnose(None, [200], 0, 5, policy=not_formation)
     with pytest.raises(ValueError, match="observation must be"):
         diagnose(None, [200], 0, 5, observation="pmb")
+    other_task = _student(tmp_path, [0.0, 0.0], saved_env={**STUDENT_ENV, "task": "wander"})
+    with pytest.raises(ValueError, match="trained on task 'wander'"):
+        diagnose(None, [200], 0, 5, policy=other_task)
+
+
+def test_the_env_is_closed_when_the_diagnosis_fails(tmp_path, monkeypatch):
+    """A policy that fails at its first step still leaves the env closed."""
+    import agents.policies as policies
+    from swarm_env import SwarmEnv
+
+    closed = []
+    real_close = SwarmEnv.close
+    monkeypatch.setattr(SwarmEnv, "close", lambda self: (closed.append(1), real_close(self)))
+
+    def broken(spec, env):
+        def act(obs, infos):
+            raise RuntimeError("policy failed")
+
+        act.reset = lambda seed=None: None
+        act.top_k = act.n_sectors = act.min_weight = None
+        return act
+
+    monkeypatch.setattr(policies, "load_policy", broken)
+    monkeypatch.setattr("agents.formation_diagnosis.estimate_reader", lambda spec, d: d)
+    with pytest.raises(RuntimeError, match="policy failed"):
+        diagnose("lab-3m-4", [200], 0, 5)
+    assert closed
 
 
 def test_command_tally_by_hand():
