@@ -133,10 +133,14 @@ def test_bridge_runs_the_scripted_policy_and_localizes_like_the_simulator(
     assert counters.get("transport.malformed", 0) == 0
     assert robots["sim_steps"] >= N_STEPS  # the robots' process ran the episode and reported
     assert not any(k.endswith(".invalid") for k in counters)
-    # Honest timing: each step took the control period (no backlog, no early return). A loaded
-    # 2-core machine (load average ~9 seen) wakes a sleeping step up to ~0.15 s late; a backlog
-    # would grow step after step, far beyond this bound.
-    assert bridge_episode["timing"]["max_late_s"] < 0.3
+    # Honest timing: each step took the control period (no early return, no step that
+    # oversleeps by habit). A loaded 2-core machine (load average ~9 seen) wakes a sleeping step
+    # up to ~0.15 s late, and once in a while (CI, 2026-12-05) a starved process wakes one step
+    # 0.49 s late. So a few steps may overrun (late by more than half the period), as a few may
+    # go unscored, and none may hang for a second; a loop late by habit overruns step after step.
+    timing = bridge_episode["timing"]
+    assert timing["steps"] >= N_STEPS and timing["overruns"] <= 4, timing
+    assert timing["max_late_s"] < 1.0, timing
 
     sim = sim_episode.metrics
     got = live.metrics
