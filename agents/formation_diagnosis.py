@@ -52,6 +52,7 @@ Figures of ``docs/results.md`` (rounds 3-10); a JSON summary with ``--out``.
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 from pathlib import Path
 from typing import Any
@@ -304,7 +305,7 @@ def diagnose(
     (``None``: a model's own, else ``"lab-3m-4"``) with ``env_overrides`` (``parallel_env``
     keywords); the module doc's figures (medians and means in metres, counts per
     observer-step)."""
-    from agents.policies import model_env_kwargs, trained_policy_env
+    from agents.policies import trained_policy_env
     from swarm_env import parallel_env
 
     learned = policy.endswith((".pt", ".zip"))
@@ -333,20 +334,16 @@ def diagnose(
         )
     # A learned policy runs in the env it was trained in (its preset, robot count, observation
     # settings and task parameters); the diagnosis's own settings go on top.
-    kwargs: dict[str, Any] = {}
+    kwargs: dict[str, Any] = {"preset": preset or "lab-3m-4"}
     if learned:
-        model_task = (model_env_kwargs(policy) or {}).get("task", "wander")
-        if model_task != "formation":
+        kwargs = trained_policy_env(policy, preset=preset) or {}  # with the model's own task
+        if kwargs["task"] != "formation":
             raise ValueError(
-                f"--policy {policy!r} was trained on task {model_task!r}; the diagnosis runs "
-                "the formation task"
+                f"--policy {policy!r} was trained on task {kwargs['task']!r}; the diagnosis "
+                "runs the formation task"
             )
-        kwargs = trained_policy_env(policy, preset=preset) or {}
-    elif preset is None:
-        preset = "lab-3m-4"
-    if preset is not None:
-        kwargs["preset"] = preset
-    # (a model saved without a preset was trained in parallel_env's default, and runs there)
+        if kwargs["preset"] is None:  # saved without one: trained in parallel_env's default
+            kwargs["preset"] = inspect.signature(parallel_env).parameters["preset"].default
     kwargs.update(env_overrides or {})
     kwargs.update(
         task="formation",
@@ -471,7 +468,7 @@ def _diagnose_in(
     in_range = max(1, lidar_counts["targets_in_range"])
     spurious = sum(counts.values())
     return {
-        "preset": kwargs.get("preset", "sim-6m-20"),  # parallel_env's default
+        "preset": kwargs["preset"],
         "policy": policy,
         "observation": kwargs["observation"],
         "env_overrides": env_overrides or {},
