@@ -5,6 +5,8 @@
 
 A DAgger student imitates its teacher; this lets the task's reward (and a localization term,
 ``--task-params '{"localization_weight": 2, "localization_term": "estimate"}'``) move it.
+Without a DAgger student, ``--base scripted:NAME --env-from runs/x/student.pt`` starts from a
+zero correction on that base (:func:`zero_student`, the base's own motion) in that file's env.
 SB3 has no recurrent policy of its own and sb3-contrib's ``RecurrentPPO`` trains its own LSTM
 actor-critic, so the student (a GRU over the Deep Sets code of the estimate and the base's
 command) is trained by this short PPO loop:
@@ -330,7 +332,18 @@ def main(argv: list[str] | None = None) -> int:
         description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    parser.add_argument("--student", required=True, help="the student.pt to start from")
+    start = parser.add_mutually_exclusive_group(required=True)
+    start.add_argument("--student", help="the student.pt to start from")
+    start.add_argument(
+        "--base",
+        help="start from a zero correction on this residual base (scripted:NAME): the base's "
+        "own motion, in --env-from's env",
+    )
+    parser.add_argument(
+        "--env-from",
+        default=None,
+        help="with --base: a student (.pt) or model (.zip) whose env the new student acts in",
+    )
     parser.add_argument("--out", required=True, help="directory for the students and the log")
     parser.add_argument(
         "--task-params", default=None, help="the training reward's task parameters (JSON)"
@@ -391,12 +404,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         val_seeds = parse_seeds(args.val_seeds, "--val-seeds")
         reward_params = parse_json_object(args.task_params, "--task-params")
-        from agents.sb3.recurrent_student import read_student_metadata
-
-        meta = read_student_metadata(args.student)
+        meta = _start_metadata(parser, args)
     except ValueError as err:
         parser.error(str(err))
-    if Path(args.out).resolve() == Path(args.student).resolve().parent:
+    if args.student and Path(args.out).resolve() == Path(args.student).resolve().parent:
         parser.error(
             f"--out {args.out!r} holds --student {args.student!r}: its student.pt and "
             "train_log.json would be overwritten; give another directory"
@@ -407,6 +418,46 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--val-seeds share seeds with the training episodes: {overlap}")
     phases = parse_phases(parser, args.phases)
     return _train(parser, args, meta, reward_params, val_seeds, phases)
+
+
+def _start_metadata(parser, args) -> dict[str, Any]:
+    """The starting student's metadata (``env_kwargs``, ``base``, ...): ``--student``'s, or for
+    ``--base`` that base in ``--env-from``'s env (ValueError on a bad file or base)."""
+    from agents.sb3.recurrent_student import read_student_metadata
+
+    if args.student is not None:
+        if args.env_from is not None:
+            parser.error("--env-from goes with --base; a --student acts in its own env")
+        return read_student_metadata(args.student)
+    if args.env_from is None:
+        parser.error("--base needs --env-from: the student's env (a .pt or .zip trained there)")
+    from agents.policies import model_env_kwargs
+    from agents.sb3.residual import check_residual
+
+    check_residual(args.base, "--base")
+    env_kwargs = model_env_kwargs(args.env_from)
+    if env_kwargs is None:
+        raise ValueError(f"--env-from must be a .pt student or a .zip model, got {args.env_from!r}")
+    return {"env_kwargs": env_kwargs, "base": args.base}
+
+
+def _start_flag(args) -> str:
+    return f"--student {args.student!r}" if args.student else f"--env-from {args.env_from!r}"
+
+
+def zero_student(space: Any, hidden: int = 64) -> Any:
+    """A student whose correction is zero everywhere (its output layer zeroed), so that it
+    drives exactly as its base: PPO's start when there is no DAgger student. The rest keeps
+    its random initialisation, through which the output layer's first gradients flow."""
+    import torch
+
+    from agents.sb3.recurrent_student import new_student
+
+    model = new_student(space, hidden=hidden)
+    with torch.no_grad():
+        model.head[-1].weight.zero_()
+        model.head[-1].bias.zero_()
+    return model.eval()
 
 
 def _train(parser, args, meta, reward_params, val_seeds, phases) -> int:
@@ -422,7 +473,7 @@ def _train(parser, args, meta, reward_params, val_seeds, phases) -> int:
     env_kwargs = dict(meta["env_kwargs"])
     if env_kwargs.get("task") != "formation":  # its log and scores are formation's
         parser.error(
-            f"--student {args.student!r} acts on task {env_kwargs.get('task')!r}; recurrent "
+            f"{_start_flag(args)} acts on task {env_kwargs.get('task')!r}; recurrent "
             "PPO trains formation students"
         )
     train_kwargs = {
@@ -431,14 +482,17 @@ def _train(parser, args, meta, reward_params, val_seeds, phases) -> int:
     }
     probe = parallel_env(**env_kwargs)
     try:
-        student = load_student(args.student, probe)  # refuses a mismatched observation
         space = probe.observation_space(probe.possible_agents[0])
         features = probe.task.features(len(probe.possible_agents))
+        torch.manual_seed(args.fit_seed)  # the zero student's hidden layers
+        if args.student is not None:  # refuses a mismatched observation
+            model = load_student(args.student, probe).model
+        else:
+            model = zero_student(space)
     finally:
         probe.close()
     torch.set_num_threads(args.torch_threads)  # loading a student set it to 1
     torch.manual_seed(args.fit_seed)
-    model = student.model
     try:  # a bad --task-params fails here, before any rollout
         vec = BatchedSwarmVecEnv(
             train_kwargs,
@@ -471,7 +525,7 @@ def _train(parser, args, meta, reward_params, val_seeds, phases) -> int:
     rng = np.random.default_rng(args.fit_seed)
     extra = {
         "teacher": meta.get("teacher"),
-        "start_student": str(args.student),
+        "start_student": str(args.student) if args.student else f"zero:{args.base}",
         "reward_task_params": reward_params,
         "fit_seed": args.fit_seed,
     }

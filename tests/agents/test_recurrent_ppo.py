@@ -228,3 +228,44 @@ def test_a_missing_or_foreign_student_is_refused(tmp_path, capsys):
         with pytest.raises(SystemExit):
             recurrent_ppo.main(["--student", str(path), "--out", str(tmp_path / "x"), *TINY])
         assert path.name in capsys.readouterr().err
+
+
+def test_a_zero_start_drives_as_its_base_until_ppo_moves_it(student, tmp_path):
+    """--base with --env-from: iteration 0 (and the critic's warm-up) is the base's own
+    motion, bit for bit in the scored figures; the PPO iteration moves the student."""
+    from agents.sb3.report import score
+
+    out = tmp_path / "zero"
+    base = "scripted:formation-known-n"
+    argv = ["--base", base, "--env-from", str(student), "--out", str(out), *TINY]
+    assert recurrent_ppo.main(argv) == 0
+    log = json.loads((out / "train_log.json").read_text())
+    assert log["base"] == base and log["env_kwargs"] == ENV
+    assert log["val"][0] == {"iteration": 0, **log["base_val"]}
+    meta = read_student_metadata(out / "student_it0.pt")
+    assert meta["base"] == base and meta["start_student"] == f"zero:{base}"
+    seeds = [200]
+    warmed, own = (score(spec, ENV, seeds) for spec in (str(out / "student_it1.pt"), base))
+    assert warmed.pop("policy") != own.pop("policy") and warmed == own
+    assert _digest(out / "student.pt") != _digest(out / "student_it0.pt")
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--base", "scripted:formation-known-n"], "--base needs --env-from"),
+        (["--base", "scripted:nope", "--env-from", "{student}"], "--base: unknown scripted policy 'nope'"),
+        (["--base", "scripted:formation-known-n", "--env-from", "x.json"], "x.json"),
+        (["--student", "{student}", "--env-from", "{student}"], "--env-from goes with --base"),
+        (["--student", "{student}", "--base", "scripted:formation"], "not allowed with"),
+        ([], "one of the arguments --student --base is required"),
+    ],
+)
+def test_the_start_must_be_one_student_or_one_base_in_an_env(
+    student, tmp_path, capsys, argv, message
+):
+    argv = [a.format(student=student) for a in argv]
+    with pytest.raises(SystemExit):
+        recurrent_ppo.main([*argv, "--out", str(tmp_path / "x"), *TINY])
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
