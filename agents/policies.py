@@ -110,16 +110,19 @@ def trained_policy_env(
     """The env kwargs a trained policy file (``.zip`` or ``.pt``) runs in: its own preset,
     task, task parameters and observation settings, then ``overrides``. A ``preset`` or
     ``task`` given replaces the model's; another task drops the model's task parameters (they
-    belong to its own task). ``None`` for a policy by name."""
+    belong to its own task), while ``overrides["task_params"]`` on the model's own task are
+    merged over its parameters (a changed reward weight keeps the formation it learnt).
+    ``None`` for a policy by name."""
     model = model_env_kwargs(spec)
     if model is None:
         return None
     model_preset = model.pop("preset", None)
     model_task = model.pop("task", "wander")
     model_params = model.pop("task_params", {})
+    overrides = dict(overrides)
     if task is None or task == model_task:  # the model's observation includes its task
         task = model_task
-        model["task_params"] = model_params
+        model["task_params"] = {**model_params, **overrides.pop("task_params", {})}
     return {**model, **overrides, "preset": preset or model_preset, "task": task}
 
 

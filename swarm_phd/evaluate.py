@@ -88,7 +88,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--task-params",
         default=None,
-        help="JSON dict of task parameters (default: the model's, else {})",
+        help="JSON dict of task parameters, merged over a model's own (default: the model's, "
+        "else {})",
     )
     parser.add_argument(
         "--compare",
@@ -212,6 +213,9 @@ def shared_env_kwargs(
     kwargs: dict[str, Any] = model_env_kwargs(policy) or {}
     if task is not None and task != kwargs.get("task", task):
         kwargs.pop("task_params", None)  # the model's parameters belong to its own task
+    overrides = dict(overrides)
+    if "task_params" in overrides:  # merged over the model's own, as trained_policy_env does
+        kwargs["task_params"] = {**kwargs.get("task_params", {}), **overrides.pop("task_params")}
     kwargs.update(overrides)
     for key in ("observation", "localize"):
         kwargs.pop(key, None)

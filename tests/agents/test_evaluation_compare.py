@@ -41,6 +41,26 @@ def test_model_env_defaults_to_the_models_settings(fake_model):
     assert env.task.name == "formation" and env.task.radius_m == 0.7
 
 
+def test_task_params_given_are_merged_over_the_models_own(fake_model):
+    """A reward weight given on the command line keeps the formation the model learnt; on
+    another task the model's parameters are dropped (they belong to its task)."""
+    from agents.policies import trained_policy_env
+
+    given = {"task_params": {"progress_weight": 10}}
+    merged = {"radius_m": 0.7, "progress_weight": 10}
+    assert trained_policy_env(fake_model, **given)["task_params"] == merged
+    assert shared_env_kwargs(fake_model, None, None, **given)["task_params"] == merged
+    env = _make_env(None, None, fake_model, **given)
+    assert env.task.radius_m == 0.7 and env.task.progress_weight == 10
+    assert trained_policy_env(fake_model, task="wander", **given)["task_params"] == {
+        "progress_weight": 10
+    }
+    assert shared_env_kwargs(fake_model, None, "wander", **given)["task_params"] == {
+        "progress_weight": 10
+    }
+    assert given == {"task_params": {"progress_weight": 10}}  # the caller's dict untouched
+
+
 def test_scripted_phd_controller_gets_a_phd_env():
     env = _make_env("seed-lab", "formation", "scripted:formation")
     assert env.config.observation == "phd" and env.config.localize
