@@ -437,7 +437,9 @@ def _start_metadata(parser, args) -> dict[str, Any]:
     check_residual(args.base, "--base")
     env_kwargs = model_env_kwargs(args.env_from)
     if env_kwargs is None:
-        raise ValueError(f"--env-from must be a .pt student or a .zip model, got {args.env_from!r}")
+        raise ValueError(
+            f"--env-from must be a .pt student or a .zip model, got {args.env_from!r}"
+        )
     return {"env_kwargs": env_kwargs, "base": args.base}
 
 

@@ -254,7 +254,10 @@ def test_a_zero_start_drives_as_its_base_until_ppo_moves_it(student, tmp_path):
     ("argv", "message"),
     [
         (["--base", "scripted:formation-known-n"], "--base needs --env-from"),
-        (["--base", "scripted:nope", "--env-from", "{student}"], "--base: unknown scripted policy 'nope'"),
+        (
+            ["--base", "scripted:nope", "--env-from", "{student}"],
+            "--base: unknown scripted policy 'nope'",
+        ),
         (["--base", "scripted:formation-known-n", "--env-from", "x.json"], "x.json"),
         (["--student", "{student}", "--env-from", "{student}"], "--env-from goes with --base"),
         (["--student", "{student}", "--base", "scripted:formation"], "not allowed with"),
