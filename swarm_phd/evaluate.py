@@ -291,17 +291,23 @@ def evaluate_localization(
     policy: str = "scripted:wander",
     task: str = "wander",
     out_dir: Path | None = None,
+    phases: list[int] | None = None,
     **overrides: Any,
 ) -> dict[str, Any]:
     """Run the experiment; return (and optionally write) the metrics per localizer.
+
+    ``phases`` (first steps, e.g. ``[0, 20, 100]``; :func:`agents.sb3.report.phase_spans`)
+    also splits the share of in-range pair-steps above 0.30 m by step of the episode: where
+    in it a motion loses its teammates (the first steps' births are every motion's).
 
     Returns
     -------
     dict
         ``{"config": ..., "localizers": {name: SeedScorer.summary() (+ "at_camera_range":
-        the same at 3 m for camera localizers, + "per_seed": [{"seed", *PER_SEED_FIGURES}]
-        per finished seed)}, "identity": {...} (identity-aware localizers), "task": {...},
-        "wall_time_s": ...}``
+        the same at 3 m for camera localizers, + "per_seed": [{"seed", *PER_SEED_FIGURES,
+        and with ``phases`` "pct_pair_steps_err_gt_30cm@<lo>-<hi>" per phase}] per finished
+        seed, + with ``phases`` "by_phase": {that key: % over all seeds})},
+        "identity": {...} (identity-aware localizers), "task": {...}, "wall_time_s": ...}``
     """
     from agents.policies import load_policy
 
@@ -310,6 +316,11 @@ def evaluate_localization(
         raise ValueError(f"--localizer must name some of {sorted(LOCALIZERS)}, got {localizers}")
     if duration_s <= 0:
         raise ValueError(f"duration must be > 0 s, got {duration_s}")
+    spans = None
+    if phases is not None:
+        from agents.sb3.report import phase_spans
+
+        spans = phase_spans(phases)  # ValueError before any rollout
     start = time.perf_counter()
     radio = [name for name in localizers if LOCALIZERS[name].needs_comms]
     if radio and "comms" not in overrides:  # seed 001's methods hear teammates on the radio
@@ -337,6 +348,9 @@ def evaluate_localization(
     per_seed: dict[str, list[dict[str, float]]] = {name: [] for name in localizers}
     # Each localizer's step time (not in the results: they must not depend on the machine).
     cost_s = dict.fromkeys(localizers, 0.0)
+    # With phases: each localizer's (large, in range) pair counts per step of the episode,
+    # per finished seed (n_steps is the episode's length; a shorter episode leaves zeros).
+    step_counts: dict[str, list[np.ndarray]] = {name: [] for name in localizers}
     n_done = 0
     # Ctrl-C keeps the finished seeds: the scorers are saved after each seed and restored, and
     # the per-seed lists cut back to the seeds they were saved with. (The trajectory and the
@@ -360,8 +374,9 @@ def evaluate_localization(
             if hasattr(act, "reset"):
                 act.reset(seed)
             counts_before = {name: seed_counts(scorers[name]) for name in localizers}
+            by_step = {name: np.zeros((n_steps, 2), dtype=np.int64) for name in localizers}
             obs, infos = env.reset(seed=seed)
-            for _ in progress.sim_steps(
+            for t in progress.sim_steps(
                 n_steps, env.config.control_period_s, f"seed {seed}", leave=False
             ):
                 if not env.agents:
@@ -377,7 +392,7 @@ def evaluate_localization(
                     views = loc.views
                     weights, means = weights_means_from_table(*loc.padded_tables())
                     visible = _visible(truth, name in camera_scorers)
-                    scorers[name].update(
+                    errors = scorers[name].update(
                         truth.relative_xy,
                         truth.in_range["lidar"],
                         weights,
@@ -385,6 +400,10 @@ def evaluate_localization(
                         visible=visible,
                         time_s=step.time_s if seed == seeds[0] else None,  # Fig. 8: first seed
                     )
+                    if spans is not None:
+                        pairs = truth.in_range["lidar"]  # errors are NaN off these pairs
+                        large = pairs & ~(errors <= scorers[name].error_threshold_m)
+                        by_step[name][t] = (large.sum(), pairs.sum())
                     if name in camera_scorers:
                         camera_scorers[name].update(
                             truth.relative_xy,
@@ -409,8 +428,10 @@ def evaluate_localization(
                     {
                         "seed": seed,
                         **seed_figures(counts_before[name], seed_counts(scorers[name])),
+                        **(phase_figures(by_step[name], spans) if spans is not None else {}),
                     }
                 )
+                step_counts[name].append(by_step[name])
             finished.append(seed)
             saved = (copy.deepcopy((scorers, camera_scorers, id_scorers)), len(finished))
     except KeyboardInterrupt:
@@ -418,7 +439,7 @@ def evaluate_localization(
             raise
         interrupted = True
         (scorers, camera_scorers, id_scorers), n_saved = saved
-        for done in (finished, task_metrics, *per_seed.values()):
+        for done in (finished, task_metrics, *per_seed.values(), *step_counts.values()):
             del done[n_saved:]
         print(
             f"swarm-phd evaluate: interrupted; scoring the {len(finished)} finished seed(s) "
@@ -453,6 +474,11 @@ def evaluate_localization(
                     else {}
                 ),
                 "per_seed": per_seed[name],
+                **(
+                    {"by_phase": phase_figures(sum(step_counts[name]), spans)}
+                    if spans is not None and step_counts[name]
+                    else {}
+                ),
             }
             for name in localizers
         },
@@ -473,6 +499,20 @@ def evaluate_localization(
         traces = {name: scorers[name].trace for name in localizers}
         write_localization_figures(out_dir, results, traces, np.array(paths), estimates)
     return results
+
+
+def phase_figures(counts: np.ndarray, spans: list[tuple[int, int | None]]) -> dict[str, float]:
+    """``counts`` (T, 2): per step, the in-range pair-steps above 0.30 m and all of them; the
+    share above, in %, over each span ``[lo, hi)`` of steps, keyed
+    ``"pct_pair_steps_err_gt_30cm@<lo>-<hi>"`` (NaN: nothing in range there)."""
+    from agents.sb3.report import phase_key
+
+    out = {}
+    for lo, hi in spans:
+        large, total = np.asarray(counts)[lo:hi].sum(axis=0)
+        key = phase_key("pct_pair_steps_err_gt_30cm", lo, hi)
+        out[key] = float(100.0 * large / total) if total else math.nan
+    return out
 
 
 def _model_preset(policy: str) -> str:

@@ -39,3 +39,33 @@ def test_per_seed_figures_match_a_run_of_that_seed_alone():
     assert figures["pct_pair_steps_err_gt_30cm"] == pytest.approx(
         alone["pct_pair_steps_err_gt_30cm"]
     )
+
+
+def test_phase_figures_by_hand():
+    from swarm_phd.evaluate import phase_figures
+
+    # per step: (pair-steps above 0.30 m, in-range pair-steps)
+    counts = np.array([[2, 4], [1, 4], [0, 0], [0, 6], [3, 6]])
+    got = phase_figures(counts, [(0, 2), (2, 3), (3, None)])
+    key = "pct_pair_steps_err_gt_30cm@"
+    assert got[key + "0-2"] == pytest.approx(100 * 3 / 8)
+    assert math.isnan(got[key + "2-3"])  # nothing in range
+    assert got[key + "3-"] == pytest.approx(100 * 3 / 12)
+
+
+def test_phases_split_the_whole_episodes_share_seed_by_seed():
+    """The phases partition the episode: one open phase is the whole share, and two phases
+    recombine to it, per seed and pooled; a bad split is refused before any rollout."""
+    key = "pct_pair_steps_err_gt_30cm"
+    one = evaluate_localization("lab-3m-4", 2.0, ["phd-lc"], [3, 4], phases=[0])
+    two = evaluate_localization("lab-3m-4", 2.0, ["phd-lc"], [3, 4], phases=[0, 5])
+    one, two = one["localizers"]["phd-lc"], two["localizers"]["phd-lc"]
+    for d in one["per_seed"]:
+        assert d[f"{key}@0-"] == pytest.approx(d[key])
+    assert one["by_phase"][f"{key}@0-"] == pytest.approx(one[key])
+    # Weighted by in-range pair-steps: 4 robots, so each step has at most 12 pairs in range.
+    early, late = two["by_phase"][f"{key}@0-5"], two["by_phase"][f"{key}@5-"]
+    assert min(early, late) <= one[key] <= max(early, late)
+    assert early != late
+    with pytest.raises(ValueError, match="phases"):
+        evaluate_localization("lab-3m-4", 2.0, ["phd-lc"], [3], phases=[5, 2])

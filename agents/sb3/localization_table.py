@@ -30,9 +30,16 @@ from swarm_phd.sweep import parse_seeds
 
 
 def policy_row(
-    spec: str, base_kwargs: dict[str, Any], seeds: list[int], localizers: list[str], metric: str
+    spec: str,
+    base_kwargs: dict[str, Any],
+    seeds: list[int],
+    localizers: list[str],
+    metric: str,
+    phases: list[int] | None = None,
 ) -> dict[str, Any]:
-    """Return, task metric and localization metrics of one policy (see the module doc)."""
+    """Return, task metric and localization metrics of one policy (see the module doc); with
+    ``phases``, also each localizer's % of pair-steps above 0.30 m per phase of the episode
+    (``"by_phase"``, and per seed)."""
     from agents.policies import model_env_kwargs
     from swarm_phd.evaluate import evaluate_localization
 
@@ -53,6 +60,7 @@ def policy_row(
         seeds,
         policy=spec,
         task=kwargs["task"],
+        phases=phases,
         **({} if model is not None else eval_kwargs),
     )
     values = [d[metric] for d in scored["per_seed"]]
@@ -72,6 +80,7 @@ def policy_row(
             "gospa_m": m["gospa"]["mean_m"],
             "pct_above_0.30m": m["pooled_per_observer"]["median"],
             "per_seed": m["per_seed"],
+            **({"by_phase": m["by_phase"]} if "by_phase" in m else {}),
         }
     return row
 
@@ -90,12 +99,15 @@ def paired_localization(
     """Every policy against every earlier one, paired by held-out seed
     (:func:`agents.sb3.report.paired_differences`): the task ``metric`` (key ``metric``) and
     each localizer's per-seed GOSPA and % of pair-steps above 0.30 m (the median observer's,
-    per seed; keys ``"<localizer> <figure>"``)."""
+    per seed; keys ``"<localizer> <figure>"``), and with phases the % of all pairs' steps
+    above 0.30 m per phase (``"<localizer> pct_pair_steps_err_gt_30cm@<lo>-<hi>"``)."""
     specs = [r["policy"] for r in rows]
     task = {r["policy"]: {"seeds": seeds, "per_seed": r["per_seed"]} for r in rows}
     out = {metric: paired_differences(task, {}, specs, metric)}
     for name in localizers:
-        for figure, per_seed_key in PAIRED_FIGURES.items():
+        by_phase = rows[0]["localizers"][name].get("by_phase", {})
+        figures = {**PAIRED_FIGURES, **{key: key for key in by_phase}}
+        for figure, per_seed_key in figures.items():
             policies = {
                 r["policy"]: {
                     "seeds": [d["seed"] for d in r["localizers"][name]["per_seed"]],
@@ -125,6 +137,9 @@ def markdown(rows: list[dict[str, Any]], metric: str, localizers: list[str]) -> 
     head = ["policy", "return / agent", metric]
     for name in localizers:
         head += [f"{name} GOSPA (m)", f"{name} % > 0.30 m"]
+        head += [
+            f"{name} % of pairs > 0.30 m, steps {key.split('@')[1]}" for key in _phases(rows, name)
+        ]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
         cells = [
@@ -135,8 +150,13 @@ def markdown(rows: list[dict[str, Any]], metric: str, localizers: list[str]) -> 
         for name in localizers:
             m = r["localizers"][name]
             cells += [f"{m['gospa_m']:.3f}", f"{m['pct_above_0.30m']:.1f}"]
+            cells += [f"{m['by_phase'][key]:.2f}" for key in _phases(rows, name)]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+def _phases(rows: list[dict[str, Any]], name: str) -> list[str]:
+    return list(rows[0]["localizers"][name].get("by_phase", {}))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -149,7 +169,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--metric", default="formation_error_m")
     parser.add_argument("--out", default="docs/results")
     parser.add_argument("--name", default="ablation")
+    parser.add_argument(
+        "--phases",
+        default=None,
+        help="comma-separated first steps (e.g. 0,20,100): also the %% of pair-steps above "
+        "0.30 m per phase of the episode, paired by seed",
+    )
     args = parser.parse_args(argv)
+    phases = None
+    if args.phases is not None:
+        from agents.sb3.history_fit import parse_phases
+
+        phases = parse_phases(parser, args.phases)
     from agents.policies import model_env_kwargs
 
     models = [p for p in args.policies if p.endswith((".zip", ".pt"))]
@@ -162,7 +193,7 @@ def main(argv: list[str] | None = None) -> int:
     localizers = [s.strip() for s in args.localizers.split(",") if s.strip()]
     rows = []
     for spec in args.policies:
-        rows.append(policy_row(spec, base, seeds, localizers, args.metric))
+        rows.append(policy_row(spec, base, seeds, localizers, args.metric, phases))
         r = rows[-1]
         for name in localizers:  # an interrupted evaluation scores fewer seeds: stop now
             scored = [d["seed"] for d in r["localizers"][name]["per_seed"]]

@@ -330,3 +330,13 @@ def test_localization_table_scores_a_student_in_its_own_env(env, tmp_path):
     # The same rollouts scored twice: the task metric agrees between score and evaluate.
     assert student["formation_error_m_evaluate"] == pytest.approx(student["formation_error_m"][0])
     assert student["formation_error_m"] != base["formation_error_m"]  # it drove, not the base
+    # --phases: each phase's share, per policy and paired by seed, in the json and the table.
+    argv = [*argv, "--seeds", "2,3", "--phases", "0,3", "--name", "phased"]
+    assert localization_table.main(argv) == 0
+    saved = json.loads((tmp_path / "results_phased.json").read_text())
+    keys = ["pct_pair_steps_err_gt_30cm@0-3", "pct_pair_steps_err_gt_30cm@3-"]
+    for row in saved["rows"]:
+        assert list(row["localizers"]["phd-lc"]["by_phase"]) == keys
+    paired = saved["paired"][f"phd-lc {keys[1]}"][0]
+    assert paired["n_seeds"] == 2 and paired["baseline"] == str(path)
+    assert "steps 3-" in (tmp_path / "results_phased.md").read_text()
