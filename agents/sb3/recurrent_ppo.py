@@ -22,8 +22,11 @@ command) is trained by this short PPO loop:
 - **rollouts**: ``--n-copies`` copies of the student's env in one
   :class:`~agents.sb3.batched.BatchedSwarmVecEnv` (one filter call per step), K fresh
   episodes per iteration, seeds ``--train-seeds-start + iteration * K + k``.
-- **advantages**: GAE(``--gamma``, ``--gae-lambda``), the last state's value bootstrapped at
-  the time limit.
+- **advantages**: GAE(``--gamma``, ``--gae-lambda``) over the whole episode, whose end is
+  terminal: the critic reads the fraction of the episode left, so the horizon is part of its
+  state and the value after the last step is 0 (Pardo et al. 2018, "Time Limits in
+  Reinforcement Learning"). Until round 21 it was the critic's value at a fraction left of 0,
+  an input it was never trained on.
 - **update**: the first ``--critic-warmup`` iterations train the critic alone; then
   ``--epochs`` passes of clipped PPO (``--clip-range``) over minibatches of
   ``--batch-sequences`` whole agent-episodes, the GRU unrolled from the episode's start (the
@@ -58,11 +61,11 @@ __all__ = ["gae", "main", "new_critic", "plot_ppo_logs", "ppo_update", "rollout"
 def gae(
     rewards: np.ndarray, values: np.ndarray, last_values: np.ndarray, gamma: float, lam: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Generalised advantage estimates of episodes cut at a time limit.
+    """Generalised advantage estimates of whole episodes.
 
     ``rewards`` and ``values`` (T, B); ``last_values`` (B,) the value of the state after the
-    last step (bootstrapped: the episode was truncated, not ended). Returns the advantages and
-    the value targets (advantages + values), (T, B) float64 each."""
+    last step (0 at a terminal state; the critic's value where the episode was cut short).
+    Returns the advantages and the value targets (advantages + values), (T, B) float64 each."""
     t_max = rewards.shape[0]
     adv = np.zeros(rewards.shape, np.float64)
     running = np.zeros(rewards.shape[1], np.float64)
@@ -113,8 +116,8 @@ def rollout(vec: Any, model: Any, log_std: Any, seeds: list[int], generator: Any
     """K episodes, one per copy of ``vec`` (seeds ``seeds``), the student sampling around its
     mean. Returns per step t and VecEnv entry b: ``obs`` (T, B, D + 2 + P) float32 (the env's
     observation, the base's command in unit scale, the critic block), ``actions`` (T, B, 2),
-    ``logp`` (T, B), ``rewards`` (T, B), and ``last_obs`` (B, D + 2 + P) the state after the
-    last step. Every copy's episode must end at the same step (a time limit)."""
+    ``logp`` (T, B) and ``rewards`` (T, B). Every copy's episode must end at the same step, its
+    time limit: the critic's time input counts down to it."""
     import torch
 
     obs = vec.reset(copy_seeds=seeds)
@@ -145,12 +148,11 @@ def rollout(vec: Any, model: Any, log_std: Any, seeds: list[int], generator: Any
                 )
             if not all(info.get("TimeLimit.truncated", False) for info in infos):
                 raise ValueError(
-                    f"the task terminated the episode at step {step}: recurrent PPO bootstraps "
-                    "the last state's value, which is right only at a time limit"
+                    f"the task terminated the episode at step {step}: recurrent PPO's critic "
+                    "counts the time left down to the episode's time limit"
                 )
-            last = np.stack([info["terminal_observation"] for info in infos])
             break
-    return {k: np.stack(v) for k, v in rows.items()} | {"last_obs": last}
+    return {k: np.stack(v) for k, v in rows.items()}
 
 
 def _split(obs: Any, dim: int) -> tuple:
@@ -265,15 +267,15 @@ def _batch(data: dict[str, np.ndarray], values: np.ndarray, last_values: np.ndar
 
 
 def _values(critic: Any, data: dict[str, np.ndarray], dim: int) -> tuple[np.ndarray, np.ndarray]:
-    """The critic's values of every rollout state (T, B) and of the last states (B,)."""
+    """The critic's values of every rollout state (T, B), and the values after the last step
+    (B,): 0, the episode's end being terminal (module doc)."""
     import torch
 
     t_max, n = data["rewards"].shape
     left = torch.as_tensor(_time_left(t_max), dtype=torch.float32)[:, None].expand(t_max, n)
     with torch.no_grad():
         values = critic(*_split(torch.as_tensor(data["obs"]), dim), left)
-        last_values = critic(*_split(torch.as_tensor(data["last_obs"]), dim), torch.zeros(n))
-    return values.numpy().astype(np.float64), last_values.numpy().astype(np.float64)
+    return values.numpy().astype(np.float64), np.zeros(n)
 
 
 def plot_ppo_logs(logs: list[str | Path], figure: str | Path) -> None:

@@ -87,7 +87,7 @@ def test_a_rollout_is_whole_episodes_whose_log_probs_the_update_recomputes(rollo
     model, log_std, _, data, batch = rollout_batch
     n_entries = 2 * 4  # copies x robots
     assert data["rewards"].shape == (6, n_entries) and data["actions"].shape == (6, n_entries, 2)
-    assert data["last_obs"].shape == (n_entries, data["obs"].shape[-1])
+    assert "last_obs" not in data  # the episode's end is terminal: nothing to bootstrap
     # The update unrolls the GRU over the whole episode: the rollout's own log-probs, so the
     # first ratio is 1 (PPO's clipping is measured from the policy that acted).
     dim = model.encoder_obs_dim
@@ -99,6 +99,15 @@ def test_a_rollout_is_whole_episodes_whose_log_probs_the_update_recomputes(rollo
     # Advantages are normalised; the value targets are advantages plus values.
     assert abs(float(batch["advantages"].mean())) < 1e-5
     assert batch["left"][0, 0] == 1.0 and batch["left"][0, -1] == pytest.approx(1 / 6)
+
+
+def test_the_episodes_end_is_terminal_for_the_critic(rollout_batch):
+    """The critic counts the time left down to the time limit, so nothing follows the last
+    step: its value target there is the last reward itself, whatever the critic says."""
+    model, _, critic, data, batch = rollout_batch
+    _, last = recurrent_ppo._values(critic, data, model.encoder_obs_dim)
+    assert np.array_equal(last, np.zeros(data["rewards"].shape[1]))
+    np.testing.assert_allclose(batch["returns"][:, -1].numpy(), data["rewards"][-1], rtol=1e-6)
 
 
 def test_the_warmup_trains_the_critic_alone_then_the_actor_moves(rollout_batch):
