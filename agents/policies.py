@@ -117,13 +117,25 @@ def trained_policy_env(
     if model is None:
         return None
     model_preset = model.pop("preset", None)
-    model_task = model.pop("task", "wander")
-    model_params = model.pop("task_params", {})
+    return {**model_on_task(model, task, overrides), "preset": preset or model_preset}
+
+
+def model_on_task(
+    model: dict[str, Any], task: str | None, overrides: dict[str, Any]
+) -> dict[str, Any]:
+    """A trained policy's env kwargs ``model`` (``{}`` for a policy by name) on ``task`` (None:
+    the model's own; a model without one was trained on ``"wander"``), then ``overrides``.
+    Another task drops the model's task parameters (they belong to its own task, which its
+    observation may include); ``overrides["task_params"]`` are merged over those kept.
+    ``"task"`` is None only for a policy by name given none."""
+    out = dict(model)
+    own = out.pop("task", "wander" if model else None)
+    params = out.pop("task_params", None) or {}
+    if task is not None and task != own:
+        params = {}
     overrides = dict(overrides)
-    if task is None or task == model_task:  # the model's observation includes its task
-        task = model_task
-        model["task_params"] = {**model_params, **overrides.pop("task_params", {})}
-    return {**model, **overrides, "preset": preset or model_preset, "task": task}
+    given = overrides.pop("task_params", None) or {}
+    return {**out, **overrides, "task": task or own, "task_params": {**params, **given}}
 
 
 def policy_observation(spec: str) -> str | None:

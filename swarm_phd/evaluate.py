@@ -208,19 +208,13 @@ def shared_env_kwargs(
 ) -> dict[str, Any]:
     """Preset, task, task parameters and config overrides of ``policy``'s evaluation env, minus
     the observation mode (each policy brings its own): what a ``--compare`` run must share."""
-    from agents.policies import model_env_kwargs
+    from agents.policies import model_env_kwargs, model_on_task
 
-    kwargs: dict[str, Any] = model_env_kwargs(policy) or {}
-    if task is not None and task != kwargs.get("task", task):
-        kwargs.pop("task_params", None)  # the model's parameters belong to its own task
-    overrides = dict(overrides)
-    if "task_params" in overrides:  # merged over the model's own, as trained_policy_env does
-        kwargs["task_params"] = {**kwargs.get("task_params", {}), **overrides.pop("task_params")}
-    kwargs.update(overrides)
+    kwargs = model_on_task(model_env_kwargs(policy) or {}, task, overrides)
     for key in ("observation", "localize"):
         kwargs.pop(key, None)
     kwargs["preset"] = preset or kwargs.get("preset") or "seed-sim"
-    kwargs["task"] = task or kwargs.get("task") or "wander"
+    kwargs["task"] = kwargs["task"] or "wander"
     return kwargs
 
 
@@ -392,7 +386,8 @@ def evaluate_localization(
                     views = loc.views
                     weights, means = weights_means_from_table(*loc.padded_tables())
                     visible = _visible(truth, name in camera_scorers)
-                    errors = scorers[name].update(
+                    tallied = (scorers[name].large_steps.sum(), scorers[name].in_range_steps.sum())
+                    scorers[name].update(
                         truth.relative_xy,
                         truth.in_range["lidar"],
                         weights,
@@ -400,10 +395,11 @@ def evaluate_localization(
                         visible=visible,
                         time_s=step.time_s if seed == seeds[0] else None,  # Fig. 8: first seed
                     )
-                    if spans is not None:
-                        pairs = truth.in_range["lidar"]  # errors are NaN off these pairs
-                        large = pairs & ~(errors <= scorers[name].error_threshold_m)
-                        by_step[name][t] = (large.sum(), pairs.sum())
+                    if spans is not None:  # this step's share of the scorer's own tallies
+                        by_step[name][t] = (
+                            scorers[name].large_steps.sum() - tallied[0],
+                            scorers[name].in_range_steps.sum() - tallied[1],
+                        )
                     if name in camera_scorers:
                         camera_scorers[name].update(
                             truth.relative_xy,

@@ -57,7 +57,14 @@ def test_interrupt_between_two_localizers_per_seed_figures_keeps_them_aligned(mo
         return real(before, after)
 
     monkeypatch.setattr(evaluation, "seed_figures", interrupting)
-    results = evaluation.evaluate_localization("lab-3m-4", 1.0, ["phd-lc", "phd-lo"], [0, 1, 2])
+    names = ["phd-lc", "phd-lo"]
+    results = evaluation.evaluate_localization("lab-3m-4", 1.0, names, [0, 1, 2], phases=[0, 5])
     assert results["config"]["seeds"] == [0]
-    for name in ("phd-lc", "phd-lo"):
+    for name in names:
         assert [d["seed"] for d in results["localizers"][name]["per_seed"]] == [0]
+    # The phases' counts are cut back with them: seed 0's alone.
+    monkeypatch.setattr(evaluation, "seed_figures", real)
+    alone = evaluation.evaluate_localization("lab-3m-4", 1.0, names, [0], phases=[0, 5])
+    for name in names:
+        by_phase = results["localizers"][name]["by_phase"]
+        assert by_phase == pytest.approx(alone["localizers"][name]["by_phase"], nan_ok=True)

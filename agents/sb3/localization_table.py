@@ -14,6 +14,10 @@ better: :func:`paired_localization`). Models (``.zip``) and recurrent students (
 in the env they were trained in; ``scripted:*`` and ``random`` in the first model's env (its
 task, task parameters and overrides; observation as the policy needs). Writes
 ``results_<name>.json`` and ``results_<name>.md``.
+
+``--phases 0,20,100`` also splits the share of all pairs' in-range steps above 0.30 m by step
+of the episode (``"by_phase"`` per localizer, with the whole episode's on the same statistic;
+per seed; paired by seed like the other figures): the first steps' births are every motion's.
 """
 
 from __future__ import annotations
@@ -80,7 +84,17 @@ def policy_row(
             "gospa_m": m["gospa"]["mean_m"],
             "pct_above_0.30m": m["pooled_per_observer"]["median"],
             "per_seed": m["per_seed"],
-            **({"by_phase": m["by_phase"]} if "by_phase" in m else {}),
+            # With phases, the whole episode on their statistic: all pairs' steps pooled.
+            **(
+                {
+                    "by_phase": {
+                        "pct_pair_steps_err_gt_30cm": m["pct_pair_steps_err_gt_30cm"],
+                        **m["by_phase"],
+                    }
+                }
+                if "by_phase" in m
+                else {}
+            ),
         }
     return row
 
@@ -138,7 +152,8 @@ def markdown(rows: list[dict[str, Any]], metric: str, localizers: list[str]) -> 
     for name in localizers:
         head += [f"{name} GOSPA (m)", f"{name} % > 0.30 m"]
         head += [
-            f"{name} % of pairs > 0.30 m, steps {key.split('@')[1]}" for key in _phases(rows, name)
+            f"{name} % of pairs > 0.30 m, steps {key.split('@')[1] if '@' in key else 'all'}"
+            for key in _phases(rows, name)
         ]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
@@ -189,6 +204,11 @@ def main(argv: list[str] | None = None) -> int:
             "--policies needs at least one model.zip or student.pt (its env is the table's env)"
         )
     base = model_env_kwargs(models[0])
+    if phases is not None and phases[-1] >= base.get("max_steps", 300):
+        parser.error(
+            f"--phases {args.phases}: the episodes of {models[0]!r} last "
+            f"{base.get('max_steps', 300)} steps, so its last phase would be empty"
+        )
     seeds = parse_seeds(args.seeds)
     localizers = [s.strip() for s in args.localizers.split(",") if s.strip()]
     rows = []

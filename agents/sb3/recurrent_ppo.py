@@ -409,11 +409,12 @@ def main(argv: list[str] | None = None) -> int:
         meta = _start_metadata(parser, args)
     except ValueError as err:
         parser.error(str(err))
-    if args.student and Path(args.out).resolve() == Path(args.student).resolve().parent:
-        parser.error(
-            f"--out {args.out!r} holds --student {args.student!r}: its student.pt and "
-            "train_log.json would be overwritten; give another directory"
-        )
+    for flag, read in (("--student", args.student), ("--env-from", args.env_from)):
+        if read and Path(args.out).resolve() == Path(read).resolve().parent:
+            parser.error(
+                f"--out {args.out!r} holds {flag} {read!r}: its student.pt and "
+                "train_log.json would be overwritten; give another directory"
+            )
     train_end = args.train_seeds_start + args.iterations * args.n_copies
     overlap = sorted(set(val_seeds) & set(range(args.train_seeds_start, train_end)))
     if overlap:
@@ -434,14 +435,19 @@ def _start_metadata(parser, args) -> dict[str, Any]:
     if args.env_from is None:
         parser.error("--base needs --env-from: the student's env (a .pt or .zip trained there)")
     from agents.policies import model_env_kwargs
+    from agents.sb3.recurrent_student import check_student_env
     from agents.sb3.residual import check_residual
 
     check_residual(args.base, "--base")
-    env_kwargs = model_env_kwargs(args.env_from)
+    try:
+        env_kwargs = model_env_kwargs(args.env_from)
+    except ValueError as err:
+        raise ValueError(f"--env-from: {err}") from err
     if env_kwargs is None:
         raise ValueError(
             f"--env-from must be a .pt student or a .zip model, got {args.env_from!r}"
         )
+    check_student_env(env_kwargs, "--env-from")
     return {"env_kwargs": env_kwargs, "base": args.base}
 
 

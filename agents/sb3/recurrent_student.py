@@ -50,6 +50,7 @@ from swarm_phd.sweep import parse_seeds
 
 __all__ = [
     "RecurrentStudentPolicy",
+    "check_student_env",
     "load_student",
     "plot_train_logs",
     "read_student_metadata",
@@ -100,6 +101,26 @@ def read_student_metadata(path: str | Path) -> dict[str, Any]:
     """Everything a student file holds but its weights: ``env_kwargs``, ``base``, ``hidden``,
     ``obs_dim`` and what its training added (``teacher``, ``round``, ...)."""
     return {k: v for k, v in _read(path).items() if k != "state_dict"}
+
+
+#: The observations a student's encoder reads: the neighbour table's layout (``top_k`` rows).
+STUDENT_OBSERVATIONS = ("phd", "truth")
+
+
+def check_student_env(env_kwargs: dict[str, Any], field: str) -> None:
+    """ValueError naming ``field`` unless a student's encoder can read the env's observation:
+    the ``"phd"`` or ``"truth"`` table (not raw measurements) with the default 16 rows."""
+    observation = env_kwargs.get("observation", "phd")
+    if observation not in STUDENT_OBSERVATIONS:
+        raise ValueError(
+            f"{field}: a recurrent student reads observation one of {STUDENT_OBSERVATIONS}, "
+            f"this env has observation={observation!r}"
+        )
+    top_k = env_kwargs.get("top_k", 16)
+    if top_k != 16:
+        raise ValueError(
+            f"{field}: a recurrent student reads 16 table rows, this env has top_k={top_k}"
+        )
 
 
 def new_student(observation_space: Any, hidden: int = 64) -> Any:
@@ -320,6 +341,10 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.set_num_threads(args.torch_threads)
     env_kwargs = env_kwargs_from_args(args)
+    try:
+        check_student_env(env_kwargs, "--observation/--env-overrides")
+    except ValueError as err:
+        parser.error(str(err))
     probe = parallel_env(**env_kwargs)
     try:
         space = probe.observation_space(probe.possible_agents[0])

@@ -59,6 +59,26 @@ def test_task_params_given_are_merged_over_the_models_own(fake_model):
         "progress_weight": 10
     }
     assert given == {"task_params": {"progress_weight": 10}}  # the caller's dict untouched
+    # None given is nothing given; a policy by name has only what is given.
+    assert trained_policy_env(fake_model, task_params=None)["task_params"] == {"radius_m": 0.7}
+    assert shared_env_kwargs("scripted:formation", None, "formation", **given)["task_params"] == {
+        "progress_weight": 10
+    }
+
+
+def test_a_model_without_a_task_was_trained_on_wander():
+    """Both resolvers of a policy's env agree: one rule (agents.policies.model_on_task)."""
+    from agents.policies import model_on_task
+
+    model = {"task_params": {"a": 1}, "observation": "phd"}
+    assert model_on_task(model, None, {})["task"] == "wander"
+    assert model_on_task(model, "wander", {})["task_params"] == {"a": 1}
+    assert model_on_task(model, "formation", {"task_params": {"b": 2}})["task_params"] == {"b": 2}
+    assert model_on_task({}, None, {"max_steps": 5}) == {
+        "task": None,
+        "task_params": {},
+        "max_steps": 5,
+    }
 
 
 def test_scripted_phd_controller_gets_a_phd_env():

@@ -271,13 +271,40 @@ def test_a_zero_start_drives_as_its_base_until_ppo_moves_it(student, tmp_path):
         (["--student", "{student}", "--env-from", "{student}"], "--env-from goes with --base"),
         (["--student", "{student}", "--base", "scripted:formation"], "not allowed with"),
         ([], "one of the arguments --student --base is required"),
+        (["--base", "scripted:formation", "--env-from", "gone.pt"], "--env-from: recurrent"),
+        # The encoder reads the neighbour table: raw measurements would be misread.
+        (["--base", "scripted:formation", "--env-from", "{raw}"], "observation='measurements'"),
+        (["--base", "scripted:formation", "--env-from", "{rows}"], "top_k=8"),
     ],
 )
 def test_the_start_must_be_one_student_or_one_base_in_an_env(
-    student, tmp_path, capsys, argv, message
+    student, space, tmp_path, capsys, argv, message
 ):
-    argv = [a.format(student=student) for a in argv]
+    raw, rows = tmp_path / "raw.pt", tmp_path / "rows.pt"
+    save_student(raw, _model(space), {**ENV, "observation": "measurements"}, BASE)
+    save_student(rows, _model(space), {**ENV, "top_k": 8}, BASE)
+    argv = [a.format(student=student, raw=raw, rows=rows) for a in argv]
     with pytest.raises(SystemExit):
         recurrent_ppo.main([*argv, "--out", str(tmp_path / "x"), *TINY])
     assert message in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
+
+
+def test_a_zero_start_in_a_models_env_and_its_own_directory_refused(space, tmp_path, capsys):
+    """--env-from takes a .zip model's env too; --out may not be the directory it is read from."""
+    import zipfile
+
+    from agents.sb3.policy import write_metadata
+
+    model = tmp_path / "m" / "model.zip"
+    model.parent.mkdir()
+    with zipfile.ZipFile(model, "w") as z:
+        z.writestr("data", "{}")
+    write_metadata(model, {"env_kwargs": ENV, "obs_norm": None})
+    base = "scripted:formation-known-n"
+    argv = ["--base", base, "--env-from", str(model), *TINY, "--iterations", "1"]
+    assert recurrent_ppo.main([*argv, "--out", str(tmp_path / "run")]) == 0
+    assert read_student_metadata(tmp_path / "run" / "student.pt")["env_kwargs"] == ENV
+    with pytest.raises(SystemExit):
+        recurrent_ppo.main([*argv, "--out", str(model.parent)])
+    assert "holds --env-from" in capsys.readouterr().err

@@ -334,9 +334,14 @@ def test_localization_table_scores_a_student_in_its_own_env(env, tmp_path):
     argv = [*argv, "--seeds", "2,3", "--phases", "0,3", "--name", "phased"]
     assert localization_table.main(argv) == 0
     saved = json.loads((tmp_path / "results_phased.json").read_text())
-    keys = ["pct_pair_steps_err_gt_30cm@0-3", "pct_pair_steps_err_gt_30cm@3-"]
+    keys = [
+        "pct_pair_steps_err_gt_30cm",
+        *(f"pct_pair_steps_err_gt_30cm@{p}" for p in ("0-3", "3-")),
+    ]
     for row in saved["rows"]:
         assert list(row["localizers"]["phd-lc"]["by_phase"]) == keys
     paired = saved["paired"][f"phd-lc {keys[1]}"][0]
     assert paired["n_seeds"] == 2 and paired["baseline"] == str(path)
     assert "steps 3-" in (tmp_path / "results_phased.md").read_text()
+    with pytest.raises(SystemExit):  # a phase past the episode's end (ENV: 8 steps)
+        localization_table.main([*argv, "--phases", "0,8"])
