@@ -250,6 +250,8 @@ def test_main_trains_two_rounds_and_resumes_from_kept_data(tmp_path, capsys):
         (["--round-seeds", "0", "--base", "random"], "--base"),
         (["--round-seeds", "0", "--teacher", "privileged:nope"], "--teacher"),
         (["--round-seeds", "0", "--fit-seed", "-2"], "--fit-seed"),
+        (["--round-seeds", "0", "--observation", "measurements"], "observation='measurements'"),
+        (["--round-seeds", "0", "--env-overrides", '{"top_k": 4}'], "top_k=4"),
     ],
 )
 def test_main_refuses_bad_arguments_before_any_rollout(tmp_path, capsys, extra, flag):
