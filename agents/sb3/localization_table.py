@@ -219,7 +219,11 @@ def main(argv: list[str] | None = None) -> int:
             scored = [d["seed"] for d in r["localizers"][name]["per_seed"]]
             if scored != seeds:
                 raise ValueError(f"{spec}: {name} scored on seeds {scored}, not {seeds}")
-        print(spec, r["episode_return"], r[args.metric], r["localizers"], flush=True)
+        headline = {
+            name: {k: v for k, v in m.items() if k != "per_seed"}
+            for name, m in r["localizers"].items()
+        }  # the per-seed figures go to the JSON only
+        print(spec, r["episode_return"], r[args.metric], headline, flush=True)
     paired = paired_localization(rows, localizers, seeds, args.metric)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
