@@ -386,7 +386,7 @@ def evaluate_localization(
                     views = loc.views
                     weights, means = weights_means_from_table(*loc.padded_tables())
                     visible = _visible(truth, name in camera_scorers)
-                    tallied = (scorers[name].large_steps.sum(), scorers[name].in_range_steps.sum())
+                    tallied = _pair_tallies(scorers[name]) if spans is not None else None
                     scorers[name].update(
                         truth.relative_xy,
                         truth.in_range["lidar"],
@@ -395,11 +395,8 @@ def evaluate_localization(
                         visible=visible,
                         time_s=step.time_s if seed == seeds[0] else None,  # Fig. 8: first seed
                     )
-                    if spans is not None:  # this step's share of the scorer's own tallies
-                        by_step[name][t] = (
-                            scorers[name].large_steps.sum() - tallied[0],
-                            scorers[name].in_range_steps.sum() - tallied[1],
-                        )
+                    if tallied is not None:  # this step's share of the scorer's own tallies
+                        by_step[name][t] = _pair_tallies(scorers[name]) - tallied
                     if name in camera_scorers:
                         camera_scorers[name].update(
                             truth.relative_xy,
@@ -495,6 +492,11 @@ def evaluate_localization(
         traces = {name: scorers[name].trace for name in localizers}
         write_localization_figures(out_dir, results, traces, np.array(paths), estimates)
     return results
+
+
+def _pair_tallies(scorer: SeedScorer) -> np.ndarray:
+    """The scorer's running (pair-steps above 0.30 m, in-range pair-steps) over all pairs, (2,)."""
+    return np.array([scorer.large_steps.sum(), scorer.in_range_steps.sum()])
 
 
 def phase_figures(counts: np.ndarray, spans: list[tuple[int, int | None]]) -> dict[str, float]:

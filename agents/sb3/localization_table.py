@@ -204,10 +204,11 @@ def main(argv: list[str] | None = None) -> int:
             "--policies needs at least one model.zip or student.pt (its env is the table's env)"
         )
     base = model_env_kwargs(models[0])
-    if phases is not None and phases[-1] >= base.get("max_steps", 300):
+    episode_steps = base.get("max_steps", 300)
+    if phases is not None and phases[-1] >= episode_steps:
         parser.error(
-            f"--phases {args.phases}: the episodes of {models[0]!r} last "
-            f"{base.get('max_steps', 300)} steps, so its last phase would be empty"
+            f"--phases {args.phases}: the episodes of {models[0]!r} last {episode_steps} "
+            "steps, so its last phase would be empty"
         )
     seeds = parse_seeds(args.seeds)
     localizers = [s.strip() for s in args.localizers.split(",") if s.strip()]
