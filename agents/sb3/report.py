@@ -9,8 +9,10 @@ PPO); ``--name`` prefixes the outputs (``results_<name>.json``, ``results_<name>
 ``formation_error_m``; ``coverage`` for exploration, whose per-step coverage curves are also
 recorded and drawn). A markdown table (mean +- std over the held-out seeds, and pooled over the
 runs) is printed and written to ``results_<name>.md``, with a second one that pairs every
-learned group and baseline with every baseline by seed (:func:`paired_differences`: the mean
-difference, its standard error and on how many seeds the policy is better).
+learned group and baseline with every baseline, and every learned group with every earlier
+group, by seed (:func:`paired_differences`: the mean difference, its standard error and on
+how many seeds the policy is better; ``--group tuned=... --group start=...`` gives what the
+fine-tuning added).
 ``--group NAME=A,B`` scores more policies (models, recurrent students: each in its own env,
 with ``--baseline-overrides``) pooled as one learned group; without ``--runs``, ``--env-from
 MODEL`` gives the baselines' env. ``--phases 0,150`` also scores
@@ -166,7 +168,9 @@ def paired_differences(
     metric: str,
 ) -> list[dict[str, Any]]:
     """Every learned group (its runs' per-seed mean) and every later baseline against every
-    baseline, paired by held-out seed: the mean difference ``a - b`` in ``metric``, its
+    baseline, and every learned group against every earlier one (a fine-tuned group against
+    the group it started from: what the fine-tuning added), paired by held-out seed: the mean
+    difference ``a - b`` in ``metric``, its
     standard error (``std(ddof=1) / sqrt(n)`` over the seeds), and on how many seeds ``a`` is
     better (lower, or higher for :data:`HIGHER_IS_BETTER`).
 
@@ -186,14 +190,17 @@ def paired_differences(
         return np.mean([[d[metric] for d in policies[s]["per_seed"]] for s in specs], axis=0)
 
     sign = 1.0 if higher_is_better(metric) else -1.0  # positive sign * diff = better
-    # (contender, its specs, the baselines it is paired with): each learned group against
-    # every baseline, and each pair of baselines once (the later one against the earlier).
-    pairs = [(name, specs, baselines) for name, specs in groups.items() if specs]
-    pairs += [(b, [b], baselines[:j]) for j, b in enumerate(baselines)]
+    # (contender, its specs, the references it is paired with, each with its specs): each
+    # learned group against every baseline and every earlier group, and each pair of
+    # baselines once (the later one against the earlier).
+    learned = [(name, specs) for name, specs in groups.items() if specs]
+    singles = [(b, [b]) for b in baselines]
+    pairs = [(name, specs, singles + learned[:j]) for j, (name, specs) in enumerate(learned)]
+    pairs += [(b, [b], singles[:j]) for j, b in enumerate(baselines)]
     rows = []
-    for name, specs, bases in pairs:
-        for base in bases:
-            diff = per_seed(specs) - per_seed([base])
+    for name, specs, references in pairs:
+        for base, base_specs in references:
+            diff = per_seed(specs) - per_seed(base_specs)
             n = len(diff)
             se = float(diff.std(ddof=1) / np.sqrt(n)) if n > 1 else float("nan")
             mean = float(diff.mean())
@@ -371,7 +378,8 @@ def main(argv: list[str] | None = None) -> int:
         metavar="NAME=SPEC,SPEC",
         help="policies scored and pooled as one learned group, like the runs of one recipe "
         "(e.g. recurrent students of several fit seeds: 'students=a.pt,b.pt,c.pt'); each in "
-        "its own env (a model's or a student's) with --baseline-overrides",
+        "its own env (a model's or a student's) with --baseline-overrides; each group is "
+        "paired by seed with the baselines and with every earlier group",
     )
     parser.add_argument("--seeds", default="100-109")
     parser.add_argument("--out", default="docs/results")

@@ -83,6 +83,30 @@ def test_paired_differences_by_hand():
     assert len(table) == 2 + 3 and "| g − b | -0.0250 | 0.0250 | 3 of 4 | within 2 SE |" in table
 
 
+def test_paired_differences_pair_a_group_with_earlier_groups():
+    """A fine-tuned group against the group it started from, by hand: tuned per-seed mean
+    [0.15, 0.25, 0.20], start [0.20, 0.30, 0.22]: differences [-0.05, -0.05, -0.02], mean
+    -0.04, sample std sqrt(0.0003), SE 0.01, better on 3 of 3 and by 4 SE.
+    The earlier group is not paired with the later one, and a lone group with none."""
+    policies = {
+        "t0.pt": _result([0.1, 0.2, 0.2]),
+        "t1.pt": _result([0.2, 0.3, 0.2]),
+        "s0.pt": _result([0.2, 0.3, 0.1]),
+        "s1.pt": _result([0.2, 0.3, 0.34]),
+        "b": _result([0.3, 0.3, 0.3]),
+    }
+    groups = {"start": ["s0.pt", "s1.pt"], "tuned": ["t0.pt", "t1.pt"]}
+    rows = paired_differences(policies, groups, ["b"], "formation_error_m")
+    by_pair = {(r["policy"], r["baseline"]): r for r in rows}
+    assert set(by_pair) == {("start", "b"), ("tuned", "b"), ("tuned", "start")}
+    ts = by_pair[("tuned", "start")]
+    assert ts["mean_difference"] == pytest.approx(-0.04)
+    assert ts["standard_error"] == pytest.approx(0.01)
+    assert (ts["seeds_better"], ts["verdict"]) == (3, "better")
+    alone = paired_differences(policies, {"tuned": groups["tuned"]}, ["b"], "formation_error_m")
+    assert [(r["policy"], r["baseline"]) for r in alone] == [("tuned", "b")]
+
+
 def test_paired_differences_reproduce_round_8s_table():
     """docs/results.md round 8 paired its formation scores by hand; the function gives the
     same three pairs from that round's report."""
