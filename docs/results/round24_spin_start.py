@@ -12,6 +12,15 @@ only, then scored by ``localization_table`` with ``--phases``:
         --phases 0,2,5,10,20,50,100 --out docs/results --name formation_round24_spin_start200
 
 (The student is listed first for its env: lab-3m-4, PHD observation, 300 steps.)
+
+``known-n-truth``, ``spin10-1.0-truth`` and ``spin20-1.0-truth`` are the same controllers on
+the true neighbours, so that the formation does not depend on the estimate; the robots'
+filters run on their sensors all the same, and are what is scored:
+
+    python docs/results/round24_spin_start.py --policies runs/r21/Z_f0/student.pt \
+        scripted:known-n-truth scripted:spin10-1.0-truth scripted:spin20-1.0-truth \
+        --seeds 200-219 --localizers phd-lc --phases 0,2,5,10,20,50,100 --out docs/results \
+        --name formation_round24_spin_start_truth200
 """
 
 from __future__ import annotations
@@ -52,6 +61,23 @@ class SpinFirst:
         return actions
 
 
+class SpinFirstOnTruth(SpinFirst):
+    observation_modes = ("truth",)  # the env gives the controller the true table
+
+
+class KnownNOnTruth:
+    observation_modes = ("truth",)
+
+    @classmethod
+    def for_env(cls, env):
+        return policies.SCRIPTED["formation-known-n"](env)
+
+
+policies.SCRIPTED["known-n-truth"] = KnownNOnTruth.for_env
+for steps in (10, 20):
+    policies.SCRIPTED[f"spin{steps}-1.0-truth"] = functools.partial(
+        SpinFirstOnTruth.for_env, steps=steps, rate=1.0
+    )
 for steps in (10, 20, 40):
     for rate in (0.5, 1.0):
         policies.SCRIPTED[f"spin{steps}-{rate}"] = functools.partial(
