@@ -15,6 +15,10 @@ import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
+from swarm_core.signal_chain import signal_cause  # re-exported: the CLI's unwrapping
+
+__all__ = ["EXIT_SIGNALS", "ExitSignals", "Terminated", "critical", "make_handler", "signal_cause"]
+
 EXIT_SIGNALS = tuple(
     s for s in (signal.SIGINT, signal.SIGTERM, getattr(signal, "SIGHUP", None)) if s
 )
@@ -38,22 +42,6 @@ def _raise_for(signum: int) -> None:
     if signum == signal.SIGINT:
         raise KeyboardInterrupt
     raise Terminated(signum)
-
-
-def signal_cause(exc: BaseException | None) -> BaseException | None:
-    """The :class:`Terminated` or ``KeyboardInterrupt`` that ``exc`` was raised from, if any
-    (``exc`` itself, its ``__cause__`` or unsuppressed ``__context__``, transitively). A
-    handler that raises while C code is calling back into Python (numba loading a cached
-    kernel, for one) surfaces as a ``SystemError`` caused by the signal's exception; the
-    caller re-raises the cause."""
-    seen: set[int] = set()
-    while exc is not None and id(exc) not in seen:
-        if isinstance(exc, (Terminated, KeyboardInterrupt)):
-            return exc
-        seen.add(id(exc))
-        # As a traceback reads the chain: the cause, else the context unless suppressed.
-        exc = exc.__cause__ or (None if exc.__suppress_context__ else exc.__context__)
-    return None
 
 
 @contextmanager

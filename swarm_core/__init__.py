@@ -6,6 +6,8 @@
   output (``WorldStep``) and ground truth.
 - :mod:`swarm_core.geometry`: angles and planar frames.
 - :mod:`swarm_core.validation`: argument checks whose errors name the field and the value.
+- :mod:`swarm_core.signal_chain`: the signal an exception chain was raised from (a signal's
+  exception wrapped in a ``SystemError`` by a compiled kernel's callback).
 - :mod:`swarm_core.threads`: the compiled kernels' threading defaults (set on import).
 - :mod:`swarm_core.kernel_stamp`: the kernels' on-disk cache, invalidated when any kernel
   source of the project changes (installed on import).

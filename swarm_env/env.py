@@ -27,6 +27,7 @@ from localization.feed import SwarmFeed
 from localization.protocol import Localizer
 from localization.registry import make_localizer
 from swarm_core.records import RobotMeasurements
+from swarm_core.signal_chain import signal_cause
 from swarm_core.world import World, WorldStep
 from swarm_env import observation as obs_lib
 from swarm_env.config import SwarmConfig, make_config
@@ -445,9 +446,18 @@ class SwarmEnv(ParallelEnv):
     @contextlib.contextmanager
     def _halting_on_error(self):
         """Stop every robot (``World.halt``) on any exception before it propagates: on real
-        robots a failure in the task, filter or observation code must not leave them moving."""
+        robots a failure in the task, filter or observation code must not leave them moving.
+        A signal's exception that a compiled kernel's callback wrapped in a ``SystemError``
+        is re-raised as itself (:func:`swarm_core.signal_chain.signal_cause`), so a caller's
+        ``except KeyboardInterrupt`` (or ``SystemExit``, SIGTERM's) still sees it."""
         try:
             yield
+        except SystemError as exc:
+            self.world.halt()
+            cause = signal_cause(exc)
+            if cause is None:
+                raise
+            raise cause from exc
         except BaseException:
             self.world.halt()
             raise

@@ -51,6 +51,40 @@ def test_any_exception_in_step_halts_the_robots_first():
     assert env.world.halts == 2
 
 
+def test_a_signal_wrapped_by_a_kernel_callback_leaves_step_as_the_signal():
+    """SIGTERM's exception raised while numba loads a cached kernel arrives as a SystemError
+    caused by it; env.step halts the robots and re-raises the signal's own exception, so a
+    library caller's ``except SystemExit`` / ``KeyboardInterrupt`` sees it. A SystemError
+    that no signal caused stays a SystemError."""
+    from hardware_bridge.signals import Terminated
+
+    env = _env_with()
+    env.reset(seed=0)
+    actions = {a: np.zeros(2) for a in env.agents}
+
+    def interrupted_kernel(feed, signal_exc):
+        try:
+            raise signal_exc
+        except BaseException as err:
+            raise SystemError("returned a result with an exception set") from err
+
+    for signal_exc in (Terminated(15), KeyboardInterrupt()):
+        env.localizer.step = lambda feed, e=signal_exc: interrupted_kernel(feed, e)
+        with pytest.raises(type(signal_exc)) as caught:
+            env.step(actions)
+        assert caught.value is signal_exc
+        assert isinstance(caught.value.__cause__, SystemError)
+    assert env.world.halts == 2
+
+    def buggy(feed):
+        raise SystemError("a real interpreter error")
+
+    env.localizer.step = buggy
+    with pytest.raises(SystemError, match="real interpreter error"):
+        env.step(actions)
+    assert env.world.halts == 3
+
+
 def test_bad_actions_raise_before_the_world_moves_and_halt_the_robots():
     env = _env_with()
     env.reset(seed=0)
