@@ -24,7 +24,10 @@ def signal_interrupt(exc: BaseException) -> bool:
     cause or context. The handler can fire while a numba-compiled function is calling back into
     Python (a dispatcher's first call unpickles its constants): numba then raises
     ``SystemError(... returned a result with an exception set)`` from the interrupt, and a
-    trainer must still save and exit with one line."""
+    trainer must still save and exit with one line. Unlike
+    :func:`swarm_core.signal_chain.signal_cause` it also reads a suppressed ``__context__``:
+    while a trainer runs, its handler is the only source of ``KeyboardInterrupt``, so any in
+    the chain is the stop request."""
     seen: set[int] = set()
     current: BaseException | None = exc
     while current is not None and id(current) not in seen:

@@ -15,10 +15,6 @@ import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
-from swarm_core.signal_chain import signal_cause  # re-exported: the CLI's unwrapping
-
-__all__ = ["EXIT_SIGNALS", "ExitSignals", "Terminated", "critical", "make_handler", "signal_cause"]
-
 EXIT_SIGNALS = tuple(
     s for s in (signal.SIGINT, signal.SIGTERM, getattr(signal, "SIGHUP", None)) if s
 )

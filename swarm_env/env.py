@@ -27,7 +27,7 @@ from localization.feed import SwarmFeed
 from localization.protocol import Localizer
 from localization.registry import make_localizer
 from swarm_core.records import RobotMeasurements
-from swarm_core.signal_chain import signal_cause
+from swarm_core.signal_chain import unwrap_signal
 from swarm_core.world import World, WorldStep
 from swarm_env import observation as obs_lib
 from swarm_env.config import SwarmConfig, make_config
@@ -448,16 +448,16 @@ class SwarmEnv(ParallelEnv):
         """Stop every robot (``World.halt``) on any exception before it propagates: on real
         robots a failure in the task, filter or observation code must not leave them moving.
         A signal's exception that a compiled kernel's callback wrapped in a ``SystemError``
-        is re-raised as itself (:func:`swarm_core.signal_chain.signal_cause`), so a caller's
+        is re-raised as itself (:func:`swarm_core.signal_chain.unwrap_signal`), so a caller's
         ``except KeyboardInterrupt`` (or ``SystemExit``, SIGTERM's) still sees it."""
         try:
             yield
         except SystemError as exc:
             self.world.halt()
-            cause = signal_cause(exc)
-            if cause is None:
+            signal_exc = unwrap_signal(exc)
+            if signal_exc is None:
                 raise
-            raise cause from exc
+            raise signal_exc from None
         except BaseException:
             self.world.halt()
             raise

@@ -249,12 +249,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemError as exc:
         # SIGTERM/SIGINT raised inside a C callback (numba loading a kernel) arrives wrapped:
         # exit as the signal asks (128 + signum), every finally having run on the way here.
-        from hardware_bridge.signals import signal_cause
+        from swarm_core.signal_chain import unwrap_signal
 
-        cause = signal_cause(exc)
-        if cause is None:
+        signal_exc = unwrap_signal(exc)
+        if signal_exc is None:
             raise
-        raise cause from exc
+        raise signal_exc from None
     finally:
         progress.set_quiet(False)
 

@@ -264,7 +264,8 @@ def test_a_signal_raised_inside_a_c_callback_still_exits_as_the_signal(monkeypat
     # SystemError caused by it (CI, 2026-12-05: export-bag exited 1, not 143). The command line
     # re-raises the signal's exception, so the process exits 128 + 15 after every finally.
     import swarm_phd.export_bag as export_bag
-    from hardware_bridge.signals import Terminated, signal_cause
+    from hardware_bridge.signals import Terminated
+    from swarm_core.signal_chain import signal_cause
 
     def wrapped(args):
         try:

@@ -51,38 +51,51 @@ def test_any_exception_in_step_halts_the_robots_first():
     assert env.world.halts == 2
 
 
-def test_a_signal_wrapped_by_a_kernel_callback_leaves_step_as_the_signal():
+def test_a_signal_wrapped_by_a_kernel_callback_leaves_the_env_as_the_signal():
     """SIGTERM's exception raised while numba loads a cached kernel arrives as a SystemError
-    caused by it; env.step halts the robots and re-raises the signal's own exception, so a
-    library caller's ``except SystemExit`` / ``KeyboardInterrupt`` sees it. A SystemError
-    that no signal caused stays a SystemError."""
+    caused by it; step() and reset() halt the robots and raise the signal's own exception,
+    so a library caller's ``except SystemExit`` / ``KeyboardInterrupt`` sees it, with a note
+    naming the wrapper and no cycle through it (a traceback would print the chain backwards).
+    A SystemError that no signal caused stays a SystemError."""
     from hardware_bridge.signals import Terminated
 
     env = _env_with()
     env.reset(seed=0)
     actions = {a: np.zeros(2) for a in env.agents}
 
-    def interrupted_kernel(feed, signal_exc):
-        try:
-            raise signal_exc
-        except BaseException as err:
-            raise SystemError("returned a result with an exception set") from err
+    def wrapped(inner):
+        def localizer_step(feed):
+            try:
+                raise inner
+            except BaseException as err:
+                raise SystemError("returned a result with an exception set") from err
 
-    for signal_exc in (Terminated(15), KeyboardInterrupt()):
-        env.localizer.step = lambda feed, e=signal_exc: interrupted_kernel(feed, e)
+        return localizer_step
+
+    calls = [
+        (lambda: env.step(actions), Terminated(15)),
+        (lambda: env.step(actions), KeyboardInterrupt()),
+        (lambda: env.reset(seed=1), Terminated(15)),
+    ]
+    for n, (call, signal_exc) in enumerate(calls, start=1):
+        env.localizer.step = wrapped(signal_exc)
         with pytest.raises(type(signal_exc)) as caught:
-            env.step(actions)
+            call()
         assert caught.value is signal_exc
-        assert isinstance(caught.value.__cause__, SystemError)
-    assert env.world.halts == 2
+        assert caught.value.__cause__ is None and caught.value.__suppress_context__
+        chain, node = [], caught.value.__context__  # the wrapper, no longer linking back
+        while node is not None and len(chain) < 5:
+            chain.append(node)
+            node = node.__cause__ or node.__context__
+        assert signal_exc not in chain and len(chain) == 1
+        assert any("SystemError" in note for note in caught.value.__notes__)
+        assert env.world.halts == n
 
-    def buggy(feed):
-        raise SystemError("a real interpreter error")
-
-    env.localizer.step = buggy
-    with pytest.raises(SystemError, match="real interpreter error"):
+    env.localizer.step = wrapped(ZeroDivisionError("a kernel bug"))
+    with pytest.raises(SystemError) as caught:
         env.step(actions)
-    assert env.world.halts == 3
+    assert isinstance(caught.value.__cause__, ZeroDivisionError)
+    assert env.world.halts == 4
 
 
 def test_bad_actions_raise_before_the_world_moves_and_halt_the_robots():
