@@ -9,20 +9,26 @@ env and the command line re-raise the signal's own exception (:func:`unwrap_sign
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 __all__ = ["signal_cause", "unwrap_signal"]
+
+
+def _chain(exc: BaseException | None) -> Iterator[BaseException]:
+    """``exc``, then its ``__cause__`` or unsuppressed ``__context__``, transitively, as a
+    traceback reads the chain (each exception once)."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        yield exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or (None if exc.__suppress_context__ else exc.__context__)
 
 
 def signal_cause(exc: BaseException | None) -> BaseException | None:
     """The ``KeyboardInterrupt`` or ``SystemExit`` (``hardware_bridge.signals.Terminated`` is
-    one) that ``exc`` was raised from, if any: ``exc`` itself, its ``__cause__`` or unsuppressed
-    ``__context__``, transitively, as a traceback reads the chain. ``None`` otherwise."""
-    seen: set[int] = set()
-    while exc is not None and id(exc) not in seen:
-        if isinstance(exc, (KeyboardInterrupt, SystemExit)):
-            return exc
-        seen.add(id(exc))
-        exc = exc.__cause__ or (None if exc.__suppress_context__ else exc.__context__)
-    return None
+    one) that ``exc`` was raised from, if any: the first in :func:`_chain`. ``None``
+    otherwise."""
+    return next((e for e in _chain(exc) if isinstance(e, (KeyboardInterrupt, SystemExit))), None)
 
 
 def unwrap_signal(exc: BaseException) -> BaseException | None:
@@ -35,15 +41,12 @@ def unwrap_signal(exc: BaseException) -> BaseException | None:
     cause = signal_cause(exc)
     if cause is None or cause is exc:
         return cause
-    node: BaseException | None = exc
-    seen: set[int] = set()
-    while node is not None and node is not cause and id(node) not in seen:
-        seen.add(id(node))
-        following = node.__cause__ or (None if node.__suppress_context__ else node.__context__)
+    for node in list(_chain(exc)):  # the whole walk first: it follows the links being cut
+        if node is cause:
+            break
         if node.__cause__ is cause:
             node.__cause__ = None
         if node.__context__ is cause:
             node.__context__ = None
-        node = following
     cause.add_note(f"(re-raised from {type(exc).__name__}: {exc})")
     return cause

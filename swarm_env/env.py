@@ -452,15 +452,12 @@ class SwarmEnv(ParallelEnv):
         ``except KeyboardInterrupt`` (or ``SystemExit``, SIGTERM's) still sees it."""
         try:
             yield
-        except SystemError as exc:
+        except BaseException as exc:
             self.world.halt()
-            signal_exc = unwrap_signal(exc)
+            signal_exc = unwrap_signal(exc) if isinstance(exc, SystemError) else None
             if signal_exc is None:
                 raise
             raise signal_exc from None
-        except BaseException:
-            self.world.halt()
-            raise
 
     def _validate_actions(self, actions: dict[str, Any]) -> np.ndarray:
         """Check every action before anything changes; return clipped commands (N, 2)."""
