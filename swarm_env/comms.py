@@ -66,7 +66,7 @@ class CommsConfig:
         if self.latency_s + self.latency_jitter_s > 60.0:
             raise ValueError(
                 f"comms.latency_s + comms.latency_jitter_s must be <= 60 s, got "
-                f"{self.latency_s + self.latency_jitter_s!r}"
+                f"{self.latency_s!r} + {self.latency_jitter_s!r}"
             )
 
 

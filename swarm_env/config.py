@@ -9,9 +9,12 @@ rejects unknown keys, so a typo never passes silently.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import Any
+
+import numpy as np
 
 from localization import PHDConfig
 from swarm_core.perception.lidar_features import LidarFeatureConfig
@@ -366,6 +369,12 @@ class SwarmConfig:
     sensor_stats: bool = False
 
     def __post_init__(self) -> None:
+        for name, kind in _sub_config_types().items():  # before any of them is read
+            if not isinstance(getattr(self, name), kind):
+                raise ValueError(
+                    f"{name} must be a {kind.__name__} or a dict of its fields, "
+                    f"got {getattr(self, name)!r}"
+                )
         check_number_fields(self)
         check_int_range("n_robots", self.n_robots, 1, MAX_ROBOTS)
         check_positive("control_period_s", self.control_period_s)
@@ -445,6 +454,17 @@ class SwarmConfig:
         return self.control_period_s / self.physics_substeps
 
 
+@functools.cache
+def _sub_config_types() -> dict[str, type]:
+    """``SwarmConfig``'s nested config fields and their dataclass types, from its defaults."""
+    out = {}
+    for f in dataclasses.fields(SwarmConfig):
+        default = f.default if f.default_factory is dataclasses.MISSING else f.default_factory()
+        if dataclasses.is_dataclass(default):
+            out[f.name] = type(default)
+    return out
+
+
 def _dense(n_robots: int) -> SwarmConfig:
     """``sim-6m-20``'s density with ``n_robots``: the arena side grows as ``sqrt(n / 20)``
     (to 0.1 m) and the posts, red decoys and boxes with the area (big-swarm presets)."""
@@ -490,13 +510,17 @@ def make_config(preset: str = "sim-6m-20", config: SwarmConfig | None = None, **
     or a dict of their fields (``lidar={"rate_hz": 10.0}``). Unknown keys raise ``ValueError``.
     """
     if config is None:
-        preset = PRESET_ALIASES.get(preset, preset)
-        if preset not in PRESETS:
+        preset = PRESET_ALIASES.get(preset, preset) if isinstance(preset, str) else preset
+        if not isinstance(preset, str) or preset not in PRESETS:
             raise ValueError(
                 f"preset must be one of {sorted(PRESETS)} (old names: {sorted(PRESET_ALIASES)}),"
                 f" got {preset!r}"
             )
         config = PRESETS[preset]
+    elif not isinstance(config, SwarmConfig):
+        raise ValueError(
+            f"config must be a SwarmConfig (or None, with keyword overrides), got {config!r}"
+        )
     return _replace_strict(config, overrides, prefix="")
 
 
@@ -509,5 +533,7 @@ def _replace_strict(obj: Any, overrides: dict[str, Any], prefix: str) -> Any:
         current = getattr(obj, key)
         if dataclasses.is_dataclass(current) and isinstance(value, dict):
             value = _replace_strict(current, value, prefix=f"{prefix}{key}.")
+        elif isinstance(value, np.generic):  # np.int64(4) from a sweep: stored as 4
+            value = value.item()
         changes[key] = value
     return dataclasses.replace(obj, **changes) if changes else obj

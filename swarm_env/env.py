@@ -16,6 +16,7 @@ import contextlib
 import copy
 import dataclasses
 import warnings
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -163,7 +164,12 @@ class SwarmEnv(ParallelEnv):
                 f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}"
             )
         self.render_mode = render_mode
+        if task_params is not None and not isinstance(task_params, Mapping):
+            raise ValueError(f"task_params must be None or a dict, got {task_params!r}")
+        if world is not None and not isinstance(world, World):
+            raise ValueError(f"world must be None or a World, got {world!r}")
         self.task = make_task(task, **(task_params or {}))
+        self.task.check_arena(self.config.arena)  # an impossible task refused here, not at reset
         if self.task.needs_estimates and not self.config.localize:
             raise ValueError(
                 f"task {self.task.name!r}: localization_term='estimate' scores the robots' own "
@@ -289,7 +295,8 @@ class SwarmEnv(ParallelEnv):
             raise ValueError(f"seed must be None or an int >= 0, got {seed!r}")
         if options is not None and not isinstance(options, dict):
             raise ValueError(f"options must be None or a dict, got {options!r}")
-        if options:  # the API passes options through; this env has none, so say so
+        if options:  # this env takes none; a warning, not an error: PettingZoo's own API
+            # test (parallel_api_test) resets with options={"options": 1}
             warnings.warn(f"reset() ignores options {sorted(map(str, options))}", stacklevel=3)
         with self._halting_on_error():
             if seed is not None or self._rng is None:
@@ -301,7 +308,9 @@ class SwarmEnv(ParallelEnv):
                 self._replay_log.append(("reset", None))
             # One generator per env; the world and the task get their own child streams.
             world_rng, task_rng = self._rng.spawn(2)
-            self.agents = list(self.possible_agents)
+            # Not steppable until the World and the task have reset: a layout that cannot be
+            # placed leaves an env that says so on step(), not a half-reset one that steps.
+            self.agents, self._last_step = [], None
             self._step_count = 0
             self.localizer.reset()
             self.encoder.reset()
@@ -312,6 +321,7 @@ class SwarmEnv(ParallelEnv):
             step = self.world.reset(world_rng)
             # Obstacle geometry, where the World knows it (the sim), for task rewards only.
             self.task.reset(step.truth, task_rng, self.config.arena, layout=self.world.layout)
+            self.agents = list(self.possible_agents)
             return self._absorb(step)
 
     def finish_reset(self):
@@ -331,7 +341,11 @@ class SwarmEnv(ParallelEnv):
         if self._closed:
             raise RuntimeError("step() called after close()")
         if not self.agents:
-            raise RuntimeError("step() called on a finished episode: call reset() first")
+            raise RuntimeError(
+                "step() called before reset()"
+                if self._last_step is None
+                else "step() called on a finished episode: call reset() first"
+            )
         with self._halting_on_error():
             # Bad actions raise before the env changes, and stop real robots (halt) first.
             commands = self._validate_actions(actions)

@@ -39,6 +39,11 @@ class Task:
         """Task features per agent, shape (N, F)."""
         return np.zeros((n_agents, 0))
 
+    def check_arena(self, arena: Any) -> None:
+        """Refuse parameters that ``arena`` (an ArenaConfig) cannot hold, with a ``ValueError``
+        naming the parameter: called when the env is built, so an impossible task fails there
+        and not at the first reset."""
+
     # -- episode ----------------------------------------------------------------------------
     def reset(
         self,

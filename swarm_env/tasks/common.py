@@ -7,6 +7,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from swarm_core.validation import is_real
+
 if TYPE_CHECKING:
     from swarm_env.world.arena import Layout
 
@@ -16,7 +18,7 @@ def check_param(
 ) -> float:
     """``value`` as a float in ``[low, high]`` (``(low, high]`` with ``low_open``), else a
     ``ValueError`` naming the task and the parameter."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    if not is_real(value) or not math.isfinite(value):
         raise ValueError(f"task {task!r}: {name} must be a finite number, got {value!r}")
     too_low = value <= low if low_open else value < low
     if too_low or value > high:

@@ -355,6 +355,15 @@ class EncirclementTask(Task):
         return due & (self._rng.random(n) >= self.reading_dropout)
 
     # -- episode --------------------------------------------------------------------------
+    def check_arena(self, arena: Any) -> None:
+        half_side = 0.5 * min(arena.width_m, arena.height_m)
+        for name, value in (("radius_m", self.radius_m), ("path_radius_m", self.path_radius_m)):
+            if value is not None and value >= half_side:  # a circle wider than the arena
+                raise ValueError(
+                    f"task {self.name!r}: {name}={value} does not fit a "
+                    f"{arena.width_m} m x {arena.height_m} m arena"
+                )
+
     def reset(
         self,
         truth: GroundTruth | None,

@@ -109,6 +109,20 @@ class ExplorationTask(Task):
         self._steps = 0
         self._robot_steps = 0
 
+    def grid_shape(self, arena: Any) -> tuple[int, int]:
+        """Coverage cells along x and y of ``arena``; ``ValueError`` below 2 cells."""
+        nx = math.ceil(arena.width_m / self.cell_m - 1e-9)
+        ny = math.ceil(arena.height_m / self.cell_m - 1e-9)
+        if nx * ny < 2:
+            raise ValueError(
+                f"task {self.name!r}: cell_m={self.cell_m} leaves fewer than 2 cells "
+                f"in a {arena.width_m} x {arena.height_m} m arena"
+            )
+        return nx, ny
+
+    def check_arena(self, arena: Any) -> None:
+        self.grid_shape(arena)
+
     def reset(
         self,
         truth: GroundTruth | None,
@@ -119,14 +133,7 @@ class ExplorationTask(Task):
     ) -> None:
         self._arena = arena
         self._layout = layout
-        nx = math.ceil(arena.width_m / self.cell_m - 1e-9)
-        ny = math.ceil(arena.height_m / self.cell_m - 1e-9)
-        if nx * ny < 2:
-            raise ValueError(
-                f"task {self.name!r}: cell_m={self.cell_m} leaves fewer than 2 cells "
-                f"in a {arena.width_m} x {arena.height_m} m arena"
-            )
-        self.covered = np.zeros((nx, ny), dtype=bool)
+        self.covered = np.zeros(self.grid_shape(arena), dtype=bool)
         self._collision_steps = 0
         self._steps = 0
         self._robot_steps = 0

@@ -138,6 +138,17 @@ class FormationTask(Task):
         self._errors: list[float] = []
         self._spacing_errors: list[float] = []
 
+    def check_arena(self, arena: Any) -> None:
+        if self.shape == "circle":
+            name, value, size = "radius_m", self.radius_m, 2 * self.radius_m
+        else:
+            name, value, size = "spacing_m", self.spacing_m, self.spacing_m
+        if size >= min(arena.width_m, arena.height_m):
+            raise ValueError(
+                f"task {self.name!r}: {name}={value} does not fit a "
+                f"{arena.width_m} m x {arena.height_m} m arena"
+            )
+
     # -- observation ----------------------------------------------------------------------
     def feature_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         if self.shape == "circle":

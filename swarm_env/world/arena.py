@@ -113,7 +113,8 @@ def sample_layout(
         raise ValueError(
             f"could not place {n_robots} robots, {arena.n_boxes} boxes, {arena.n_decoy_posts} "
             f"posts and {arena.n_red_decoys} red decoys without overlap in a "
-            f"{arena.width_m} m x {arena.height_m} m arena"
+            f"{arena.width_m} m x {arena.height_m} m arena: lower n_robots, arena.n_boxes, "
+            "arena.n_decoy_posts or arena.n_red_decoys"
         )
 
     boxes = []

@@ -165,3 +165,85 @@ def test_every_numeric_config_field_refuses_non_numbers_and_non_finite_values():
                     make_config("lab-3m-4", **{group.name: {f.name: bad}})
             checked += 1
     assert checked > 40  # every sensor, arena, robot and filter field
+
+
+@pytest.mark.parametrize(
+    "group", ["arena", "robot", "odometry", "lidar", "lidar_features", "camera", "comms", "phd"]
+)
+@pytest.mark.parametrize("bad", [5, None, "x"])
+def test_a_sub_config_of_the_wrong_type_is_refused_naming_it(group, bad):
+    """Not an AttributeError deep in a check, nor (``phd=None``) the seed's hardware model
+    silently in place of the preset's."""
+    from swarm_env.config import make_config
+
+    with pytest.raises(ValueError, match=rf"^{group} must be a \w+Config or a dict.*{bad!r}"):
+        make_config("lab-3m-4", **{group: bad})
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"config": {"n_robots": 3}}, "config must be a SwarmConfig"),
+        ({"preset": ["lab-3m-4"]}, "preset must be one of"),
+        ({"world": 5}, "world must be None or a World, got 5"),
+        ({"task": "formation", "task_params": [("radius_m", 1.0)]}, "task_params must be"),
+        ({"task": "formation", "task_params": "radius_m"}, "task_params must be"),
+    ],
+)
+def test_bad_constructor_arguments_name_themselves(kwargs, match):
+    kwargs = {"preset": "lab-3m-4", **kwargs}
+    with pytest.raises(ValueError, match=match):
+        parallel_env(kwargs.pop("preset"), **kwargs)
+
+
+def test_numpy_numbers_are_accepted_and_stored_as_python_numbers():
+    """A sweep's np.int64 / np.float32 are numbers: taken (before, refused with "must be an
+    integer ... got np.int64(4)"), and stored as Python numbers (the bag's JSON config)."""
+    e = parallel_env(
+        "lab-3m-4",
+        n_robots=np.int64(3),
+        control_period_s=np.float64(0.1),
+        task="formation",
+        task_params={"radius_m": np.float32(0.5)},
+    )
+    assert e.config.n_robots == 3 and type(e.config.n_robots) is int
+    assert type(e.config.control_period_s) is float
+    assert e.task.radius_m == 0.5
+    with pytest.raises(ValueError, match="n_robots"):
+        parallel_env("lab-3m-4", n_robots=np.bool_(True))
+
+
+@pytest.mark.parametrize(
+    "task, params, match",
+    [
+        ("exploration", {"cell_m": 5.0}, "cell_m=5.0 leaves fewer than 2 cells"),
+        ("formation", {"radius_m": 15.0}, "radius_m=15.0 does not fit"),
+        ("formation", {"shape": "lattice", "spacing_m": 4.0}, "spacing_m=4.0 does not fit"),
+        ("encirclement", {"radius_m": 1.6}, "radius_m=1.6 does not fit"),
+        (
+            "encirclement",
+            {"path": "circle", "intruder_speed_mps": 0.1, "path_radius_m": 40.0},
+            "path_radius_m=40.0 does not fit",
+        ),
+    ],
+)
+def test_a_task_the_arena_cannot_hold_is_refused_at_construction(task, params, match):
+    with pytest.raises(ValueError, match=match):
+        parallel_env("lab-3m-4", task=task, task_params=params)
+
+
+def test_a_failed_reset_leaves_an_env_that_refuses_to_step():
+    """A layout that cannot be placed fails reset(); the env must not then step a half-reset
+    World (it did: "SimWorld.step() called before reset()", or an IndexError in a task)."""
+    e = parallel_env("lab-3m-4", arena={"n_decoy_posts": 1000})
+    with pytest.raises(ValueError, match="could not place.*arena.n_decoy_posts"):
+        e.reset(seed=0)
+    assert e.agents == []
+    with pytest.raises(RuntimeError, match=r"step\(\) called before reset\(\)"):
+        e.step({a: np.zeros(2) for a in e.possible_agents})
+
+
+def test_step_before_any_reset_says_so():
+    e = parallel_env("lab-3m-4")
+    with pytest.raises(RuntimeError, match=r"before reset\(\)"):
+        e.step({a: np.zeros(2) for a in e.possible_agents})
