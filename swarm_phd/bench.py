@@ -16,14 +16,19 @@ import time
 from pathlib import Path
 
 from swarm_env import parallel_env
-from swarm_phd import progress
+from swarm_phd import inputs, progress
 from swarm_phd.runner import random_policy, rollout
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--preset", default="sim-6m-20")
-    parser.add_argument("--duration", type=float, default=60.0, help="simulated seconds per case")
-    parser.add_argument("--seed", type=int, default=0, help="random seed")
+    parser.add_argument(
+        "--duration",
+        type=float,
+        default=60.0,
+        help="simulated seconds per case (at least one control period)",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="random seed (>= 0)")
     parser.add_argument("--repeats", type=int, default=3, help="runs per case (median shown)")
     parser.add_argument(
         "--localizer",
@@ -83,10 +88,12 @@ def median_of_runs(
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.duration <= 0:
-        raise ValueError(f"--duration must be > 0 s, got {args.duration}")
-    if args.repeats < 1:
-        raise ValueError(f"--repeats must be >= 1, got {args.repeats}")
+    period = inputs.control_period_s(args.preset)  # an unknown preset is refused here too
+    inputs.duration("--duration", args.duration, period)
+    inputs.integer("--repeats", args.repeats, minimum=1)
+    inputs.seed("--seed", args.seed)
+    if args.json:
+        inputs.output_file("--json", args.json)
     from localization.registry import LOCALIZERS
 
     names = [n.strip() for n in args.localizer.split(",") if n.strip()]

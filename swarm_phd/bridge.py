@@ -19,6 +19,8 @@ import json
 import time
 from pathlib import Path
 
+from swarm_phd import inputs
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     target = parser.add_mutually_exclusive_group(required=True)
@@ -48,7 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="env steps (default: a trained policy's episode length, else 100 = 10 s)",
     )
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0, help="random seed (>= 0)")
     parser.add_argument(
         "--policy",
         default="wander",
@@ -138,7 +140,7 @@ def bridge_env_kwargs(
     a simulator with these settings, so one that cannot act on them (another observation size,
     a controller without its task) is refused here too."""
     from agents.policies import SCRIPTED, policy_observation, trained_policy_env
-    from swarm_phd.sweep import parse_json_object
+    from swarm_phd.inputs import parse_json_object
 
     spec = args.policy
     if spec.startswith("privileged:"):
@@ -234,6 +236,9 @@ def _run(args: argparse.Namespace) -> int:
     from swarm_env.config import make_config
     from swarm_phd.episode import format_metrics, run_episode
 
+    inputs.seed("--seed", args.seed)
+    if args.record:
+        inputs.new_dir("--record", args.record)
     robots = [r.strip() for r in args.robots.split(",") if r.strip()] if args.robots else None
     env_kwargs, not_applied = bridge_env_kwargs(args, robots)
     preset, steps = env_kwargs.pop("preset"), env_kwargs.pop("max_steps")

@@ -22,6 +22,7 @@ from agents.scripted import WanderPolicy
 from localization.feed import SwarmFeed
 from localization.registry import make_localizer
 from swarm_env import parallel_env
+from swarm_phd import inputs
 from swarm_phd.runner import rollout
 
 #: The two estimates of the side-by-side figure: (panel title, localizer name).
@@ -30,20 +31,34 @@ COMPARED = (("lidar only", "phd-lo"), ("lidar + camera", "phd-lc"))
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--preset", default="sim-6m-20")
-    parser.add_argument("--duration", type=float, default=60.0, help="simulated seconds")
-    parser.add_argument("--seed", type=int, default=0, help="random seed")
+    parser.add_argument(
+        "--duration",
+        type=float,
+        default=60.0,
+        help="simulated seconds (at least one control period)",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="random seed (>= 0)")
     parser.add_argument("--out", default="runs/demo", help="output directory")
-    parser.add_argument("--frames", type=int, default=120, help="animation frames (0: none)")
+    parser.add_argument(
+        "--frames", type=int, default=120, help="animation frames (an integer >= 0; 0: none)"
+    )
     parser.add_argument(
         "--eval-duration",
         type=float,
         default=60.0,
-        help="simulated seconds of the LC vs LO comparison (0: skip)",
+        help="simulated seconds of the LC vs LO comparison (0: skip; else at least one "
+        "control period)",
     )
 
 
 def run(args: argparse.Namespace) -> int:
-    out = Path(args.out)
+    period = inputs.control_period_s(args.preset)  # an unknown preset is refused here too
+    inputs.duration("--duration", args.duration, period)
+    inputs.integer("--frames", args.frames, minimum=0)
+    if args.eval_duration != 0:  # 0 skips the comparison
+        inputs.duration("--eval-duration", args.eval_duration, period)
+    inputs.seed("--seed", args.seed)
+    out = inputs.output_dir("--out", args.out)
     out.mkdir(parents=True, exist_ok=True)
     env = parallel_env(
         args.preset, sensor_stats=True, render_mode="rgb_array" if args.frames else None

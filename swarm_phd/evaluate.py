@@ -59,8 +59,8 @@ from localization.registry import LOCALIZERS, make_localizer
 from swarm_core.atomic_files import write_json_atomically
 from swarm_env import parallel_env
 from swarm_env.env import SwarmEnv
-from swarm_phd import progress
-from swarm_phd.sweep import parse_json_object, parse_seeds
+from swarm_phd import inputs, progress
+from swarm_phd.inputs import parse_json_object, parse_seeds
 
 #: ``--scenario`` values.
 SCENARIOS = ("study", "seed003")
@@ -70,7 +70,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--preset", default=None, help="default: the model's preset for a model.zip, else seed-sim"
     )
-    parser.add_argument("--duration", type=float, default=300.0, help="simulated seconds")
+    parser.add_argument(
+        "--duration",
+        type=float,
+        default=300.0,
+        help="simulated seconds (at least one control period)",
+    )
     parser.add_argument(
         "--localizer",
         default="phd-lc,phd-lo",
@@ -128,12 +133,16 @@ def run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, _interrupt)
     if getattr(args, "scenario", "study") != "study" and getattr(args, "ray", False):
         raise ValueError(f"--ray runs the study's seeds; --scenario {args.scenario} is serial")
+    # Refused before any episode: the control period is checked once the env is built.
+    inputs.duration("--duration", args.duration)
+    seeds = parse_seeds(args.seeds)
+    if args.out:
+        inputs.output_dir("--out", args.out)
     if getattr(args, "ray", False):
         from swarm_phd.sweep import run_evaluate_ray
 
         return run_evaluate_ray(args)
     localizers = [s.strip() for s in args.localizer.split(",") if s.strip()]
-    seeds = parse_seeds(args.seeds)
     if getattr(args, "scenario", "study") == "seed003":
         return _run_seed003(args, seeds)
     specs = [s.strip() for s in (args.compare or "").split(",") if s.strip()]
@@ -308,8 +317,7 @@ def evaluate_localization(
     unknown = [name for name in localizers if name not in LOCALIZERS]
     if unknown or not localizers:
         raise ValueError(f"--localizer must name some of {sorted(LOCALIZERS)}, got {localizers}")
-    if duration_s <= 0:
-        raise ValueError(f"duration must be > 0 s, got {duration_s}")
+    inputs.duration("--duration", duration_s)
     spans = None
     if phases is not None:
         from agents.sb3.report import phase_spans
@@ -325,6 +333,9 @@ def evaluate_localization(
     if radio and not env.config.comms.enabled:
         env.close()
         raise ValueError(f"localizers {radio} need the radio: comms.enabled is False")
+    if duration_s < env.config.control_period_s:  # not one step to score
+        env.close()
+        inputs.duration("--duration", duration_s, env.config.control_period_s)
     n_steps = int(round(duration_s / env.config.control_period_s))
     base_phd = env.config.phd
     n_agents = len(env.possible_agents)

@@ -13,19 +13,26 @@ import numpy as np
 
 from hardware_bridge.bag import BagRecorder
 from swarm_env.config import make_config
-from swarm_phd import progress
+from swarm_phd import inputs, progress
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, help="new bag directory (must not exist)")
-    parser.add_argument("--duration", type=float, default=10.0, help="simulated seconds")
+    parser.add_argument(
+        "--duration",
+        type=float,
+        default=10.0,
+        help="simulated seconds (at least one control period)",
+    )
     parser.add_argument("--preset", default="seed-lab")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0, help="random seed (>= 0)")
 
 
 def run(args: argparse.Namespace) -> int:
-    if Path(args.out).exists():
-        raise ValueError(f"--out {args.out} exists already; bags are never overwritten")
+    period = inputs.control_period_s(args.preset)  # an unknown preset is refused here too
+    inputs.duration("--duration", args.duration, period)
+    inputs.seed("--seed", args.seed)
+    inputs.new_dir("--out", args.out)
     summary = export_sim_episode(
         args.out, preset=args.preset, duration_s=args.duration, seed=args.seed
     )

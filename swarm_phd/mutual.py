@@ -52,7 +52,8 @@ import numpy as np
 from localization.mutual.pmultireg import PMultiRegConfig, PMultiRegLocalizer
 from localization.mutual.se2 import inverse_compose
 from swarm_core.geometry import wrap_angle
-from swarm_phd.sweep import parse_seeds
+from swarm_phd import inputs
+from swarm_phd.inputs import parse_seeds
 
 #: The thesis's thresholds (tables 2-5).
 DIST_THRESHOLD_M = 0.10
@@ -73,7 +74,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration", type=float, default=None, help="simulated seconds")
     parser.add_argument("--speed", type=float, default=0.1, help="robots' max speed (m/s)")
     parser.add_argument("--seeds", default="0", help="comma-separated integers or ranges (0-4)")
-    parser.add_argument("--particles", type=int, default=None, help="per filter")
+    parser.add_argument(
+        "--particles", type=int, default=None, help="per filter, >= 2 (default: each method's)"
+    )
     parser.add_argument("--loss", type=float, default=0.1, help="radio loss probability")
     parser.add_argument("--latency", type=float, default=0.05, help="radio latency (s)")
     parser.add_argument(
@@ -105,6 +108,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     seeds = parse_seeds(str(args.seeds))
+    if args.duration is not None:
+        inputs.duration("--duration", args.duration)
+    if args.particles is not None:  # every method's filter needs two (its config's minimum)
+        inputs.integer("--particles", args.particles, minimum=2)
+    if args.out:
+        inputs.output_dir("--out", args.out)
     if args.symmetry:
         result = symmetry_experiment(seeds=seeds)
         sim = symmetry_sim_experiment(seeds=seeds)
@@ -237,6 +246,7 @@ def _make_methods(
     scale_search: bool = True,
 ) -> dict[str, dict[str, Any]]:
     out: dict[str, dict[str, Any]] = {}
+    sized = {} if n_particles is None else {"n_particles": n_particles}  # None: each default
     for m_idx, m in enumerate(methods):
         if m not in METHODS:
             raise ValueError(f"--methods: {m!r} is not one of {METHODS}")
@@ -244,12 +254,12 @@ def _make_methods(
         for o_idx, obs in enumerate(observers):
             rng = np.random.default_rng([seed, 1001, m_idx, o_idx])
             if m == "p-multireg":
-                cfg = PMultiRegConfig(**({"n_particles": n_particles} if n_particles else {}))
+                cfg = PMultiRegConfig(**sized)
                 out[m][obs] = PMultiRegLocalizer(obs, ids, cfg, rng)
             elif m == "fastslam":
                 from localization.mutual.fastslam import FastSLAMConfig, FastSLAMLocalizer
 
-                cfg = FastSLAMConfig(**({"n_particles": n_particles} if n_particles else {}))
+                cfg = FastSLAMConfig(**sized)
                 out[m][obs] = FastSLAMLocalizer(obs, ids, cfg, rng)
             else:
                 from localization.mutual.pmultibeareg import (
@@ -258,7 +268,7 @@ def _make_methods(
                 )
 
                 cfg = PMultiBeaRegConfig(
-                    **({"n_particles": n_particles} if n_particles else {}),
+                    **sized,
                     features=bearing_features,
                     scale_search=scale_search,
                 )

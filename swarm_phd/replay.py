@@ -58,7 +58,7 @@ def _run(args: argparse.Namespace) -> int:
 
     from hardware_bridge.bag import SKIP_REASONS, replay_env
     from swarm_phd.episode import format_metrics, run_episode
-    from swarm_phd.sweep import parse_json_object
+    from swarm_phd.inputs import parse_json_object
 
     overrides = parse_json_object(args.overrides, "--overrides")
     if args.mode is not None:

@@ -30,7 +30,8 @@ from localization.baselines.centralized_ukf import CentralizedUKF, CentralizedUK
 from localization.baselines.direct import align_poses, direct_estimate, pose_errors
 from swarm_core.atomic_files import atomic_write, write_json_atomically
 from swarm_env.sensors.ir import IRConfig, IRReadings, IRSensor
-from swarm_phd.sweep import parse_json_object, parse_seeds
+from swarm_phd import inputs
+from swarm_phd.inputs import parse_json_object, parse_seeds
 
 #: The seed's reported accuracy: "about 10 cm, or on the order of the size of a robot".
 SEED_ACCURACY_M = 0.10
@@ -71,6 +72,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     seeds = parse_seeds(str(args.seeds))
+    inputs.duration("--duration", args.duration)
+    if args.out:
+        inputs.output_dir("--out", args.out)
     ir_params = parse_json_object(args.ir_params, "--ir-params")
     if "outlier_offset_m" in ir_params:
         ir_params["outlier_offset_m"] = tuple(ir_params["outlier_offset_m"])

@@ -31,10 +31,8 @@ block equals the serial run's.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import numbers
-import re
 import sys
 import time
 import traceback
@@ -44,6 +42,8 @@ from typing import Any
 
 from swarm_core.atomic_files import write_json_atomically
 from swarm_env.config import PRESETS
+from swarm_phd import inputs
+from swarm_phd.inputs import parse_json_object, parse_seeds  # agents/ import them from here
 
 #: Columns of the printed summary when the localizer blocks have no ``headline`` block.
 FALLBACK_COLUMNS = (
@@ -117,38 +117,6 @@ def add_ray_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def parse_seeds(text: str, name: str = "--seeds") -> list[int]:
-    """``"0-3,7"`` -> ``[0, 1, 2, 3, 7]``; ValueError naming ``name`` and the text otherwise."""
-    seeds: list[int] = []
-    for part in (p.strip() for p in text.split(",")):
-        if not part:
-            continue
-        match = re.fullmatch(r"(-?\d+)(?:-(-?\d+))?", part)
-        if match is None or (match[2] is not None and int(match[2]) < int(match[1])):
-            raise ValueError(
-                f"{name} must be comma-separated integers or ranges like 0-9, got {text!r}"
-            )
-        lo = int(match[1])
-        seeds.extend(range(lo, int(match[2] if match[2] is not None else lo) + 1))
-    if not seeds:
-        raise ValueError(f"{name} names no seed: {text!r}")
-    return seeds
-
-
-def parse_json_object(text: str | None, name: str) -> dict[str, Any]:
-    """A JSON object given on the command line (``None``: ``{}``); ValueError naming ``name``
-    and the text otherwise."""
-    if text is None:
-        return {}
-    try:
-        value = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{name} must be a JSON object, got {text!r}: {exc}") from exc
-    if not isinstance(value, dict):
-        raise ValueError(f"{name} must be a JSON object, got {text!r}")
-    return value
-
-
 def _names(text: str, name: str) -> list[str]:
     items = [s.strip() for s in text.split(",") if s.strip()]
     if not items:
@@ -172,8 +140,7 @@ def grid(
     unknown = [n for n in localizers if n not in LOCALIZERS]
     if unknown or not localizers:
         raise ValueError(f"--localizer must name some of {sorted(LOCALIZERS)}, got {localizers}")
-    if not duration_s > 0:
-        raise ValueError(f"--duration must be > 0 s, got {duration_s}")
+    inputs.duration("--duration", duration_s)
     return [
         GridPoint(p, s, tuple(localizers), float(duration_s), policy, task, dict(overrides or {}))
         for p in presets
@@ -408,8 +375,9 @@ def print_summary(merged: dict[str, Any]) -> None:
 
 def run(args: argparse.Namespace) -> int:
     overrides = parse_json_object(args.env_overrides, "--env-overrides")
+    presets = inputs.presets("--presets", _names(args.presets, "--presets"))
     points = grid(
-        _names(args.presets, "--presets"),
+        presets,
         _names(args.localizer, "--localizer"),
         parse_seeds(args.seeds),
         args.duration,
@@ -417,7 +385,11 @@ def run(args: argparse.Namespace) -> int:
         task=args.task,
         overrides=overrides,
     )
-    out = Path(args.out) if args.out else Path("runs/sweep/sweep.json")
+    if not args.policy.endswith((".zip", ".pt")):  # a trained policy runs in its own env
+        for preset in presets:
+            period = inputs.control_period_s(preset, **overrides)
+            inputs.duration("--duration", args.duration, period)
+    out = inputs.output_file("--out", args.out or "runs/sweep/sweep.json")
     merged = run_sweep(
         points,
         use_ray=not args.serial,

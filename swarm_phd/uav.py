@@ -38,7 +38,9 @@ from typing import Any
 
 import numpy as np
 
-from swarm_phd.sweep import parse_seeds
+from swarm_core.validation import check_non_negative
+from swarm_phd import inputs
+from swarm_phd.inputs import parse_seeds
 
 #: The seed's figures (sec. V).
 SEED_POSITION_M = 0.12
@@ -67,7 +69,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "0 applies each increment when it arrives",
     )
     parser.add_argument(
-        "--hold-s", type=float, default=5.0, help="convergence: within thresholds this long (s)"
+        "--hold-s",
+        type=float,
+        default=5.0,
+        help="convergence: within thresholds this long (s; >= 0, 0: from the first step within)",
     )
     parser.add_argument(
         "--loopback",
@@ -92,6 +97,13 @@ def run(args: argparse.Namespace) -> int:
     comms: dict[str, Any] = {}
     if args.record and not args.loopback:
         raise ValueError("--record needs --loopback (a simulated episode has no bridge)")
+    inputs.duration("--duration", args.duration)
+    check_non_negative("--hold-s", args.hold_s)
+    for flag, path in (("--json", args.json), ("--figure", args.figure)):
+        if path:
+            inputs.output_file(flag, path)
+    if args.record:
+        inputs.new_dir("--record", args.record)
     if args.loss is not None:
         comms["loss_probability"] = args.loss
     if args.latency is not None:

@@ -81,12 +81,12 @@ def test_ray_sweep_equals_serial_and_survives_a_failing_point(local_ray, tmp_pat
                 assert stats["mean"] == pytest.approx(sum(finite) / len(finite))
                 assert stats["min"] == min(finite) and stats["max"] == max(finite)
     assert merged["failed"] == failed
-    # The command's own path: same grid from the parsed arguments, exit 1 for the failures.
-    assert sweep.run(args) == 1
-    again = json.loads(out.read_text())
-    assert {e["seed"]: _metrics(e["results"]) for e in again["points"] if e["status"] == "ok"} == {
-        s: _metrics(e["results"]) for s, e in ok.items()
-    }
+    # The command's own path checks every preset before any point runs (the CLI exits 2):
+    # the file of the run above is left as it was.
+    before = out.read_text()
+    with pytest.raises(ValueError, match="no-such-preset"):
+        sweep.run(args)
+    assert out.read_text() == before
 
 
 def test_parse_seeds():

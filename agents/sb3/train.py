@@ -1,5 +1,9 @@
 """``swarm-phd train``: PPO with parameter sharing (one policy for every agent) on a SwarmEnv task.
 
+``python -m agents.sb3.train ARGS`` is the same command. Bad input (a flag out of its range, a
+NaN) is refused before any env is built or anything is written under ``--out``: one line naming
+the flag and the value, exit code 2 (from Python, :func:`train` raises ``ValueError``).
+
 Writes, under ``--out``::
 
     model.zip                 final model (+ swarm_phd.json inside: env kwargs, obs normalisation)
@@ -34,12 +38,64 @@ from typing import Any
 from agents.interrupts import Interrupts, set_signal, signal_interrupt
 from agents.sb3.policy import save_model
 from swarm_core.atomic_files import write_json_atomically
+from swarm_phd import inputs
+from swarm_phd.inputs import check_number
 from swarm_phd.sweep import parse_json_object
 
 DEFAULT_PRESET = "sim-6m-20"
 #: Exit codes of an interrupted run (the shell's 128 + signal number).
 EXIT_CODES = {"SIGINT": 130, "SIGTERM": 143}
 DEFAULT_MAX_STEPS = 300
+#: The largest seed SB3 accepts (it seeds numpy's legacy generator with it).
+MAX_SEED = 2**32 - 1
+
+
+#: PPO keyword -> (the name an error gives it, :func:`check_number` bounds). The keys with a
+#: ``swarm-phd train`` flag are named by the flag; the others can come only from Python.
+PPO_NUMBERS: dict[str, tuple[str, dict[str, Any]]] = {
+    "n_steps": ("--n-steps", {"integer": True, "low": 1}),
+    "batch_size": ("--batch-size", {"integer": True, "low": 1}),
+    "n_epochs": ("--n-epochs", {"integer": True, "low": 1}),
+    "learning_rate": ("--learning-rate", {"low": 0, "above": True, "schedule": True}),
+    "gamma": ("--gamma", {"low": 0, "high": 1}),
+    "gae_lambda": ("ppo_kwargs['gae_lambda']", {"low": 0, "high": 1}),
+    "ent_coef": ("--ent-coef", {"low": 0}),
+    "vf_coef": ("ppo_kwargs['vf_coef']", {"low": 0}),
+    "max_grad_norm": ("ppo_kwargs['max_grad_norm']", {"low": 0, "above": True}),
+    "clip_range": ("--clip-range", {"low": 0, "above": True, "schedule": True}),
+    "clip_range_vf": (
+        "ppo_kwargs['clip_range_vf']",
+        {"low": 0, "above": True, "schedule": True, "optional": True},
+    ),
+    "target_kl": ("--target-kl", {"low": 0, "above": True, "optional": True}),
+    # SB3: -1 (or 0) draws gSDE's noise matrix once per rollout, n > 0 every n steps.
+    "sde_sample_freq": ("ppo_kwargs['sde_sample_freq']", {"integer": True, "low": -1}),
+    "stats_window_size": ("ppo_kwargs['stats_window_size']", {"integer": True, "low": 1}),
+}
+PPO_FLAGS = ("use_sde", "normalize_advantage")
+
+
+def check_ppo_kwargs(ppo_kwargs: dict[str, Any]) -> None:
+    """``ValueError`` naming the field and the value for a PPO hyper-parameter that SB3 would
+    reject (with an assertion, deep in the constructor) or would train on silently (a NaN
+    discount, a negative entropy weight, zero epochs); keys that :func:`train` does not know
+    (or sets itself, such as ``seed``) are refused too."""
+    for key, value in ppo_kwargs.items():
+        if key in PPO_NUMBERS:
+            name, bounds = PPO_NUMBERS[key]
+            check_number(name, value, **bounds)
+        elif key in PPO_FLAGS:
+            if not isinstance(value, bool):
+                raise ValueError(f"ppo_kwargs[{key!r}] must be True or False, got {value!r}")
+        else:
+            known = ", ".join([*PPO_NUMBERS, *PPO_FLAGS])
+            raise ValueError(f"ppo_kwargs has an unknown key {key!r} (known: {known})")
+    # SB3 asserts it: advantages normalised over a minibatch of one are NaN.
+    if ppo_kwargs.get("normalize_advantage", True) and ppo_kwargs.get("batch_size") == 1:
+        raise ValueError(
+            "--batch-size must be > 1 when the advantages are normalised (SB3: a minibatch of "
+            "one normalises to NaN), got 1"
+        )
 
 
 def add_env_arguments(parser: argparse.ArgumentParser) -> None:
@@ -243,6 +299,7 @@ def env_kwargs_from_args(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_number("--max-wall-minutes", args.max_wall_minutes, low=0, above=True, optional=True)
     env_kwargs = env_kwargs_from_args(args)
     ppo_kwargs = {
         "n_steps": args.n_steps,
@@ -398,20 +455,43 @@ def _train(
     (sb3-contrib ``RecurrentPPO``, an LSTM of that many units in the actor and in the critic,
     after the extractor); the model's metadata says ``"recurrent": true``.
     """
-    if timesteps <= 0:
-        raise ValueError(f"--timesteps must be > 0, got {timesteps}")
-    if n_copies < 1:
-        raise ValueError(f"--n-copies must be >= 1, got {n_copies}")
-    if num_cpus < 0:
-        raise ValueError(f"--num-cpus must be >= 0, got {num_cpus}")
-    if isinstance(critic_warmup, bool) or not isinstance(critic_warmup, int) or critic_warmup < 0:
-        raise ValueError(f"--critic-warmup must be an int >= 0, got {critic_warmup!r}")
-    for key, flag in (("clip_range", "--clip-range"), ("target_kl", "--target-kl")):
-        v = (ppo_kwargs or {}).get(key)
-        if v is None or callable(v):  # target_kl None: no early stop; SB3 schedules are callables
-            continue
-        if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-            raise ValueError(f"{flag} must be a finite number > 0, got {v!r}")
+    # Every argument is checked here, before an env is built or anything is written to ``out``:
+    # a refused run leaves a previous run's files there as they were.
+    out = Path(out)
+    inputs.output_dir("--out", out)
+    check_number("--timesteps", timesteps, integer=True, low=1)
+    check_number("--seed", seed, integer=True, low=0, high=MAX_SEED)
+    check_number("--n-copies", n_copies, integer=True, low=1)
+    check_number("--num-cpus", num_cpus, integer=True, low=0)
+    check_number("--checkpoint-every", checkpoint_every, integer=True, low=1)
+    check_number("--torch-threads", torch_threads, integer=True, low=1)
+    check_number("max_wall_s", max_wall_s, low=0, above=True, optional=True)
+    check_number("--critic-warmup", critic_warmup, integer=True, low=0)
+    check_ppo_kwargs(ppo_kwargs or {})
+    ppo = {
+        "n_steps": 128,
+        "batch_size": 512,
+        "n_epochs": 10,
+        "learning_rate": 3e-4,
+        "gamma": 0.99,
+        "gae_lambda": 0.95,
+        "ent_coef": 0.0,
+        "clip_range": 0.2,
+        **(ppo_kwargs or {}),
+    }
+    if ppo.get("use_sde"):
+        # One exploration matrix per agent per rollout (SB3 resamples it at each rollout).
+        ppo.setdefault("sde_sample_freq", -1)
+    _resolve_vec(vec, env_kwargs, num_cpus, residual is not None, critic_state)
+    if extractor not in ("sets", "mlp"):
+        raise ValueError(f"--extractor must be 'sets' or 'mlp', got {extractor!r}")
+    if extractor == "sets" and env_kwargs.get("observation", "phd") == "measurements":
+        raise ValueError(
+            "--extractor sets reads the neighbour table, which --observation measurements has "
+            "not: use it with --observation phd or truth (or --extractor mlp)"
+        )
+    if residual_log_std is not None and residual is None:
+        raise ValueError(f"--residual-log-std {residual_log_std} needs --residual scripted:NAME")
     if residual_observes_base and residual is None:
         raise ValueError("--residual-observes-base needs --residual scripted:NAME")
     from agents.sb3.residual import check_residual_mode
@@ -430,8 +510,7 @@ def _train(
         from agents.sb3.residual import check_residual
 
         check_residual(residual)
-        if not (isinstance(residual_log_std, (int, float)) and -5.0 <= residual_log_std <= 1.0):
-            raise ValueError(f"--residual-log-std must be in [-5, 1], got {residual_log_std!r}")
+        check_number("--residual-log-std", residual_log_std, low=-5, high=1)
     if critic_state:
         if warm_start is not None:
             raise ValueError(
@@ -453,8 +532,7 @@ def _train(
                     "tested with the per-step Gaussian)"
                 )
     if lstm_hidden is not None:
-        if isinstance(lstm_hidden, bool) or not isinstance(lstm_hidden, int) or lstm_hidden < 1:
-            raise ValueError(f"--lstm-hidden must be an int >= 1, got {lstm_hidden!r}")
+        check_number("--lstm-hidden", lstm_hidden, integer=True, low=1)
         for flag, on in (
             ("--warm-start", warm_start is not None),
             ("--critic-state", critic_state),
@@ -472,13 +550,8 @@ def _train(
                 f"--warm-start must be 'scripted:NAME' or 'privileged:NAME', got {teacher!r}"
             )
         for key in ("steps", "rounds", "epochs"):
-            v = warm_start.get(key)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise ValueError(f"--bc-{key} must be an int >= 1, got {v!r}")
-        if not isinstance(warm_start["log_std"], (int, float)) or not (
-            -5.0 <= warm_start["log_std"] <= 1.0
-        ):
-            raise ValueError(f"--bc-log-std must be in [-5, 1], got {warm_start['log_std']!r}")
+            check_number(f"--bc-{key}", warm_start.get(key), integer=True, low=1)
+        check_number("--bc-log-std", warm_start["log_std"], low=-5, high=1)
     try:
         import torch
         from stable_baselines3 import PPO
@@ -490,7 +563,6 @@ def _train(
 
     from swarm_env import parallel_env
 
-    torch.set_num_threads(max(1, torch_threads))
     # Build one env first: bad task / config keys fail here with the env's own message.
     probe = parallel_env(**env_kwargs)
     n_agents = len(probe.possible_agents)
@@ -501,33 +573,17 @@ def _train(
 
         critic_dims = critic_state_dims(n_agents, probe.task)
     probe.close()
-    # Refused combinations fail here, before the run directory is written.
-    _resolve_vec(vec, env_kwargs, num_cpus, residual is not None, critic_state)
+    if ppo.get("normalize_advantage", True) and ppo["n_steps"] * n_copies * n_agents < 2:
+        # SB3 asserts it: a rollout of one transition normalises its advantage to NaN.
+        raise ValueError(
+            f"--n-steps {ppo['n_steps']} x --n-copies {n_copies} x {n_agents} agent(s) is a "
+            "rollout of one transition: PPO needs at least 2 (SB3 normalises the advantages)"
+        )
 
+    torch.set_num_threads(torch_threads)
     out.mkdir(parents=True, exist_ok=True)
     (out / "checkpoints").mkdir(exist_ok=True)
     write_json_atomically(out / "env_kwargs.json", env_kwargs)
-    ppo = {
-        "n_steps": 128,
-        "batch_size": 512,
-        "n_epochs": 10,
-        "learning_rate": 3e-4,
-        "gamma": 0.99,
-        "gae_lambda": 0.95,
-        "ent_coef": 0.0,
-        "clip_range": 0.2,
-        **(ppo_kwargs or {}),
-    }
-    if ppo.get("use_sde"):
-        # One exploration matrix per agent per rollout (SB3 resamples it at each rollout).
-        ppo.setdefault("sde_sample_freq", -1)
-    if extractor not in ("sets", "mlp"):
-        raise ValueError(f"extractor must be 'sets' or 'mlp', got {extractor!r}")
-    if extractor == "sets" and env_kwargs.get("observation", "phd") == "measurements":
-        raise ValueError(
-            "--extractor sets reads the neighbour table: use it with "
-            "--observation phd or truth (or --extractor mlp)"
-        )
     policy_kwargs: dict[str, Any] = {
         "net_arch": {"pi": [128, 128], "vf": [128, 128]},
         # gSDE's log-std is per hidden unit: SB3's default -2 (noise std exp(-2) x |latent|).
@@ -637,7 +693,7 @@ def _train(
 
         def __init__(self, every: int) -> None:
             super().__init__()
-            self.every = max(1, every)
+            self.every = every
             self.next_at = self.every
             self.t0 = time.perf_counter()
 
@@ -881,3 +937,9 @@ def _progress_callback(base: type, timesteps: int, rollout_size: int, ppo: dict[
                 self.bar = None
 
     return ProgressCallback()
+
+
+if __name__ == "__main__":  # ``python -m agents.sb3.train ARGS`` is ``swarm-phd train ARGS``
+    from swarm_phd.cli import main
+
+    sys.exit(main(["train", *sys.argv[1:]]))

@@ -1,0 +1,192 @@
+"""Checks of the ``swarm-phd`` commands' input, one set for every command (numbers through
+:mod:`swarm_core.validation`, the config dataclasses' checks).
+
+Bad input gets a clear error before any work: each check raises :class:`ValueError` naming the
+flag and the value, which :func:`swarm_phd.cli.main` prints as one line
+``swarm-phd COMMAND: error: ...`` (exit status 2, no traceback). A command calls them at the top
+of its ``run``, before it builds an env or runs an episode. The output checks create nothing:
+they refuse a location the command could not write after its run.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import numbers
+import os
+import re
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+from swarm_core.validation import check_positive
+
+
+def check_number(
+    name: str,
+    value: Any,
+    *,
+    integer: bool = False,
+    low: float | None = None,
+    high: float | None = None,
+    above: bool = False,
+    optional: bool = False,
+    schedule: bool = False,
+) -> None:
+    """Refuse ``value`` unless it is a finite number (an int with ``integer``; never a bool) in
+    ``[low, high]`` (``(low, high]`` with ``above``); None passes with ``optional``, a callable
+    (an SB3 schedule) with ``schedule``. The ``ValueError`` names ``name`` (the CLI flag) and the
+    value (the CLI prints it as one line and exits with 2)."""
+    if (optional and value is None) or (schedule and callable(value)):
+        return
+    if integer:
+        ok = isinstance(value, numbers.Integral) and not isinstance(value, bool)
+        kind = "an integer"
+    else:
+        ok = isinstance(value, numbers.Real) and not isinstance(value, bool)
+        ok = ok and math.isfinite(value)
+        kind = "a finite number"
+    ok = ok and (low is None or value > low or (value == low and not above))
+    ok = ok and (high is None or value <= high)
+    if ok:
+        return
+    if low is not None and high is not None:
+        bounds = f" in {'(' if above else '['}{low}, {high}]"
+    elif low is not None:
+        bounds = f" {'>' if above else '>='} {low}"
+    else:
+        bounds = ""
+    raise ValueError(f"{name} must be {kind}{bounds}, got {value!r}")
+
+
+def integer(flag: str, value: Any, *, minimum: int) -> int:
+    """``value`` if it is an integer >= ``minimum``."""
+    check_number(flag, value, integer=True, low=minimum)
+    return int(value)
+
+
+def seed(flag: str, value: Any) -> int:
+    """A random seed: a non-negative integer (what numpy's generators take)."""
+    return integer(flag, value, minimum=0)
+
+
+def duration(flag: str, value: Any, control_period_s: float | None = None) -> float:
+    """Simulated seconds: finite, > 0 and, given the env's control period, at least one
+    period (a shorter run would take no step)."""
+    check_positive(flag, value)
+    if control_period_s is not None and value < control_period_s:
+        raise ValueError(
+            f"{flag} must be at least one control period ({control_period_s:g} s), got {value!r}"
+        )
+    return value
+
+
+def control_period_s(preset: str, **overrides: Any) -> float:
+    """The control period of ``preset`` with its ``SwarmConfig`` overrides (other keys, such as
+    ``task_params``, are ignored); ValueError for an unknown preset or a bad override."""
+    import dataclasses
+
+    from swarm_env.config import SwarmConfig, make_config
+
+    fields = {f.name for f in dataclasses.fields(SwarmConfig)}
+    config = make_config(preset, **{k: v for k, v in overrides.items() if k in fields})
+    return config.control_period_s
+
+
+def presets(flag: str, names: Iterable[str]) -> list[str]:
+    """``names`` if each is a preset (or an old name of one); else the unknown ones named."""
+    from swarm_env.config import PRESET_ALIASES, PRESETS
+
+    names = list(names)
+    unknown = [n for n in names if n not in PRESETS and n not in PRESET_ALIASES]
+    if unknown:
+        raise ValueError(
+            f"{flag}: unknown preset(s) {', '.join(map(repr, unknown))}; presets: "
+            f"{', '.join(PRESETS)}"
+        )
+    return names
+
+
+def parse_seeds(text: str, name: str = "--seeds") -> list[int]:
+    """``"0-3,7"`` -> ``[0, 1, 2, 3, 7]``; ValueError naming ``name`` and the text otherwise
+    (a negative seed included)."""
+    seeds: list[int] = []
+    for part in (p.strip() for p in text.split(",")):
+        if not part:
+            continue
+        match = re.fullmatch(r"(-?\d+)(?:-(-?\d+))?", part)
+        if match is not None and (int(match[1]) < 0 or int(match[2] or 0) < 0):
+            raise ValueError(f"{name} must be non-negative integers, got {text!r}")
+        if match is None or (match[2] is not None and int(match[2]) < int(match[1])):
+            raise ValueError(
+                f"{name} must be comma-separated integers or ranges like 0-9, got {text!r}"
+            )
+        lo = int(match[1])
+        seeds.extend(range(lo, int(match[2] if match[2] is not None else lo) + 1))
+    if not seeds:
+        raise ValueError(f"{name} names no seed: {text!r}")
+    return seeds
+
+
+def parse_json_object(text: str | None, name: str) -> dict[str, Any]:
+    """A JSON object given on the command line (``None``: ``{}``); ValueError naming ``name``
+    and the text otherwise."""
+    if text is None:
+        return {}
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{name} must be a JSON object, got {text!r}: {exc}") from exc
+    if not isinstance(value, dict):
+        raise ValueError(f"{name} must be a JSON object, got {text!r}")
+    return value
+
+
+def output_dir(flag: str, path: str | Path) -> Path:
+    """A directory the command writes into after its run (made then, with its parents):
+    refused now if it is not a directory, or cannot be made or written."""
+    p = Path(path)
+    if _exists(p) and not p.is_dir():
+        raise ValueError(f"{flag} {str(path)!r}: exists and is not a directory")
+    _check_creatable(flag, path, p)
+    return p
+
+
+def output_file(flag: str, path: str | Path) -> Path:
+    """A file the command writes after its run (its directory made then): refused now if it is
+    a directory, or its directory cannot be made or written."""
+    p = Path(path)
+    if p.is_dir():
+        raise ValueError(f"{flag} {str(path)!r}: is a directory, not a file")
+    if _exists(p) and not os.access(p, os.W_OK):
+        raise ValueError(f"{flag} {str(path)!r}: not writable")
+    _check_creatable(flag, path, p.parent)
+    return p
+
+
+def new_dir(flag: str, path: str | Path) -> Path:
+    """A directory the command creates (a bag): refused if it exists, or cannot be made."""
+    p = Path(path)
+    if _exists(p):
+        raise ValueError(f"{flag} {str(path)!r} exists already; bags are never overwritten")
+    _check_creatable(flag, path, p.parent)
+    return p
+
+
+def _exists(p: Path) -> bool:
+    try:
+        return p.exists()
+    except OSError:  # e.g. a parent that cannot be searched: not there for this user
+        return False
+
+
+def _check_creatable(flag: str, path: str | Path, directory: Path) -> None:
+    """``directory`` exists and is writable, or its nearest existing ancestor is a writable
+    directory (``mkdir(parents=True)`` will succeed)."""
+    probe = directory
+    while not _exists(probe) and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir():
+        raise ValueError(f"{flag} {str(path)!r}: {str(probe)!r} is not a directory")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise ValueError(f"{flag} {str(path)!r}: directory {str(probe)!r} is not writable")
