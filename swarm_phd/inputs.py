@@ -10,6 +10,7 @@ they refuse a location the command could not write after its run.
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import numbers
@@ -161,6 +162,31 @@ def output_file(flag: str, path: str | Path) -> Path:
     if _exists(p) and not os.access(p, os.W_OK):
         raise ValueError(f"{flag} {str(path)!r}: not writable")
     _check_creatable(flag, path, p.parent)
+    return p
+
+
+def add_overwrite_argument(parser: argparse.ArgumentParser) -> None:
+    """``--overwrite``, shared by the trainers: ``--out`` must otherwise be new or empty."""
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="train into an --out that holds a previous run, replacing its files (default: "
+        "refuse, so that a rerun never replaces a finished run)",
+    )
+
+
+def run_dir(flag: str, path: str | Path, *, overwrite: bool) -> Path:
+    """A training run's directory: new or empty, unless ``overwrite``. A rerun with the same
+    ``--out`` would otherwise replace a finished run's model, empty its monitor and mix its
+    checkpoints with the new run's: "choose a new directory or pass --overwrite"."""
+    p = output_dir(flag, path)
+    held = sorted(x.name for x in p.iterdir()) if p.is_dir() else []
+    if held and not overwrite:
+        shown = ", ".join(held[:4]) + (", ..." if len(held) > 4 else "")
+        raise ValueError(
+            f"{flag} {str(path)!r} holds a previous run ({shown}): choose a new directory, "
+            "or pass --overwrite to replace its files"
+        )
     return p
 
 

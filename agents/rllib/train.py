@@ -40,6 +40,7 @@ from typing import Any
 
 from agents.interrupts import Interrupts, signal_interrupt
 from swarm_core.atomic_files import atomic_write
+from swarm_phd import inputs
 
 EXIT_CODES = {"SIGINT": 130, "SIGTERM": 143}
 
@@ -113,6 +114,7 @@ def run(args: argparse.Namespace) -> int:
         args.timesteps,
         Path(args.out),
         seed=args.seed,
+        overwrite=getattr(args, "overwrite", False),
         num_env_runners=args.num_env_runners,
         envs_per_runner=args.envs_per_runner,
         address=args.address,
@@ -220,6 +222,7 @@ def _train(
     out: Path,
     *,
     seed: int = 0,
+    overwrite: bool = False,
     num_env_runners: int = 2,
     envs_per_runner: int = 1,
     address: str | None = None,
@@ -247,6 +250,7 @@ def _train(
     probe = parallel_env(**env_kwargs)  # bad task / config keys fail here, before Ray starts
     n_agents = len(probe.possible_agents)
     probe.close()
+    inputs.run_dir("--out", out, overwrite=overwrite)
     # Compile the kernels here, once, before any runner starts: the runners load the cache.
     prewarm_kernels()
     torch.set_num_threads(max(1, torch_threads))  # the learner runs in this process

@@ -55,6 +55,8 @@ from typing import Any
 
 import numpy as np
 
+from swarm_phd import inputs
+
 __all__ = ["gae", "main", "new_critic", "plot_ppo_logs", "ppo_update", "rollout"]
 
 
@@ -347,6 +349,7 @@ def main(argv: list[str] | None = None) -> int:
         help="with --base: a student (.pt) or model (.zip) whose env the new student acts in",
     )
     parser.add_argument("--out", required=True, help="directory for the students and the log")
+    inputs.add_overwrite_argument(parser)
     parser.add_argument(
         "--task-params", default=None, help="the training reward's task parameters (JSON)"
     )
@@ -525,7 +528,10 @@ def _train(parser, args, meta, reward_params, val_seeds, phases) -> int:
             f"--task-params {json.dumps(reward_params)} changes what the student observes (its "
             "task's features or the observation's size); only the reward's terms may change"
         )
-    out = Path(args.out)
+    try:
+        out = inputs.run_dir("--out", args.out, overwrite=args.overwrite)
+    except ValueError as err:
+        parser.error(str(err))
     out.mkdir(parents=True, exist_ok=True)
     log_std = torch.nn.Parameter(torch.full((2,), float(args.log_std)))
     critic = new_critic(space, vec.critic_dims)

@@ -133,6 +133,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_env_arguments(parser)
     parser.add_argument("--timesteps", type=int, default=200_000, help="agent transitions")
     parser.add_argument("--out", required=True, help="run directory, e.g. runs/formation_phd")
+    inputs.add_overwrite_argument(parser)
     parser.add_argument("--seed", type=int, default=0, help="random seed")
     parser.add_argument("--n-copies", type=int, default=4, help="env copies (x n_robots agents)")
     parser.add_argument(
@@ -327,6 +328,7 @@ def run(args: argparse.Namespace) -> int:
         args.timesteps,
         Path(args.out),
         seed=args.seed,
+        overwrite=args.overwrite,
         n_copies=args.n_copies,
         num_cpus=args.num_cpus,
         vec=args.vec,
@@ -422,6 +424,7 @@ def _train(
     out: Path,
     *,
     seed: int = 0,
+    overwrite: bool = False,
     n_copies: int = 4,
     num_cpus: int = 0,
     vec: str = "auto",
@@ -580,6 +583,7 @@ def _train(
             "rollout of one transition: PPO needs at least 2 (SB3 normalises the advantages)"
         )
 
+    inputs.run_dir("--out", out, overwrite=overwrite)  # last: the flags' own errors come first
     torch.set_num_threads(torch_threads)
     out.mkdir(parents=True, exist_ok=True)
     (out / "checkpoints").mkdir(exist_ok=True)

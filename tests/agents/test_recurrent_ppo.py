@@ -308,3 +308,15 @@ def test_a_zero_start_in_a_models_env_and_its_own_directory_refused(space, tmp_p
     with pytest.raises(SystemExit):
         recurrent_ppo.main([*argv, "--out", str(model.parent)])
     assert "holds --env-from" in capsys.readouterr().err
+
+
+def test_a_previous_run_in_out_is_refused_without_overwrite(student, tmp_path, capsys):
+    out = tmp_path / "previous"
+    out.mkdir()
+    (out / "student.pt").write_bytes(b"a finished run")
+    with pytest.raises(SystemExit):
+        recurrent_ppo.main(["--student", str(student), "--out", str(out), *TINY])
+    err = capsys.readouterr().err
+    assert "holds a previous run" in err and "--overwrite" in err
+    assert [p.name for p in out.iterdir()] == ["student.pt"]
+    assert (out / "student.pt").read_bytes() == b"a finished run"

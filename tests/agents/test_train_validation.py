@@ -58,6 +58,11 @@ def no_env(monkeypatch):
     def threads(n):
         raise AssertionError(f"torch.set_num_threads({n}) before the input was checked")
 
+    # Every command module first, unpatched: a module imported under the patch would keep
+    # `from swarm_env import parallel_env` bound to it for the rest of the session.
+    from swarm_phd.cli import build_parser
+
+    build_parser()
     monkeypatch.setattr(swarm_env, "parallel_env", built)
     monkeypatch.setattr(batched, "make_batched_vec_env", built)
     monkeypatch.setattr(adapter, "make_vec_env", built)
@@ -198,3 +203,41 @@ def test_module_entry_point_refuses_in_one_line(previous_run):
     assert proc.stderr.splitlines()[-1].startswith("swarm-phd train: error: --gamma")
     assert "2.0" in proc.stderr and "Traceback" not in proc.stderr
     assert_untouched(previous_run)
+
+
+def test_a_valid_run_into_a_previous_run_is_refused_without_overwrite(previous_run, capsys):
+    """A rerun with the same --out would replace a finished run's model, empty its monitor and
+    mix its checkpoints with the new ones: refused, naming --out and the way out."""
+    assert main([*BASE, "--out", str(previous_run)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("swarm-phd train: error: --out") and "holds a previous run" in err
+    assert "--overwrite" in err and "Traceback" not in err
+    assert_untouched(previous_run)
+    with pytest.raises(ValueError, match="holds a previous run"):
+        train(KWARGS, 64, previous_run, progress_bar=False)
+    assert_untouched(previous_run)
+
+
+def test_overwrite_trains_into_a_previous_run(previous_run):
+    model = train(
+        KWARGS,
+        64,
+        previous_run,
+        overwrite=True,
+        n_copies=1,
+        progress_bar=False,
+        ppo_kwargs={"n_steps": 16, "batch_size": 32, "n_epochs": 1},
+    )
+    assert model.is_file()
+    assert (previous_run / "monitor.csv").read_text() != SENTINELS["monitor.csv"]
+
+
+def test_run_dir_takes_a_new_or_empty_directory(tmp_path):
+    from swarm_phd.inputs import run_dir
+
+    assert run_dir("--out", tmp_path / "new" / "run", overwrite=False) == tmp_path / "new" / "run"
+    assert run_dir("--out", tmp_path, overwrite=False) == tmp_path  # empty
+    (tmp_path / "model.zip").write_text("x")
+    with pytest.raises(ValueError, match=r"--out .* holds a previous run \(model.zip\)"):
+        run_dir("--out", tmp_path, overwrite=False)
+    assert run_dir("--out", tmp_path, overwrite=True) == tmp_path
