@@ -78,8 +78,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from agents.sb3.train import env_kwargs_from_args
+    from agents.sb3.train import MAX_SEED, check_ppo_kwargs, env_kwargs_from_args
+    from swarm_phd.inputs import check_number
 
+    # The SB3 engine's flags, checked by its rules before they are renamed for RLlib.
+    check_ppo_kwargs(
+        {
+            "n_steps": args.n_steps,
+            "batch_size": args.batch_size,
+            "n_epochs": args.n_epochs,
+            "learning_rate": args.learning_rate,
+            "gamma": args.gamma,
+            "ent_coef": args.ent_coef,
+        }
+    )
+    check_number("--timesteps", args.timesteps, integer=True, low=1)
+    check_number("--seed", args.seed, integer=True, low=0, high=MAX_SEED)
+    check_number("--checkpoint-every", args.checkpoint_every, integer=True, low=1)
+    check_number("--torch-threads", args.torch_threads, integer=True, low=1)
+    check_number("--max-wall-minutes", args.max_wall_minutes, low=0, above=True, optional=True)
+    check_number("--num-env-runners", args.num_env_runners, integer=True, low=0)
+    check_number("--envs-per-runner", args.envs_per_runner, integer=True, low=1)
+    check_number("--ray-num-cpus", args.ray_num_cpus, integer=True, low=1, optional=True)
     env_kwargs = env_kwargs_from_args(args)
     sb3_only = {
         "--warm-start": getattr(args, "warm_start", None) is not None,

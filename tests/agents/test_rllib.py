@@ -166,3 +166,35 @@ def test_engine_option_dispatches_to_the_chosen_engine(monkeypatch):
     assert [c[0] for c in calls] == ["sb3", "rllib"] and calls[1][1].num_env_runners == 3
     with pytest.raises(SystemExit):
         parser.parse_args([*base, "--engine", "tf"])
+
+
+@pytest.mark.parametrize(
+    ("extra", "named"),
+    [
+        (["--gamma", "2"], "--gamma"),
+        (["--n-epochs", "0"], "--n-epochs"),
+        (["--learning-rate", "nan"], "--learning-rate"),
+        (["--torch-threads", "0"], "--torch-threads"),
+        (["--envs-per-runner", "0"], "--envs-per-runner"),
+        (["--num-env-runners", "-1"], "--num-env-runners"),
+        (["--max-wall-minutes", "-5"], "--max-wall-minutes"),
+    ],
+)
+def test_rllib_engine_refuses_bad_flags_before_ray_starts(monkeypatch, tmp_path, extra, named):
+    """The SB3 engine's rules for the shared flags, and the engine's own counts: refused in
+    one line (the CLI's exit 2) before an env is built or Ray starts."""
+    from agents.rllib import engine
+    from agents.rllib import train as rl_train
+
+    def started(*args, **kwargs):
+        raise AssertionError("training started before the input was checked")
+
+    monkeypatch.setattr(rl_train, "_train", started)
+    parser = argparse.ArgumentParser()
+    engine.add_arguments(parser)
+    args = parser.parse_args(
+        ["--out", str(tmp_path / "run"), "--preset", "lab-3m-4", "--engine", "rllib", *extra]
+    )
+    with pytest.raises(ValueError, match=named):
+        rl_train.run(args)
+    assert not (tmp_path / "run").exists()
