@@ -78,20 +78,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from agents.sb3.train import MAX_SEED, check_ppo_kwargs, env_kwargs_from_args
+    from agents.sb3.train import (
+        MAX_SEED,
+        check_ppo_kwargs,
+        env_kwargs_from_args,
+        ppo_kwargs_from_args,
+    )
     from swarm_phd.inputs import check_number
 
-    # The SB3 engine's flags, checked by its rules before they are renamed for RLlib.
-    check_ppo_kwargs(
-        {
-            "n_steps": args.n_steps,
-            "batch_size": args.batch_size,
-            "n_epochs": args.n_epochs,
-            "learning_rate": args.learning_rate,
-            "gamma": args.gamma,
-            "ent_coef": args.ent_coef,
-        }
-    )
+    # The shared flags, checked by the SB3 engine's rules before they are renamed for RLlib.
+    check_ppo_kwargs(ppo_kwargs_from_args(args))
     check_number("--timesteps", args.timesteps, integer=True, low=1)
     check_number("--seed", args.seed, integer=True, low=0, high=MAX_SEED)
     check_number("--checkpoint-every", args.checkpoint_every, integer=True, low=1)

@@ -299,9 +299,8 @@ def env_kwargs_from_args(args: argparse.Namespace) -> dict[str, Any]:
     return kwargs
 
 
-def run(args: argparse.Namespace) -> int:
-    check_number("--max-wall-minutes", args.max_wall_minutes, low=0, above=True, optional=True)
-    env_kwargs = env_kwargs_from_args(args)
+def ppo_kwargs_from_args(args: argparse.Namespace) -> dict[str, Any]:
+    """The PPO flags as SB3's keywords (both engines read and check them through this)."""
     ppo_kwargs = {
         "n_steps": args.n_steps,
         "batch_size": args.batch_size,
@@ -314,6 +313,13 @@ def run(args: argparse.Namespace) -> int:
     }
     if args.sde:
         ppo_kwargs["use_sde"] = True
+    return ppo_kwargs
+
+
+def run(args: argparse.Namespace) -> int:
+    check_number("--max-wall-minutes", args.max_wall_minutes, low=0, above=True, optional=True)
+    env_kwargs = env_kwargs_from_args(args)
+    ppo_kwargs = ppo_kwargs_from_args(args)
     warm = None
     if args.warm_start is not None:
         warm = {
