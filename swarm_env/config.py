@@ -372,8 +372,8 @@ class SwarmConfig:
         for name, kind in _sub_config_types().items():  # before any of them is read
             if not isinstance(getattr(self, name), kind):
                 raise ValueError(
-                    f"{name} must be a {kind.__name__} or a dict of its fields, "
-                    f"got {getattr(self, name)!r}"
+                    f"{name} must be a {kind.__name__} (as an override, a dict of its "
+                    f"fields also), got {getattr(self, name)!r}"
                 )
         check_number_fields(self)
         check_int_range("n_robots", self.n_robots, 1, MAX_ROBOTS)

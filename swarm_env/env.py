@@ -342,7 +342,7 @@ class SwarmEnv(ParallelEnv):
             raise RuntimeError("step() called after close()")
         if not self.agents:
             raise RuntimeError(
-                "step() called before reset()"
+                "step() called before a successful reset()"
                 if self._last_step is None
                 else "step() called on a finished episode: call reset() first"
             )

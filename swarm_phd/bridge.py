@@ -238,7 +238,7 @@ def _run(args: argparse.Namespace) -> int:
 
     inputs.seed("--seed", args.seed)
     if args.record:
-        inputs.new_dir("--record", args.record)
+        inputs.new_bag_dir("--record", args.record)
     robots = [r.strip() for r in args.robots.split(",") if r.strip()] if args.robots else None
     env_kwargs, not_applied = bridge_env_kwargs(args, robots)
     preset, steps = env_kwargs.pop("preset"), env_kwargs.pop("max_steps")

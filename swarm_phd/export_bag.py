@@ -32,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
     period = inputs.control_period_s(args.preset)  # an unknown preset is refused here too
     inputs.duration("--duration", args.duration, period)
     inputs.seed("--seed", args.seed)
-    inputs.new_dir("--out", args.out)
+    inputs.new_bag_dir("--out", args.out)
     summary = export_sim_episode(
         args.out, preset=args.preset, duration_s=args.duration, seed=args.seed
     )

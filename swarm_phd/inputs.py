@@ -170,8 +170,9 @@ def add_overwrite_argument(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--overwrite",
         action="store_true",
-        help="train into an --out that holds a previous run, replacing its files (default: "
-        "refuse, so that a rerun never replaces a finished run)",
+        help="train into an --out that holds a previous run anyway: the files the new run "
+        "writes replace the old ones, and the others (older checkpoints, tensorboard runs) "
+        "stay (default: refuse, so that a rerun never replaces a finished run)",
     )
 
 
@@ -185,12 +186,12 @@ def run_dir(flag: str, path: str | Path, *, overwrite: bool) -> Path:
         shown = ", ".join(held[:4]) + (", ..." if len(held) > 4 else "")
         raise ValueError(
             f"{flag} {str(path)!r} holds a previous run ({shown}): choose a new directory, "
-            "or pass --overwrite to replace its files"
+            "or pass --overwrite to train into it anyway"
         )
     return p
 
 
-def new_dir(flag: str, path: str | Path) -> Path:
+def new_bag_dir(flag: str, path: str | Path) -> Path:
     """A directory the command creates (a bag): refused if it exists, or cannot be made."""
     p = Path(path)
     if _exists(p):

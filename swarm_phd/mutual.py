@@ -327,8 +327,7 @@ def run_episode(
         "wander": 60.0,
     }
     duration_s = defaults[scenario] if duration_s is None else float(duration_s)
-    if not (math.isfinite(duration_s) and duration_s > 0):
-        raise ValueError(f"duration must be > 0 s, got {duration_s!r}")
+    inputs.duration("--duration", duration_s)
     overrides: dict[str, Any] = {
         "comms": {"enabled": True, "loss_probability": loss, "latency_s": latency_s},
         "observation": "truth",
@@ -356,6 +355,9 @@ def run_episode(
             overrides["lidar"] = {"range_max_m": 4.095}
     env = SwarmEnv(preset or "lab-3m-4", **overrides)
     dt = env.config.control_period_s
+    if duration_s < dt:  # not one step to run
+        env.close()
+        inputs.duration("--duration", duration_s, dt)
     ids = tuple(env.possible_agents)
     observers = ids if observer is None else (observer,)
     if observer is not None and observer not in ids:

@@ -146,8 +146,7 @@ def run_episode(
 
     if isinstance(n_robots, bool) or not isinstance(n_robots, int) or n_robots < 2:
         raise ValueError(f"n_robots must be an integer >= 2, got {n_robots!r}")
-    if not (math.isfinite(duration_s) and duration_s > 0):
-        raise ValueError(f"duration must be > 0 s, got {duration_s!r}")
+    inputs.duration("--duration", duration_s)
     if not (math.isfinite(init_s) and 0 < init_s < duration_s):
         raise ValueError(f"init_s must be in (0, duration), got {init_s!r}")
     if not (math.isfinite(speed_mps) and speed_mps > 0):
@@ -168,6 +167,9 @@ def run_episode(
         max_steps=int(round(duration_s / 0.01)) + 10,  # any control period >= 10 ms
     )
     dt = env.config.control_period_s
+    if duration_s < dt:  # not one step to run
+        env.close()
+        inputs.duration("--duration", duration_s, dt)
     ids = tuple(env.possible_agents)
     # Turn rate capped at the seed's "typical rotation" (0.02 rad per 1/30 s, i.e. 0.6 rad/s).
     policy = WanderPolicy(

@@ -103,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
         if path:
             inputs.output_file(flag, path)
     if args.record:
-        inputs.new_dir("--record", args.record)
+        inputs.new_bag_dir("--record", args.record)
     if args.loss is not None:
         comms["loss_probability"] = args.loss
     if args.latency is not None:
@@ -143,15 +143,13 @@ def run_episode(
 ) -> dict[str, Any]:
     """One episode; returns per-step error traces ``(T, n)`` and the camera statistics.
     ``loopback``: over the bridge against a loopback server (module docstring)."""
+    from swarm_env.config import make_config
     from swarm_env.uav import SupervisedSwarmEnv, UAVConfig
 
-    if not (math.isfinite(duration_s) and duration_s > 0):
-        raise ValueError(f"duration_s must be a finite number > 0, got {duration_s!r}")
+    inputs.duration("--duration", duration_s, make_config(preset).control_period_s)
     if uav_control not in UAV_CONTROLS:
         raise ValueError(f"uav_control must be one of {UAV_CONTROLS}, got {uav_control!r}")
     uav = UAVConfig() if altitude_m is None else UAVConfig(start_altitude_m=altitude_m)
-    from swarm_env.config import make_config
-
     n_steps = int(round(duration_s / make_config(preset).control_period_s))
     # The radio is what the UAV identifies the UGVs by: on for any preset.
     overrides: dict[str, Any] = {"comms": {"enabled": True, **(comms or {})}}

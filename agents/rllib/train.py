@@ -78,20 +78,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from agents.sb3.train import (
-        MAX_SEED,
-        check_ppo_kwargs,
-        env_kwargs_from_args,
-        ppo_kwargs_from_args,
-    )
+    from agents.sb3.train import check_ppo_kwargs, env_kwargs_from_args, ppo_kwargs_from_args
     from swarm_phd.inputs import check_number
 
     # The shared flags, checked by the SB3 engine's rules before they are renamed for RLlib.
     check_ppo_kwargs(ppo_kwargs_from_args(args))
-    check_number("--timesteps", args.timesteps, integer=True, low=1)
-    check_number("--seed", args.seed, integer=True, low=0, high=MAX_SEED)
-    check_number("--checkpoint-every", args.checkpoint_every, integer=True, low=1)
-    check_number("--torch-threads", args.torch_threads, integer=True, low=1)
     check_number("--max-wall-minutes", args.max_wall_minutes, low=0, above=True, optional=True)
     check_number("--num-env-runners", args.num_env_runners, integer=True, low=0)
     check_number("--envs-per-runner", args.envs_per_runner, integer=True, low=1)
@@ -106,6 +97,9 @@ def run(args: argparse.Namespace) -> int:
         "--critic-state": getattr(args, "critic_state", False),
         "--critic-warmup": bool(getattr(args, "critic_warmup", 0)),
         "--recurrent": getattr(args, "recurrent", False),
+        # SB3's ratio clip and KL early stop have no like-for-like RLlib setting here.
+        "--clip-range": getattr(args, "clip_range", 0.2) != 0.2,
+        "--target-kl": getattr(args, "target_kl", None) is not None,
     }
     given = [flag for flag, on in sb3_only.items() if on]
     if given:
@@ -250,8 +244,9 @@ def _train(
     max_wall_s: float | None = None,
 ) -> tuple[Path, str | None]:
     """Train; return the final checkpoint directory and the signal that stopped it (or None)."""
-    if timesteps <= 0:
-        raise ValueError(f"--timesteps must be > 0, got {timesteps}")
+    from agents.sb3.train import check_run_flags
+
+    check_run_flags(timesteps, seed, checkpoint_every, torch_threads, max_wall_s)
     try:
         import ray  # noqa: F401
         import torch
@@ -263,13 +258,13 @@ def _train(
     from swarm_env import parallel_env
     from swarm_phd import progress
 
+    inputs.run_dir("--out", out, overwrite=overwrite)
     probe = parallel_env(**env_kwargs)  # bad task / config keys fail here, before Ray starts
     n_agents = len(probe.possible_agents)
     probe.close()
-    inputs.run_dir("--out", out, overwrite=overwrite)
     # Compile the kernels here, once, before any runner starts: the runners load the cache.
     prewarm_kernels()
-    torch.set_num_threads(max(1, torch_threads))  # the learner runs in this process
+    torch.set_num_threads(torch_threads)  # the learner runs in this process
 
     config = build_config(
         env_kwargs,
@@ -322,7 +317,7 @@ def _train(
         with Interrupts() as interrupts:
             try:
                 algo = config.build_algo()
-                next_ckpt = max(1, checkpoint_every)
+                next_ckpt = checkpoint_every
                 while agent_steps < timesteps:
                     result = algo.train()
                     sampled = result["env_runners"]
@@ -348,7 +343,7 @@ def _train(
                     if agent_steps >= next_ckpt:
                         step_dir = out / "checkpoints" / f"step_{agent_steps}"
                         algo.save_to_path(str(step_dir.resolve()))
-                        next_ckpt = agent_steps + max(1, checkpoint_every)
+                        next_ckpt = agent_steps + checkpoint_every
                     if max_wall_s is not None and time.perf_counter() - start > max_wall_s:
                         print(f"stopping: wall-time budget of {max_wall_s:.0f} s reached")
                         break

@@ -329,7 +329,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from agents.sb3.distill_fit import DEFAULT_PHASES
     from agents.sb3.history_fit import parse_phases
-    from swarm_phd.sweep import parse_json_object, parse_seeds
+    from swarm_phd.inputs import parse_json_object, parse_seeds
 
     parser = argparse.ArgumentParser(
         prog="python -m agents.sb3.recurrent_ppo",
@@ -423,6 +423,10 @@ def main(argv: list[str] | None = None) -> int:
     if overlap:
         parser.error(f"--val-seeds share seeds with the training episodes: {overlap}")
     phases = parse_phases(parser, args.phases)
+    try:  # before any env is built
+        inputs.run_dir("--out", args.out, overwrite=args.overwrite)
+    except ValueError as err:
+        parser.error(str(err))
     return _train(parser, args, meta, reward_params, val_seeds, phases)
 
 
@@ -528,10 +532,7 @@ def _train(parser, args, meta, reward_params, val_seeds, phases) -> int:
             f"--task-params {json.dumps(reward_params)} changes what the student observes (its "
             "task's features or the observation's size); only the reward's terms may change"
         )
-    try:
-        out = inputs.run_dir("--out", args.out, overwrite=args.overwrite)
-    except ValueError as err:
-        parser.error(str(err))
+    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     log_std = torch.nn.Parameter(torch.full((2,), float(args.log_std)))
     critic = new_critic(space, vec.critic_dims)

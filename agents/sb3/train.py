@@ -1,8 +1,10 @@
 """``swarm-phd train``: PPO with parameter sharing (one policy for every agent) on a SwarmEnv task.
 
-``python -m agents.sb3.train ARGS`` is the same command. Bad input (a flag out of its range, a
-NaN) is refused before any env is built or anything is written under ``--out``: one line naming
-the flag and the value, exit code 2 (from Python, :func:`train` raises ``ValueError``).
+``python -m agents.sb3.train ARGS`` is the same command. Bad input is refused before anything
+is written under ``--out``: a flag out of its range (a NaN) and an ``--out`` holding a previous
+run (without ``--overwrite``) before any env is built; the env's own settings by one probe env.
+One line naming the flag and the value, exit code 2 (from Python, :func:`train` raises
+``ValueError``).
 
 Writes, under ``--out``::
 
@@ -39,8 +41,7 @@ from agents.interrupts import Interrupts, set_signal, signal_interrupt
 from agents.sb3.policy import save_model
 from swarm_core.atomic_files import write_json_atomically
 from swarm_phd import inputs
-from swarm_phd.inputs import check_number
-from swarm_phd.sweep import parse_json_object
+from swarm_phd.inputs import check_number, parse_json_object
 
 DEFAULT_PRESET = "sim-6m-20"
 #: Exit codes of an interrupted run (the shell's 128 + signal number).
@@ -299,8 +300,20 @@ def env_kwargs_from_args(args: argparse.Namespace) -> dict[str, Any]:
     return kwargs
 
 
+def check_run_flags(
+    timesteps: Any, seed: Any, checkpoint_every: Any, torch_threads: Any, max_wall_s: Any
+) -> None:
+    """The run's own numbers, the same for both engines (``ValueError`` naming the flag)."""
+    check_number("--timesteps", timesteps, integer=True, low=1)
+    check_number("--seed", seed, integer=True, low=0, high=MAX_SEED)
+    check_number("--checkpoint-every", checkpoint_every, integer=True, low=1)
+    check_number("--torch-threads", torch_threads, integer=True, low=1)
+    check_number("max_wall_s", max_wall_s, low=0, above=True, optional=True)
+
+
 def ppo_kwargs_from_args(args: argparse.Namespace) -> dict[str, Any]:
-    """The PPO flags as SB3's keywords (both engines read and check them through this)."""
+    """The PPO flags as SB3's keywords: what the SB3 engine trains on, and what both engines
+    check (:func:`check_ppo_kwargs`) before the RLlib engine renames its share of them."""
     ppo_kwargs = {
         "n_steps": args.n_steps,
         "batch_size": args.batch_size,
@@ -468,13 +481,9 @@ def _train(
     # a refused run leaves a previous run's files there as they were.
     out = Path(out)
     inputs.output_dir("--out", out)
-    check_number("--timesteps", timesteps, integer=True, low=1)
-    check_number("--seed", seed, integer=True, low=0, high=MAX_SEED)
+    check_run_flags(timesteps, seed, checkpoint_every, torch_threads, max_wall_s)
     check_number("--n-copies", n_copies, integer=True, low=1)
     check_number("--num-cpus", num_cpus, integer=True, low=0)
-    check_number("--checkpoint-every", checkpoint_every, integer=True, low=1)
-    check_number("--torch-threads", torch_threads, integer=True, low=1)
-    check_number("max_wall_s", max_wall_s, low=0, above=True, optional=True)
     check_number("--critic-warmup", critic_warmup, integer=True, low=0)
     check_ppo_kwargs(ppo_kwargs or {})
     ppo = {
@@ -572,6 +581,8 @@ def _train(
 
     from swarm_env import parallel_env
 
+    # After the flags' own checks (their errors come first), before any env is built.
+    inputs.run_dir("--out", out, overwrite=overwrite)
     # Build one env first: bad task / config keys fail here with the env's own message.
     probe = parallel_env(**env_kwargs)
     n_agents = len(probe.possible_agents)
@@ -589,7 +600,6 @@ def _train(
             "rollout of one transition: PPO needs at least 2 (SB3 normalises the advantages)"
         )
 
-    inputs.run_dir("--out", out, overwrite=overwrite)  # last: the flags' own errors come first
     torch.set_num_threads(torch_threads)
     out.mkdir(parents=True, exist_ok=True)
     (out / "checkpoints").mkdir(exist_ok=True)

@@ -178,18 +178,22 @@ def test_engine_option_dispatches_to_the_chosen_engine(monkeypatch):
         (["--envs-per-runner", "0"], "--envs-per-runner"),
         (["--num-env-runners", "-1"], "--num-env-runners"),
         (["--max-wall-minutes", "-5"], "--max-wall-minutes"),
+        (["--timesteps", "0"], "--timesteps"),
+        (["--clip-range", "0.1"], "--clip-range"),
+        (["--target-kl", "0.02"], "--target-kl"),
     ],
 )
 def test_rllib_engine_refuses_bad_flags_before_ray_starts(monkeypatch, tmp_path, extra, named):
     """The SB3 engine's rules for the shared flags, and the engine's own counts: refused in
     one line (the CLI's exit 2) before an env is built or Ray starts."""
+    import swarm_env
     from agents.rllib import engine
     from agents.rllib import train as rl_train
 
     def started(*args, **kwargs):
-        raise AssertionError("training started before the input was checked")
+        raise AssertionError("an env was built before the input was checked")
 
-    monkeypatch.setattr(rl_train, "_train", started)
+    monkeypatch.setattr(swarm_env, "parallel_env", started)
     parser = argparse.ArgumentParser()
     engine.add_arguments(parser)
     args = parser.parse_args(

@@ -141,7 +141,8 @@ def test_env_refusals_also_leave_the_previous_run(previous_run, capsys):
         (["--max-steps", "0"], "max_steps"),
         (["--n-robots", "1", "--n-copies", "1", "--n-steps", "1"], "--n-steps 1"),
     ):
-        assert main([*BASE, "--out", str(previous_run), *extra]) == 2
+        # --overwrite: past the --out check, which comes before the probe env
+        assert main([*BASE, "--out", str(previous_run), "--overwrite", *extra]) == 2
         err = capsys.readouterr().err
         assert named in err and "Traceback" not in err, err
         assert_untouched(previous_run)

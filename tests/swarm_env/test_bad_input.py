@@ -176,7 +176,9 @@ def test_a_sub_config_of_the_wrong_type_is_refused_naming_it(group, bad):
     silently in place of the preset's."""
     from swarm_env.config import make_config
 
-    with pytest.raises(ValueError, match=rf"^{group} must be a \w+Config or a dict.*{bad!r}"):
+    with pytest.raises(
+        ValueError, match=rf"^{group} must be a \w+Config \(as an override.*{bad!r}"
+    ):
         make_config("lab-3m-4", **{group: bad})
 
 
@@ -239,11 +241,11 @@ def test_a_failed_reset_leaves_an_env_that_refuses_to_step():
     with pytest.raises(ValueError, match="could not place.*arena.n_decoy_posts"):
         e.reset(seed=0)
     assert e.agents == []
-    with pytest.raises(RuntimeError, match=r"step\(\) called before reset\(\)"):
+    with pytest.raises(RuntimeError, match=r"step\(\) called before a successful reset\(\)"):
         e.step({a: np.zeros(2) for a in e.possible_agents})
 
 
 def test_step_before_any_reset_says_so():
     e = parallel_env("lab-3m-4")
-    with pytest.raises(RuntimeError, match=r"before reset\(\)"):
+    with pytest.raises(RuntimeError, match=r"before a successful reset\(\)"):
         e.step({a: np.zeros(2) for a in e.possible_agents})
