@@ -19,11 +19,14 @@ from __future__ import annotations
 import importlib
 import os
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 
 #: Packages whose kernels the env runs (searched among the modules already imported).
 PACKAGES = ("swarm_core", "swarm_env", "localization")
 _noted = False
+#: What the first env of the process does in place of the note (the CLI's compile with a bar).
+_first_use_action: Callable[[], object] | None = None
 
 
 @dataclass(frozen=True)
@@ -106,12 +109,26 @@ def mark_noted() -> None:
     _noted = True
 
 
-def first_use_note(stream=None) -> bool:
-    """Print, once per process and only if some kernel must compile, a one-line note saying so.
+def set_first_use_action(action: Callable[[], object] | None) -> None:
+    """Run ``action`` (once) where the first env of this process would print its note: the CLI
+    compiles there, after the command has checked its input, so a bad flag is refused at once
+    even when every kernel must compile first. ``None`` restores the note."""
+    global _first_use_action
+    _first_use_action = action
 
-    Returns whether it printed. ``SWARM_PHD_QUIET=1`` silences it.
+
+def first_use_note(stream=None) -> bool:
+    """Print, once per process and only if some kernel must compile, a one-line note saying so
+    (or run the action of :func:`set_first_use_action` instead, once).
+
+    Returns whether it printed (or acted). ``SWARM_PHD_QUIET=1`` silences the note.
     """
-    global _noted
+    global _noted, _first_use_action
+    if not _noted and _first_use_action is not None:
+        _noted = True  # the action builds envs of its own: they must not act again
+        action, _first_use_action = _first_use_action, None
+        action()
+        return True
     if _noted or os.environ.get("SWARM_PHD_QUIET", "") not in ("", "0"):
         return False
     _noted = True

@@ -233,15 +233,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     from swarm_phd import progress
 
     progress.set_quiet(args.quiet)
-    if args.quiet:
-        from swarm_env import kernel_cache
+    from swarm_env import kernel_cache
 
+    if args.command in COMPILING_COMMANDS:
+        from swarm_phd.warmup import warm_if_cold
+
+        # At the command's first env, after it has checked its input (a bad flag is refused
+        # at once), with the compile's own message and bar before the command's output.
+        kernel_cache.set_first_use_action(warm_if_cold)
+    elif args.quiet:
         kernel_cache.mark_noted()
     try:
-        if args.command in COMPILING_COMMANDS:
-            from swarm_phd.warmup import warm_if_cold
-
-            warm_if_cold()  # the compile gets its message and bar before the command's own
         return int(importlib.import_module(args._module).run(args) or 0)
     except ValueError as exc:  # bad input: a clear message, no traceback
         print(f"swarm-phd {args.command}: error: {exc}", file=sys.stderr)
@@ -257,6 +259,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise signal_exc from None
     finally:
         progress.set_quiet(False)
+        kernel_cache.set_first_use_action(None)
 
 
 if __name__ == "__main__":

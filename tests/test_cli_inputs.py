@@ -279,3 +279,19 @@ def test_the_process_prints_one_line_and_no_traceback():
         "swarm-phd evaluate: error: --duration must be a finite number > 0, got inf"
     )
     assert "Traceback" not in proc.stderr
+
+
+def test_the_kernels_compile_at_the_first_env_after_the_input_is_checked(monkeypatch, capsys):
+    """On a cold cache the CLI compiled every kernel (about a minute) before the command read
+    its flags. It now does so at the command's first env: a bad flag is refused with no
+    compile, and a good command compiles once, before its episode."""
+    from swarm_env import kernel_cache
+
+    calls = []
+    monkeypatch.setattr("swarm_phd.warmup.warm_if_cold", lambda: calls.append(1) or True)
+    monkeypatch.setattr(kernel_cache, "_noted", False)  # as in a fresh process
+    _refused(capsys, ["evaluate", *TINY, "--duration", "nan"], "--duration", "nan")
+    assert calls == []
+    code = main(["evaluate", *TINY, "--duration", "0.2", "--seeds", "0", "--quiet"])
+    assert code == 0 and calls == [1]
+    assert kernel_cache._first_use_action is None  # cleared for what runs after the command
