@@ -73,6 +73,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     seeds = parse_seeds(str(args.seeds))
     inputs.duration("--duration", args.duration)
+    inputs.integer("--n-robots", args.n_robots, minimum=2)
+    inputs.check_number("--arena-m", args.arena_m, low=0, above=True)
+    inputs.check_number("--init-s", args.init_s, low=0, high=args.duration, above=True)
+    if args.init_s == args.duration:  # the run would end standing still: nothing to score
+        raise ValueError(f"--init-s must be below --duration ({args.duration}), got {args.init_s}")
+    inputs.check_number("--speed", args.speed, low=0, above=True)
     if args.out:
         inputs.output_dir("--out", args.out)
     ir_params = parse_json_object(args.ir_params, "--ir-params")

@@ -99,6 +99,10 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("--record needs --loopback (a simulated episode has no bridge)")
     inputs.duration("--duration", args.duration)
     check_non_negative("--hold-s", args.hold_s)
+    inputs.check_number("--altitude", args.altitude, low=0, above=True, optional=True)
+    inputs.check_number("--loss", args.loss, low=0, high=1, optional=True)
+    inputs.check_number("--latency", args.latency, low=0, optional=True)
+    inputs.check_number("--filter-lag", args.filter_lag, low=0, optional=True)
     for flag, path in (("--json", args.json), ("--figure", args.figure)):
         if path:
             inputs.output_file(flag, path)

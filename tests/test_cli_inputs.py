@@ -295,3 +295,23 @@ def test_the_kernels_compile_at_the_first_env_after_the_input_is_checked(monkeyp
     code = main(["evaluate", *TINY, "--duration", "0.2", "--seeds", "0", "--quiet"])
     assert code == 0 and calls == [1]
     assert kernel_cache._first_use_action is None  # cleared for what runs after the command
+
+
+@pytest.mark.parametrize(
+    ("argv", "flag", "value"),
+    [
+        (["uav", "--altitude", "-1"], "--altitude", "-1"),
+        (["uav", "--altitude", "nan"], "--altitude", "nan"),
+        (["uav", "--loss", "1.5"], "--loss", "1.5"),
+        (["uav", "--latency", "-0.1"], "--latency", "-0.1"),
+        (["uav", "--filter-lag", "inf"], "--filter-lag", "inf"),
+        (["seed003", "--n-robots", "1"], "--n-robots", "1"),
+        (["seed003", "--arena-m", "0"], "--arena-m", "0"),
+        (["seed003", "--init-s", "0"], "--init-s", "0"),
+        (["seed003", "--duration", "10", "--init-s", "10"], "--init-s", "10"),
+        (["seed003", "--speed", "-0.05"], "--speed", "-0.05"),
+    ],
+)
+def test_the_seed_studies_name_their_own_flags(argv, flag, value, no_work, capsys):
+    """Refused by the command with the flag's name, not deep in a config by a field's."""
+    _refused(capsys, argv, flag, value)
