@@ -31,12 +31,7 @@ COMPARED = (("lidar only", "phd-lo"), ("lidar + camera", "phd-lc"))
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--preset", default="sim-6m-20")
-    parser.add_argument(
-        "--duration",
-        type=float,
-        default=60.0,
-        help="simulated seconds (at least one control period)",
-    )
+    inputs.add_duration_argument(parser, 60.0)
     parser.add_argument("--seed", type=int, default=0, help="random seed (>= 0)")
     parser.add_argument("--out", default="runs/demo", help="output directory")
     parser.add_argument(

@@ -70,12 +70,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--preset", default=None, help="default: the model's preset for a model.zip, else seed-sim"
     )
-    parser.add_argument(
-        "--duration",
-        type=float,
-        default=300.0,
-        help="simulated seconds (at least one control period)",
-    )
+    inputs.add_duration_argument(parser, 300.0)
     parser.add_argument(
         "--localizer",
         default="phd-lc,phd-lo",
@@ -333,10 +328,7 @@ def evaluate_localization(
     if radio and not env.config.comms.enabled:
         env.close()
         raise ValueError(f"localizers {radio} need the radio: comms.enabled is False")
-    if duration_s < env.config.control_period_s:  # not one step to score
-        env.close()
-        inputs.duration("--duration", duration_s, env.config.control_period_s)
-    n_steps = int(round(duration_s / env.config.control_period_s))
+    n_steps = inputs.steps_in(env, "--duration", duration_s)
     base_phd = env.config.phd
     n_agents = len(env.possible_agents)
     range_m = env.config.localization_range_m

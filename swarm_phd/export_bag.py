@@ -18,12 +18,7 @@ from swarm_phd import inputs, progress
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, help="new bag directory (must not exist)")
-    parser.add_argument(
-        "--duration",
-        type=float,
-        default=10.0,
-        help="simulated seconds (at least one control period)",
-    )
+    inputs.add_duration_argument(parser, 10.0)
     parser.add_argument("--preset", default="seed-lab")
     parser.add_argument("--seed", type=int, default=0, help="random seed (>= 0)")
 

@@ -20,7 +20,7 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-from swarm_core.validation import check_positive
+from swarm_core.validation import check_positive, is_real
 
 
 def check_number(
@@ -41,11 +41,10 @@ def check_number(
     if (optional and value is None) or (schedule and callable(value)):
         return
     if integer:
-        ok = isinstance(value, numbers.Integral) and not isinstance(value, bool)
+        ok = is_real(value) and isinstance(value, numbers.Integral)
         kind = "an integer"
     else:
-        ok = isinstance(value, numbers.Real) and not isinstance(value, bool)
-        ok = ok and math.isfinite(value)
+        ok = is_real(value) and math.isfinite(value)
         kind = "a finite number"
     ok = ok and (low is None or value > low or (value == low and not above))
     ok = ok and (high is None or value <= high)
@@ -80,6 +79,28 @@ def duration(flag: str, value: Any, control_period_s: float | None = None) -> fl
             f"{flag} must be at least one control period ({control_period_s:g} s), got {value!r}"
         )
     return value
+
+
+def steps_in(env: Any, flag: str, duration_s: float) -> int:
+    """The control steps ``duration_s`` makes in a built ``env``: refused (``env`` closed first)
+    when that is not one step, for a command that learns the period only from its env."""
+    period = env.config.control_period_s
+    if duration_s < period:
+        env.close()
+        duration(flag, duration_s, period)
+    return int(round(duration_s / period))
+
+
+def add_duration_argument(
+    parser: argparse.ArgumentParser, default: float, what: str = "simulated seconds"
+) -> None:
+    """``--duration`` (s) as every command takes it; :func:`duration` checks it."""
+    parser.add_argument(
+        "--duration",
+        type=float,
+        default=default,
+        help=f"{what} (at least one control period)",
+    )
 
 
 def control_period_s(preset: str, **overrides: Any) -> float:

@@ -355,9 +355,7 @@ def run_episode(
             overrides["lidar"] = {"range_max_m": 4.095}
     env = SwarmEnv(preset or "lab-3m-4", **overrides)
     dt = env.config.control_period_s
-    if duration_s < dt:  # not one step to run
-        env.close()
-        inputs.duration("--duration", duration_s, dt)
+    n_steps = inputs.steps_in(env, "--duration", duration_s)
     ids = tuple(env.possible_agents)
     observers = ids if observer is None else (observer,)
     if observer is not None and observer not in ids:
@@ -382,7 +380,6 @@ def run_episode(
         _place(env, np.column_stack([robots_xy, rng.uniform(-np.pi, np.pi, 4)]))
     elif scenario == "partial":
         _place(env, np.column_stack([PARTIAL_START_XY, rng.uniform(-0.3, 0.3, 4)]))
-    n_steps = int(round(duration_s / dt))
     kidnap_step = n_steps // 2 if scenario == "kidnap" else -1
     # Circle of ugv_3 (square): starts at 5 s, one full turn of radius 0.3 m at speed_mps.
     circle_r = 0.3

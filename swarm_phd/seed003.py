@@ -173,9 +173,7 @@ def run_episode(
         max_steps=int(round(duration_s / 0.01)) + 10,  # any control period >= 10 ms
     )
     dt = env.config.control_period_s
-    if duration_s < dt:  # not one step to run
-        env.close()
-        inputs.duration("--duration", duration_s, dt)
+    n_steps = inputs.steps_in(env, "--duration", duration_s)
     ids = tuple(env.possible_agents)
     # Turn rate capped at the seed's "typical rotation" (0.02 rad per 1/30 s, i.e. 0.6 rad/s).
     policy = WanderPolicy(
@@ -194,7 +192,6 @@ def run_episode(
     init: dict[str, Any] = {}
     direct_prev: np.ndarray | None = None
     next_direct_s = init_s + sensor.config.period_s
-    n_steps = int(round(duration_s / dt))
     for k in range(n_steps):
         t_now = (k + 1) * dt
         moving = t_now > init_s

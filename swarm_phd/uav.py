@@ -38,7 +38,6 @@ from typing import Any
 
 import numpy as np
 
-from swarm_core.validation import check_non_negative
 from swarm_phd import inputs
 from swarm_phd.inputs import parse_seeds
 
@@ -98,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
     if args.record and not args.loopback:
         raise ValueError("--record needs --loopback (a simulated episode has no bridge)")
     inputs.duration("--duration", args.duration)
-    check_non_negative("--hold-s", args.hold_s)
+    inputs.check_number("--hold-s", args.hold_s, low=0)
     inputs.check_number("--altitude", args.altitude, low=0, above=True, optional=True)
     inputs.check_number("--loss", args.loss, low=0, high=1, optional=True)
     inputs.check_number("--latency", args.latency, low=0, optional=True)
