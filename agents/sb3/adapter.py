@@ -24,6 +24,7 @@ at deployment (see :mod:`agents.sb3.policy`).
 
 from __future__ import annotations
 
+import os
 import warnings
 from typing import Any
 
@@ -95,7 +96,7 @@ def make_vec_env(
     """A SB3 VecEnv with ``n_copies * n_robots`` entries, wrapped in ``VecMonitor``.
 
     ``num_cpus`` > 0 steps the copies in that many worker processes (SuperSuit's
-    ``ProcConcatVec``); 0 keeps everything in this process.
+    ``ProcConcatVec``), each with one kernel thread; 0 keeps everything in this process.
     """
     import supersuit as ss
     from stable_baselines3.common.vec_env import VecMonitor
@@ -104,7 +105,10 @@ def make_vec_env(
 
     env = TrainingWrapper(parallel_env(**env_kwargs))
     vec = ss.pettingzoo_env_to_vec_env_v1(env)
-    vec = ss.concat_vec_envs_v1(vec, n_copies, num_cpus=num_cpus, base_class="gymnasium")
+    if num_cpus > 0:
+        vec = _worker_processes_vec_env(vec, n_copies, num_cpus)
+    else:
+        vec = ss.concat_vec_envs_v1(vec, n_copies, num_cpus=0, base_class="gymnasium")
     with warnings.catch_warnings():
         # SB3 asks every env for render_mode; SuperSuit's vector env answers None (we do not
         # render while training), which SB3 reports as "not defined".
@@ -112,6 +116,52 @@ def make_vec_env(
         vec = _SeededSB3Wrapper(vec)
         vec.seed(seed)
         return VecMonitor(vec, filename=monitor_file)
+
+
+def _worker_processes_vec_env(vec: Any, n_copies: int, num_cpus: int) -> Any:
+    """SuperSuit's ``concat_vec_envs_v1(vec, n_copies, num_cpus)``, except that its worker
+    processes are spawned and run their kernels on one thread each (:class:`CopyForWorker`)."""
+    import multiprocessing
+
+    from supersuit.vector import MakeCPUAsyncConstructor
+
+    constructor = MakeCPUAsyncConstructor(min(num_cpus, n_copies))
+    # SuperSuit forks its workers (the platform default). A process that has run the parallel
+    # kernels (any env step) cannot: GNU OpenMP is not fork-safe, and numba terminates a forked
+    # child at its first kernel. Spawn them, as LoopbackProcess does. SuperSuit and gymnasium
+    # create their pipes, shared arrays and locks from the default context, so the default
+    # start method is switched, only while the workers start.
+    previous = multiprocessing.get_start_method(allow_none=True)
+    multiprocessing.set_start_method("spawn", force=True)
+    try:
+        return constructor(
+            [CopyForWorker(vec)] * n_copies, vec.observation_space, vec.action_space
+        )
+    finally:
+        multiprocessing.set_start_method(previous, force=True)
+
+
+class CopyForWorker:
+    """Builds a copy of ``obj`` (pickled now). Called in any process but the one that made it
+    (a SuperSuit worker), it first sets one kernel thread: the workers share the cores between
+    them (issue 13: one env per core), where numba's default starts a full pool in each.
+    SuperSuit also builds one copy in the training process (to count its envs); that process's
+    threads are left alone."""
+
+    def __init__(self, obj: Any) -> None:
+        import cloudpickle
+
+        self.blob = cloudpickle.dumps(obj)
+        self.builder_pid = os.getpid()
+
+    def __call__(self) -> Any:
+        import cloudpickle
+
+        if os.getpid() != self.builder_pid:
+            from swarm_core.threads import set_kernel_threads
+
+            set_kernel_threads(1)
+        return cloudpickle.loads(self.blob)
 
 
 def _sb3_wrapper_class():

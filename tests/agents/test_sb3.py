@@ -169,3 +169,44 @@ def test_set_extractor_ignores_row_order_and_padding():
         b = extractor(torch.as_tensor(swapped[None]))
     torch.testing.assert_close(a, b)
     assert a.shape == (1, extractor.features_dim)
+
+
+def _threads_after_copy(make, queue) -> None:
+    """In a child process: build a copy, report the kernel threads then in use."""
+    import numba
+
+    make()
+    queue.put(numba.get_num_threads())
+
+
+def test_supersuit_workers_use_one_kernel_thread_and_the_trainer_keeps_its_own():
+    import multiprocessing
+
+    import numba
+
+    from agents.sb3.adapter import CopyForWorker
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("needs a kernel pool of 2 or more threads to tell 1 apart")
+    make = CopyForWorker({"a": 1})
+    before = numba.get_num_threads()
+    assert make() == {"a": 1}
+    assert numba.get_num_threads() == before  # the training process keeps its threads
+    ctx = multiprocessing.get_context("fork")  # SuperSuit's workers are forked on Linux
+    queue = ctx.Queue()
+    child = ctx.Process(target=_threads_after_copy, args=(make, queue))
+    child.start()
+    child.join(60)
+    assert queue.get(timeout=5) == 1
+
+
+def test_training_in_supersuit_worker_processes_saves_a_usable_model(tmp_path):
+    out = tmp_path / "procs"
+    args = ["train", "--preset", "lab-3m-4", "--task", "formation", "--observation", "phd"]
+    args += ["--vec", "supersuit", "--num-cpus", "2", "--n-copies", "2", "--timesteps", "512"]
+    args += ["--n-steps", "64", "--batch-size", "128", "--n-epochs", "1", "--max-steps", "50"]
+    assert main([*args, "--out", str(out), "--no-progress-bar"]) == 0
+    summary = json.loads((out / "train_summary.json").read_text())
+    assert summary["timesteps"] >= 512
+    actions = _actions(out / "model.zip", seed=3)
+    assert np.isfinite(actions).all() and np.abs(actions).max() > 0
