@@ -5,7 +5,10 @@ Every robot runs its own filter, for each requested localizer at once (``phd-lc`
 messages, ``ukf`` / ``pf``: the seed ``003`` / ``004`` baselines on identified range-bearing
 detections), fed with the same records, so the comparison is paired: same motion,
 same measurements. The motion comes from ``--policy`` (default ``scripted:wander``, the seed's
-pseudo-random motion with obstacle avoidance; or ``random``, or a trained ``model.zip``).
+pseudo-random motion with obstacle avoidance; or ``random``, another ``scripted:NAME``, a
+trained ``model.zip`` or a recurrent student ``.pt``). ``--compare Q,R`` runs further policies
+on the same env and seeds: side by side, then each one against ``--policy`` paired by seed
+(:func:`paired_by_seed`: mean difference, its standard error, seeds better, verdict at 2 SE).
 
 Metrics (:class:`localization.metrics.SeedScorer`; definitions in ``docs/localization.md``,
 "Metrics"), every robot being an observer, "in range" = within ``localization_range_m`` (the
@@ -44,7 +47,6 @@ from __future__ import annotations
 
 import argparse
 import copy
-import json
 import math
 import sys
 import time
@@ -68,7 +70,10 @@ SCENARIOS = ("study", "seed003")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--preset", default=None, help="default: the model's preset for a model.zip, else seed-sim"
+        "--preset",
+        default=None,
+        help="default: a trained policy's (model.zip, student .pt) own preset, else sim-6m-20 "
+        "(alias seed-sim: the seed's 6 m x 6 m arena with 20 UGVs)",
     )
     inputs.add_duration_argument(parser, 300.0)
     parser.add_argument(
@@ -80,10 +85,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--policy",
         default="scripted:wander",
-        help="'scripted:NAME', 'random' or a trained model.zip",
+        help="'scripted:NAME', 'privileged:NAME', 'random', a trained model.zip or a recurrent "
+        "student .pt",
     )
     parser.add_argument(
-        "--task", default=None, help="default: the model's task for a model.zip, else 'wander'"
+        "--task",
+        default=None,
+        help="default: the model's task for a model.zip or student .pt, else 'wander'",
     )
     parser.add_argument(
         "--task-params",
@@ -95,7 +103,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--compare",
         default=None,
         help="further policies (comma-separated) run on the same env and seeds, reported side "
-        "by side (e.g. --policy runs/X/model.zip --compare scripted:formation,scripted:wander)",
+        "by side, then each against --policy paired by seed (mean difference, SE, seeds "
+        "better, verdict at 2 SE; e.g. --policy runs/X/model.zip --compare "
+        "scripted:formation,scripted:wander)",
     )
     parser.add_argument("--out", default=None, help="write metrics.json and figures here")
     parser.add_argument(
@@ -177,9 +187,12 @@ def run(args: argparse.Namespace) -> int:
             print_table(other)
             compared.append(other)
         print_comparison(compared)
+        paired = paired_by_seed(compared)
+        print_paired(paired)
         if out_dir is not None:
-            (out_dir / "comparison.json").write_text(
-                json.dumps(comparison_rows(compared), indent=2)
+            write_json_atomically(
+                out_dir / "comparison.json",
+                {"side_by_side": comparison_rows(compared), "paired_by_seed": paired},
             )
     return 0
 
@@ -305,7 +318,8 @@ def evaluate_localization(
         the same at 3 m for camera localizers, + "per_seed": [{"seed", *PER_SEED_FIGURES,
         and with ``phases`` "pct_pair_steps_err_gt_30cm@<lo>-<hi>" per phase}] per finished
         seed, + with ``phases`` "by_phase": {that key: % over all seeds})},
-        "identity": {...} (identity-aware localizers), "task": {...}, "wall_time_s": ...}``
+        "identity": {...} (identity-aware localizers), "task": {...} (means over the seeds),
+        "task_per_seed": [{"seed", **task metrics}] per finished seed, "wall_time_s": ...}``
     """
     from agents.policies import load_policy
 
@@ -484,6 +498,9 @@ def evaluate_localization(
             else {}
         ),
         "task": _mean_dicts(task_metrics),
+        "task_per_seed": [
+            {"seed": seed, **m} for seed, m in zip(finished, task_metrics, strict=True)
+        ],
         "wall_time_s": time.perf_counter() - start,
     }
     env.close()
@@ -560,6 +577,122 @@ def print_comparison(all_results: list[dict[str, Any]]) -> None:
             for r in rows
         ]
         print(f"  | {key} | " + " | ".join(cells) + " |")
+
+
+#: The labels of :data:`PER_SEED_FIGURES` in the paired table (:func:`print_paired`): the
+#: side-by-side row each one is the per-seed version of, where there is one.
+PAIRED_FIGURE_LABELS = {
+    "pct_pair_steps_err_gt_30cm": "% of pair-steps err>30cm",
+    "pooled_per_observer_median_pct": "pooled per observer % err>30cm (median)",
+    "gospa_mean_m": "GOSPA",
+}
+
+
+def paired_by_seed(all_results: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Each further policy of ``all_results`` against the first (``--policy``, the
+    reference), paired by seed (:func:`agents.sb3.report.paired_difference`): the task's
+    metrics (``"task_per_seed"``; ``localizer`` None) and each localizer's per-seed figures
+    (``"per_seed"``). One row per (policy, localizer, metric): the seeds paired, the
+    per-seed differences ``policy - reference``, their mean, its standard error (None with
+    one seed), the seeds on which the policy is better (``better_is`` lower or higher) and the
+    verdict ("better by > 2 SE", "worse by > 2 SE", "within 2 SE", or that the SE needs 2
+    seeds). A seed on which either has no value (NaN: nothing in range) is left out of that
+    metric's pairs.
+
+    Raises ValueError, naming the policy, if its seeds are not the reference's in the same
+    order (e.g. an interrupted evaluation scored fewer).
+    """
+    from agents.sb3.report import higher_is_better, paired_difference
+
+    reference, *others = all_results
+    ref_policy = reference["config"]["policy"]
+    ref_tables = _per_seed_tables(reference)
+    rows: list[dict[str, Any]] = []
+    for res in others:
+        policy = res["config"]["policy"]
+        tables = _per_seed_tables(res)
+        for localizer, ref_table in ref_tables.items():
+            table = tables.get(localizer, [])
+            for what, got, want in (
+                ("seeds", res["config"]["seeds"], reference["config"]["seeds"]),
+                ("per-seed results", [d["seed"] for d in table], [d["seed"] for d in ref_table]),
+            ):
+                if list(got) != list(want):
+                    raise ValueError(
+                        f"--compare {policy}: {what} {list(got)}"
+                        + (f" ({localizer})" if localizer else "")
+                        + f", but the reference --policy {ref_policy} has {list(want)}: a "
+                        "paired comparison needs the same seeds in the same order"
+                    )
+            keys = [k for k in dict.fromkeys(k for d in ref_table for k in d) if k != "seed"]
+            for key in keys:
+                if not all(key in d for d in (*ref_table, *table)):
+                    continue  # a metric some seed has no value of (e.g. an empty episode)
+                pairs = [
+                    (d["seed"], d[key], r[key])
+                    for d, r in zip(table, ref_table, strict=True)
+                    if math.isfinite(d[key]) and math.isfinite(r[key])
+                ]
+                row: dict[str, Any] = {
+                    "policy": policy,
+                    "reference": ref_policy,
+                    "localizer": localizer,
+                    "metric": key,
+                    "better_is": "higher" if higher_is_better(key) else "lower",
+                    "seeds": [seed for seed, _, _ in pairs],
+                    "differences": [v - r for _, v, r in pairs],
+                }
+                if not pairs:
+                    row.update(
+                        mean_difference=None,
+                        standard_error=None,
+                        seeds_better=0,
+                        n_seeds=0,
+                        verdict="no seed scored by both",
+                    )
+                else:
+                    stat = paired_difference([v for _, v, _ in pairs], [r for *_, r in pairs], key)
+                    if not math.isfinite(stat["standard_error"]):
+                        stat["standard_error"] = None  # one seed: JSON null, not NaN
+                    if stat["verdict"] in ("better", "worse"):
+                        stat["verdict"] += " by > 2 SE"
+                    row.update(stat)
+                rows.append(row)
+    return rows
+
+
+def _per_seed_tables(results: dict[str, Any]) -> dict[str | None, list[dict[str, float]]]:
+    """What :func:`paired_by_seed` pairs: the task metrics per seed (key None), then each
+    localizer's per-seed figures."""
+    tables: dict[str | None, list[dict[str, float]]] = {None: results.get("task_per_seed", [])}
+    for name, m in results["localizers"].items():
+        tables[name] = m["per_seed"]
+    return tables
+
+
+def print_paired(rows: list[dict[str, Any]]) -> None:
+    """:func:`paired_by_seed` as a markdown table (nothing without rows)."""
+    if not rows:
+        return
+    higher = sorted({r["metric"] for r in rows if r["better_is"] == "higher"})
+    better = "lower" + (f"; higher for {', '.join(higher)}" if higher else "")
+    print(
+        f"  paired by seed, each policy − {rows[0]['reference']} (--policy): the mean "
+        "difference over the seeds, its standard error (ddof=1), the seeds on which the policy "
+        f"is better ({better}), and the verdict at 2 SE"
+    )
+    print("  | metric | policy − reference | mean difference | SE | seeds better | verdict |")
+    print("  |---|---|---|---|---|---|")
+    for r in rows:
+        label = r["metric"]
+        if r["localizer"] is not None:
+            label = f"{r['localizer']} {PAIRED_FIGURE_LABELS.get(label, label)}"
+        mean = "-" if r["mean_difference"] is None else f"{r['mean_difference']:+.3f}"
+        se = "-" if r["standard_error"] is None else f"{r['standard_error']:.3f}"
+        print(
+            f"  | {label} | {r['policy']} − {r['reference']} | {mean} | {se} | "
+            f"{r['seeds_better']} of {r['n_seeds']} | {r['verdict']} |"
+        )
 
 
 #: The seed's camera range (seed 000, sec. 4: "2 meters was considered as the lidar sensor

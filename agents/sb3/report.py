@@ -176,7 +176,8 @@ def paired_differences(
 
     Paired by seed, the spread that the layouts share cancels: on 20 formation seeds the
     per-policy std is ~0.06 m, the SE of a paired difference ~0.004 m. ``verdict`` is
-    ``"better"`` / ``"worse"`` beyond 2 SE, else ``"within 2 SE"``. The SE is over the held-out
+    ``"better"`` / ``"worse"`` beyond 2 SE, else ``"within 2 SE"`` (each pair's statistic:
+    :func:`paired_difference`). The SE is over the held-out
     seeds only: it judges these trained models, not the recipe (the runs' spread, the pooled
     row's "run means ±", is not in it). Every policy must have been scored on the same seeds.
     """
@@ -189,7 +190,6 @@ def paired_differences(
     def per_seed(specs: list[str]) -> np.ndarray:
         return np.mean([[d[metric] for d in policies[s]["per_seed"]] for s in specs], axis=0)
 
-    sign = 1.0 if higher_is_better(metric) else -1.0  # positive sign * diff = better
     # (contender, its specs, the references it is paired with, each with its specs): each
     # learned group against every baseline and every earlier group, and each pair of
     # baselines once (the later one against the earlier).
@@ -197,27 +197,56 @@ def paired_differences(
     singles = [(b, [b]) for b in baselines]
     pairs = [(name, specs, singles + learned[:j]) for j, (name, specs) in enumerate(learned)]
     pairs += [(b, [b], singles[:j]) for j, b in enumerate(baselines)]
-    rows = []
-    for name, specs, references in pairs:
-        for base, base_specs in references:
-            diff = per_seed(specs) - per_seed(base_specs)
-            n = len(diff)
-            se = float(diff.std(ddof=1) / np.sqrt(n)) if n > 1 else float("nan")
-            mean = float(diff.mean())
-            better = sign * mean > 2.0 * se  # False when se is nan (one seed)
-            worse = -sign * mean > 2.0 * se
-            rows.append(
-                {
-                    "policy": name,
-                    "baseline": base,
-                    "mean_difference": mean,
-                    "standard_error": se,
-                    "seeds_better": int((sign * diff > 0).sum()),
-                    "n_seeds": n,
-                    "verdict": "better" if better else "worse" if worse else "within 2 SE",
-                }
-            )
-    return rows
+    return [
+        {
+            "policy": name,
+            "baseline": base,
+            **paired_difference(per_seed(specs), per_seed(base_specs), metric),
+        }
+        for name, specs, references in pairs
+        for base, base_specs in references
+    ]
+
+
+#: :func:`paired_difference`'s verdict when there is no standard error (fewer than 2 seeds).
+NO_SE_VERDICT = "SE needs at least 2 seeds"
+
+
+def paired_difference(values: Any, reference: Any, metric: str) -> dict[str, Any]:
+    """One policy's per-seed ``values`` of ``metric`` against a ``reference``'s on the same
+    seeds, in the same order: the mean of the differences ``values - reference``, its standard
+    error (``std(ddof=1) / sqrt(n)``; NaN for one seed), on how many seeds the policy is better
+    (lower, or higher for :data:`HIGHER_IS_BETTER`; a tie is not), and ``verdict``:
+    ``"better"`` / ``"worse"`` beyond 2 SE, else ``"within 2 SE"`` (:data:`NO_SE_VERDICT`
+    with fewer than 2 seeds). The one paired statistic of :func:`paired_differences`,
+    ``agents.sb3.localization_table`` and ``swarm-phd evaluate --compare``."""
+    a = np.asarray(values, dtype=np.float64)
+    b = np.asarray(reference, dtype=np.float64)
+    if a.ndim != 1 or a.shape != b.shape or not len(a):
+        raise ValueError(
+            f"paired_difference needs one value per seed on the same seeds, got {a.shape} "
+            f"values and {b.shape} reference values of {metric}"
+        )
+    diff = a - b
+    n = len(diff)
+    sign = 1.0 if higher_is_better(metric) else -1.0  # positive sign * diff = better
+    se = float(diff.std(ddof=1) / np.sqrt(n)) if n > 1 else float("nan")
+    mean = float(diff.mean())
+    if n < 2:
+        verdict = NO_SE_VERDICT
+    elif sign * mean > 2.0 * se:
+        verdict = "better"
+    elif -sign * mean > 2.0 * se:
+        verdict = "worse"
+    else:
+        verdict = "within 2 SE"
+    return {
+        "mean_difference": mean,
+        "standard_error": se,
+        "seeds_better": int((sign * diff > 0).sum()),
+        "n_seeds": n,
+        "verdict": verdict,
+    }
 
 
 def paired_table(rows: list[dict[str, Any]], metric: str) -> str:
@@ -230,10 +259,15 @@ def paired_table(rows: list[dict[str, Any]], metric: str) -> str:
     for r in rows:
         lines.append(
             f"| {r['policy']} − {r['baseline']} | {r['mean_difference']:+.4f} | "
-            f"{r['standard_error']:.4f} | {r['seeds_better']} of {r['n_seeds']} | "
+            f"{_se_cell(r['standard_error'], '.4f')} | {r['seeds_better']} of {r['n_seeds']} | "
             f"{r['verdict']} |"
         )
     return "\n".join(lines) + "\n"
+
+
+def _se_cell(se: float, spec: str) -> str:
+    """A standard error for a table: ``spec``-formatted, or "-" without one (one seed)."""
+    return format(se, spec) if np.isfinite(se) else "-"
 
 
 def markdown_table(results: dict[str, Any], metric: str, groups: dict[str, list[str]]) -> str:

@@ -1,13 +1,16 @@
-"""``swarm-phd evaluate`` with task policies: env resolution and ``--compare``."""
+"""``swarm-phd evaluate`` with task policies: env resolution and ``--compare`` (side by side,
+and paired by seed with ``--policy``)."""
 
 from __future__ import annotations
 
 import json
+import math
+import statistics
 
 import pytest
 
 from agents.sb3.policy import write_metadata
-from swarm_phd.evaluate import _make_env, shared_env_kwargs
+from swarm_phd.evaluate import _make_env, paired_by_seed, shared_env_kwargs
 
 
 @pytest.fixture
@@ -126,7 +129,7 @@ def test_evaluate_compare_end_to_end(tmp_path):
         ]
     )
     assert code == 0
-    rows = json.loads((out / "comparison.json").read_text())
+    rows = json.loads((out / "comparison.json").read_text())["side_by_side"]
     # Several --compare policies, one row each, in the order given.
     assert [r["policy"] for r in rows] == ["scripted:formation", "random", "scripted:wander"]
     assert (out / "compare" / "metrics.json").is_file()
@@ -151,3 +154,115 @@ def test_evaluate_compare_end_to_end(tmp_path):
     assert {"pct_time_position_err_lt_10cm", "pct_time_bearing_err_lt_7deg"} <= set(lc["seed001"])
     for name in ("fig7_error_time.png", "fig8_weight_sum.png", "fig9_paths.png", "gospa.png"):
         assert (out / name).stat().st_size > 10_000
+
+
+def _compare(tmp_path, seeds: str, capsys) -> tuple:
+    """A tiny ``--compare`` run (lab arena, formation task, 2 s per seed): its
+    comparison.json, both policies' metrics.json and what it printed."""
+    from swarm_phd.cli import main
+
+    out = tmp_path / "eval"
+    args = ["evaluate", "--preset", "seed-lab", "--task", "formation", "--localizer", "phd-lc"]
+    args += ["--policy", "scripted:formation", "--compare", "scripted:wander"]
+    code = main([*args, "--duration", "2", "--seeds", seeds, "--out", str(out)])
+    assert code == 0
+    printed = capsys.readouterr().out
+    files = ("comparison.json", "metrics.json", "compare/metrics.json")
+    return (*(json.loads((out / name).read_text()) for name in files), printed)
+
+
+def test_compare_pairs_by_seed_as_by_hand(tmp_path, capsys):
+    """Each paired row (comparison.json and the printed table) against the hand computation
+    from the two policies' own per-seed results: scripted:wander − scripted:formation on
+    seeds 3, 4, 5, mean of the differences, sample SE, seeds where wander is lower."""
+    comparison, reference, other, printed = _compare(tmp_path, "3-5", capsys)
+    paired = {(r["localizer"], r["metric"]): r for r in comparison["paired_by_seed"]}
+    loc = "phd-lc"
+    tables = {
+        None: (other["task_per_seed"], reference["task_per_seed"]),
+        loc: (other["localizers"][loc]["per_seed"], reference["localizers"][loc]["per_seed"]),
+    }
+    expected = [(None, k) for k in ("formation_error_m", "spacing_error_m")]
+    expected += [(loc, k) for k in ("gospa_mean_m", "pooled_per_observer_median_pct")]
+    expected += [(loc, "pct_pair_steps_err_gt_30cm")]
+    assert set(expected) <= set(paired)
+    for localizer, metric in expected:
+        mine, theirs = tables[localizer]
+        assert [d["seed"] for d in mine] == [d["seed"] for d in theirs] == [3, 4, 5]
+        diffs = [a[metric] - b[metric] for a, b in zip(mine, theirs, strict=True)]
+        assert all(math.isfinite(d) for d in diffs)  # in range on every seed of this run
+        mean = statistics.mean(diffs)
+        se = statistics.stdev(diffs) / math.sqrt(3)
+        verdict = (
+            "better by > 2 SE"
+            if mean < -2 * se
+            else "worse by > 2 SE"
+            if mean > 2 * se
+            else "within 2 SE"
+        )
+        row = paired[(localizer, metric)]
+        assert (row["policy"], row["reference"]) == ("scripted:wander", "scripted:formation")
+        assert row["seeds"] == [3, 4, 5] and row["n_seeds"] == 3
+        assert row["differences"] == pytest.approx(diffs)
+        assert row["mean_difference"] == pytest.approx(mean)
+        assert row["standard_error"] == pytest.approx(se)
+        assert row["seeds_better"] == sum(d < 0 for d in diffs)
+        assert row["verdict"] == verdict
+    # The printed table shows the same numbers, under the side-by-side one.
+    lines = printed.splitlines()
+    side = next(
+        k for k, ln in enumerate(lines) if ln.startswith("  | metric | scripted:formation")
+    )
+    r = paired[(loc, "gospa_mean_m")]
+    gospa = (
+        f"  | phd-lc GOSPA | scripted:wander − scripted:formation | {r['mean_difference']:+.3f} | "
+        f"{r['standard_error']:.3f} | {r['seeds_better']} of 3 | {r['verdict']} |"
+    )
+    assert gospa in lines and lines.index(gospa) > side
+    assert "nan" not in printed.split("paired by seed", 1)[1].lower()
+
+
+def test_compare_with_one_seed_gives_the_difference_without_an_se(tmp_path, capsys):
+    comparison, reference, other, printed = _compare(tmp_path, "4", capsys)
+    rows = comparison["paired_by_seed"]
+    assert rows and all(r["n_seeds"] == 1 and r["standard_error"] is None for r in rows)
+    assert all(r["verdict"] == "SE needs at least 2 seeds" for r in rows)
+    gospa = next(r for r in rows if r["metric"] == "gospa_mean_m")
+    own = other["localizers"]["phd-lc"]["per_seed"][0]["gospa_mean_m"]
+    ref = reference["localizers"]["phd-lc"]["per_seed"][0]["gospa_mean_m"]
+    assert gospa["mean_difference"] == pytest.approx(own - ref)
+    table = printed.split("paired by seed", 1)[1]
+    assert f"| {own - ref:+.3f} | - | " in table and "SE needs at least 2 seeds" in table
+    assert "nan" not in table.lower()
+
+
+def _crafted(policy: str, seeds: list[int], localizer_seeds: list[int] | None = None) -> dict:
+    """A result of evaluate_localization with only what paired_by_seed reads."""
+    per_seed = localizer_seeds if localizer_seeds is not None else seeds
+    return {
+        "config": {"policy": policy, "seeds": seeds},
+        "task_per_seed": [{"seed": s, "formation_error_m": 0.1 * s} for s in seeds],
+        "localizers": {
+            "phd-lc": {"per_seed": [{"seed": s, "gospa_mean_m": 0.2 + s} for s in per_seed]}
+        },
+    }
+
+
+def test_paired_by_seed_refuses_seeds_that_do_not_line_up():
+    ref = _crafted("scripted:formation", [0, 1, 2])
+    rows = paired_by_seed([ref, _crafted("scripted:wander", [0, 1, 2])])
+    assert [(r["localizer"], r["metric"], r["mean_difference"]) for r in rows] == [
+        (None, "formation_error_m", 0.0),
+        ("phd-lc", "gospa_mean_m", 0.0),
+    ]
+    for bad in (
+        _crafted("runs/x/model.zip", [0, 2, 1]),  # same seeds, another order
+        _crafted("runs/x/model.zip", [0, 1]),  # interrupted: fewer seeds
+        _crafted("runs/x/model.zip", [0, 1, 2], localizer_seeds=[0, 1]),
+    ):
+        with pytest.raises(ValueError, match="runs/x/model.zip.*same seeds in the same order"):
+            paired_by_seed([ref, _crafted("random", [0, 1, 2]), bad])
+    from agents.sb3.report import paired_difference
+
+    with pytest.raises(ValueError, match="same seeds"):
+        paired_difference([0.1, 0.2], [0.1], "gospa_mean_m")  # no silent broadcasting
