@@ -33,6 +33,8 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_phd_vs_stonesoup.py --json runs/bench/phd_vs_stonesoup.json
 	$(PY) benchmarks/bench_scaling.py --json runs/bench/scaling.json
 	$(PY) benchmarks/bench_feed_profiles.py --sizes 20,1000
+	$(PY) benchmarks/bench_load.py --steps 300 --repeats 2 --json runs/bench/load.json
+	$(PY) benchmarks/bench_training.py --rollouts 2 --json runs/bench/training.json
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .

@@ -1,14 +1,71 @@
-"""Training interrupted safely: SIGINT and SIGTERM become ``KeyboardInterrupt`` in the main thread
-while a trainer runs (``agents.sb3.train``, ``agents.rllib.train``), so it can save and exit
-with one line; during the save they are ignored."""
+"""Training stopped safely: SIGINT and SIGTERM become ``KeyboardInterrupt`` in the main thread
+while a trainer runs (``agents.sb3.train``, ``agents.rllib.train``,
+``agents.sb3.recurrent_ppo``, ``agents.sb3.recurrent_student``), so it can save and exit
+with one line; during the save they are ignored. A wall-time budget
+(``--max-wall-minutes``, :class:`WallBudget`) stops a trainer the same way, exit code 0.
+
+Every trainer records why it stopped early as ``"stopped"`` (:func:`stop_reason`): the
+signal's name, :data:`WALL_BUDGET`, or None when it did all it was asked."""
 
 from __future__ import annotations
 
+import contextlib
 import signal
 import sys
+import time
+from collections.abc import Iterator
 from typing import Any
 
-__all__ = ["Interrupts", "set_signal", "signal_interrupt"]
+__all__ = [
+    "EXIT_CODES",
+    "WALL_BUDGET",
+    "Interrupts",
+    "WallBudget",
+    "max_wall_seconds",
+    "set_signal",
+    "signal_interrupt",
+    "stop_reason",
+]
+
+#: Exit codes of an interrupted run (the shell's 128 + signal number).
+EXIT_CODES = {"SIGINT": 130, "SIGTERM": 143}
+#: The ``"stopped"`` reason of a run that its wall-time budget ended (named by its flag).
+WALL_BUDGET = "max-wall-minutes"
+
+
+def max_wall_seconds(minutes: Any) -> float | None:
+    """``--max-wall-minutes`` in seconds (None: no budget); ``ValueError`` naming the flag
+    unless it is a finite number > 0."""
+    from swarm_phd.inputs import check_number  # imports the kernels' package: only when used
+
+    check_number("--max-wall-minutes", minutes, low=0, above=True, optional=True)
+    return None if minutes is None else 60.0 * minutes
+
+
+class WallBudget:
+    """A run's wall-time budget of ``seconds`` (None: none), counted from construction. A
+    trainer asks :meth:`passed` where it can stop cleanly (SB3: every env step; the recurrent
+    trainers: after each iteration or round)."""
+
+    def __init__(self, seconds: float | None) -> None:
+        self.seconds = seconds
+        self.start = time.perf_counter()
+        self.reached = False
+
+    def passed(self) -> bool:
+        """Whether the budget has run out; says so once, when it first has."""
+        if self.seconds is None or self.reached:
+            return self.reached
+        if time.perf_counter() - self.start > self.seconds:
+            self.reached = True
+            print(f"stopping: wall-time budget of {self.seconds:.0f} s reached", flush=True)
+        return self.reached
+
+
+def stop_reason(interrupted: str | None, budget: WallBudget) -> str | None:
+    """Why a run ended before doing all it was asked: the signal that interrupted it, else
+    :data:`WALL_BUDGET` if its budget ran out, else None."""
+    return interrupted or (WALL_BUDGET if budget.reached else None)
 
 
 def set_signal(signum: int, handler: Any) -> Any:
@@ -61,6 +118,18 @@ class Interrupts:
         if isinstance(unraisable.exc_value, KeyboardInterrupt) and self.received:
             return
         self._old_unraisable(unraisable)
+
+    @contextlib.contextmanager
+    def caught(self) -> Iterator[None]:
+        """Run the block until a stop request: its ``KeyboardInterrupt`` (or numba's wrapping
+        of it, :func:`signal_interrupt`) ends the block quietly and stays in ``received``
+        (``"SIGINT"`` if none of this handler's signals raised it); other errors pass."""
+        try:
+            yield
+        except (KeyboardInterrupt, SystemError) as exc:
+            if not signal_interrupt(exc):
+                raise
+            self.received = self.received or "SIGINT"
 
     def __enter__(self) -> Interrupts:
         handler = signal.SIG_IGN if self.ignore else self._handle

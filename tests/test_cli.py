@@ -174,6 +174,35 @@ def test_train_tiny(tmp_path, capsys):
     assert (out / "model.zip").is_file()
     summary = json.loads((out / "train_summary.json").read_text())
     assert summary["timesteps"] == 256 and summary["interrupted"] is None  # 2 rollouts of 128
+    assert summary["stopped"] is None
+
+
+def test_train_stopped_by_its_wall_time_budget_saves_a_usable_model(tmp_path, capsys):
+    """A budget already spent at the first env step: training stops there (the budget is
+    checked every step), saves model.zip as a finished run does and exits 0."""
+    pytest.importorskip("stable_baselines3")
+    from agents.policies import load_policy
+    from agents.sb3.policy import env_kwargs_for_model
+    from swarm_env import parallel_env
+
+    out = tmp_path / "train"
+    argv = [*TRAIN, "--timesteps", "512", "--max-wall-minutes", "1e-6", "--out", str(out)]
+    assert main([*argv, "--no-progress-bar"]) == 0
+    printed = capsys.readouterr().out
+    assert "wall-time budget of 0 s reached" in printed and "(wall-time budget)" in printed
+    summary = json.loads((out / "train_summary.json").read_text())
+    assert summary["stopped"] == "max-wall-minutes" and summary["interrupted"] is None
+    assert 0 < summary["timesteps"] < 128  # within the first rollout of 128 agent steps
+    kwargs = env_kwargs_for_model(out / "model.zip")
+    env = parallel_env("lab-3m-4", **kwargs)
+    try:
+        policy = load_policy(str(out / "model.zip"), env)  # its predict, on the env's obs
+        obs, infos = env.reset(seed=0)
+        actions = policy(obs, infos)
+        assert set(actions) == set(env.agents)
+        assert all(env.action_space(a).contains(actions[a]) for a in actions)
+    finally:
+        env.close()
 
 
 def _start_train(out: Path) -> subprocess.Popen:
@@ -230,7 +259,7 @@ def test_interrupted_train_saves_and_exits_with_one_line(tmp_path):
         checkpoints = list((out / "checkpoints").glob("model_*_steps.zip"))
         assert len(checkpoints) == 1
         summary = json.loads((out / "train_summary.json").read_text())
-        assert summary["interrupted"] == name and summary["timesteps"] > 0
+        assert summary["interrupted"] == summary["stopped"] == name and summary["timesteps"] > 0
         assert checkpoints[0].name == f"model_{summary['timesteps']}_steps.zip"
 
 

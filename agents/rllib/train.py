@@ -22,10 +22,11 @@ Writes, under ``--out``::
     checkpoint/           the final Algorithm (``Algorithm.from_checkpoint``); the policy alone
                           is ``checkpoint/learner_group/learner/rl_module/shared``
     checkpoints/step_<agent steps>/   every ``--checkpoint-every`` agent transitions
-    train_summary.json    totals, wall time, interrupted or not, each runner's kernel threads
-                          and env start-up / first-step seconds
+    train_summary.json    totals, wall time, why it stopped early (``interrupted``, ``stopped``),
+                          each runner's kernel threads and env start-up / first-step seconds
 
-Ctrl-C / SIGTERM save ``checkpoint/`` and exit 130 / 143, as the SB3 engine does.
+Ctrl-C / SIGTERM save ``checkpoint/`` and exit 130 / 143, as the SB3 engine does;
+``--max-wall-minutes`` stops after the iteration in which the budget passes (exit 0).
 """
 
 from __future__ import annotations
@@ -38,11 +39,15 @@ import time
 from pathlib import Path
 from typing import Any
 
-from agents.interrupts import Interrupts, signal_interrupt
+from agents.interrupts import (
+    EXIT_CODES,
+    Interrupts,
+    WallBudget,
+    max_wall_seconds,
+    stop_reason,
+)
 from swarm_core.atomic_files import atomic_write
 from swarm_phd import inputs
-
-EXIT_CODES = {"SIGINT": 130, "SIGTERM": 143}
 
 
 def add_engine_arguments(parser: argparse.ArgumentParser) -> None:
@@ -83,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
 
     # The shared flags, checked by the SB3 engine's rules before they are renamed for RLlib.
     check_ppo_kwargs(ppo_kwargs_from_args(args))
-    check_number("--max-wall-minutes", args.max_wall_minutes, low=0, above=True, optional=True)
+    max_wall_s = max_wall_seconds(getattr(args, "max_wall_minutes", None))
     check_number("--num-env-runners", args.num_env_runners, integer=True, low=0)
     check_number("--envs-per-runner", args.envs_per_runner, integer=True, low=1)
     check_number("--ray-num-cpus", args.ray_num_cpus, integer=True, low=1, optional=True)
@@ -118,7 +123,6 @@ def run(args: argparse.Namespace) -> int:
         "gamma": args.gamma,
         "entropy_coeff": args.ent_coef,
     }
-    max_wall = getattr(args, "max_wall_minutes", None)
     _, interrupted = _train(
         env_kwargs,
         args.timesteps,
@@ -135,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
             getattr(args, "no_progress_bar", False) or getattr(args, "quiet", False)
         ),
         ppo=ppo,
-        max_wall_s=None if max_wall is None else 60.0 * max_wall,
+        max_wall_s=max_wall_s,
     )
     return EXIT_CODES.get(interrupted, 0) if interrupted else 0
 
@@ -306,16 +310,16 @@ def _train(
 
     started = start_ray(address, ray_num_cpus)
     algo = None
-    interrupted: str | None = None
     final = out / "checkpoint"
     bar = progress.bar(timesteps, "train (rllib)", unit="agent-step") if progress_bar else None
     start = time.perf_counter()
+    budget = WallBudget(max_wall_s)
     agent_steps = env_steps = 0
     rows: list[dict[str, Any]] = []
     runners: list[dict[str, Any]] = []
     try:
         with Interrupts() as interrupts:
-            try:
+            with interrupts.caught():
                 algo = config.build_algo()
                 next_ckpt = checkpoint_every
                 while agent_steps < timesteps:
@@ -344,16 +348,11 @@ def _train(
                         step_dir = out / "checkpoints" / f"step_{agent_steps}"
                         algo.save_to_path(str(step_dir.resolve()))
                         next_ckpt = agent_steps + checkpoint_every
-                    if max_wall_s is not None and time.perf_counter() - start > max_wall_s:
-                        print(f"stopping: wall-time budget of {max_wall_s:.0f} s reached")
+                    if budget.passed():
                         break
                     if interrupts.received:  # backstop: an interrupt that library code dropped
-                        interrupted = interrupts.received
                         break
-            except (KeyboardInterrupt, SystemError) as exc:
-                if not signal_interrupt(exc):
-                    raise
-                interrupted = interrupts.received or "SIGINT"
+            interrupted = interrupts.received
         with Interrupts(ignore=True):  # a second signal must not leave a half-written save
             if algo is not None:
                 algo.save_to_path(str(final.resolve()))
@@ -367,6 +366,7 @@ def _train(
                 "wall_time_s": elapsed,
                 "agent_steps_per_s": agent_steps / max(elapsed, 1e-9),
                 "interrupted": interrupted,
+                "stopped": stop_reason(interrupted, budget),
                 "checkpoint": str(final) if algo is not None else None,
                 "runners": runners,
             }
@@ -387,7 +387,8 @@ def _train(
             file=sys.stderr,
         )
     else:
-        print(f"trained {agent_steps} agent steps in {elapsed:.0f} s (rllib) -> {final}")
+        why = ", wall-time budget" if budget.reached else ""
+        print(f"trained {agent_steps} agent steps in {elapsed:.0f} s (rllib{why}) -> {final}")
     return final, interrupted
 
 

@@ -38,7 +38,11 @@ command) is trained by this short PPO loop:
   ``--val-seeds``; the last iteration's is also ``student.pt``. ``train_log.json`` holds
   every iteration's return, formation error, KL, clip fraction and wall time, drawn with
   the validation scores in ``train_log.png`` (several runs: :func:`plot_ppo_logs`).
-  Ctrl-C or SIGTERM saves the current student as ``student.pt`` and exits 130 / 143.
+  Ctrl-C or SIGTERM saves the current student as ``student.pt`` and exits 130 / 143;
+  ``--max-wall-minutes`` stops after the iteration in which the budget passes, saving
+  ``student.pt`` (that iteration's, unscored) and the log as a finished run does (exit 0).
+  ``train_log.json``'s ``"stopped"`` says why a run stopped early (the signal,
+  ``"max-wall-minutes"``) or is null.
 
 The saved student keeps its own env (the reward's task parameters do not change its
 observation), so it is scored on the task's own reward and metrics; the training reward's
@@ -327,6 +331,7 @@ def plot_ppo_logs(logs: list[str | Path], figure: str | Path) -> None:
 def main(argv: list[str] | None = None) -> int:
     import argparse
 
+    from agents.interrupts import max_wall_seconds
     from agents.sb3.distill_fit import DEFAULT_PHASES
     from agents.sb3.history_fit import parse_phases
     from swarm_phd.inputs import parse_json_object, parse_seeds
@@ -378,6 +383,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--log-std", type=float, default=-2.5, help="initial, unit scale")
     parser.add_argument("--fit-seed", type=int, default=0, help="torch, noise and minibatches")
     parser.add_argument("--torch-threads", type=int, default=1)
+    parser.add_argument(
+        "--max-wall-minutes",
+        type=float,
+        default=None,
+        help="stop (and save) after the iteration in which this much wall time has passed",
+    )
     args = parser.parse_args(argv)
     checks = (
         ("--iterations", args.iterations, 1),
@@ -407,6 +418,7 @@ def main(argv: list[str] | None = None) -> int:
     if not np.isfinite(args.log_std):
         parser.error(f"--log-std must be finite, got {args.log_std}")
     try:
+        max_wall_s = max_wall_seconds(args.max_wall_minutes)
         val_seeds = parse_seeds(args.val_seeds, "--val-seeds")
         reward_params = parse_json_object(args.task_params, "--task-params")
         meta = _start_metadata(parser, args)
@@ -427,7 +439,7 @@ def main(argv: list[str] | None = None) -> int:
         inputs.run_dir("--out", args.out, overwrite=args.overwrite)
     except ValueError as err:
         parser.error(str(err))
-    return _train(parser, args, meta, reward_params, val_seeds, phases)
+    return _train(parser, args, meta, reward_params, val_seeds, phases, max_wall_s)
 
 
 def _start_metadata(parser, args) -> dict[str, Any]:
@@ -477,10 +489,10 @@ def zero_student(space: Any, hidden: int = 64) -> Any:
     return model.eval()
 
 
-def _train(parser, args, meta, reward_params, val_seeds, phases) -> int:
+def _train(parser, args, meta, reward_params, val_seeds, phases, max_wall_s) -> int:
     import torch
 
-    from agents.interrupts import Interrupts, signal_interrupt
+    from agents.interrupts import EXIT_CODES, Interrupts, WallBudget, stop_reason
     from agents.sb3.batched import BatchedSwarmVecEnv
     from agents.sb3.recurrent_student import load_student, save_student
     from agents.sb3.report import score
@@ -573,11 +585,11 @@ def _train(parser, args, meta, reward_params, val_seeds, phases) -> int:
             flush=True,
         )
 
-    interrupted = None
     iteration = completed = 0
     start = time.perf_counter()
+    budget = WallBudget(max_wall_s)
     with Interrupts() as interrupts:
-        try:
+        with interrupts.caught():
             save_and_score(0)
             for iteration in range(1, args.iterations + 1):
                 if interrupts.received:  # a signal that landed in a C callback was dropped
@@ -626,11 +638,9 @@ def _train(parser, args, meta, reward_params, val_seeds, phases) -> int:
                 write_json_atomically(out / "train_log.json", log, indent=1)
                 if iteration % args.eval_every == 0 or iteration == args.iterations:
                     save_and_score(iteration)
-        except (KeyboardInterrupt, SystemError) as exc:
-            if not signal_interrupt(exc):
-                raise
-            interrupted = interrupts.received or "SIGINT"
-        interrupted = interrupted or interrupts.received
+                if iteration < args.iterations and budget.passed():
+                    break
+        interrupted = interrupts.received
         with Interrupts(ignore=True):  # a second signal must not leave a half-written file
             model.eval()
             # After an interrupt the weights are those of the last completed iteration plus
@@ -647,6 +657,7 @@ def _train(parser, args, meta, reward_params, val_seeds, phases) -> int:
             )
             log["wall_s"] = time.perf_counter() - start
             log["interrupted"] = interrupted
+            log["stopped"] = stop_reason(interrupted, budget)
             write_json_atomically(out / "train_log.json", log, indent=1)
             vec.close()
     if interrupted:
@@ -655,8 +666,9 @@ def _train(parser, args, meta, reward_params, val_seeds, phases) -> int:
             f"saved {out / 'student.pt'}",
             file=sys.stderr,
         )
-        return 130 if interrupted == "SIGINT" else 143
-    print(f"{args.iterations} iterations in {log['wall_s']:.0f} s -> {out / 'student.pt'}")
+        return EXIT_CODES[interrupted]
+    why = " (wall-time budget)" if budget.reached else ""
+    print(f"{completed} iterations in {log['wall_s']:.0f} s{why} -> {out / 'student.pt'}")
     return 0
 
 

@@ -24,13 +24,21 @@ quarter of its turn rate's, against a third and under a tenth for one frame
 - each round's student is saved (``student_round<r>.pt``, the last also as ``student.pt``)
   with its env, base and teacher, and is scored in closed loop on ``--val-seeds`` per phase
   of the episode, with the base beside it (``train_log.json``, drawn in ``train_log.png``;
-  several runs in one figure: :func:`plot_train_logs`). Selecting on those seeds is
-  the user's choice; the final test belongs on seeds used nowhere here.
+  several runs in one figure: :func:`plot_train_logs`). ``student_best.pt`` is a copy of the
+  completed round's student with the lowest formation error there (``"best_round"`` in the
+  log; round 18's selection); the final test belongs on seeds used nowhere here.
 - Each round's sequences are kept (``round<r>.npz``, with the key they were collected with)
   and reused when the command is rerun with the same env, base, teacher and seeds, and, from
   round 2, the same driving student (its weights' hash): round 1's always, a later round's
   when the refit reproduces the student bit for bit (the same machine and ``--torch-threads``;
   torch's sums are not bit-identical across thread counts). Every round is refitted.
+- Ctrl-C or SIGTERM stops the run where it is, and ``--max-wall-minutes`` after the round in
+  which the budget passes: ``student.pt`` becomes the last completed round's student (a copy
+  of its ``student_round<r>.pt``; not written if no round completed), ``train_log.json``
+  says why (``"stopped"``: the signal, ``"max-wall-minutes"``; null after a full run) and
+  the command exits 130 (SIGINT), 143 (SIGTERM) or 0 (the budget). The students, the
+  rounds' data and ``train_log.json`` are written to a temporary name, then renamed: a stop
+  never leaves one half-written.
 
 Score a student like any policy: ``swarm-phd evaluate --policy runs/recurrent/student.pt`` or
 ``python -m agents.sb3.report --env-from runs/recurrent/student.pt --baselines
@@ -40,12 +48,15 @@ scripted:formation-known-n-fast runs/recurrent/student.pt --seeds ...``.
 from __future__ import annotations
 
 import json
+import shutil
+import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from swarm_core.atomic_files import atomic_write, write_json_atomically
 from swarm_phd.sweep import parse_seeds
 
 __all__ = [
@@ -65,21 +76,20 @@ def save_student(
     path: str | Path, model: Any, env_kwargs: dict[str, Any], base: str, **extra: Any
 ) -> None:
     """Write ``model`` (a ``history`` regressor) with what it needs to run: its env's kwargs,
-    its base's spec, its hidden width and the observation's length."""
+    its base's spec, its hidden width and the observation's length. Atomically: a trainer
+    stopped while saving leaves the previous file, never half of one."""
     import torch
 
-    torch.save(
-        {
-            "format": FORMAT,
-            "state_dict": model.state_dict(),
-            "hidden": int(model.gru.hidden_size),
-            "obs_dim": int(model.encoder_obs_dim),
-            "env_kwargs": env_kwargs,
-            "base": base,
-            **extra,
-        },
-        Path(path),
-    )
+    data = {
+        "format": FORMAT,
+        "state_dict": model.state_dict(),
+        "hidden": int(model.gru.hidden_size),
+        "obs_dim": int(model.encoder_obs_dim),
+        "env_kwargs": env_kwargs,
+        "base": base,
+        **extra,
+    }
+    atomic_write(path, lambda tmp: torch.save(data, tmp))
 
 
 def _read(path: str | Path) -> dict[str, Any]:
@@ -207,18 +217,14 @@ def _round_data(
     base, teacher, seeds, driver), else collected and written. Returns them and whether they
     were reused. The key is written last, after the data is complete: a run killed while
     writing leaves no key, and its data is collected again."""
-    import os
-
     meta = path.with_suffix(".json")
     if path.is_file() and meta.is_file() and json.loads(meta.read_text()) == key:
         with np.load(path) as f:
             return {k: f[k] for k in f.files}, True
     meta.unlink(missing_ok=True)
     data = collect()
-    partial = path.with_name(path.stem + ".partial.npz")
-    np.savez(partial, **data)
-    os.replace(partial, path)
-    meta.write_text(json.dumps(key))
+    atomic_write(path, lambda tmp: np.savez(tmp, **data))
+    write_json_atomically(meta, key)
     return data, False
 
 
@@ -287,6 +293,7 @@ def plot_train_logs(logs: list[str | Path], figure: str | Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from agents.interrupts import max_wall_seconds
     from agents.sb3.history_fit import distillation_parser, parse_phases
     from agents.sb3.train import env_kwargs_from_args
 
@@ -303,8 +310,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fit-seed", type=int, default=0, help="torch and minibatch seed")
     parser.add_argument("--torch-threads", type=int, default=1)
     parser.add_argument("--out", required=True, help="directory for the students and data")
+    parser.add_argument(
+        "--max-wall-minutes",
+        type=float,
+        default=None,
+        help="stop (and save) after the round in which this much wall time has passed",
+    )
     args = parser.parse_args(argv)
     try:
+        max_wall_s = max_wall_seconds(args.max_wall_minutes)
         rounds = [parse_seeds(s, "--round-seeds") for s in args.round_seeds]
         val_seeds = parse_seeds(args.val_seeds, "--val-seeds")
     except ValueError as err:
@@ -325,8 +339,6 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"{flag} must be >= 1, got {value}")
     if args.fit_seed < 0:
         parser.error(f"--fit-seed must be >= 0, got {args.fit_seed}")
-    from agents.sb3.report import score
-
     phases = parse_phases(parser, args.phases)
     from agents.sb3.residual import check_residual
 
@@ -336,7 +348,6 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(str(err))
     import torch
 
-    from agents.sb3.history_fit import collect_sequences, sequence_tensors, train_sequences
     from swarm_env import parallel_env
 
     torch.set_num_threads(args.torch_threads)
@@ -359,6 +370,19 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(args.fit_seed)
     model = new_student(space)
+    return _dagger(args, rounds, val_seeds, phases, env_kwargs, model, out, max_wall_s)
+
+
+def _dagger(args, rounds, val_seeds, phases, env_kwargs, model, out, max_wall_s) -> int:
+    """The DAgger rounds of :func:`main`, stopped by a signal or the wall-time budget (module
+    doc); returns the exit code."""
+    import torch
+
+    from agents.interrupts import EXIT_CODES, Interrupts, WallBudget, stop_reason
+    from agents.sb3.history_fit import collect_sequences, sequence_tensors, train_sequences
+    from agents.sb3.report import score
+    from swarm_env import parallel_env
+
     log: dict[str, Any] = {
         "env_kwargs": env_kwargs,
         "base": args.base,
@@ -372,68 +396,112 @@ def main(argv: list[str] | None = None) -> int:
         "phases": phases,
         "rounds": [],
     }
-    t_base = time.perf_counter()
-    log["base_val"] = score(args.base, env_kwargs, val_seeds, phases=phases)["mean"]
-    print(f"base on {args.val_seeds}: {log['base_val']} ({time.perf_counter() - t_base:.0f} s)")
-    parts: list[dict[str, np.ndarray]] = []
-    for r, seeds in enumerate(rounds, start=1):
-        t0 = time.perf_counter()
-        driver = None
-        if r > 1:
-            env = parallel_env(**env_kwargs)
-            driver = load_student(out / f"student_round{r - 1}.pt", env)
-            env.close()
-        key = {
-            "env_kwargs": env_kwargs,
-            "base": args.base,
-            "teacher": args.teacher,
-            "seeds": seeds,
-            # the driving student by content: a refit one makes the round's data stale
-            "driver": "base" if r == 1 else _digest(out / f"student_round{r - 1}.pt"),
-        }
-        data, reused = _round_data(
-            out / f"round{r}.npz",
-            key,
-            lambda seeds=seeds, driver=driver: collect_sequences(
-                env_kwargs, args.base, args.teacher, seeds, student=driver
-            ),
-        )
-        parts.append(data)
-        t1 = time.perf_counter()
-        epochs = args.epochs if r == 1 else args.dagger_epochs
-        torch.set_num_threads(args.torch_threads)  # loading a student set it to 1
-        losses = train_sequences(
-            model, sequence_tensors(_concat(parts)), epochs, seed=args.fit_seed + r
-        )
-        t2 = time.perf_counter()
-        path = out / f"student_round{r}.pt"
-        save_student(path, model, env_kwargs, args.base, teacher=args.teacher, round=r)
-        val = score(str(path), env_kwargs, val_seeds, phases=phases)["mean"]
-        t3 = time.perf_counter()
-        log["rounds"].append(
-            {
-                "round": r,
-                "seeds": seeds,
-                "data_reused": reused,
-                "sequences": int(sum(p["obs"].shape[0] for p in parts)),
-                "losses": losses,
-                "collect_s": t1 - t0,
-                "fit_s": t2 - t1,
-                "val_s": t3 - t2,
-                "val": val,
-            }
-        )
-        (out / "train_log.json").write_text(json.dumps(log, indent=1))
-        plot_train_logs([out / "train_log.json"], out / "train_log.png")
+    r = 1
+    completed = 0  # the last round whose student is saved, scored and logged
+    budget = WallBudget(max_wall_s)
+    with Interrupts() as interrupts:
+        with interrupts.caught():
+            t_base = time.perf_counter()
+            log["base_val"] = score(args.base, env_kwargs, val_seeds, phases=phases)["mean"]
+            print(
+                f"base on {args.val_seeds}: {log['base_val']} "
+                f"({time.perf_counter() - t_base:.0f} s)"
+            )
+            parts: list[dict[str, np.ndarray]] = []
+            for r, seeds in enumerate(rounds, start=1):
+                if interrupts.received:  # a signal that landed in a C callback was dropped
+                    raise KeyboardInterrupt
+                t0 = time.perf_counter()
+                driver = None
+                if r > 1:
+                    env = parallel_env(**env_kwargs)
+                    driver = load_student(out / f"student_round{r - 1}.pt", env)
+                    env.close()
+                key = {
+                    "env_kwargs": env_kwargs,
+                    "base": args.base,
+                    "teacher": args.teacher,
+                    "seeds": seeds,
+                    # the driving student by content: a refit one makes the round's data stale
+                    "driver": "base" if r == 1 else _digest(out / f"student_round{r - 1}.pt"),
+                }
+                data, reused = _round_data(
+                    out / f"round{r}.npz",
+                    key,
+                    lambda seeds=seeds, driver=driver: collect_sequences(
+                        env_kwargs, args.base, args.teacher, seeds, student=driver
+                    ),
+                )
+                parts.append(data)
+                t1 = time.perf_counter()
+                epochs = args.epochs if r == 1 else args.dagger_epochs
+                torch.set_num_threads(args.torch_threads)  # loading a student set it to 1
+                losses = train_sequences(
+                    model, sequence_tensors(_concat(parts)), epochs, seed=args.fit_seed + r
+                )
+                t2 = time.perf_counter()
+                path = out / f"student_round{r}.pt"
+                save_student(path, model, env_kwargs, args.base, teacher=args.teacher, round=r)
+                val = score(str(path), env_kwargs, val_seeds, phases=phases)["mean"]
+                t3 = time.perf_counter()
+                log["rounds"].append(
+                    {
+                        "round": r,
+                        "seeds": seeds,
+                        "data_reused": reused,
+                        "sequences": int(sum(p["obs"].shape[0] for p in parts)),
+                        "losses": losses,
+                        "collect_s": t1 - t0,
+                        "fit_s": t2 - t1,
+                        "val_s": t3 - t2,
+                        "val": val,
+                    }
+                )
+                write_json_atomically(out / "train_log.json", log, indent=1)
+                plot_train_logs([out / "train_log.json"], out / "train_log.png")
+                completed = r
+                print(
+                    f"round {r}: {len(seeds)} episodes ({'reused' if reused else 'collected'}, "
+                    f"{t1 - t0:.0f} s), fit {t2 - t1:.0f} s, loss {losses[-1]:.4f}; on "
+                    f"{args.val_seeds}: {val['formation_error_m']:.4f} m "
+                    f"(base {log['base_val']['formation_error_m']:.4f} m)"
+                )
+                if r < len(rounds) and budget.passed():
+                    break
+        interrupted = interrupts.received
+        with Interrupts(ignore=True):  # a second signal must not leave a half-written file
+            # The model may hold part of an interrupted round's fit: the usable student is
+            # the last completed round's file, copied whole.
+            usable = out / f"student_round{completed}.pt" if completed else None
+            if usable is not None:
+                atomic_write(out / "student.pt", lambda tmp: shutil.copyfile(usable, tmp))
+                # Round 18's selection (docs/results.md): the round best on --val-seeds.
+                best = min(log["rounds"], key=lambda d: d["val"]["formation_error_m"])
+                log["best_round"] = best["round"]
+                selected = out / f"student_round{best['round']}.pt"
+                atomic_write(out / "student_best.pt", lambda tmp: shutil.copyfile(selected, tmp))
+            log["interrupted"] = interrupted
+            log["stopped"] = stop_reason(interrupted, budget)
+            write_json_atomically(out / "train_log.json", log, indent=1)
+    if completed:
         print(
-            f"round {r}: {len(seeds)} episodes ({'reused' if reused else 'collected'}, "
-            f"{t1 - t0:.0f} s), fit {t2 - t1:.0f} s, loss {losses[-1]:.4f}; on "
-            f"{args.val_seeds}: {val['formation_error_m']:.4f} m "
-            f"(base {log['base_val']['formation_error_m']:.4f} m)"
+            f"student_best.pt is round {log['best_round']}'s, the best on {args.val_seeds} "
+            f"({min(d['val']['formation_error_m'] for d in log['rounds']):.4f} m)"
         )
-    save_student(
-        out / "student.pt", model, env_kwargs, args.base, teacher=args.teacher, round=len(rounds)
+    if not log["stopped"]:
+        return 0
+    saved = (
+        f"student.pt is round {completed}'s ({usable.name})"
+        if usable is not None
+        else "no round completed, no student saved"
     )
+    if interrupted:
+        print(
+            f"recurrent_student: {interrupted} in round {r} ({completed} completed): {saved}",
+            file=sys.stderr,
+        )
+        return EXIT_CODES[interrupted]
+    print(f"recurrent_student: wall-time budget, stopped after round {completed}: {saved}")
     return 0
 
 

@@ -23,7 +23,10 @@ past ``--timesteps``; the progress bar counts to that number.
 
 Ctrl-C (SIGINT) or SIGTERM stops training cleanly: the current model is saved as ``model.zip``
 and as ``checkpoints/model_<steps>_steps.zip``, the env workers and logs are closed, and the
-command prints one line and exits with 130 (SIGINT) or 143 (SIGTERM).
+command prints one line and exits with 130 (SIGINT) or 143 (SIGTERM). ``--max-wall-minutes``
+stops training at the first env step past the budget and saves ``model.zip`` as a finished run
+does (exit 0). ``train_summary.json`` records why a run stopped early: ``"stopped"`` is
+``"SIGINT"``, ``"SIGTERM"``, ``"max-wall-minutes"`` or null (``"interrupted"``: the signal).
 """
 
 from __future__ import annotations
@@ -37,15 +40,20 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-from agents.interrupts import Interrupts, set_signal, signal_interrupt
+from agents.interrupts import (
+    EXIT_CODES,
+    Interrupts,
+    WallBudget,
+    max_wall_seconds,
+    set_signal,
+    stop_reason,
+)
 from agents.sb3.policy import save_model
 from swarm_core.atomic_files import write_json_atomically
 from swarm_phd import inputs
 from swarm_phd.inputs import check_number, parse_json_object
 
 DEFAULT_PRESET = "sim-6m-20"
-#: Exit codes of an interrupted run (the shell's 128 + signal number).
-EXIT_CODES = {"SIGINT": 130, "SIGTERM": 143}
 DEFAULT_MAX_STEPS = 300
 #: The largest seed SB3 accepts (it seeds numpy's legacy generator with it).
 MAX_SEED = 2**32 - 1
@@ -330,7 +338,7 @@ def ppo_kwargs_from_args(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
-    check_number("--max-wall-minutes", args.max_wall_minutes, low=0, above=True, optional=True)
+    max_wall_s = max_wall_seconds(args.max_wall_minutes)
     env_kwargs = env_kwargs_from_args(args)
     ppo_kwargs = ppo_kwargs_from_args(args)
     warm = None
@@ -355,7 +363,7 @@ def run(args: argparse.Namespace) -> int:
         torch_threads=args.torch_threads,
         progress_bar=not (args.no_progress_bar or getattr(args, "quiet", False)),
         ppo_kwargs=ppo_kwargs,
-        max_wall_s=None if args.max_wall_minutes is None else 60.0 * args.max_wall_minutes,
+        max_wall_s=max_wall_s,
         extractor=args.extractor,
         warm_start=warm,
         critic_warmup=args.critic_warmup,
@@ -432,7 +440,9 @@ def train(*args: Any, **kwargs: Any) -> Path:
     """Train and return the path of ``model.zip``; see the module docstring for the outputs.
 
     Arguments as :func:`_train`. An interrupt (SIGINT/SIGTERM) ends training early with the
-    model saved; ``train_summary.json`` then says ``"interrupted": "SIGINT"``.
+    model saved; ``train_summary.json`` then says ``"interrupted": "SIGINT"`` and
+    ``"stopped": "SIGINT"``. ``max_wall_s`` ends it at the first env step past that many
+    seconds, the model saved, with ``"stopped": "max-wall-minutes"``.
     """
     return _train(*args, **kwargs)[0]
 
@@ -709,23 +719,19 @@ def _train(
 
     class Checkpoints(BaseCallback):
         """Save ``model_<steps>_steps.zip`` (with its metadata) every ``every`` transitions;
-        stop training once ``max_wall_s`` has passed."""
+        stop training once the wall-time budget has passed."""
 
         def __init__(self, every: int) -> None:
             super().__init__()
             self.every = every
             self.next_at = self.every
-            self.t0 = time.perf_counter()
 
         def _on_step(self) -> bool:
             if self.num_timesteps >= self.next_at:
                 path = out / "checkpoints" / f"model_{self.num_timesteps}_steps.zip"
                 save_model(self.model, path, meta())
                 self.next_at += self.every
-            if max_wall_s is not None and time.perf_counter() - self.t0 > max_wall_s:
-                print(f"stopping: wall-time budget of {max_wall_s:.0f} s reached")
-                return False
-            return True
+            return not budget.passed()
 
     policy_class: Any = "MlpPolicy"
     if critic_dims:
@@ -760,16 +766,16 @@ def _train(
     logger = configure(str(out / "tb"), ["csv", "tensorboard"])
     model.set_logger(logger)
     rollout_size = ppo["n_steps"] * venv.num_envs
+    budget = WallBudget(max_wall_s)  # counts the warm start too
     callbacks = [Checkpoints(checkpoint_every)]
     if critic_warmup:
         callbacks.append(_CriticWarmup(BaseCallback, critic_warmup))
     if progress_bar:
         callbacks.append(_progress_callback(BaseCallback, timesteps, rollout_size, ppo))
     start = time.perf_counter()
-    interrupted: str | None = None
     with Interrupts() as interrupts:
         callbacks.append(_StopOnSignal(BaseCallback, interrupts))
-        try:
+        with interrupts.caught():
             # Inside the handler: a signal during the warm start saves the actor as it is.
             if warm_start is not None:
                 _warm_start(
@@ -786,11 +792,7 @@ def _train(
                     residual_observes_base,
                 )
             model.learn(total_timesteps=timesteps, callback=callbacks, progress_bar=False)
-        except (KeyboardInterrupt, SystemError) as exc:
-            if not signal_interrupt(exc):
-                raise
-            interrupted = interrupts.received or "SIGINT"
-        interrupted = interrupted or interrupts.received
+        interrupted = interrupts.received
         # A second signal while saving must not leave a half-written model.
         with Interrupts(ignore=True):
             for cb in callbacks:
@@ -807,6 +809,7 @@ def _train(
                 "wall_time_s": elapsed,
                 "agent_steps_per_s": model.num_timesteps / max(elapsed, 1e-9),
                 "interrupted": interrupted,
+                "stopped": stop_reason(interrupted, budget),
             }
             write_json_atomically(out / "train_summary.json", summary)
             logger.close()
@@ -818,7 +821,8 @@ def _train(
             file=sys.stderr,
         )
     else:
-        print(f"trained {model.num_timesteps} agent steps in {elapsed:.0f} s -> {path}")
+        why = " (wall-time budget)" if budget.reached else ""
+        print(f"trained {model.num_timesteps} agent steps in {elapsed:.0f} s{why} -> {path}")
     return path, interrupted
 
 

@@ -1,4 +1,4 @@
-"""Which exceptions a trainer treats as its signal handler's interrupt."""
+"""Which exceptions a trainer treats as its signal handler's interrupt; the wall-time budget."""
 
 from __future__ import annotations
 
@@ -76,3 +76,29 @@ def test_an_interrupt_dropped_in_a_finalizer_is_not_printed_and_is_remembered():
     finally:
         sys.unraisablehook = previous
     assert [type(u.exc_value) for u in seen] == [ValueError]
+
+
+def test_caught_ends_the_block_on_an_interrupt_and_passes_other_errors():
+    from agents.interrupts import Interrupts
+
+    interrupts = Interrupts()  # not entered: a KeyboardInterrupt raised directly
+    with interrupts.caught():
+        raise KeyboardInterrupt
+    assert interrupts.received == "SIGINT"
+    with pytest.raises(ValueError), interrupts.caught():
+        raise ValueError("bad input")
+
+
+def test_a_wall_budget_passes_once_spent_and_names_the_stop(capsys):
+    from agents.interrupts import WALL_BUDGET, WallBudget, max_wall_seconds, stop_reason
+
+    none, long, spent = WallBudget(None), WallBudget(3600.0), WallBudget(1e-9)
+    assert not none.passed() and not long.passed()
+    assert spent.passed() and spent.passed()  # stays passed, said once
+    assert capsys.readouterr().out.count("wall-time budget") == 1
+    assert stop_reason(None, none) is None and stop_reason(None, spent) == WALL_BUDGET
+    assert stop_reason("SIGTERM", spent) == "SIGTERM"  # a signal is named before the budget
+    assert max_wall_seconds(None) is None and max_wall_seconds(0.5) == 30.0
+    for bad in (0, -1, float("nan"), True):
+        with pytest.raises(ValueError, match="--max-wall-minutes"):
+            max_wall_seconds(bad)

@@ -10,7 +10,6 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from agents.policies import load_policy  # noqa: E402
 from agents.sb3 import recurrent_ppo  # noqa: E402
 from agents.sb3.batched import BatchedSwarmVecEnv  # noqa: E402
 from agents.sb3.recurrent_student import (  # noqa: E402
@@ -20,6 +19,7 @@ from agents.sb3.recurrent_student import (  # noqa: E402
     save_student,
 )
 from swarm_env import parallel_env  # noqa: E402
+from tests.agents.test_recurrent_student import drive_one_step  # noqa: E402
 
 ENV = {"preset": "lab-3m-4", "task": "formation", "observation": "phd", "max_steps": 6}
 BASE = "scripted:formation-known-n-fast"
@@ -156,6 +156,7 @@ def test_main_fine_tunes_saves_each_scored_student_and_is_reproducible(student, 
     assert log["iterations"][1]["seeds"] == [7002, 7003]
     assert [v["iteration"] for v in log["val"]] == [0, 1, 2]
     assert "formation_error_m@4-" in log["val"][0] and log["interrupted"] is None
+    assert log["stopped"] is None
     assert log["train_task_params"] == {"progress_weight": 10}
     # The warm-up iteration leaves the student as it started; the PPO iteration moves it.
     assert _digest(out / "student_it0.pt") == _digest(out / "student_it1.pt") == _digest(student)
@@ -164,13 +165,7 @@ def test_main_fine_tunes_saves_each_scored_student_and_is_reproducible(student, 
     # Its own env (the reward's parameters do not change what it observes), and its origin.
     assert meta["env_kwargs"] == ENV and meta["reward_task_params"] == {"progress_weight": 10}
     assert meta["iteration"] == 2 and meta["start_student"] == str(student)
-    env = parallel_env(**ENV)
-    try:
-        policy = load_policy(str(out / "student.pt"), env)
-        obs, infos = env.reset(seed=0)
-        assert set(policy(obs, infos)) == set(env.agents)
-    finally:
-        env.close()
+    drive_one_step(out / "student.pt")
     # Same arguments, same student, bit for bit (seeded env, noise and minibatches).
     again = tmp_path / "again"
     argv = ["--student", str(student), "--out", str(again), *TINY]
@@ -193,9 +188,24 @@ def test_an_interrupt_saves_the_student_and_exits_130(student, tmp_path, monkeyp
     assert recurrent_ppo.main(["--student", str(student), "--out", str(out), *TINY]) == 130
     assert "SIGINT in iteration 2 (1 completed)" in capsys.readouterr().err
     log = json.loads((out / "train_log.json").read_text())
-    assert log["interrupted"] == "SIGINT" and len(log["iterations"]) == 1
+    assert log["interrupted"] == log["stopped"] == "SIGINT" and len(log["iterations"]) == 1
     meta = read_student_metadata(out / "student.pt")
     assert meta["iteration"] == 1 and meta["interrupted_in"] == 2
+
+
+def test_the_wall_time_budget_stops_after_an_iteration_and_saves(student, tmp_path, capsys):
+    """A budget spent before iteration 1 ends: the run stops after it (not mid-iteration),
+    saves student.pt and the log as a finished run does, and exits 0."""
+    out = tmp_path / "run"
+    argv = ["--student", str(student), "--out", str(out), *TINY, "--max-wall-minutes", "1e-6"]
+    assert recurrent_ppo.main(argv) == 0
+    assert "(wall-time budget)" in capsys.readouterr().out
+    log = json.loads((out / "train_log.json").read_text())
+    assert log["stopped"] == "max-wall-minutes" and log["interrupted"] is None
+    assert [it["iteration"] for it in log["iterations"]] == [1]  # of --iterations 2
+    meta = read_student_metadata(out / "student.pt")
+    assert meta["iteration"] == 1 and "interrupted_in" not in meta
+    drive_one_step(out / "student.pt")
 
 
 @pytest.mark.parametrize(
@@ -213,6 +223,7 @@ def test_an_interrupt_saves_the_student_and_exits_130(student, tmp_path, monkeyp
         (["--task-params", '{"shape": "lattice"}'], "changes what the student observes"),
         (["--phases", "5,2"], "--phases"),
         (["--log-std", "inf"], "--log-std"),
+        (["--max-wall-minutes", "0"], "--max-wall-minutes"),
     ],
 )
 def test_main_refuses_bad_arguments_before_any_rollout(student, tmp_path, capsys, extra, flag):

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import os
+import signal
 
 import numpy as np
 import pytest
@@ -13,6 +15,7 @@ from agents.policies import load_policy, policy_observation  # noqa: E402
 from agents.sb3.history_fit import collect_sequences  # noqa: E402
 from agents.sb3.recurrent_student import (  # noqa: E402
     RecurrentStudentPolicy,
+    _digest,
     load_student,
     main,
     new_student,
@@ -45,6 +48,20 @@ def _student(env, seed=0, zero=False):
         with torch.no_grad():
             model.head[-1].bias.copy_(torch.tensor([0.3, -0.4]))
     return model.eval()
+
+
+def drive_one_step(path):
+    """Load the student saved at ``path`` as a policy in its own env and drive one step: what
+    a usable student does."""
+    env = parallel_env(**read_student_metadata(path)["env_kwargs"])
+    try:
+        policy = load_policy(str(path), env)
+        obs, infos = env.reset(seed=0)
+        actions = policy(obs, infos)
+        assert set(actions) == set(env.agents)
+        env.step(actions)
+    finally:
+        env.close()
 
 
 def test_a_step_equals_the_sequence_forward(env):
@@ -226,6 +243,13 @@ def test_main_trains_two_rounds_and_resumes_from_kept_data(tmp_path, capsys):
     assert "formation_error_m@4-" in log["rounds"][1]["val"]
     assert "formation_error_m@4-" in log["base_val"]
     assert read_student_metadata(out / "student.pt")["round"] == 2
+    assert _digest(out / "student.pt") == _digest(out / "student_round2.pt")
+    assert log["stopped"] is None and log["interrupted"] is None
+    # student_best.pt: the round with the lowest validation formation error, whole.
+    errors = {r["round"]: r["val"]["formation_error_m"] for r in log["rounds"]}
+    best = min(errors, key=errors.get)
+    assert log["best_round"] == best
+    assert _digest(out / "student_best.pt") == _digest(out / f"student_round{best}.pt")
     assert main(argv) == 0  # rerun: round 1's data is kept and reused, and round 2's, since
     log = json.loads((out / "train_log.json").read_text())  # the refit student is the same
     assert [r["data_reused"] for r in log["rounds"]] == [True, True]
@@ -252,6 +276,7 @@ def test_main_trains_two_rounds_and_resumes_from_kept_data(tmp_path, capsys):
         (["--round-seeds", "0", "--fit-seed", "-2"], "--fit-seed"),
         (["--round-seeds", "0", "--observation", "measurements"], "observation='measurements'"),
         (["--round-seeds", "0", "--env-overrides", '{"top_k": 4}'], "top_k=4"),
+        (["--round-seeds", "0", "--max-wall-minutes", "-1"], "--max-wall-minutes"),
     ],
 )
 def test_main_refuses_bad_arguments_before_any_rollout(tmp_path, capsys, extra, flag):
@@ -259,6 +284,66 @@ def test_main_refuses_bad_arguments_before_any_rollout(tmp_path, capsys, extra, 
         main([*ARGS, "--out", str(tmp_path / "x"), *extra])
     assert flag in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
+
+
+def _stopped_in_round_2(out, log, stopped):
+    """A run of two rounds stopped in round 2: the log has round 1 and says why, and
+    ``student.pt`` is round 1's student, whole (nothing half-written beside it) and usable."""
+    assert [r["round"] for r in log["rounds"]] == [1] and log["stopped"] == stopped
+    assert _digest(out / "student.pt") == _digest(out / "student_round1.pt")
+    assert read_student_metadata(out / "student.pt")["round"] == 1
+    assert not (out / "student_round2.pt").exists()
+    assert not [p.name for p in out.iterdir() if p.name.startswith(".")]  # no temporary files
+    drive_one_step(out / "student.pt")
+
+
+@pytest.mark.parametrize(
+    ("name", "where"), [("SIGINT", "collect_sequences"), ("SIGTERM", "train_sequences")]
+)
+def test_a_signal_keeps_the_last_completed_rounds_student(
+    tmp_path, monkeypatch, capsys, name, where
+):
+    """A real signal in round 2: SIGINT as its episodes are collected, SIGTERM once its fit
+    has moved the model (which must then not become student.pt). Exit 130 / 143."""
+    from agents.sb3 import history_fit
+
+    real, calls = getattr(history_fit, where), []
+
+    def signalled(*args, **kwargs):
+        calls.append(1)
+        result = real(*args, **kwargs)
+        if len(calls) == 2:
+            os.kill(os.getpid(), getattr(signal, name))
+        return result
+
+    monkeypatch.setattr(history_fit, where, signalled)
+    # Were the trainer's handler missing, a SIGTERM would end pytest: make it a plain
+    # KeyboardInterrupt (then read as SIGINT, and the exit code check fails).
+    previous = signal.signal(signal.SIGTERM, signal.default_int_handler)
+    try:
+        out = tmp_path / "run"
+        code = main([*ARGS, "--round-seeds", "0-1", "2", "--out", str(out)])
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert code == {"SIGINT": 130, "SIGTERM": 143}[name]
+    err = capsys.readouterr().err
+    assert f"{name} in round 2 (1 completed): student.pt is round 1's" in err
+    log = json.loads((out / "train_log.json").read_text())
+    assert log["interrupted"] == name
+    _stopped_in_round_2(out, log, name)
+    # Round 2's data is kept (for a rerun) only if it was complete when the signal came.
+    assert (out / "round2.json").is_file() == (where == "train_sequences")
+
+
+def test_the_wall_time_budget_stops_after_a_round_with_its_student(tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = [*ARGS, "--round-seeds", "0-1", "2", "--out", str(out), "--max-wall-minutes", "1e-6"]
+    assert main(argv) == 0
+    assert "wall-time budget, stopped after round 1" in capsys.readouterr().out
+    log = json.loads((out / "train_log.json").read_text())
+    assert log["interrupted"] is None
+    _stopped_in_round_2(out, log, "max-wall-minutes")
+    assert not (out / "round2.npz").exists()  # round 2 never started
 
 
 def test_report_scores_students_pooled_against_their_base_without_training_runs(

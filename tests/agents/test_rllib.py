@@ -105,7 +105,7 @@ def test_one_tiny_training_run_on_local_ray(local_ray, tmp_path):
     summary = json.loads((out / "train_summary.json").read_text())
     # One iteration = 10 env steps x 4 robots = 40 agent steps: the budget of 40 takes one.
     assert summary["agent_steps"] == 40 and summary["env_steps"] == 10
-    assert summary["iterations"] == 1 and summary["interrupted"] is None
+    assert summary["iterations"] == 1 and summary["interrupted"] is summary["stopped"] is None
     # The remote runner built its env with one kernel thread and loaded the kernels from the
     # cache: its env build + reset and first step take seconds, a compile about a minute.
     (runner,) = summary["runners"]
