@@ -55,12 +55,10 @@ def measure(variant: str, rollouts: int) -> dict:
     from agents.sb3.features import NeighbourSetExtractor
 
     torch.set_num_threads(1)
-    if variant != "supersuit-2proc":
-        # One kernel thread: the cores go to PPO and the env. Not before the SuperSuit
-        # workers fork: GNU OpenMP aborts a fork from a process that already started it.
-        from swarm_core.threads import set_kernel_threads
+    # One kernel thread: the cores go to PPO and the env (SuperSuit's workers set their own).
+    from swarm_core.threads import set_kernel_threads
 
-        set_kernel_threads(1)
+    set_kernel_threads(1)
     venv = make_venv(variant)
     marks: list[tuple[str, float]] = []
 
@@ -117,8 +115,6 @@ def main() -> None:
     args = parser.parse_args()
 
     variants = args.variants.split(",")
-    if "supersuit-2proc" in variants[1:]:
-        raise SystemExit("supersuit-2proc must come first (its workers fork before OpenMP starts)")
     results = [measure(v, args.rollouts) for v in variants]
     base = results[0]["transitions_per_s"]
     print(f"bench_training: {ENV_KWARGS}, PPO {PPO_KWARGS}, {os.cpu_count()} cores")

@@ -599,8 +599,9 @@ def paired_by_seed(all_results: list[dict[str, Any]]) -> list[dict[str, Any]]:
     seeds). A seed on which either has no value (NaN: nothing in range) is left out of that
     metric's pairs.
 
-    Raises ValueError, naming the policy, if its seeds are not the reference's in the same
-    order (e.g. an interrupted evaluation scored fewer).
+    A policy interrupted before its last seeds (or a reference that was) is paired on the
+    seeds both finished. Raises ValueError, naming the policy, if it was asked for other seeds
+    than the reference, or scored them in another order.
     """
     from agents.sb3.report import higher_is_better, paired_difference
 
@@ -611,27 +612,37 @@ def paired_by_seed(all_results: list[dict[str, Any]]) -> list[dict[str, Any]]:
     for res in others:
         policy = res["config"]["policy"]
         tables = _per_seed_tables(res)
+        requested, ref_requested = _requested_seeds(res), _requested_seeds(reference)
+        if requested != ref_requested:
+            raise ValueError(
+                f"--compare {policy}: seeds {requested}, but the reference --policy "
+                f"{ref_policy} has {ref_requested}: a paired comparison needs the same seeds in "
+                "the same order"
+            )
         for localizer, ref_table in ref_tables.items():
-            table = tables.get(localizer, [])
-            for what, got, want in (
-                ("seeds", res["config"]["seeds"], reference["config"]["seeds"]),
-                ("per-seed results", [d["seed"] for d in table], [d["seed"] for d in ref_table]),
-            ):
-                if list(got) != list(want):
-                    raise ValueError(
-                        f"--compare {policy}: {what} {list(got)}"
-                        + (f" ({localizer})" if localizer else "")
-                        + f", but the reference --policy {ref_policy} has {list(want)}: a "
-                        "paired comparison needs the same seeds in the same order"
-                    )
+            # An interrupted run scored only its first seeds: pair on those both finished.
+            finished = {d["seed"] for d in tables.get(localizer, [])}
+            ref_finished = {d["seed"] for d in ref_table}
+            table = [d for d in tables.get(localizer, []) if d["seed"] in ref_finished]
+            ref_table = [d for d in ref_table if d["seed"] in finished]
+            if [d["seed"] for d in table] != [d["seed"] for d in ref_table]:
+                raise ValueError(
+                    f"--compare {policy}: per-seed results in the order "
+                    f"{[d['seed'] for d in table]}"
+                    + (f" ({localizer})" if localizer else "")
+                    + f", but the reference --policy {ref_policy} has "
+                    f"{[d['seed'] for d in ref_table]}: a paired comparison needs the same "
+                    "seeds in the same order"
+                )
             keys = [k for k in dict.fromkeys(k for d in ref_table for k in d) if k != "seed"]
             for key in keys:
                 if not all(key in d for d in (*ref_table, *table)):
                     continue  # a metric some seed has no value of (e.g. an empty episode)
-                pairs = [
-                    (d["seed"], d[key], r[key])
-                    for d, r in zip(table, ref_table, strict=True)
-                    if math.isfinite(d[key]) and math.isfinite(r[key])
+                values, reference_values = [d[key] for d in table], [r[key] for r in ref_table]
+                differences = [
+                    (d["seed"], v - r)
+                    for d, v, r in zip(table, values, reference_values, strict=True)
+                    if math.isfinite(v - r)  # as paired_difference leaves them out
                 ]
                 row: dict[str, Any] = {
                     "policy": policy,
@@ -639,26 +650,23 @@ def paired_by_seed(all_results: list[dict[str, Any]]) -> list[dict[str, Any]]:
                     "localizer": localizer,
                     "metric": key,
                     "better_is": "higher" if higher_is_better(key) else "lower",
-                    "seeds": [seed for seed, _, _ in pairs],
-                    "differences": [v - r for _, v, r in pairs],
+                    "seeds": [seed for seed, _ in differences],
+                    "differences": [x for _, x in differences],
+                    **paired_difference(values, reference_values, key),
                 }
-                if not pairs:
-                    row.update(
-                        mean_difference=None,
-                        standard_error=None,
-                        seeds_better=0,
-                        n_seeds=0,
-                        verdict="no seed scored by both",
-                    )
-                else:
-                    stat = paired_difference([v for _, v, _ in pairs], [r for *_, r in pairs], key)
-                    if not math.isfinite(stat["standard_error"]):
-                        stat["standard_error"] = None  # one seed: JSON null, not NaN
-                    if stat["verdict"] in ("better", "worse"):
-                        stat["verdict"] += " by > 2 SE"
-                    row.update(stat)
+                for field in ("mean_difference", "standard_error"):
+                    if not math.isfinite(row[field]):
+                        row[field] = None  # no pair, or one seed: JSON null, not NaN
+                if row["verdict"] in ("better", "worse"):
+                    row["verdict"] += " by > 2 SE"
                 rows.append(row)
     return rows
+
+
+def _requested_seeds(results: dict[str, Any]) -> list[int]:
+    """The seeds an evaluation was asked for (an interrupted one finished fewer)."""
+    config = results["config"]
+    return list(config.get("seeds_requested", config["seeds"]))
 
 
 def _per_seed_tables(results: dict[str, Any]) -> dict[str | None, list[dict[str, float]]]:

@@ -558,6 +558,7 @@ def _train(parser, args, meta, reward_params, val_seeds, phases, max_wall_s) -> 
         "reward_task_params": reward_params,
         "fit_seed": args.fit_seed,
     }
+    budget = WallBudget(max_wall_s)  # as in every trainer, the base's scoring counts
     log: dict[str, Any] = {
         "args": vars(args),
         "env_kwargs": env_kwargs,
@@ -587,7 +588,6 @@ def _train(parser, args, meta, reward_params, val_seeds, phases, max_wall_s) -> 
 
     iteration = completed = 0
     start = time.perf_counter()
-    budget = WallBudget(max_wall_s)
     with Interrupts() as interrupts:
         with interrupts.caught():
             save_and_score(0)

@@ -31,7 +31,8 @@ quarter of its turn rate's, against a third and under a tenth for one frame
   and reused when the command is rerun with the same env, base, teacher and seeds, and, from
   round 2, the same driving student (its weights' hash): round 1's always, a later round's
   when the refit reproduces the student bit for bit (the same machine and ``--torch-threads``;
-  torch's sums are not bit-identical across thread counts). Every round is refitted.
+  torch's sums are not bit-identical across thread counts). Every round is refitted, and a
+  rerun first removes the earlier run's students.
 - Ctrl-C or SIGTERM stops the run where it is, and ``--max-wall-minutes`` after the round in
   which the budget passes: ``student.pt`` becomes the last completed round's student (a copy
   of its ``student_round<r>.pt``; not written if no round completed), ``train_log.json``
@@ -373,6 +374,12 @@ def main(argv: list[str] | None = None) -> int:
     return _dagger(args, rounds, val_seeds, phases, env_kwargs, model, out, max_wall_s)
 
 
+def _finite_or_inf(val: dict[str, float]) -> float:
+    """A round's validation formation error for choosing the best (a NaN is never best)."""
+    error = val["formation_error_m"]
+    return error if np.isfinite(error) else np.inf
+
+
 def _dagger(args, rounds, val_seeds, phases, env_kwargs, model, out, max_wall_s) -> int:
     """The DAgger rounds of :func:`main`, stopped by a signal or the wall-time budget (module
     doc); returns the exit code."""
@@ -396,6 +403,10 @@ def _dagger(args, rounds, val_seeds, phases, env_kwargs, model, out, max_wall_s)
         "phases": phases,
         "rounds": [],
     }
+    # A rerun into the same --out keeps the rounds' data for reuse, but not an earlier run's
+    # students: after a stop, the students left must be this run's.
+    for old in [out / "student.pt", out / "student_best.pt", *out.glob("student_round*.pt")]:
+        old.unlink(missing_ok=True)
     r = 1
     completed = 0  # the last round whose student is saved, scored and logged
     budget = WallBudget(max_wall_s)
@@ -458,8 +469,8 @@ def _dagger(args, rounds, val_seeds, phases, env_kwargs, model, out, max_wall_s)
                     }
                 )
                 write_json_atomically(out / "train_log.json", log, indent=1)
-                plot_train_logs([out / "train_log.json"], out / "train_log.png")
                 completed = r
+                plot_train_logs([out / "train_log.json"], out / "train_log.png")
                 print(
                     f"round {r}: {len(seeds)} episodes ({'reused' if reused else 'collected'}, "
                     f"{t1 - t0:.0f} s), fit {t2 - t1:.0f} s, loss {losses[-1]:.4f}; on "
@@ -476,7 +487,7 @@ def _dagger(args, rounds, val_seeds, phases, env_kwargs, model, out, max_wall_s)
             if usable is not None:
                 atomic_write(out / "student.pt", lambda tmp: shutil.copyfile(usable, tmp))
                 # Round 18's selection (docs/results.md): the round best on --val-seeds.
-                best = min(log["rounds"], key=lambda d: d["val"]["formation_error_m"])
+                best = min(log["rounds"][:completed], key=lambda d: _finite_or_inf(d["val"]))
                 log["best_round"] = best["round"]
                 selected = out / f"student_round{best['round']}.pt"
                 atomic_write(out / "student_best.pt", lambda tmp: shutil.copyfile(selected, tmp))
@@ -486,7 +497,7 @@ def _dagger(args, rounds, val_seeds, phases, env_kwargs, model, out, max_wall_s)
     if completed:
         print(
             f"student_best.pt is round {log['best_round']}'s, the best on {args.val_seeds} "
-            f"({min(d['val']['formation_error_m'] for d in log['rounds']):.4f} m)"
+            f"({min(_finite_or_inf(d['val']) for d in log['rounds'][:completed]):.4f} m)"
         )
     if not log["stopped"]:
         return 0

@@ -210,11 +210,14 @@ def paired_differences(
 
 #: :func:`paired_difference`'s verdict when there is no standard error (fewer than 2 seeds).
 NO_SE_VERDICT = "SE needs at least 2 seeds"
+#: ... and when no seed has a value on both sides.
+NO_PAIR_VERDICT = "no seed scored by both"
 
 
 def paired_difference(values: Any, reference: Any, metric: str) -> dict[str, Any]:
     """One policy's per-seed ``values`` of ``metric`` against a ``reference``'s on the same
-    seeds, in the same order: the mean of the differences ``values - reference``, its standard
+    seeds, in the same order (a seed where either is not finite is left out, and not counted
+    in ``n_seeds``): the mean of the differences ``values - reference``, its standard
     error (``std(ddof=1) / sqrt(n)``; NaN for one seed), on how many seeds the policy is better
     (lower, or higher for :data:`HIGHER_IS_BETTER`; a tie is not), and ``verdict``:
     ``"better"`` / ``"worse"`` beyond 2 SE, else ``"within 2 SE"`` (:data:`NO_SE_VERDICT`
@@ -222,13 +225,22 @@ def paired_difference(values: Any, reference: Any, metric: str) -> dict[str, Any
     ``agents.sb3.localization_table`` and ``swarm-phd evaluate --compare``."""
     a = np.asarray(values, dtype=np.float64)
     b = np.asarray(reference, dtype=np.float64)
-    if a.ndim != 1 or a.shape != b.shape or not len(a):
+    if a.ndim != 1 or a.shape != b.shape:
         raise ValueError(
             f"paired_difference needs one value per seed on the same seeds, got {a.shape} "
             f"values and {b.shape} reference values of {metric}"
         )
     diff = a - b
+    diff = diff[np.isfinite(diff)]  # a seed either side has no value of (nothing in range)
     n = len(diff)
+    if n == 0:
+        return {
+            "mean_difference": float("nan"),
+            "standard_error": float("nan"),
+            "seeds_better": 0,
+            "n_seeds": 0,
+            "verdict": NO_PAIR_VERDICT,
+        }
     sign = 1.0 if higher_is_better(metric) else -1.0  # positive sign * diff = better
     se = float(diff.std(ddof=1) / np.sqrt(n)) if n > 1 else float("nan")
     mean = float(diff.mean())

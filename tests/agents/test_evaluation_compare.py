@@ -236,11 +236,20 @@ def test_compare_with_one_seed_gives_the_difference_without_an_se(tmp_path, caps
     assert "nan" not in table.lower()
 
 
-def _crafted(policy: str, seeds: list[int], localizer_seeds: list[int] | None = None) -> dict:
-    """A result of evaluate_localization with only what paired_by_seed reads."""
+def _crafted(
+    policy: str,
+    seeds: list[int],
+    localizer_seeds: list[int] | None = None,
+    requested: list[int] | None = None,
+) -> dict:
+    """A result of evaluate_localization with only what paired_by_seed reads (``requested``:
+    an interrupted run's seeds asked for, ``seeds`` those it finished)."""
     per_seed = localizer_seeds if localizer_seeds is not None else seeds
+    config = {"policy": policy, "seeds": seeds}
+    if requested is not None:
+        config.update(interrupted=True, seeds_requested=requested)
     return {
-        "config": {"policy": policy, "seeds": seeds},
+        "config": config,
         "task_per_seed": [{"seed": s, "formation_error_m": 0.1 * s} for s in seeds],
         "localizers": {
             "phd-lc": {"per_seed": [{"seed": s, "gospa_mean_m": 0.2 + s} for s in per_seed]}
@@ -257,12 +266,23 @@ def test_paired_by_seed_refuses_seeds_that_do_not_line_up():
     ]
     for bad in (
         _crafted("runs/x/model.zip", [0, 2, 1]),  # same seeds, another order
-        _crafted("runs/x/model.zip", [0, 1]),  # interrupted: fewer seeds
-        _crafted("runs/x/model.zip", [0, 1, 2], localizer_seeds=[0, 1]),
+        _crafted("runs/x/model.zip", [0, 1]),  # asked for other seeds
+        _crafted("runs/x/model.zip", [0, 1, 2], localizer_seeds=[0, 2, 1]),
     ):
         with pytest.raises(ValueError, match="runs/x/model.zip.*same seeds in the same order"):
             paired_by_seed([ref, _crafted("random", [0, 1, 2]), bad])
+    # Interrupted after two seeds (the reference, or the compared policy): paired on those.
+    cut = _crafted("runs/x/model.zip", [0, 1], requested=[0, 1, 2])
+    for results in ([ref, cut], [cut, ref]):
+        rows = paired_by_seed(results)
+        assert rows and all(r["seeds"] == [0, 1] and r["n_seeds"] == 2 for r in rows)
     from agents.sb3.report import paired_difference
 
     with pytest.raises(ValueError, match="same seeds"):
         paired_difference([0.1, 0.2], [0.1], "gospa_mean_m")  # no silent broadcasting
+    # A seed with no value on one side (NaN: nothing in range) is left out, for every caller.
+    stat = paired_difference([0.1, float("nan"), 0.3], [0.0, 0.1, 0.1], "gospa_mean_m")
+    assert stat["n_seeds"] == 2 and stat["mean_difference"] == pytest.approx(0.15)
+    assert stat["standard_error"] == pytest.approx(0.05) and stat["seeds_better"] == 0
+    empty = paired_difference([float("nan")], [0.1], "gospa_mean_m")
+    assert empty["n_seeds"] == 0 and empty["verdict"] == "no seed scored by both"

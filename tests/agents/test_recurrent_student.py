@@ -346,6 +346,18 @@ def test_the_wall_time_budget_stops_after_a_round_with_its_student(tmp_path, cap
     assert not (out / "round2.npz").exists()  # round 2 never started
 
 
+def test_a_rerun_into_the_same_out_leaves_no_student_of_the_earlier_run(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main([*ARGS, "--round-seeds", "0-1", "2", "--out", str(out)]) == 0
+    assert (out / "student_round2.pt").is_file()
+    argv = [*ARGS, "--round-seeds", "0-1", "2", "--out", str(out), "--max-wall-minutes", "1e-6"]
+    assert main(argv) == 0  # stops after round 1: the earlier run's round 2 must be gone
+    log = json.loads((out / "train_log.json").read_text())
+    _stopped_in_round_2(out, log, "max-wall-minutes")
+    assert log["best_round"] == 1
+    assert _digest(out / "student_best.pt") == _digest(out / "student_round1.pt")
+
+
 def test_report_scores_students_pooled_against_their_base_without_training_runs(
     env, tmp_path, capsys
 ):

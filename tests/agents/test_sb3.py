@@ -192,7 +192,7 @@ def test_supersuit_workers_use_one_kernel_thread_and_the_trainer_keeps_its_own()
     before = numba.get_num_threads()
     assert make() == {"a": 1}
     assert numba.get_num_threads() == before  # the training process keeps its threads
-    ctx = multiprocessing.get_context("fork")  # SuperSuit's workers are forked on Linux
+    ctx = multiprocessing.get_context("spawn")  # as the trainer starts SuperSuit's workers
     queue = ctx.Queue()
     child = ctx.Process(target=_threads_after_copy, args=(make, queue))
     child.start()
@@ -201,6 +201,12 @@ def test_supersuit_workers_use_one_kernel_thread_and_the_trainer_keeps_its_own()
 
 
 def test_training_in_supersuit_worker_processes_saves_a_usable_model(tmp_path):
+    # Step an env here first: forked workers of a process that has run the parallel kernels
+    # die at their first kernel (the trainer spawns them instead).
+    env = parallel_env("lab-3m-4", task="formation", observation="phd")
+    env.reset(seed=0)
+    env.step({a: env.action_space(a).sample() * 0 for a in env.agents})
+    env.close()
     out = tmp_path / "procs"
     args = ["train", "--preset", "lab-3m-4", "--task", "formation", "--observation", "phd"]
     args += ["--vec", "supersuit", "--num-cpus", "2", "--n-copies", "2", "--timesteps", "512"]
