@@ -272,6 +272,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="torch intra-op threads (1 leaves the other core to the envs)",
     )
     parser.add_argument(
+        "--kernel-threads",
+        type=int,
+        default=1,
+        help="threads of the compiled sensor and filter kernels of the envs in this process "
+        "(1: lab-3m-4 training ran 1.3x faster than with 2 on 2 cores, benchmarks/RESULTS.md; "
+        "SuperSuit's worker processes use 1 each)",
+    )
+    parser.add_argument(
         "--extractor",
         default="sets",
         choices=["sets", "mlp"],
@@ -361,6 +369,7 @@ def run(args: argparse.Namespace) -> int:
         vec=args.vec,
         checkpoint_every=args.checkpoint_every,
         torch_threads=args.torch_threads,
+        kernel_threads=args.kernel_threads,
         progress_bar=not (args.no_progress_bar or getattr(args, "quiet", False)),
         ppo_kwargs=ppo_kwargs,
         max_wall_s=max_wall_s,
@@ -439,15 +448,34 @@ def _resolve_vec(
 def train(*args: Any, **kwargs: Any) -> Path:
     """Train and return the path of ``model.zip``; see the module docstring for the outputs.
 
-    Arguments as :func:`_train`. An interrupt (SIGINT/SIGTERM) ends training early with the
-    model saved; ``train_summary.json`` then says ``"interrupted": "SIGINT"`` and
-    ``"stopped": "SIGINT"``. ``max_wall_s`` ends it at the first env step past that many
-    seconds, the model saved, with ``"stopped": "max-wall-minutes"``.
+    Arguments as :func:`_train` and :func:`_train_with`. An interrupt (SIGINT/SIGTERM) ends
+    training early with the model saved; ``train_summary.json`` then says ``"interrupted":
+    "SIGINT"`` and ``"stopped": "SIGINT"``. ``max_wall_s`` ends it at the first env step past
+    that many seconds, the model saved, with ``"stopped": "max-wall-minutes"``.
     """
     return _train(*args, **kwargs)[0]
 
 
 def _train(
+    env_kwargs: dict[str, Any], timesteps: int, out: Path, *, kernel_threads: int = 1, **kwargs
+) -> tuple[Path, str | None]:
+    """:func:`_train_with` on ``kernel_threads`` threads of the compiled kernels (checked here,
+    ``ValueError`` naming ``--kernel-threads``); the caller's setting is restored after."""
+    import numba
+
+    from swarm_core.threads import set_kernel_threads
+
+    limit = numba.config.NUMBA_NUM_THREADS
+    check_number("--kernel-threads", kernel_threads, integer=True, low=1, high=limit)
+    previous = numba.get_num_threads()
+    set_kernel_threads(kernel_threads)
+    try:
+        return _train_with(env_kwargs, timesteps, out, **kwargs)
+    finally:
+        numba.set_num_threads(previous)
+
+
+def _train_with(
     env_kwargs: dict[str, Any],
     timesteps: int,
     out: Path,
@@ -589,6 +617,8 @@ def _train(
     except ImportError as exc:  # pragma: no cover - depends on the install
         raise ValueError("training needs the rl extras: pip install -e '.[rl]'") from exc
 
+    import numba
+
     from swarm_env import parallel_env
 
     # After the flags' own checks (their errors come first), before any env is built.
@@ -641,6 +671,7 @@ def _train(
             "n_agents_per_env": n_agents,
             "checkpoint_every": checkpoint_every,
             "torch_threads": torch_threads,
+            "kernel_threads": numba.get_num_threads(),
             "ppo": ppo,
             "extractor": extractor,
             "warm_start": warm_start,

@@ -19,7 +19,10 @@ from swarm_phd.cli import main  # noqa: E402
 
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory):
+    import numba
+
     out = tmp_path_factory.mktemp("runs") / "smoke"
+    threads_before = numba.get_num_threads()
     code = main(
         [
             "train",
@@ -51,6 +54,7 @@ def run_dir(tmp_path_factory):
         ]
     )
     assert code == 0
+    assert numba.get_num_threads() == threads_before  # --kernel-threads 1, then restored
     return out
 
 
@@ -66,6 +70,7 @@ def test_training_writes_model_checkpoints_logs(run_dir):
     meta = read_metadata(checkpoints[0])
     assert meta["env_kwargs"] == kwargs
     assert meta["extractor"] == "sets" and meta["obs_norm"] is None
+    assert json.loads((run_dir / "train_config.json").read_text())["kernel_threads"] == 1
 
 
 def _actions(model_path, seed):
