@@ -29,13 +29,7 @@ def main() -> None:
     from swarm_core.threads import set_kernel_threads
 
     set_kernel_threads(1)
-    env_kwargs = {
-        "preset": "lab-3m-4",
-        "task": "formation",
-        "task_params": {"progress_weight": 10},
-        "observation": "phd",
-        "max_steps": 300,
-    }
+    env_kwargs = {"preset": "lab-3m-4", "task": "formation", "observation": "phd"}
     venv = make_batched_vec_env(env_kwargs, n_copies=args.copies, seed=0)
     venv.reset()
     actions = np.zeros((venv.num_envs, 2), dtype=np.float32)
