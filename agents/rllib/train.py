@@ -105,6 +105,8 @@ def run(args: argparse.Namespace) -> int:
         # SB3's ratio clip and KL early stop have no like-for-like RLlib setting here.
         "--clip-range": getattr(args, "clip_range", 0.2) != 0.2,
         "--target-kl": getattr(args, "target_kl", None) is not None,
+        # Its env runners run the kernels on one thread each, whatever this says.
+        "--kernel-threads": getattr(args, "kernel_threads", 1) != 1,
     }
     given = [flag for flag, on in sb3_only.items() if on]
     if given:

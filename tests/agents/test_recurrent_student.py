@@ -346,6 +346,26 @@ def test_the_wall_time_budget_stops_after_a_round_with_its_student(tmp_path, cap
     assert not (out / "round2.npz").exists()  # round 2 never started
 
 
+def test_student_best_is_the_round_best_on_validation_not_the_last(tmp_path, monkeypatch):
+    import agents.sb3.report as report
+
+    real_score = report.score
+    errors = iter([0.09, 0.05, 0.07])  # the base, round 1, round 2: round 1 is best
+
+    def score(*args, **kwargs):
+        result = real_score(*args, **kwargs)
+        result["mean"]["formation_error_m"] = next(errors)
+        return result
+
+    monkeypatch.setattr(report, "score", score)
+    out = tmp_path / "run"
+    assert main([*ARGS, "--round-seeds", "0-1", "2", "--out", str(out)]) == 0
+    log = json.loads((out / "train_log.json").read_text())
+    assert log["best_round"] == 1
+    assert _digest(out / "student_best.pt") == _digest(out / "student_round1.pt")
+    assert _digest(out / "student.pt") == _digest(out / "student_round2.pt")
+
+
 def test_a_rerun_into_the_same_out_leaves_no_student_of_the_earlier_run(tmp_path, capsys):
     out = tmp_path / "run"
     assert main([*ARGS, "--round-seeds", "0-1", "2", "--out", str(out)]) == 0

@@ -181,6 +181,7 @@ def test_engine_option_dispatches_to_the_chosen_engine(monkeypatch):
         (["--timesteps", "0"], "--timesteps"),
         (["--clip-range", "0.1"], "--clip-range"),
         (["--target-kl", "0.02"], "--target-kl"),
+        (["--kernel-threads", "2"], "--kernel-threads"),
     ],
 )
 def test_rllib_engine_refuses_bad_flags_before_ray_starts(monkeypatch, tmp_path, extra, named):
