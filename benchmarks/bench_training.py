@@ -8,6 +8,8 @@ same env (``lab-3m-4`` formation, PHD observations: 4 robots) through:
 - ``supersuit``: the same, 4 copies in this process;
 - ``batched-K``: :class:`agents.sb3.batched.BatchedSwarmVecEnv`, K copies sharing one localizer
   call per step;
+- ``batched-KxW``: the same K copies split across W worker processes
+  (:class:`agents.sb3.batched_subproc.SubprocBatchedVecEnv`, each worker one localizer call);
 - ``sectors-K``: the same with 16 lidar sectors in the observation (``lidar_sectors=16``);
 - ``residual-K``: the same plus the residual mode (``residual="scripted:formation"``: one
   scripted controller per copy runs every step, :mod:`agents.sb3.residual`).
@@ -42,9 +44,12 @@ def make_venv(variant: str, seed: int = 0):
     from agents.sb3.batched import make_batched_vec_env
 
     kind, copies = variant.split("-")
+    copies, _, workers = copies.partition("x")
     kwargs = ENV_KWARGS if kind == "batched" else {**ENV_KWARGS, "lidar_sectors": 16}
     residual = "scripted:formation" if kind == "residual" else None
-    return make_batched_vec_env(kwargs, n_copies=int(copies), seed=seed, residual=residual)
+    return make_batched_vec_env(
+        kwargs, n_copies=int(copies), seed=seed, residual=residual, n_workers=int(workers or 0)
+    )
 
 
 def measure(variant: str, rollouts: int) -> dict:

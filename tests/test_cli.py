@@ -205,16 +205,17 @@ def test_train_stopped_by_its_wall_time_budget_saves_a_usable_model(tmp_path, ca
         env.close()
 
 
-def _start_train(out: Path) -> subprocess.Popen:
+def _start_train(out: Path, *extra: str, new_session: bool = False) -> subprocess.Popen:
     env = {**os.environ, "SWARM_PHD_PROGRESS": "lines", "SWARM_PHD_PROGRESS_EVERY_S": "0.2"}
     return subprocess.Popen(
         [sys.executable, "-m", "swarm_phd.cli", *TRAIN, "--timesteps", "1000000"]
-        + ["--checkpoint-every", "100000000", "--out", str(out)],
+        + ["--checkpoint-every", "100000000", "--out", str(out), *extra],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
         env=env,
         cwd=Path(__file__).resolve().parents[1],
+        start_new_session=new_session,
     )
 
 
@@ -261,6 +262,36 @@ def test_interrupted_train_saves_and_exits_with_one_line(tmp_path):
         summary = json.loads((out / "train_summary.json").read_text())
         assert summary["interrupted"] == summary["stopped"] == name and summary["timesteps"] > 0
         assert checkpoints[0].name == f"model_{summary['timesteps']}_steps.zip"
+
+
+def test_ctrl_c_to_the_process_group_with_batched_workers_saves_and_ends_them(tmp_path):
+    """A terminal's Ctrl-C reaches the trainer and its env workers (``--num-cpus 2``): the
+    trainer alone acts on it (saves, exits 130) and closes the workers; none is left."""
+    pytest.importorskip("stable_baselines3")
+    out = tmp_path / "workers"
+    proc = _start_train(out, "--num-cpus", "2", "--n-copies", "2", new_session=True)
+    try:
+        _wait_for_training(proc)
+        time.sleep(1.0)
+        os.killpg(proc.pid, signal.SIGINT)
+        _, stderr = proc.communicate(timeout=90)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stderr, stderr
+    assert (out / "model.zip").is_file()
+    summary = json.loads((out / "train_summary.json").read_text())
+    assert summary["interrupted"] == "SIGINT" and summary["timesteps"] > 0
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:  # the group is empty once the workers have exited
+        try:
+            os.killpg(proc.pid, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.1)
+    else:
+        pytest.fail("env workers outlived the trainer")
 
 
 def test_progress_lines_when_not_a_tty_and_silent_when_quiet(monkeypatch):

@@ -41,7 +41,12 @@ from localization.registry import make_localizer
 from swarm_env.config import make_config
 from swarm_env.env import SwarmEnv
 
-__all__ = ["BatchedSwarmVecEnv", "make_batched_vec_env"]
+__all__ = [
+    "BatchedSwarmVecEnv",
+    "check_unit_actions",
+    "copy_seeds_for_reset",
+    "make_batched_vec_env",
+]
 
 
 class BatchedSwarmVecEnv(VecEnv):
@@ -71,6 +76,11 @@ class BatchedSwarmVecEnv(VecEnv):
         Append each agent's true-state block for a centralised critic
         (:mod:`agents.sb3.central_critic`; simulation only): the observation space grows by
         ``P = critic_state_dims`` unbounded entries, after the env's observation.
+    copy_offset : int
+        These copies are copies ``copy_offset ..`` of a larger batch split across processes
+        (:mod:`agents.sb3.batched_subproc`): copy ``k`` takes the seeds of copy
+        ``copy_offset + k`` (first reset ``seed + copy_offset + k``, the residual base's
+        reseeding), so the split rollout equals the unsplit one.
     """
 
     def __init__(
@@ -82,6 +92,7 @@ class BatchedSwarmVecEnv(VecEnv):
         critic_state: bool = False,
         residual_observes_base: bool = False,
         residual_mode: str = "add",
+        copy_offset: int = 0,
     ) -> None:
         from agents.sb3.residual import check_residual_mode
 
@@ -92,6 +103,9 @@ class BatchedSwarmVecEnv(VecEnv):
         self.residual_mode = residual_mode
         if isinstance(n_copies, bool) or not isinstance(n_copies, int) or n_copies < 1:
             raise ValueError(f"n_copies must be an int >= 1, got {n_copies!r}")
+        if isinstance(copy_offset, bool) or not isinstance(copy_offset, int) or copy_offset < 0:
+            raise ValueError(f"copy_offset must be an int >= 0, got {copy_offset!r}")
+        self.copy_offset = copy_offset
         kwargs = dict(env_kwargs)
         if "world" in kwargs:
             raise ValueError("the batched VecEnv simulates its copies itself: no world= argument")
@@ -132,7 +146,7 @@ class BatchedSwarmVecEnv(VecEnv):
             )
         super().__init__(n * n_copies, space, UNIT_ACTION_SPACE)
         self._actions: np.ndarray | None = None
-        self._next_seed = seed
+        self._next_seed = None if seed is None else seed + copy_offset
         self._bases = None
         if residual is not None:
             from agents.sb3.residual import ResidualBase
@@ -170,27 +184,22 @@ class BatchedSwarmVecEnv(VecEnv):
         """Reset every copy; ``copy_seeds`` (one int per copy) overrides the constructor's
         seed and :meth:`seed`, e.g. to give two copies the same episode (common random
         numbers, :mod:`agents.sb3.paired_returns`)."""
-        seeds = [None if self._next_seed is None else self._next_seed + k for k in self._copies]
-        if any(s is not None for s in self._seeds):  # VecEnv.seed() was called: per entry
-            seeds = [self._seeds[k * self.agents_per_copy] for k in self._copies]
-        if copy_seeds is not None:
-            copy_seeds = list(copy_seeds)
-            if len(copy_seeds) != len(self.envs) or not all(
-                isinstance(s, (int, np.integer)) and not isinstance(s, bool) and s >= 0
-                for s in copy_seeds
-            ):
-                raise ValueError(
-                    f"copy_seeds must be {len(self.envs)} ints >= 0 (one per copy), "
-                    f"got {copy_seeds!r}"
-                )
-            seeds = [int(s) for s in copy_seeds]
+        seeds = copy_seeds_for_reset(
+            len(self.envs), self.agents_per_copy, self._next_seed, self._seeds, copy_seeds
+        )
         self._next_seed = None
-        obs = self._reset_copies(self._copies, seeds)
         self._reset_seeds()
+        return self.reset_with_seeds(seeds)
+
+    def reset_with_seeds(self, seeds: Sequence[int | None]) -> np.ndarray:
+        """Reset copy ``k`` with ``seeds[k]`` (``None``: fresh entropy); the observation
+        (num_envs, D). What :meth:`reset` does once it has chosen the seeds."""
+        obs = self._reset_copies(self._copies, list(seeds))
         return np.concatenate([obs[k] for k in self._copies])
 
     def step_async(self, actions: np.ndarray) -> None:
-        self._actions = np.asarray(actions)
+        # Checked before any copy moves: a bad entry must not leave some copies stepped.
+        self._actions = check_unit_actions(actions, self.num_envs, self.agents_per_copy)
 
     def step_wait(self):
         if self._actions is None:
@@ -284,11 +293,7 @@ class BatchedSwarmVecEnv(VecEnv):
         return sorted({i // self.agents_per_copy for i in self._indices(indices)})
 
     def _indices(self, indices) -> list[int]:
-        if indices is None:
-            return list(range(self.num_envs))
-        if isinstance(indices, int):
-            return [indices]
-        return list(indices)
+        return list(self._get_indices(indices))  # SB3's reading of None / int / iterable
 
     def _step_localizers(self, feeds: dict[int, SwarmFeed | None]) -> None:
         """Give the localizer(s) the feeds of the copies in ``feeds`` (``None``: the copy does
@@ -330,12 +335,58 @@ class BatchedSwarmVecEnv(VecEnv):
             base = None
             if self._bases is not None:
                 if s is None:
-                    s = 1_000_003 * (self._base_seed + 1) + 1009 * k + self._episodes[k]
+                    copy = self.copy_offset + k
+                    s = 1_000_003 * (self._base_seed + 1) + 1009 * copy + self._episodes[k]
                 self._bases[k].reset(int(s))
                 self._episodes[k] += 1
                 base = self._base_commands[k] = self._bases[k](obs, infos)
             out[k] = self._observation(self.envs[k], obs, base)
         return out
+
+
+def copy_seeds_for_reset(
+    n_copies: int,
+    agents_per_copy: int,
+    next_seed: int | None,
+    entry_seeds: Sequence[int | None],
+    copy_seeds: Sequence[int] | None,
+) -> list[int | None]:
+    """The seed of each copy at a reset: ``copy_seeds`` when given (checked: one int >= 0 per
+    copy), else ``VecEnv.seed()``'s per-entry seeds (``entry_seeds``, the copy's first agent's)
+    when it was called, else the constructor's ``next_seed + k`` (first reset only: ``None``
+    after it, i.e. fresh entropy)."""
+    seeds = [None if next_seed is None else next_seed + k for k in range(n_copies)]
+    if any(s is not None for s in entry_seeds):  # VecEnv.seed() was called: per entry
+        seeds = [entry_seeds[k * agents_per_copy] for k in range(n_copies)]
+    if copy_seeds is not None:
+        copy_seeds = list(copy_seeds)
+        if len(copy_seeds) != n_copies or not all(
+            isinstance(s, (int, np.integer)) and not isinstance(s, bool) and s >= 0
+            for s in copy_seeds
+        ):
+            raise ValueError(
+                f"copy_seeds must be {n_copies} ints >= 0 (one per copy), got {copy_seeds!r}"
+            )
+        seeds = [int(s) for s in copy_seeds]
+    return seeds
+
+
+def check_unit_actions(actions: Any, num_envs: int, agents_per_copy: int) -> np.ndarray:
+    """``actions`` (num_envs, 2) as an array of its own dtype, or ``ValueError`` naming the
+    shape or the first non-finite entry (its copy and agent); unit actions are clipped later."""
+    values = np.asarray(actions)  # the dtype kept: the rollout stays bit-identical
+    if values.dtype.kind not in "fiu":
+        raise ValueError(f"actions must be a real (num_envs, 2) array, got dtype {values.dtype}")
+    if values.shape != (num_envs, 2):
+        raise ValueError(f"actions must have shape ({num_envs}, 2), got {values.shape}")
+    bad = np.flatnonzero(~np.isfinite(values).all(axis=1))
+    if bad.size:
+        j = int(bad[0])
+        raise ValueError(
+            f"actions[{j}] (copy {j // agents_per_copy}, agent {j % agents_per_copy}) is not "
+            f"finite: {values[j].tolist()}"
+        )
+    return values
 
 
 def _config_overrides(kwargs: dict[str, Any]) -> dict[str, Any]:
@@ -353,17 +404,23 @@ def make_batched_vec_env(
     critic_state: bool = False,
     residual_observes_base: bool = False,
     residual_mode: str = "add",
+    n_workers: int = 0,
 ):
-    """:class:`BatchedSwarmVecEnv` wrapped in SB3's ``VecMonitor`` (episode statistics)."""
+    """:class:`BatchedSwarmVecEnv` wrapped in SB3's ``VecMonitor`` (episode statistics); with
+    ``n_workers`` >= 1, the copies split across that many worker processes
+    (:class:`~agents.sb3.batched_subproc.SubprocBatchedVecEnv`, the same rollout)."""
     from stable_baselines3.common.vec_env import VecMonitor
 
-    venv = BatchedSwarmVecEnv(
-        env_kwargs,
-        n_copies,
-        seed,
-        residual=residual,
-        critic_state=critic_state,
-        residual_observes_base=residual_observes_base,
-        residual_mode=residual_mode,
-    )
+    options = {
+        "residual": residual,
+        "critic_state": critic_state,
+        "residual_observes_base": residual_observes_base,
+        "residual_mode": residual_mode,
+    }
+    if n_workers == 0:
+        venv = BatchedSwarmVecEnv(env_kwargs, n_copies, seed, **options)
+    else:
+        from agents.sb3.batched_subproc import SubprocBatchedVecEnv
+
+        venv = SubprocBatchedVecEnv(env_kwargs, n_copies, n_workers, seed, **options)
     return VecMonitor(venv, filename=monitor_file)

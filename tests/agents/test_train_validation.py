@@ -109,7 +109,7 @@ CLI_REFUSALS = [
     (["--residual", "scripted:formation", "--residual-log-std", "nan"], ["--residual-log-std"]),
     (["--warm-start", "scripted:formation", "--bc-steps", "0"], ["--bc-steps", "0"]),
     (["--warm-start", "scripted:formation", "--bc-log-std", "nan"], ["--bc-log-std", "nan"]),
-    (["--vec", "batched", "--num-cpus", "2"], ["--vec batched", "--num-cpus"]),
+    (["--n-copies", "2", "--num-cpus", "3"], ["--num-cpus 3", "--n-copies 2"]),
 ]
 
 

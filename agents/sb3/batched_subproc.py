@@ -1,0 +1,354 @@
+"""The batched VecEnv's copies split across worker processes, stepped at the same time.
+
+:class:`~agents.sb3.batched.BatchedSwarmVecEnv` steps its ``K`` copies in the calling process,
+so on a 2-core machine one core idles while the env steps (PPO's update, the other phase, runs
+on one torch thread: a second one is slower when another process shares the cores,
+``benchmarks/RESULTS.md``). Here each of ``n_workers`` spawned processes holds a
+``BatchedSwarmVecEnv`` of a contiguous block of the copies (one localizer call per worker per
+step); this process sends each its block of the actions, and gathers the rows in copy order.
+
+Copy ``k`` takes the seeds it takes in one process (``copy_offset``) and the filter math is per
+robot, so the rollout is bit-identical to ``BatchedSwarmVecEnv(env_kwargs, K, seed)``
+(``tests/agents/test_batched_subproc.py``).
+
+Workers are spawned, not forked (numba kills a forked child of a process that has run the
+OpenMP kernels), run their kernels on one thread, and ignore SIGINT: a Ctrl-C reaches the whole
+process group, and only the trainer acts on it (it saves, then closes the workers). Actions are
+checked here before any worker moves. A worker that raises sends its exception back, re-raised
+here over the worker's traceback; a worker that dies is reported with its exit code. Either
+way the VecEnv is then closed: its copies are no longer in step.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import pickle
+import signal
+import traceback
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.vec_env import VecEnv
+
+from agents.sb3.batched import check_unit_actions, copy_seeds_for_reset
+
+__all__ = ["SubprocBatchedVecEnv", "split_copies"]
+
+
+class RemoteTraceback(Exception):
+    """The traceback of an exception raised in an env worker (the ``__cause__`` of the
+    exception re-raised in the trainer's process)."""
+
+
+def split_copies(n_copies: int, n_workers: int) -> list[range]:
+    """Contiguous blocks of the ``n_copies`` copies, one per worker, sizes differing by <= 1."""
+    for name, value, low in (("n_copies", n_copies, 1), ("n_workers", n_workers, 1)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
+    if n_workers > n_copies:
+        raise ValueError(
+            f"n_workers ({n_workers}) must not exceed n_copies ({n_copies}): a worker "
+            "steps at least one copy"
+        )
+    edges = np.linspace(0, n_copies, n_workers + 1).round().astype(int)
+    return [range(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+
+
+class SubprocBatchedVecEnv(VecEnv):
+    """``n_copies`` env copies in ``n_workers`` processes as one SB3 VecEnv (module doc).
+
+    Parameters
+    ----------
+    env_kwargs, n_copies, seed
+        As :class:`~agents.sb3.batched.BatchedSwarmVecEnv`; entry ``k R + i`` is agent ``i``
+        of copy ``k`` (``R`` robots per copy), whatever worker steps it.
+    n_workers : int
+        Worker processes, in ``[1, n_copies]``; each steps a contiguous block of copies.
+    **batched_kwargs
+        The other keyword arguments of ``BatchedSwarmVecEnv`` (``residual``,
+        ``critic_state``, ``residual_observes_base``, ``residual_mode``).
+    """
+
+    def __init__(
+        self,
+        env_kwargs: dict[str, Any],
+        n_copies: int,
+        n_workers: int,
+        seed: int | None = 0,
+        **batched_kwargs: Any,
+    ) -> None:
+        self.blocks = split_copies(n_copies, n_workers)
+        self._closed = False
+        self._connections: list[Any] = []
+        self._processes: list[Any] = []
+        context = multiprocessing.get_context("spawn")
+        try:
+            for block in self.blocks:
+                parent, child = context.Pipe()
+                process = context.Process(
+                    target=_worker,
+                    args=(child, env_kwargs, len(block), block.start, seed, batched_kwargs),
+                    daemon=True,
+                    name=f"swarm-env-copies-{block.start}-{block.stop - 1}",
+                )
+                process.start()
+                child.close()
+                self._connections.append(parent)
+                self._processes.append(process)
+            described = self._gather(range(len(self.blocks)), moves=True)
+        except BaseException:
+            self.close()
+            raise
+        first = described[0]
+        self.agents_per_copy: int = first["agents_per_copy"]
+        self._high = first["action_high"]
+        self._next_seed = seed
+        self._actions: np.ndarray | None = None
+        super().__init__(
+            self.agents_per_copy * n_copies, first["observation_space"], first["action_space"]
+        )
+
+    @property
+    def n_copies(self) -> int:
+        return self.blocks[-1].stop
+
+    @property
+    def action_high(self) -> np.ndarray:
+        """``[v_max, omega_max]``: a unit action times this is the env command, shape (2,)."""
+        return self._high.copy()
+
+    def copy_infos(self, copy: int) -> dict[str, dict[str, Any]]:
+        """Copy ``copy``'s env ``infos`` for its current observation (as
+        :meth:`~agents.sb3.batched.BatchedSwarmVecEnv.copy_infos`; pickled across)."""
+        w, local = self._locate(copy)
+        return self._call(w, "copy_infos", local)
+
+    def scripted_commands(self, copy: int) -> dict[str, np.ndarray]:
+        """The residual base's commands for copy ``copy`` (residual mode only)."""
+        w, local = self._locate(copy)
+        return self._call(w, "scripted_commands", local)
+
+    # ------------------------------------------------------------------ VecEnv API
+    def reset(self, copy_seeds: Sequence[int] | None = None) -> np.ndarray:
+        """Reset every copy, seeded as :meth:`BatchedSwarmVecEnv.reset
+        <agents.sb3.batched.BatchedSwarmVecEnv.reset>` seeds the same copies."""
+        self._check_open()
+        seeds = copy_seeds_for_reset(
+            self.n_copies, self.agents_per_copy, self._next_seed, self._seeds, copy_seeds
+        )
+        self._next_seed = None
+        self._reset_seeds()
+        for w, block in enumerate(self.blocks):
+            self._send(w, ("call", ("reset_with_seeds", ([seeds[k] for k in block],), {})))
+        return np.concatenate(self._gather(range(len(self.blocks)), moves=True))
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._check_open()
+        actions = check_unit_actions(actions, self.num_envs, self.agents_per_copy)
+        n = self.agents_per_copy
+        for w, block in enumerate(self.blocks):
+            self._send(w, ("step", actions[block.start * n : block.stop * n]))
+        self._actions = actions
+
+    def step_wait(self):
+        if self._actions is None:
+            raise RuntimeError("step_wait() without step_async()")
+        self._actions = None
+        results = self._gather(range(len(self.blocks)), moves=True)
+        obs, rewards, dones, infos = zip(*results, strict=True)
+        return (
+            np.concatenate(obs),
+            np.concatenate(rewards),
+            np.concatenate(dones),
+            [info for block in infos for info in block],
+        )
+
+    def close(self) -> None:
+        """Close the workers' envs and end the processes (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        for conn in self._connections:
+            try:
+                conn.send(("close", None))
+            except (BrokenPipeError, OSError):
+                pass
+        for conn, process in zip(self._connections, self._processes, strict=False):
+            try:
+                if conn.poll(10):
+                    conn.recv()
+            except (EOFError, OSError):
+                pass
+            process.join(timeout=10)
+            if process.is_alive():
+                process.terminate()
+                process.join()
+            conn.close()
+
+    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+        return self._per_entry("get_attr", indices, attr_name)
+
+    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+        self._per_entry("set_attr", indices, attr_name, value)
+
+    def env_method(self, method_name: str, *args, indices=None, **kwargs) -> list[Any]:
+        return self._per_entry("env_method", indices, method_name, *args, **kwargs)
+
+    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+        return [False for _ in self._indices(indices)]
+
+    def get_images(self) -> Sequence[np.ndarray | None]:
+        self._check_open()
+        for w in range(len(self.blocks)):
+            self._send(w, ("call", ("get_images", (), {})))
+        return [image for block in self._gather(range(len(self.blocks))) for image in block]
+
+    # ------------------------------------------------------------------ internals
+    def _indices(self, indices) -> list[int]:
+        return list(self._get_indices(indices))  # SB3's reading of None / int / iterable
+
+    def _locate(self, copy: int) -> tuple[int, int]:
+        """(worker, the copy's index in that worker) of global copy ``copy``."""
+        for w, block in enumerate(self.blocks):
+            if copy in block:
+                return w, copy - block.start
+        raise ValueError(f"copy must be an int in [0, {self.n_copies}), got {copy!r}")
+
+    def _per_entry(self, method: str, indices, *args: Any, **kwargs: Any) -> list[Any]:
+        """Call a per-entry VecEnv method in the workers holding ``indices``; the results in
+        the order of ``indices``."""
+        self._check_open()
+        entries = self._indices(indices)
+        n = self.agents_per_copy
+        asked: dict[int, list[int]] = {}
+        for j in entries:
+            if isinstance(j, bool) or not isinstance(j, (int, np.integer)):
+                raise ValueError(f"indices must be ints in [0, {self.num_envs}), got {j!r}")
+            if not 0 <= j < self.num_envs:
+                raise ValueError(f"index {j} is outside [0, {self.num_envs})")
+            w, _ = self._locate(int(j) // n)
+            asked.setdefault(w, []).append(int(j) - self.blocks[w].start * n)
+        for w, local in asked.items():
+            self._send(w, ("call", (method, args, {**kwargs, "indices": local})))
+        answers = dict(zip(asked, self._gather(list(asked)), strict=True))
+        cursor = {w: 0 for w in asked}
+        out = []
+        for j in entries:
+            w, _ = self._locate(int(j) // n)
+            result = answers[w]
+            out.append(None if result is None else result[cursor[w]])
+            cursor[w] += 1
+        return out
+
+    def _call(self, w: int, name: str, *args: Any) -> Any:
+        self._check_open()
+        self._send(w, ("call", (name, args, {})))
+        return self._gather([w])[0]
+
+    def _gather(self, workers: Sequence[int], moves: bool = False) -> list[Any]:
+        """Each worker's answer, in order. A worker's exception is re-raised here after every
+        answer is read; when the command ``moves`` the copies (a step, a reset), the VecEnv is
+        closed first, as the copies are no longer in step. A dead worker is reported with its
+        exit code, and the VecEnv closed."""
+        answers, failure = [], None
+        for w in workers:
+            try:
+                status, value = self._connections[w].recv()
+            except (EOFError, OSError):
+                failure = failure or self._died(w)
+                moves = True
+                continue
+            if status == "error" and failure is None:
+                exc, text = value
+                exc.__cause__ = RemoteTraceback(text)
+                failure = exc
+            answers.append(value)
+        if failure is not None:
+            if moves:
+                self.close()
+            raise failure
+        return answers
+
+    def _send(self, w: int, message: tuple) -> None:
+        """Send worker ``w`` a command; a dead worker is reported (the VecEnv closed: the
+        workers already sent this command have moved)."""
+        try:
+            self._connections[w].send(message)
+        except OSError:  # BrokenPipeError: the worker has exited
+            failure = self._died(w)
+            self.close()
+            raise failure from None
+
+    def _died(self, w: int) -> RuntimeError:
+        process = self._processes[w]
+        process.join(timeout=5)
+        block = self.blocks[w]
+        return RuntimeError(
+            f"env worker {w} (copies {block.start}-{block.stop - 1}, pid {process.pid}) "
+            f"died: exit code {process.exitcode}"
+        )
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise RuntimeError("this SubprocBatchedVecEnv is closed (or a worker failed)")
+
+
+def _worker(conn, env_kwargs, n_copies, copy_offset, seed, batched_kwargs) -> None:
+    """A worker's loop: build its copies, then answer ``step``, ``call`` and ``close``."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the trainer handles Ctrl-C (module doc)
+    try:
+        from swarm_core.threads import set_kernel_threads
+
+        set_kernel_threads(1)
+        from agents.sb3.batched import BatchedSwarmVecEnv
+
+        venv = BatchedSwarmVecEnv(
+            env_kwargs, n_copies, seed, copy_offset=copy_offset, **batched_kwargs
+        )
+        conn.send(
+            (
+                "ok",
+                {
+                    "agents_per_copy": venv.agents_per_copy,
+                    "action_high": venv.action_high,
+                    "observation_space": venv.observation_space,
+                    "action_space": venv.action_space,
+                },
+            )
+        )
+    except Exception as exc:
+        conn.send(("error", _portable(exc)))
+        return
+    while True:
+        try:
+            command, payload = conn.recv()
+        except (EOFError, OSError):  # the trainer is gone
+            break
+        try:
+            if command == "step":
+                venv.step_async(payload)
+                result = venv.step_wait()
+            elif command == "call":
+                name, args, kwargs = payload
+                result = getattr(venv, name)(*args, **kwargs)
+            elif command == "close":
+                venv.close()
+                conn.send(("ok", None))
+                break
+            else:
+                raise ValueError(f"unknown env worker command {command!r}")
+            conn.send(("ok", result))
+        except Exception as exc:
+            conn.send(("error", _portable(exc)))
+    conn.close()
+
+
+def _portable(exc: Exception) -> tuple[Exception, str]:
+    """``exc`` (or a RuntimeError with its text, if it cannot be pickled) and its traceback."""
+    text = traceback.format_exc()
+    try:
+        pickle.loads(pickle.dumps(exc))
+    except Exception:
+        exc = RuntimeError(f"{type(exc).__name__}: {exc}")
+    return exc, text

@@ -1,0 +1,151 @@
+"""The batched VecEnv split across worker processes: the same rollout, and clear failures."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+
+import numpy as np
+import pytest
+
+pytest.importorskip("stable_baselines3")
+
+from gymnasium.utils.env_checker import data_equivalence  # noqa: E402
+
+from agents.sb3.batched import BatchedSwarmVecEnv  # noqa: E402
+from agents.sb3.batched_subproc import RemoteTraceback, SubprocBatchedVecEnv, split_copies  # noqa: E402
+from swarm_phd.cli import main  # noqa: E402
+from tests.agents.test_sb3 import _actions  # noqa: E402
+
+KWARGS = {"preset": "lab-3m-4", "task": "formation", "max_steps": 12}
+RESIDUAL = {
+    "residual": "scripted:formation",
+    "residual_observes_base": True,
+    "critic_state": True,
+}
+
+
+def _assert_steps_equal(a, b, t):
+    for x, y, what in zip(a[:3], b[:3], ("obs", "rewards", "dones"), strict=True):
+        np.testing.assert_array_equal(x, y, err_msg=f"{what}, t={t}")
+    assert len(a[3]) == len(b[3])
+    for j, (x, y) in enumerate(zip(a[3], b[3], strict=True)):
+        assert x.keys() == y.keys(), (t, j)
+        assert data_equivalence(x, y), (t, j)
+
+
+@pytest.mark.parametrize("options", [{}, RESIDUAL], ids=["plain", "residual-critic"])
+def test_workers_give_the_in_process_rollout_bit_for_bit(options):
+    """5 copies in 2 workers (blocks of 2 and 3) against the same 5 copies in one process:
+    the same observations, rewards, dones and infos at every step, across auto-resets (12-step
+    episodes), a ``seed()`` reset and a ``copy_seeds`` reset. With the residual, the base's
+    reseeding at each auto-reset uses the copy's global index (``copy_offset``)."""
+    ref = BatchedSwarmVecEnv(KWARGS, 5, seed=11, **options)
+    vec = SubprocBatchedVecEnv(KWARGS, 5, 2, seed=11, **options)
+    try:
+        assert [list(b) for b in vec.blocks] == [[0, 1], [2, 3, 4]]
+        assert vec.num_envs == ref.num_envs == 20
+        assert vec.observation_space == ref.observation_space
+        np.testing.assert_array_equal(vec.action_high, ref.action_high)
+        np.testing.assert_array_equal(vec.reset(), ref.reset())
+        rng = np.random.default_rng(0)
+        for t in range(40):
+            if t == 15:
+                vec.seed(123)
+                ref.seed(123)
+                np.testing.assert_array_equal(vec.reset(), ref.reset())
+            if t == 30:
+                seeds = [9, 8, 7, 6, 5]
+                np.testing.assert_array_equal(vec.reset(seeds), ref.reset(seeds))
+            actions = rng.uniform(-1, 1, (ref.num_envs, 2)).astype(np.float32)
+            _assert_steps_equal(vec.step(actions), ref.step(actions), t)
+        for k in (0, 3):
+            assert data_equivalence(vec.copy_infos(k), ref.copy_infos(k))
+            if options:
+                assert data_equivalence(vec.scripted_commands(k), ref.scripted_commands(k))
+        assert vec.get_attr("possible_agents", [19, 0]) == ref.get_attr("possible_agents", [19, 0])
+    finally:
+        vec.close()
+        ref.close()
+
+
+def test_bad_actions_a_failing_call_and_a_dead_worker_are_reported():
+    vec = SubprocBatchedVecEnv(KWARGS, 3, 2, seed=0)
+    ref = BatchedSwarmVecEnv(KWARGS, 3, seed=0)
+    try:
+        np.testing.assert_array_equal(vec.reset(), ref.reset())
+        good = np.full((12, 2), 0.5, np.float32)
+        bad = good.copy()
+        bad[9, 1] = np.nan
+        # Refused before any worker moves: the next good step is the reference's first one.
+        with pytest.raises(ValueError, match=r"actions\[9\] \(copy 2, agent 1\) is not finite"):
+            vec.step(bad)
+        with pytest.raises(ValueError, match=r"shape \(12, 2\), got \(11, 2\)"):
+            vec.step(good[:11])
+        _assert_steps_equal(vec.step(good), ref.step(good), 0)
+        # A failing call comes back with the worker's traceback and leaves the env usable.
+        with pytest.raises(AttributeError) as caught:
+            vec.env_method("no_such_method", indices=[5])
+        assert isinstance(caught.value.__cause__, RemoteTraceback)
+        assert "no_such_method" in str(caught.value.__cause__)
+        _assert_steps_equal(vec.step(good), ref.step(good), 1)
+        with pytest.raises(ValueError, match="index 12 is outside"):
+            vec.get_attr("agents", [12])
+        # A worker killed from outside: named, with its exit code; the VecEnv is then closed.
+        os.kill(vec._processes[1].pid, signal.SIGKILL)
+        vec._processes[1].join(10)
+        with pytest.raises(
+            RuntimeError, match=r"env worker 1 \(copies 2-2, pid \d+\) died: exit code -9"
+        ):
+            vec.step(good)
+        with pytest.raises(RuntimeError, match="closed"):
+            vec.reset()
+        assert not vec._processes[0].is_alive()
+    finally:
+        vec.close()
+        ref.close()
+
+
+def test_the_in_process_batch_refuses_bad_actions_before_any_copy_moves():
+    vec = BatchedSwarmVecEnv(KWARGS, 2, seed=4)
+    ref = BatchedSwarmVecEnv(KWARGS, 2, seed=4)
+    vec.reset()
+    ref.reset()
+    good = np.zeros((8, 2), np.float32)
+    bad = good.copy()
+    bad[6, 0] = np.inf  # copy 1: copy 0 must not have moved either
+    with pytest.raises(ValueError, match=r"actions\[6\] \(copy 1, agent 2\) is not finite"):
+        vec.step(bad)
+    with pytest.raises(ValueError, match="real"):
+        vec.step(np.full((8, 2), "a"))
+    _assert_steps_equal(vec.step(good), ref.step(good), 0)
+
+
+def test_split_copies_blocks_and_refusals():
+    assert split_copies(16, 2) == [range(0, 8), range(8, 16)]
+    assert split_copies(5, 3) == [range(0, 2), range(2, 3), range(3, 5)]
+    assert split_copies(4, 1) == [range(0, 4)]
+    for args, match in (
+        ((2, 3), "n_workers \\(3\\) must not exceed n_copies \\(2\\)"),
+        ((4, 0), "n_workers must be an int >= 1, got 0"),
+        ((0, 1), "n_copies must be an int >= 1, got 0"),
+        ((4, True), "n_workers must be an int >= 1, got True"),
+    ):
+        with pytest.raises(ValueError, match=match):
+            split_copies(*args)
+
+
+def test_training_with_batched_workers_saves_a_usable_model(tmp_path):
+    """``swarm-phd train --num-cpus 2``: the batched copies in two workers (``--vec auto``)."""
+    out = tmp_path / "workers"
+    args = ["train", "--preset", "lab-3m-4", "--task", "formation", "--observation", "phd"]
+    args += ["--num-cpus", "2", "--n-copies", "2", "--timesteps", "512", "--max-steps", "50"]
+    args += ["--n-steps", "64", "--batch-size", "128", "--n-epochs", "1"]
+    assert main([*args, "--out", str(out), "--no-progress-bar"]) == 0
+    summary = json.loads((out / "train_summary.json").read_text())
+    assert summary["timesteps"] >= 512
+    config = json.loads((out / "train_config.json").read_text())
+    assert (config["num_cpus"], config["vec"]) == (2, "auto")
+    actions = _actions(out / "model.zip", seed=3)
+    assert np.isfinite(actions).all() and np.abs(actions).max() > 0
