@@ -59,6 +59,7 @@ from typing import Any
 
 import numpy as np
 
+from swarm_core.atomic_files import atomic_write
 from swarm_phd import inputs
 
 __all__ = ["gae", "main", "new_critic", "plot_ppo_logs", "ppo_update", "rollout"]
@@ -324,7 +325,7 @@ def plot_ppo_logs(logs: list[str | Path], figure: str | Path) -> None:
         ax.grid(alpha=0.3)
     axes[0, 0].legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(figure, dpi=110)
+    atomic_write(figure, lambda tmp: fig.savefig(tmp, dpi=110))  # a Ctrl-C mid-write: old file
     plt.close(fig)
 
 

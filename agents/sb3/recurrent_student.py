@@ -289,7 +289,7 @@ def plot_train_logs(logs: list[str | Path], figure: str | Path) -> None:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(figure, dpi=110)
+    atomic_write(figure, lambda tmp: fig.savefig(tmp, dpi=110))  # a Ctrl-C mid-write: old file
     plt.close(fig)
 
 

@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from swarm_core.atomic_files import atomic_write
 from swarm_phd.sweep import parse_json_object, parse_seeds
 
 METRICS = ("formation_error_m", "final_formation_error_m", "spacing_error_m")
@@ -483,7 +484,7 @@ def main(argv: list[str] | None = None) -> int:
         ax.grid(alpha=0.3)
         fig.tight_layout()
         figure = Path(args.out) / f"results_{args.name}_learning_curve.png"
-        fig.savefig(figure, dpi=110)
+        atomic_write(figure, lambda tmp: fig.savefig(tmp, dpi=110))
         print(f"wrote {figure}")
         return 0
 
@@ -688,7 +689,7 @@ def main(argv: list[str] | None = None) -> int:
         ax.grid(alpha=0.3)
     fig.tight_layout()
     figure = out / f"results_{args.name}_learning_curve.png"
-    fig.savefig(figure, dpi=110)
+    atomic_write(figure, lambda tmp: fig.savefig(tmp, dpi=110))
     print(f"wrote {figure}")
     return 0
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -171,6 +172,35 @@ def test_main_fine_tunes_saves_each_scored_student_and_is_reproducible(student, 
     argv = ["--student", str(student), "--out", str(again), *TINY]
     assert recurrent_ppo.main([*argv, "--task-params", '{"progress_weight": 10}']) == 0
     assert _digest(again / "student.pt") == _digest(out / "student.pt")
+
+
+@pytest.mark.filterwarnings("ignore:No artists with labels")
+@pytest.mark.parametrize("which", ["recurrent_ppo", "recurrent_student"])
+def test_a_learning_curve_cut_while_written_leaves_the_last_one_whole(
+    which, tmp_path, monkeypatch
+):
+    """``train_log.png`` is redrawn every iteration or round: a Ctrl-C in the middle of a
+    redraw must leave the previous figure, not a truncated PNG."""
+    import matplotlib.figure
+
+    from agents.sb3 import recurrent_student
+
+    figure = tmp_path / "train_log.png"
+    figure.write_bytes(b"the previous figure")
+
+    def cut(self, fname, **kwargs):
+        Path(fname).write_bytes(b"half a PNG")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", cut)
+    plot = {
+        "recurrent_ppo": lambda: recurrent_ppo.plot_ppo_logs([], figure),
+        "recurrent_student": lambda: recurrent_student.plot_train_logs([], figure),
+    }[which]
+    with pytest.raises(KeyboardInterrupt):
+        plot()
+    assert figure.read_bytes() == b"the previous figure"
+    assert [p.name for p in tmp_path.iterdir()] == ["train_log.png"]
 
 
 def test_an_interrupt_saves_the_student_and_exits_130(student, tmp_path, monkeypatch, capsys):
