@@ -114,7 +114,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rollouts", type=int, default=3)
     parser.add_argument(
-        "--variants", default="supersuit-2proc,supersuit,batched-4,batched-16", help="comma list"
+        "--variants",
+        default="supersuit-2proc,supersuit,batched-4,batched-16,batched-16x2,batched-32x2",
+        help="comma list",
     )
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
