@@ -176,6 +176,75 @@ def test_set_extractor_ignores_row_order_and_padding():
     assert a.shape == (1, extractor.features_dim)
 
 
+def _pooled_as_before(extractor, obs):
+    """The set extractor's pooling as written until 2026-12-05: invalid rows set to -1e4 for
+    the max, an empty table's max replaced by 0 (the reference for the current one)."""
+    import torch
+
+    from agents.sb3.features import _COL, ROW
+
+    b, k = obs.shape[0], extractor.top_k
+    rows = obs[:, : ROW * k].reshape(b, k, ROW)
+    w, x, y = (rows[..., _COL[c]] for c in ("w", "x_m", "y_m"))
+    sxx, sxy, syy, valid = (rows[..., _COL[c]] for c in ("sxx_m2", "sxy_m2", "syy_m2", "valid"))
+    rho = torch.sqrt(x * x + y * y + 1e-9)
+    inputs = torch.stack(
+        [
+            w.clamp(0, 3),
+            x / 2,
+            y / 2,
+            rho / 2,
+            torch.sqrt(sxx.clamp(min=0)).clamp(max=3),
+            torch.sqrt(syy.clamp(min=0)).clamp(max=3),
+            sxy.clamp(-3, 3),
+        ],
+        dim=-1,
+    )
+    h = extractor.phi(inputs)
+    mask = (valid > 0.5).float().unsqueeze(-1)
+    weighted = (h * mask * w.clamp(0, 3).unsqueeze(-1)).sum(dim=1)
+    maxed = (h * mask - (1 - mask) * 1e4).max(dim=1).values
+    maxed = torch.where(mask.sum(dim=1) > 0, maxed, torch.zeros_like(maxed))
+    extra = obs[:, ROW * k : extractor.n_read] / extractor.extra_scale
+    return torch.cat([weighted, maxed, extra], dim=1)
+
+
+def test_set_extractor_pools_bit_for_bit_as_its_reference_formula():
+    """Values and gradients equal the pre-2026-12-05 formula exactly, over real PHD tables
+    (some with no valid row) and three Adam steps: saved models act as they did."""
+    import copy
+
+    import torch
+
+    from agents.sb3.batched import BatchedSwarmVecEnv
+    from agents.sb3.features import NeighbourSetExtractor
+
+    vec = BatchedSwarmVecEnv({"preset": "lab-3m-4", "task": "formation"}, 2, seed=0)
+    rng = np.random.default_rng(0)
+    batches = [vec.reset()]
+    for _ in range(25):
+        batches.append(vec.step(rng.uniform(-1, 1, (vec.num_envs, 2)).astype(np.float32))[0])
+    vec.close()
+    obs = torch.as_tensor(np.concatenate([*batches, np.zeros_like(batches[0])]))
+    valid = obs[:, : 7 * 16].reshape(len(obs), 16, 7)[..., 6] > 0.5
+    assert (~valid.any(dim=1)).sum() >= 8 and valid.any(dim=1).sum() >= 80
+    torch.manual_seed(0)
+    current = NeighbourSetExtractor(vec.observation_space, top_k=16)
+    before = copy.deepcopy(current)
+    steps = [torch.optim.Adam(m.parameters(), lr=1e-2) for m in (current, before)]
+    weights = torch.randn(len(obs), current.features_dim)
+    for _ in range(3):
+        a, b = current(obs), _pooled_as_before(before, obs)
+        assert torch.equal(a, b)
+        for optim, out in zip(steps, (a, b), strict=True):
+            optim.zero_grad()
+            (out * weights).sum().backward()
+        for p, q in zip(current.parameters(), before.parameters(), strict=True):
+            assert torch.equal(p.grad, q.grad)
+        for optim in steps:
+            optim.step()
+
+
 def _threads_after_copy(make, queue) -> None:
     """In a child process: build a copy, report the kernel threads then in use."""
     import numba
