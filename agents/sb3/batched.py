@@ -194,7 +194,15 @@ class BatchedSwarmVecEnv(VecEnv):
     def reset_with_seeds(self, seeds: Sequence[int | None]) -> np.ndarray:
         """Reset copy ``k`` with ``seeds[k]`` (``None``: fresh entropy); the observation
         (num_envs, D). What :meth:`reset` does once it has chosen the seeds."""
-        obs = self._reset_copies(self._copies, list(seeds))
+        seeds = list(seeds)
+        if len(seeds) != len(self.envs) or not all(
+            s is None or (isinstance(s, (int, np.integer)) and not isinstance(s, bool) and s >= 0)
+            for s in seeds
+        ):
+            raise ValueError(
+                f"seeds must be {len(self.envs)} ints >= 0 or None (one per copy), got {seeds!r}"
+            )
+        obs = self._reset_copies(self._copies, seeds)
         return np.concatenate([obs[k] for k in self._copies])
 
     def step_async(self, actions: np.ndarray) -> None:
@@ -376,7 +384,7 @@ def check_unit_actions(actions: Any, num_envs: int, agents_per_copy: int) -> np.
     shape or the first non-finite entry (its copy and agent); unit actions are clipped later."""
     values = np.asarray(actions)  # the dtype kept: the rollout stays bit-identical
     if values.dtype.kind not in "fiu":
-        raise ValueError(f"actions must be a real (num_envs, 2) array, got dtype {values.dtype}")
+        raise ValueError(f"actions must be a real ({num_envs}, 2) array, got dtype {values.dtype}")
     if values.shape != (num_envs, 2):
         raise ValueError(f"actions must have shape ({num_envs}, 2), got {values.shape}")
     bad = np.flatnonzero(~np.isfinite(values).all(axis=1))
@@ -411,6 +419,8 @@ def make_batched_vec_env(
     (:class:`~agents.sb3.batched_subproc.SubprocBatchedVecEnv`, the same rollout)."""
     from stable_baselines3.common.vec_env import VecMonitor
 
+    if isinstance(n_workers, bool) or not isinstance(n_workers, int) or n_workers < 0:
+        raise ValueError(f"n_workers must be an int >= 0 (0: in this process), got {n_workers!r}")
     options = {
         "residual": residual,
         "critic_state": critic_state,

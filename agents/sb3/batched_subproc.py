@@ -24,6 +24,7 @@ from __future__ import annotations
 import multiprocessing
 import pickle
 import signal
+import time
 import traceback
 from collections.abc import Sequence
 from typing import Any
@@ -31,6 +32,7 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
+from agents.interrupts import set_signal
 from agents.sb3.batched import check_unit_actions, copy_seeds_for_reset
 
 __all__ = ["SubprocBatchedVecEnv", "split_copies"]
@@ -64,10 +66,16 @@ class SubprocBatchedVecEnv(VecEnv):
         As :class:`~agents.sb3.batched.BatchedSwarmVecEnv`; entry ``k R + i`` is agent ``i``
         of copy ``k`` (``R`` robots per copy), whatever worker steps it.
     n_workers : int
-        Worker processes, in ``[1, n_copies]``; each steps a contiguous block of copies.
+        Worker processes, in ``[1, n_copies]``; each steps a contiguous block of copies (one
+        worker gains nothing over the in-process VecEnv: it is for tests and symmetry).
     **batched_kwargs
         The other keyword arguments of ``BatchedSwarmVecEnv`` (``residual``,
         ``critic_state``, ``residual_observes_base``, ``residual_mode``).
+
+    Every command is one message to each worker concerned and one answer from each. If that
+    exchange is cut short (a Ctrl-C or any exception in this process between the sends and the
+    last answer), the pipes no longer pair commands with answers: the VecEnv then refuses every
+    command but :meth:`close`.
     """
 
     def __init__(
@@ -80,34 +88,41 @@ class SubprocBatchedVecEnv(VecEnv):
     ) -> None:
         self.blocks = split_copies(n_copies, n_workers)
         self._closed = False
+        self._broken: str | None = None
+        self._stepping = False
         self._connections: list[Any] = []
         self._processes: list[Any] = []
         context = multiprocessing.get_context("spawn")
         try:
-            for block in self.blocks:
-                parent, child = context.Pipe()
-                process = context.Process(
-                    target=_worker,
-                    args=(child, env_kwargs, len(block), block.start, seed, batched_kwargs),
-                    daemon=True,
-                    name=f"swarm-env-copies-{block.start}-{block.stop - 1}",
-                )
-                process.start()
-                child.close()
-                self._connections.append(parent)
-                self._processes.append(process)
-            described = self._gather(range(len(self.blocks)), moves=True)
+            # Ignored from the start (the disposition survives the spawn): a Ctrl-C while a
+            # worker imports must not print its traceback; only this process acts on it.
+            previous = set_signal(signal.SIGINT, signal.SIG_IGN)
+            try:
+                for block in self.blocks:
+                    parent, child = context.Pipe()
+                    process = context.Process(
+                        target=_worker,
+                        args=(child, env_kwargs, len(block), block.start, seed, batched_kwargs),
+                        daemon=True,
+                        name=f"swarm-env-copies-{block.start}-{block.stop - 1}",
+                    )
+                    process.start()
+                    child.close()
+                    self._connections.append(parent)
+                    self._processes.append(process)
+            finally:
+                if previous is not None:
+                    set_signal(signal.SIGINT, previous)
+            first = self._exchange({w: ("describe", None) for w in self._workers}, moves=True)[0]
+            self.agents_per_copy: int = first["agents_per_copy"]
+            self._high = first["action_high"]
+            self._next_seed = seed
+            super().__init__(
+                self.agents_per_copy * n_copies, first["observation_space"], first["action_space"]
+            )
         except BaseException:
             self.close()
             raise
-        first = described[0]
-        self.agents_per_copy: int = first["agents_per_copy"]
-        self._high = first["action_high"]
-        self._next_seed = seed
-        self._actions: np.ndarray | None = None
-        super().__init__(
-            self.agents_per_copy * n_copies, first["observation_space"], first["action_space"]
-        )
 
     @property
     def n_copies(self) -> int:
@@ -122,40 +137,48 @@ class SubprocBatchedVecEnv(VecEnv):
         """Copy ``copy``'s env ``infos`` for its current observation (as
         :meth:`~agents.sb3.batched.BatchedSwarmVecEnv.copy_infos`; pickled across)."""
         w, local = self._locate(copy)
-        return self._call(w, "copy_infos", local)
+        return self._exchange({w: ("call", ("copy_infos", (local,), {}))})[0]
 
     def scripted_commands(self, copy: int) -> dict[str, np.ndarray]:
         """The residual base's commands for copy ``copy`` (residual mode only)."""
         w, local = self._locate(copy)
-        return self._call(w, "scripted_commands", local)
+        return self._exchange({w: ("call", ("scripted_commands", (local,), {}))})[0]
 
     # ------------------------------------------------------------------ VecEnv API
     def reset(self, copy_seeds: Sequence[int] | None = None) -> np.ndarray:
         """Reset every copy, seeded as :meth:`BatchedSwarmVecEnv.reset
         <agents.sb3.batched.BatchedSwarmVecEnv.reset>` seeds the same copies."""
-        self._check_open()
+        self._check_ready()
         seeds = copy_seeds_for_reset(
             self.n_copies, self.agents_per_copy, self._next_seed, self._seeds, copy_seeds
         )
         self._next_seed = None
         self._reset_seeds()
-        for w, block in enumerate(self.blocks):
-            self._send(w, ("call", ("reset_with_seeds", ([seeds[k] for k in block],), {})))
-        return np.concatenate(self._gather(range(len(self.blocks)), moves=True))
+        messages = {
+            w: ("call", ("reset_with_seeds", ([seeds[k] for k in block],), {}))
+            for w, block in enumerate(self.blocks)
+        }
+        return np.concatenate(self._exchange(messages, moves=True))
 
     def step_async(self, actions: np.ndarray) -> None:
-        self._check_open()
+        self._check_ready()
         actions = check_unit_actions(actions, self.num_envs, self.agents_per_copy)
         n = self.agents_per_copy
-        for w, block in enumerate(self.blocks):
-            self._send(w, ("step", actions[block.start * n : block.stop * n]))
-        self._actions = actions
+        self._stepping = True
+        self._send_all(
+            {
+                w: ("step", actions[block.start * n : block.stop * n])
+                for w, block in enumerate(self.blocks)
+            }
+        )
 
     def step_wait(self):
-        if self._actions is None:
+        if self._closed or self._broken:
+            self._check_ready()
+        if not self._stepping:
             raise RuntimeError("step_wait() without step_async()")
-        self._actions = None
-        results = self._gather(range(len(self.blocks)), moves=True)
+        self._stepping = False
+        results = self._gather(self._workers, moves=True)
         obs, rewards, dones, infos = zip(*results, strict=True)
         return (
             np.concatenate(obs),
@@ -165,25 +188,30 @@ class SubprocBatchedVecEnv(VecEnv):
         )
 
     def close(self) -> None:
-        """Close the workers' envs and end the processes (idempotent)."""
+        """Close the workers' envs and end the processes (idempotent; waits at most about
+        10 s in all for workers that do not answer, then terminates them)."""
         if self._closed:
             return
         self._closed = True
         for conn in self._connections:
             try:
                 conn.send(("close", None))
-            except (BrokenPipeError, OSError):
+            except Exception:  # a dead worker, a broken pipe
                 pass
-        for conn, process in zip(self._connections, self._processes, strict=False):
-            try:
-                if conn.poll(10):
-                    conn.recv()
-            except (EOFError, OSError):
+        deadline = time.monotonic() + 10
+        for conn in self._connections:
+            try:  # the answer to "close", after any answer still owed
+                while conn.poll(max(0.0, deadline - time.monotonic())):
+                    if conn.recv() == ("ok", None):
+                        break
+            except Exception:  # EOF, a cut message: the worker is going anyway
                 pass
-            process.join(timeout=10)
+        for process in self._processes:
+            process.join(timeout=max(0.1, deadline - time.monotonic()))
             if process.is_alive():
                 process.terminate()
                 process.join()
+        for conn in self._connections:
             conn.close()
 
     def get_attr(self, attr_name: str, indices=None) -> list[Any]:
@@ -199,12 +227,14 @@ class SubprocBatchedVecEnv(VecEnv):
         return [False for _ in self._indices(indices)]
 
     def get_images(self) -> Sequence[np.ndarray | None]:
-        self._check_open()
-        for w in range(len(self.blocks)):
-            self._send(w, ("call", ("get_images", (), {})))
-        return [image for block in self._gather(range(len(self.blocks))) for image in block]
+        answers = self._exchange({w: ("call", ("get_images", (), {})) for w in self._workers})
+        return [image for block in answers for image in block]
 
     # ------------------------------------------------------------------ internals
+    @property
+    def _workers(self) -> range:
+        return range(len(self.blocks))
+
     def _indices(self, indices) -> list[int]:
         return list(self._get_indices(indices))  # SB3's reading of None / int / iterable
 
@@ -218,9 +248,9 @@ class SubprocBatchedVecEnv(VecEnv):
     def _per_entry(self, method: str, indices, *args: Any, **kwargs: Any) -> list[Any]:
         """Call a per-entry VecEnv method in the workers holding ``indices``; the results in
         the order of ``indices``."""
-        self._check_open()
         entries = self._indices(indices)
         n = self.agents_per_copy
+        owner: list[tuple[int, int]] = []  # (worker, position in that worker's answer)
         asked: dict[int, list[int]] = {}
         for j in entries:
             if isinstance(j, bool) or not isinstance(j, (int, np.integer)):
@@ -228,23 +258,34 @@ class SubprocBatchedVecEnv(VecEnv):
             if not 0 <= j < self.num_envs:
                 raise ValueError(f"index {j} is outside [0, {self.num_envs})")
             w, _ = self._locate(int(j) // n)
-            asked.setdefault(w, []).append(int(j) - self.blocks[w].start * n)
-        for w, local in asked.items():
-            self._send(w, ("call", (method, args, {**kwargs, "indices": local})))
-        answers = dict(zip(asked, self._gather(list(asked)), strict=True))
-        cursor = {w: 0 for w in asked}
-        out = []
-        for j in entries:
-            w, _ = self._locate(int(j) // n)
-            result = answers[w]
-            out.append(None if result is None else result[cursor[w]])
-            cursor[w] += 1
-        return out
+            local = asked.setdefault(w, [])
+            owner.append((w, len(local)))
+            local.append(int(j) - self.blocks[w].start * n)
+        messages = {
+            w: ("call", (method, args, {**kwargs, "indices": local})) for w, local in asked.items()
+        }
+        answers = dict(zip(asked, self._exchange(messages), strict=True))
+        return [None if answers[w] is None else answers[w][i] for w, i in owner]
 
-    def _call(self, w: int, name: str, *args: Any) -> Any:
-        self._check_open()
-        self._send(w, ("call", (name, args, {})))
-        return self._gather([w])[0]
+    def _exchange(self, messages: dict[int, tuple], moves: bool = False) -> list[Any]:
+        """Send each worker in ``messages`` its command; their answers, in that order."""
+        self._check_ready()
+        self._send_all(messages)
+        return self._gather(list(messages), moves)
+
+    def _send_all(self, messages: dict[int, tuple]) -> None:
+        try:
+            for w, message in messages.items():
+                try:
+                    self._connections[w].send(message)
+                except OSError:  # BrokenPipeError: the worker has exited
+                    failure = self._died(w)
+                    self._broken = str(failure)
+                    self.close()  # the workers already sent this command may have moved
+                    raise failure from None
+        except BaseException as exc:
+            self._broken = self._broken or f"interrupted while sending ({type(exc).__name__})"
+            raise
 
     def _gather(self, workers: Sequence[int], moves: bool = False) -> list[Any]:
         """Each worker's answer, in order. A worker's exception is re-raised here after every
@@ -252,51 +293,61 @@ class SubprocBatchedVecEnv(VecEnv):
         closed first, as the copies are no longer in step. A dead worker is reported with its
         exit code, and the VecEnv closed."""
         answers, failure = [], None
-        for w in workers:
-            try:
-                status, value = self._connections[w].recv()
-            except (EOFError, OSError):
-                failure = failure or self._died(w)
-                moves = True
-                continue
-            if status == "error" and failure is None:
-                exc, text = value
-                exc.__cause__ = RemoteTraceback(text)
-                failure = exc
-            answers.append(value)
+        try:
+            for w in workers:
+                try:
+                    status, value = self._connections[w].recv()
+                except (EOFError, OSError):
+                    failure = failure or self._died(w)
+                    moves = True
+                    continue
+                if status == "error" and failure is None:
+                    exc, text = value
+                    exc.__cause__ = RemoteTraceback(text)
+                    failure = exc
+                answers.append(value)
+        except BaseException as exc:  # a Ctrl-C between answers: the pipes are out of step
+            self._broken = f"interrupted while reading the workers' answers ({type(exc).__name__})"
+            raise
         if failure is not None:
             if moves:
+                self._broken = f"{type(failure).__name__}: {failure}"
                 self.close()
             raise failure
         return answers
-
-    def _send(self, w: int, message: tuple) -> None:
-        """Send worker ``w`` a command; a dead worker is reported (the VecEnv closed: the
-        workers already sent this command have moved)."""
-        try:
-            self._connections[w].send(message)
-        except OSError:  # BrokenPipeError: the worker has exited
-            failure = self._died(w)
-            self.close()
-            raise failure from None
 
     def _died(self, w: int) -> RuntimeError:
         process = self._processes[w]
         process.join(timeout=5)
         block = self.blocks[w]
+        status = (
+            "still running but not answering"
+            if process.exitcode is None
+            else f"exit code {process.exitcode}"
+        )
         return RuntimeError(
             f"env worker {w} (copies {block.start}-{block.stop - 1}, pid {process.pid}) "
-            f"died: exit code {process.exitcode}"
+            f"died: {status}"
         )
 
-    def _check_open(self) -> None:
+    def _check_ready(self) -> None:
+        if self._broken:
+            raise RuntimeError(
+                f"this SubprocBatchedVecEnv is unusable ({self._broken}): close() it and make a "
+                "new one"
+            )
         if self._closed:
-            raise RuntimeError("this SubprocBatchedVecEnv is closed (or a worker failed)")
+            raise RuntimeError("this SubprocBatchedVecEnv is closed")
+        if self._stepping:
+            raise RuntimeError("step_async() was called: step_wait() must come first")
 
 
 def _worker(conn, env_kwargs, n_copies, copy_offset, seed, batched_kwargs) -> None:
     """A worker's loop: build its copies, then answer ``step``, ``call`` and ``close``."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the trainer handles Ctrl-C (module doc)
+    # The trainer handles Ctrl-C and SIGTERM sent to the whole group (module doc); a worker
+    # ends on its "close" or when the trainer's end of the pipe closes.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     try:
         from swarm_core.threads import set_kernel_threads
 
@@ -306,42 +357,51 @@ def _worker(conn, env_kwargs, n_copies, copy_offset, seed, batched_kwargs) -> No
         venv = BatchedSwarmVecEnv(
             env_kwargs, n_copies, seed, copy_offset=copy_offset, **batched_kwargs
         )
-        conn.send(
-            (
-                "ok",
-                {
-                    "agents_per_copy": venv.agents_per_copy,
-                    "action_high": venv.action_high,
-                    "observation_space": venv.observation_space,
-                    "action_space": venv.action_space,
-                },
-            )
-        )
     except Exception as exc:
-        conn.send(("error", _portable(exc)))
-        return
+        venv, failure = None, exc
     while True:
         try:
             command, payload = conn.recv()
         except (EOFError, OSError):  # the trainer is gone
             break
         try:
-            if command == "step":
+            if venv is None and command != "close":
+                raise failure
+            if command == "describe":
+                result = {
+                    "agents_per_copy": venv.agents_per_copy,
+                    "action_high": venv.action_high,
+                    "observation_space": venv.observation_space,
+                    "action_space": venv.action_space,
+                }
+            elif command == "step":
                 venv.step_async(payload)
                 result = venv.step_wait()
             elif command == "call":
                 name, args, kwargs = payload
                 result = getattr(venv, name)(*args, **kwargs)
             elif command == "close":
-                venv.close()
-                conn.send(("ok", None))
+                if venv is not None:
+                    venv.close()
+                _answer(conn, ("ok", None))
                 break
             else:
                 raise ValueError(f"unknown env worker command {command!r}")
-            conn.send(("ok", result))
+            answer = ("ok", result)
         except Exception as exc:
-            conn.send(("error", _portable(exc)))
+            answer = ("error", _portable(exc))
+        if not _answer(conn, answer):
+            break
     conn.close()
+
+
+def _answer(conn, message: tuple) -> bool:
+    """Send ``message``; False if the trainer is gone (the worker then ends quietly)."""
+    try:
+        conn.send(message)
+    except OSError:
+        return False
+    return True
 
 
 def _portable(exc: Exception) -> tuple[Exception, str]:

@@ -57,7 +57,9 @@ class NeighbourSetExtractor(BaseFeaturesExtractor):
         high = torch.as_tensor(high, dtype=torch.float32)
         self.register_buffer("extra_scale", torch.clamp(high.abs(), min=1e-6))
 
-    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+    def row_inputs(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The rows as ``phi`` reads them (B, K, 7), their pooling weights ``w`` clamped to
+        [0, 3] (B, K) and their valid mask (B, K), from observations (B, D)."""
         b = obs.shape[0]
         rows = obs[:, : ROW * self.top_k].reshape(b, self.top_k, ROW)
         w, x, y = (rows[..., _COL[c]] for c in ("w", "x_m", "y_m"))
@@ -65,9 +67,10 @@ class NeighbourSetExtractor(BaseFeaturesExtractor):
             rows[..., _COL[c]] for c in ("sxx_m2", "sxy_m2", "syy_m2", "valid")
         )
         rho = torch.sqrt(x * x + y * y + 1e-9)
+        w = w.clamp(0, 3)
         inputs = torch.stack(
             [
-                w.clamp(0, 3),
+                w,
                 x / 2,
                 y / 2,
                 rho / 2,
@@ -77,9 +80,13 @@ class NeighbourSetExtractor(BaseFeaturesExtractor):
             ],
             dim=-1,
         )
+        return inputs, w, valid > 0.5
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        inputs, w, valid = self.row_inputs(obs)
         h = self.phi(inputs)  # (B, K, H), >= 0 (ReLU)
-        masked = h * (valid > 0.5).float().unsqueeze(-1)  # invalid rows 0
-        weighted = (masked * w.clamp(0, 3).unsqueeze(-1)).sum(dim=1)
+        masked = h * valid.float().unsqueeze(-1)  # invalid rows 0
+        weighted = (masked * w.unsqueeze(-1)).sum(dim=1)
         # The max over the valid rows: h >= 0, so the invalid rows' zeros never exceed it, and
         # a table with no valid row gives 0. (Until 2026-12-05 the invalid rows were set to
         # -1e4 and an empty table's max replaced by 0: the same values and gradients, bit for

@@ -150,7 +150,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=0,
         help="worker processes for the env copies (0: step them in-process); batched: each "
-        "worker steps a block of the copies (2 on 2 cores: 1.3x faster than in-process)",
+        "worker steps a block of the copies (1 gains nothing; 2 with 16 copies on an idle "
+        "2-core machine: 1.1-1.2x faster than in-process, no gain with a core busy)",
     )
     parser.add_argument(
         "--vec",
@@ -278,7 +279,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=1,
         help="threads of the compiled sensor and filter kernels of the envs in this process "
         "(1: lab-3m-4 training ran 1.3x faster than with 2 on 2 cores, benchmarks/RESULTS.md; "
-        "SuperSuit's worker processes use 1 each)",
+        "env worker processes, batched or SuperSuit's, use 1 each)",
     )
     parser.add_argument(
         "--extractor",
@@ -408,7 +409,8 @@ def _vec_env(
     residual_observes_base: bool = False,
     residual_mode: str = "add",
 ):
-    """The training VecEnv (``--vec``): batched in-process copies or SuperSuit's."""
+    """The training VecEnv (``--vec``): batched copies (in this process, or in ``num_cpus``
+    worker processes) or SuperSuit's."""
     from agents.sb3.adapter import make_vec_env
     from agents.sb3.batched import make_batched_vec_env
 

@@ -64,7 +64,16 @@ def test_workers_give_the_in_process_rollout_bit_for_bit(options):
             assert data_equivalence(vec.copy_infos(k), ref.copy_infos(k))
             if options:
                 assert data_equivalence(vec.scripted_commands(k), ref.scripted_commands(k))
-        assert vec.get_attr("possible_agents", [19, 0]) == ref.get_attr("possible_agents", [19, 0])
+        # Entries map to their copies across workers, in the order asked.
+        for env in (vec, ref):
+            env.set_attr("tag", "late", indices=[19, 9])
+            env.set_attr("tag", "early", indices=[0, 4])
+        asked = [19, 0, 4, 9]
+        assert vec.get_attr("tag", asked) == ref.get_attr("tag", asked)
+        assert vec.get_attr("tag", asked) == ["late", "early", "early", "late"]
+        assert vec.env_method("__getattribute__", "tag", indices=[9, 4]) == ["late", "early"]
+        with pytest.raises(AttributeError):
+            vec.get_attr("tag", [13])  # copy 3 was never tagged
     finally:
         vec.close()
         ref.close()
@@ -99,12 +108,68 @@ def test_bad_actions_a_failing_call_and_a_dead_worker_are_reported():
             RuntimeError, match=r"env worker 1 \(copies 2-2, pid \d+\) died: exit code -9"
         ):
             vec.step(good)
-        with pytest.raises(RuntimeError, match="closed"):
+        with pytest.raises(RuntimeError, match=r"unusable \(env worker 1 .* died"):
             vec.reset()
         assert not vec._processes[0].is_alive()
     finally:
         vec.close()
         ref.close()
+
+
+def test_an_interrupted_exchange_leaves_the_vec_env_refusing_until_closed(monkeypatch):
+    """A Ctrl-C between two workers' answers leaves the second answer unread: the next
+    command must not take it for its own. A step awaited must come before another command."""
+    vec = SubprocBatchedVecEnv(KWARGS, 2, 2, seed=0)
+    try:
+        vec.reset()
+        actions = np.zeros((vec.num_envs, 2), np.float32)
+        vec.step_async(actions)
+        with pytest.raises(RuntimeError, match=r"step_wait\(\) must come first"):
+            vec.reset()
+        vec.step_wait()
+        real = type(vec._connections[1]).recv
+        conn = vec._connections[1]
+
+        def interrupted(self):
+            if self is conn:
+                raise KeyboardInterrupt
+            return real(self)
+
+        monkeypatch.setattr(type(conn), "recv", interrupted)
+        with pytest.raises(KeyboardInterrupt):
+            vec.step(actions)
+        monkeypatch.undo()
+        with pytest.raises(RuntimeError, match=r"unusable \(interrupted while reading"):
+            vec.step(actions)
+        with pytest.raises(RuntimeError, match="unusable"):
+            vec.get_attr("agents")
+    finally:
+        vec.close()
+    assert not any(p.is_alive() for p in vec._processes)
+
+
+def test_a_split_batch_reseeds_the_residual_base_as_the_whole_batch():
+    """The residual base's seed at each auto-reset depends on the copy's index in the whole
+    batch (``copy_offset``), not in its worker's block."""
+    whole = BatchedSwarmVecEnv(KWARGS, 4, seed=11, residual="scripted:formation")
+    tail = BatchedSwarmVecEnv(KWARGS, 2, seed=11, residual="scripted:formation", copy_offset=2)
+    seen: dict[str, list] = {"whole": [], "tail": []}
+    for name, env in (("whole", whole), ("tail", tail)):
+        for k, base in enumerate(env._bases):
+            base.reset = lambda s, k=k, name=name, real=base.reset: (
+                seen[name].append((k, s)) or real(s)
+            )
+    whole.reset()
+    tail.reset()
+    zeros = np.zeros((whole.num_envs, 2), np.float32)
+    for _ in range(13):  # across the 12-step episode's end: an auto-reset with seed None
+        whole.step(zeros)
+        tail.step(zeros[: tail.num_envs])
+    auto = {k: s for k, s in seen["whole"][4:] if k >= 2}
+    assert len(seen["whole"]) == 8 and len(auto) == 2
+    assert [(k + 2, s) for k, s in seen["tail"]] == [(k, s) for k, s in seen["whole"] if k >= 2]
+    whole.close()
+    tail.close()
 
 
 def test_the_in_process_batch_refuses_bad_actions_before_any_copy_moves():

@@ -181,31 +181,15 @@ def _pooled_as_before(extractor, obs):
     the max, an empty table's max replaced by 0 (the reference for the current one)."""
     import torch
 
-    from agents.sb3.features import _COL, ROW
+    from agents.sb3.features import ROW
 
-    b, k = obs.shape[0], extractor.top_k
-    rows = obs[:, : ROW * k].reshape(b, k, ROW)
-    w, x, y = (rows[..., _COL[c]] for c in ("w", "x_m", "y_m"))
-    sxx, sxy, syy, valid = (rows[..., _COL[c]] for c in ("sxx_m2", "sxy_m2", "syy_m2", "valid"))
-    rho = torch.sqrt(x * x + y * y + 1e-9)
-    inputs = torch.stack(
-        [
-            w.clamp(0, 3),
-            x / 2,
-            y / 2,
-            rho / 2,
-            torch.sqrt(sxx.clamp(min=0)).clamp(max=3),
-            torch.sqrt(syy.clamp(min=0)).clamp(max=3),
-            sxy.clamp(-3, 3),
-        ],
-        dim=-1,
-    )
+    inputs, w, valid = extractor.row_inputs(obs)
     h = extractor.phi(inputs)
-    mask = (valid > 0.5).float().unsqueeze(-1)
-    weighted = (h * mask * w.clamp(0, 3).unsqueeze(-1)).sum(dim=1)
+    mask = valid.float().unsqueeze(-1)
+    weighted = (h * mask * w.unsqueeze(-1)).sum(dim=1)
     maxed = (h * mask - (1 - mask) * 1e4).max(dim=1).values
     maxed = torch.where(mask.sum(dim=1) > 0, maxed, torch.zeros_like(maxed))
-    extra = obs[:, ROW * k : extractor.n_read] / extractor.extra_scale
+    extra = obs[:, ROW * extractor.top_k : extractor.n_read] / extractor.extra_scale
     return torch.cat([weighted, maxed, extra], dim=1)
 
 
