@@ -24,6 +24,7 @@ from __future__ import annotations
 import multiprocessing
 import pickle
 import signal
+import threading
 import time
 import traceback
 from collections.abc import Sequence
@@ -96,7 +97,10 @@ class SubprocBatchedVecEnv(VecEnv):
         try:
             # Ignored from the start (the disposition survives the spawn): a Ctrl-C while a
             # worker imports must not print its traceback; only this process acts on it.
-            previous = set_signal(signal.SIGINT, signal.SIG_IGN)
+            previous = signal.getsignal(signal.SIGINT)
+            ignoring = set_signal(signal.SIGINT, signal.SIG_IGN) is not None or (
+                previous is None and threading.current_thread() is threading.main_thread()
+            )
             try:
                 for block in self.blocks:
                     parent, child = context.Pipe()
@@ -111,8 +115,8 @@ class SubprocBatchedVecEnv(VecEnv):
                     self._connections.append(parent)
                     self._processes.append(process)
             finally:
-                if previous is not None:
-                    set_signal(signal.SIGINT, previous)
+                if ignoring:  # (a handler installed outside Python reads as None)
+                    set_signal(signal.SIGINT, signal.SIG_DFL if previous is None else previous)
             first = self._exchange({w: ("describe", None) for w in self._workers}, moves=True)[0]
             self.agents_per_copy: int = first["agents_per_copy"]
             self._high = first["action_high"]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import multiprocessing
 import os
 import signal
 
@@ -185,6 +186,16 @@ def test_the_in_process_batch_refuses_bad_actions_before_any_copy_moves():
     with pytest.raises(ValueError, match="real"):
         vec.step(np.full((8, 2), "a"))
     _assert_steps_equal(vec.step(good), ref.step(good), 0)
+
+
+def test_a_worker_that_cannot_build_its_copies_is_reported_and_nothing_is_left():
+    signal_before = signal.getsignal(signal.SIGINT)
+    with pytest.raises(ValueError, match="preset") as caught:
+        SubprocBatchedVecEnv({**KWARGS, "preset": "no-such-preset"}, 2, 2, seed=0)
+    assert isinstance(caught.value.__cause__, RemoteTraceback)
+    assert signal.getsignal(signal.SIGINT) is signal_before  # restored after the spawn
+    left = [p.name for p in multiprocessing.active_children()]
+    assert not [name for name in left if name.startswith("swarm-env-copies")], left
 
 
 def test_split_copies_blocks_and_refusals():
