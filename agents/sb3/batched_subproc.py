@@ -12,31 +12,41 @@ robot, so the rollout is bit-identical to ``BatchedSwarmVecEnv(env_kwargs, K, se
 (``tests/agents/test_batched_subproc.py``).
 
 Workers are spawned, not forked (numba kills a forked child of a process that has run the
-OpenMP kernels), run their kernels on one thread, and ignore SIGINT: a Ctrl-C reaches the whole
-process group, and only the trainer acts on it (it saves, then closes the workers). Actions are
-checked here before any worker moves. A worker that raises sends its exception back, re-raised
-here over the worker's traceback; a worker that dies is reported with its exit code. Either
-way the VecEnv is then closed: its copies are no longer in step.
+OpenMP kernels), and run their kernels on one thread. They ignore SIGINT and SIGTERM: a Ctrl-C
+or a job scheduler's SIGTERM reaches the whole process group, and only the trainer acts on it
+(it saves, then closes the workers). Both signals are blocked in this process while the
+workers start, so a worker cannot be hit before it ignores them, and a signal that arrives
+meanwhile is delivered to this process afterwards. A worker ends on ``close`` or when this
+process's end of its pipe closes; :meth:`SubprocBatchedVecEnv.close` (also run at interpreter
+exit for a VecEnv never closed) kills the ones that do not answer within its timeout.
+
+Actions are checked here before any worker moves. A worker that raises sends its exception
+back, re-raised here over the worker's traceback; a failed step or reset closes the VecEnv
+(its copies are no longer in step), a failed call such as ``env_method`` does not. A worker
+that dies is reported with its exit code, and the VecEnv closed.
 """
 
 from __future__ import annotations
 
 import multiprocessing
+import multiprocessing.util
 import pickle
 import signal
-import threading
 import time
 import traceback
 from collections.abc import Sequence
+from multiprocessing.reduction import ForkingPickler
 from typing import Any
 
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
-from agents.interrupts import set_signal
 from agents.sb3.batched import check_unit_actions, copy_seeds_for_reset
 
 __all__ = ["SubprocBatchedVecEnv", "split_copies"]
+
+#: The signals a worker ignores (module doc).
+WORKER_IGNORES = {signal.SIGINT, signal.SIGTERM}
 
 
 class RemoteTraceback(Exception):
@@ -94,13 +104,16 @@ class SubprocBatchedVecEnv(VecEnv):
         self._connections: list[Any] = []
         self._processes: list[Any] = []
         context = multiprocessing.get_context("spawn")
+        # Run at interpreter exit if close() never is (before multiprocessing's own exit
+        # handler, whose SIGTERM the workers ignore).
+        self._finalizer = multiprocessing.util.Finalize(
+            self, _shutdown, args=(self._connections, self._processes), exitpriority=10
+        )
         try:
-            # Ignored from the start (the disposition survives the spawn): a Ctrl-C while a
-            # worker imports must not print its traceback; only this process acts on it.
-            previous = signal.getsignal(signal.SIGINT)
-            ignoring = set_signal(signal.SIGINT, signal.SIG_IGN) is not None or (
-                previous is None and threading.current_thread() is threading.main_thread()
-            )
+            # Blocked, not ignored (CPython's resource tracker does the same): the blocked set
+            # passes through the spawn, so a worker cannot die of a Ctrl-C before it ignores
+            # it, and one that comes meanwhile reaches this process when the mask is restored.
+            mask = signal.pthread_sigmask(signal.SIG_BLOCK, WORKER_IGNORES)
             try:
                 for block in self.blocks:
                     parent, child = context.Pipe()
@@ -115,8 +128,7 @@ class SubprocBatchedVecEnv(VecEnv):
                     self._connections.append(parent)
                     self._processes.append(process)
             finally:
-                if ignoring:  # (a handler installed outside Python reads as None)
-                    set_signal(signal.SIGINT, signal.SIG_DFL if previous is None else previous)
+                signal.pthread_sigmask(signal.SIG_SETMASK, mask)
             first = self._exchange({w: ("describe", None) for w in self._workers}, moves=True)[0]
             self.agents_per_copy: int = first["agents_per_copy"]
             self._high = first["action_high"]
@@ -191,32 +203,14 @@ class SubprocBatchedVecEnv(VecEnv):
             [info for block in infos for info in block],
         )
 
-    def close(self) -> None:
-        """Close the workers' envs and end the processes (idempotent; waits at most about
-        10 s in all for workers that do not answer, then terminates them)."""
+    def close(self, timeout: float = 10.0) -> None:
+        """Close the workers' envs and end the processes (idempotent). Workers that have not
+        answered within ``timeout`` seconds in all are killed."""
         if self._closed:
             return
         self._closed = True
-        for conn in self._connections:
-            try:
-                conn.send(("close", None))
-            except Exception:  # a dead worker, a broken pipe
-                pass
-        deadline = time.monotonic() + 10
-        for conn in self._connections:
-            try:  # the answer to "close", after any answer still owed
-                while conn.poll(max(0.0, deadline - time.monotonic())):
-                    if conn.recv() == ("ok", None):
-                        break
-            except Exception:  # EOF, a cut message: the worker is going anyway
-                pass
-        for process in self._processes:
-            process.join(timeout=max(0.1, deadline - time.monotonic()))
-            if process.is_alive():
-                process.terminate()
-                process.join()
-        for conn in self._connections:
-            conn.close()
+        self._finalizer.cancel()
+        _shutdown(self._connections, self._processes, timeout)
 
     def get_attr(self, attr_name: str, indices=None) -> list[Any]:
         return self._per_entry("get_attr", indices, attr_name)
@@ -278,10 +272,12 @@ class SubprocBatchedVecEnv(VecEnv):
         return self._gather(list(messages), moves)
 
     def _send_all(self, messages: dict[int, tuple]) -> None:
+        # Pickled first: an argument that cannot be pickled fails here, before anything is sent.
+        payloads = {w: ForkingPickler.dumps(message) for w, message in messages.items()}
         try:
-            for w, message in messages.items():
+            for w, payload in payloads.items():
                 try:
-                    self._connections[w].send(message)
+                    self._connections[w].send_bytes(payload)
                 except OSError:  # BrokenPipeError: the worker has exited
                     failure = self._died(w)
                     self._broken = str(failure)
@@ -336,8 +332,9 @@ class SubprocBatchedVecEnv(VecEnv):
 
     def _check_ready(self) -> None:
         if self._broken:
+            then = "it was closed" if self._closed else "close() it"
             raise RuntimeError(
-                f"this SubprocBatchedVecEnv is unusable ({self._broken}): close() it and make a "
+                f"this SubprocBatchedVecEnv is unusable ({self._broken}): {then}, and make a "
                 "new one"
             )
         if self._closed:
@@ -346,12 +343,40 @@ class SubprocBatchedVecEnv(VecEnv):
             raise RuntimeError("step_async() was called: step_wait() must come first")
 
 
+def _shutdown(connections: list, processes: list, timeout: float = 10.0) -> None:
+    """Ask each worker to close, wait for its ``"closed"`` (after any answer still owed) within
+    ``timeout`` seconds in all, close the pipes (a worker still waiting reads end-of-file), and
+    kill any worker left (it ignores SIGTERM)."""
+    for conn in connections:
+        try:
+            conn.send(("close", None))
+        except Exception:  # a dead worker, a broken pipe
+            pass
+    deadline = time.monotonic() + timeout
+    for conn in connections:
+        try:
+            while conn.poll(max(0.0, deadline - time.monotonic())):
+                if conn.recv()[0] == "closed":
+                    break
+        except Exception:  # end-of-file, a cut message: the worker is going anyway
+            pass
+    for conn in connections:
+        conn.close()
+    for process in processes:
+        process.join(timeout=max(0.1, deadline - time.monotonic()))
+        if process.is_alive():
+            process.kill()
+            process.join(timeout=5)
+
+
 def _worker(conn, env_kwargs, n_copies, copy_offset, seed, batched_kwargs) -> None:
-    """A worker's loop: build its copies, then answer ``step``, ``call`` and ``close``."""
-    # The trainer handles Ctrl-C and SIGTERM sent to the whole group (module doc); a worker
-    # ends on its "close" or when the trainer's end of the pipe closes.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    """A worker's loop: build its copies, then answer ``describe``, ``step``, ``call`` and
+    ``close``."""
+    # The trainer handles Ctrl-C and SIGTERM sent to the whole group (module doc); they were
+    # blocked when this process started, so ignore them first, then unblock (pending: dropped).
+    for signum in WORKER_IGNORES:
+        signal.signal(signum, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, WORKER_IGNORES)
     try:
         from swarm_core.threads import set_kernel_threads
 
@@ -385,9 +410,11 @@ def _worker(conn, env_kwargs, n_copies, copy_offset, seed, batched_kwargs) -> No
                 name, args, kwargs = payload
                 result = getattr(venv, name)(*args, **kwargs)
             elif command == "close":
-                if venv is not None:
-                    venv.close()
-                _answer(conn, ("ok", None))
+                try:
+                    if venv is not None:
+                        venv.close()
+                finally:
+                    _answer(conn, ("closed", None))
                 break
             else:
                 raise ValueError(f"unknown env worker command {command!r}")

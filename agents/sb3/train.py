@@ -700,9 +700,11 @@ def _train_with(
     # SB3 asks each env for render_mode; SuperSuit's vector env answers None (no rendering
     # while training), which SB3 reports as "not defined" on every wrapper.
     warnings.filterwarnings("ignore", message="The `render_mode` attribute is not defined")
-    # Worker processes (--num-cpus) inherit "ignore SIGINT": a Ctrl-C reaches the whole process
-    # group, and only this process must act on it (it saves, then closes the workers).
-    previous_sigint = set_signal(signal.SIGINT, signal.SIG_IGN) if num_cpus > 0 else None
+    # SuperSuit's worker processes (--vec supersuit --num-cpus) inherit "ignore SIGINT": a
+    # Ctrl-C reaches the whole process group, and only this process must act on it (it saves,
+    # then closes the workers). The batched VecEnv's workers see to it themselves.
+    supersuit_workers = num_cpus > 0 and vec == "supersuit"
+    previous_sigint = set_signal(signal.SIGINT, signal.SIG_IGN) if supersuit_workers else None
     try:
         venv = _vec_env(
             vec,

@@ -5,7 +5,12 @@ from __future__ import annotations
 import json
 import multiprocessing
 import os
+import pickle
 import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -145,8 +150,42 @@ def test_an_interrupted_exchange_leaves_the_vec_env_refusing_until_closed(monkey
         with pytest.raises(RuntimeError, match="unusable"):
             vec.get_attr("agents")
     finally:
-        vec.close()
-    assert not any(p.is_alive() for p in vec._processes)
+        start = time.monotonic()
+        vec.close()  # reads past worker 1's stale answer to its "closed"
+    assert time.monotonic() - start < 5
+    assert [p.exitcode for p in vec._processes] == [0, 0]
+
+
+def test_close_kills_a_worker_that_does_not_answer_and_a_bad_argument_breaks_nothing():
+    vec = SubprocBatchedVecEnv(KWARGS, 2, 2, seed=0)
+    vec.reset()
+    # An argument that cannot be pickled fails before anything is sent: still usable.
+    with pytest.raises((AttributeError, TypeError, pickle.PicklingError)):
+        vec.set_attr("f", lambda: 0)
+    vec.step(np.zeros((vec.num_envs, 2), np.float32))
+    os.kill(vec._processes[1].pid, signal.SIGSTOP)  # alive, never answers
+    start = time.monotonic()
+    vec.close(timeout=1.0)
+    assert time.monotonic() - start < 8
+    assert vec._processes[0].exitcode == 0 and vec._processes[1].exitcode == -signal.SIGKILL
+
+
+def test_a_vec_env_never_closed_does_not_hang_the_interpreter_at_exit(tmp_path):
+    """The workers ignore SIGTERM, multiprocessing's own exit handler's way to end them: the
+    VecEnv's finalizer closes them first."""
+    script = tmp_path / "unclosed.py"
+    script.write_text(
+        "from agents.sb3.batched_subproc import SubprocBatchedVecEnv\n"
+        "if __name__ == '__main__':\n"
+        f"    vec = SubprocBatchedVecEnv({KWARGS!r}, 2, 2, seed=0)\n"
+        "    vec.reset()\n"
+        "    print('built', flush=True)\n"
+    )
+    root = Path(__file__).resolve().parents[2]
+    done = subprocess.run(
+        [sys.executable, str(script)], cwd=root, capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0 and "built" in done.stdout, done.stderr[-2000:]
 
 
 def test_a_split_batch_reseeds_the_residual_base_as_the_whole_batch():
@@ -193,7 +232,9 @@ def test_a_worker_that_cannot_build_its_copies_is_reported_and_nothing_is_left()
     with pytest.raises(ValueError, match="preset") as caught:
         SubprocBatchedVecEnv({**KWARGS, "preset": "no-such-preset"}, 2, 2, seed=0)
     assert isinstance(caught.value.__cause__, RemoteTraceback)
-    assert signal.getsignal(signal.SIGINT) is signal_before  # restored after the spawn
+    assert "BatchedSwarmVecEnv" in str(caught.value.__cause__)  # the worker's build frames
+    assert signal.getsignal(signal.SIGINT) is signal_before
+    assert not signal.pthread_sigmask(signal.SIG_BLOCK, set())  # the mask restored
     left = [p.name for p in multiprocessing.active_children()]
     assert not [name for name in left if name.startswith("swarm-env-copies")], left
 
