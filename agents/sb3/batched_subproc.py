@@ -131,6 +131,10 @@ class SubprocBatchedVecEnv(VecEnv):
                 signal.pthread_sigmask(signal.SIG_SETMASK, mask)
             first = self._exchange({w: ("describe", None) for w in self._workers}, moves=True)[0]
             self.agents_per_copy: int = first["agents_per_copy"]
+            #: As ``BatchedSwarmVecEnv``'s: entries of the scripted command and of the critic
+            #: block at the end of each observation row.
+            self.base_dims: int = first["base_dims"]
+            self.critic_dims: int = first["critic_dims"]
             self._high = first["action_high"]
             self._next_seed = seed
             super().__init__(
@@ -399,6 +403,8 @@ def _worker(conn, env_kwargs, n_copies, copy_offset, seed, batched_kwargs) -> No
             if command == "describe":
                 result = {
                     "agents_per_copy": venv.agents_per_copy,
+                    "base_dims": venv.base_dims,
+                    "critic_dims": venv.critic_dims,
                     "action_high": venv.action_high,
                     "observation_space": venv.observation_space,
                     "action_space": venv.action_space,

@@ -20,7 +20,8 @@ command) is trained by this short PPO loop:
   code of the observation, the base's command and the fraction of the episode left;
   feed-forward (asymmetric actor-critic: the truth makes it close to Markov).
 - **rollouts**: ``--n-copies`` copies of the student's env in one
-  :class:`~agents.sb3.batched.BatchedSwarmVecEnv` (one filter call per step), K fresh
+  :class:`~agents.sb3.batched.BatchedSwarmVecEnv` (one filter call per step; with
+  ``--num-cpus N``, split across N worker processes, the same rollouts bit for bit), K fresh
   episodes per iteration, seeds ``--train-seeds-start + iteration * K + k``.
 - **advantages**: GAE(``--gamma``, ``--gae-lambda``) over the whole episode, whose end is
   terminal: the critic reads the fraction of the episode left, so the horizon is part of its
@@ -361,6 +362,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--iterations", type=int, default=40)
     parser.add_argument("--n-copies", type=int, default=16, help="episodes per iteration")
+    parser.add_argument(
+        "--num-cpus",
+        type=int,
+        default=0,
+        help="worker processes stepping the copies (0: in this process); the same rollouts",
+    )
     parser.add_argument("--train-seeds-start", type=int, default=5000)
     parser.add_argument("--val-seeds", default="200-209")
     parser.add_argument("--eval-every", type=int, default=10, help="iterations between scores")
@@ -394,6 +401,7 @@ def main(argv: list[str] | None = None) -> int:
     checks = (
         ("--iterations", args.iterations, 1),
         ("--n-copies", args.n_copies, 1),
+        ("--num-cpus", args.num_cpus, 0),
         ("--eval-every", args.eval_every, 1),
         ("--critic-warmup", args.critic_warmup, 0),
         ("--epochs", args.epochs, 1),
@@ -405,6 +413,11 @@ def main(argv: list[str] | None = None) -> int:
     for flag, value, low in checks:
         if value < low:
             parser.error(f"{flag} must be >= {low}, got {value}")
+    if args.num_cpus > args.n_copies:
+        parser.error(
+            f"--num-cpus {args.num_cpus} exceeds --n-copies {args.n_copies}: each worker steps "
+            "at least one copy"
+        )
     for flag, value in (
         ("--learning-rate", args.learning_rate),
         ("--critic-learning-rate", args.critic_learning_rate),
@@ -523,28 +536,36 @@ def _train(parser, args, meta, reward_params, val_seeds, phases, max_wall_s) -> 
         probe.close()
     torch.set_num_threads(args.torch_threads)  # loading a student set it to 1
     torch.manual_seed(args.fit_seed)
-    try:  # a bad --task-params fails here, before any rollout
-        vec = BatchedSwarmVecEnv(
-            train_kwargs,
-            args.n_copies,
-            seed=None,
-            residual=meta["base"],
-            residual_observes_base=True,
-            critic_state=True,
-        )
+    try:  # a bad --task-params fails here, before any rollout or worker
+        trained = parallel_env(**train_kwargs)
     except ValueError as err:
         parser.error(f"the training env with --task-params {json.dumps(reward_params)}: {err}")
-    first = vec.envs[0]
-    if first.observation_space(
-        first.possible_agents[0]
-    ).shape != space.shape or not np.array_equal(
-        first.task.features(vec.agents_per_copy), features
-    ):
-        vec.close()
+    try:
+        same = trained.observation_space(
+            trained.possible_agents[0]
+        ).shape == space.shape and np.array_equal(
+            trained.task.features(len(trained.possible_agents)), features
+        )
+    finally:
+        trained.close()
+    if not same:
         parser.error(
             f"--task-params {json.dumps(reward_params)} changes what the student observes (its "
             "task's features or the observation's size); only the reward's terms may change"
         )
+    vec_kwargs = {
+        "residual": meta["base"],
+        "residual_observes_base": True,
+        "critic_state": True,
+    }
+    if args.num_cpus:
+        from agents.sb3.batched_subproc import SubprocBatchedVecEnv
+
+        vec = SubprocBatchedVecEnv(
+            train_kwargs, args.n_copies, args.num_cpus, seed=None, **vec_kwargs
+        )
+    else:
+        vec = BatchedSwarmVecEnv(train_kwargs, args.n_copies, seed=None, **vec_kwargs)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     log_std = torch.nn.Parameter(torch.full((2,), float(args.log_std)))

@@ -174,6 +174,20 @@ def test_main_fine_tunes_saves_each_scored_student_and_is_reproducible(student, 
     assert _digest(again / "student.pt") == _digest(out / "student.pt")
 
 
+def test_worker_processes_train_the_same_student_bit_for_bit(student, tmp_path):
+    """``--num-cpus 2``: the copies stepped by 2 worker processes give the same rollouts, so
+    the same student, as in one process."""
+    runs = {}
+    for name, extra in (("inproc", []), ("workers", ["--num-cpus", "2"])):
+        out = tmp_path / name
+        argv = ["--student", str(student), "--out", str(out), *TINY, *extra]
+        assert recurrent_ppo.main([*argv, "--task-params", '{"progress_weight": 10}']) == 0
+        runs[name] = out
+    assert _digest(runs["workers"] / "student.pt") == _digest(runs["inproc"] / "student.pt")
+    log = json.loads((runs["workers"] / "train_log.json").read_text())
+    assert log["args"]["num_cpus"] == 2
+
+
 @pytest.mark.filterwarnings("ignore:No artists with labels")
 @pytest.mark.parametrize("which", ["recurrent_ppo", "recurrent_student"])
 def test_a_learning_curve_cut_while_written_leaves_the_last_one_whole(
@@ -254,6 +268,8 @@ def test_the_wall_time_budget_stops_after_an_iteration_and_saves(student, tmp_pa
         (["--phases", "5,2"], "--phases"),
         (["--log-std", "inf"], "--log-std"),
         (["--max-wall-minutes", "0"], "--max-wall-minutes"),
+        (["--num-cpus", "-1"], "--num-cpus must be >= 0, got -1"),
+        (["--num-cpus", "3"], "--num-cpus 3 exceeds --n-copies 2"),
     ],
 )
 def test_main_refuses_bad_arguments_before_any_rollout(student, tmp_path, capsys, extra, flag):
