@@ -33,6 +33,17 @@ EXIT_CODES = {"SIGINT": 130, "SIGTERM": 143}
 WALL_BUDGET = "max-wall-minutes"
 
 
+def add_max_wall_argument(parser: Any, stops: str = "once") -> None:
+    """``--max-wall-minutes`` (read by :func:`max_wall_seconds`); ``stops``: where a run
+    stops once the budget has passed, for the help (e.g. "after the iteration in which")."""
+    parser.add_argument(
+        "--max-wall-minutes",
+        type=float,
+        default=None,
+        help=f"stop (and save) {stops} this much wall time has passed",
+    )
+
+
 def max_wall_seconds(minutes: Any) -> float | None:
     """``--max-wall-minutes`` in seconds (None: no budget); ``ValueError`` naming the flag
     unless it is a finite number > 0."""

@@ -14,7 +14,8 @@ same env (``lab-3m-4`` formation, PHD observations: 4 robots) through:
 - ``residual-K``: the same plus the residual mode (``residual="scripted:formation"``: one
   scripted controller per copy runs every step, :mod:`agents.sb3.residual`).
 
-Every variant but the first runs its kernels on one thread (the cores go to PPO and the env).
+Every variant runs its kernels on one thread (the cores go to PPO and the env), in this
+process and in every worker.
 
 Each variant trains for ``--rollouts`` PPO iterations after one warm-up iteration (kernels
 compiled / loaded, workers started) and reports transitions/s over the timed ones, with the

@@ -25,12 +25,12 @@ def main() -> None:
     parser.add_argument("--top", type=int, default=30, help="functions printed")
     args = parser.parse_args()
 
-    from agents.sb3.batched import make_batched_vec_env
+    from bench_training import make_venv  # the very env the training benchmark steps
+
     from swarm_core.threads import set_kernel_threads
 
     set_kernel_threads(1)
-    env_kwargs = {"preset": "lab-3m-4", "task": "formation", "observation": "phd"}
-    venv = make_batched_vec_env(env_kwargs, n_copies=args.copies, seed=0)
+    venv = make_venv(f"batched-{args.copies}")
     venv.reset()
     actions = np.zeros((venv.num_envs, 2), dtype=np.float32)
     for _ in range(20):

@@ -171,6 +171,13 @@ def run(args: argparse.Namespace) -> int:
     if args.compare:
         compared = [results]
         for k, spec in enumerate(specs):
+            if compared[-1]["config"].get("interrupted"):
+                # A Ctrl-C or SIGTERM ends the whole comparison, not the policy it landed in.
+                print(
+                    f"swarm-phd evaluate: interrupted; not run: {', '.join(specs[k:])}",
+                    file=sys.stderr,
+                )
+                break
             shared = shared_env_kwargs(args.policy, args.preset, args.task, **overrides)
             other = evaluate_localization(
                 shared.pop("preset"),

@@ -94,7 +94,8 @@ def steps_in(env: Any, flag: str, duration_s: float) -> int:
 def add_duration_argument(
     parser: argparse.ArgumentParser, default: float, what: str = "simulated seconds"
 ) -> None:
-    """``--duration`` (s) as every command takes it; :func:`duration` checks it."""
+    """``--duration`` (s), for a command to share; :func:`duration` checks it. (``mutual``,
+    ``seed003``, ``sweep`` and ``uav`` still define their own.)"""
     parser.add_argument(
         "--duration",
         type=float,

@@ -95,8 +95,9 @@ def make_vec_env(
 ):
     """A SB3 VecEnv with ``n_copies * n_robots`` entries, wrapped in ``VecMonitor``.
 
-    ``num_cpus`` > 0 steps the copies in that many worker processes (SuperSuit's
-    ``ProcConcatVec``), each with one kernel thread; 0 keeps everything in this process.
+    ``num_cpus`` > 1 (and ``n_copies`` > 1) steps the copies in ``min(num_cpus, n_copies)``
+    worker processes (SuperSuit's ``ProcConcatVec``), each with one kernel thread; 0 or 1
+    keeps everything in this process (SuperSuit's own rule for one CPU).
     """
     import supersuit as ss
     from stable_baselines3.common.vec_env import VecMonitor

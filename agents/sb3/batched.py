@@ -194,14 +194,7 @@ class BatchedSwarmVecEnv(VecEnv):
     def reset_with_seeds(self, seeds: Sequence[int | None]) -> np.ndarray:
         """Reset copy ``k`` with ``seeds[k]`` (``None``: fresh entropy); the observation
         (num_envs, D). What :meth:`reset` does once it has chosen the seeds."""
-        seeds = list(seeds)
-        if len(seeds) != len(self.envs) or not all(
-            s is None or (isinstance(s, (int, np.integer)) and not isinstance(s, bool) and s >= 0)
-            for s in seeds
-        ):
-            raise ValueError(
-                f"seeds must be {len(self.envs)} ints >= 0 or None (one per copy), got {seeds!r}"
-            )
+        seeds = _checked_seeds("seeds", seeds, len(self.envs), none_ok=True)
         obs = self._reset_copies(self._copies, seeds)
         return np.concatenate([obs[k] for k in self._copies])
 
@@ -367,16 +360,24 @@ def copy_seeds_for_reset(
     if any(s is not None for s in entry_seeds):  # VecEnv.seed() was called: per entry
         seeds = [entry_seeds[k * agents_per_copy] for k in range(n_copies)]
     if copy_seeds is not None:
-        copy_seeds = list(copy_seeds)
-        if len(copy_seeds) != n_copies or not all(
-            isinstance(s, (int, np.integer)) and not isinstance(s, bool) and s >= 0
-            for s in copy_seeds
-        ):
-            raise ValueError(
-                f"copy_seeds must be {n_copies} ints >= 0 (one per copy), got {copy_seeds!r}"
-            )
-        seeds = [int(s) for s in copy_seeds]
+        seeds = _checked_seeds("copy_seeds", copy_seeds, n_copies, none_ok=False)
     return seeds
+
+
+def _checked_seeds(
+    name: str, seeds: Sequence[int | None], n_copies: int, none_ok: bool
+) -> list[int | None]:
+    """``seeds`` as a list of ``n_copies`` ints >= 0 (or None where ``none_ok``), else
+    ``ValueError`` naming ``name`` and the value."""
+    seeds = list(seeds)
+    if len(seeds) != n_copies or not all(
+        (none_ok and s is None)
+        or (isinstance(s, (int, np.integer)) and not isinstance(s, bool) and s >= 0)
+        for s in seeds
+    ):
+        what = "ints >= 0 or None" if none_ok else "ints >= 0"
+        raise ValueError(f"{name} must be {n_copies} {what} (one per copy), got {seeds!r}")
+    return [None if s is None else int(s) for s in seeds]
 
 
 def check_unit_actions(actions: Any, num_envs: int, agents_per_copy: int) -> np.ndarray:

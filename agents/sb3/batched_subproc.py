@@ -64,8 +64,8 @@ def split_copies(n_copies: int, n_workers: int) -> list[range]:
             f"n_workers ({n_workers}) must not exceed n_copies ({n_copies}): a worker "
             "steps at least one copy"
         )
-    edges = np.linspace(0, n_copies, n_workers + 1).round().astype(int)
-    return [range(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+    blocks = np.array_split(np.arange(n_copies), n_workers)
+    return [range(int(b[0]), int(b[-1]) + 1) for b in blocks]
 
 
 class SubprocBatchedVecEnv(VecEnv):
@@ -78,7 +78,7 @@ class SubprocBatchedVecEnv(VecEnv):
         of copy ``k`` (``R`` robots per copy), whatever worker steps it.
     n_workers : int
         Worker processes, in ``[1, n_copies]``; each steps a contiguous block of copies (one
-        worker gains nothing over the in-process VecEnv: it is for tests and symmetry).
+        worker steps them all in another process: no stepping in parallel).
     **batched_kwargs
         The other keyword arguments of ``BatchedSwarmVecEnv`` (``residual``,
         ``critic_state``, ``residual_observes_base``, ``residual_mode``).

@@ -41,7 +41,8 @@ command) is trained by this short PPO loop:
   the validation scores in ``train_log.png`` (several runs: :func:`plot_ppo_logs`).
   Ctrl-C or SIGTERM saves the current student as ``student.pt`` and exits 130 / 143;
   ``--max-wall-minutes`` stops after the iteration in which the budget passes, saving
-  ``student.pt`` (that iteration's, unscored) and the log as a finished run does (exit 0).
+  ``student.pt`` (that iteration's; scored only if it is an ``--eval-every`` iteration) and
+  the log as a finished run does (exit 0).
   ``train_log.json``'s ``"stopped"`` says why a run stopped early (the signal,
   ``"max-wall-minutes"``) or is null.
 
@@ -333,7 +334,7 @@ def plot_ppo_logs(logs: list[str | Path], figure: str | Path) -> None:
 def main(argv: list[str] | None = None) -> int:
     import argparse
 
-    from agents.interrupts import max_wall_seconds
+    from agents.interrupts import add_max_wall_argument, max_wall_seconds
     from agents.sb3.distill_fit import DEFAULT_PHASES
     from agents.sb3.history_fit import parse_phases
     from swarm_phd.inputs import parse_json_object, parse_seeds
@@ -391,12 +392,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--log-std", type=float, default=-2.5, help="initial, unit scale")
     parser.add_argument("--fit-seed", type=int, default=0, help="torch, noise and minibatches")
     parser.add_argument("--torch-threads", type=int, default=1)
-    parser.add_argument(
-        "--max-wall-minutes",
-        type=float,
-        default=None,
-        help="stop (and save) after the iteration in which this much wall time has passed",
-    )
+    add_max_wall_argument(parser, "after the iteration in which")
     args = parser.parse_args(argv)
     checks = (
         ("--iterations", args.iterations, 1),

@@ -294,7 +294,7 @@ def plot_train_logs(logs: list[str | Path], figure: str | Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from agents.interrupts import max_wall_seconds
+    from agents.interrupts import add_max_wall_argument, max_wall_seconds
     from agents.sb3.history_fit import distillation_parser, parse_phases
     from agents.sb3.train import env_kwargs_from_args
 
@@ -311,12 +311,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fit-seed", type=int, default=0, help="torch and minibatch seed")
     parser.add_argument("--torch-threads", type=int, default=1)
     parser.add_argument("--out", required=True, help="directory for the students and data")
-    parser.add_argument(
-        "--max-wall-minutes",
-        type=float,
-        default=None,
-        help="stop (and save) after the round in which this much wall time has passed",
-    )
+    add_max_wall_argument(parser, "after the round in which")
     args = parser.parse_args(argv)
     try:
         max_wall_s = max_wall_seconds(args.max_wall_minutes)
@@ -408,7 +403,7 @@ def _dagger(args, rounds, val_seeds, phases, env_kwargs, model, out, max_wall_s)
     for old in [out / "student.pt", out / "student_best.pt", *out.glob("student_round*.pt")]:
         old.unlink(missing_ok=True)
     r = 1
-    completed = 0  # the last round whose student is saved, scored and logged
+    completed = 0  # the last round whose student is saved and scored (in log["rounds"])
     budget = WallBudget(max_wall_s)
     with Interrupts() as interrupts:
         with interrupts.caught():
@@ -468,8 +463,8 @@ def _dagger(args, rounds, val_seeds, phases, env_kwargs, model, out, max_wall_s)
                         "val": val,
                     }
                 )
+                completed = r  # log["rounds"] holds exactly the completed rounds
                 write_json_atomically(out / "train_log.json", log, indent=1)
-                completed = r
                 plot_train_logs([out / "train_log.json"], out / "train_log.png")
                 print(
                     f"round {r}: {len(seeds)} episodes ({'reused' if reused else 'collected'}, "
@@ -487,17 +482,17 @@ def _dagger(args, rounds, val_seeds, phases, env_kwargs, model, out, max_wall_s)
             if usable is not None:
                 atomic_write(out / "student.pt", lambda tmp: shutil.copyfile(usable, tmp))
                 # Round 18's selection (docs/results.md): the round best on --val-seeds.
-                best = min(log["rounds"][:completed], key=lambda d: _finite_or_inf(d["val"]))
+                best = min(log["rounds"], key=lambda d: _finite_or_inf(d["val"]))
                 log["best_round"] = best["round"]
                 selected = out / f"student_round{best['round']}.pt"
                 atomic_write(out / "student_best.pt", lambda tmp: shutil.copyfile(selected, tmp))
             log["interrupted"] = interrupted
             log["stopped"] = stop_reason(interrupted, budget)
             write_json_atomically(out / "train_log.json", log, indent=1)
-    if completed:
+    if usable is not None:
         print(
-            f"student_best.pt is round {log['best_round']}'s, the best on {args.val_seeds} "
-            f"({min(_finite_or_inf(d['val']) for d in log['rounds'][:completed]):.4f} m)"
+            f"student_best.pt is round {best['round']}'s, the best on {args.val_seeds} "
+            f"({_finite_or_inf(best['val']):.4f} m)"
         )
     if not log["stopped"]:
         return 0

@@ -177,8 +177,9 @@ def paired_differences(
 
     Paired by seed, the spread that the layouts share cancels: on 20 formation seeds the
     per-policy std is ~0.06 m, the SE of a paired difference ~0.004 m. ``verdict`` is
-    ``"better"`` / ``"worse"`` beyond 2 SE, else ``"within 2 SE"`` (each pair's statistic:
-    :func:`paired_difference`). The SE is over the held-out
+    ``"better"`` / ``"worse"`` beyond 2 SE, else ``"within 2 SE"``, or
+    :data:`NO_SE_VERDICT` / :data:`NO_PAIR_VERDICT` with under 2 / no seeds scored by both
+    (each pair's statistic: :func:`paired_difference`). The SE is over the held-out
     seeds only: it judges these trained models, not the recipe (the runs' spread, the pooled
     row's "run means ±", is not in it). Every policy must have been scored on the same seeds.
     """

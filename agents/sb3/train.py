@@ -44,6 +44,7 @@ from agents.interrupts import (
     EXIT_CODES,
     Interrupts,
     WallBudget,
+    add_max_wall_argument,
     max_wall_seconds,
     set_signal,
     stop_reason,
@@ -150,8 +151,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=0,
         help="worker processes for the env copies (0: step them in-process); batched: each "
-        "worker steps a block of the copies (1 gains nothing; 2 with 16 copies on an idle "
-        "2-core machine: 1.1-1.2x faster than in-process, no gain with a core busy)",
+        "worker steps a block of the copies (1: all of them, not in parallel; 2 with 16 copies "
+        "on an idle 2-core machine: 1.1-1.3x faster than in-process, no gain with a core "
+        "busy)",
     )
     parser.add_argument(
         "--vec",
@@ -289,12 +291,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(phd/truth observations); 'mlp': plain MLP on the normalised "
         "vector",
     )
-    parser.add_argument(
-        "--max-wall-minutes",
-        type=float,
-        default=None,
-        help="stop early (and save) after this much wall time",
-    )
+    add_max_wall_argument(parser, "once")  # SB3: at the next env step; RLlib: that iteration
     parser.add_argument(
         "--no-progress-bar", action="store_true", help="no progress bar (as --quiet, for train)"
     )

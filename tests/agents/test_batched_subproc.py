@@ -43,14 +43,14 @@ def _assert_steps_equal(a, b, t):
 
 @pytest.mark.parametrize("options", [{}, RESIDUAL], ids=["plain", "residual-critic"])
 def test_workers_give_the_in_process_rollout_bit_for_bit(options):
-    """5 copies in 2 workers (blocks of 2 and 3) against the same 5 copies in one process:
+    """5 copies in 2 workers (blocks of 3 and 2) against the same 5 copies in one process:
     the same observations, rewards, dones and infos at every step, across auto-resets (12-step
     episodes), a ``seed()`` reset and a ``copy_seeds`` reset. With the residual, the base's
     reseeding at each auto-reset uses the copy's global index (``copy_offset``)."""
     ref = BatchedSwarmVecEnv(KWARGS, 5, seed=11, **options)
     vec = SubprocBatchedVecEnv(KWARGS, 5, 2, seed=11, **options)
     try:
-        assert [list(b) for b in vec.blocks] == [[0, 1], [2, 3, 4]]
+        assert [list(b) for b in vec.blocks] == [[0, 1, 2], [3, 4]]
         assert vec.num_envs == ref.num_envs == 20
         assert vec.observation_space == ref.observation_space
         np.testing.assert_array_equal(vec.action_high, ref.action_high)
@@ -241,7 +241,7 @@ def test_a_worker_that_cannot_build_its_copies_is_reported_and_nothing_is_left()
 
 def test_split_copies_blocks_and_refusals():
     assert split_copies(16, 2) == [range(0, 8), range(8, 16)]
-    assert split_copies(5, 3) == [range(0, 2), range(2, 3), range(3, 5)]
+    assert split_copies(5, 3) == [range(0, 2), range(2, 4), range(4, 5)]
     assert split_copies(4, 1) == [range(0, 4)]
     for args, match in (
         ((2, 3), "n_workers \\(3\\) must not exceed n_copies \\(2\\)"),

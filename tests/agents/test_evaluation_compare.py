@@ -257,6 +257,34 @@ def _crafted(
     }
 
 
+def test_an_interrupt_ends_the_whole_comparison(tmp_path, capsys, monkeypatch):
+    """The policy in which a Ctrl-C lands is scored on its finished seeds (evaluate catches
+    it there); the policies after it are not started, and what ran is still paired."""
+    from swarm_phd import evaluate
+    from swarm_phd.cli import main
+
+    started = []
+
+    def fake(preset, duration, localizers, seeds, policy, **kwargs):
+        started.append(policy)
+        if policy == "random":  # interrupted after its first two seeds
+            return _crafted(policy, seeds[:2], requested=seeds)
+        return _crafted(policy, seeds)
+
+    monkeypatch.setattr(evaluate, "evaluate_localization", fake)
+    for name in ("print_table", "print_comparison"):  # they read what _crafted leaves out
+        monkeypatch.setattr(evaluate, name, lambda results: None)
+    monkeypatch.setattr(evaluate, "comparison_rows", lambda results: [])
+    args = ["evaluate", "--preset", "seed-lab", "--task", "formation", "--localizer", "phd-lc"]
+    args += ["--policy", "scripted:formation", "--compare", "random,scripted:wander,wander"]
+    out = tmp_path / "eval"
+    assert main([*args, "--duration", "2", "--seeds", "0-2", "--out", str(out)]) == 0
+    assert started == ["scripted:formation", "random"]
+    assert "interrupted; not run: scripted:wander, wander" in capsys.readouterr().err
+    rows = json.loads((out / "comparison.json").read_text())["paired_by_seed"]
+    assert rows and all(r["policy"] == "random" and r["seeds"] == [0, 1] for r in rows)
+
+
 def test_paired_by_seed_refuses_seeds_that_do_not_line_up():
     ref = _crafted("scripted:formation", [0, 1, 2])
     rows = paired_by_seed([ref, _crafted("scripted:wander", [0, 1, 2])])
