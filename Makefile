@@ -34,6 +34,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_scaling.py --json runs/bench/scaling.json
 	$(PY) benchmarks/bench_feed_profiles.py --sizes 20,1000
 	$(PY) benchmarks/bench_load.py --steps 300 --repeats 2 --json runs/bench/load.json
+	$(PY) benchmarks/bench_set_pooling.py --json runs/bench/set_pooling.json
 	$(PY) benchmarks/bench_training.py --rollouts 2 --json runs/bench/training.json
 
 lint: $(STAMP)

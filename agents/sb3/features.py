@@ -24,6 +24,7 @@ import torch
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
+from agents.sb3.set_pooling import relu_masked_pool
 from swarm_env.observation import ESTIMATE_COLUMNS
 
 ROW = len(ESTIMATE_COLUMNS)
@@ -84,13 +85,12 @@ class NeighbourSetExtractor(BaseFeaturesExtractor):
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         inputs, w, valid = self.row_inputs(obs)
-        h = self.phi(inputs)  # (B, K, H), >= 0 (ReLU)
-        masked = h * valid.float().unsqueeze(-1)  # invalid rows 0
-        weighted = (masked * w.unsqueeze(-1)).sum(dim=1)
-        # The max over the valid rows: h >= 0, so the invalid rows' zeros never exceed it, and
-        # a table with no valid row gives 0. (Until 2026-12-05 the invalid rows were set to
-        # -1e4 and an empty table's max replaced by 0: the same values and gradients, bit for
-        # bit, at 1.1x the cost; tests/agents/test_sb3.py.)
-        maxed = masked.max(dim=1).values
+        # The max over the valid rows: relu >= 0, so the invalid rows' zeros never exceed it,
+        # and a table with no valid row gives 0. (Until 2026-12-05 the invalid rows were set
+        # to -1e4 and an empty table's max replaced by 0: the same values and gradients, bit
+        # for bit; tests/agents/test_sb3.py.) phi's last ReLU runs fused with both poolings,
+        # as pool_reference does it, bit for bit (agents/sb3/set_pooling.py).
+        z = self.phi[2](self.phi[1](self.phi[0](inputs)))  # (B, K, H), before the last ReLU
+        weighted, maxed = relu_masked_pool(z, valid.to(z.dtype), w)
         extra = obs[:, ROW * self.top_k : self.n_read] / self.extra_scale
         return torch.cat([weighted, maxed, extra], dim=1)

@@ -1,0 +1,82 @@
+"""The fused ReLU + pooling kernels against their torch reference, bit for bit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from agents.sb3.set_pooling import pool_reference, relu_masked_pool
+
+
+def _same(a: torch.Tensor, b: torch.Tensor) -> bool:
+    """Bit for bit, except the sign of a zero: torch's own kernels give +0.0 or -0.0 for the
+    same sum depending on the tensor's shape, and no later sum or product with a nonzero term
+    can tell the two apart."""
+    bits = {torch.float32: torch.int32, torch.float64: torch.int64}[a.dtype]
+    nonzero = (a != 0) | (b != 0)
+    return torch.equal(a, b) and torch.equal(a[nonzero].view(bits), b[nonzero].view(bits))
+
+
+def _tables(rng, dtype, n_tables=300, n_rows=16, width=32):
+    """Pre-activations with ties, exact zeros and -0.0, padded rows, and empty tables."""
+    z = rng.normal(size=(n_tables, n_rows, width))
+    z[::7, -1] = z[::7, 0]  # duplicate rows: equal positive values tie in the max
+    z[::5, :, ::4] = 0.0
+    z[1::5, :, 1::4] = -0.0
+    n_valid = rng.integers(0, n_rows + 1, n_tables)
+    n_valid[:10] = 0  # tables with no real row
+    valid = (np.arange(n_rows)[None] < n_valid[:, None]).astype(float)
+    valid[::3] = valid[::3, rng.permutation(n_rows)]  # padding anywhere, not only at the end
+    w = rng.uniform(0, 3, (n_tables, n_rows)) * valid
+    to = lambda a: torch.tensor(a, dtype=dtype)  # noqa: E731
+    return to(z), to(valid), to(w)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_fused_pooling_equals_the_reference_bit_for_bit(dtype):
+    rng = np.random.default_rng(2000)
+    z, valid, w = _tables(rng, dtype)
+    upstream_a = torch.tensor(rng.normal(size=(len(z), z.shape[2])), dtype=dtype)
+    upstream_m = torch.tensor(rng.normal(size=(len(z), z.shape[2])), dtype=dtype)
+    grads = []
+    for pool in (pool_reference, relu_masked_pool):
+        zz, ww = z.clone().requires_grad_(), w.clone().requires_grad_()
+        weighted, maxed = pool(zz, valid, ww)
+        ((weighted * upstream_a).sum() + (maxed * upstream_m).sum()).backward()
+        grads.append((weighted.detach(), maxed.detach(), zz.grad, ww.grad))
+    for ref, fused in zip(*grads, strict=True):
+        assert _same(ref, fused)
+    assert (grads[0][1][:10] == 0).all()  # empty tables pool to zeros
+
+
+def test_fused_pooling_without_grad_and_on_one_row():
+    rng = np.random.default_rng(2001)
+    z, valid, w = _tables(rng, torch.float32, n_tables=5, n_rows=1, width=8)
+    with torch.no_grad():
+        for ref, fused in zip(
+            pool_reference(z, valid, w), relu_masked_pool(z, valid, w), strict=True
+        ):
+            assert _same(ref, fused)
+
+
+def test_fused_pooling_passes_nan_on_as_torch_does():
+    rng = np.random.default_rng(2002)
+    z, valid, w = _tables(rng, torch.float32, n_tables=4, n_rows=6, width=5)
+    valid[:] = 1.0
+    z[0, 2, 1] = float("nan")
+    z[1, 4, 0] = float("nan")
+    valid[1, 4] = 0.0  # NaN * 0 is NaN: a padded row's NaN still shows, as in torch
+    for ref, fused in zip(pool_reference(z, valid, w), relu_masked_pool(z, valid, w), strict=True):
+        assert torch.equal(torch.isnan(ref), torch.isnan(fused))
+        assert torch.isnan(fused[0, 1]) and torch.isnan(fused[1, 0])
+        finite = ~torch.isnan(ref)
+        assert torch.equal(ref[finite], fused[finite])
+
+
+def test_other_dtypes_take_the_reference():
+    z = torch.randn(3, 4, 5, dtype=torch.bfloat16)
+    valid = torch.ones(3, 4, dtype=torch.bfloat16)
+    w = torch.rand(3, 4, dtype=torch.bfloat16)
+    for ref, out in zip(pool_reference(z, valid, w), relu_masked_pool(z, valid, w), strict=True):
+        assert out.dtype == torch.bfloat16 and torch.equal(ref, out)
