@@ -1,10 +1,14 @@
-"""The Deep Sets extractor's forward and backward, torch-op pooling against the fused kernels.
+"""The Deep Sets extractor's pooling, torch ops against the fused kernels: alone and in PPO.
 
-One PPO minibatch's worth of real observations (512 ``lab-3m-4`` PHD tables of 16 rows, from
-random motion) through :class:`agents.sb3.features.NeighbourSetExtractor`, forward and
-backward, on one torch thread: once with :func:`agents.sb3.set_pooling.pool_reference` (the
-torch formula) and once with :func:`agents.sb3.set_pooling.relu_masked_pool` (the compiled
-one), alternated ``--repeats`` times. Reports the median ms of each and their ratio.
+Two timings, each alternating :func:`agents.sb3.set_pooling.pool_reference` (the torch
+formula) and :func:`agents.sb3.set_pooling.relu_masked_pool` (the compiled one)
+``--repeats`` times on one torch thread, reported as medians and their ratio:
+
+- ``extractor``: one PPO minibatch's worth of real observations (512 ``lab-3m-4`` PHD tables
+  of 16 rows, from random motion) through
+  :class:`agents.sb3.features.NeighbourSetExtractor`, forward and backward (ms);
+- ``update``: PPO's update alone (``model.train()``, ``benchmarks/bench_training.py``'s PPO),
+  on one rollout of 16 batched copies (8192 agent transitions), in us per transition.
 
     .venv/bin/python benchmarks/bench_set_pooling.py [--repeats 5] [--json PATH]
 """
@@ -68,19 +72,54 @@ def main() -> None:
         finally:
             features.relu_masked_pool = relu_masked_pool
 
-    ms = {"torch_ops": [], "fused": []}
-    for _ in range(args.repeats):
-        ms["torch_ops"].append(timed(pool_reference))
-        ms["fused"].append(timed(relu_masked_pool))
-    result = {name: float(np.median(v)) for name, v in ms.items()}
-    result["speedup"] = result["torch_ops"] / result["fused"]
-    result["all_ms"] = ms
-    print(
-        f"extractor forward+backward, 512 tables: torch ops {result['torch_ops']:.2f} ms, "
-        f"fused {result['fused']:.2f} ms ({result['speedup']:.2f}x)"
-    )
+    model = _model_with_a_rollout()
+
+    def update(pool) -> float:
+        features.relu_masked_pool = pool
+        try:
+            start = time.perf_counter()
+            model.train()
+            return (time.perf_counter() - start) / model.rollout_buffer.size() * 1e6 / model.n_envs
+        finally:
+            features.relu_masked_pool = relu_masked_pool
+
+    update(relu_masked_pool)  # warm-up
+    timings = {"extractor": (timed, "ms"), "update": (update, "us per transition")}
+    result = {}
+    for name, (run, unit) in timings.items():
+        runs = {"torch_ops": [], "fused": []}
+        for _ in range(args.repeats):
+            runs["torch_ops"].append(run(pool_reference))
+            runs["fused"].append(run(relu_masked_pool))
+        medians = {k: float(np.median(v)) for k, v in runs.items()}
+        speedup = medians["torch_ops"] / medians["fused"]
+        result[name] = {**medians, "speedup": speedup, "unit": unit, "all": runs}
+        print(
+            f"{name}: torch ops {medians['torch_ops']:.2f}, fused {medians['fused']:.2f} "
+            f"{unit} ({speedup:.2f}x)"
+        )
     if args.json:
         write_json_atomically(args.json, result)
+
+
+def _model_with_a_rollout():
+    """``bench_training``'s PPO on 16 batched copies, its rollout buffer full (one rollout)."""
+    from bench_training import make_ppo, make_venv
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.utils import configure_logger
+
+    class Nothing(BaseCallback):
+        def _on_step(self) -> bool:
+            return True
+
+    model = make_ppo(make_venv("batched-16"))
+    model._setup_learn(model.n_steps * model.n_envs, None)  # SB3's own preamble to learn()
+    model._logger = configure_logger(0, None, "", False)
+    callback = Nothing()
+    callback.init_callback(model)
+    model.collect_rollouts(model.env, callback, model.rollout_buffer, model.n_steps)
+    model.env.close()
+    return model
 
 
 if __name__ == "__main__":

@@ -53,12 +53,30 @@ def make_venv(variant: str, seed: int = 0):
     )
 
 
-def measure(variant: str, rollouts: int) -> dict:
-    import torch
+def make_ppo(venv):
+    """The benchmarked PPO (``PPO_KWARGS``, Deep Sets extractor, 128-128 heads) on ``venv``."""
     from stable_baselines3 import PPO
-    from stable_baselines3.common.callbacks import BaseCallback
 
     from agents.sb3.features import NeighbourSetExtractor
+
+    return PPO(
+        "MlpPolicy",
+        venv,
+        seed=0,
+        device="cpu",
+        verbose=0,
+        policy_kwargs={
+            "net_arch": {"pi": [128, 128], "vf": [128, 128]},
+            "features_extractor_class": NeighbourSetExtractor,
+            "features_extractor_kwargs": {"top_k": 16},
+        },
+        **PPO_KWARGS,
+    )
+
+
+def measure(variant: str, rollouts: int) -> dict:
+    import torch
+    from stable_baselines3.common.callbacks import BaseCallback
 
     torch.set_num_threads(1)
     # One kernel thread: the cores go to PPO and the env (SuperSuit's workers set their own).
@@ -78,19 +96,7 @@ def measure(variant: str, rollouts: int) -> dict:
         def _on_step(self) -> bool:
             return True
 
-    model = PPO(
-        "MlpPolicy",
-        venv,
-        seed=0,
-        device="cpu",
-        verbose=0,
-        policy_kwargs={
-            "net_arch": {"pi": [128, 128], "vf": [128, 128]},
-            "features_extractor_class": NeighbourSetExtractor,
-            "features_extractor_kwargs": {"top_k": 16},
-        },
-        **PPO_KWARGS,
-    )
+    model = make_ppo(venv)
     per_rollout = venv.num_envs * PPO_KWARGS["n_steps"]
     model.learn(total_timesteps=per_rollout * (rollouts + 1), callback=Clock())
     end = time.perf_counter()

@@ -80,3 +80,25 @@ def test_other_dtypes_take_the_reference():
     w = torch.rand(3, 4, dtype=torch.bfloat16)
     for ref, out in zip(pool_reference(z, valid, w), relu_masked_pool(z, valid, w), strict=True):
         assert out.dtype == torch.bfloat16 and torch.equal(ref, out)
+
+
+def test_training_with_either_pooling_saves_the_same_model(tmp_path, monkeypatch):
+    """Two PPO iterations of ``swarm-phd train`` end with the same weights and Adam state, byte
+    for byte, whichever pooling the extractor runs: the fused one changes no training run."""
+    import zipfile
+
+    import agents.sb3.features as features
+    from agents.sb3.set_pooling import pool_reference
+    from swarm_phd.cli import main
+
+    saved = {}
+    for name in ("fused", "reference"):
+        if name == "reference":
+            monkeypatch.setattr(features, "relu_masked_pool", pool_reference)
+        out = tmp_path / name
+        argv = ["train", "--preset", "lab-3m-4", "--task", "formation", "--observation", "phd"]
+        argv += ["--timesteps", "4096", "--n-copies", "4", "--num-cpus", "0", "--seed", "2003"]
+        assert main([*argv, "--out", str(out), "--no-progress-bar"]) == 0
+        with zipfile.ZipFile(out / "model.zip") as archive:
+            saved[name] = {n: archive.read(n) for n in ("policy.pth", "policy.optimizer.pth")}
+    assert saved["fused"] == saved["reference"]
