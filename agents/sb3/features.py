@@ -89,8 +89,8 @@ class NeighbourSetExtractor(BaseFeaturesExtractor):
         # and a table with no valid row gives 0. (Until 2026-12-05 the invalid rows were set
         # to -1e4 and an empty table's max replaced by 0: the same values and gradients, bit
         # for bit; tests/agents/test_sb3.py.) phi's last ReLU runs fused with both poolings,
-        # as pool_reference does it, bit for bit (agents/sb3/set_pooling.py).
-        z = self.phi[2](self.phi[1](self.phi[0](inputs)))  # (B, K, H), before the last ReLU
+        # compiled where that is pool_reference bit for bit (agents/sb3/set_pooling.py).
+        z = self.phi[:-1](inputs)  # (B, K, H), before phi's last layer, its ReLU
         weighted, maxed = relu_masked_pool(z, valid.to(z.dtype), w)
         extra = obs[:, ROW * self.top_k : self.n_read] / self.extra_scale
         return torch.cat([weighted, maxed, extra], dim=1)

@@ -5,19 +5,26 @@ pools the rows twice: weighted by the PHD weights and by a masked max. Written w
 (:func:`pool_reference`), that is about ten passes over a ``(B, K, H)`` tensor per training
 minibatch (ReLU, two masks, a sum, a max, and their backward passes). On one CPU thread they
 cost about as much as the extractor's matrix products. Measured on 512 real PHD tables of 16
-rows (``benchmarks/bench_set_pooling.py``), the extractor's forward and backward took 7.5 ms
-with torch ops and 4.3 ms with this module.
+rows (``benchmarks/bench_set_pooling.py``), the extractor's forward and backward took 7.1-7.5
+ms with torch ops and 4.2-4.3 ms with this module.
 
-:func:`relu_masked_pool` computes the same values and gradients, **bit for bit** but for the
-sign of a zero (the float32 sums run over the rows in the order torch's ``sum(dim=1)`` takes,
-and the max keeps the first of equal rows, as torch's does). torch itself gives ``+0.0`` or
-``-0.0`` for the same sum depending on the tensor's shape; no later sum or product with a
-nonzero term can tell the two apart, so a saved model acts as before.
-``tests/agents/test_set_pooling.py`` checks this against :func:`pool_reference`, including
-ties, empty tables, NaN and float64. Other devices and dtypes use the reference.
+:func:`relu_masked_pool` computes the same values and gradients **bit for bit** (but for the
+sign of a zero, which no later sum or product with a nonzero term can tell apart), within a
+scope: float32 tables of at most 16 rows whose width is a multiple of 32 (float64: of 16),
+such as the extractor's default 16 rows x 64. There torch's CPU ``sum(dim=1)`` adds the rows
+one after the other, as the kernel does, and the max keeps the first of equal rows, as
+torch's does. For more rows or other widths torch adds the rows in another order (blocks of
+16, interleaved accumulators for the columns past a multiple of 32), so those tables, and
+other devices, dtypes or shapes, go through :func:`pool_reference`: every extractor computes
+exactly what the torch formula computes. ``tests/agents/test_set_pooling.py`` checks the
+scope against the reference (ties, empty tables, padding with nonzero weights, NaN,
+float64); a torch whose reduction order changed would fail it.
 
 The kernels are single-threaded numba functions, so they run on the thread that calls them:
-the trainer's one torch thread (see ``docs/agents.md``, Threads).
+the trainer's one torch thread (see ``docs/agents.md``, Threads). They call no other module's
+kernel and read no module constant, so numba's own cache stamp (this file's) is enough: they
+need not share the project stamp of ``swarm_core.kernel_stamp.PACKAGES`` (add ``agents``
+there and in ``swarm_env.kernel_cache.PACKAGES`` if they ever do).
 """
 
 from __future__ import annotations
@@ -25,6 +32,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 from numba import njit
+from torch.autograd.function import once_differentiable
 
 
 def pool_reference(
@@ -94,11 +102,12 @@ class _ReluMaskedPool(torch.autograd.Function):
         return torch.from_numpy(weighted), torch.from_numpy(maxed)
 
     @staticmethod
+    @once_differentiable  # the kernel's gradient has no graph: a double backward must raise
     def backward(ctx, grad_weighted, grad_maxed):  # noqa: D102
         z, valid, w, argmax = ctx.saved_tensors
         grad_z = grad_w = None
         if ctx.needs_input_grad[0]:
-            grad_np = np.empty(z.shape, dtype=z.detach().numpy().dtype)
+            grad_z = torch.empty_like(z)
             _pool_backward(
                 z.detach().numpy(),
                 valid.detach().numpy(),
@@ -106,9 +115,8 @@ class _ReluMaskedPool(torch.autograd.Function):
                 argmax.numpy(),
                 grad_weighted.contiguous().numpy(),
                 grad_maxed.contiguous().numpy(),
-                grad_np,
+                grad_z.numpy(),
             )
-            grad_z = torch.from_numpy(grad_np)
         if ctx.needs_input_grad[2]:  # only when the observation itself requires grad
             masked = torch.relu(z.detach()) * valid.unsqueeze(-1)
             grad_w = (grad_weighted.unsqueeze(1) * masked).sum(dim=-1)
@@ -118,20 +126,36 @@ class _ReluMaskedPool(torch.autograd.Function):
 def relu_masked_pool(
     z: torch.Tensor, valid: torch.Tensor, w: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """:func:`pool_reference`'s values and gradients, compiled (CPU float32/float64 tensors).
+    """:func:`pool_reference`'s values and gradients: compiled within the scope where they
+    are bit for bit the reference's (see the module docstring), the reference elsewhere.
 
     ``z`` (B, K, H), ``valid`` and ``w`` (B, K), all of one dtype; returns the weighted sum
-    and the masked max, each (B, H). Other devices or dtypes, or a ``valid`` that requires
-    grad, go through the reference.
+    and the masked max, each (B, H). The compiled path gives first derivatives only (a double
+    backward raises).
     """
-    if (
-        z.device.type != "cpu"
-        or z.dtype not in (torch.float32, torch.float64)
-        or valid.dtype != z.dtype
-        or w.dtype != z.dtype
-        or z.dim() != 3
-        or z.shape[1] == 0
-        or valid.requires_grad
-    ):
-        return pool_reference(z, valid, w)
-    return _ReluMaskedPool.apply(z.contiguous(), valid.contiguous(), w.contiguous())
+    if _in_scope(z, valid, w):
+        return _ReluMaskedPool.apply(z.contiguous(), valid.contiguous(), w.contiguous())
+    return pool_reference(z, valid, w)
+
+
+#: The widths (columns) the compiled sum matches torch's bit for bit at: multiples of these.
+_WIDTH_STEP = {torch.float32: 32, torch.float64: 16}
+#: ... and the most rows (torch adds more rows in blocks, in another order).
+_MAX_ROWS = 16
+
+
+def _in_scope(z: torch.Tensor, valid: torch.Tensor, w: torch.Tensor) -> bool:
+    """CPU tensors of one float dtype, shaped (B, K, H) and (B, K) (no broadcasting: the kernel
+    indexes them), 1 <= K <= 16 and H a multiple of the dtype's step, a mask without grad."""
+    step = _WIDTH_STEP.get(z.dtype)
+    return (
+        step is not None
+        and z.device.type == "cpu"
+        and valid.dtype == w.dtype == z.dtype
+        and z.dim() == 3
+        and 1 <= z.shape[1] <= _MAX_ROWS
+        and z.shape[2] % step == 0
+        and valid.shape == w.shape == z.shape[:2]
+        and valid.device == w.device == z.device
+        and not valid.requires_grad
+    )
