@@ -139,6 +139,9 @@ def relu_masked_pool(
 
 
 #: The widths (columns) the compiled sum matches torch's bit for bit at: multiples of these.
+#: torch's CPU sum kernel reduces 4 SIMD vectors of columns at a time (4 x 8 float32 or 4 x 4
+#: float64 lanes in its AVX2 build, which it also runs on AVX-512 hosts) row after row, and
+#: the leftover columns another way; a torch built otherwise fails the bit-for-bit test.
 _WIDTH_STEP = {torch.float32: 32, torch.float64: 16}
 #: ... and the most rows (torch adds more rows in blocks, in another order).
 _MAX_ROWS = 16
