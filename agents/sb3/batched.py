@@ -192,7 +192,7 @@ class BatchedSwarmVecEnv(VecEnv):
         return self.reset_with_seeds(seeds)
 
     def reset_with_seeds(self, seeds: Sequence[int | None]) -> np.ndarray:
-        """Reset copy ``k`` with ``seeds[k]`` (``None``: fresh entropy); the observation
+        """Reset copy ``k`` with ``seeds[k]`` (``None``: its generator goes on); the observation
         (num_envs, D). What :meth:`reset` does once it has chosen the seeds."""
         seeds = _checked_seeds("seeds", seeds, len(self.envs), none_ok=True)
         obs = self._reset_copies(self._copies, seeds)
@@ -355,7 +355,7 @@ def copy_seeds_for_reset(
     """The seed of each copy at a reset: ``copy_seeds`` when given (checked: one int >= 0 per
     copy), else ``VecEnv.seed()``'s per-entry seeds (``entry_seeds``, the copy's first agent's)
     when it was called, else the constructor's ``next_seed + k`` (first reset only: ``None``
-    after it, i.e. fresh entropy)."""
+    after it, i.e. the copy's generator goes on; fresh entropy only for a copy never seeded)."""
     seeds = [None if next_seed is None else next_seed + k for k in range(n_copies)]
     if any(s is not None for s in entry_seeds):  # VecEnv.seed() was called: per entry
         seeds = [entry_seeds[k * agents_per_copy] for k in range(n_copies)]
@@ -404,6 +404,26 @@ def _config_overrides(kwargs: dict[str, Any]) -> dict[str, Any]:
     return {k: kwargs.pop(k) for k in list(kwargs) if k not in env_args}
 
 
+def batched_vec_env(
+    env_kwargs: dict[str, Any],
+    n_copies: int = 4,
+    seed: int | None = 0,
+    n_workers: int = 0,
+    **options: Any,
+):
+    """``n_copies`` copies stepped in this process (:class:`BatchedSwarmVecEnv`, ``n_workers``
+    0) or split across ``n_workers`` worker processes
+    (:class:`~agents.sb3.batched_subproc.SubprocBatchedVecEnv`, the same rollout); ``options``
+    are :class:`BatchedSwarmVecEnv`'s (``residual``, ``critic_state``, ...)."""
+    if isinstance(n_workers, bool) or not isinstance(n_workers, int) or n_workers < 0:
+        raise ValueError(f"n_workers must be an int >= 0 (0: in this process), got {n_workers!r}")
+    if n_workers == 0:
+        return BatchedSwarmVecEnv(env_kwargs, n_copies, seed, **options)
+    from agents.sb3.batched_subproc import SubprocBatchedVecEnv
+
+    return SubprocBatchedVecEnv(env_kwargs, n_copies, n_workers, seed, **options)
+
+
 def make_batched_vec_env(
     env_kwargs: dict[str, Any],
     n_copies: int = 4,
@@ -415,23 +435,17 @@ def make_batched_vec_env(
     residual_mode: str = "add",
     n_workers: int = 0,
 ):
-    """:class:`BatchedSwarmVecEnv` wrapped in SB3's ``VecMonitor`` (episode statistics); with
-    ``n_workers`` >= 1, the copies split across that many worker processes
-    (:class:`~agents.sb3.batched_subproc.SubprocBatchedVecEnv`, the same rollout)."""
+    """:func:`batched_vec_env` wrapped in SB3's ``VecMonitor`` (episode statistics)."""
     from stable_baselines3.common.vec_env import VecMonitor
 
-    if isinstance(n_workers, bool) or not isinstance(n_workers, int) or n_workers < 0:
-        raise ValueError(f"n_workers must be an int >= 0 (0: in this process), got {n_workers!r}")
-    options = {
-        "residual": residual,
-        "critic_state": critic_state,
-        "residual_observes_base": residual_observes_base,
-        "residual_mode": residual_mode,
-    }
-    if n_workers == 0:
-        venv = BatchedSwarmVecEnv(env_kwargs, n_copies, seed, **options)
-    else:
-        from agents.sb3.batched_subproc import SubprocBatchedVecEnv
-
-        venv = SubprocBatchedVecEnv(env_kwargs, n_copies, n_workers, seed, **options)
+    venv = batched_vec_env(
+        env_kwargs,
+        n_copies,
+        seed,
+        n_workers,
+        residual=residual,
+        critic_state=critic_state,
+        residual_observes_base=residual_observes_base,
+        residual_mode=residual_mode,
+    )
     return VecMonitor(venv, filename=monitor_file)

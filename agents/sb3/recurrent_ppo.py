@@ -503,7 +503,7 @@ def _train(parser, args, meta, reward_params, val_seeds, phases, max_wall_s) -> 
     import torch
 
     from agents.interrupts import EXIT_CODES, Interrupts, WallBudget, stop_reason
-    from agents.sb3.batched import BatchedSwarmVecEnv
+    from agents.sb3.batched import batched_vec_env
     from agents.sb3.recurrent_student import load_student, save_student
     from agents.sb3.report import score
     from swarm_core.atomic_files import write_json_atomically
@@ -554,140 +554,136 @@ def _train(parser, args, meta, reward_params, val_seeds, phases, max_wall_s) -> 
         "residual_observes_base": True,
         "critic_state": True,
     }
-    if args.num_cpus:
-        from agents.sb3.batched_subproc import SubprocBatchedVecEnv
+    vec = batched_vec_env(train_kwargs, args.n_copies, None, n_workers=args.num_cpus, **vec_kwargs)
+    try:  # the workers end with the run, whatever ends it
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        log_std = torch.nn.Parameter(torch.full((2,), float(args.log_std)))
+        critic = new_critic(space, vec.critic_dims)
+        actor_optim = torch.optim.Adam([*model.parameters(), log_std], lr=args.learning_rate)
+        critic_optim = torch.optim.Adam(critic.parameters(), lr=args.critic_learning_rate)
+        generator = torch.Generator().manual_seed(args.fit_seed)
+        rng = np.random.default_rng(args.fit_seed)
+        extra = {
+            "teacher": meta.get("teacher"),
+            "start_student": str(args.student) if args.student else f"zero:{args.base}",
+            "reward_task_params": reward_params,
+            "fit_seed": args.fit_seed,
+        }
+        budget = WallBudget(max_wall_s)  # as in every trainer, the base's scoring counts
+        log: dict[str, Any] = {
+            "args": vars(args),
+            "env_kwargs": env_kwargs,
+            "train_task_params": train_kwargs["task_params"],
+            "base": meta["base"],
+            "val_seeds": val_seeds,
+            "phases": phases,
+            "base_val": score(meta["base"], env_kwargs, val_seeds, phases=phases)["mean"],
+            "iterations": [],
+            "val": [],
+        }
 
-        vec = SubprocBatchedVecEnv(
-            train_kwargs, args.n_copies, args.num_cpus, seed=None, **vec_kwargs
-        )
-    else:
-        vec = BatchedSwarmVecEnv(train_kwargs, args.n_copies, seed=None, **vec_kwargs)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    log_std = torch.nn.Parameter(torch.full((2,), float(args.log_std)))
-    critic = new_critic(space, vec.critic_dims)
-    actor_optim = torch.optim.Adam([*model.parameters(), log_std], lr=args.learning_rate)
-    critic_optim = torch.optim.Adam(critic.parameters(), lr=args.critic_learning_rate)
-    generator = torch.Generator().manual_seed(args.fit_seed)
-    rng = np.random.default_rng(args.fit_seed)
-    extra = {
-        "teacher": meta.get("teacher"),
-        "start_student": str(args.student) if args.student else f"zero:{args.base}",
-        "reward_task_params": reward_params,
-        "fit_seed": args.fit_seed,
-    }
-    budget = WallBudget(max_wall_s)  # as in every trainer, the base's scoring counts
-    log: dict[str, Any] = {
-        "args": vars(args),
-        "env_kwargs": env_kwargs,
-        "train_task_params": train_kwargs["task_params"],
-        "base": meta["base"],
-        "val_seeds": val_seeds,
-        "phases": phases,
-        "base_val": score(meta["base"], env_kwargs, val_seeds, phases=phases)["mean"],
-        "iterations": [],
-        "val": [],
-    }
-
-    def save_and_score(iteration: int) -> None:
-        path = out / f"student_it{iteration}.pt"
-        save_student(path, model, env_kwargs, meta["base"], iteration=iteration, **extra)
-        val = score(str(path), env_kwargs, val_seeds, phases=phases)["mean"]
-        torch.set_num_threads(args.torch_threads)
-        log["val"].append({"iteration": iteration, **val})
-        if log["iterations"]:
-            write_json_atomically(out / "train_log.json", log, indent=1)
-            plot_ppo_logs([out / "train_log.json"], out / "train_log.png")
-        print(
-            f"iteration {iteration}: on {args.val_seeds} {val['formation_error_m']:.4f} m "
-            f"(base {log['base_val']['formation_error_m']:.4f} m)",
-            flush=True,
-        )
-
-    iteration = completed = 0
-    start = time.perf_counter()
-    with Interrupts() as interrupts:
-        with interrupts.caught():
-            save_and_score(0)
-            for iteration in range(1, args.iterations + 1):
-                if interrupts.received:  # a signal that landed in a C callback was dropped
-                    raise KeyboardInterrupt
-                t0 = time.perf_counter()
-                first = args.train_seeds_start + (iteration - 1) * args.n_copies
-                seeds = list(range(first, first + args.n_copies))
-                model.eval()
-                data = rollout(vec, model, log_std, seeds, generator)
-                t1 = time.perf_counter()
-                values, last_values = _values(critic, data, model.encoder_obs_dim)
-                batch = _batch(data, values, last_values, args)
-                warm = iteration <= args.critic_warmup
-                model.train()
-                stats = ppo_update(
-                    model,
-                    log_std,
-                    critic,
-                    None if warm else actor_optim,
-                    critic_optim,
-                    batch,
-                    args.epochs,
-                    args.batch_sequences,
-                    args.clip_range,
-                    args.target_kl,
-                    rng,
-                )
-                model.eval()
-                # The critic block's first task feature is each agent's true shape error.
-                n = vec.agents_per_copy
-                shape_error = data["obs"][..., model.encoder_obs_dim + 2 + 2 * (n - 1)]
-                log["iterations"].append(
-                    {
-                        "iteration": iteration,
-                        "seeds": seeds,
-                        "critic_only": warm,
-                        "return_per_agent": float(data["rewards"].sum(0).mean()),
-                        "formation_error_m": float(shape_error.mean()),
-                        "log_std": log_std.detach().tolist(),
-                        "rollout_s": t1 - t0,
-                        "update_s": time.perf_counter() - t1,
-                        **stats,
-                    }
-                )
-                completed = iteration
+        def save_and_score(iteration: int) -> None:
+            path = out / f"student_it{iteration}.pt"
+            save_student(path, model, env_kwargs, meta["base"], iteration=iteration, **extra)
+            val = score(str(path), env_kwargs, val_seeds, phases=phases)["mean"]
+            torch.set_num_threads(args.torch_threads)
+            log["val"].append({"iteration": iteration, **val})
+            if log["iterations"]:
                 write_json_atomically(out / "train_log.json", log, indent=1)
-                if iteration % args.eval_every == 0 or iteration == args.iterations:
-                    save_and_score(iteration)
-                if iteration < args.iterations and budget.passed():
-                    break
-        interrupted = interrupts.received
-        with Interrupts(ignore=True):  # a second signal must not leave a half-written file
-            model.eval()
-            # After an interrupt the weights are those of the last completed iteration plus
-            # whatever part of the next one's update ran (``interrupted_in``).
-            stopped = {"interrupted_in": iteration} if interrupted else {}
-            save_student(
-                out / "student.pt",
-                model,
-                env_kwargs,
-                meta["base"],
-                iteration=completed,
-                **stopped,
-                **extra,
+                plot_ppo_logs([out / "train_log.json"], out / "train_log.png")
+            print(
+                f"iteration {iteration}: on {args.val_seeds} {val['formation_error_m']:.4f} m "
+                f"(base {log['base_val']['formation_error_m']:.4f} m)",
+                flush=True,
             )
-            log["wall_s"] = time.perf_counter() - start
-            log["interrupted"] = interrupted
-            log["stopped"] = stop_reason(interrupted, budget)
-            write_json_atomically(out / "train_log.json", log, indent=1)
+
+        iteration = completed = 0
+        start = time.perf_counter()
+        with Interrupts() as interrupts:
+            with interrupts.caught():
+                save_and_score(0)
+                for iteration in range(1, args.iterations + 1):
+                    if interrupts.received:  # a signal that landed in a C callback was dropped
+                        raise KeyboardInterrupt
+                    t0 = time.perf_counter()
+                    first = args.train_seeds_start + (iteration - 1) * args.n_copies
+                    seeds = list(range(first, first + args.n_copies))
+                    model.eval()
+                    data = rollout(vec, model, log_std, seeds, generator)
+                    t1 = time.perf_counter()
+                    values, last_values = _values(critic, data, model.encoder_obs_dim)
+                    batch = _batch(data, values, last_values, args)
+                    warm = iteration <= args.critic_warmup
+                    model.train()
+                    stats = ppo_update(
+                        model,
+                        log_std,
+                        critic,
+                        None if warm else actor_optim,
+                        critic_optim,
+                        batch,
+                        args.epochs,
+                        args.batch_sequences,
+                        args.clip_range,
+                        args.target_kl,
+                        rng,
+                    )
+                    model.eval()
+                    # The critic block's first task feature is each agent's true shape error.
+                    n = vec.agents_per_copy
+                    shape_error = data["obs"][..., model.encoder_obs_dim + 2 + 2 * (n - 1)]
+                    log["iterations"].append(
+                        {
+                            "iteration": iteration,
+                            "seeds": seeds,
+                            "critic_only": warm,
+                            "return_per_agent": float(data["rewards"].sum(0).mean()),
+                            "formation_error_m": float(shape_error.mean()),
+                            "log_std": log_std.detach().tolist(),
+                            "rollout_s": t1 - t0,
+                            "update_s": time.perf_counter() - t1,
+                            **stats,
+                        }
+                    )
+                    completed = iteration
+                    write_json_atomically(out / "train_log.json", log, indent=1)
+                    if iteration % args.eval_every == 0 or iteration == args.iterations:
+                        save_and_score(iteration)
+                    if iteration < args.iterations and budget.passed():
+                        break
+            interrupted = interrupts.received
+            with Interrupts(ignore=True):  # a second signal must not leave a half-written file
+                model.eval()
+                # After an interrupt the weights are those of the last completed iteration plus
+                # whatever part of the next one's update ran (``interrupted_in``).
+                stopped = {"interrupted_in": iteration} if interrupted else {}
+                save_student(
+                    out / "student.pt",
+                    model,
+                    env_kwargs,
+                    meta["base"],
+                    iteration=completed,
+                    **stopped,
+                    **extra,
+                )
+                log["wall_s"] = time.perf_counter() - start
+                log["interrupted"] = interrupted
+                log["stopped"] = stop_reason(interrupted, budget)
+                write_json_atomically(out / "train_log.json", log, indent=1)
+        if interrupted:
+            print(
+                f"recurrent_ppo: {interrupted} in iteration {iteration} ({completed} completed): "
+                f"saved {out / 'student.pt'}",
+                file=sys.stderr,
+            )
+            return EXIT_CODES[interrupted]
+        why = " (wall-time budget)" if budget.reached else ""
+        print(f"{completed} iterations in {log['wall_s']:.0f} s{why} -> {out / 'student.pt'}")
+        return 0
+    finally:
+        with Interrupts(ignore=True):  # a second signal must not leave workers behind
             vec.close()
-    if interrupted:
-        print(
-            f"recurrent_ppo: {interrupted} in iteration {iteration} ({completed} completed): "
-            f"saved {out / 'student.pt'}",
-            file=sys.stderr,
-        )
-        return EXIT_CODES[interrupted]
-    why = " (wall-time budget)" if budget.reached else ""
-    print(f"{completed} iterations in {log['wall_s']:.0f} s{why} -> {out / 'student.pt'}")
-    return 0
 
 
 if __name__ == "__main__":

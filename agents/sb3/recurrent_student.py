@@ -403,7 +403,6 @@ def _dagger(args, rounds, val_seeds, phases, env_kwargs, model, out, max_wall_s)
     for old in [out / "student.pt", out / "student_best.pt", *out.glob("student_round*.pt")]:
         old.unlink(missing_ok=True)
     r = 1
-    completed = 0  # the last round whose student is saved and scored (in log["rounds"])
     budget = WallBudget(max_wall_s)
     with Interrupts() as interrupts:
         with interrupts.caught():
@@ -463,7 +462,6 @@ def _dagger(args, rounds, val_seeds, phases, env_kwargs, model, out, max_wall_s)
                         "val": val,
                     }
                 )
-                completed = r  # log["rounds"] holds exactly the completed rounds
                 write_json_atomically(out / "train_log.json", log, indent=1)
                 plot_train_logs([out / "train_log.json"], out / "train_log.png")
                 print(
@@ -475,6 +473,8 @@ def _dagger(args, rounds, val_seeds, phases, env_kwargs, model, out, max_wall_s)
                 if r < len(rounds) and budget.passed():
                     break
         interrupted = interrupts.received
+        # log["rounds"] holds exactly the completed rounds (saved, scored, logged).
+        completed = log["rounds"][-1]["round"] if log["rounds"] else 0
         with Interrupts(ignore=True):  # a second signal must not leave a half-written file
             # The model may hold part of an interrupted round's fit: the usable student is
             # the last completed round's file, copied whole.

@@ -223,8 +223,9 @@ def paired_difference(values: Any, reference: Any, metric: str) -> dict[str, Any
     error (``std(ddof=1) / sqrt(n)``; NaN for one seed), on how many seeds the policy is better
     (lower, or higher for :data:`HIGHER_IS_BETTER`; a tie is not), and ``verdict``:
     ``"better"`` / ``"worse"`` beyond 2 SE, else ``"within 2 SE"`` (:data:`NO_SE_VERDICT`
-    with fewer than 2 seeds). The one paired statistic of :func:`paired_differences`,
-    ``agents.sb3.localization_table`` and ``swarm-phd evaluate --compare``."""
+    with one seed, :data:`NO_PAIR_VERDICT` with none). The one paired statistic of
+    :func:`paired_differences`, ``agents.sb3.localization_table`` and ``swarm-phd evaluate
+    --compare``."""
     a = np.asarray(values, dtype=np.float64)
     b = np.asarray(reference, dtype=np.float64)
     if a.ndim != 1 or a.shape != b.shape:

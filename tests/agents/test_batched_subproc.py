@@ -253,8 +253,22 @@ def test_split_copies_blocks_and_refusals():
             split_copies(*args)
 
 
-def test_training_with_batched_workers_saves_a_usable_model(tmp_path):
+def _record_worker_vec_envs(monkeypatch) -> list[int]:
+    """The ``n_workers`` of every :class:`SubprocBatchedVecEnv` built from now on."""
+    built: list[int] = []
+    init = SubprocBatchedVecEnv.__init__
+
+    def recording(self, env_kwargs, n_copies, n_workers, *args, **kwargs):
+        built.append(n_workers)
+        init(self, env_kwargs, n_copies, n_workers, *args, **kwargs)
+
+    monkeypatch.setattr(SubprocBatchedVecEnv, "__init__", recording)
+    return built
+
+
+def test_training_with_batched_workers_saves_a_usable_model(tmp_path, monkeypatch):
     """``swarm-phd train --num-cpus 2``: the batched copies in two workers (``--vec auto``)."""
+    built = _record_worker_vec_envs(monkeypatch)
     out = tmp_path / "workers"
     args = ["train", "--preset", "lab-3m-4", "--task", "formation", "--observation", "phd"]
     args += ["--num-cpus", "2", "--n-copies", "2", "--timesteps", "512", "--max-steps", "50"]
@@ -264,5 +278,6 @@ def test_training_with_batched_workers_saves_a_usable_model(tmp_path):
     assert summary["timesteps"] >= 512
     config = json.loads((out / "train_config.json").read_text())
     assert (config["num_cpus"], config["vec"]) == (2, "auto")
+    assert built == [2]  # the batched copies in 2 workers, not SuperSuit's
     actions = _actions(out / "model.zip", seed=3)
     assert np.isfinite(actions).all() and np.abs(actions).max() > 0

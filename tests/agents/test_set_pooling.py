@@ -72,12 +72,14 @@ def test_fused_pooling_equals_the_reference_bit_for_bit(dtype, n_tables, n_rows,
 @pytest.mark.parametrize(("n_rows", "width"), [(32, 64), (18, 64), (16, 48), (16, 8)])
 def test_tables_outside_the_scope_take_the_reference(n_rows, width):
     """torch adds these rows in another order than one after the other: the compiled sum
-    would differ from it by a few ulp, so they go through the torch formula itself."""
-    from agents.sb3.set_pooling import _in_scope
+    differs from it by a few ulp, so they go through the torch formula itself."""
+    from agents.sb3.set_pooling import _in_scope, _ReluMaskedPool
 
     rng = np.random.default_rng(2004)
     z, valid, w = _tables(rng, torch.float32, 40, n_rows, width)
     assert not _in_scope(z, valid, w)
+    # Why the scope stops here (torch 2.13's reduction order): the kernel would not match.
+    assert not torch.equal(_ReluMaskedPool.apply(z, valid, w)[0], pool_reference(z, valid, w)[0])
     seed = int(rng.integers(1 << 30))
     ref = _values_and_grads(pool_reference, z, valid, w, np.random.default_rng(seed))
     out = _values_and_grads(relu_masked_pool, z, valid, w, np.random.default_rng(seed))
