@@ -17,7 +17,8 @@ Modules: :mod:`~hardware_bridge.config` (``BridgeConfig``), :mod:`~hardware_brid
 :mod:`~hardware_bridge.safety` (limits, geofence), :mod:`~hardware_bridge.bag` (record,
 ``ReplayWorld``), :mod:`~hardware_bridge.emit` (sim records to robot messages),
 :mod:`~hardware_bridge.loopback` (a rosbridge server over the sim),
-:mod:`~hardware_bridge.faults` (corruption catalog). Reliability figures: ``docs/reliability.md``.
+:mod:`~hardware_bridge.faults` (corruption catalog). Reliability figures:
+``docs/reference/reliability.md``.
 Twisted (roslibpy) is imported only when a RealWorld is created.
 """
 
@@ -64,7 +65,8 @@ def real_env(
     robots : list of str, optional
         Robot namespaces, in agent order (default: ``ugv_0 ... ugv_{n-1}`` of the preset).
         ``n_robots`` is ``len(robots)``.
-    host, port : rosbridge server (``rosbridge_websocket``). Loopback by default.
+    host, port : str, int
+        The rosbridge server (``rosbridge_websocket``). Loopback by default.
     preset : str
         SwarmConfig preset for the filter, control period, limits (``seed-lab`` = the seed's
         real 3 m x 3 m testing area).
@@ -81,6 +83,8 @@ def real_env(
         The filter defaults to the seed's own model, ``PHDConfig()`` (the seed's hardware),
         not the simulator presets' :data:`swarm_env.config.SIMULATOR_PHD`.
 
+    Notes
+    -----
     The returned env refuses pickling, copying and vectorisation (it drives real robots).
     """
     from hardware_bridge.config import make_bridge_config

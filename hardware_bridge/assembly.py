@@ -24,11 +24,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
 from hardware_bridge.messages import Bearings, Odom, Pose, Scan, ns_to_s
+from swarm_core.aerial import pose_increment
 from swarm_core.geometry import integrate_body_delta, wrap_angle
 from swarm_core.perception.blind_sectors import blind_mask
 from swarm_core.perception.lidar_features import extract_detections, null_bearings
@@ -39,10 +39,7 @@ from swarm_env.config import SwarmConfig
 
 def odometry_increment(prev: Odom, cur: Odom) -> np.ndarray:
     """``[dx, dy, dpsi]`` of ``cur`` relative to ``prev``, in ``prev``'s body frame."""
-    c, s = math.cos(prev.yaw_rad), math.sin(prev.yaw_rad)
-    dx, dy = cur.x_m - prev.x_m, cur.y_m - prev.y_m
-    dpsi = float(wrap_angle(cur.yaw_rad - prev.yaw_rad))
-    return np.array([c * dx + s * dy, -s * dx + c * dy, dpsi])
+    return pose_increment(prev, cur)
 
 
 def integrate_odometry(pose: np.ndarray, delta: np.ndarray) -> np.ndarray:
@@ -139,9 +136,6 @@ class RecordAssembler:
             for r, p in self._truth_pose.items()
         }
         return self.truth(fresh)
-
-    def has_baseline(self, robot: str) -> bool:
-        return self._baseline[robot] is not None
 
     def odometry(self, robot: str, messages: Iterable[Odom]) -> list[OdometryRecord]:
         out = []
@@ -241,77 +235,4 @@ class RecordAssembler:
         arr = np.array([[poses[r].x_m, poses[r].y_m, poses[r].yaw_rad] for r in self.robot_ids])
         return truth_from_poses(
             arr, self.config.localization_range_m, self.config.camera.range_max_m
-        )
-
-
-@dataclass(frozen=True)
-class UAVMessages:
-    """One step's validated UAV messages (:class:`~hardware_bridge.messages.UAVPose`,
-    :class:`~hardware_bridge.messages.GroundDetections`), oldest first, and the UAV's kinds
-    that were stale at the step's end. Shared by :class:`~hardware_bridge.world.RealWorld`
-    (``last_uav``) and the bag replay."""
-
-    poses: tuple = ()
-    detections: tuple = ()
-    stale: tuple[str, ...] = ()
-
-
-def uav_messages(parsed: dict[str, list], stale: Sequence[str] = ()) -> UAVMessages:
-    """``{"uav_pose": [...], "uav_detections": [...]}`` (parsed, any order) -> sorted
-    :class:`UAVMessages`."""
-    poses = sorted(parsed.get("uav_pose", []), key=lambda m: m.stamp_ns)
-    frames = sorted(parsed.get("uav_detections", []), key=lambda m: m.stamp_ns)
-    return UAVMessages(tuple(poses), tuple(frames), tuple(stale))
-
-
-class UAVAssembler:
-    """The UAV's messages (:func:`~hardware_bridge.messages.parse_uav_pose`,
-    :func:`~hardware_bridge.messages.parse_ground_detections`) -> what its ID-PHD consumes.
-
-    * Pose: the increment since the previous pose used, in the UAV's level frame at the start
-      (:func:`odometry_increment`); the first pose after :meth:`reset` only sets the baseline.
-      The altitude is kept for the frames.
-    * Detections: an :class:`~swarm_env.sensors.downward_camera.AerialFrame` at the latest
-      altitude, with the footprint of ``camera`` (the UAV's ``DownwardCameraConfig``) there.
-      A frame before any pose has no altitude and raises ``ValueError``.
-    """
-
-    def __init__(self, camera) -> None:
-        from swarm_env.sensors.downward_camera import DownwardCameraConfig
-
-        if not isinstance(camera, DownwardCameraConfig):
-            raise ValueError(f"camera must be a DownwardCameraConfig, got {camera!r}")
-        self.camera = camera
-        self.reset()
-
-    def reset(self) -> None:
-        self._last: Odom | None = None
-        self.altitude_m: float | None = None
-
-    def pose(self, msg) -> np.ndarray | None:
-        """``[dx, dy, dpsi]`` since the previous pose (``None`` for the first one); poses older
-        than the previous one are ignored (``None``)."""
-        cur = Odom(msg.stamp_ns, msg.x_m, msg.y_m, msg.yaw_rad, 0.0, 0.0)
-        self.altitude_m = msg.altitude_m
-        prev, self._last = self._last, cur
-        if prev is None:
-            return None
-        if cur.stamp_ns <= prev.stamp_ns:
-            self._last = prev
-            return None
-        return odometry_increment(prev, cur)
-
-    def frame(self, msg):
-        """An ``AerialFrame`` of the detections (``source`` all ``-1``: no truth on hardware)."""
-        from swarm_env.sensors.downward_camera import AerialFrame
-
-        if self.altitude_m is None:
-            raise ValueError("uav detections before any uav pose: the altitude is unknown")
-        points = np.asarray(msg.points_m, dtype=np.float64).reshape(-1, 2)
-        return AerialFrame(
-            ns_to_s(msg.stamp_ns),
-            self.altitude_m,
-            self.camera.half_extents_m(self.altitude_m),
-            points,
-            np.full(points.shape[0], -1, dtype=np.int64),
         )

@@ -48,7 +48,9 @@ from __future__ import annotations
 
 import bisect
 import dataclasses
+import hashlib
 import json
+import stat
 import threading
 from collections.abc import Sequence
 from pathlib import Path
@@ -56,7 +58,7 @@ from typing import Any
 
 import numpy as np
 
-from hardware_bridge.assembly import RecordAssembler, UAVMessages, uav_messages
+from hardware_bridge.assembly import RecordAssembler
 from hardware_bridge.comms import TeammateRelay
 from hardware_bridge.config import FEED_SENSORS
 from hardware_bridge.messages import (
@@ -77,6 +79,7 @@ from hardware_bridge.messages import (
     uav_twist_msg,
 )
 from hardware_bridge.signals import critical
+from swarm_core.aerial import UAVMessages, uav_messages
 from swarm_core.world import WorldStep, reject_extra_commands
 from swarm_env.config import SwarmConfig, make_config
 
@@ -472,6 +475,21 @@ class BagRecorder:
             self._writer.close()
 
 
+def bag_state(path: str | Path) -> str:
+    """What a command line says about the bag at ``path`` after a run, read from the disk
+    (never from what the run meant to do): closed (``metadata.yaml`` written), left open (a
+    database without ``metadata.yaml``: replay salvages its committed steps), or absent."""
+    p = Path(path)
+    if (p / "metadata.yaml").is_file():
+        return f"bag {str(p)} closed"
+    if any(p.glob("*.db3")):
+        return (
+            f"bag {str(p)} NOT closed (no metadata.yaml): `swarm-phd replay` reads its "
+            "committed steps"
+        )
+    return f"no bag written at {str(p)}"
+
+
 # ---------------------------------------------------------------------------- replay
 def read_meta(path: str | Path) -> dict[str, Any]:
     """The bag's swarm-phd metadata (``custom_data`` of ``metadata.yaml``, YAML safe loader).
@@ -595,12 +613,49 @@ class ReplayWorld:
         self.assembler = self.make_assembler(self.config)
         self.relay = TeammateRelay(self.robot_ids) if self.config.comms.enabled else None
         self.problems: list[str] = []  # first few skip details, for the report
+        self._check_files()
         markers, messages = self._read()
         self._index(markers, messages)
+        self.missing = self._missing(messages)
         self._episode = -1
         self._cursor = 0
 
     # ------------------------------------------------------------------ reading
+    def _check_files(self) -> None:
+        """Every file of the bag directory is a regular file: a FIFO, a device or a socket in
+        the database's place would block the read forever (opening a FIFO waits for a
+        writer), so it is refused before anything opens it."""
+        for p in sorted(self.path.iterdir()):
+            try:
+                mode = p.lstat().st_mode
+            except OSError as exc:
+                raise BagError(p, f"cannot stat: {exc.strerror}") from None
+            if stat.S_ISLNK(mode):
+                try:
+                    mode = p.stat().st_mode
+                except OSError:
+                    raise BagError(p, "a dangling symbolic link in the bag") from None
+            if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+                raise BagError(
+                    p,
+                    "not a regular file (a FIFO, socket or device): refused, reading it "
+                    "could block forever",
+                )
+
+    def _missing(self, messages: list) -> dict[str, tuple[str, ...]]:
+        """Sensors of which the bag holds no valid message at all, per robot (mocap only if
+        the run used it). The replay reports them stale at every step (never fed, never
+        scored as present); ``swarm-phd replay`` names them, and refuses a robot without
+        odometry (its filter cannot move)."""
+        have = {(robot, sensor) for _stamp, robot, sensor, _kind, _msg in messages}
+        wanted = FEED_SENSORS + (("mocap",) if self.use_mocap else ())
+        out = {}
+        for robot in self.robot_ids:
+            gone = tuple(s for s in wanted if (robot, s) not in have)
+            if gone:
+                out[robot] = gone
+        return out
+
     def _skip(self, key: str, detail: str, n: int = 1) -> None:
         self.counters.incr(key, n)
         if len(self.problems) < 10:
@@ -646,17 +701,33 @@ class ReplayWorld:
         dbs = sorted(self.path.glob("*.db3"))
         if len(dbs) != 1:
             raise BagError(self.path, f"cannot open the bag: {error}")
-        data = bytearray(dbs[0].read_bytes())
-        if len(data) < 100 or not data.startswith(b"SQLite format 3\x00"):
+        size = dbs[0].stat().st_size
+        with open(dbs[0], "rb") as src:
+            header = src.read(100)
+        if len(header) < 100 or not header.startswith(b"SQLite format 3\x00"):
             raise BagError(self.path, f"cannot open the bag: {error}")
-        page = struct.unpack(">H", data[16:18])[0]
+        page = struct.unpack(">H", header[16:18])[0]
         page = 65536 if page == 1 else page
-        n_pages = len(data) // max(page, 512)
-        data = data[: n_pages * page]
-        data[28:32] = struct.pack(">I", n_pages)
+        n_pages = size // max(page, 512)
+        # A copy streamed in chunks (memory independent of the database size), cut to whole
+        # pages, with the page count in its header set to what the file holds.
         tmp = tempfile.NamedTemporaryFile(suffix=".db3", delete=False)  # noqa: SIM115
-        tmp.write(bytes(data))
-        tmp.close()
+        try:
+            with open(dbs[0], "rb") as src:
+                left = n_pages * page
+                while left > 0:
+                    chunk = src.read(min(left, 1 << 20))
+                    if not chunk:
+                        break
+                    tmp.write(chunk)
+                    left -= len(chunk)
+            tmp.seek(28)
+            tmp.write(struct.pack(">I", n_pages))
+            tmp.close()
+        except BaseException:
+            tmp.close()
+            Path(tmp.name).unlink(missing_ok=True)
+            raise
         try:
             con = sqlite3.connect(f"file:{tmp.name}?mode=ro", uri=True)
             conns = [
@@ -667,14 +738,26 @@ class ReplayWorld:
             Path(tmp.name).unlink(missing_ok=True)
             raise BagError(self.path, f"cannot open the bag: {error}") from None
         names = {i: (name, msgtype) for i, name, msgtype, _ in conns}
-        total = self._recorded_count()
+        # How many row ids to look up: the larger of the table's largest id (if its index is
+        # readable) and metadata.yaml's count, neither believed beyond what the file can hold
+        # (rows of >= 16 bytes); the look-up also ends after 10000 ids in a row without a row.
+        try:
+            top = con.execute("select max(id) from messages").fetchone()[0]
+        except sqlite3.DatabaseError:
+            top = None
+        cap = size // 16
+        recorded = self._recorded_count()
+        recorded = recorded if recorded <= cap else 0  # an absurd count is not believed
+        top = int(top) if isinstance(top, int) and 0 < top <= cap else 0
+        total = max(top, recorded) or cap
         self._skip("bag.salvaged", f"rosbags refused the database ({error}); read with sqlite3")
 
         def rows():
             lost = 0
             try:
                 row_id = 0
-                while row_id < total or (total == 0 and lost < 1000):
+                run = 0  # ids in a row without a row
+                while row_id < total and run < 10_000:
                     row_id += 1
                     try:
                         row = con.execute(
@@ -685,9 +768,13 @@ class ReplayWorld:
                         row = None
                     if row is None:
                         lost += 1
+                        run += 1
                         continue
+                    run = 0
                     topic, msgtype = names.get(row[0], ("", ""))
                     yield row[0], topic, msgtype, int(row[1]), bytes(row[2])
+                if run >= 10_000:  # stopped on a long empty run: those ids were never rows
+                    lost -= run
                 if lost:
                     self._skip("bag.read_error", f"{lost} rows on unreadable pages", lost)
             finally:
@@ -719,7 +806,7 @@ class ReplayWorld:
                 expected[topic] = (uav, kind)
         markers: list[tuple[int, dict]] = []
         messages: list[tuple[int, str, str, str, dict]] = []
-        seen_rows: set[tuple[int, int, bytes]] = set()
+        seen_rows: set[tuple[int, int, bytes]] = set()  # (connection, stamp, digest)
         salvaged = False
         try:
             conns, rows = self._rosbags_rows()
@@ -760,7 +847,7 @@ class ReplayWorld:
                 break
             n_read += 1
             conn_id, topic, msgtype, stamp, raw = item
-            row = (conn_id, stamp, raw)
+            row = (conn_id, stamp, hashlib.blake2b(raw, digest_size=16).digest())
             if row in seen_rows:
                 self._skip("bag.duplicate_rows", f"{topic} at {stamp} repeated")
                 continue
@@ -905,6 +992,8 @@ class ReplayWorld:
         parsed = self._parse(k)
         comms: dict = {}
         stale = {r: tuple(s) for r, s in marker.get("stale", {}).items()}
+        for robot, gone in self.missing.items():  # absent from the whole bag: stale throughout
+            stale[robot] = tuple(dict.fromkeys(stale.get(robot, ()) + gone))
         if self.uav_id is not None:
             part = parsed[self.uav_id]
             if marker["kind"] == "reset":  # the newest of each, as the live reset

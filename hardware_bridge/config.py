@@ -15,13 +15,78 @@ SENSORS = ("odometry", "lidar", "camera", "mocap")
 FEED_SENSORS = ("odometry", "lidar", "camera")
 
 
-def _check_positive(name: str, value: Any) -> None:
+#: Bounds of every number of :class:`BridgeConfig`: ``(low, high, low_inclusive)``. A safety
+#: limit outside them (a watchdog that never fires, a stamp window of years, a speed no robot
+#: has) is refused when the config is built, before anything connects or moves.
+BOUNDS: dict[str, tuple[float, float, bool]] = {
+    "watchdog_timeout_s": (0.0, 1.0, False),
+    "watchdog_poll_s": (0.001, 0.05, True),
+    "watchdog_repeat_s": (0.01, 0.5, True),
+    "step_overrun_s": (0.0, 1.0, False),
+    "stale_odometry_s": (0.0, 10.0, False),
+    "stale_lidar_s": (0.0, 10.0, False),
+    "stale_camera_s": (0.0, 10.0, False),
+    "stale_mocap_s": (0.0, 10.0, False),
+    "stale_uav_s": (0.0, 10.0, False),
+    "connect_timeout_s": (0.0, 60.0, False),
+    "reset_timeout_s": (0.0, 300.0, False),
+    "max_speed_mps": (0.0, 10.0, False),
+    "max_turn_rate_radps": (0.0, 20.0, False),
+    "max_accel_mps2": (0.0, 1000.0, False),
+    "max_turn_accel_radps2": (0.0, 1000.0, False),
+    "queue_length": (1, 1000, True),
+    "throttle_rate_ms": (0, 10_000, True),
+    "buffer_length": (1, 100_000, True),
+    "duplicate_window_s": (0.0, 1.0, False),
+    "max_beams": (1, 100_000, True),
+    "max_bearings": (1, 10_000, True),
+    "max_message_bytes": (1, 256 * 1024 * 1024, True),
+    "hard_max_message_bytes": (1, 1024 * 1024 * 1024, True),
+    "reconnect_initial_delay_s": (0.0, 10.0, False),
+    "reconnect_max_delay_s": (0.0, 60.0, False),
+    "transport_grace_s": (0.0, 60.0, False),
+    "ping_interval_s": (0.0, 5.0, False),
+    "ping_timeout_s": (0.0, 5.0, False),
+    "max_future_s": (0.0, 5.0, False),
+    "max_past_s": (0.0, 60.0, False),
+    "max_position_m": (0.0, 1.0e5, False),
+    "odometry_jump_factor": (0.0, 100.0, False),
+    "robot_cmd_timeout_s": (0.0, 5.0, False),
+}
+#: Fields that must be ints (the rest of :data:`BOUNDS` are real numbers).
+INT_FIELDS = (
+    "queue_length",
+    "throttle_rate_ms",
+    "buffer_length",
+    "max_beams",
+    "max_bearings",
+    "max_message_bytes",
+    "hard_max_message_bytes",
+)
+#: Fields that may be ``None`` (= the env's robot config).
+OPTIONAL_FIELDS = (
+    "max_speed_mps",
+    "max_turn_rate_radps",
+    "max_accel_mps2",
+    "max_turn_accel_radps2",
+)
+
+
+def _check_bounded(name: str, value: Any) -> None:
+    low, high, low_inclusive = BOUNDS[name]
+    whole = name in INT_FIELDS
+    kind = "an int" if whole else "a finite number"
     if (
         isinstance(value, bool)
-        or not isinstance(value, (int, float))
-        or not (math.isfinite(value) and value > 0)
+        or not isinstance(value, int if whole else (int, float))
+        or not math.isfinite(value)
+        or not (value >= low if low_inclusive else value > low)
+        or value > high
     ):
-        raise ValueError(f"BridgeConfig.{name} must be a finite number > 0, got {value!r}")
+        side = ">=" if low_inclusive else ">"
+        raise ValueError(
+            f"BridgeConfig.{name} must be {kind} {side} {low:g} and <= {high:g}, got {value!r}"
+        )
 
 
 @dataclass(frozen=True, slots=True)
@@ -31,12 +96,21 @@ class BridgeConfig:
     Attributes
     ----------
     watchdog_timeout_s : float
-        Zero velocity goes to every robot when ``step()`` has not been called for this long.
+        Zero velocity goes to every robot when ``step()`` has not been called for this long
+        after the previous one returned (the controller's own compute between steps, a few ms,
+        stalled: a frozen policy, a debugger, SIGSTOP). With the default the robots stop at
+        most ``period + 0.3 s + watchdog_poll_s`` (0.41 s at 10 Hz) after the last command.
     watchdog_poll_s : float
         Watchdog thread tick (steady clock); bounds the firing latency beyond the timeout.
     watchdog_repeat_s : float
         While tripped, the zero command is re-sent at this period (a single lost message must not
         leave a robot moving).
+    step_overrun_s : float
+        A ``step()`` still running this long after its control period ended (a hung send, a
+        stalled callback, the env process frozen by SIGSTOP or Ctrl-Z mid-step) trips the
+        watchdog and the guard process: the robots get zero velocity at most
+        ``control period + step_overrun_s + watchdog_poll_s`` after the step's command went
+        out (0.31 s at 10 Hz with the defaults), inside the robots' own command timeout.
     stale_odometry_s, stale_lidar_s, stale_camera_s, stale_mocap_s : float
         A sensor whose newest message is older than this (ROS time) at the end of a step is
         reported in ``infos[agent]["stale"]`` and its records are not fed to the filter.
@@ -68,6 +142,10 @@ class BridgeConfig:
         Size limits of a scan and of a bearing array; larger messages are rejected.
     max_message_bytes : int
         Websocket frame / message size limit (bytes).
+    drop_pre_command : bool
+        A step feeds the filter only the sensor messages stamped after its command went out
+        (older ones are dropped and counted as ``<sensor>.pre_command``); ``False`` keeps
+        everything since the previous step ended.
     reconnect_initial_delay_s, reconnect_max_delay_s : float
         Backoff of the automatic reconnection.
     transport_grace_s : float
@@ -115,9 +193,10 @@ class BridgeConfig:
         (``infos["uav_0"]["stale"]``).
     """
 
-    watchdog_timeout_s: float = 0.5
+    watchdog_timeout_s: float = 0.3
     watchdog_poll_s: float = 0.01
     watchdog_repeat_s: float = 0.25
+    step_overrun_s: float = 0.2
     stale_odometry_s: float = 0.5
     stale_lidar_s: float = 0.6
     stale_camera_s: float = 0.5
@@ -158,48 +237,36 @@ class BridgeConfig:
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
-            if (
-                f.name.endswith("_s")
-                or f.name.endswith("_mps")
-                or f.name.endswith("_radps")
-                or f.name.endswith("_mps2")
-                or f.name.endswith("_radps2")
-                or f.name in ("max_position_m", "odometry_jump_factor")
-            ):
-                if value is not None:
-                    _check_positive(f.name, value)
-        for name in (
-            "queue_length",
-            "buffer_length",
-            "max_beams",
-            "max_bearings",
-            "max_message_bytes",
-            "hard_max_message_bytes",
-        ):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"BridgeConfig.{name} must be an int >= 1, got {value!r}")
-        if (
-            isinstance(self.throttle_rate_ms, bool)
-            or not isinstance(self.throttle_rate_ms, int)
-            or self.throttle_rate_ms < 0
-        ):
-            raise ValueError(
-                f"BridgeConfig.throttle_rate_ms must be an int >= 0, got {self.throttle_rate_ms!r}"
-            )
+            if f.name in BOUNDS:
+                value = getattr(self, f.name)
+                if value is None and f.name in OPTIONAL_FIELDS:
+                    continue
+                _check_bounded(f.name, value)
         for name in ("use_mocap", "drop_pre_command", "stamped_commands", "guard_process"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(
                     f"BridgeConfig.{name} must be a bool, got {getattr(self, name)!r}"
                 )
+        # A watchdog must fire before the robots' own command timeout, and tick well inside it.
+        if self.watchdog_poll_s >= self.watchdog_timeout_s:
+            raise ValueError(
+                "BridgeConfig.watchdog_poll_s must be < watchdog_timeout_s, got "
+                f"{self.watchdog_poll_s!r} >= {self.watchdog_timeout_s!r}"
+            )
+        if self.reconnect_max_delay_s < self.reconnect_initial_delay_s:
+            raise ValueError(
+                "BridgeConfig.reconnect_max_delay_s must be >= reconnect_initial_delay_s, got "
+                f"{self.reconnect_max_delay_s!r} < {self.reconnect_initial_delay_s!r}"
+            )
         if self.hard_max_message_bytes < self.max_message_bytes:
             raise ValueError(
                 "BridgeConfig.hard_max_message_bytes must be >= max_message_bytes, got "
                 f"{self.hard_max_message_bytes!r} < {self.max_message_bytes!r}"
             )
-        if isinstance(self.unstamped_bearings, str) or not all(
-            isinstance(r, str) for r in self.unstamped_bearings
+        if (
+            isinstance(self.unstamped_bearings, str)
+            or not isinstance(self.unstamped_bearings, (tuple, list))
+            or not all(isinstance(r, str) for r in self.unstamped_bearings)
         ):
             raise ValueError(
                 "BridgeConfig.unstamped_bearings must be a tuple of robot ids, got "
@@ -213,6 +280,14 @@ class BridgeConfig:
                 check_robot_id(self.uav_id)
             except ValueError as exc:
                 raise ValueError(f"BridgeConfig.uav_id: {exc}") from None
+        if isinstance(self.required_sensors, str) or not isinstance(
+            self.required_sensors, (tuple, list)
+        ):
+            raise ValueError(
+                "BridgeConfig.required_sensors must be a tuple of sensor names, got "
+                f"{self.required_sensors!r}"
+            )
+        object.__setattr__(self, "required_sensors", tuple(self.required_sensors))
         unknown = set(self.required_sensors) - set(SENSORS)
         if unknown:
             raise ValueError(

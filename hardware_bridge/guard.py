@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
 import select
 import signal
@@ -33,6 +34,7 @@ import sys
 import time
 
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
+LOGGER = logging.getLogger("hardware_bridge")
 
 
 def _zero(kind: str) -> dict:
@@ -237,7 +239,15 @@ if __name__ == "__main__":
 
 class GuardClient:
     """The env-process side: starts the guard and feeds it deadlines. Never raises after
-    construction (a dead guard is counted as ``guard.write_failed`` and logged)."""
+    construction (a failed write is counted as ``guard.write_failed``).
+
+    A guard that dies (killed, crashed, out of memory) is noticed by the watchdog thread
+    within one tick (:meth:`supervise`), logged with its exit status, counted
+    (``guard.restarts``) and restarted with the current deadline, so the process that
+    nothing in the env process can stall is back within about 0.3 s (its start-up)."""
+
+    #: Minimum time between two restarts (a guard that cannot start must not fork-loop).
+    RESTART_INTERVAL_S = 0.5
 
     def __init__(
         self,
@@ -252,10 +262,9 @@ class GuardClient:
         allow_remote: bool,
         counters=None,
     ) -> None:
-        import subprocess
         import threading
 
-        cmd = [
+        self._cmd = [
             sys.executable,
             "-m",
             "hardware_bridge.guard",
@@ -275,43 +284,62 @@ class GuardClient:
             repr(connect_timeout_s),
         ]
         if allow_remote:
-            cmd.append("--allow-remote")
+            self._cmd.append("--allow-remote")
         root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-        env = dict(os.environ)
-        env["PYTHONPATH"] = root + os.pathsep + env.get("PYTHONPATH", "")
+        self._env = dict(os.environ)
+        self._env["PYTHONPATH"] = root + os.pathsep + self._env.get("PYTHONPATH", "")
         self.counters = counters
         self.connected = threading.Event()
         self._lock = threading.Lock()
+        self._last_line: str | None = None  # the current state, re-sent to a restarted guard
+        self._closing = False
+        self._next_restart = 0.0
+        self.restarts = 0
+        self._spawn()
+
+    def _spawn(self) -> None:
+        import subprocess
+        import threading
+
         self.proc = subprocess.Popen(
-            cmd,
+            self._cmd,
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=subprocess.DEVNULL,
-            env=env,
+            env=self._env,
             start_new_session=True,  # terminal signals go to the env, which stops the robots
         )
-        self._reader = threading.Thread(target=self._read, name="bridge-guard-reader", daemon=True)
+        self._reader = threading.Thread(
+            target=self._read, args=(self.proc,), name="bridge-guard-reader", daemon=True
+        )
         self._reader.start()
 
-    def _read(self) -> None:
-        for line in self.proc.stdout:
+    def _read(self, proc) -> None:
+        for line in proc.stdout:
             text = line.decode("ascii", "replace").strip()
+            if proc is not self.proc:
+                break
             if text == "connected":
                 self.connected.set()
                 if self.counters is not None:
                     self.counters.incr("guard.connects")
             elif text == "lost":
                 self.connected.clear()
-        self.connected.clear()
+        if proc is self.proc:
+            self.connected.clear()
 
     def _send(self, line: str) -> None:
         with self._lock:
-            try:
-                self.proc.stdin.write(line.encode("ascii") + b"\n")
-                self.proc.stdin.flush()
-            except (OSError, ValueError):
-                if self.counters is not None:
-                    self.counters.incr("guard.write_failed")
+            self._last_line = line
+            self._write(line)
+
+    def _write(self, line: str) -> None:
+        try:
+            self.proc.stdin.write(line.encode("ascii") + b"\n")
+            self.proc.stdin.flush()
+        except (OSError, ValueError):
+            if self.counters is not None:
+                self.counters.incr("guard.write_failed")
 
     def arm(self, deadline_mono: float) -> None:
         self._send(f"D {deadline_mono!r}")
@@ -326,10 +354,52 @@ class GuardClient:
     def alive(self) -> bool:
         return self.proc.poll() is None
 
+    def supervise(self) -> bool:
+        """Restart the guard if it died (the watchdog thread calls this every tick); True if
+        it was restarted. Logs the death with the exit status."""
+        if self._closing or self.proc.poll() is None:
+            return False
+        now = time.monotonic()
+        if now < self._next_restart:
+            return False
+        self._next_restart = now + self.RESTART_INTERVAL_S
+        with self._lock:
+            if self._closing:
+                return False
+            old = self.proc
+            LOGGER.warning(
+                "guard process %d died (exit status %s); restarting it", old.pid, old.returncode
+            )
+            self.connected.clear()
+            self._close_streams(old)
+            try:
+                self._spawn()
+            except OSError as exc:
+                LOGGER.error("guard process could not be restarted: %s", exc)
+                if self.counters is not None:
+                    self.counters.incr("guard.restart_failed")
+                return False
+            self.restarts += 1
+            if self.counters is not None:
+                self.counters.incr("guard.restarts")
+            if self._last_line is not None:
+                self._write(self._last_line)
+        return True
+
+    @staticmethod
+    def _close_streams(proc) -> None:
+        for stream in (proc.stdin, proc.stdout):
+            try:
+                stream.close()
+            except (OSError, ValueError):
+                pass
+
     def close(self, timeout_s: float = 2.0) -> None:
         """Stop the robots from the guard too, then let it exit."""
         import subprocess
 
+        with self._lock:
+            self._closing = True
         if self.proc.poll() is None:
             self._send("Q")
             try:
@@ -341,8 +411,4 @@ class GuardClient:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait(1.0)
-        for stream in (self.proc.stdin, self.proc.stdout):
-            try:
-                stream.close()
-            except (OSError, ValueError):
-                pass
+        self._close_streams(self.proc)

@@ -26,10 +26,12 @@ from typing import Any
 import numpy as np
 
 from swarm_core.geometry import wrap_angle
+from swarm_core.stamps import NS_PER_S as _NS
+from swarm_core.stamps import ns_to_s, s_to_ns  # noqa: F401 (this package imports them from here)
 
 LOGGER = logging.getLogger("hardware_bridge")
 TWO_PI = 2.0 * math.pi
-_NS = 1_000_000_000
+
 _ROBOT_ID = re.compile(r"^[A-Za-z][A-Za-z0-9_]{0,63}$")
 
 # Message kinds -> rosbridge type names (ROS 1 spelling, accepted by the ROS 2 rosbridge too) and
@@ -113,13 +115,8 @@ def kind_topics(robot: str, stamped_bearings: bool = True) -> dict[str, tuple[st
 
 
 # ---------------------------------------------------------------------------- time
-def ns_to_s(stamp_ns: int) -> float:
-    """Integer nanoseconds to float seconds, the same way everywhere (live and replay)."""
-    return (stamp_ns // _NS) + (stamp_ns % _NS) * 1e-9
-
-
-def s_to_ns(stamp_s: float) -> int:
-    return int(round(stamp_s * 1e9))
+# ns_to_s / s_to_ns: swarm_core.stamps (the UAV's frames in swarm_core.aerial use them too),
+# imported above for this package's modules.
 
 
 # ---------------------------------------------------------------------------- parsed forms

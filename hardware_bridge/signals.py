@@ -57,6 +57,28 @@ def critical() -> Iterator[None]:
             _raise_for(signum)
 
 
+@contextmanager
+def shielded() -> Iterator[None]:
+    """Run a clean-up that must not be cut half-way (closing a bag): SIGINT, SIGTERM and SIGHUP
+    arriving inside the block are held and raised at its end, whatever handler was installed
+    before (Python's default SIGINT handler too). Main thread only (a no-op elsewhere).
+
+    Why not ``signal.pthread_sigmask``: the kernel hands a process-directed signal to any
+    thread that does not block it (the reactor, the watchdog), and CPython then runs the
+    Python handler in the main thread at its next bytecode anyway; blocking the main thread
+    alone holds nothing back. Holding the handler's exception is what keeps the block whole.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    handlers = ExitSignals()  # deferring handlers for the block, the previous ones after it
+    try:
+        with critical():
+            yield
+    finally:
+        handlers.restore()
+
+
 def make_handler(on_signal: Callable[[int], None] | None = None) -> Callable:
     """A handler that calls ``on_signal(signum)`` (must be signal-safe: set a flag) and then
     raises (deferred inside :func:`critical`)."""
@@ -71,6 +93,34 @@ def make_handler(on_signal: Callable[[int], None] | None = None) -> Callable:
         _raise_for(signum)
 
     return handler
+
+
+def signal_exit(exc: BaseException) -> tuple[int, str] | None:
+    """``(exit status, signal name)`` for an exception a termination signal raised
+    (``KeyboardInterrupt``, :class:`Terminated`, or either wrapped in a ``SystemError`` by a C
+    callback such as numba's kernel loading), else ``None``."""
+    if isinstance(exc, SystemError):
+        from swarm_core.signal_chain import unwrap_signal
+
+        inner = unwrap_signal(exc)
+        if inner is None or inner is exc:
+            return None
+        exc = inner
+    if isinstance(exc, KeyboardInterrupt):
+        return 128 + signal.SIGINT, "SIGINT"
+    if isinstance(exc, Terminated):
+        return 128 + exc.signum, signal.Signals(exc.signum).name
+    return None
+
+
+def ignore_exit_signals() -> None:
+    """A command line that is leaving because of a signal (its clean-up done) ignores further
+    SIGINT/SIGTERM/SIGHUP: a late second signal can neither kill it with the default action
+    nor print a traceback during interpreter shutdown. Main thread only (a no-op elsewhere)."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    for signum in EXIT_SIGNALS:
+        signal.signal(signum, signal.SIG_IGN)
 
 
 class ExitSignals:

@@ -11,9 +11,12 @@ Slow consumers cannot build a backlog: every subscription asks rosbridge for ``q
 (default 1: only the newest message waits) and ``throttle_rate``; on this side each callback only
 validates and appends to a bounded buffer.
 
-Malformed frames (not JSON, not an object, unknown ``op``, binary) are counted under
-``transport.malformed`` and dropped; messages above ``max_message_bytes`` under
-``transport.oversize`` (the link stays up); ``status`` operations are counted and logged.
+Malformed frames (not JSON, not an object, an ``op`` a client does not handle, binary) are
+counted under ``transport.malformed`` and dropped; a ``publish`` on a topic this client did not
+subscribe to under ``transport.unplaced`` (a topic name is only ever looked up in the table of
+subscriptions, never dispatched as an event, so no name can reach the link's own events);
+messages above ``max_message_bytes`` under ``transport.oversize`` (the link stays up);
+``status`` operations are counted and logged.
 A keep-alive ping (``ping_interval_s`` / ``ping_timeout_s``) detects a frozen server.
 
 Twisted's reactor runs once per process in a daemon thread and is never stopped (it cannot be
@@ -79,7 +82,20 @@ def _classes(config: BridgeConfig):
     class Protocol(AutobahnRosBridgeProtocol):
         def __init__(self, *args, **kwargs):
             super().__init__(*args, **kwargs)
-            self._message_handlers["status"] = self._handle_status
+            # Only the operations a bridge client needs. roslibpy's own handlers emit a
+            # server's topic (or service) name as an event of the factory, the emitter that
+            # also carries the link's "ready", "close" and "error" events: a server publishing
+            # on a topic named "close" would fire the link's close handling. A topic name is
+            # data here, looked up in the client's table of subscriptions.
+            self._message_handlers = {"publish": self._route, "status": self._handle_status}
+
+        def _route(self, message):
+            topic = message.get("topic")
+            callback = self.factory.routes.get(topic) if isinstance(topic, str) else None
+            if callback is None:  # a topic this client never subscribed to: counted, dropped
+                self.factory.emit("bridge:unplaced", f"publish on topic {str(topic)[:80]!r}")
+                return
+            callback(message.get("msg"))
 
         def _handle_status(self, message):
             self.factory.emit("bridge:status", dict(message))
@@ -122,6 +138,7 @@ def _classes(config: BridgeConfig):
 
         def __init__(self, *args, **kwargs):
             super().__init__(*args, **kwargs)
+            self.routes: dict[str, Callable[[Any], None]] = {}  # topic -> callback
             self.setProtocolOptions(
                 maxMessagePayloadSize=config.hard_max_message_bytes,
                 maxFramePayloadSize=config.hard_max_message_bytes,
@@ -203,8 +220,9 @@ class RosbridgeClient:
         factory.on("bridge:status", self._handle_status)
         factory.on("bridge:oversize", self._handle_oversize)
         factory.on("bridge:send_failed", lambda n: self.counters.incr("transport.send_failed", n))
-        for sub in self.subscriptions:
-            factory.on(sub.topic, sub.callback)
+        factory.on("bridge:unplaced", self._handle_unplaced)
+        # Subscriptions are a table, never event names (see Protocol.__init__ in _classes).
+        factory.routes = {sub.topic: sub.callback for sub in self.subscriptions}
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -350,6 +368,9 @@ class RosbridgeClient:
 
     def _handle_malformed(self, detail: str) -> None:
         self.counters.reject("transport.malformed", detail)
+
+    def _handle_unplaced(self, detail: str) -> None:
+        self.counters.reject("transport.unplaced", detail)
 
     def _handle_oversize(self, size: int) -> None:
         self.counters.reject(

@@ -41,7 +41,8 @@ class Watchdog:
     repeat_s : float
         Re-send period of the zero command while tripped.
     max_step_s : float
-        A single ``step()`` longer than this (a hung step) also trips the watchdog.
+        A single ``step()`` longer than this (a hung step) also trips the watchdog (the world
+        passes its control period + ``BridgeConfig.step_overrun_s``).
     """
 
     def __init__(
@@ -50,7 +51,7 @@ class Watchdog:
         timeout_s: float = 0.5,
         poll_s: float = 0.01,
         repeat_s: float = 0.25,
-        max_step_s: float = 2.0,
+        max_step_s: float = 0.3,
         guard=None,
     ) -> None:
         self._stop_all = stop_all
@@ -146,6 +147,11 @@ class Watchdog:
     def _run(self) -> None:
         while not self._closed.wait(self.poll_s):
             reason = None
+            if self.guard is not None:
+                try:
+                    self.guard.supervise()  # a dead guard is restarted within one tick
+                except Exception:  # noqa: BLE001 - the watchdog must survive anything
+                    LOGGER.exception("watchdog: guard supervision failed")
             if self._signal_pending is not None:
                 signum, self._signal_pending = self._signal_pending, None
                 self.trip(signal.Signals(signum).name)

@@ -33,7 +33,8 @@ from typing import Any
 
 import numpy as np
 
-from hardware_bridge.assembly import RecordAssembler, UAVMessages, uav_messages
+from hardware_bridge.assembly import RecordAssembler
+from hardware_bridge.claim import RobotClaim
 from hardware_bridge.comms import TeammateRelay
 from hardware_bridge.config import FEED_SENSORS, BridgeConfig, make_bridge_config
 from hardware_bridge.messages import (
@@ -56,8 +57,10 @@ from hardware_bridge.messages import (
     uav_twist_stamped_msg,
 )
 from hardware_bridge.safety import CommandLimiter
+from hardware_bridge.signals import shielded
 from hardware_bridge.transport import RosbridgeClient, Subscription, check_host
 from hardware_bridge.watchdog import Watchdog
+from swarm_core.aerial import UAVMessages, uav_messages
 from swarm_core.world import WorldStep, reject_extra_commands
 from swarm_env.config import SwarmConfig
 
@@ -129,7 +132,7 @@ class RealWorld:
 
     With ``bridge.uav_id`` set, the world also subscribes to that UAV's pose and detections
     (seed ``002``'s supervisor): after each ``reset()`` / ``step()``, :attr:`last_uav` holds the
-    step's validated UAV messages (:class:`~hardware_bridge.assembly.UAVMessages`; the newest
+    step's validated UAV messages (:class:`~swarm_core.aerial.UAVMessages`; the newest
     of each at a reset), and :meth:`set_uav_command` sets the velocity command published with
     the UGVs' at the next step (stops and halts send the UAV a zero command: hover).
     """
@@ -256,7 +259,7 @@ class RealWorld:
                 timeout_s=self.bridge.watchdog_timeout_s,
                 poll_s=self.bridge.watchdog_poll_s,
                 repeat_s=self.bridge.watchdog_repeat_s,
-                max_step_s=self.period_s + 2.0,
+                max_step_s=self.period_s + self.bridge.step_overrun_s,
                 guard=self.guard,
             )
             self.watchdog.install_sigint()
@@ -399,25 +402,41 @@ class RealWorld:
             )
 
     def close(self) -> None:
-        """Stop every robot (zero velocity, flushed), disconnect, release the robots."""
+        """Stop every robot (zero velocity, from here and the guard), close the bag, then the
+        slow part: flush, disconnect, end the guard, release the robots.
+
+        The stop and the bag come first, and SIGINT/SIGTERM/SIGHUP arriving during ``close()``
+        are held until it has finished (:func:`hardware_bridge.signals.shielded`): a second
+        Ctrl-C can never leave a bag without its ``metadata.yaml``. An error in one part is
+        logged and raised after every other part has run."""
         if self._closed:
             return
         self._closed = True
-        try:
-            self.watchdog.trip("close()")
-            self.client.flush(1.0)
-        finally:
-            self.watchdog.close()
-            if self.guard is not None:
-                self.guard.close()
-            self.client.close()
-            if self.recorder is not None:
-                self.recorder.close()
-            self._release()
+        if self.watchdog is not None:
+            self.watchdog.uninstall_sigint()  # the shield holds signals from here on
+        with shielded():
+            parts = [
+                lambda: self.watchdog.trip("close()"),
+                lambda: self.recorder is not None and self.recorder.close(),
+                lambda: self.client.flush(1.0),
+                lambda: self.watchdog.close(),
+                lambda: self.guard is not None and self.guard.close(),
+                lambda: self.client.close(),
+                self._release,
+            ]
+            first_error: Exception | None = None
+            for part in parts:
+                try:
+                    part()
+                except Exception as exc:  # noqa: BLE001 - every part runs; the first is raised
+                    LOGGER.exception("close(): a clean-up step failed")
+                    first_error = first_error or exc
             try:
                 atexit.unregister(self._atexit)
             except Exception:  # noqa: BLE001
                 pass
+            if first_error is not None:
+                raise first_error
 
     # ------------------------------------------------------------------ stepping internals
     def _step(self, commands: np.ndarray) -> WorldStep:
@@ -737,10 +756,15 @@ class RealWorld:
                         "another open RealWorld in this process; close() it first (the bridge "
                         "env cannot be vectorised or copied)"
                     )
+            # Across processes of this computer: a lock file per robot (hardware_bridge.claim).
+            self._robot_claim = RobotClaim(self.host, self.port, self.robot_ids)
             for robot in self.robot_ids:
                 _ACTIVE[(self.host, self.port, robot)] = weakref.ref(self)
 
     def _release(self) -> None:
+        claim = getattr(self, "_robot_claim", None)
+        if claim is not None:
+            claim.release()
         with _ACTIVE_LOCK:
             for robot in self.robot_ids:
                 key = (self.host, self.port, robot)
@@ -757,4 +781,5 @@ class RealWorld:
             self.counters.total(".invalid")
             + self.counters.get("transport.malformed")
             + self.counters.get("transport.oversize")
+            + self.counters.get("transport.unplaced")
         )

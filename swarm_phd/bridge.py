@@ -19,7 +19,7 @@ import json
 import time
 from pathlib import Path
 
-from swarm_phd import inputs
+from swarm_core import inputs
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -55,8 +55,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--policy",
         default="wander",
         help="'wander' (default); 'stop' sends zero velocity (a sensor check without motion); "
-        "'random', 'scripted:NAME' (`swarm-phd list`) or a trained model.zip / student.pt, "
-        "which runs in its own task and observation",
+        "'random', 'scripted:NAME' (`swarm-phd list`), a trained model.zip / student.pt or "
+        "an RLlib run directory (train --engine rllib --out), which runs in its own task and "
+        "observation",
+    )
+    parser.add_argument(
+        "--trust-policy",
+        action="store_true",
+        help="load an SB3 model.zip or an RLlib run although loading it runs code stored in "
+        "the file (both unpickle classes and spaces): only for a run you trained or verified "
+        "yourself "
+        "(a student.pt loads weights only and needs no flag)",
     )
     parser.add_argument(
         "--task",
@@ -139,8 +148,8 @@ def bridge_env_kwargs(
     controller's observation mode, else the simulator's defaults. The policy is built once on
     a simulator with these settings, so one that cannot act on them (another observation size,
     a controller without its task) is refused here too."""
-    from agents.policies import SCRIPTED, policy_observation, trained_policy_env
-    from swarm_phd.inputs import parse_json_object
+    from agents.policies import SCRIPTED, policy_observation, rllib_checkpoint, trained_policy_env
+    from swarm_core.inputs import parse_json_object
 
     spec = args.policy
     if spec.startswith("privileged:"):
@@ -156,10 +165,25 @@ def bridge_env_kwargs(
     elif spec.endswith((".zip", ".pt")):
         if not Path(spec).is_file():
             raise ValueError(f"--policy: policy file {spec!r} does not exist")
+        if spec.endswith(".zip") and not getattr(args, "trust_policy", False):
+            raise ValueError(
+                f"--policy {spec!r} is an SB3 model zip: loading one unpickles Python objects "
+                "stored in it (its policy class, spaces, schedules), which can run any code, "
+                "on the computer that drives the robots. Pass --trust-policy if you trained "
+                "this file yourself or trust its source (a student.pt loads weights only)"
+            )
+    elif rllib_checkpoint(spec) is not None:
+        if not getattr(args, "trust_policy", False):
+            raise ValueError(
+                f"--policy {spec!r} is an RLlib run: loading its module unpickles Python "
+                "objects stored in the checkpoint, which can run any code, on the computer "
+                "that drives the robots. Pass --trust-policy if you trained it yourself or "
+                "trust its source"
+            )
     elif spec not in ("wander", "stop", "random"):
         raise ValueError(
-            "--policy must be 'wander', 'stop', 'random', 'scripted:NAME', a .zip model or a .pt "
-            f"student, got {spec!r}"
+            "--policy must be 'wander', 'stop', 'random', 'scripted:NAME', a .zip model, a .pt "
+            f"student or the --out directory of swarm-phd train --engine rllib, got {spec!r}"
         )
     overrides: dict = {}
     if args.task_params is not None:
@@ -210,21 +234,32 @@ def _check_policy_acts(spec: str, kwargs: dict, robots: list[str] | None, steps:
 def run(args: argparse.Namespace) -> int:
     """SIGINT, SIGTERM and SIGHUP stop the robots at once, close the bag (readable up to the
     last complete step) and exit with status 128 + the signal number, without a traceback."""
-    import signal
     import sys
 
-    from hardware_bridge.signals import ExitSignals, Terminated
+    from hardware_bridge.bag import bag_state
+    from hardware_bridge.claim import RobotClaimedError
+    from hardware_bridge.signals import (
+        ExitSignals,
+        Terminated,
+        ignore_exit_signals,
+        signal_exit,
+    )
 
     signals = ExitSignals()
     try:
         return _run(args)
-    except KeyboardInterrupt:
-        code, name = 128 + signal.SIGINT, "SIGINT"
-    except Terminated as exc:
-        code, name = exc.code, signal.Signals(exc.signum).name
+    except RobotClaimedError as exc:  # another bridge process drives these robots
+        print(f"swarm-phd bridge: error: {exc}", file=sys.stderr)
+        return 1
+    except (KeyboardInterrupt, Terminated, SystemError) as exc:
+        found = signal_exit(exc)
+        if found is None:  # a SystemError of its own
+            raise
+        code, name = found
+        ignore_exit_signals()  # leaving: the robots are stopped and the bag closed
     finally:
         signals.restore()
-    where = f"; bag {args.record} closed" if args.record else ""
+    where = f"; {bag_state(args.record)}" if args.record else ""
     print(f"swarm-phd bridge: {name}: robots stopped{where}", file=sys.stderr)
     return code
 
@@ -321,11 +356,13 @@ def _run(args: argparse.Namespace) -> int:
         counters = world.counters_snapshot()
         timing = dict(world.timing)
     finally:
-        if env is not None:
-            env.close()
-        if server is not None:
-            server_counters = server.counters.snapshot()
-            server.close()
+        try:
+            if env is not None:
+                env.close()  # stops the robots and closes the bag first, signals held
+        finally:
+            if server is not None:
+                server_counters = server.counters.snapshot()
+                server.close()
     summary = {
         "steps": result.steps,
         "wall_s": round(wall, 3),

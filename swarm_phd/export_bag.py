@@ -12,8 +12,9 @@ from typing import Any
 import numpy as np
 
 from hardware_bridge.bag import BagRecorder
+from swarm_core import inputs, progress
 from swarm_env.config import make_config
-from swarm_phd import inputs, progress
+from swarm_phd import presets
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -24,13 +25,40 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    period = inputs.control_period_s(args.preset)  # an unknown preset is refused here too
+    """SIGINT, SIGTERM and SIGHUP end the export with the bag closed (every step completed
+    before the signal), a one-line message saying so, and status 128 + the signal number."""
+    import sys
+
+    from hardware_bridge.bag import bag_state
+    from hardware_bridge.signals import (
+        ExitSignals,
+        Terminated,
+        ignore_exit_signals,
+        signal_exit,
+    )
+
+    period = presets.control_period_s(args.preset)  # an unknown preset is refused here too
     inputs.duration("--duration", args.duration, period)
     inputs.seed("--seed", args.seed)
     inputs.new_bag_dir("--out", args.out)
-    summary = export_sim_episode(
-        args.out, preset=args.preset, duration_s=args.duration, seed=args.seed
-    )
+    signals = ExitSignals()
+    try:
+        summary = export_sim_episode(
+            args.out, preset=args.preset, duration_s=args.duration, seed=args.seed
+        )
+    except (KeyboardInterrupt, Terminated, SystemError) as exc:
+        found = signal_exit(exc)
+        if found is None:  # a SystemError of its own
+            raise
+        code, name = found
+        ignore_exit_signals()  # leaving: the bag is closed
+    else:
+        code = None
+    finally:
+        signals.restore()
+    if code is not None:
+        print(f"swarm-phd export-bag: {name}: {bag_state(args.out)}", file=sys.stderr)
+        return code
     print(
         f"wrote {summary['path']}: {summary['steps']} steps, "
         f"{summary['messages'] + summary['markers']} messages ({summary['messages']} sensor, "
@@ -63,7 +91,7 @@ def export_sim_episode(
     """
     from agents.scripted import WanderPolicy
     from hardware_bridge.emit import RobotEmitter
-    from hardware_bridge.signals import ExitSignals, critical
+    from hardware_bridge.signals import ExitSignals, critical, shielded
     from swarm_env.env import SwarmEnv
 
     if not duration_s > 0:
@@ -131,9 +159,12 @@ def export_sim_episode(
             trace.append(snapshot())
     finally:
         try:
-            if recorder is not None:
-                recorder.close()
-            env.close()
+            with shielded():  # the bag is closed whole, whatever signal follows
+                try:
+                    if recorder is not None:
+                        recorder.close()
+                finally:
+                    env.close()
         finally:
             signals.restore()
     return {

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from swarm_phd import progress
+from swarm_core import progress
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -56,9 +56,9 @@ def run(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace) -> int:
     import sys
 
-    from hardware_bridge.bag import SKIP_REASONS, replay_env
+    from hardware_bridge.bag import SKIP_REASONS, BagError, replay_env
+    from swarm_core.inputs import parse_json_object
     from swarm_phd.episode import format_metrics, run_episode
-    from swarm_phd.inputs import parse_json_object
 
     overrides = parse_json_object(args.overrides, "--overrides")
     if args.mode is not None:
@@ -68,6 +68,28 @@ def _run(args: argparse.Namespace) -> int:
     env = replay_env(args.bag, **overrides)
     try:
         world = env.world
+        missing = dict(world.missing)
+        without_odometry = sorted(r for r, gone in missing.items() if "odometry" in gone)
+        without_truth = sorted(r for r, gone in missing.items() if "mocap" in gone)
+        if without_odometry or without_truth:
+            why = (
+                f"no odometry at all from {without_odometry}: a robot's filter cannot follow "
+                "its own motion without it"
+                if without_odometry
+                else f"no motion capture at all from {without_truth}: the ground truth needs "
+                "every robot's pose, so no step could be scored"
+            )
+            raise BagError(
+                args.bag,
+                f"{why}; refused rather than scored wrongly (sensors absent from the bag: "
+                f"{_missing_text(missing)})",
+            )
+        if missing:
+            print(
+                f"swarm-phd replay: {args.bag}: warning: sensors absent from the whole bag, "
+                f"reported stale at every step and never fed: {_missing_text(missing)}",
+                file=sys.stderr,
+            )
         episodes = []
         for episode in progress.over(range(world.n_episodes), "replay", unit="episode"):
             n_steps = world.n_steps(episode)
@@ -99,6 +121,7 @@ def _run(args: argparse.Namespace) -> int:
                     "episodes": episodes,
                     "rejected": rejected,
                     "skipped": skipped,
+                    "missing": {r: list(g) for r, g in missing.items()},
                 },
                 indent=2,
                 default=float,
@@ -117,3 +140,7 @@ def _run(args: argparse.Namespace) -> int:
     if rejected:
         print("rejected messages:", rejected)
     return 0
+
+
+def _missing_text(missing: dict[str, tuple[str, ...]]) -> str:
+    return "; ".join(f"{robot}: {', '.join(gone)}" for robot, gone in sorted(missing.items()))

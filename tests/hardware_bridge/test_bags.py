@@ -96,6 +96,52 @@ def test_export_bag_survives_sigterm(tmp_path):
     assert world.n_steps() >= 19 and not world.skipped()
 
 
+SIGNAL_PAIRS = [
+    (signal.SIGINT, signal.SIGINT, 0.01),
+    (signal.SIGINT, signal.SIGTERM, 0.04),
+    (signal.SIGTERM, signal.SIGHUP, 0.1),
+    (signal.SIGHUP, signal.SIGINT, 0.02),
+]
+
+
+def _second_signal_case(cmd: list[str], bag: Path, n_markers: int, first, second, gap_s):
+    proc = _run_until_recorded(cmd, bag, n_markers, 200.0)
+    seen = _markers_committed(bag)
+    proc.send_signal(first)
+    time.sleep(gap_s)
+    proc.send_signal(second)
+    _, err = proc.communicate(timeout=60)
+    err = err.decode()
+    # The status of the signal that ended it: the second, held until the bag was closed, or
+    # the first when the second came after the clean-up (then ignored).
+    assert proc.returncode in (128 + first, 128 + second), err
+    assert "Traceback" not in err, err
+    assert f"bag {bag} closed" in err, err  # what the message says is what the disk holds
+    assert (bag / "metadata.yaml").is_file()
+    world = ReplayWorld(bag)
+    assert world.n_steps() >= seen - 1
+    assert not world.skipped(), world.skipped()
+
+
+@pytest.mark.timeout(300)
+@pytest.mark.parametrize("first, second, gap_s", SIGNAL_PAIRS, ids=lambda x: str(x))
+def test_a_second_signal_10_to_100_ms_later_still_leaves_a_closed_bag(
+    tmp_path, first, second, gap_s
+):
+    bag = tmp_path / "rec"
+    cmd = [sys.executable, "-m", "swarm_phd.cli", "bridge", "--loopback", "--steps", "100000"]
+    _second_signal_case(cmd + ["--record", str(bag)], bag, 8, first, second, gap_s)
+    assert main(["replay", str(bag)]) == 0
+
+
+@pytest.mark.timeout(300)
+@pytest.mark.parametrize("first, second, gap_s", SIGNAL_PAIRS[:2], ids=lambda x: str(x))
+def test_export_bag_survives_two_signals(tmp_path, first, second, gap_s):
+    bag = tmp_path / "exp"
+    cmd = [sys.executable, "-m", "swarm_phd.cli", "export-bag", "--out", str(bag)]
+    _second_signal_case(cmd + ["--duration", "100000"], bag, 20, first, second, gap_s)
+
+
 @pytest.mark.timeout(60)
 def test_recording_survives_an_exception_in_step(loopback, tmp_path, monkeypatch):
     server = loopback()
@@ -192,3 +238,97 @@ def test_intact_bag_reports_no_skips(good_bag, capsys):
     _, err = capsys.readouterr()
     assert "skipped" not in err
     assert ReplayWorld(good_bag).skipped() == {}
+
+
+def _delete_topic_rows(bag: Path, pattern: str) -> None:
+    db = next(bag.glob("*.db3"))
+    con = sqlite3.connect(db)
+    try:
+        con.execute(
+            "delete from messages where topic_id in (select id from topics where name like ?)",
+            (pattern,),
+        )
+        con.commit()
+    finally:
+        con.close()
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize(
+    "pattern, robot, word",
+    [
+        ("/ugv_1/odom%", "ugv_1", "odometry"),  # a sensor missing
+        ("/ugv_2/%", "ugv_2", "odometry"),  # a robot missing altogether
+        ("/mocap/ugv_0/%", "ugv_0", "motion capture"),
+    ],
+)
+def test_a_bag_without_a_robots_odometry_or_truth_is_refused_naming_them(
+    good_bag, tmp_path, capsys, pattern, robot, word
+):
+    bag = copy_bag(good_bag, tmp_path / "bag")
+    _delete_topic_rows(bag, pattern)
+    assert main(["replay", str(bag)]) == 2
+    out, err = capsys.readouterr()
+    assert "Traceback" not in out + err and len(err.strip().splitlines()) == 1, err
+    assert str(bag) in err and robot in err and word in err and "refused" in err, err
+
+
+@pytest.mark.timeout(120)
+def test_a_missing_camera_is_named_reported_stale_and_never_fed(good_bag, tmp_path, capsys):
+    bag = copy_bag(good_bag, tmp_path / "bag")
+    _delete_topic_rows(bag, "/ugv_3/camera/%")
+    world = ReplayWorld(bag)
+    assert world.missing == {"ugv_3": ("camera",)}
+    step = world.reset()
+    assert "camera" in step.stale["ugv_3"]
+    assert main(["replay", str(bag), "--json"]) == 0
+    out, err = capsys.readouterr()
+    assert "ugv_3: camera" in err and "stale" in err, err
+    import json
+
+    result = json.loads(out)
+    assert result["missing"] == {"ugv_3": ["camera"]}
+    stale = result["episodes"][0]["stale_steps"]
+    assert stale, result["episodes"][0]
+
+
+@pytest.mark.timeout(60)
+def test_a_fifo_in_the_bag_is_refused_at_once(good_bag, tmp_path, capsys):
+    bag = copy_bag(good_bag, tmp_path / "bag")
+    db = next(bag.glob("*.db3"))
+    db.unlink()
+    os.mkfifo(db)
+    t0 = time.monotonic()
+    assert main(["replay", str(bag)]) == 2
+    assert time.monotonic() - t0 < 10.0
+    err = capsys.readouterr().err
+    assert "FIFO" in err and db.name in err, err
+
+
+@pytest.mark.timeout(60)
+def test_an_unopenable_database_with_an_absurd_count_ends_in_bounded_time(
+    good_bag, tmp_path, capsys
+):
+    """rosbags refuses the database (a damaged header), and metadata.yaml claims 10^15
+    messages: the salvage looks up no more rows than the file can hold and stops after a
+    long run of empty ids."""
+    bag = copy_bag(good_bag, tmp_path / "bag")
+    meta = bag / "metadata.yaml"
+    text = meta.read_text()
+    import re
+
+    meta.write_text(re.sub(r"message_count: \d+", "message_count: 1000000000000000", text))
+    db = next(bag.glob("*.db3"))
+    data = bytearray(db.read_bytes())
+    data[28:32] = b"\xff\xff\xff\xff"  # an impossible page count: rosbags' sqlite refuses
+    data[60:64] = b"\xff\xff\xff\xff"
+    db.write_bytes(bytes(data))
+    t0 = time.monotonic()
+    code = main(["replay", str(bag)])
+    elapsed = time.monotonic() - t0
+    out, err = capsys.readouterr()
+    assert elapsed < 30.0, elapsed
+    assert "Traceback" not in out + err
+    assert code == 0 and "database refused by rosbags" in err, err
+    world = ReplayWorld(bag)
+    assert world.skipped().get("bag.salvaged") == 1 and world.n_steps() >= 1

@@ -48,7 +48,8 @@ def test_watchdog_sends_zero_twist_within_0_6_s_of_the_client_stalling(loopback)
         assert len(during) >= 4 * 4 and all(v > 0 for _, _, v in during)
         latency = {r: t - t_stall for r, t in zeros.items()}
         assert all(dt <= 0.6 for dt in latency.values()), latency
-        assert all(dt >= 0.45 for dt in latency.values()), f"fired before the timeout {latency}"
+        timeout = env.world.bridge.watchdog_timeout_s
+        assert all(dt >= timeout - 0.05 for dt in latency.values()), f"fired early {latency}"
         # It keeps the robots stopped (repeats) until the next step.
         assert wait_until(
             lambda: len([1 for t, *_ in server.twists() if t > max(zeros.values()) + 0.1]) >= 4,

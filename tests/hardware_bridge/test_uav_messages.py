@@ -8,7 +8,6 @@ import math
 import numpy as np
 import pytest
 
-from hardware_bridge.assembly import UAVAssembler
 from hardware_bridge.messages import (
     InvalidMessage,
     ground_detections_msg,
@@ -18,6 +17,7 @@ from hardware_bridge.messages import (
     uav_pose_msg,
     uav_topics,
 )
+from swarm_core.aerial import UAVAssembler
 from swarm_env.sensors.downward_camera import DownwardCameraConfig
 
 

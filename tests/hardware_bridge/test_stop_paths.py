@@ -1,0 +1,240 @@
+"""Every failure path stops the robots within 0.6 s, measured at the robot (the server's log of
+applied commands): a step hung after its command went out, a hung step that holds the GIL, the
+env process frozen (SIGSTOP, as Ctrl-Z does), and a dead guard process (restarted and logged).
+
+Every delay is measured from the robot's last moving command to its first zero command (the
+stricter reference: the stall starts after that command). The design targets are ``control
+period + step_overrun_s + poll`` = 0.31 s for a step that hangs and ``period +
+watchdog_timeout_s + poll`` = 0.41 s for a stall between steps, at 10 Hz; the 0.6 s bound
+leaves the margin a loaded 2-core machine needs."""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hardware_bridge import real_env
+from tests.hardware_bridge.conftest import wait_until
+
+ROOT = Path(__file__).resolve().parents[2]
+BOUND_S = 0.6
+
+
+def stop_delays(twists, after: float) -> dict[str, float]:
+    """Per robot: from its last moving command after ``after`` to the first zero that
+    follows it (robot-side times)."""
+    last_move: dict[str, float] = {}
+    for t, robot, v, _w in twists:
+        if t > after and v != 0.0:
+            last_move[robot] = t
+    out: dict[str, float] = {}
+    for t, robot, v, w in twists:
+        if robot in last_move and robot not in out and t > last_move[robot]:
+            if v == 0.0 and w == 0.0:
+                out[robot] = t - last_move[robot]
+    return out
+
+
+def _fmt(delays: dict[str, float]) -> dict[str, float]:
+    return {r: round(d, 3) for r, d in sorted(delays.items())}
+
+
+def _drive(env, steps: int, v: float = 0.2) -> None:
+    for _ in range(steps):
+        env.step({a: np.array([v, 0.0]) for a in env.agents})
+
+
+def _hold_the_gil(seconds: float) -> None:
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(10.0)
+    try:
+        t0 = time.monotonic()
+        x = 0
+        while time.monotonic() - t0 < seconds:
+            x += 1
+    finally:
+        sys.setswitchinterval(interval)
+
+
+def _robot_process(tmp_path: Path) -> tuple[subprocess.Popen, int, Path]:
+    """Robots in another process (its own GIL), logging every command they receive."""
+    log = tmp_path / "twists.log"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hardware_bridge.loopback", "--twist-log", str(log)],
+        cwd=ROOT,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+    )
+    line = proc.stdout.readline()
+    assert line.strip().isdigit(), f"loopback process did not start: {line!r}"
+    return proc, int(line), log
+
+
+def _logged_twists(log: Path) -> list[tuple[float, str, float, float]]:
+    out = []
+    for line in log.read_text().splitlines():
+        t, robot, v, w, _age, applied = line.split()
+        if applied == "1":
+            out.append((float(t), robot, float(v), float(w)))
+    return out
+
+
+@pytest.mark.timeout(60)
+def test_a_step_hung_after_its_command_stops_the_robots_within_the_bound(loopback, monkeypatch):
+    server = loopback()
+    env = real_env(port=server.port, preset="seed-lab", max_steps=1000)
+    world = env.world
+    try:
+        env.reset(seed=0)
+        _drive(env, 5)
+        t0 = time.monotonic()
+        take = world._take
+
+        def hung_take(*args, **kwargs):  # the command went out; the step hangs (no GIL held)
+            time.sleep(1.5)
+            return take(*args, **kwargs)
+
+        monkeypatch.setattr(world, "_take", hung_take)
+        _drive(env, 1)
+        monkeypatch.setattr(world, "_take", take)
+        delays = stop_delays(server.twists(), t0)
+        assert set(delays) == set(env.possible_agents), delays
+        print(f"hung step stop delays (s): {_fmt(delays)}")
+        assert max(delays.values()) < BOUND_S, delays
+        assert any("step() running" in reason for _, reason in world.watchdog.trips)
+        _drive(env, 2)  # the next step drives again
+    finally:
+        env.close()
+
+
+@pytest.mark.timeout(300)  # the robot process may compile the numba kernels first
+def test_a_gil_holding_hung_step_is_stopped_by_the_guard_within_the_bound(tmp_path, monkeypatch):
+    proc, port, log = _robot_process(tmp_path)
+    env = real_env(port=port, preset="seed-lab", bridge={"reset_timeout_s": 20.0})
+    world = env.world
+    try:
+        env.reset(seed=0)
+        assert world.guard is not None and world.guard.connected.is_set()
+        _drive(env, 5)
+        t0 = time.monotonic()
+        take = world._take
+
+        def hung_take(*args, **kwargs):  # hangs holding the GIL: no thread of ours runs
+            _hold_the_gil(1.5)
+            return take(*args, **kwargs)
+
+        monkeypatch.setattr(world, "_take", hung_take)
+        _drive(env, 1)
+        monkeypatch.setattr(world, "_take", take)
+        time.sleep(0.2)
+        delays = stop_delays(_logged_twists(log), t0)
+        assert set(delays) == set(env.possible_agents), delays
+        print(f"GIL-holding hung step stop delays (s): {_fmt(delays)}")
+        assert max(delays.values()) < BOUND_S, delays
+    finally:
+        env.close()
+        proc.stdin.close()
+        proc.wait(10)
+
+
+_DRIVER = """
+import numpy as np, sys
+from hardware_bridge import real_env
+env = real_env(port=int(sys.argv[1]), preset="seed-lab", max_steps=10**6)
+env.reset(seed=0)
+print("driving", flush=True)
+while True:
+    env.step({a: np.array([0.2, 0.0]) for a in env.agents})
+"""
+
+
+@pytest.mark.timeout(300)  # the env process may compile the numba kernels first
+def test_a_frozen_env_process_is_stopped_by_the_guard_within_the_bound(loopback):
+    """SIGSTOP (what Ctrl-Z's SIGTSTP does) at five phases of the control loop; the guard,
+    in its own session, is not frozen with it."""
+    server = loopback()
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _DRIVER, str(server.port)],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+    )
+    worst: list[float] = []
+    try:
+        assert proc.stdout.readline().strip() == b"driving"
+        robots = {f"ugv_{i}" for i in range(4)}
+        for phase in (0.0, 0.023, 0.047, 0.071, 0.094):
+            t0 = time.monotonic()
+            assert wait_until(lambda t0=t0: len(stop_delays(server.twists(), t0)) == 0, 0.1)
+            # Wait for motion, then freeze at a point of the 0.1 s period.
+            assert wait_until(
+                lambda t0=t0: {r for t, r, v, _ in server.twists() if t > t0 and v > 0} == robots,
+                5.0,
+            )
+            time.sleep(0.3 + phase)
+            t_freeze = time.monotonic()
+            proc.send_signal(signal.SIGSTOP)
+            time.sleep(1.2)
+            delays = stop_delays(server.twists(), t_freeze - 0.5)
+            proc.send_signal(signal.SIGCONT)
+            assert set(delays) == robots, (phase, delays)
+            worst.append(max(delays.values()))
+        print(f"SIGSTOP stop delays (s): {[round(w, 3) for w in worst]}")
+        assert max(worst) < BOUND_S, worst
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGCONT)
+            proc.terminate()
+            try:
+                proc.wait(20)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(5)
+        proc.stdout.close()
+
+
+@pytest.mark.timeout(300)  # the robot process may compile the numba kernels first
+def test_a_dead_guard_is_logged_restarted_and_stops_a_gil_stall(tmp_path, caplog):
+    proc, port, log = _robot_process(tmp_path)
+    env = real_env(port=port, preset="seed-lab", bridge={"reset_timeout_s": 20.0})
+    world = env.world
+    try:
+        env.reset(seed=0)
+        guard = world.guard
+        assert guard is not None and guard.connected.is_set()
+        _drive(env, 3)
+        old_pid = guard.proc.pid
+        with caplog.at_level(logging.WARNING, logger="hardware_bridge"):
+            os.kill(old_pid, signal.SIGKILL)
+            _drive(env, 5)  # 0.5 s: the watchdog notices within a tick and restarts it
+            assert wait_until(lambda: guard.restarts == 1 and guard.connected.is_set(), 10.0)
+        assert guard.proc.pid != old_pid and guard.alive
+        assert world.counters.get("guard.restarts") == 1
+        assert any(
+            f"guard process {old_pid} died" in r.getMessage() and "-9" in r.getMessage()
+            for r in caplog.records
+        ), [r.getMessage() for r in caplog.records]
+        _drive(env, 3)  # the restarted guard gets this step's deadlines
+        t0 = time.monotonic()
+        _hold_the_gil(1.5)  # between steps, holding the GIL: only the guard can act
+        time.sleep(0.2)
+        delays = stop_delays(_logged_twists(log), t0 - 0.5)
+        assert set(delays) == set(env.possible_agents), delays
+        # Between steps: period + watchdog_timeout_s + poll after the last command (0.41 s).
+        print(f"restarted guard, GIL stall stop delays (s): {_fmt(delays)}")
+        assert max(delays.values()) < BOUND_S, delays
+    finally:
+        env.close()
+        proc.stdin.close()
+        proc.wait(10)
