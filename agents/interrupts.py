@@ -47,7 +47,7 @@ def add_max_wall_argument(parser: Any, stops: str = "once") -> None:
 def max_wall_seconds(minutes: Any) -> float | None:
     """``--max-wall-minutes`` in seconds (None: no budget); ``ValueError`` naming the flag
     unless it is a finite number > 0."""
-    from swarm_phd.inputs import check_number  # imports the kernels' package: only when used
+    from swarm_core.validation import check_number  # imports the kernels' package: only when used
 
     check_number("--max-wall-minutes", minutes, low=0, above=True, optional=True)
     return None if minutes is None else 60.0 * minutes

@@ -11,8 +11,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from agents import scripted
-from swarm_phd.runner import random_policy
 
 SCRIPTED: dict[str, Callable[..., scripted.ScriptedPolicy]] = {
     "wander": scripted.WanderPolicy.for_env,
@@ -53,6 +54,30 @@ SCRIPTED: dict[str, Callable[..., scripted.ScriptedPolicy]] = {
 }
 
 
+class RandomPolicy:
+    """Uniform random actions within the action bounds, for all live agents in one draw.
+
+    Seeded on its own (``reset(seed)``), so its actions do not depend on the env's generator.
+    """
+
+    def __init__(self, env: Any, seed: int | None = 0) -> None:
+        self.high = env.action_space(env.possible_agents[0]).high.astype(np.float64)
+        self.reset(seed)
+
+    def reset(self, seed: int | None = None) -> None:
+        self._rng = np.random.default_rng(seed)
+
+    def __call__(self, observations, infos):
+        agents = list(observations)
+        draws = self._rng.uniform(-self.high, self.high, size=(len(agents), 2))
+        return dict(zip(agents, draws.astype(np.float32), strict=True))
+
+
+def random_policy(env: Any, seed: int | None = 0) -> RandomPolicy:
+    """A :class:`RandomPolicy` for ``env``."""
+    return RandomPolicy(env, seed)
+
+
 def load_policy(spec: str, env: Any) -> Any:
     """Build the policy named by ``spec`` for ``env``.
 
@@ -60,7 +85,9 @@ def load_policy(spec: str, env: Any) -> Any:
     controller from :data:`SCRIPTED`. ``"privileged:NAME"``: a training teacher that also reads
     the simulator's truth (:mod:`agents.sb3.privileged`; a reference, not deployable). Anything
     ending in ``.zip``: a trained SB3 model; in ``.pt``: a recurrent residual student
-    (:mod:`agents.sb3.recurrent_student`).
+    (:mod:`agents.sb3.recurrent_student`). A directory: the ``--out`` of ``swarm-phd train
+    --engine rllib`` or one of its checkpoints (:func:`rllib_checkpoint`; the mean action of
+    its shared module, :mod:`agents.rllib.policy`).
     """
     if spec == "random":
         return random_policy(env)
@@ -83,16 +110,57 @@ def load_policy(spec: str, env: Any) -> Any:
         from agents.sb3.policy import load_sb3_policy
 
         return load_sb3_policy(spec, env)
+    checkpoint = rllib_checkpoint(spec)
+    if checkpoint is not None:  # a run of swarm-phd train --engine rllib
+        from agents.rllib.policy import load_policy as load_rllib_policy
+
+        return load_rllib_policy(checkpoint, env)
     raise ValueError(
-        "policy must be 'random', 'scripted:NAME', 'privileged:NAME', a .zip model or a .pt "
-        "recurrent student, "
+        "policy must be 'random', 'scripted:NAME', 'privileged:NAME', a .zip model, a .pt "
+        "recurrent student or an RLlib run directory (or its checkpoint/), "
         f"got {spec!r}"
     )
 
 
+def rllib_checkpoint(spec: str) -> Path | None:
+    """The RLlib checkpoint ``spec`` names, or ``None`` if it names none: the ``--out`` of
+    ``swarm-phd train --engine rllib`` (its final ``checkpoint/``), that ``checkpoint/``, or one
+    of its ``checkpoints/step_<agent steps>/``. The run's ``env_kwargs.json`` must sit next to
+    them (:func:`rllib_env_kwargs`)."""
+    path = Path(spec)
+    if spec.endswith((".zip", ".pt")) or not path.is_dir():
+        return None
+    from agents.rllib.policy import MODULE_SUBDIR
+
+    for candidate in (path / "checkpoint", path):
+        if (candidate / MODULE_SUBDIR).is_dir():
+            return candidate
+    return None
+
+
+def rllib_env_kwargs(checkpoint: Path) -> dict[str, Any]:
+    """The env kwargs of the RLlib run that wrote ``checkpoint``: its ``env_kwargs.json``, in
+    the run directory (``checkpoint/``'s parent, or ``checkpoints/step_N``'s grandparent)."""
+    import json
+
+    for run in (checkpoint.parent, checkpoint.parent.parent):
+        if (run / "env_kwargs.json").is_file() and (run / "train_config.json").is_file():
+            return dict(json.loads((run / "env_kwargs.json").read_text()))
+    raise ValueError(
+        f"RLlib checkpoint {str(checkpoint)!r} has no env_kwargs.json in its run directory: "
+        "pass the --out directory of swarm-phd train --engine rllib"
+    )
+
+
+def is_trained_model(spec: str) -> bool:
+    """Whether ``spec`` names a trained policy file or run (SB3 ``.zip``, student ``.pt``, RLlib
+    run directory): a policy that carries its own env settings (:func:`model_env_kwargs`)."""
+    return spec.endswith((".zip", ".pt")) or rllib_checkpoint(spec) is not None
+
+
 def model_env_kwargs(spec: str) -> dict[str, Any] | None:
-    """The env kwargs a trained policy file was trained in (an SB3 ``.zip`` or a recurrent
-    student ``.pt``), or ``None`` for a policy by name."""
+    """The env kwargs a trained policy was trained in (an SB3 ``.zip``, a recurrent student
+    ``.pt`` or an RLlib run directory), or ``None`` for a policy by name."""
     if spec.endswith(".zip"):
         from agents.sb3.policy import read_metadata
 
@@ -101,6 +169,9 @@ def model_env_kwargs(spec: str) -> dict[str, Any] | None:
         from agents.sb3.recurrent_student import read_student_metadata
 
         return dict(read_student_metadata(spec)["env_kwargs"])
+    checkpoint = rllib_checkpoint(spec)
+    if checkpoint is not None:
+        return rllib_env_kwargs(checkpoint)
     return None
 
 
@@ -142,11 +213,14 @@ def policy_observation(spec: str) -> str | None:
     """The observation mode a scripted policy reads (``"phd"`` for the controllers acting on
     the robot's PHD estimate), or ``None`` if it ignores the observation (``random``,
     ``scripted:wander``: lidar only). Models carry their own mode (see ``agents.sb3.policy``);
-    a recurrent student (``.pt``) reads its env's."""
+    a recurrent student (``.pt``) and an RLlib run read their env's."""
     if spec.endswith(".pt"):
         from agents.sb3.recurrent_student import read_student_metadata
 
         return read_student_metadata(spec)["env_kwargs"].get("observation", "phd")
+    checkpoint = rllib_checkpoint(spec)
+    if checkpoint is not None:  # an RLlib run reads its env's observation, as a student
+        return rllib_env_kwargs(checkpoint).get("observation", "phd")
     if spec.startswith(("scripted:", "privileged:")):
         from agents.sb3.privileged import TEACHERS
 

@@ -14,6 +14,7 @@ import numpy as np
 from localization.config import PHDConfig
 from localization.detection import DetectionModel
 from swarm_core.geometry import wrap_angle
+from swarm_core.validation import check_number, check_positive
 from swarm_env.observation import ESTIMATE_COLUMNS
 
 
@@ -609,11 +610,9 @@ class DispersionPolicy(VectorFieldPolicy):
         cruise_fraction: float = 0.6,
         **kwargs: Any,
     ) -> None:
-        for name, value in (("spread_m", spread_m), ("k_s", k_s)):
-            if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-        if not (isinstance(cruise_fraction, (int, float)) and 0.0 <= cruise_fraction <= 1.0):
-            raise ValueError(f"cruise_fraction must be in [0, 1], got {cruise_fraction!r}")
+        check_positive("spread_m", spread_m)
+        check_positive("k_s", k_s)
+        check_number("cruise_fraction", cruise_fraction, low=0, high=1)
         self.spread_m = float(spread_m)
         self.k_s = float(k_s)
         self.cruise_fraction = float(cruise_fraction)

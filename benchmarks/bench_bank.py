@@ -27,12 +27,12 @@ from pathlib import Path
 
 import numpy as np
 
+from agents.policies import random_policy
 from localization import PHDBank, PHDConfig, RobotCentricPHD
 from localization.feed import localizer_calls
 from localization.registry import run_calls
 from swarm_env import parallel_env
 from swarm_env.config import SIMULATOR_PHD
-from swarm_phd.runner import random_policy
 
 
 def record_calls(preset: str, duration_s: float, seed: int) -> tuple[list, float]:

@@ -60,7 +60,7 @@ from swarm_env.config import SIMULATOR_PHD, make_config  # noqa: E402
 from swarm_env.sensors.camera import CameraSensor  # noqa: E402
 from swarm_env.sensors.detection_trials import lidar_detects  # noqa: E402
 from swarm_env.sensors.lidar import LidarSensor  # noqa: E402
-from swarm_env.world.scene_builder import HOUSING_RADIUS_M, make_pair_scene  # noqa: E402
+from swarm_env.sensors.scene_builder import HOUSING_RADIUS_M, make_pair_scene  # noqa: E402
 from swarm_env.world.sim import SimWorld  # noqa: E402
 
 RANGES_M = np.round(np.arange(0.25, 5.51, 0.125), 3)

@@ -36,12 +36,12 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from agents.formation_diagnosis import components_at  # noqa: E402
 from agents.policies import load_policy  # noqa: E402
+from experiments.formation_diagnosis import components_at  # noqa: E402
 from localization.detection import DetectionModel  # noqa: E402
+from swarm_core.inputs import parse_seeds  # noqa: E402
 from swarm_env import parallel_env  # noqa: E402
 from swarm_env.world.diagnostics import LIDAR_MISS_CAUSES, LidarScanTruth  # noqa: E402
-from swarm_phd.sweep import parse_seeds  # noqa: E402
 
 MATCH_M = 0.15
 INTERFERENCE_BINS = (0.0, 0.1, 0.3, 0.6, 0.9, 0.99, 1.0 + 1e-9)

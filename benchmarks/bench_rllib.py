@@ -1,6 +1,6 @@
 """Env-runner sampling throughput of the RLlib engine: N runners vs 1, on this machine.
 
-``python -m agents.rllib.bench --runners plain,0,1,2`` builds the same PPO config as
+``python benchmarks/bench_rllib.py --runners plain,0,1,2`` builds the same PPO config as
 ``swarm-phd train --engine rllib`` (shared module, kernels pre-warmed, one kernel thread per
 runner) for each N, samples once to warm up (module weights, first episode), then times
 ``--env-steps`` env steps per runner, all runners in parallel. N = 0 is the driver's own local
@@ -111,7 +111,7 @@ def plain_rate(env_kwargs: dict[str, Any], env_steps: int, seed: int = 0) -> dic
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m agents.rllib.bench", description=__doc__)
+    parser = argparse.ArgumentParser(prog="python benchmarks/bench_rllib.py", description=__doc__)
     parser.add_argument("--preset", default="sim-6m-20")
     parser.add_argument("--task", default="formation")
     parser.add_argument("--observation", default="phd", choices=["phd", "truth", "measurements"])

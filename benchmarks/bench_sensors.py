@@ -33,7 +33,7 @@ if str(ROOT) not in sys.path:
 from swarm_core.perception.lidar_features import extract_clusters  # noqa: E402
 from swarm_env.sensors.camera import CameraSensor  # noqa: E402
 from swarm_env.sensors.lidar import LidarSensor  # noqa: E402
-from swarm_env.world.scene_builder import make_arena_scene  # noqa: E402
+from swarm_env.sensors.scene_builder import make_arena_scene  # noqa: E402
 
 TARGETS_US = {"lidar scan": 3000.0, "camera observe": 500.0}
 

@@ -1,4 +1,5 @@
-"""Where a localizer's surplus estimates come from (the LC-vs-LO over-count of issue 11).
+"""Where a localizer's surplus estimates come from: why lidar + camera reports more false
+teammates than lidar only.
 
 Runs ``sim-6m-20`` with the seed's wander motion and, every step after a warm-up, takes each
 observer's estimates with weight >= 0.5 within the 2 m scoring range (what GOSPA scores).
@@ -7,7 +8,9 @@ An estimate with no teammate within 0.5 m is **false**, classed by what is there
 or nearer than it), a red decoy's ray, or other. Teammates with more than one estimate within
 0.3 m are **duplicates** (two estimates for one teammate). Per observer-step rates.
 
-    python benchmarks/diagnose_false_estimates.py --localizer phd-lc --steps 600
+    python -m experiments.diagnose_false_estimates --localizer phd-lc --steps 600
+
+Prints the rates per observer-step.
 """
 
 from __future__ import annotations

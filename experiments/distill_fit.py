@@ -1,7 +1,12 @@
 """How a distilled residual reproduces its teacher, phase by phase of the episode.
 
-    python -m agents.sb3.distill_fit runs/.../warm_start.zip \
-        --teacher privileged:formation-known-n-fast@truth --seeds 200-204
+Question: what part of a teacher's correction does a feed-forward residual distilled from it
+carry, and does it learn more than how the teacher's command depends on the base's? ::
+
+    python -m experiments.distill_fit runs/formation_distill/warm_start.zip \
+        --teacher privileged:formation-known-n-fast@truth --seeds 200-204 --out fit.json
+
+Prints one table per phase (and writes it as JSON with ``--out``).
 
 The model's scripted base (its zip's ``residual``) drives the robots for every seed, on the
 model's own env, so every policy is asked about the same states: the ones the base reaches.
@@ -22,7 +27,7 @@ in the base's command does not explain (both the label and the student's correct
 their own regression on the base removed). A student with a high ``R^2``, a slope near the
 teacher's and ``R^2`` beyond the base near 0 has learnt how the teacher's command depends on
 the base's (for a teacher that ignores a noisy base: to cancel it), not what else the teacher
-knows (``docs/results.md``, round 16).
+knows.
 """
 
 from __future__ import annotations
@@ -34,11 +39,10 @@ from typing import Any
 
 import numpy as np
 
-from swarm_phd.sweep import parse_seeds
+from agents.evaluation import DEFAULT_PHASES
+from swarm_core.inputs import parse_seeds
 
 __all__ = ["collect_fit", "phase_table", "main"]
-
-DEFAULT_PHASES = (0, 25, 50, 100, 150)
 
 
 def collect_fit(
@@ -129,7 +133,7 @@ def phase_table(fit: dict[str, np.ndarray], phases=DEFAULT_PHASES) -> list[dict[
     label and correction each with its least-squares line in the base's command removed,
     ``sd_base`` the base command's standard deviation, and the slopes of the teacher's (base +
     label) and the student's (base + correction) command on the base's."""
-    from agents.sb3.report import phase_spans
+    from agents.evaluation import phase_spans
 
     rows = []
     for lo, hi in phase_spans(phases):

@@ -1,21 +1,26 @@
-"""Seed 004's encirclement under each intruder source, scripted and learned: enclosing error,
-time enclosed and escape figures.
+"""The encirclement task (Lee 2012) under each intruder source, scripted and learned: enclosing
+error, time enclosed and escape figures.
+
+Question: does a learned policy encircle a moving intruder as well as the scripted controller,
+and how much does each way of sensing the intruder cost? Its result is
+``experiments/results/encirclement.json`` (the results page) and the figure
+``docs/figures/encirclement_sources.png``.
 
 Runs each policy (``--policies``: ``scripted:encirclement`` and/or trained SB3 ``model.zip``
 files) on ``task="encirclement"`` (moving intruder, ``path="circle"``) under each intruder
 setting (``--sources``), on the same seeds, and writes ``encirclement_sources.json`` and
 ``encirclement_sources.png`` to ``--out``::
 
-    python benchmarks/encirclement_sources.py --preset lab-3m-4 --duration 120 --seeds 0,1,2 \
-        --out docs/figures
-    python benchmarks/encirclement_sources.py --duration 120 --seeds 100-109 \
-        --policies scripted:encirclement,runs/i16/enc_particle_bc_s0/model.zip \
-        --sources beacon,particle,particle+filter,estimate --out runs/i16/eval
+    python -m experiments.encirclement_sources --preset lab-3m-4 --duration 120 \
+        --seeds 0,1,2 --out docs/figures
+    python -m experiments.encirclement_sources --duration 120 --seeds 100-109 \
+        --policies scripted:encirclement,runs/encirclement/model.zip \
+        --sources beacon,particle,particle+filter,estimate --out runs/encirclement/eval
 
-Settings: ``beacon`` (ground-truth ablation, a reading every step), ``particle`` (seed 004's
-sparse range-bearing readings; the scripted controller runs its own particle filter on them, a
-learned policy sees the raw readings), ``particle+filter`` (the same readings, filtered by the
-task's particle filter: the features are its estimate, what a learned policy trained on
+Settings: ``beacon`` (ground-truth ablation, a reading every step), ``particle`` (the source
+study's sparse range-bearing readings; the scripted controller runs its own particle filter on
+them, a learned policy sees the raw readings), ``particle+filter`` (the same readings, filtered
+by the task's particle filter: the features are its estimate, what a learned policy trained on
 ``intruder_features="filter"`` observes) and ``estimate`` (one reading at reset, then the
 robot's own PHD estimate; a learned policy sees that one reading only); ``particle-range`` and
 ``particle-range+filter`` are the two particle settings with range-only readings
@@ -25,7 +30,7 @@ robot's own PHD estimate; a learned policy sees that one reading only); ``partic
 (``particle_start``: the seed's uniform cloud, or the triangulation / trilateration fix of
 :mod:`localization.baselines.particle`); the results are then keyed ``SETTING/START``::
 
-    python benchmarks/encirclement_sources.py --duration 120 --seeds 100-104 \
+    python -m experiments.encirclement_sources --duration 120 --seeds 100-104 \
         --sources particle,particle-range --particle-starts uniform,trilateration
 
 Per run the task's metrics (:meth:`swarm_env.tasks.encirclement.EncirclementTask.metrics`):
@@ -50,7 +55,7 @@ from typing import Any
 import numpy as np
 
 from swarm_core.atomic_files import write_json_atomically
-from swarm_phd.sweep import parse_seeds
+from swarm_core.inputs import parse_seeds
 
 SOURCES = (
     "beacon",

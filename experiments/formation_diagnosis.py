@@ -30,7 +30,7 @@ and, for every robot and step from ``--from-step`` on (the settled formation), c
   outside the circle), and the confident components' weight sums, raw and after the
   controller's spread discount, by how many there are: a weight sum below the teammates in
   sight shrinks the controller's centroid towards the robot and parks it outside the circle
-  (the ``*-known-n`` controllers rescale it; ``docs/results.md``, round 10);
+  (the ``*-known-n`` controllers rescale it);
 - every lidar scan against the truth at its own instant (``sensor_stats``): how often a
   teammate within the localization range (2 m) was missed, and why (hidden from the beams,
   nulled by interference, or dropped by the extractor:
@@ -44,9 +44,10 @@ estimate is read, and the centroid estimated, as its base controller does, while
 policy drives. ``commands`` summarises how each policy drives over the scored steps (mean
 speed, turn rate and the turn rate's change per step): what its motion does to the sensors.
 
-    python -m agents.formation_diagnosis --preset lab-3m-4 --seeds 200-204 --from-step 150
+    python -m experiments.formation_diagnosis --preset lab-3m-4 --seeds 200-204 --from-step 150 \
+        --out runs/diagnosis/formation.json
 
-Figures of ``docs/results.md`` (rounds 3-10); a JSON summary with ``--out``.
+Prints its tables; ``--out`` writes them as a JSON summary.
 """
 
 from __future__ import annotations
@@ -649,7 +650,7 @@ def _blob_on_bearing(info: dict[str, Any], teammate_body: np.ndarray, window_rad
 
 
 def main(argv: list[str] | None = None) -> int:
-    from swarm_phd.sweep import parse_json_object, parse_seeds
+    from swarm_core.inputs import parse_json_object, parse_seeds
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--preset", default=None, help="default: a model's own, else lab-3m-4")

@@ -1,11 +1,14 @@
 """One table of task and localization metrics for several policies, in one process.
 
-    python -m agents.sb3.localization_table --policies runs/a/model.zip runs/b/model.zip \\
-        scripted:formation --seeds 100-109 --out docs/results --name ablation
+    python -m experiments.localization_table --policies runs/a/model.zip runs/b/model.zip \\
+        scripted:formation --seeds 100-109 --out runs/report --name ablation
+
+Question: does a learned motion localize the teammates at least as well as scripted motion?
+(``experiments/results/motion_localizes.json`` on the results page.)
 
 For every policy, on the same held-out seeds (one deterministic episode each, ``max_steps`` of
 the first model's env): the per-agent episode return and the task metric, mean ± std over the
-seeds (:func:`agents.sb3.report.score`), and the localization metrics of
+seeds (:func:`agents.evaluation.score`), and the localization metrics of
 :func:`swarm_phd.evaluate.evaluate_localization` on the same motion (every robot runs each of
 ``--localizers`` on the records of that motion): GOSPA (m) and the pooled per-observer share
 of pair-steps with error above 0.30 m (median observer), and the same per seed, from which
@@ -29,8 +32,8 @@ from typing import Any
 
 import numpy as np
 
-from agents.sb3.report import paired_differences, paired_table, score
-from swarm_phd.sweep import parse_seeds
+from agents.evaluation import paired_differences, paired_table, score
+from swarm_core.inputs import parse_seeds
 
 
 def policy_row(
@@ -111,7 +114,7 @@ def paired_localization(
     rows: list[dict[str, Any]], localizers: list[str], seeds: list[int], metric: str
 ) -> dict[str, list[dict[str, Any]]]:
     """Every policy against every earlier one, paired by held-out seed
-    (:func:`agents.sb3.report.paired_differences`): the task ``metric`` (key ``metric``) and
+    (:func:`agents.evaluation.paired_differences`): the task ``metric`` (key ``metric``) and
     each localizer's per-seed GOSPA and % of pair-steps above 0.30 m (the median observer's,
     per seed; keys ``"<localizer> <figure>"``), and with phases the % of all pairs' steps
     above 0.30 m per phase (``"<localizer> pct_pair_steps_err_gt_30cm@<lo>-<hi>"``)."""
@@ -182,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", default="100-109")
     parser.add_argument("--localizers", default="phd-lc", help="comma-separated")
     parser.add_argument("--metric", default="formation_error_m")
-    parser.add_argument("--out", default="docs/results")
+    parser.add_argument("--out", default="runs/report")
     parser.add_argument("--name", default="ablation")
     parser.add_argument(
         "--phases",
@@ -193,7 +196,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     phases = None
     if args.phases is not None:
-        from agents.sb3.history_fit import parse_phases
+        from experiments.recurrent_student import parse_phases
 
         phases = parse_phases(parser, args.phases)
     from agents.policies import model_env_kwargs

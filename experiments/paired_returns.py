@@ -1,6 +1,6 @@
 """How much return a change of a scripted base's gains is worth, against the return's noise.
 
-    python -m agents.sb3.paired_returns --base scripted:formation-known-n --speed-gains 2 1 \\
+    python -m experiments.paired_returns --base scripted:formation-known-n --speed-gains 2 1 \\
         --preset lab-3m-4 --seeds 300-339 --task-params '{"progress_weight": 10}'
 
 For every seed two copies of the env run the same episode (same seed: the same layout, start
@@ -22,8 +22,8 @@ summed over the episode (what PPO's returns are made of, undiscounted):
   episode means to reach 2 SE, with and without the pairing. A policy gradient sees a smaller
   change than A vs B (its exploration noise), with less pairing than this.
 
-It answers "can PPO see this change at this budget?" before a training run (docs/results.md,
-round 15).
+Question: can PPO see this change at this budget? Answered before a training run; the figures
+are printed (``--out`` writes them as JSON).
 """
 
 from __future__ import annotations
@@ -36,8 +36,9 @@ from typing import Any
 
 import numpy as np
 
+from agents.evaluation import paired_difference
 from agents.sb3.residual import GAIN_RANGE
-from swarm_phd.sweep import parse_seeds
+from swarm_core.inputs import parse_seeds
 
 __all__ = ["paired_returns", "summarise_pairs"]
 
@@ -100,9 +101,10 @@ def summarise_pairs(returns_a: np.ndarray, returns_b: np.ndarray) -> dict[str, f
         raise ValueError(
             f"need (seeds >= 2, agents) returns of one shape, got {a.shape} and {b.shape}"
         )
-    diff = a.mean(axis=1) - b.mean(axis=1)  # per seed, over its agents
-    delta = float(diff.mean())
-    sd_paired = float(diff.std(ddof=1))
+    # Per seed, over its agents; the difference and its SE as every comparison takes them.
+    paired = paired_difference(a.mean(axis=1), b.mean(axis=1), "episode_return")
+    delta = paired["mean_difference"]
+    sd_paired = paired["standard_error"] * math.sqrt(paired["n_seeds"])
     sd_episode = float(np.sqrt(0.5 * (a.mean(axis=1).var(ddof=1) + b.mean(axis=1).var(ddof=1))))
 
     def episodes(sd: float) -> float:  # n with sd / sqrt(n) = |delta| / 2
@@ -113,7 +115,7 @@ def summarise_pairs(returns_a: np.ndarray, returns_b: np.ndarray) -> dict[str, f
         "return_a": float(a.mean()),
         "return_b": float(b.mean()),
         "difference": delta,
-        "difference_se": sd_paired / math.sqrt(len(diff)),
+        "difference_se": paired["standard_error"],
         "agent_return_sd": float(np.sqrt(0.5 * (a.var(ddof=1) + b.var(ddof=1)))),
         "agent_return_correlation": float(np.corrcoef(a.ravel(), b.ravel())[0, 1]),
         "episode_return_sd": sd_episode,

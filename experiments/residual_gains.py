@@ -1,6 +1,6 @@
 """The gains a ``--residual-mode gain`` policy asks of its scripted base, in closed loop.
 
-    python -m agents.sb3.residual_gains runs/.../model.zip [...] --seeds 200-202
+    python -m experiments.residual_gains runs/formation_gain/model.zip --seeds 200-202
 
 Each model runs deterministically on its own env (the zip's ``env_kwargs``) for every seed,
 and every agent-step's correction ``c`` gives the gains ``4 ** c`` it asks for on the scripted
@@ -9,8 +9,7 @@ arithmetic mean and 10th / 90th percentiles (1 = the base unchanged); ``--out`` 
 them as JSON. The change actually applied is smaller where the base command is zero (a gain
 cannot move it) or the result is clipped to the action bounds, and the arithmetic mean of
 ``4 ** c`` exceeds ``4 ** mean(c)`` by the spread (about 2.5 % at a 10th-90th percentile
-range of 0.77-1.37). It answers "did PPO find a gain?" without a 50-seed score
-(docs/results.md, round 13).
+range of 0.77-1.37). Question: did PPO find a gain? Answered without a 50-seed score.
 """
 
 from __future__ import annotations
@@ -23,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from agents.sb3.residual import GAIN_RANGE
-from swarm_phd.sweep import parse_seeds
+from swarm_core.inputs import parse_seeds
 
 
 def requested_gains(path: str | Path, seeds: list[int]) -> np.ndarray:

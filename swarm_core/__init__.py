@@ -4,8 +4,14 @@
   (odometry, lidar scans with their detections, camera bearings), robot body frame (REP-103).
 - :mod:`swarm_core.world`: the World protocol (simulator, real robots, bag replay), a step's
   output (``WorldStep``) and ground truth.
-- :mod:`swarm_core.geometry`: angles and planar frames.
-- :mod:`swarm_core.validation`: argument checks whose errors name the field and the value.
+- :mod:`swarm_core.aerial`: the UAV's contract: its camera frames, a step's UAV messages and
+  their assembly into odometry increments and frames.
+- :mod:`swarm_core.geometry`: angles and planar frames; :mod:`swarm_core.stamps`: message time
+  stamps.
+- :mod:`swarm_core.validation`: argument checks whose errors name the field and the value;
+  :mod:`swarm_core.inputs`: the command line's (seeds, JSON objects, durations, output paths).
+- :mod:`swarm_core.progress`: progress bars of the long commands;
+  :mod:`swarm_core.atomic_files`: result files never half-written.
 - :mod:`swarm_core.signal_chain`: the signal an exception chain was raised from (a signal's
   exception wrapped in a ``SystemError`` by a compiled kernel's callback).
 - :mod:`swarm_core.threads`: the compiled kernels' threading defaults (set on import).

@@ -1,8 +1,9 @@
-"""Checks of the ``swarm-phd`` commands' input, one set for every command (numbers through
-:mod:`swarm_core.validation`, the config dataclasses' checks).
+"""Checks of command-line input, one set for every command and trainer (numbers through
+:func:`swarm_core.validation.check_number`, the config dataclasses' checks); the checks that
+need the env's presets are :mod:`swarm_phd.presets`.
 
 Bad input gets a clear error before any work: each check raises :class:`ValueError` naming the
-flag and the value, which :func:`swarm_phd.cli.main` prints as one line
+flag and the value, which the ``swarm-phd`` CLI prints as one line
 ``swarm-phd COMMAND: error: ...`` (exit status 2, no traceback). A command calls them at the top
 of its ``run``, before it builds an env or runs an episode. The output checks create nothing:
 they refuse a location the command could not write after its run.
@@ -12,51 +13,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
-import numbers
 import os
 import re
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-from swarm_core.validation import check_positive, is_real
-
-
-def check_number(
-    name: str,
-    value: Any,
-    *,
-    integer: bool = False,
-    low: float | None = None,
-    high: float | None = None,
-    above: bool = False,
-    optional: bool = False,
-    schedule: bool = False,
-) -> None:
-    """Refuse ``value`` unless it is a finite number (an int with ``integer``; never a bool) in
-    ``[low, high]`` (``(low, high]`` with ``above``); None passes with ``optional``, a callable
-    (an SB3 schedule) with ``schedule``. The ``ValueError`` names ``name`` (the CLI flag) and the
-    value (the CLI prints it as one line and exits with 2)."""
-    if (optional and value is None) or (schedule and callable(value)):
-        return
-    if integer:
-        ok = is_real(value) and isinstance(value, numbers.Integral)
-        kind = "an integer"
-    else:
-        ok = is_real(value) and math.isfinite(value)
-        kind = "a finite number"
-    ok = ok and (low is None or value > low or (value == low and not above))
-    ok = ok and (high is None or value <= high)
-    if ok:
-        return
-    if low is not None and high is not None:
-        bounds = f" in {'(' if above else '['}{low}, {high}]"
-    elif low is not None:
-        bounds = f" {'>' if above else '>='} {low}"
-    else:
-        bounds = ""
-    raise ValueError(f"{name} must be {kind}{bounds}, got {value!r}")
+from swarm_core.validation import check_number, check_positive
 
 
 def integer(flag: str, value: Any, *, minimum: int) -> int:
@@ -104,32 +67,6 @@ def add_duration_argument(
     )
 
 
-def control_period_s(preset: str, **overrides: Any) -> float:
-    """The control period of ``preset`` with its ``SwarmConfig`` overrides (other keys, such as
-    ``task_params``, are ignored); ValueError for an unknown preset or a bad override."""
-    import dataclasses
-
-    from swarm_env.config import SwarmConfig, make_config
-
-    fields = {f.name for f in dataclasses.fields(SwarmConfig)}
-    config = make_config(preset, **{k: v for k, v in overrides.items() if k in fields})
-    return config.control_period_s
-
-
-def presets(flag: str, names: Iterable[str]) -> list[str]:
-    """``names`` if each is a preset (or an old name of one); else the unknown ones named."""
-    from swarm_env.config import PRESET_ALIASES, PRESETS
-
-    names = list(names)
-    unknown = [n for n in names if n not in PRESETS and n not in PRESET_ALIASES]
-    if unknown:
-        raise ValueError(
-            f"{flag}: unknown preset(s) {', '.join(map(repr, unknown))}; presets: "
-            f"{', '.join(PRESETS)}"
-        )
-    return names
-
-
 def parse_seeds(text: str, name: str = "--seeds") -> list[int]:
     """``"0-3,7"`` -> ``[0, 1, 2, 3, 7]``; ValueError naming ``name`` and the text otherwise
     (a negative seed included)."""
@@ -149,6 +86,23 @@ def parse_seeds(text: str, name: str = "--seeds") -> list[int]:
     if not seeds:
         raise ValueError(f"{name} names no seed: {text!r}")
     return seeds
+
+
+def format_seeds(seeds: Iterable[int]) -> str:
+    """The inverse of :func:`parse_seeds`: ``[0, 1, 2, 3, 7]`` -> ``"0-3,7"`` (runs of
+    consecutive seeds as ranges, in the given order)."""
+    parts: list[str] = []
+    run: list[int] = []
+    for seed in (int(s) for s in seeds):
+        if run and seed == run[-1] + 1:
+            run.append(seed)
+            continue
+        if run:
+            parts.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else str(run[0]))
+        run = [seed]
+    if run:
+        parts.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else str(run[0]))
+    return ",".join(parts)
 
 
 def parse_json_object(text: str | None, name: str) -> dict[str, Any]:

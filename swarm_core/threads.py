@@ -2,12 +2,12 @@
 
 The sensor and filter kernels run robots in parallel with numba's ``prange`` on the GNU OpenMP
 layer (the one that loads from the pip wheel and is thread-safe for the bridge's loopback; see
-``docs/architecture.md``). GNU OpenMP's default wait policy lets idle workers *spin* for a while
-after each parallel region. An env step runs hundreds of short regions, so with another process
-on the cores (a training job, a second env) the spinning threads steal the time slices the
-working thread needs: measured, ``seed-sim`` fell from 28x to 2.1x real time beside a training
-job, and ran at 26x with ``OMP_WAIT_POLICY=PASSIVE``. PASSIVE (idle workers sleep at once) is
-therefore the default here, set before numba loads libgomp; a user who exports
+``docs/concepts/architecture.md``). GNU OpenMP's default wait policy lets idle workers *spin*
+for a while after each parallel region. An env step runs hundreds of short regions, so with
+another process on the cores (a training job, a second env) the spinning threads steal the time
+slices the working thread needs: measured, ``seed-sim`` fell from 28x to 2.1x real time beside
+a training job, and ran at 26x with ``OMP_WAIT_POLICY=PASSIVE``. PASSIVE (idle workers sleep at
+once) is therefore the default here, set before numba loads libgomp; a user who exports
 ``OMP_WAIT_POLICY`` keeps their own choice.
 
 Worker processes that each run an env (vectorised training, Ray, evaluation sweeps) should use

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import numbers
+from typing import Any
 
 import numpy as np
 
@@ -13,22 +14,56 @@ def is_real(value: object) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
 
 
+def check_number(
+    name: str,
+    value: Any,
+    *,
+    integer: bool = False,
+    low: float | None = None,
+    high: float | None = None,
+    above: bool = False,
+    optional: bool = False,
+    schedule: bool = False,
+) -> None:
+    """Refuse ``value`` unless it is a finite number (an int with ``integer``; never a bool) in
+    ``[low, high]`` (``(low, high]`` with ``above``); None passes with ``optional``, a callable
+    (an SB3 schedule) with ``schedule``. The ``ValueError`` names ``name`` (a field, or a
+    command-line flag) and the value. The one number check of the project: the others below
+    are its common cases."""
+    if (optional and value is None) or (schedule and callable(value)):
+        return
+    if integer:
+        ok = is_real(value) and isinstance(value, numbers.Integral)
+        kind = "an integer"
+    else:
+        ok = is_real(value) and math.isfinite(value)
+        kind = "a finite number"
+    ok = ok and (low is None or value > low or (value == low and not above))
+    ok = ok and (high is None or value <= high)
+    if ok:
+        return
+    if low is not None and high is not None:
+        bounds = f" in {'(' if above else '['}{low}, {high}]"
+    elif low is not None:
+        bounds = f" {'>' if above else '>='} {low}"
+    else:
+        bounds = ""
+    raise ValueError(f"{name} must be {kind}{bounds}, got {value!r}")
+
+
 def check_positive(name: str, value: float) -> None:
     """Raise ``ValueError`` unless ``value`` is a finite number > 0."""
-    if not is_real(value) or not math.isfinite(value) or value <= 0:
-        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+    check_number(name, value, low=0, above=True)
 
 
 def check_non_negative(name: str, value: float) -> None:
     """Raise ``ValueError`` unless ``value`` is a finite number >= 0."""
-    if not is_real(value) or not math.isfinite(value) or value < 0:
-        raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+    check_number(name, value, low=0)
 
 
 def check_int_range(name: str, value: int, low: int, high: int) -> None:
     """Raise ``ValueError`` unless ``value`` is an int in ``[low, high]``."""
-    if not is_real(value) or not isinstance(value, numbers.Integral) or not low <= value <= high:
-        raise ValueError(f"{name} must be an integer in [{low}, {high}], got {value!r}")
+    check_number(name, value, integer=True, low=low, high=high)
 
 
 def check_probability(name: str, value: float) -> None:

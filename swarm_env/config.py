@@ -52,6 +52,7 @@ class RobotConfig:
     max_accel_mps2, max_turn_accel_radps2 : float
         Acceleration limits applied by the motor controller on every physics substep.
     mass_kg : float
+        Robot mass of the physics body (sets its inertia and traction force).
     """
 
     length_m: float = 0.225
@@ -106,13 +107,20 @@ class ArenaConfig:
     width_m, height_m : float
         Inner size along world x and y.
     wall_thickness_m : float
+        Thickness of the four walls (a robot may move at most half of it per physics substep).
     n_decoy_posts : int
         Robot-sized posts (radius ``decoy_post_radius_m`` <= 32.5 mm): lidar false positives.
+    decoy_post_radius_m : float
+        Radius of each decoy post.
     n_red_decoys : int
         Red objects (radius ``red_decoy_radius_m``): camera false positives; too wide to pass the
         lidar feature extractor's angular extent test (``LidarFeatureConfig.extent_test``).
+    red_decoy_radius_m : float
+        Radius of each red decoy.
     n_boxes : int
         Box obstacles, sides drawn in ``box_size_range_m``: they occlude lidar and camera.
+    box_size_range_m : (low_m, high_m)
+        Range the boxes' side lengths are drawn from, uniformly.
     """
 
     width_m: float = 6.0
@@ -328,6 +336,9 @@ class SwarmConfig:
         Sector ranges are clipped to this (and an empty sector reads it).
     localization_range_m : float
         "In range" for ground truth and metrics: the lidar's effective tracking range (seed: 2 m).
+    spawn_clearance_m : float
+        Minimum free gap between the objects laid out at reset (robots, decoy posts, red
+        decoys, boxes) and between each of them and the walls.
     localize : bool
         Run every robot's filter. Required by ``observation="phd"``; switch it off to train
         faster on ``"truth"`` or ``"measurements"`` when localization metrics are not wanted.

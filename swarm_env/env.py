@@ -4,7 +4,7 @@ estimate of its teammates (GM-PHD by default, any family of :mod:`localization.r
 | Import              | ``from swarm_env import parallel_env``                     |
 |---------------------|------------------------------------------------------------|
 | Actions             | Continuous ``[v_mps, omega_radps]``                        |
-| Parallel API        | Yes (no AEC layer: robots act simultaneously)              |
+| Parallel API        | Yes (AEC form: ``swarm_env.env()``; robots act together)   |
 | Agents              | ``ugv_0`` ... ``ugv_{n-1}`` (20 in ``sim-6m-20``)          |
 | Action shape        | (2,)                                                       |
 | Observation         | own estimate (top-K rows) + own speed + task features      |
@@ -145,8 +145,9 @@ class SwarmEnv(ParallelEnv):
             overrides["localizer"], localizer = localizer, None
         self.config = make_config(preset, config, **overrides)
         # An env that builds its own World and localizer pickles as its constructor arguments
-        # plus the resets and commands since its last seeded reset, and re-simulates them on
-        # unpickling (see __getstate__): pymunk's contact cache does not pickle.
+        # plus its last reset (a seed, or the generator it reset from) and the commands since,
+        # and re-simulates them on unpickling (see __getstate__): pymunk's contact cache does
+        # not pickle. The record holds one episode at most.
         self._rebuild_args: dict[str, Any] | None = (
             {
                 "config": self.config,
@@ -164,6 +165,8 @@ class SwarmEnv(ParallelEnv):
                 f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}"
             )
         self.render_mode = render_mode
+        # Video wrappers play one frame per step at ``render_fps``: the control rate.
+        self.metadata = {**type(self).metadata, "render_fps": 1.0 / self.config.control_period_s}
         if task_params is not None and not isinstance(task_params, Mapping):
             raise ValueError(f"task_params must be None or a dict, got {task_params!r}")
         if world is not None and not isinstance(world, World):
@@ -305,7 +308,11 @@ class SwarmEnv(ParallelEnv):
                     self.action_spaces[agent].seed(None if seed is None else seed + i)
                 self._replay_log = [("reset", int(seed))]  # everything since is replayable
             else:
-                self._replay_log.append(("reset", None))
+                # A new episode depends on nothing of the previous ones but the generator
+                # (the World, the task and the filters start anew from its child streams): the
+                # log restarts here, from a copy of it, so it holds one episode at most,
+                # however many episodes a training run has.
+                self._replay_log = [("reset_from", copy.deepcopy(self._rng))]
             # One generator per env; the world and the task get their own child streams.
             world_rng, task_rng = self._rng.spawn(2)
             # Not steppable until the World and the task have reset: a layout that cannot be
@@ -448,6 +455,9 @@ class SwarmEnv(ParallelEnv):
             for kind, value in state["replay"]:
                 if kind == "reset":
                     self.reset(seed=value)
+                elif kind == "reset_from":  # an unseeded reset, from the generator it had
+                    self._rng = copy.deepcopy(value)
+                    self.reset()
                 else:
                     self.step(value)
         finally:
@@ -518,7 +528,13 @@ class SwarmEnv(ParallelEnv):
     def _observations(self, step: WorldStep) -> dict[str, np.ndarray]:
         features = self.task.features(len(self.possible_agents))
         rows = [self._index[a] for a in self.agents]
-        tables = self.encoder.tables(self, step, rows)
+        source = obs_lib.EncoderInput(
+            self.possible_agents,
+            self.localizer.padded_tables,
+            self.last_detections,
+            self.last_bearings,
+        )
+        tables = self.encoder.tables(source, step, rows)
         # One (agents, D) array for everyone (identical spaces); each agent gets its row.
         space = self.observation_spaces[self.possible_agents[0]]
         obs = obs_lib.assemble_rows(
@@ -610,5 +626,28 @@ def _check_action_type(agent: str, action: Any) -> None:
         return
     if getattr(action, "requires_grad", False):
         raise ValueError(f"action of {agent} is a tensor that requires grad: detach() it first")
+    kind = _dtype_kind(getattr(action, "dtype", None))
+    if kind is not None:  # a tensor or scalar: its dtype decides (a bool tensor is no speed)
+        if kind not in "iuf":
+            raise ValueError(
+                f"action of {agent} must hold real numbers, got dtype {action.dtype}: {action!r}"
+            )
+        return
     if isinstance(action, (str, bytes, bool, complex)) or np.iscomplexobj(action):
         raise ValueError(f"action of {agent} must hold real numbers, got {action!r}")
+
+
+def _dtype_kind(dtype: Any) -> str | None:
+    """numpy's kind letter of a numpy, torch or array-API dtype (``torch.bool`` -> ``'b'``,
+    ``torch.bfloat16`` -> ``'f'``); None without a dtype or for one it cannot name."""
+    if dtype is None:
+        return None
+    try:
+        return np.dtype(dtype).kind
+    except TypeError:
+        pass
+    name = str(dtype).rsplit(".", 1)[-1]
+    try:
+        return np.dtype(name).kind
+    except TypeError:
+        return "f" if name.startswith("bfloat") else None

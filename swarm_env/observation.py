@@ -31,19 +31,20 @@ the observation space's bounds so that ``space.contains(obs)`` always holds.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from gymnasium import spaces
 from numba import njit
 
+from swarm_core.world import WorldStep
 from swarm_env.sensors.kernels import stable_order
 
 #: Columns of a row of the estimate / truth table. ``w``: the component's weight (GM-PHD: its
 #: expected number of teammates) or the track's existence probability (multi-Bernoulli
 #: localizers); covariances in m^2; ``valid``: 1 for a real row, 0 for padding.
 ESTIMATE_COLUMNS = ("w", "x_m", "y_m", "sxx_m2", "sxy_m2", "syy_m2", "valid")
-PHD_COLUMNS = ESTIMATE_COLUMNS  # the name before the multi-Bernoulli localizers
 #: Columns of the measurement tables: lidar detections, then camera bearings.
 LIDAR_COLUMNS = ("x_m", "y_m", "valid")
 CAMERA_COLUMNS = ("cos_bearing", "sin_bearing", "valid")
@@ -325,6 +326,22 @@ class ObservationLayout:
         raise ValueError(f"table must be one of {[t[0] for t in self.tables]}, got {table!r}")
 
 
+@dataclass(frozen=True)
+class EncoderInput:
+    """What the encoders read besides the World's step, handed in by the env.
+
+    ``agents``: every robot's agent name, in robot order (the step's records are keyed by
+    them); ``estimates``: returns the localizer's padded tables ``(weights, means_covs)`` (called
+    only by the encoder that reads them); ``detections`` / ``bearings``: each robot's last
+    lidar detections ``(M, 2)`` and camera bearings ``(B,)`` (the env keeps them across steps
+    without a fresh scan or frame)."""
+
+    agents: Sequence[str]
+    estimates: Callable[[], tuple[np.ndarray, np.ndarray]]
+    detections: Sequence[np.ndarray]
+    bearings: Sequence[np.ndarray]
+
+
 class ObservationEncoder:
     """Builds every agent's neighbour table(s) from one env step (subclasses below), plus the
     lidar sector table when ``lidar_sectors > 0``."""
@@ -385,22 +402,24 @@ class ObservationEncoder:
         high = np.concatenate([high, [max_speed_mps, max_turn_rate_radps], feature_high])
         return spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
 
-    def tables(self, env, step, rows: list[int]) -> np.ndarray:
+    def tables(self, source: EncoderInput, step: WorldStep, rows: list[int]) -> np.ndarray:
         """``(len(rows), layout.table_size)`` tables of the agents at robot indices ``rows``."""
-        tables = self.neighbour_tables(env, step, rows)
+        tables = self.neighbour_tables(source, step, rows)
         if not self.lidar_sectors:
             return tables
-        return np.concatenate([tables, self.sector_tables(env, step)[rows]], axis=1)
+        return np.concatenate([tables, self.sector_tables(source, step)[rows]], axis=1)
 
-    def neighbour_tables(self, env, step, rows: list[int]) -> np.ndarray:
+    def neighbour_tables(
+        self, source: EncoderInput, step: WorldStep, rows: list[int]
+    ) -> np.ndarray:
         raise NotImplementedError
 
-    def sector_tables(self, env, step) -> np.ndarray:
+    def sector_tables(self, source: EncoderInput, step: WorldStep) -> np.ndarray:
         """Every robot's lidar sectors, (N, S), updated from ``step``'s newest non-stale scans.
 
         "Nothing seen" (``lidar_sector_max_m``) until a robot's first scan of the episode
         (:meth:`reset`)."""
-        agents = env.possible_agents
+        agents = source.agents
         if self._sectors is None:
             self._sectors = np.full((len(agents), self.lidar_sectors), self.lidar_sector_max_m)
         fresh, angles, ranges = [], [], []
@@ -423,8 +442,10 @@ class EstimateEncoder(ObservationEncoder):
 
     name = "phd"
 
-    def neighbour_tables(self, env, step, rows: list[int]) -> np.ndarray:
-        return phd_tables(*env.localizer.padded_tables(), self.top_k)[rows].reshape(len(rows), -1)
+    def neighbour_tables(
+        self, source: EncoderInput, step: WorldStep, rows: list[int]
+    ) -> np.ndarray:
+        return phd_tables(*source.estimates(), self.top_k)[rows].reshape(len(rows), -1)
 
 
 class TruthEncoder(ObservationEncoder):
@@ -432,7 +453,9 @@ class TruthEncoder(ObservationEncoder):
 
     name = "truth"
 
-    def neighbour_tables(self, env, step, rows: list[int]) -> np.ndarray:
+    def neighbour_tables(
+        self, source: EncoderInput, step: WorldStep, rows: list[int]
+    ) -> np.ndarray:
         truth = step.truth
         if truth is None:
             raise ValueError('observation="truth" needs ground truth, which this World lacks')
@@ -453,8 +476,10 @@ class MeasurementEncoder(ObservationEncoder):
     def _neighbour_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         return measurement_bounds(self.top_k)
 
-    def neighbour_tables(self, env, step, rows: list[int]) -> np.ndarray:
-        return measurement_tables(env.last_detections, env.last_bearings, self.top_k)[rows]
+    def neighbour_tables(
+        self, source: EncoderInput, step: WorldStep, rows: list[int]
+    ) -> np.ndarray:
+        return measurement_tables(source.detections, source.bearings, self.top_k)[rows]
 
 
 #: ``SwarmConfig.observation`` -> encoder class.

@@ -88,6 +88,7 @@ class SingleAgentEnv(gym.Env):
             raise ValueError(f"agent must be one of {self.env.possible_agents}, got {agent!r}")
         self.agent = agent
         self.render_mode = render_mode
+        self.metadata = {**type(self).metadata, "render_fps": self.env.metadata["render_fps"]}
         self.observation_space = self.env.observation_space(agent)
         self.action_space = self.env.action_space(agent)
         high = np.asarray(self.action_space.high, dtype=np.float64)

@@ -1,4 +1,4 @@
-"""``swarm-phd warmup``: compile (or load) every numba kernel ahead of time, with progress.
+"""Compile (or load) every numba kernel ahead of time, with progress (``swarm-phd warmup``).
 
 It builds a tiny env in each filter mode and steps it a few times, as the test suite does at
 session start: that calls every kernel the simulator and the filters use, so numba compiles
@@ -9,13 +9,12 @@ it moving while numba works (the compile of one kernel blocks the main thread fo
 
 from __future__ import annotations
 
-import argparse
 import threading
 import time
 
 import numpy as np
 
-from swarm_phd import progress
+from swarm_core import progress
 
 #: Env settings that together call every kernel: both filter modes (each compiles its own
 #: specialisations) and the raw-measurement observation (its table kernel).
@@ -41,14 +40,6 @@ _ENV_MODULES = [
     "localization.kernels",
     "localization.pmb.kernels",
 ]
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--preset",
-        default="lab-3m-4",
-        help="env preset to step (kernels do not depend on its size: the small one is quickest)",
-    )
 
 
 def warmup(preset: str = "lab-3m-4", steps: int = 5) -> dict[str, float | int | bool | str]:
@@ -114,7 +105,8 @@ def warmup(preset: str = "lab-3m-4", steps: int = 5) -> dict[str, float | int | 
 def warm_if_cold() -> bool:
     """Run :func:`warmup` (message and bar) if some kernel is not cached yet; else nothing.
 
-    Returns whether it compiled. Called by the CLI before every command that steps an env.
+    Returns whether it compiled. Called by the CLI before every command that steps an env, and
+    by the RLlib env runners.
     """
     from swarm_env import kernel_cache
 
@@ -133,16 +125,3 @@ def _importable() -> list[str]:
         except ImportError:  # a module moved: the env imports what it needs anyway
             pass
     return found
-
-
-def run(args: argparse.Namespace) -> int:
-    result = warmup(args.preset)
-    if result["compiled"]:
-        head = f"{result['kernels']} of {result['kernels_found']} kernels compiled"
-    else:
-        head = f"{result['kernels_found']} kernels loaded from the cache"
-    print(
-        f"{head} in {result['seconds']:.1f} s; {result['cached_on_disk']} of "
-        f"{result['kernels_found']} cached in {result['cache']}"
-    )
-    return 0

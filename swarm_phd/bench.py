@@ -15,9 +15,11 @@ import platform
 import time
 from pathlib import Path
 
+from agents.policies import random_policy
+from swarm_core import inputs, progress
 from swarm_env import parallel_env
-from swarm_phd import inputs, progress
-from swarm_phd.runner import random_policy, rollout
+from swarm_phd import presets
+from swarm_phd.runner import rollout
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -67,7 +69,7 @@ def median_of_runs(
 ):
     """:func:`measure` ``repeats`` times: the median run, with the real-time factor's range.
 
-    ``bar`` (a :func:`swarm_phd.progress.bar`) advances once per run; the runs themselves carry
+    ``bar`` (a :func:`swarm_core.progress.bar`) advances once per run; the runs themselves carry
     no per-step bar, so the throughput measured is the env's alone.
     """
     runs = []
@@ -83,7 +85,7 @@ def median_of_runs(
 
 
 def run(args: argparse.Namespace) -> int:
-    period = inputs.control_period_s(args.preset)  # an unknown preset is refused here too
+    period = presets.control_period_s(args.preset)  # an unknown preset is refused here too
     inputs.duration("--duration", args.duration, period)
     inputs.integer("--repeats", args.repeats, minimum=1)
     inputs.seed("--seed", args.seed)

@@ -34,6 +34,7 @@ COMPILING_COMMANDS = (
     "seed003",
     "mutual",
     "uav",
+    "record",
 )
 #: What each preset models (``swarm_env.config.PRESETS`` holds the values).
 PRESET_DESCRIPTIONS = {
@@ -87,6 +88,11 @@ _add(
     "swarm_phd.replay",
 )
 _add("export-bag", "write a simulated episode as a ROS 2 bag", "swarm_phd.export_bag")
+_add(
+    "record",
+    "record a video (.mp4 or .gif) of any policy: scripted, random or trained",
+    "swarm_phd.record",
+)
 _add(
     "train",
     "train a PPO policy shared by all agents on a task (stable-baselines3, or Ray RLlib with "
@@ -230,13 +236,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     parser = build_parser()
     args = parser.parse_args(argv)
-    from swarm_phd import progress
+    from swarm_core import progress
 
     progress.set_quiet(args.quiet)
     from swarm_env import kernel_cache
 
     if args.command in COMPILING_COMMANDS:
-        from swarm_phd.warmup import warm_if_cold
+        from swarm_env.warmup import warm_if_cold
 
         # At the command's first env, after it has checked its input (a bad flag is refused
         # at once), with the compile's own message and bar before the command's output.

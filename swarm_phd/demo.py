@@ -21,8 +21,9 @@ import numpy as np
 from agents.scripted import WanderPolicy
 from localization.feed import SwarmFeed
 from localization.registry import make_localizer
+from swarm_core import inputs
 from swarm_env import parallel_env
-from swarm_phd import inputs
+from swarm_phd import presets
 from swarm_phd.runner import rollout
 
 #: The two estimates of the side-by-side figure: (panel title, localizer name).
@@ -47,7 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    period = inputs.control_period_s(args.preset)  # an unknown preset is refused here too
+    period = presets.control_period_s(args.preset)  # an unknown preset is refused here too
     inputs.duration("--duration", args.duration, period)
     inputs.integer("--frames", args.frames, minimum=0)
     if args.eval_duration != 0:  # 0 skips the comparison
@@ -175,7 +176,7 @@ def _write_animation(frames: list[np.ndarray], out: Path) -> None:
     per-frame conversion, and the renderer uses only a few flat colours."""
     from PIL import Image
 
-    from swarm_phd import progress
+    from swarm_core import progress
 
     Image.fromarray(frames[-1]).save(out / "snapshot.png")
     images = [

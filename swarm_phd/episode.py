@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from swarm_phd import progress
+from swarm_core import progress
 
 
 @dataclass

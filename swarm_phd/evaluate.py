@@ -58,11 +58,11 @@ import numpy as np
 from localization.feed import SwarmFeed
 from localization.metrics import SeedScorer, in_range_pairs, weights_means_from_table
 from localization.registry import LOCALIZERS, make_localizer
+from swarm_core import inputs, progress
 from swarm_core.atomic_files import write_json_atomically
+from swarm_core.inputs import parse_json_object, parse_seeds
 from swarm_env import parallel_env
 from swarm_env.env import SwarmEnv
-from swarm_phd import inputs, progress
-from swarm_phd.inputs import parse_json_object, parse_seeds
 
 #: ``--scenario`` values.
 SCENARIOS = ("study", "seed003")
@@ -85,8 +85,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--policy",
         default="scripted:wander",
-        help="'scripted:NAME', 'privileged:NAME', 'random', a trained model.zip or a recurrent "
-        "student .pt",
+        help="'scripted:NAME', 'privileged:NAME', 'random', a trained model.zip, a recurrent "
+        "student .pt or the --out directory of train --engine rllib",
     )
     parser.add_argument(
         "--task",
@@ -107,7 +107,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "better, verdict at 2 SE; e.g. --policy runs/X/model.zip --compare "
         "scripted:formation,scripted:wander)",
     )
-    parser.add_argument("--out", default=None, help="write metrics.json and figures here")
+    parser.add_argument(
+        "--out",
+        default=None,
+        help="write metrics.json and figures here: a new or empty directory, unless --overwrite",
+    )
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="write into an --out that holds earlier results anyway: the files this run "
+        "writes replace the old ones (default: refuse, so that a rerun never replaces "
+        "finished results)",
+    )
     parser.add_argument(
         "--scenario",
         choices=SCENARIOS,
@@ -132,6 +143,19 @@ def _interrupt(signum, frame) -> None:
     raise KeyboardInterrupt  # SIGTERM scores the finished seeds, as Ctrl-C does
 
 
+def _check_out(out: str, overwrite: bool) -> None:
+    """``--out`` as ``train`` takes it: new or empty, unless ``--overwrite`` (a rerun must never
+    silently replace finished results)."""
+    p = inputs.output_dir("--out", out)
+    held = sorted(x.name for x in p.iterdir()) if p.is_dir() else []
+    if held and not overwrite:
+        shown = ", ".join(held[:4]) + (", ..." if len(held) > 4 else "")
+        raise ValueError(
+            f"--out {out!r} holds earlier results ({shown}): choose a new directory, or pass "
+            "--overwrite to write into it anyway"
+        )
+
+
 def run(args: argparse.Namespace) -> int:
     import signal
 
@@ -142,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
     inputs.duration("--duration", args.duration)
     seeds = parse_seeds(args.seeds)
     if args.out:
-        inputs.output_dir("--out", args.out)
+        _check_out(args.out, getattr(args, "overwrite", False))
     if getattr(args, "ray", False):
         from swarm_phd.sweep import run_evaluate_ray
 
@@ -314,7 +338,7 @@ def evaluate_localization(
 ) -> dict[str, Any]:
     """Run the experiment; return (and optionally write) the metrics per localizer.
 
-    ``phases`` (first steps, e.g. ``[0, 20, 100]``; :func:`agents.sb3.report.phase_spans`)
+    ``phases`` (first steps, e.g. ``[0, 20, 100]``; :func:`agents.evaluation.phase_spans`)
     also splits the share of in-range pair-steps above 0.30 m by step of the episode: where
     in it a motion loses its teammates (the first steps' births are every motion's).
 
@@ -336,7 +360,7 @@ def evaluate_localization(
     inputs.duration("--duration", duration_s)
     spans = None
     if phases is not None:
-        from agents.sb3.report import phase_spans
+        from agents.evaluation import phase_spans
 
         spans = phase_spans(phases)  # ValueError before any rollout
     start = time.perf_counter()
@@ -350,6 +374,17 @@ def evaluate_localization(
         env.close()
         raise ValueError(f"localizers {radio} need the radio: comms.enabled is False")
     n_steps = inputs.steps_in(env, "--duration", duration_s)
+    if n_steps > env.config.max_steps:
+        # A trained policy's env ends its episodes where its training did: say what runs.
+        period = env.config.control_period_s
+        print(
+            f"swarm-phd evaluate: {policy}'s env ends each episode after "
+            f"{env.config.max_steps} steps: {env.config.max_steps * period:g} s per seed, not "
+            f"--duration {duration_s:g} s",
+            file=sys.stderr,
+        )
+        n_steps = env.config.max_steps
+        duration_s = n_steps * period
     base_phd = env.config.phd
     n_agents = len(env.possible_agents)
     range_m = env.config.localization_range_m
@@ -530,7 +565,7 @@ def phase_figures(counts: np.ndarray, spans: list[tuple[int, int | None]]) -> di
     """``counts`` (T, 2): per step, the in-range pair-steps above 0.30 m and all of them; the
     share above, in %, over each span ``[lo, hi)`` of steps, keyed
     ``"pct_pair_steps_err_gt_30cm@<lo>-<hi>"`` (NaN: nothing in range there)."""
-    from agents.sb3.report import phase_key
+    from agents.evaluation import phase_key
 
     out = {}
     for lo, hi in spans:
@@ -597,7 +632,7 @@ PAIRED_FIGURE_LABELS = {
 
 def paired_by_seed(all_results: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Each further policy of ``all_results`` against the first (``--policy``, the
-    reference), paired by seed (:func:`agents.sb3.report.paired_difference`): the task's
+    reference), paired by seed (:func:`agents.evaluation.paired_difference`): the task's
     metrics (``"task_per_seed"``; ``localizer`` None) and each localizer's per-seed figures
     (``"per_seed"``). One row per (policy, localizer, metric): the seeds paired, the
     per-seed differences ``policy - reference``, their mean, its standard error (None with
@@ -610,7 +645,7 @@ def paired_by_seed(all_results: list[dict[str, Any]]) -> list[dict[str, Any]]:
     seeds both finished. Raises ValueError, naming the policy, if it was asked for other seeds
     than the reference, or scored them in another order.
     """
-    from agents.sb3.report import higher_is_better, paired_difference
+    from agents.evaluation import higher_is_better, paired_difference
 
     reference, *others = all_results
     ref_policy = reference["config"]["policy"]
@@ -748,7 +783,8 @@ def print_table(results: dict[str, Any]) -> None:
     cfg = results["config"]
     print(
         f"  {cfg['preset']}, {cfg['n_robots']} robots, {cfg['duration_s']:.0f} s x "
-        f"{len(cfg['seeds'])} seed(s), policy {cfg['policy']}, in range = "
+        f"{len(cfg['seeds'])} seed(s), task {cfg.get('task', '-')}, policy {cfg['policy']}, "
+        "in range = "
         f"{cfg['localization_range_m']:.1f} m"
     )
     print(

@@ -51,9 +51,9 @@ import numpy as np
 
 from localization.mutual.pmultireg import PMultiRegConfig, PMultiRegLocalizer
 from localization.mutual.se2 import inverse_compose
+from swarm_core import inputs
 from swarm_core.geometry import wrap_angle
-from swarm_phd import inputs
-from swarm_phd.inputs import parse_seeds
+from swarm_core.inputs import parse_seeds
 
 #: The thesis's thresholds (tables 2-5).
 DIST_THRESHOLD_M = 0.10

@@ -41,10 +41,10 @@ def rollout(
 ) -> RolloutResult:
     """Reset with ``seed`` and step ``n_steps`` times (or until every agent is done).
 
-    ``progress``: a label to show a bar over simulated time (:mod:`swarm_phd.progress`; the
+    ``progress``: a label to show a bar over simulated time (:mod:`swarm_core.progress`; the
     bar's own cost is a few microseconds per step and is counted in ``wall_time_s``).
     """
-    from swarm_phd import progress as bars
+    from swarm_core import progress as bars
 
     bar = (
         bars.bar(n_steps * env.config.control_period_s, progress, unit="s sim", fmt="{:.1f}")
@@ -80,27 +80,3 @@ def _rollout(env, policy, n_steps, seed, on_step, bar) -> RolloutResult:
             hook_s += time.perf_counter() - t0
     wall = time.perf_counter() - start - hook_s
     return RolloutResult(steps, env.time_s, wall, returns)
-
-
-class RandomPolicy:
-    """Uniform random actions within the action bounds, for all live agents in one draw.
-
-    Seeded on its own (``reset(seed)``), so its actions do not depend on the env's generator.
-    """
-
-    def __init__(self, env: SwarmEnv, seed: int | None = 0) -> None:
-        self.high = env.action_space(env.possible_agents[0]).high.astype(np.float64)
-        self.reset(seed)
-
-    def reset(self, seed: int | None = None) -> None:
-        self._rng = np.random.default_rng(seed)
-
-    def __call__(self, observations, infos):
-        agents = list(observations)
-        draws = self._rng.uniform(-self.high, self.high, size=(len(agents), 2))
-        return dict(zip(agents, draws.astype(np.float32), strict=True))
-
-
-def random_policy(env: SwarmEnv, seed: int | None = 0) -> RandomPolicy:
-    """A :class:`RandomPolicy` for ``env``."""
-    return RandomPolicy(env, seed)

@@ -28,10 +28,11 @@ import numpy as np
 
 from localization.baselines.centralized_ukf import CentralizedUKF, CentralizedUKFConfig
 from localization.baselines.direct import align_poses, direct_estimate, pose_errors
+from swarm_core import inputs
 from swarm_core.atomic_files import atomic_write, write_json_atomically
+from swarm_core.inputs import parse_json_object, parse_seeds
+from swarm_core.validation import check_number
 from swarm_env.sensors.ir import IRConfig, IRReadings, IRSensor
-from swarm_phd import inputs
-from swarm_phd.inputs import parse_json_object, parse_seeds
 
 #: The seed's reported accuracy: "about 10 cm, or on the order of the size of a robot".
 SEED_ACCURACY_M = 0.10
@@ -74,11 +75,11 @@ def run(args: argparse.Namespace) -> int:
     seeds = parse_seeds(str(args.seeds))
     inputs.duration("--duration", args.duration)
     inputs.integer("--n-robots", args.n_robots, minimum=2)
-    inputs.check_number("--arena-m", args.arena_m, low=0, above=True)
-    inputs.check_number("--init-s", args.init_s, low=0, high=args.duration, above=True)
+    check_number("--arena-m", args.arena_m, low=0, above=True)
+    check_number("--init-s", args.init_s, low=0, high=args.duration, above=True)
     if args.init_s == args.duration:  # the run would end standing still: nothing to score
         raise ValueError(f"--init-s must be below --duration ({args.duration}), got {args.init_s}")
-    inputs.check_number("--speed", args.speed, low=0, above=True)
+    check_number("--speed", args.speed, low=0, above=True)
     if args.out:
         inputs.output_dir("--out", args.out)
     ir_params = parse_json_object(args.ir_params, "--ir-params")

@@ -40,10 +40,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from swarm_core import inputs
 from swarm_core.atomic_files import write_json_atomically
+from swarm_core.inputs import parse_json_object, parse_seeds
 from swarm_env.config import PRESETS
-from swarm_phd import inputs
-from swarm_phd.inputs import parse_json_object, parse_seeds  # agents/ import them from here
+from swarm_phd import presets
 
 #: Columns of the printed summary when the localizer blocks have no ``headline`` block.
 FALLBACK_COLUMNS = (
@@ -173,7 +174,7 @@ def evaluate_point(point: GridPoint, kernel_threads: int | None = 1) -> dict[str
 
 def _timed_point(point: GridPoint) -> tuple[dict[str, Any], float]:
     """The Ray task: results and the worker's own seconds (queueing excluded)."""
-    from swarm_phd import progress
+    from swarm_core import progress
 
     # Bars of many workers interleaved in the driver's log say nothing; the driver prints a
     # line per finished point instead.
@@ -198,7 +199,7 @@ def run_sweep(
     ``report(line)`` receives one line per finished point (default: stderr unless quiet).
     A point that raises is recorded as ``"failed"`` with its error; the others continue.
     """
-    from swarm_phd import progress
+    from swarm_core import progress
 
     if not points:
         raise ValueError("the sweep has no grid point")
@@ -237,7 +238,7 @@ def run_sweep(
 
     import ray
 
-    from swarm_phd.warmup import warm_if_cold
+    from swarm_env.warmup import warm_if_cold
 
     warm_if_cold()  # compile here once; the workers then load the kernels from the cache
     started = _start_ray(address, ray_num_cpus)
@@ -373,11 +374,13 @@ def print_summary(merged: dict[str, Any]) -> None:
         print(f"  FAILED {f['preset']} seed {f['seed']}: {last}")
 
 
-def run(args: argparse.Namespace) -> int:
-    overrides = parse_json_object(args.env_overrides, "--env-overrides")
-    presets = inputs.presets("--presets", _names(args.presets, "--presets"))
-    points = grid(
-        presets,
+def _command_grid(
+    args: argparse.Namespace, preset_names: list[str], overrides: dict[str, Any]
+) -> list[GridPoint]:
+    """:func:`grid` of ``preset_names`` with the command's localizers, seeds, duration, policy
+    and task."""
+    return grid(
+        preset_names,
         _names(args.localizer, "--localizer"),
         parse_seeds(args.seeds),
         args.duration,
@@ -385,9 +388,15 @@ def run(args: argparse.Namespace) -> int:
         task=args.task,
         overrides=overrides,
     )
+
+
+def run(args: argparse.Namespace) -> int:
+    overrides = parse_json_object(args.env_overrides, "--env-overrides")
+    names = presets.known("--presets", _names(args.presets, "--presets"))
+    points = _command_grid(args, names, overrides)
     if not args.policy.endswith((".zip", ".pt")):  # a trained policy runs in its own env
-        for preset in presets:
-            period = inputs.control_period_s(preset, **overrides)
+        for preset in names:
+            period = presets.control_period_s(preset, **overrides)
             inputs.duration("--duration", args.duration, period)
     out = inputs.output_file("--out", args.out or "runs/sweep/sweep.json")
     merged = run_sweep(
@@ -425,15 +434,7 @@ def run_evaluate_ray(args: argparse.Namespace) -> int:
         from agents.policies import model_env_kwargs
 
         preset = (model_env_kwargs(args.policy) or {}).get("preset", preset)
-    points = grid(
-        [preset],
-        _names(args.localizer, "--localizer"),
-        parse_seeds(args.seeds),
-        args.duration,
-        policy=args.policy,
-        task=args.task,
-        overrides=overrides,
-    )
+    points = _command_grid(args, [preset], overrides)
     out = Path(args.out or "runs/evaluate_ray") / "sweep.json"
     merged = run_sweep(
         points,

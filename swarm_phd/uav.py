@@ -38,8 +38,9 @@ from typing import Any
 
 import numpy as np
 
-from swarm_phd import inputs
-from swarm_phd.inputs import parse_seeds
+from swarm_core import inputs
+from swarm_core.inputs import parse_seeds
+from swarm_core.validation import check_number
 
 #: The seed's figures (sec. V).
 SEED_POSITION_M = 0.12
@@ -97,11 +98,11 @@ def run(args: argparse.Namespace) -> int:
     if args.record and not args.loopback:
         raise ValueError("--record needs --loopback (a simulated episode has no bridge)")
     inputs.duration("--duration", args.duration)
-    inputs.check_number("--hold-s", args.hold_s, low=0)
-    inputs.check_number("--altitude", args.altitude, low=0, above=True, optional=True)
-    inputs.check_number("--loss", args.loss, low=0, high=1, optional=True)
-    inputs.check_number("--latency", args.latency, low=0, optional=True)
-    inputs.check_number("--filter-lag", args.filter_lag, low=0, optional=True)
+    check_number("--hold-s", args.hold_s, low=0)
+    check_number("--altitude", args.altitude, low=0, above=True, optional=True)
+    check_number("--loss", args.loss, low=0, high=1, optional=True)
+    check_number("--latency", args.latency, low=0, optional=True)
+    check_number("--filter-lag", args.filter_lag, low=0, optional=True)
     for flag, path in (("--json", args.json), ("--figure", args.figure)):
         if path:
             inputs.output_file(flag, path)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from swarm_phd import progress
+from swarm_core import progress
 from swarm_phd.cli import _REGISTRY, DEFAULT_PRESET, build_parser, main
 
 COMMANDS = [name for name, *_ in _REGISTRY]

@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from swarm_phd.cli import main
@@ -195,12 +196,50 @@ def test_export_bag_refuses_a_negative_seed(no_work, tmp_path, capsys):
 
 
 def test_parse_seeds_refuses_negative_seeds():
-    from swarm_phd.sweep import parse_seeds
+    from swarm_core.inputs import parse_seeds
 
     assert parse_seeds("0-2,7") == [0, 1, 2, 7]
     for bad in ("-1", "0,-3", "-2-1", "0--1"):
         with pytest.raises(ValueError, match="--x.*non-negative"):
             parse_seeds(bad, "--x")
+
+
+def test_format_seeds_writes_what_parse_seeds_reads():
+    from swarm_core.inputs import format_seeds, parse_seeds
+
+    assert format_seeds([0, 1, 2, 3, 7]) == "0-3,7"
+    assert format_seeds([5, 3, 4]) == "5,3-4"  # in the given order
+    for text in ("0-199", "2", "200-209,5,7-8"):
+        assert format_seeds(parse_seeds(text)) == text
+
+
+def test_one_number_check_serves_fields_and_flags():
+    """The config fields' checks are :func:`check_number`'s common cases: same bounds, same
+    message naming the field and the value (a bool is never a number)."""
+    from swarm_core.validation import (
+        check_int_range,
+        check_non_negative,
+        check_number,
+        check_positive,
+    )
+
+    for check, args, message in (
+        (check_positive, ("f", 0.0), "f must be a finite number > 0, got 0.0"),
+        (check_positive, ("f", float("inf")), "f must be a finite number > 0, got inf"),
+        (check_non_negative, ("f", -1), "f must be a finite number >= 0, got -1"),
+        (check_int_range, ("f", 2.0, 1, 3), "f must be an integer in [1, 3], got 2.0"),
+        (check_int_range, ("f", True, 0, 3), "f must be an integer in [0, 3], got True"),
+    ):
+        with pytest.raises(ValueError) as info:
+            check(*args)
+        assert str(info.value) == message
+    check_positive("f", 1e-9)
+    check_non_negative("f", 0)
+    check_int_range("f", np.int64(3), 1, 3)
+    check_number("--x", None, low=0, optional=True)
+    check_number("--lr", lambda progress: 3e-4 * progress, low=0, above=True, schedule=True)
+    with pytest.raises(ValueError, match=r"--x must be a finite number in \(0, 1\], got 0"):
+        check_number("--x", 0, low=0, high=1, above=True)
 
 
 # (5) Outputs: a location that cannot be written is refused before the run, not after it.
@@ -288,7 +327,7 @@ def test_the_kernels_compile_at_the_first_env_after_the_input_is_checked(monkeyp
     from swarm_env import kernel_cache
 
     calls = []
-    monkeypatch.setattr("swarm_phd.warmup.warm_if_cold", lambda: calls.append(1) or True)
+    monkeypatch.setattr("swarm_env.warmup.warm_if_cold", lambda: calls.append(1) or True)
     monkeypatch.setattr(kernel_cache, "_noted", False)  # as in a fresh process
     _refused(capsys, ["evaluate", *TINY, "--duration", "nan"], "--duration", "nan")
     assert calls == []

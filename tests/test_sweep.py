@@ -18,16 +18,6 @@ ray = pytest.importorskip("ray", reason="the ray extra is not installed")
 LOCALIZERS = ["phd-lc", "phd-lo"]
 
 
-@pytest.fixture(scope="module")
-def local_ray():
-    started = not ray.is_initialized()
-    if started:
-        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    yield
-    if started:
-        ray.shutdown()
-
-
 def _metrics(results: dict) -> str:
     """The results without the run's wall time, as canonical JSON (NaN compares equal)."""
     return json.dumps({k: v for k, v in results.items() if k != "wall_time_s"}, sort_keys=True)

@@ -117,6 +117,6 @@ def runner_report(*_: Any) -> dict[str, Any]:
 def prewarm_kernels() -> bool:
     """Compile (or check) every numba kernel in this process before any runner starts, so the
     runners load them from the cache. Returns whether a compile happened."""
-    from swarm_phd.warmup import warm_if_cold
+    from swarm_env.warmup import warm_if_cold
 
     return warm_if_cold()

@@ -46,8 +46,8 @@ from agents.interrupts import (
     max_wall_seconds,
     stop_reason,
 )
+from swarm_core import inputs
 from swarm_core.atomic_files import atomic_write
-from swarm_phd import inputs
 
 
 def add_engine_arguments(parser: argparse.ArgumentParser) -> None:
@@ -84,7 +84,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from agents.sb3.train import check_ppo_kwargs, env_kwargs_from_args, ppo_kwargs_from_args
-    from swarm_phd.inputs import check_number
+    from swarm_core.validation import check_number
 
     # The shared flags, checked by the SB3 engine's rules before they are renamed for RLlib.
     check_ppo_kwargs(ppo_kwargs_from_args(args))
@@ -119,12 +119,13 @@ def run(args: argparse.Namespace) -> int:
         )
     ppo = {
         "rollout_fragment_length": args.n_steps,
-        "minibatch_size": args.batch_size,
         "num_epochs": args.n_epochs,
         "lr": args.learning_rate,
         "gamma": args.gamma,
         "entropy_coeff": args.ent_coef,
     }
+    if args.batch_size is not None:  # else derived from the iteration's batch (build_config)
+        ppo["minibatch_size"] = args.batch_size
     _, interrupted = _train(
         env_kwargs,
         args.timesteps,
@@ -142,6 +143,7 @@ def run(args: argparse.Namespace) -> int:
         ),
         ppo=ppo,
         max_wall_s=max_wall_s,
+        eval_seeds=getattr(args, "eval_seeds", 0),
     )
     return EXIT_CODES.get(interrupted, 0) if interrupted else 0
 
@@ -163,7 +165,10 @@ def build_config(
 
     ``ppo`` keys: ``rollout_fragment_length`` (env steps per env copy per iteration),
     ``minibatch_size``, ``num_epochs``, ``lr``, ``gamma``, ``entropy_coeff``, ``lambda_``,
-    ``clip_param``. Raises ValueError naming a bad count.
+    ``clip_param``. Without ``minibatch_size``, the minibatch is
+    :data:`~agents.sb3.train.DEFAULT_BATCH_SIZE` env steps, or the iteration's whole batch when
+    that is smaller. Raises ValueError naming a bad count, or a ``minibatch_size`` given larger
+    than the iteration's batch.
     """
     from ray.rllib.algorithms.ppo import PPOConfig
     from ray.rllib.core.rl_module.multi_rl_module import MultiRLModuleSpec
@@ -175,9 +180,10 @@ def build_config(
         raise ValueError(f"--num-env-runners must be >= 0, got {num_env_runners}")
     if envs_per_runner < 1:
         raise ValueError(f"--envs-per-runner must be >= 1, got {envs_per_runner}")
+    from agents.sb3.train import DEFAULT_BATCH_SIZE
+
     p = {
         "rollout_fragment_length": 128,
-        "minibatch_size": 512,
         "num_epochs": 10,
         "lr": 3e-4,
         "gamma": 0.99,
@@ -191,6 +197,7 @@ def build_config(
         raise ValueError(f"--n-steps (rollout fragment) must be >= 1, got {fragment}")
     # One iteration = one fragment from every env copy (env steps; RLlib counts them so).
     batch = fragment * max(1, num_env_runners) * envs_per_runner
+    p.setdefault("minibatch_size", min(DEFAULT_BATCH_SIZE, batch))
     if int(p["minibatch_size"]) > batch:
         # RLlib's own check, said in this command's terms (before Ray builds anything).
         raise ValueError(
@@ -248,11 +255,17 @@ def _train(
     progress_bar: bool = True,
     ppo: dict[str, Any] | None = None,
     max_wall_s: float | None = None,
+    eval_seeds: int = 0,
 ) -> tuple[Path, str | None]:
-    """Train; return the final checkpoint directory and the signal that stopped it (or None)."""
+    """Train; return the final checkpoint directory and the signal that stopped it (or None).
+    ``eval_seeds``: afterwards, the final evaluation on that many held-out seeds
+    (:mod:`agents.train_report`; 0: only ``learning_curve.csv`` / ``.png`` of the returns)."""
     from agents.sb3.train import check_run_flags
+    from agents.train_report import LearningLog, finish, rollout_plan, say
+    from agents.train_report import eval_seeds as held_out_seeds
 
     check_run_flags(timesteps, seed, checkpoint_every, torch_threads, max_wall_s)
+    seeds = held_out_seeds(eval_seeds)
     try:
         import ray  # noqa: F401
         import torch
@@ -261,8 +274,8 @@ def _train(
 
     import swarm_core.threads  # noqa: F401 - sets OMP_WAIT_POLICY before Ray copies the env
     from agents.rllib.env import prewarm_kernels
+    from swarm_core import progress
     from swarm_env import parallel_env
-    from swarm_phd import progress
 
     inputs.run_dir("--out", out, overwrite=overwrite)
     probe = parallel_env(**env_kwargs)  # bad task / config keys fail here, before Ray starts
@@ -310,10 +323,21 @@ def _train(
         )
     )
 
+    # One iteration trains on the batch's env steps, each of n_agents agent transitions.
+    per_iteration = config.train_batch_size_per_learner * n_agents
+    planned, rounded = rollout_plan(
+        timesteps,
+        per_iteration,
+        f"--n-steps {config.rollout_fragment_length} x {max(1, num_env_runners)} runner(s) x "
+        f"{envs_per_runner} env(s) per runner x {n_agents} agents",
+    )
+    if rounded:
+        say(rounded.replace("rollout", "iteration"))
+    log = LearningLog(planned, "rllib")
     started = start_ray(address, ray_num_cpus)
     algo = None
     final = out / "checkpoint"
-    bar = progress.bar(timesteps, "train (rllib)", unit="agent-step") if progress_bar else None
+    bar = progress.bar(planned, "train (rllib)", unit="agent-step") if progress_bar else None
     start = time.perf_counter()
     budget = WallBudget(max_wall_s)
     agent_steps = env_steps = 0
@@ -342,9 +366,21 @@ def _train(
                     }
                     rows.append(row)
                     _write_progress(out / "progress.csv", rows)
+                    # RLlib's return is the sum over the episode's agents: per agent, as SB3's.
+                    per_agent = row["episode_return_mean"] / n_agents
+                    window = min(  # the episodes RLlib's mean is over
+                        int(sampled.get("num_episodes_lifetime", 0)),
+                        int(config.metrics_num_episodes_for_smoothing),
+                    )
+                    log.add(new_agent, per_agent, window, bar)
                     if bar is not None:
+                        bar.set_postfix_str(
+                            f"return per agent {per_agent:.2f}"
+                            if per_agent == per_agent
+                            else "no episode finished yet",
+                            refresh=False,
+                        )
                         bar.update(new_agent - agent_steps)
-                        bar.set_postfix_str(f"return {row['episode_return_mean']:.2f}")
                     agent_steps, env_steps = new_agent, row["env_steps"]
                     if agent_steps >= next_ckpt:
                         step_dir = out / "checkpoints" / f"step_{agent_steps}"
@@ -391,6 +427,20 @@ def _train(
     else:
         why = ", wall-time budget" if budget.reached else ""
         print(f"trained {agent_steps} agent steps in {elapsed:.0f} s (rllib{why}) -> {final}")
+    checkpoints = sorted(
+        (int(p.name.split("_")[1]), str(p))
+        for p in (out / "checkpoints").glob("step_*")
+        if int(p.name.split("_")[1]) < agent_steps
+    )
+    finish(
+        out,
+        log,
+        str(out),
+        env_kwargs,
+        [] if interrupted or algo is None else seeds,
+        checkpoints,
+        f"{env_kwargs.get('preset')}, task {env_kwargs.get('task')}, rllib PPO",
+    )
     return final, interrupted
 
 
@@ -416,14 +466,3 @@ def _write_progress(path: Path, rows: list[dict[str, Any]]) -> None:
             writer.writerows(rows)
 
     atomic_write(path, write)
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``python -m agents.rllib.train`` (until ``swarm-phd train --engine rllib`` is wired)."""
-    parser = argparse.ArgumentParser(prog="python -m agents.rllib.train", description=__doc__)
-    add_arguments(parser)
-    return run(parser.parse_args(argv))
-
-
-if __name__ == "__main__":
-    sys.exit(main())

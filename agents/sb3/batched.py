@@ -183,7 +183,7 @@ class BatchedSwarmVecEnv(VecEnv):
     def reset(self, copy_seeds: Sequence[int] | None = None) -> np.ndarray:
         """Reset every copy; ``copy_seeds`` (one int per copy) overrides the constructor's
         seed and :meth:`seed`, e.g. to give two copies the same episode (common random
-        numbers, :mod:`agents.sb3.paired_returns`)."""
+        numbers, ``experiments/paired_returns.py``)."""
         seeds = copy_seeds_for_reset(
             len(self.envs), self.agents_per_copy, self._next_seed, self._seeds, copy_seeds
         )

@@ -42,6 +42,7 @@ import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
 from agents.sb3.batched import check_unit_actions, copy_seeds_for_reset
+from swarm_core.validation import check_number
 
 __all__ = ["SubprocBatchedVecEnv", "split_copies"]
 
@@ -56,9 +57,8 @@ class RemoteTraceback(Exception):
 
 def split_copies(n_copies: int, n_workers: int) -> list[range]:
     """Contiguous blocks of the ``n_copies`` copies, one per worker, sizes differing by <= 1."""
-    for name, value, low in (("n_copies", n_copies, 1), ("n_workers", n_workers, 1)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < low:
-            raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
+    check_number("n_copies", n_copies, integer=True, low=1)
+    check_number("n_workers", n_workers, integer=True, low=1)
     if n_workers > n_copies:
         raise ValueError(
             f"n_workers ({n_workers}) must not exceed n_copies ({n_copies}): a worker "

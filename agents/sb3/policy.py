@@ -123,7 +123,7 @@ class SB3Policy:
         self.critic_dims = int(meta.get("critic_dims", 0))
         self.recurrent = bool(meta.get("recurrent", False))
         #: A residual's correction per agent at the last call, unit scale, clipped to
-        #: [-1, 1] as ``compose`` clips it (read by :mod:`agents.sb3.residual_gains`).
+        #: [-1, 1] as ``compose`` clips it (read by ``experiments/residual_gains.py``).
         self.last_correction: dict[str, np.ndarray] = {}
         from agents.sb3.residual import check_residual_mode
 

@@ -1,11 +1,16 @@
 """PPO fine-tuning of a recurrent residual student (:mod:`agents.sb3.recurrent_student`).
 
-    python -m agents.sb3.recurrent_ppo --student runs/recurrent/student_round3.pt \
-        --task-params '{"progress_weight": 10}' --out runs/recurrent_ppo
+    from agents.sb3.recurrent_ppo import FinetuneConfig, finetune
+
+    finetune(FinetuneConfig(student="runs/recurrent/student_best.pt",
+                            task_params={"progress_weight": 10}), "runs/recurrent_ppo")
+
+(``python -m experiments.recurrent_ppo`` reads the same settings from flags; the flags below
+are :class:`FinetuneConfig`'s fields.)
 
 A DAgger student imitates its teacher; this lets the task's reward (and a localization term,
-``--task-params '{"localization_weight": 2, "localization_term": "estimate"}'``) move it.
-Without a DAgger student, ``--base scripted:NAME --env-from runs/x/student.pt`` starts from a
+``task_params={"localization_weight": 2, "localization_term": "estimate"}``) move it.
+Without a DAgger student, ``base="scripted:NAME", env_from="runs/x/student.pt"`` starts from a
 zero correction on that base (:func:`zero_student`, the base's own motion) in that file's env.
 SB3 has no recurrent policy of its own and sb3-contrib's ``RecurrentPPO`` trains its own LSTM
 actor-critic, so the student (a GRU over the Deep Sets code of the estimate and the base's
@@ -26,8 +31,7 @@ command) is trained by this short PPO loop:
 - **advantages**: GAE(``--gamma``, ``--gae-lambda``) over the whole episode, whose end is
   terminal: the critic reads the fraction of the episode left, so the horizon is part of its
   state and the value after the last step is 0 (Pardo et al. 2018, "Time Limits in
-  Reinforcement Learning"). Until round 21 it was the critic's value at a fraction left of 0,
-  an input it was never trained on.
+  Reinforcement Learning").
 - **update**: the first ``--critic-warmup`` iterations train the critic alone; then
   ``--epochs`` passes of clipped PPO (``--clip-range``) over minibatches of
   ``--batch-sequences`` whole agent-episodes, the GRU unrolled from the episode's start (the
@@ -53,18 +57,35 @@ parameters are recorded in it as ``reward_task_params``.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import sys
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from agents.evaluation import DEFAULT_PHASES
+from swarm_core import inputs
 from swarm_core.atomic_files import atomic_write
-from swarm_phd import inputs
+from swarm_core.inputs import format_seeds
 
-__all__ = ["gae", "main", "new_critic", "plot_ppo_logs", "ppo_update", "rollout"]
+__all__ = [
+    "FinetuneConfig",
+    "FinetuneStart",
+    "finetune",
+    "gae",
+    "new_critic",
+    "plot_ppo_logs",
+    "ppo_update",
+    "prepare_finetune",
+    "rollout",
+    "run_finetune",
+    "start_metadata",
+    "zero_student",
+]
 
 
 def gae(
@@ -253,11 +274,11 @@ def ppo_update(
     return stats | {"passes": passes, "actor_steps": actor_steps}
 
 
-def _batch(data: dict[str, np.ndarray], values: np.ndarray, last_values: np.ndarray, args):
+def _batch(data: dict[str, np.ndarray], values: np.ndarray, last_values: np.ndarray, config):
     """The rollout as sequence-first torch tensors with its advantages and value targets."""
     import torch
 
-    adv, returns = gae(data["rewards"], values, last_values, args.gamma, args.gae_lambda)
+    adv, returns = gae(data["rewards"], values, last_values, config.gamma, config.gae_lambda)
     norm = (adv - adv.mean()) / (adv.std() + 1e-8)
     t_max = data["rewards"].shape[0]
     left = np.repeat(_time_left(t_max)[:, None], values.shape[1], axis=1)
@@ -300,7 +321,8 @@ def plot_ppo_logs(logs: list[str | Path], figure: str | Path) -> None:
     fig, axes = plt.subplots(1, 3, figsize=(15, 4), squeeze=False)
     for path in logs:
         log = json.loads(Path(path).read_text())
-        label = f"{Path(path).parent.name} (fit seed {log['args']['fit_seed']})"
+        settings = log.get("config") or log["args"]  # "args": logs of the earlier command
+        label = f"{Path(path).parent.name} (fit seed {settings['fit_seed']})"
         its = [it["iteration"] for it in log["iterations"]]
         line = axes[0, 0].plot(its, [it["return_per_agent"] for it in log["iterations"]])[0]
         color = line.get_color()
@@ -331,157 +353,214 @@ def plot_ppo_logs(logs: list[str | Path], figure: str | Path) -> None:
     plt.close(fig)
 
 
-def main(argv: list[str] | None = None) -> int:
-    import argparse
+@dataclass(frozen=True)
+class FinetuneConfig:
+    """A PPO fine-tuning of a recurrent student (:func:`finetune`; module doc).
 
-    from agents.interrupts import add_max_wall_argument, max_wall_seconds
-    from agents.sb3.distill_fit import DEFAULT_PHASES
-    from agents.sb3.history_fit import parse_phases
-    from swarm_phd.inputs import parse_json_object, parse_seeds
+    The start: ``student`` (a ``student.pt``), or a zero correction on ``base`` (a scripted
+    residual base) in the env of ``env_from`` (a ``.pt`` student or ``.zip`` model).
+    ``task_params``: the training reward's task parameters (they may not change what the
+    student observes). Each of ``iterations`` rolls out ``n_copies`` fresh episodes (seeds
+    from ``train_seeds_start`` on; with ``num_cpus`` worker processes, the same rollouts),
+    the first ``critic_warmup`` train the critic alone; every ``eval_every`` iterations the
+    student is scored on ``val_seeds`` (none of them a training seed) over ``phases``. The
+    rest are PPO's settings, and ``max_wall_s`` a wall-time budget (None: none). Checked on
+    construction: ``ValueError`` naming the command-line flag and the value.
+    """
 
-    parser = argparse.ArgumentParser(
-        prog="python -m agents.sb3.recurrent_ppo",
-        description=__doc__.split("\n\n")[0],
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-    )
-    start = parser.add_mutually_exclusive_group(required=True)
-    start.add_argument("--student", help="the student.pt to start from")
-    start.add_argument(
-        "--base",
-        help="start from a zero correction on this residual base (scripted:NAME): the base's "
-        "own motion, in --env-from's env",
-    )
-    parser.add_argument(
-        "--env-from",
-        default=None,
-        help="with --base: a student (.pt) or model (.zip) whose env the new student acts in",
-    )
-    parser.add_argument("--out", required=True, help="directory for the students and the log")
-    inputs.add_overwrite_argument(parser)
-    parser.add_argument(
-        "--task-params", default=None, help="the training reward's task parameters (JSON)"
-    )
-    parser.add_argument("--iterations", type=int, default=40)
-    parser.add_argument("--n-copies", type=int, default=16, help="episodes per iteration")
-    parser.add_argument(
-        "--num-cpus",
-        type=int,
-        default=0,
-        help="worker processes stepping the copies (0: in this process); the same rollouts",
-    )
-    parser.add_argument("--train-seeds-start", type=int, default=5000)
-    parser.add_argument("--val-seeds", default="200-209")
-    parser.add_argument("--eval-every", type=int, default=10, help="iterations between scores")
-    parser.add_argument(
-        "--phases",
-        default=",".join(map(str, DEFAULT_PHASES)),
-        help="comma-separated first steps of the scored phases",
-    )
-    parser.add_argument("--critic-warmup", type=int, default=3, help="critic-only iterations")
-    parser.add_argument("--epochs", type=int, default=5)
-    parser.add_argument("--batch-sequences", type=int, default=8)
-    # The actor's step, set by the KL it makes (docs/results.md, round 19): from the round-18
-    # student, 1e-4 reached an approximate KL of 0.21 in one pass (10x --target-kl), 1e-5
-    # 0.0006 per iteration, 3e-5 0.002-0.03.
-    parser.add_argument("--learning-rate", type=float, default=3e-5, help="the actor's")
-    parser.add_argument("--critic-learning-rate", type=float, default=1e-3)
-    parser.add_argument("--clip-range", type=float, default=0.1)
-    parser.add_argument("--target-kl", type=float, default=0.02)
-    parser.add_argument("--gamma", type=float, default=0.99)
-    parser.add_argument("--gae-lambda", type=float, default=0.95)
-    parser.add_argument("--log-std", type=float, default=-2.5, help="initial, unit scale")
-    parser.add_argument("--fit-seed", type=int, default=0, help="torch, noise and minibatches")
-    parser.add_argument("--torch-threads", type=int, default=1)
-    add_max_wall_argument(parser, "after the iteration in which")
-    args = parser.parse_args(argv)
-    checks = (
-        ("--iterations", args.iterations, 1),
-        ("--n-copies", args.n_copies, 1),
-        ("--num-cpus", args.num_cpus, 0),
-        ("--eval-every", args.eval_every, 1),
-        ("--critic-warmup", args.critic_warmup, 0),
-        ("--epochs", args.epochs, 1),
-        ("--batch-sequences", args.batch_sequences, 1),
-        ("--torch-threads", args.torch_threads, 1),
-        ("--fit-seed", args.fit_seed, 0),
-        ("--train-seeds-start", args.train_seeds_start, 0),
-    )
-    for flag, value, low in checks:
-        if value < low:
-            parser.error(f"{flag} must be >= {low}, got {value}")
-    if args.num_cpus > args.n_copies:
-        parser.error(
-            f"--num-cpus {args.num_cpus} exceeds --n-copies {args.n_copies}: each worker steps "
-            "at least one copy"
-        )
-    for flag, value in (
-        ("--learning-rate", args.learning_rate),
-        ("--critic-learning-rate", args.critic_learning_rate),
-        ("--clip-range", args.clip_range),
-        ("--target-kl", args.target_kl),
-    ):
-        if not np.isfinite(value) or value <= 0:
-            parser.error(f"{flag} must be a finite number > 0, got {value}")
-    for flag, value in (("--gamma", args.gamma), ("--gae-lambda", args.gae_lambda)):
-        if not 0 <= value <= 1:
-            parser.error(f"{flag} must be in [0, 1], got {value}")
-    if not np.isfinite(args.log_std):
-        parser.error(f"--log-std must be finite, got {args.log_std}")
-    try:
-        max_wall_s = max_wall_seconds(args.max_wall_minutes)
-        val_seeds = parse_seeds(args.val_seeds, "--val-seeds")
-        reward_params = parse_json_object(args.task_params, "--task-params")
-        meta = _start_metadata(parser, args)
-    except ValueError as err:
-        parser.error(str(err))
-    for flag, read in (("--student", args.student), ("--env-from", args.env_from)):
-        if read and Path(args.out).resolve() == Path(read).resolve().parent:
-            parser.error(
-                f"--out {args.out!r} holds {flag} {read!r}: its student.pt and "
+    student: str | None = None
+    base: str | None = None
+    env_from: str | None = None
+    task_params: dict[str, Any] = field(default_factory=dict)
+    iterations: int = 40
+    n_copies: int = 16
+    num_cpus: int = 0
+    train_seeds_start: int = 5000
+    val_seeds: tuple[int, ...] = tuple(range(200, 210))
+    eval_every: int = 10
+    phases: tuple[int, ...] = DEFAULT_PHASES
+    critic_warmup: int = 3
+    epochs: int = 5
+    batch_sequences: int = 8
+    # The actor's step, set by the KL it makes: from a DAgger student, 1e-4 reached an
+    # approximate KL of 0.21 in one pass (10x target_kl), 1e-5 0.0006 per iteration, 3e-5
+    # 0.002-0.03.
+    learning_rate: float = 3e-5
+    critic_learning_rate: float = 1e-3
+    clip_range: float = 0.1
+    target_kl: float = 0.02
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    log_std: float = -2.5
+    fit_seed: int = 0
+    torch_threads: int = 1
+    max_wall_s: float | None = None
+
+    def __post_init__(self) -> None:
+        from agents.evaluation import parse_phases
+        from swarm_core.validation import check_number
+
+        object.__setattr__(self, "val_seeds", tuple(int(s) for s in self.val_seeds))
+        object.__setattr__(self, "phases", tuple(parse_phases(self.phases)))
+        if (self.student is None) == (self.base is None):
+            raise ValueError("one of --student and --base is required, not both")
+        if self.student is not None and self.env_from is not None:
+            raise ValueError("--env-from goes with --base; a --student acts in its own env")
+        if self.base is not None and self.env_from is None:
+            raise ValueError(
+                "--base needs --env-from: the student's env (a .pt or .zip trained there)"
+            )
+        for flag, value, low in (
+            ("--iterations", self.iterations, 1),
+            ("--n-copies", self.n_copies, 1),
+            ("--num-cpus", self.num_cpus, 0),
+            ("--eval-every", self.eval_every, 1),
+            ("--critic-warmup", self.critic_warmup, 0),
+            ("--epochs", self.epochs, 1),
+            ("--batch-sequences", self.batch_sequences, 1),
+            ("--torch-threads", self.torch_threads, 1),
+            ("--fit-seed", self.fit_seed, 0),
+            ("--train-seeds-start", self.train_seeds_start, 0),
+        ):
+            check_number(flag, value, integer=True, low=low)
+        if self.num_cpus > self.n_copies:
+            raise ValueError(
+                f"--num-cpus {self.num_cpus} exceeds --n-copies {self.n_copies}: each worker "
+                "steps at least one copy"
+            )
+        for flag, value in (
+            ("--learning-rate", self.learning_rate),
+            ("--critic-learning-rate", self.critic_learning_rate),
+            ("--clip-range", self.clip_range),
+            ("--target-kl", self.target_kl),
+        ):
+            check_number(flag, value, low=0, above=True)
+        check_number("--gamma", self.gamma, low=0, high=1)
+        check_number("--gae-lambda", self.gae_lambda, low=0, high=1)
+        check_number("--log-std", self.log_std)
+        check_number("--max-wall-minutes", self.max_wall_s, low=0, above=True, optional=True)
+        if not isinstance(self.task_params, dict):
+            raise ValueError(f"--task-params must be a JSON object, got {self.task_params!r}")
+        train_end = self.train_seeds_start + self.iterations * self.n_copies
+        overlap = sorted(set(self.val_seeds) & set(range(self.train_seeds_start, train_end)))
+        if overlap:
+            raise ValueError(f"--val-seeds share seeds with the training episodes: {overlap}")
+
+
+@dataclass
+class FinetuneStart:
+    """A checked fine-tuning, ready to run (:func:`prepare_finetune`): the start's metadata,
+    its env and the training env's kwargs, the starting model and its observation space."""
+
+    config: FinetuneConfig
+    out: Path
+    meta: dict[str, Any]
+    env_kwargs: dict[str, Any]
+    train_kwargs: dict[str, Any]
+    model: Any
+    space: Any
+
+
+def prepare_finetune(config: FinetuneConfig, out: str | Path, overwrite: bool = False):
+    """Check everything a fine-tuning needs before any rollout or worker (``ValueError``
+    naming the flag): the start (:func:`start_metadata`), ``out`` (new or empty unless
+    ``overwrite``, and not the directory the start is read from), a formation task, and a
+    training env whose ``task_params`` leave the student's observation unchanged. Builds the
+    starting model; returns a :class:`FinetuneStart` for :func:`run_finetune`."""
+    import torch
+
+    from agents.sb3.recurrent_student import load_student
+    from swarm_env import parallel_env
+
+    meta = start_metadata(config)
+    for flag, read in (("--student", config.student), ("--env-from", config.env_from)):
+        if read and Path(out).resolve() == Path(read).resolve().parent:
+            raise ValueError(
+                f"--out {str(out)!r} holds {flag} {read!r}: its student.pt and "
                 "train_log.json would be overwritten; give another directory"
             )
-    train_end = args.train_seeds_start + args.iterations * args.n_copies
-    overlap = sorted(set(val_seeds) & set(range(args.train_seeds_start, train_end)))
-    if overlap:
-        parser.error(f"--val-seeds share seeds with the training episodes: {overlap}")
-    phases = parse_phases(parser, args.phases)
-    try:  # before any env is built
-        inputs.run_dir("--out", args.out, overwrite=args.overwrite)
+    inputs.run_dir("--out", out, overwrite=overwrite)
+    env_kwargs = dict(meta["env_kwargs"])
+    if env_kwargs.get("task") != "formation":  # its log and scores are formation's
+        raise ValueError(
+            f"{_start_flag(config)} acts on task {env_kwargs.get('task')!r}; recurrent "
+            "PPO trains formation students"
+        )
+    reward_params = config.task_params
+    train_kwargs = {
+        **env_kwargs,
+        "task_params": {**env_kwargs.get("task_params", {}), **reward_params},
+    }
+    probe = parallel_env(**env_kwargs)
+    try:
+        space = probe.observation_space(probe.possible_agents[0])
+        features = probe.task.features(len(probe.possible_agents))
+        torch.manual_seed(config.fit_seed)  # the zero student's hidden layers
+        if config.student is not None:  # refuses a mismatched observation
+            model = load_student(config.student, probe).model
+        else:
+            model = zero_student(space)
+    finally:
+        probe.close()
+    torch.set_num_threads(config.torch_threads)  # loading a student set it to 1
+    torch.manual_seed(config.fit_seed)
+    try:  # a bad task_params fails here, before any rollout or worker
+        trained = parallel_env(**train_kwargs)
     except ValueError as err:
-        parser.error(str(err))
-    return _train(parser, args, meta, reward_params, val_seeds, phases, max_wall_s)
+        raise ValueError(
+            f"the training env with --task-params {json.dumps(reward_params)}: {err}"
+        ) from err
+    try:
+        same = trained.observation_space(
+            trained.possible_agents[0]
+        ).shape == space.shape and np.array_equal(
+            trained.task.features(len(trained.possible_agents)), features
+        )
+    finally:
+        trained.close()
+    if not same:
+        raise ValueError(
+            f"--task-params {json.dumps(reward_params)} changes what the student observes (its "
+            "task's features or the observation's size); only the reward's terms may change"
+        )
+    return FinetuneStart(config, Path(out), meta, env_kwargs, train_kwargs, model, space)
 
 
-def _start_metadata(parser, args) -> dict[str, Any]:
-    """The starting student's metadata (``env_kwargs``, ``base``, ...): ``--student``'s, or for
-    ``--base`` that base in ``--env-from``'s env (ValueError on a bad file or base)."""
+def finetune(config: FinetuneConfig, out: str | Path, overwrite: bool = False) -> int:
+    """Fine-tune a recurrent student by PPO into ``out`` (module doc): every check first
+    (:func:`prepare_finetune`), then :func:`run_finetune`. Returns the exit code: 0, or
+    130 / 143 after SIGINT / SIGTERM (``student.pt`` saved)."""
+    return run_finetune(prepare_finetune(config, out, overwrite))
+
+
+def start_metadata(config: FinetuneConfig) -> dict[str, Any]:
+    """The starting student's metadata (``env_kwargs``, ``base``, ...): ``student``'s, or for
+    ``base`` that base in ``env_from``'s env (ValueError on a bad file or base)."""
     from agents.sb3.recurrent_student import read_student_metadata
 
-    if args.student is not None:
-        if args.env_from is not None:
-            parser.error("--env-from goes with --base; a --student acts in its own env")
-        return read_student_metadata(args.student)
-    if args.env_from is None:
-        parser.error("--base needs --env-from: the student's env (a .pt or .zip trained there)")
+    if config.student is not None:
+        return read_student_metadata(config.student)
     from agents.policies import model_env_kwargs
     from agents.sb3.recurrent_student import check_student_env
     from agents.sb3.residual import check_residual
 
-    check_residual(args.base, "--base")
+    check_residual(config.base, "--base")
     try:
-        env_kwargs = model_env_kwargs(args.env_from)
+        env_kwargs = model_env_kwargs(config.env_from)
     except ValueError as err:
         raise ValueError(f"--env-from: {err}") from err
     if env_kwargs is None:
         raise ValueError(
-            f"--env-from must be a .pt student or a .zip model, got {args.env_from!r}"
+            f"--env-from must be a .pt student or a .zip model, got {config.env_from!r}"
         )
     check_student_env(env_kwargs, "--env-from")
-    return {"env_kwargs": env_kwargs, "base": args.base}
+    return {"env_kwargs": env_kwargs, "base": config.base}
 
 
-def _start_flag(args) -> str:
-    return f"--student {args.student!r}" if args.student else f"--env-from {args.env_from!r}"
+def _start_flag(config: FinetuneConfig) -> str:
+    if config.student:
+        return f"--student {config.student!r}"
+    return f"--env-from {config.env_from!r}"
 
 
 def zero_student(space: Any, hidden: int = 64) -> Any:
@@ -499,80 +578,47 @@ def zero_student(space: Any, hidden: int = 64) -> Any:
     return model.eval()
 
 
-def _train(parser, args, meta, reward_params, val_seeds, phases, max_wall_s) -> int:
+def run_finetune(start: FinetuneStart) -> int:
+    """The PPO iterations of a prepared fine-tuning (:func:`prepare_finetune`; module doc),
+    stopped by a signal or the wall-time budget; returns the exit code."""
     import torch
 
+    from agents.evaluation import score
     from agents.interrupts import EXIT_CODES, Interrupts, WallBudget, stop_reason
     from agents.sb3.batched import batched_vec_env
-    from agents.sb3.recurrent_student import load_student, save_student
-    from agents.sb3.report import score
+    from agents.sb3.recurrent_student import save_student
     from swarm_core.atomic_files import write_json_atomically
-    from swarm_env import parallel_env
 
-    env_kwargs = dict(meta["env_kwargs"])
-    if env_kwargs.get("task") != "formation":  # its log and scores are formation's
-        parser.error(
-            f"{_start_flag(args)} acts on task {env_kwargs.get('task')!r}; recurrent "
-            "PPO trains formation students"
-        )
-    train_kwargs = {
-        **env_kwargs,
-        "task_params": {**env_kwargs.get("task_params", {}), **reward_params},
-    }
-    probe = parallel_env(**env_kwargs)
-    try:
-        space = probe.observation_space(probe.possible_agents[0])
-        features = probe.task.features(len(probe.possible_agents))
-        torch.manual_seed(args.fit_seed)  # the zero student's hidden layers
-        if args.student is not None:  # refuses a mismatched observation
-            model = load_student(args.student, probe).model
-        else:
-            model = zero_student(space)
-    finally:
-        probe.close()
-    torch.set_num_threads(args.torch_threads)  # loading a student set it to 1
-    torch.manual_seed(args.fit_seed)
-    try:  # a bad --task-params fails here, before any rollout or worker
-        trained = parallel_env(**train_kwargs)
-    except ValueError as err:
-        parser.error(f"the training env with --task-params {json.dumps(reward_params)}: {err}")
-    try:
-        same = trained.observation_space(
-            trained.possible_agents[0]
-        ).shape == space.shape and np.array_equal(
-            trained.task.features(len(trained.possible_agents)), features
-        )
-    finally:
-        trained.close()
-    if not same:
-        parser.error(
-            f"--task-params {json.dumps(reward_params)} changes what the student observes (its "
-            "task's features or the observation's size); only the reward's terms may change"
-        )
+    config, meta, model, space = start.config, start.meta, start.model, start.space
+    env_kwargs, train_kwargs = start.env_kwargs, start.train_kwargs
+    val_seeds, phases = list(config.val_seeds), list(config.phases)
+    val_text = format_seeds(config.val_seeds)
     vec_kwargs = {
         "residual": meta["base"],
         "residual_observes_base": True,
         "critic_state": True,
     }
-    vec = batched_vec_env(train_kwargs, args.n_copies, None, n_workers=args.num_cpus, **vec_kwargs)
+    vec = batched_vec_env(
+        train_kwargs, config.n_copies, None, n_workers=config.num_cpus, **vec_kwargs
+    )
     try:  # the workers end with the run, whatever ends it
-        out = Path(args.out)
+        out = start.out
         out.mkdir(parents=True, exist_ok=True)
-        log_std = torch.nn.Parameter(torch.full((2,), float(args.log_std)))
+        log_std = torch.nn.Parameter(torch.full((2,), float(config.log_std)))
         critic = new_critic(space, vec.critic_dims)
-        actor_optim = torch.optim.Adam([*model.parameters(), log_std], lr=args.learning_rate)
-        critic_optim = torch.optim.Adam(critic.parameters(), lr=args.critic_learning_rate)
-        generator = torch.Generator().manual_seed(args.fit_seed)
-        rng = np.random.default_rng(args.fit_seed)
+        actor_optim = torch.optim.Adam([*model.parameters(), log_std], lr=config.learning_rate)
+        critic_optim = torch.optim.Adam(critic.parameters(), lr=config.critic_learning_rate)
+        generator = torch.Generator().manual_seed(config.fit_seed)
+        rng = np.random.default_rng(config.fit_seed)
         extra = {
             "teacher": meta.get("teacher"),
-            "start_student": str(args.student) if args.student else f"zero:{args.base}",
-            "reward_task_params": reward_params,
-            "fit_seed": args.fit_seed,
+            "start_student": str(config.student) if config.student else f"zero:{config.base}",
+            "reward_task_params": config.task_params,
+            "fit_seed": config.fit_seed,
         }
-        budget = WallBudget(max_wall_s)  # as in every trainer, the base's scoring counts
+        budget = WallBudget(config.max_wall_s)  # as in every trainer, the base's scoring counts
         log: dict[str, Any] = {
-            "args": vars(args),
+            "config": dataclasses.asdict(config),
             "env_kwargs": env_kwargs,
             "train_task_params": train_kwargs["task_params"],
             "base": meta["base"],
@@ -587,13 +633,13 @@ def _train(parser, args, meta, reward_params, val_seeds, phases, max_wall_s) -> 
             path = out / f"student_it{iteration}.pt"
             save_student(path, model, env_kwargs, meta["base"], iteration=iteration, **extra)
             val = score(str(path), env_kwargs, val_seeds, phases=phases)["mean"]
-            torch.set_num_threads(args.torch_threads)
+            torch.set_num_threads(config.torch_threads)
             log["val"].append({"iteration": iteration, **val})
             if log["iterations"]:
                 write_json_atomically(out / "train_log.json", log, indent=1)
                 plot_ppo_logs([out / "train_log.json"], out / "train_log.png")
             print(
-                f"iteration {iteration}: on {args.val_seeds} {val['formation_error_m']:.4f} m "
+                f"iteration {iteration}: on {val_text} {val['formation_error_m']:.4f} m "
                 f"(base {log['base_val']['formation_error_m']:.4f} m)",
                 flush=True,
             )
@@ -603,18 +649,18 @@ def _train(parser, args, meta, reward_params, val_seeds, phases, max_wall_s) -> 
         with Interrupts() as interrupts:
             with interrupts.caught():
                 save_and_score(0)
-                for iteration in range(1, args.iterations + 1):
+                for iteration in range(1, config.iterations + 1):
                     if interrupts.received:  # a signal that landed in a C callback was dropped
                         raise KeyboardInterrupt
                     t0 = time.perf_counter()
-                    first = args.train_seeds_start + (iteration - 1) * args.n_copies
-                    seeds = list(range(first, first + args.n_copies))
+                    first = config.train_seeds_start + (iteration - 1) * config.n_copies
+                    seeds = list(range(first, first + config.n_copies))
                     model.eval()
                     data = rollout(vec, model, log_std, seeds, generator)
                     t1 = time.perf_counter()
                     values, last_values = _values(critic, data, model.encoder_obs_dim)
-                    batch = _batch(data, values, last_values, args)
-                    warm = iteration <= args.critic_warmup
+                    batch = _batch(data, values, last_values, config)
+                    warm = iteration <= config.critic_warmup
                     model.train()
                     stats = ppo_update(
                         model,
@@ -623,10 +669,10 @@ def _train(parser, args, meta, reward_params, val_seeds, phases, max_wall_s) -> 
                         None if warm else actor_optim,
                         critic_optim,
                         batch,
-                        args.epochs,
-                        args.batch_sequences,
-                        args.clip_range,
-                        args.target_kl,
+                        config.epochs,
+                        config.batch_sequences,
+                        config.clip_range,
+                        config.target_kl,
                         rng,
                     )
                     model.eval()
@@ -648,9 +694,9 @@ def _train(parser, args, meta, reward_params, val_seeds, phases, max_wall_s) -> 
                     )
                     completed = iteration
                     write_json_atomically(out / "train_log.json", log, indent=1)
-                    if iteration % args.eval_every == 0 or iteration == args.iterations:
+                    if iteration % config.eval_every == 0 or iteration == config.iterations:
                         save_and_score(iteration)
-                    if iteration < args.iterations and budget.passed():
+                    if iteration < config.iterations and budget.passed():
                         break
             interrupted = interrupts.received
             with Interrupts(ignore=True):  # a second signal must not leave a half-written file
@@ -684,7 +730,3 @@ def _train(parser, args, meta, reward_params, val_seeds, phases, max_wall_s) -> 
     finally:
         with Interrupts(ignore=True):  # a second signal must not leave workers behind
             vec.close()
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,16 +1,19 @@
 """A recurrent residual student: a GRU over the robot's own estimate, distilled by DAgger.
 
-    python -m agents.sb3.recurrent_student --preset lab-3m-4 --lidar-sectors 16 \
-        --base scripted:formation-known-n-fast \
-        --teacher privileged:formation-known-n-fast@truth \
-        --round-seeds 0-199 1000-1099 --val-seeds 200-209 --out runs/recurrent
+    from agents.sb3.recurrent_student import DistillConfig, distill
 
-Round 17 measured offline that a causal GRU over the episode's estimates predicts about half of
-the settled speed correction of the controller on the truth beyond the base's command, and a
-quarter of its turn rate's, against a third and under a tenth for one frame
-(:mod:`agents.sb3.history_fit`, ``docs/results.md``). This trains that regressor as a policy:
+    config = DistillConfig(env_kwargs, base="scripted:formation-known-n-fast",
+                           teacher="privileged:formation-known-n-fast@truth",
+                           round_seeds=(range(0, 200), range(1000, 1100)),
+                           val_seeds=range(200, 210))
+    distill(config, "runs/recurrent")
 
-- the model is :mod:`agents.sb3.history_fit`'s ``history`` regressor (the students' Deep Sets
+(``python -m experiments.recurrent_student`` reads the same settings from flags.) A causal GRU
+over the episode's estimates predicts a larger share of the correction that the controller on
+the truth makes beyond the base's command than one frame does
+(``experiments/history_fit.py``). :func:`distill` trains that regressor as a policy:
+
+- the model is :mod:`agents.sb3.sequences`' ``history`` regressor (the students' Deep Sets
   encoder of the observation and the base's command, a GRU, a 64-64 tanh head) and its output
   is the residual's correction, unit scale: the command is ``base + correction * high``,
   clipped (:func:`agents.sb3.residual.compose`); each agent keeps its own GRU state, reset
@@ -26,7 +29,7 @@ quarter of its turn rate's, against a third and under a tenth for one frame
   of the episode, with the base beside it (``train_log.json``, drawn in ``train_log.png``;
   several runs in one figure: :func:`plot_train_logs`). ``student_best.pt`` is a copy of the
   completed round's student with the lowest formation error there (``"best_round"`` in the
-  log; round 18's selection); the final test belongs on seeds used nowhere here.
+  log); the final test belongs on seeds used nowhere here.
 - Each round's sequences are kept (``round<r>.npz``, with the key they were collected with)
   and reused when the command is rerun with the same env, base, teacher and seeds, and, from
   round 2, the same driving student (its weights' hash): round 1's always, a later round's
@@ -41,9 +44,7 @@ quarter of its turn rate's, against a third and under a tenth for one frame
   rounds' data and ``train_log.json`` are written to a temporary name, then renamed: a stop
   never leaves one half-written.
 
-Score a student like any policy: ``swarm-phd evaluate --policy runs/recurrent/student.pt`` or
-``python -m agents.sb3.report --env-from runs/recurrent/student.pt --baselines
-scripted:formation-known-n-fast runs/recurrent/student.pt --seeds ...``.
+Score a student like any policy: ``swarm-phd evaluate --policy runs/recurrent/student.pt``.
 """
 
 from __future__ import annotations
@@ -52,16 +53,21 @@ import json
 import shutil
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from agents.evaluation import DEFAULT_PHASES
 from swarm_core.atomic_files import atomic_write, write_json_atomically
-from swarm_phd.sweep import parse_seeds
+from swarm_core.inputs import format_seeds
 
 __all__ = [
+    "DistillConfig",
     "RecurrentStudentPolicy",
+    "distill",
+    "student_space",
     "check_student_env",
     "load_student",
     "plot_train_logs",
@@ -135,10 +141,10 @@ def check_student_env(env_kwargs: dict[str, Any], field: str) -> None:
 
 
 def new_student(observation_space: Any, hidden: int = 64) -> Any:
-    """An untrained student: :mod:`agents.sb3.history_fit`'s ``history`` regressor."""
-    from agents.sb3.history_fit import _regressor
+    """An untrained student: :func:`agents.sb3.sequences.regressor`'s ``history`` kind."""
+    from agents.sb3.sequences import regressor
 
-    model = _regressor(observation_space, "history", hidden=hidden)
+    model = regressor(observation_space, "history", hidden=hidden)
     model.encoder_obs_dim = int(np.prod(observation_space.shape))
     return model
 
@@ -293,80 +299,93 @@ def plot_train_logs(logs: list[str | Path], figure: str | Path) -> None:
     plt.close(fig)
 
 
-def main(argv: list[str] | None = None) -> int:
-    from agents.interrupts import add_max_wall_argument, max_wall_seconds
-    from agents.sb3.history_fit import distillation_parser, parse_phases
-    from agents.sb3.train import env_kwargs_from_args
+@dataclass(frozen=True)
+class DistillConfig:
+    """A DAgger distillation of a recurrent student (:func:`distill`; module doc).
 
-    parser = distillation_parser(__doc__.split("\n\n")[0])
-    parser.add_argument(
-        "--round-seeds",
-        nargs="+",
-        default=["0-199", "1000-1099"],
-        help="one seed range per round: the first with the base driving, the rest DAgger",
-    )
-    parser.add_argument("--val-seeds", default="200-209", help="closed-loop score per round")
-    parser.add_argument("--epochs", type=int, default=30, help="round 1's passes")
-    parser.add_argument("--dagger-epochs", type=int, default=10, help="later rounds' passes")
-    parser.add_argument("--fit-seed", type=int, default=0, help="torch and minibatch seed")
-    parser.add_argument("--torch-threads", type=int, default=1)
-    parser.add_argument("--out", required=True, help="directory for the students and data")
-    add_max_wall_argument(parser, "after the round in which")
-    args = parser.parse_args(argv)
-    try:
-        max_wall_s = max_wall_seconds(args.max_wall_minutes)
-        rounds = [parse_seeds(s, "--round-seeds") for s in args.round_seeds]
-        val_seeds = parse_seeds(args.val_seeds, "--val-seeds")
-    except ValueError as err:
-        parser.error(str(err))
-    used = [s for r in rounds for s in r]
-    if len(set(used)) != len(used):
-        parser.error(f"--round-seeds repeat seeds: {args.round_seeds}")
-    if set(used) & set(val_seeds):
-        parser.error(
-            f"--val-seeds share seeds with --round-seeds: {sorted(set(used) & set(val_seeds))}"
-        )
-    for flag, value in (
-        ("--epochs", args.epochs),
-        ("--dagger-epochs", args.dagger_epochs),
-        ("--torch-threads", args.torch_threads),
-    ):
-        if value < 1:
-            parser.error(f"{flag} must be >= 1, got {value}")
-    if args.fit_seed < 0:
-        parser.error(f"--fit-seed must be >= 0, got {args.fit_seed}")
-    phases = parse_phases(parser, args.phases)
-    from agents.sb3.residual import check_residual
+    ``round_seeds``: one block of episode seeds per round (the first with the base driving,
+    the next ones with the previous round's student); ``val_seeds``: the closed-loop score of
+    every round (none shared with the rounds); ``phases``: the first steps of the scored
+    phases; ``epochs`` / ``dagger_epochs``: round 1's / later rounds' passes over the data;
+    ``fit_seed``: torch's and the minibatches' seed; ``max_wall_s``: stop after the round in
+    which this much wall time has passed (None: no budget). Checked on construction:
+    ``ValueError`` naming the command-line flag and the value.
+    """
 
-    try:
-        check_residual(args.base, "--base")
-    except ValueError as err:
-        parser.error(str(err))
-    import torch
+    env_kwargs: dict[str, Any]
+    base: str
+    teacher: str
+    round_seeds: tuple[tuple[int, ...], ...]
+    val_seeds: tuple[int, ...]
+    phases: tuple[int, ...] = DEFAULT_PHASES
+    epochs: int = 30
+    dagger_epochs: int = 10
+    fit_seed: int = 0
+    torch_threads: int = 1
+    max_wall_s: float | None = None
 
+    def __post_init__(self) -> None:
+        from agents.evaluation import parse_phases
+        from agents.sb3.residual import check_residual
+        from swarm_core.validation import check_number
+
+        rounds = tuple(tuple(int(s) for s in r) for r in self.round_seeds)
+        object.__setattr__(self, "round_seeds", rounds)
+        object.__setattr__(self, "val_seeds", tuple(int(s) for s in self.val_seeds))
+        object.__setattr__(self, "phases", tuple(parse_phases(self.phases)))
+        if not rounds or not all(rounds):
+            raise ValueError(f"--round-seeds must name seeds for every round, got {rounds!r}")
+        used = [s for r in rounds for s in r]
+        if len(set(used)) != len(used):
+            shown = " ".join(format_seeds(r) for r in rounds)
+            raise ValueError(f"--round-seeds repeat seeds: {shown}")
+        shared = sorted(set(used) & set(self.val_seeds))
+        if shared:
+            raise ValueError(f"--val-seeds share seeds with --round-seeds: {shared}")
+        for flag, value in (
+            ("--epochs", self.epochs),
+            ("--dagger-epochs", self.dagger_epochs),
+            ("--torch-threads", self.torch_threads),
+        ):
+            check_number(flag, value, integer=True, low=1)
+        check_number("--fit-seed", self.fit_seed, integer=True, low=0)
+        check_number("--max-wall-minutes", self.max_wall_s, low=0, above=True, optional=True)
+        check_residual(self.base, "--base")
+        check_student_env(self.env_kwargs, "--observation/--env-overrides")
+
+
+def student_space(config: DistillConfig) -> Any:
+    """The observation space the student reads, from a probe env of ``config.env_kwargs``; the
+    teacher is loaded on it first (``ValueError`` naming ``--teacher`` for a bad spec), so a
+    caller can check a configuration before any rollout."""
+    from agents.sb3.privileged import load_teacher
     from swarm_env import parallel_env
 
-    torch.set_num_threads(args.torch_threads)
-    env_kwargs = env_kwargs_from_args(args)
+    probe = parallel_env(**config.env_kwargs)
     try:
-        check_student_env(env_kwargs, "--observation/--env-overrides")
+        load_teacher(config.teacher, probe)
+        return probe.observation_space(probe.possible_agents[0])
     except ValueError as err:
-        parser.error(str(err))
-    probe = parallel_env(**env_kwargs)
-    try:
-        space = probe.observation_space(probe.possible_agents[0])
-        from agents.sb3.privileged import load_teacher
-
-        load_teacher(args.teacher, probe)  # a bad spec fails here, before any rollout
-    except ValueError as err:
-        parser.error(f"--teacher {args.teacher!r}: {err}")
+        raise ValueError(f"--teacher {config.teacher!r}: {err}") from err
     finally:
         probe.close()
-    out = Path(args.out)
+
+
+def distill(config: DistillConfig, out: str | Path) -> int:
+    """Distil a recurrent student by DAgger into ``out`` (module doc): ``student.pt`` (the last
+    completed round's), ``student_best.pt`` (the round best on ``config.val_seeds``), each
+    round's ``student_round<r>.pt`` and ``round<r>.npz``, ``train_log.json`` and its figure.
+
+    :func:`student_space` checks the teacher before ``out`` is made. Returns the exit code: 0,
+    or 130 / 143 after SIGINT / SIGTERM (the last completed round's student kept)."""
+    import torch
+
+    torch.set_num_threads(config.torch_threads)
+    space = student_space(config)
+    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    torch.manual_seed(args.fit_seed)
-    model = new_student(space)
-    return _dagger(args, rounds, val_seeds, phases, env_kwargs, model, out, max_wall_s)
+    torch.manual_seed(config.fit_seed)
+    return _dagger(config, new_student(space), out)
 
 
 def _finite_or_inf(val: dict[str, float]) -> float:
@@ -375,26 +394,29 @@ def _finite_or_inf(val: dict[str, float]) -> float:
     return error if np.isfinite(error) else np.inf
 
 
-def _dagger(args, rounds, val_seeds, phases, env_kwargs, model, out, max_wall_s) -> int:
-    """The DAgger rounds of :func:`main`, stopped by a signal or the wall-time budget (module
-    doc); returns the exit code."""
+def _dagger(config: DistillConfig, model: Any, out: Path) -> int:
+    """The DAgger rounds of :func:`distill`, stopped by a signal or the wall-time budget
+    (module doc); returns the exit code."""
     import torch
 
+    from agents.evaluation import score
     from agents.interrupts import EXIT_CODES, Interrupts, WallBudget, stop_reason
-    from agents.sb3.history_fit import collect_sequences, sequence_tensors, train_sequences
-    from agents.sb3.report import score
+    from agents.sb3.sequences import collect_sequences, sequence_tensors, train_sequences
     from swarm_env import parallel_env
 
+    env_kwargs, phases = config.env_kwargs, list(config.phases)
+    val_seeds, val_text = list(config.val_seeds), format_seeds(config.val_seeds)
+    rounds = [list(r) for r in config.round_seeds]
     log: dict[str, Any] = {
         "env_kwargs": env_kwargs,
-        "base": args.base,
-        "teacher": args.teacher,
-        "round_seeds": args.round_seeds,
+        "base": config.base,
+        "teacher": config.teacher,
+        "round_seeds": [format_seeds(r) for r in rounds],
         "val_seeds": val_seeds,
-        "fit_seed": args.fit_seed,
-        "epochs": args.epochs,
-        "dagger_epochs": args.dagger_epochs,
-        "torch_threads": args.torch_threads,
+        "fit_seed": config.fit_seed,
+        "epochs": config.epochs,
+        "dagger_epochs": config.dagger_epochs,
+        "torch_threads": config.torch_threads,
         "phases": phases,
         "rounds": [],
     }
@@ -403,15 +425,12 @@ def _dagger(args, rounds, val_seeds, phases, env_kwargs, model, out, max_wall_s)
     for old in [out / "student.pt", out / "student_best.pt", *out.glob("student_round*.pt")]:
         old.unlink(missing_ok=True)
     r = 1
-    budget = WallBudget(max_wall_s)
+    budget = WallBudget(config.max_wall_s)
     with Interrupts() as interrupts:
         with interrupts.caught():
             t_base = time.perf_counter()
-            log["base_val"] = score(args.base, env_kwargs, val_seeds, phases=phases)["mean"]
-            print(
-                f"base on {args.val_seeds}: {log['base_val']} "
-                f"({time.perf_counter() - t_base:.0f} s)"
-            )
+            log["base_val"] = score(config.base, env_kwargs, val_seeds, phases=phases)["mean"]
+            print(f"base on {val_text}: {log['base_val']} ({time.perf_counter() - t_base:.0f} s)")
             parts: list[dict[str, np.ndarray]] = []
             for r, seeds in enumerate(rounds, start=1):
                 if interrupts.received:  # a signal that landed in a C callback was dropped
@@ -424,8 +443,8 @@ def _dagger(args, rounds, val_seeds, phases, env_kwargs, model, out, max_wall_s)
                     env.close()
                 key = {
                     "env_kwargs": env_kwargs,
-                    "base": args.base,
-                    "teacher": args.teacher,
+                    "base": config.base,
+                    "teacher": config.teacher,
                     "seeds": seeds,
                     # the driving student by content: a refit one makes the round's data stale
                     "driver": "base" if r == 1 else _digest(out / f"student_round{r - 1}.pt"),
@@ -434,19 +453,19 @@ def _dagger(args, rounds, val_seeds, phases, env_kwargs, model, out, max_wall_s)
                     out / f"round{r}.npz",
                     key,
                     lambda seeds=seeds, driver=driver: collect_sequences(
-                        env_kwargs, args.base, args.teacher, seeds, student=driver
+                        env_kwargs, config.base, config.teacher, seeds, student=driver
                     ),
                 )
                 parts.append(data)
                 t1 = time.perf_counter()
-                epochs = args.epochs if r == 1 else args.dagger_epochs
-                torch.set_num_threads(args.torch_threads)  # loading a student set it to 1
+                epochs = config.epochs if r == 1 else config.dagger_epochs
+                torch.set_num_threads(config.torch_threads)  # loading a student set it to 1
                 losses = train_sequences(
-                    model, sequence_tensors(_concat(parts)), epochs, seed=args.fit_seed + r
+                    model, sequence_tensors(_concat(parts)), epochs, seed=config.fit_seed + r
                 )
                 t2 = time.perf_counter()
                 path = out / f"student_round{r}.pt"
-                save_student(path, model, env_kwargs, args.base, teacher=args.teacher, round=r)
+                save_student(path, model, env_kwargs, config.base, teacher=config.teacher, round=r)
                 val = score(str(path), env_kwargs, val_seeds, phases=phases)["mean"]
                 t3 = time.perf_counter()
                 log["rounds"].append(
@@ -467,7 +486,7 @@ def _dagger(args, rounds, val_seeds, phases, env_kwargs, model, out, max_wall_s)
                 print(
                     f"round {r}: {len(seeds)} episodes ({'reused' if reused else 'collected'}, "
                     f"{t1 - t0:.0f} s), fit {t2 - t1:.0f} s, loss {losses[-1]:.4f}; on "
-                    f"{args.val_seeds}: {val['formation_error_m']:.4f} m "
+                    f"{val_text}: {val['formation_error_m']:.4f} m "
                     f"(base {log['base_val']['formation_error_m']:.4f} m)"
                 )
                 if r < len(rounds) and budget.passed():
@@ -481,7 +500,7 @@ def _dagger(args, rounds, val_seeds, phases, env_kwargs, model, out, max_wall_s)
             usable = out / f"student_round{completed}.pt" if completed else None
             if usable is not None:
                 atomic_write(out / "student.pt", lambda tmp: shutil.copyfile(usable, tmp))
-                # Round 18's selection (docs/results.md): the round best on --val-seeds.
+                # The round best on the validation seeds.
                 best = min(log["rounds"], key=lambda d: _finite_or_inf(d["val"]))
                 log["best_round"] = best["round"]
                 selected = out / f"student_round{best['round']}.pt"
@@ -491,7 +510,7 @@ def _dagger(args, rounds, val_seeds, phases, env_kwargs, model, out, max_wall_s)
             write_json_atomically(out / "train_log.json", log, indent=1)
     if usable is not None:
         print(
-            f"student_best.pt is round {best['round']}'s, the best on {args.val_seeds} "
+            f"student_best.pt is round {best['round']}'s, the best on {val_text} "
             f"({_finite_or_inf(best['val']):.4f} m)"
         )
     if not log["stopped"]:
@@ -509,7 +528,3 @@ def _dagger(args, rounds, val_seeds, phases, env_kwargs, model, out, max_wall_s)
         return EXIT_CODES[interrupted]
     print(f"recurrent_student: wall-time budget, stopped after round {completed}: {saved}")
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

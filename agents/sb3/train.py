@@ -1,8 +1,8 @@
 """``swarm-phd train``: PPO with parameter sharing (one policy for every agent) on a SwarmEnv task.
 
-``python -m agents.sb3.train ARGS`` is the same command. Bad input is refused before anything
-is written under ``--out``: a flag out of its range (a NaN) and an ``--out`` holding a previous
-run (without ``--overwrite``) before any env is built; the env's own settings by one probe env.
+Bad input is refused before anything is written under ``--out``: a flag out of its range (a
+NaN) and an ``--out`` holding a previous run (without ``--overwrite``) before any env is built;
+the env's own settings by one probe env.
 One line naming the flag and the value, exit code 2 (from Python, :func:`train` raises
 ``ValueError``).
 
@@ -37,6 +37,7 @@ import signal
 import sys
 import time
 import warnings
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -50,14 +51,17 @@ from agents.interrupts import (
     stop_reason,
 )
 from agents.sb3.policy import save_model
+from swarm_core import inputs
 from swarm_core.atomic_files import write_json_atomically
-from swarm_phd import inputs
-from swarm_phd.inputs import check_number, parse_json_object
+from swarm_core.inputs import parse_json_object
+from swarm_core.validation import check_number
 
 DEFAULT_PRESET = "sim-6m-20"
 DEFAULT_MAX_STEPS = 300
 #: The largest seed SB3 accepts (it seeds numpy's legacy generator with it).
 MAX_SEED = 2**32 - 1
+#: PPO's minibatch when ``--batch-size`` is not given (the whole rollout when that is smaller).
+DEFAULT_BATCH_SIZE = 512
 
 
 #: PPO keyword -> (the name an error gives it, :func:`check_number` bounds). The keys with a
@@ -165,7 +169,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "ukf or pf, gets one per copy)",
     )
     parser.add_argument("--n-steps", type=int, default=128, help="PPO rollout length per agent")
-    parser.add_argument("--batch-size", type=int, default=512, help="PPO minibatch size")
+    parser.add_argument(
+        "--batch-size",
+        type=int,
+        default=None,
+        help="PPO minibatch size (default: 512, or the whole rollout when it is smaller)",
+    )
     parser.add_argument("--n-epochs", type=int, default=10, help="PPO epochs per rollout")
     parser.add_argument("--learning-rate", type=float, default=3e-4, help="Adam step size")
     parser.add_argument("--gamma", type=float, default=0.99, help="discount factor")
@@ -292,6 +301,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "vector",
     )
     add_max_wall_argument(parser, "once")  # SB3: at the next env step; RLlib: that iteration
+    from agents.train_report import add_eval_arguments
+
+    add_eval_arguments(parser)
     parser.add_argument(
         "--no-progress-bar", action="store_true", help="no progress bar (as --quiet, for train)"
     )
@@ -331,7 +343,6 @@ def ppo_kwargs_from_args(args: argparse.Namespace) -> dict[str, Any]:
     check (:func:`check_ppo_kwargs`) before the RLlib engine renames its share of them."""
     ppo_kwargs = {
         "n_steps": args.n_steps,
-        "batch_size": args.batch_size,
         "n_epochs": args.n_epochs,
         "learning_rate": args.learning_rate,
         "gamma": args.gamma,
@@ -339,6 +350,8 @@ def ppo_kwargs_from_args(args: argparse.Namespace) -> dict[str, Any]:
         "clip_range": args.clip_range,
         "target_kl": args.target_kl,
     }
+    if args.batch_size is not None:  # else derived from the rollout (DEFAULT_BATCH_SIZE)
+        ppo_kwargs["batch_size"] = args.batch_size
     if args.sde:
         ppo_kwargs["use_sde"] = True
     return ppo_kwargs
@@ -381,6 +394,7 @@ def run(args: argparse.Namespace) -> int:
         residual_observes_base=args.residual_observes_base,
         residual_mode=args.residual_mode,
         lstm_hidden=_lstm_hidden(args),
+        eval_seeds=args.eval_seeds,
     )
     return EXIT_CODES.get(interrupted, 0) if interrupted else 0
 
@@ -479,32 +493,10 @@ def _train(
         numba.set_num_threads(previous)
 
 
-def _train_with(
-    env_kwargs: dict[str, Any],
-    timesteps: int,
-    out: Path,
-    *,
-    seed: int = 0,
-    overwrite: bool = False,
-    n_copies: int = 4,
-    num_cpus: int = 0,
-    vec: str = "auto",
-    checkpoint_every: int = 50_000,
-    torch_threads: int = 1,
-    progress_bar: bool = True,
-    ppo_kwargs: dict[str, Any] | None = None,
-    max_wall_s: float | None = None,
-    extractor: str = "sets",
-    warm_start: dict[str, Any] | None = None,
-    critic_warmup: int = 0,
-    residual: str | None = None,
-    residual_log_std: float | None = None,
-    critic_state: bool = False,
-    residual_observes_base: bool = False,
-    residual_mode: str = "add",
-    lstm_hidden: int | None = None,
-) -> tuple[Path, str | None]:
-    """Train; return the path of ``model.zip`` and the signal that interrupted it (or None).
+@dataclass(frozen=True)
+class TrainConfig:
+    """The options of one SB3 training run (``swarm-phd train``'s flags; :func:`train`'s
+    keywords), checked by :func:`_checked` before anything is built or written.
 
     ``warm_start``: ``{"teacher": "scripted:NAME", "steps": int, "rounds": int, "epochs": int,
     "log_std": float}`` clones the teacher into the actor first (:mod:`agents.sb3.warm_start`;
@@ -517,32 +509,117 @@ def _train_with(
     adding to it). ``critic_state``: a centralised critic that also reads
     the true state (:mod:`agents.sb3.central_critic`). ``lstm_hidden``: recurrent PPO
     (sb3-contrib ``RecurrentPPO``, an LSTM of that many units in the actor and in the critic,
-    after the extractor); the model's metadata says ``"recurrent": true``.
+    after the extractor); the model's metadata says ``"recurrent": true``. ``eval_seeds``: after
+    training, score the model, its checkpoints, the task's scripted controller and ``random``
+    on that many held-out seeds (:mod:`agents.train_report`: ``final_evaluation.json``, the
+    verdict table, the task-metric panel of ``learning_curve.png``; 0: none).
     """
-    # Every argument is checked here, before an env is built or anything is written to ``out``:
-    # a refused run leaves a previous run's files there as they were.
+
+    seed: int = 0
+    overwrite: bool = False
+    n_copies: int = 4
+    num_cpus: int = 0
+    vec: str = "auto"
+    checkpoint_every: int = 50_000
+    torch_threads: int = 1
+    progress_bar: bool = True
+    ppo_kwargs: dict[str, Any] | None = None
+    max_wall_s: float | None = None
+    extractor: str = "sets"
+    warm_start: dict[str, Any] | None = None
+    critic_warmup: int = 0
+    residual: str | None = None
+    residual_log_std: float | None = None
+    critic_state: bool = False
+    residual_observes_base: bool = False
+    residual_mode: str = "add"
+    lstm_hidden: int | None = None
+    eval_seeds: int = 0
+
+
+@dataclass(frozen=True)
+class _Probed:
+    """What one probe env of the run says: agents per copy, table rows, the critic's block."""
+
+    n_agents: int
+    top_k: int
+    critic_dims: int
+
+
+def _train_with(
+    env_kwargs: dict[str, Any], timesteps: int, out: Path, **options: Any
+) -> tuple[Path, str | None]:
+    """Train; return the path of ``model.zip`` and the signal that interrupted it (or None).
+    ``options``: :class:`TrainConfig`'s fields.
+
+    Every option is checked first, before an env is built or anything is written to ``out``
+    (a refused run leaves a previous run's files there as they were); then one probe env,
+    the run's files, the VecEnv and the model are built (:func:`_build_model`), the model
+    learns (:func:`_learn`) and is saved with the run's summary.
+    """
     out = Path(out)
+    config, ppo = _checked(env_kwargs, timesteps, out, TrainConfig(**options))
+    try:
+        import torch
+        from stable_baselines3.common.logger import configure
+    except ImportError as exc:  # pragma: no cover - depends on the install
+        raise ValueError("training needs the rl extras: pip install -e '.[rl]'") from exc
+
+    # After the flags' own checks (their errors come first), before any env is built.
+    inputs.run_dir("--out", out, overwrite=config.overwrite)
+    probed = _probe(env_kwargs, config, ppo)
+    if "batch_size" not in (config.ppo_kwargs or {}):
+        # The default minibatch, or the whole rollout when that is smaller.
+        rollout = ppo["n_steps"] * config.n_copies * probed.n_agents
+        ppo["batch_size"] = min(DEFAULT_BATCH_SIZE, rollout)
+    torch.set_num_threads(config.torch_threads)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "checkpoints").mkdir(exist_ok=True)
+    write_json_atomically(out / "env_kwargs.json", env_kwargs)
+    policy_kwargs = _policy_kwargs(config, ppo, probed)
+    _write_train_config(out, timesteps, config, ppo, probed, policy_kwargs)
+    venv = _training_venv(env_kwargs, out, config, ppo)
+    model = _build_model(venv, config, ppo, probed, policy_kwargs)
+    logger = configure(str(out / "tb"), ["csv", "tensorboard"])
+    model.set_logger(logger)
+    return _learn(model, venv, logger, env_kwargs, timesteps, out, config, ppo, probed)
+
+
+def _checked(
+    env_kwargs: dict[str, Any], timesteps: int, out: Path, config: TrainConfig
+) -> tuple[TrainConfig, dict[str, Any]]:
+    """``config`` checked (``ValueError`` naming the flag), with its defaults filled in (the
+    residual's log-std, the warm start's settings), and PPO's keywords with SB3's defaults."""
     inputs.output_dir("--out", out)
-    check_run_flags(timesteps, seed, checkpoint_every, torch_threads, max_wall_s)
-    check_number("--n-copies", n_copies, integer=True, low=1)
-    check_number("--num-cpus", num_cpus, integer=True, low=0)
-    check_number("--critic-warmup", critic_warmup, integer=True, low=0)
-    check_ppo_kwargs(ppo_kwargs or {})
+    check_run_flags(
+        timesteps, config.seed, config.checkpoint_every, config.torch_threads, config.max_wall_s
+    )
+    check_number("--n-copies", config.n_copies, integer=True, low=1)
+    check_number("--num-cpus", config.num_cpus, integer=True, low=0)
+    check_number("--critic-warmup", config.critic_warmup, integer=True, low=0)
+    from agents.train_report import eval_seeds
+
+    eval_seeds(config.eval_seeds)
+    ppo_kwargs = config.ppo_kwargs or {}
+    check_ppo_kwargs(ppo_kwargs)
     ppo = {
         "n_steps": 128,
-        "batch_size": 512,
+        "batch_size": DEFAULT_BATCH_SIZE,
         "n_epochs": 10,
         "learning_rate": 3e-4,
         "gamma": 0.99,
         "gae_lambda": 0.95,
         "ent_coef": 0.0,
         "clip_range": 0.2,
-        **(ppo_kwargs or {}),
+        **ppo_kwargs,
     }
     if ppo.get("use_sde"):
         # One exploration matrix per agent per rollout (SB3 resamples it at each rollout).
         ppo.setdefault("sde_sample_freq", -1)
-    _resolve_vec(vec, n_copies, num_cpus, residual is not None, critic_state)
+    residual, warm_start, extractor = config.residual, config.warm_start, config.extractor
+    _resolve_vec(
+        config.vec, config.n_copies, config.num_cpus, residual is not None, config.critic_state
+    )
     if extractor not in ("sets", "mlp"):
         raise ValueError(f"--extractor must be 'sets' or 'mlp', got {extractor!r}")
     if extractor == "sets" and env_kwargs.get("observation", "phd") == "measurements":
@@ -550,12 +627,14 @@ def _train_with(
             "--extractor sets reads the neighbour table, which --observation measurements has "
             "not: use it with --observation phd or truth (or --extractor mlp)"
         )
+    residual_log_std = config.residual_log_std
     if residual_log_std is not None and residual is None:
         raise ValueError(f"--residual-log-std {residual_log_std} needs --residual scripted:NAME")
-    if residual_observes_base and residual is None:
+    if config.residual_observes_base and residual is None:
         raise ValueError("--residual-observes-base needs --residual scripted:NAME")
     from agents.sb3.residual import check_residual_mode
 
+    residual_mode = config.residual_mode
     if check_residual_mode(residual_mode) != "add":
         if residual is None:
             raise ValueError(f"--residual-mode {residual_mode} needs --residual scripted:NAME")
@@ -565,13 +644,13 @@ def _train_with(
                 "clone fits an additive correction)"
             )
     if residual_log_std is None:
-        residual_log_std = -3.0 if (ppo_kwargs or {}).get("use_sde") else -1.5
+        residual_log_std = -3.0 if ppo_kwargs.get("use_sde") else -1.5
     if residual is not None:
         from agents.sb3.residual import check_residual
 
         check_residual(residual)
         check_number("--residual-log-std", residual_log_std, low=-5, high=1)
-    if critic_state:
+    if config.critic_state:
         if warm_start is not None:
             raise ValueError(
                 "--critic-state and --warm-start exclude each other (the clone is fitted on "
@@ -579,11 +658,11 @@ def _train_with(
             )
         if extractor != "sets":
             raise ValueError(f"--critic-state needs --extractor sets, got {extractor!r}")
-    if (ppo_kwargs or {}).get("use_sde"):
+    if ppo_kwargs.get("use_sde"):
         for flag, on in (
             ("--warm-start", warm_start is not None),
-            ("--critic-state", critic_state),
-            ("--recurrent", lstm_hidden is not None),
+            ("--critic-state", config.critic_state),
+            ("--recurrent", config.lstm_hidden is not None),
         ):
             if on:
                 raise ValueError(
@@ -591,11 +670,11 @@ def _train_with(
                     "the clone, the centralised critic and the LSTM policy are fitted and "
                     "tested with the per-step Gaussian)"
                 )
-    if lstm_hidden is not None:
-        check_number("--lstm-hidden", lstm_hidden, integer=True, low=1)
+    if config.lstm_hidden is not None:
+        check_number("--lstm-hidden", config.lstm_hidden, integer=True, low=1)
         for flag, on in (
             ("--warm-start", warm_start is not None),
-            ("--critic-state", critic_state),
+            ("--critic-state", config.critic_state),
         ):
             if on:
                 raise ValueError(
@@ -612,87 +691,103 @@ def _train_with(
         for key in ("steps", "rounds", "epochs"):
             check_number(f"--bc-{key}", warm_start.get(key), integer=True, low=1)
         check_number("--bc-log-std", warm_start["log_std"], low=-5, high=1)
-    try:
-        import torch
-        from stable_baselines3 import PPO
-        from stable_baselines3.common.callbacks import BaseCallback
-        from stable_baselines3.common.logger import configure
-        from stable_baselines3.common.vec_env import VecNormalize
-    except ImportError as exc:  # pragma: no cover - depends on the install
-        raise ValueError("training needs the rl extras: pip install -e '.[rl]'") from exc
+    config = replace(config, residual_log_std=residual_log_std, warm_start=warm_start)
+    return config, ppo
 
-    import numba
 
+def _probe(env_kwargs: dict[str, Any], config: TrainConfig, ppo: dict[str, Any]) -> _Probed:
+    """Build one env first: bad task / config keys fail here with the env's own message; a
+    rollout of fewer than two transitions is refused."""
     from swarm_env import parallel_env
 
-    # After the flags' own checks (their errors come first), before any env is built.
-    inputs.run_dir("--out", out, overwrite=overwrite)
-    # Build one env first: bad task / config keys fail here with the env's own message.
     probe = parallel_env(**env_kwargs)
     n_agents = len(probe.possible_agents)
-    probe_top_k = probe.config.top_k
     critic_dims = 0
-    if critic_state:
+    if config.critic_state:
         from agents.sb3.central_critic import critic_state_dims
 
         critic_dims = critic_state_dims(n_agents, probe.task)
+    probed = _Probed(n_agents, probe.config.top_k, critic_dims)
     probe.close()
-    if ppo.get("normalize_advantage", True) and ppo["n_steps"] * n_copies * n_agents < 2:
+    if ppo.get("normalize_advantage", True) and ppo["n_steps"] * config.n_copies * n_agents < 2:
         # SB3 asserts it: a rollout of one transition normalises its advantage to NaN.
         raise ValueError(
-            f"--n-steps {ppo['n_steps']} x --n-copies {n_copies} x {n_agents} agent(s) is a "
-            "rollout of one transition: PPO needs at least 2 (SB3 normalises the advantages)"
+            f"--n-steps {ppo['n_steps']} x --n-copies {config.n_copies} x {n_agents} agent(s) "
+            "is a rollout of one transition: PPO needs at least 2 (SB3 normalises the "
+            "advantages)"
         )
+    return probed
 
-    torch.set_num_threads(torch_threads)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "checkpoints").mkdir(exist_ok=True)
-    write_json_atomically(out / "env_kwargs.json", env_kwargs)
+
+def _policy_kwargs(config: TrainConfig, ppo: dict[str, Any], probed: _Probed) -> dict[str, Any]:
+    """The policy's keywords for the MLP / set-extractor policy (``train_config.json`` records
+    them; :func:`_build_model` adapts them to the centralised critic and the LSTM)."""
     policy_kwargs: dict[str, Any] = {
         "net_arch": {"pi": [128, 128], "vf": [128, 128]},
         # gSDE's log-std is per hidden unit: SB3's default -2 (noise std exp(-2) x |latent|).
         "log_std_init": -2.0 if ppo.get("use_sde") else -0.5,
     }
-    if warm_start is not None or critic_warmup or residual is not None:
+    if config.warm_start is not None or config.critic_warmup or config.residual is not None:
         # The value loss must not move the (cloned) actor's features: separate extractors.
         policy_kwargs["share_features_extractor"] = False
-    if extractor == "sets":
+    if config.extractor == "sets":
         from agents.sb3.features import NeighbourSetExtractor
 
-        top_k = probe_top_k
         policy_kwargs.update(
             features_extractor_class=NeighbourSetExtractor,
-            features_extractor_kwargs={"top_k": top_k},
+            features_extractor_kwargs={"top_k": probed.top_k},
         )
+    return policy_kwargs
+
+
+def _write_train_config(
+    out: Path,
+    timesteps: int,
+    config: TrainConfig,
+    ppo: dict[str, Any],
+    probed: _Probed,
+    policy_kwargs: dict[str, Any],
+) -> None:
+    """``train_config.json``: every setting of the run, as resolved."""
+    import numba
+
+    residual = config.residual
     write_json_atomically(
         out / "train_config.json",
         {
             "timesteps": timesteps,
-            "seed": seed,
-            "n_copies": n_copies,
-            "num_cpus": num_cpus,
-            "vec": vec,
-            "n_agents_per_env": n_agents,
-            "checkpoint_every": checkpoint_every,
-            "torch_threads": torch_threads,
+            "seed": config.seed,
+            "n_copies": config.n_copies,
+            "num_cpus": config.num_cpus,
+            "vec": config.vec,
+            "n_agents_per_env": probed.n_agents,
+            "checkpoint_every": config.checkpoint_every,
+            "torch_threads": config.torch_threads,
             "kernel_threads": numba.get_num_threads(),
             "ppo": ppo,
-            "extractor": extractor,
-            "warm_start": warm_start,
-            "critic_warmup": critic_warmup,
+            "extractor": config.extractor,
+            "warm_start": config.warm_start,
+            "critic_warmup": config.critic_warmup,
             "residual": residual,
-            "residual_log_std": residual_log_std if residual else None,
-            "critic_state": critic_state,
-            "critic_dims": critic_dims,
-            "residual_observes_base": residual_observes_base,
-            "residual_mode": residual_mode if residual else None,
-            "recurrent": lstm_hidden is not None,
-            "lstm_hidden": lstm_hidden,
+            "residual_log_std": config.residual_log_std if residual else None,
+            "critic_state": config.critic_state,
+            "critic_dims": probed.critic_dims,
+            "residual_observes_base": config.residual_observes_base,
+            "residual_mode": config.residual_mode if residual else None,
+            "recurrent": config.lstm_hidden is not None,
+            "lstm_hidden": config.lstm_hidden,
             "policy_kwargs": {
                 k: v for k, v in policy_kwargs.items() if k != "features_extractor_class"
             },
         },
     )
+
+
+def _training_venv(
+    env_kwargs: dict[str, Any], out: Path, config: TrainConfig, ppo: dict[str, Any]
+) -> Any:
+    """The run's VecEnv (:func:`_vec_env`, its monitor in ``out``) in SB3's ``VecNormalize``."""
+    from stable_baselines3.common.vec_env import VecNormalize
 
     # SB3 asks each env for render_mode; SuperSuit's vector env answers None (no rendering
     # while training), which SB3 reports as "not defined" on every wrapper.
@@ -700,59 +795,137 @@ def _train_with(
     # SuperSuit's worker processes (--vec supersuit --num-cpus) inherit "ignore SIGINT": a
     # Ctrl-C reaches the whole process group, and only this process must act on it (it saves,
     # then closes the workers). The batched VecEnv's workers see to it themselves.
-    supersuit_workers = num_cpus > 0 and vec == "supersuit"
+    supersuit_workers = config.num_cpus > 0 and config.vec == "supersuit"
     previous_sigint = set_signal(signal.SIGINT, signal.SIG_IGN) if supersuit_workers else None
     try:
         venv = _vec_env(
-            vec,
+            config.vec,
             env_kwargs,
-            n_copies,
-            num_cpus,
-            seed,
+            config.n_copies,
+            config.num_cpus,
+            config.seed,
             str(out / "monitor.csv"),
-            residual,
-            critic_state,
-            residual_observes_base,
-            residual_mode,
+            config.residual,
+            config.critic_state,
+            config.residual_observes_base,
+            config.residual_mode,
         )
     finally:
         if previous_sigint is not None:
             set_signal(signal.SIGINT, previous_sigint)
     # The set extractor scales its rows itself (per-slot statistics would break permutation
     # invariance); the MLP gets VecNormalize's running mean/std. Rewards are normalised in both.
-    norm_obs = extractor == "mlp"
-    venv = VecNormalize(
-        venv, norm_obs=norm_obs, norm_reward=True, clip_obs=10.0, gamma=ppo["gamma"]
+    return VecNormalize(
+        venv,
+        norm_obs=config.extractor == "mlp",
+        norm_reward=True,
+        clip_obs=10.0,
+        gamma=ppo["gamma"],
     )
 
-    def meta() -> dict[str, Any]:
-        norm = (
-            None
-            if not norm_obs
-            else {
-                "mean": venv.obs_rms.mean.tolist(),
-                "var": venv.obs_rms.var.tolist(),
-                "clip": venv.clip_obs,
-                "epsilon": venv.epsilon,
-            }
-        )
-        out_meta = {
-            "env_kwargs": env_kwargs,
-            "action_scale": "unit",
-            "obs_norm": norm,
-            "extractor": extractor,
+
+def _model_metadata(
+    env_kwargs: dict[str, Any], venv: Any, config: TrainConfig, probed: _Probed
+) -> dict[str, Any]:
+    """The metadata saved inside every model zip of the run (:func:`save_model`): its env, its
+    observation normalisation as it stands now, and how the policy acts."""
+    norm = (
+        None
+        if not venv.norm_obs
+        else {
+            "mean": venv.obs_rms.mean.tolist(),
+            "var": venv.obs_rms.var.tolist(),
+            "clip": venv.clip_obs,
+            "epsilon": venv.epsilon,
         }
-        if residual is not None:
-            out_meta["residual"] = residual
-        if residual_observes_base:
-            out_meta["residual_observes_base"] = True
-        if residual is not None and residual_mode != "add":
-            out_meta["residual_mode"] = residual_mode
-        if critic_dims:
-            out_meta["critic_dims"] = critic_dims
-        if lstm_hidden is not None:
-            out_meta["recurrent"] = True
-        return out_meta
+    )
+    out_meta = {
+        "env_kwargs": env_kwargs,
+        "action_scale": "unit",
+        "obs_norm": norm,
+        "extractor": config.extractor,
+    }
+    if config.residual is not None:
+        out_meta["residual"] = config.residual
+    if config.residual_observes_base:
+        out_meta["residual_observes_base"] = True
+    if config.residual is not None and config.residual_mode != "add":
+        out_meta["residual_mode"] = config.residual_mode
+    if probed.critic_dims:
+        out_meta["critic_dims"] = probed.critic_dims
+    if config.lstm_hidden is not None:
+        out_meta["recurrent"] = True
+    return out_meta
+
+
+def _build_model(
+    venv: Any,
+    config: TrainConfig,
+    ppo: dict[str, Any],
+    probed: _Probed,
+    policy_kwargs: dict[str, Any],
+) -> Any:
+    """The PPO model (``RecurrentPPO`` with ``lstm_hidden``; the centralised critic's policy
+    with ``critic_state``), a residual's correction zeroed at the start."""
+    from stable_baselines3 import PPO
+
+    policy_class: Any = "MlpPolicy"
+    if probed.critic_dims:
+        from agents.sb3.central_critic import CentralCriticPolicy
+
+        policy_class = CentralCriticPolicy
+        policy_kwargs = {
+            k: v for k, v in policy_kwargs.items() if not k.startswith(("features_", "share_"))
+        }
+        policy_kwargs.update(critic_dims=probed.critic_dims, top_k=probed.top_k)
+    algorithm: Any = PPO
+    if config.lstm_hidden is not None:
+        from sb3_contrib import RecurrentPPO
+
+        algorithm, policy_class = RecurrentPPO, "MlpLstmPolicy"
+        # One LSTM per side: the critic's must not move the actor's memory.
+        policy_kwargs = {
+            **policy_kwargs,
+            "lstm_hidden_size": config.lstm_hidden,
+            "shared_lstm": False,
+        }
+    model = algorithm(
+        policy_class,
+        venv,
+        seed=config.seed,
+        device="cpu",
+        verbose=0,
+        policy_kwargs=policy_kwargs,
+        tensorboard_log=None,
+        **ppo,
+    )
+    if config.residual is not None:
+        from agents.sb3.residual import zero_correction
+
+        zero_correction(model.policy, config.residual_log_std)
+    return model
+
+
+def _learn(
+    model: Any,
+    venv: Any,
+    logger: Any,
+    env_kwargs: dict[str, Any],
+    timesteps: int,
+    out: Path,
+    config: TrainConfig,
+    ppo: dict[str, Any],
+    probed: _Probed,
+) -> tuple[Path, str | None]:
+    """The warm start (if any) and PPO's ``learn``, checkpointed, stopped by a signal or the
+    wall-time budget; then the model and ``train_summary.json`` saved (a second signal
+    ignored meanwhile) and the VecEnv closed. Returns ``model.zip`` and the signal, if any."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    def meta() -> dict[str, Any]:
+        return _model_metadata(env_kwargs, venv, config, probed)
+
+    budget = WallBudget(config.max_wall_s)  # counts the warm start too
 
     class Checkpoints(BaseCallback):
         """Save ``model_<steps>_steps.zip`` (with its metadata) every ``every`` transitions;
@@ -770,63 +943,43 @@ def _train_with(
                 self.next_at += self.every
             return not budget.passed()
 
-    policy_class: Any = "MlpPolicy"
-    if critic_dims:
-        from agents.sb3.central_critic import CentralCriticPolicy
+    from agents.train_report import LearningLog, rollout_plan, say
 
-        policy_class = CentralCriticPolicy
-        policy_kwargs = {
-            k: v for k, v in policy_kwargs.items() if not k.startswith(("features_", "share_"))
-        }
-        policy_kwargs.update(critic_dims=critic_dims, top_k=probe_top_k)
-    algorithm: Any = PPO
-    if lstm_hidden is not None:
-        from sb3_contrib import RecurrentPPO
-
-        algorithm, policy_class = RecurrentPPO, "MlpLstmPolicy"
-        # One LSTM per side: the critic's must not move the actor's memory.
-        policy_kwargs.update(lstm_hidden_size=lstm_hidden, shared_lstm=False)
-    model = algorithm(
-        policy_class,
-        venv,
-        seed=seed,
-        device="cpu",
-        verbose=0,
-        policy_kwargs=policy_kwargs,
-        tensorboard_log=None,
-        **ppo,
-    )
-    if residual is not None:
-        from agents.sb3.residual import zero_correction
-
-        zero_correction(model.policy, residual_log_std)
-    logger = configure(str(out / "tb"), ["csv", "tensorboard"])
-    model.set_logger(logger)
     rollout_size = ppo["n_steps"] * venv.num_envs
-    budget = WallBudget(max_wall_s)  # counts the warm start too
-    callbacks = [Checkpoints(checkpoint_every)]
-    if critic_warmup:
-        callbacks.append(_CriticWarmup(BaseCallback, critic_warmup))
-    if progress_bar:
-        callbacks.append(_progress_callback(BaseCallback, timesteps, rollout_size, ppo))
+    planned, rounded = rollout_plan(
+        timesteps,
+        rollout_size,
+        f"--n-steps {ppo['n_steps']} x {config.n_copies} copies x {probed.n_agents} agents",
+    )
+    if rounded:
+        say(rounded)
+    log = LearningLog(planned, "sb3")
+    callbacks = [Checkpoints(config.checkpoint_every)]
+    if config.critic_warmup:
+        callbacks.append(_CriticWarmup(BaseCallback, config.critic_warmup))
+    bar_callback = None
+    if config.progress_bar:
+        bar_callback = _progress_callback(BaseCallback, timesteps, rollout_size, ppo)
+        callbacks.append(bar_callback)
+    callbacks.append(_LearningCallback(BaseCallback, log, bar_callback))
     start = time.perf_counter()
     with Interrupts() as interrupts:
         callbacks.append(_StopOnSignal(BaseCallback, interrupts))
         with interrupts.caught():
             # Inside the handler: a signal during the warm start saves the actor as it is.
-            if warm_start is not None:
+            if config.warm_start is not None:
                 _warm_start(
                     model,
                     venv,
                     env_kwargs,
-                    warm_start,
-                    n_copies,
-                    seed,
-                    norm_obs,
+                    config.warm_start,
+                    config.n_copies,
+                    config.seed,
+                    venv.norm_obs,
                     out,
                     meta,
-                    residual,
-                    residual_observes_base,
+                    config.residual,
+                    config.residual_observes_base,
                 )
             model.learn(total_timesteps=timesteps, callback=callbacks, progress_bar=False)
         interrupted = interrupts.received
@@ -860,7 +1013,46 @@ def _train_with(
     else:
         why = " (wall-time budget)" if budget.reached else ""
         print(f"trained {model.num_timesteps} agent steps in {elapsed:.0f} s{why} -> {path}")
+    from agents.train_report import eval_seeds, finish
+
+    finish(
+        out,
+        log,
+        str(path),
+        env_kwargs,
+        [] if interrupted else eval_seeds(config.eval_seeds),
+        _saved_checkpoints(out, model.num_timesteps),
+        f"{env_kwargs.get('preset')}, task {env_kwargs.get('task')}, sb3 PPO",
+    )
     return path, interrupted
+
+
+def _saved_checkpoints(out: Path, final_steps: int) -> list[tuple[int, str]]:
+    """``(agent steps, path)`` of the run's ``checkpoints/model_<steps>_steps.zip`` before the
+    final model, by steps."""
+    found = []
+    for path in (out / "checkpoints").glob("model_*_steps.zip"):
+        steps = int(path.stem.split("_")[1])
+        if steps < final_steps:
+            found.append((steps, str(path)))
+    return sorted(found)
+
+
+def _LearningCallback(base: type, log: Any, bar_callback: Any):  # noqa: N802 - SB3 lazily
+    """A callback adding one point per rollout to ``log`` (:class:`agents.train_report.
+    LearningLog`): the mean return of the last finished agent-episodes (SB3's window)."""
+
+    class LearningCallback(base):  # type: ignore[misc, valid-type]
+        def _on_rollout_end(self) -> None:
+            episodes = [float(e["r"]) for e in self.model.ep_info_buffer]
+            mean = sum(episodes) / len(episodes) if episodes else float("nan")
+            bar = getattr(bar_callback, "bar", None)
+            log.add(self.num_timesteps, mean, len(episodes), bar)
+
+        def _on_step(self) -> bool:
+            return True
+
+    return LearningCallback()
 
 
 def _warm_start(
@@ -954,7 +1146,7 @@ def _StopOnSignal(base: type, interrupts: Interrupts):  # noqa: N802 - SB3 impor
 def _progress_callback(base: type, timesteps: int, rollout_size: int, ppo: dict[str, Any]):
     """A bar over agent steps that stays alive during the PPO update: it counts the optimiser's
     gradient steps (epochs x minibatches) while the policy trains on a rollout."""
-    from swarm_phd import progress
+    from swarm_core import progress
 
     class ProgressCallback(base):  # type: ignore[misc, valid-type]
         def __init__(self) -> None:
@@ -998,9 +1190,3 @@ def _progress_callback(base: type, timesteps: int, rollout_size: int, ppo: dict[
                 self.bar = None
 
     return ProgressCallback()
-
-
-if __name__ == "__main__":  # ``python -m agents.sb3.train ARGS`` is ``swarm-phd train ARGS``
-    from swarm_phd.cli import main
-
-    sys.exit(main(["train", *sys.argv[1:]]))

@@ -8,6 +8,10 @@
   detection, occlusion, red decoys as false positives).
 - :mod:`~swarm_env.sensors.noise`: seeded noise tables; :mod:`~swarm_env.sensors.kernels`: the
   compiled casting kernels.
+- :mod:`~swarm_env.sensors.scene`: the geometry snapshot the models cast against (the world
+  builds it from its bodies; :mod:`~swarm_env.sensors.scene_builder` builds one without
+  physics), and :mod:`~swarm_env.sensors.spatial_index`, the grid that keeps big swarms' cost
+  per robot flat.
 
 What runs on real robots too (lidar feature extraction, null bearings) lives in
 :mod:`swarm_core.perception`.

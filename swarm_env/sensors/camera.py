@@ -44,8 +44,8 @@ from numba import njit, prange
 from swarm_core.validation import check_number_fields
 from swarm_env.sensors.kernels import segment_distance2, stable_order, wrap
 from swarm_env.sensors.noise import table_indices
-from swarm_env.world.scene import Scene
-from swarm_env.world.spatial_index import build_grid, gather
+from swarm_env.sensors.scene import Scene
+from swarm_env.sensors.spatial_index import build_grid, gather
 
 #: ``observe(indexed=None)`` uses the grid from this many (observer, red circle) pairs on: a
 #: 20-robot step (60 frames x ~100 red circles) is faster brute force, 100 robots (300 x 510)
@@ -334,7 +334,7 @@ class CameraSensor:
             Instant of each frame in a time-stacked scene (see :class:`Scene`).
         indexed : bool, optional
             ``True``: test only the red circles, occluders and segments near each observer,
-            through a uniform grid (:mod:`swarm_env.world.spatial_index`). ``False``: the
+            through a uniform grid (:mod:`swarm_env.sensors.spatial_index`). ``False``: the
             brute-force :meth:`visibility` over every (observer, red circle) pair, the
             reference (bit-identical, O(K x T) in time and memory). ``None`` (default): the
             grid from :data:`INDEX_MIN_PAIRS` (observer, red circle) pairs on.
@@ -637,7 +637,7 @@ def _pairs_kernel(
 
     Same inputs and tests as :func:`_visibility_kernel` (``circles`` = ``(circle_xy,
     circle_radius, circle_owner, circle_time)``), and ``index`` = ``(targets, occluders,
-    segments, n_slots, max_reach)``: grids (:func:`~swarm_env.world.spatial_index.build_grid`)
+    segments, n_slots, max_reach)``: grids (:func:`~swarm_env.sensors.spatial_index.build_grid`)
     of the red circles (items: columns of ``target``) and of the camera occluders (items: scene
     circle indices), both in slot ``instant + 1``, of the segments, and the largest detectable
     range, m. A frame tests only the red circles, occluders and segments of the cells within

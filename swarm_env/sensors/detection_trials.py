@@ -15,7 +15,7 @@ import numpy as np
 from swarm_core.perception.lidar_features import extract_clusters
 from swarm_env.config import make_config
 from swarm_env.sensors.lidar import LidarSensor
-from swarm_env.world.scene_builder import make_pair_scene
+from swarm_env.sensors.scene_builder import make_pair_scene
 
 #: A detection within this distance of the target's centre (m) is the target.
 MATCH_GATE_M = 0.15

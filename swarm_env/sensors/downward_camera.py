@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from swarm_core.aerial import AerialFrame
 from swarm_core.validation import (
     check_int_range,
     check_non_negative,
@@ -102,30 +103,6 @@ class DownwardCameraConfig:
     def noise_std_m(self, altitude_m: float) -> float:
         """Ground-plane std per axis of a detection at altitude ``h``: ``h sigma_px / f_px``."""
         return altitude_m * self.pixel_noise_std_px / self.focal_length_px
-
-
-@dataclass(frozen=True, slots=True)
-class AerialFrame:
-    """One processed frame of the downward camera.
-
-    Attributes
-    ----------
-    stamp_s : float
-    altitude_m : float
-        The altitude the frame was taken at (the height sensor's reading).
-    half_extents_m : ndarray, shape (2,)
-        Footprint half extents along the UAV's x and y axes (m).
-    detections : ndarray, shape (M, 2)
-        Anonymous ``[x_m, y_m]`` in the UAV's level frame, random order.
-    source : ndarray, shape (M,) int
-        Ground truth for metrics only: the target row of each detection, ``-1`` for clutter.
-    """
-
-    stamp_s: float
-    altitude_m: float
-    half_extents_m: np.ndarray
-    detections: np.ndarray
-    source: np.ndarray
 
 
 def in_footprint(points_xy: np.ndarray, half_extents_m: np.ndarray) -> np.ndarray:

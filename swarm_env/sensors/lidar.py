@@ -1,4 +1,4 @@
-"""YDLidar X4 model: compiled ray casting over a :class:`~swarm_env.world.scene.Scene`.
+"""YDLidar X4 model: compiled ray casting over a :class:`~swarm_env.sensors.scene.Scene`.
 
 One call to :meth:`LidarSensor.scan` casts every beam of K scans at once in one numba kernel
 (``_scan_kernel``). It never tests every (beam, shape) pair: for each (scan, shape) pair it
@@ -46,8 +46,8 @@ from swarm_core.perception.blind_sectors import blind_mask
 from swarm_core.validation import check_blind_sectors, check_number_fields
 from swarm_env.sensors.kernels import segment_distance2, stable_order, wrap
 from swarm_env.sensors.noise import TabulatedNormal, table_indices, tabulated
-from swarm_env.world.scene import Scene
-from swarm_env.world.spatial_index import build_grid, gather
+from swarm_env.sensors.scene import Scene
+from swarm_env.sensors.spatial_index import build_grid, gather
 
 # Grid cell of the scans' spatial index, m: a scan reaches 11.6 m (10 m + 6 sigma of noise),
 # i.e. ~150 cells of 2 m per slot (~550 of 1 m; 2 m measured ~1.5x faster at 1000 robots).
@@ -350,7 +350,7 @@ class LidarSensor:
             Instant of each scan in a time-stacked scene (see :class:`Scene`).
         indexed : bool, optional
             ``True``: visit only the shapes near each scanner through a uniform grid
-            (:mod:`swarm_env.world.spatial_index`). ``False``: test every shape, the
+            (:mod:`swarm_env.sensors.spatial_index`). ``False``: test every shape, the
             brute-force reference (bit-identical results at O(scans x shapes) cost).
             ``None`` (default): the grid from :data:`INDEX_MIN_CIRCLES` lidar circles on,
             where it pays for building it.

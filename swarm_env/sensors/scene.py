@@ -78,16 +78,6 @@ class Scene:
         t = np.zeros_like(robots) if time_index is None else time_index
         return self.robot_xy[t, robots], self.robot_yaw[t, robots]
 
-    def circles_present(
-        self, circles: np.ndarray, time_index: np.ndarray | None, n_readings: int
-    ) -> np.ndarray | None:
-        """(K, len(circles)) mask of the circles that exist at each reading's instant, or
-        ``None`` when every circle always exists (single-instant scene)."""
-        if self.circle_time is None or time_index is None:
-            return None
-        when = self.circle_time[circles]
-        return (when[None, :] < 0) | (when[None, :] == np.asarray(time_index)[:, None])
-
     def at(self, instant: int) -> tuple[Scene, np.ndarray]:
         """The single-instant scene of a time-stacked one, and the kept circle indices (C',)."""
         if self.circle_time is None:

@@ -1,4 +1,4 @@
-"""Build :class:`~swarm_env.world.scene.Scene` snapshots directly with numpy, without physics.
+"""Build :class:`~swarm_env.sensors.scene.Scene` snapshots directly with numpy, without physics.
 
 For controlled sensor experiments (the detection-curve and speed benchmarks) and the tests::
 
@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from swarm_env.world.scene import Scene
+from swarm_env.sensors.scene import Scene
 
 HOUSING_RADIUS_M = 0.0325  # YDLidar X4 housing, 65 mm diameter (seed 000)
 STRIP_RADIUS_M = 0.045  # red strip around the camera holder

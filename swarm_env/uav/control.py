@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from pettingzoo import ParallelEnv
 
-from swarm_env.sensors.downward_camera import AerialFrame
+from swarm_core.aerial import AerialFrame
 
 
 def hover_command(frame: AerialFrame | None) -> np.ndarray:

@@ -38,13 +38,13 @@ from pettingzoo import ParallelEnv
 
 from localization.id_phd import IDPHDConfig
 from localization.id_phd.aerial import AerialIDPHD, CameraModel
+from swarm_core.aerial import AerialFrame
 from swarm_core.geometry import integrate_body_delta, wrap_angle
 from swarm_core.records import Broadcast
 from swarm_env.comms import SwarmRadio
 from swarm_env.config import make_config
 from swarm_env.env import SwarmEnv
 from swarm_env.sensors.downward_camera import (
-    AerialFrame,
     DownwardCamera,
     in_footprint,
     measure_camera,
@@ -153,7 +153,7 @@ class SupervisedSwarmEnv(ParallelEnv):
         off: this env owns the radio). The UAV is then not simulated: its action is published
         as a velocity command, its increment comes from its pose messages and the camera frames
         from its detections messages (the newest per step;
-        :class:`~hardware_bridge.assembly.UAVAssembler`). Without the UAV's true pose the
+        :class:`~swarm_core.aerial.UAVAssembler`). Without the UAV's true pose the
         UAV's reward is 0 and ``infos["uav_0"]["truth"]`` is ``None``.
     **overrides
         ``SwarmConfig`` fields (``n_robots=5``, ``comms={"loss_probability": 0.2}``, ...).
@@ -206,7 +206,7 @@ class SupervisedSwarmEnv(ParallelEnv):
                 raise ValueError(
                     f"uav.velocity_frame must be 'body' with a world, got {uav.velocity_frame!r}"
                 )
-            from hardware_bridge.assembly import UAVAssembler  # only for real / replayed UAVs
+            from swarm_core.aerial import UAVAssembler  # only for real / replayed UAVs
 
             self._uav_assembler = UAVAssembler(uav.camera)
         self.ground = SwarmEnv(

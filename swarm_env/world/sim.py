@@ -10,7 +10,7 @@ robots cannot push one of them through a wall. The encoders count the wheels' ro
 contact blocks or pushes the chassis they slip exactly as on a real robot.
 
 Sensors run at their own rates on substep boundaries, each robot with its own phase, and see the
-world through a :class:`~swarm_env.world.scene.Scene` snapshot built from the bodies.
+world through a :class:`~swarm_env.sensors.scene.Scene` snapshot built from the bodies.
 """
 
 from __future__ import annotations
@@ -31,9 +31,9 @@ from swarm_env.config import SwarmConfig
 from swarm_env.sensors.camera import CameraSensor
 from swarm_env.sensors.lidar import LidarSensor
 from swarm_env.sensors.odometry import WheelEncoders
+from swarm_env.sensors.scene import Scene
 from swarm_env.world.arena import Layout, sample_layout, wall_segments
 from swarm_env.world.diagnostics import LidarScanObserver, LidarScanTruth, SensorStats
-from swarm_env.world.scene import Scene
 
 # Lidar return intensity of each surface (arbitrary units, as the YDLidar reports them).
 _INTENSITY_WALL = 1000.0

@@ -245,9 +245,9 @@ def test_split_copies_blocks_and_refusals():
     assert split_copies(4, 1) == [range(0, 4)]
     for args, match in (
         ((2, 3), "n_workers \\(3\\) must not exceed n_copies \\(2\\)"),
-        ((4, 0), "n_workers must be an int >= 1, got 0"),
-        ((0, 1), "n_copies must be an int >= 1, got 0"),
-        ((4, True), "n_workers must be an int >= 1, got True"),
+        ((4, 0), "n_workers must be an integer >= 1, got 0"),
+        ((0, 1), "n_copies must be an integer >= 1, got 0"),
+        ((4, True), "n_workers must be an integer >= 1, got True"),
     ):
         with pytest.raises(ValueError, match=match):
             split_copies(*args)

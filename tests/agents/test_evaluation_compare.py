@@ -304,7 +304,7 @@ def test_paired_by_seed_refuses_seeds_that_do_not_line_up():
     for results in ([ref, cut], [cut, ref]):
         rows = paired_by_seed(results)
         assert rows and all(r["seeds"] == [0, 1] and r["n_seeds"] == 2 for r in rows)
-    from agents.sb3.report import paired_difference
+    from agents.evaluation import paired_difference
 
     with pytest.raises(ValueError, match="same seeds"):
         paired_difference([0.1, 0.2], [0.1], "gospa_mean_m")  # no silent broadcasting

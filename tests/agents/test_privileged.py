@@ -165,7 +165,7 @@ def test_the_truth_teacher_scores_as_the_controller_on_the_truth():
     """`report.score("privileged:NAME@truth")` runs in an env on the estimate and reads the
     truth from its infos; `scripted:NAME@truth` runs in an env on the truth: same world,
     same commands, same scores."""
-    from agents.sb3.report import score
+    from agents.evaluation import score
 
     kwargs = {**KWARGS, "max_steps": 20}
     name = "formation-known-n-fast"

@@ -19,6 +19,7 @@ from agents.sb3.recurrent_student import (  # noqa: E402
     read_student_metadata,
     save_student,
 )
+from experiments.recurrent_ppo import main as run_main  # noqa: E402
 from swarm_env import parallel_env  # noqa: E402
 from tests.agents.test_recurrent_student import drive_one_step  # noqa: E402
 
@@ -147,7 +148,7 @@ TINY += ["--val-seeds", "200", "--phases", "0,4", "--train-seeds-start", "7000"]
 def test_main_fine_tunes_saves_each_scored_student_and_is_reproducible(student, tmp_path):
     out = tmp_path / "run"
     argv = ["--student", str(student), "--out", str(out), *TINY]
-    assert recurrent_ppo.main([*argv, "--task-params", '{"progress_weight": 10}']) == 0
+    assert run_main([*argv, "--task-params", '{"progress_weight": 10}']) == 0
     names = ("student_it0.pt", "student_it1.pt", "student_it2.pt", "student.pt", "train_log.png")
     for name in names:
         assert (out / name).is_file(), name
@@ -170,7 +171,7 @@ def test_main_fine_tunes_saves_each_scored_student_and_is_reproducible(student, 
     # Same arguments, same student, bit for bit (seeded env, noise and minibatches).
     again = tmp_path / "again"
     argv = ["--student", str(student), "--out", str(again), *TINY]
-    assert recurrent_ppo.main([*argv, "--task-params", '{"progress_weight": 10}']) == 0
+    assert run_main([*argv, "--task-params", '{"progress_weight": 10}']) == 0
     assert _digest(again / "student.pt") == _digest(out / "student.pt")
 
 
@@ -184,7 +185,7 @@ def test_worker_processes_train_the_same_student_bit_for_bit(student, tmp_path, 
     for name, extra in (("inproc", []), ("workers", ["--num-cpus", "2"])):
         out = tmp_path / name
         argv = ["--student", str(student), "--out", str(out), *TINY, *extra]
-        assert recurrent_ppo.main([*argv, "--task-params", '{"progress_weight": 10}']) == 0
+        assert run_main([*argv, "--task-params", '{"progress_weight": 10}']) == 0
         runs[name] = out
     assert _digest(runs["workers"] / "student.pt") == _digest(runs["inproc"] / "student.pt")
     assert built == [2]  # only the second run used workers
@@ -231,7 +232,7 @@ def test_an_interrupt_saves_the_student_and_exits_130(student, tmp_path, monkeyp
 
     monkeypatch.setattr(recurrent_ppo, "rollout", interrupted_rollout)
     out = tmp_path / "run"
-    assert recurrent_ppo.main(["--student", str(student), "--out", str(out), *TINY]) == 130
+    assert run_main(["--student", str(student), "--out", str(out), *TINY]) == 130
     assert "SIGINT in iteration 2 (1 completed)" in capsys.readouterr().err
     log = json.loads((out / "train_log.json").read_text())
     assert log["interrupted"] == log["stopped"] == "SIGINT" and len(log["iterations"]) == 1
@@ -244,7 +245,7 @@ def test_the_wall_time_budget_stops_after_an_iteration_and_saves(student, tmp_pa
     saves student.pt and the log as a finished run does, and exits 0."""
     out = tmp_path / "run"
     argv = ["--student", str(student), "--out", str(out), *TINY, "--max-wall-minutes", "1e-6"]
-    assert recurrent_ppo.main(argv) == 0
+    assert run_main(argv) == 0
     assert "(wall-time budget)" in capsys.readouterr().out
     log = json.loads((out / "train_log.json").read_text())
     assert log["stopped"] == "max-wall-minutes" and log["interrupted"] is None
@@ -270,22 +271,20 @@ def test_the_wall_time_budget_stops_after_an_iteration_and_saves(student, tmp_pa
         (["--phases", "5,2"], "--phases"),
         (["--log-std", "inf"], "--log-std"),
         (["--max-wall-minutes", "0"], "--max-wall-minutes"),
-        (["--num-cpus", "-1"], "--num-cpus must be >= 0, got -1"),
+        (["--num-cpus", "-1"], "--num-cpus must be an integer >= 0, got -1"),
         (["--num-cpus", "3"], "--num-cpus 3 exceeds --n-copies 2"),
     ],
 )
 def test_main_refuses_bad_arguments_before_any_rollout(student, tmp_path, capsys, extra, flag):
     with pytest.raises(SystemExit):
-        recurrent_ppo.main(
-            ["--student", str(student), "--out", str(tmp_path / "x"), *TINY, *extra]
-        )
+        run_main(["--student", str(student), "--out", str(tmp_path / "x"), *TINY, *extra])
     assert flag in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
 
 
 def test_the_students_own_directory_is_refused_as_out(student, capsys):
     with pytest.raises(SystemExit):
-        recurrent_ppo.main(["--student", str(student), "--out", str(student.parent), *TINY])
+        run_main(["--student", str(student), "--out", str(student.parent), *TINY])
     assert "would be overwritten" in capsys.readouterr().err
 
 
@@ -294,19 +293,19 @@ def test_a_missing_or_foreign_student_is_refused(tmp_path, capsys):
         if path.name == "foreign.pt":
             torch.save({"format": "something else"}, path)
         with pytest.raises(SystemExit):
-            recurrent_ppo.main(["--student", str(path), "--out", str(tmp_path / "x"), *TINY])
+            run_main(["--student", str(path), "--out", str(tmp_path / "x"), *TINY])
         assert path.name in capsys.readouterr().err
 
 
 def test_a_zero_start_drives_as_its_base_until_ppo_moves_it(student, tmp_path):
     """--base with --env-from: iteration 0 (and the critic's warm-up) is the base's own
     motion, bit for bit in the scored figures; the PPO iteration moves the student."""
-    from agents.sb3.report import score
+    from agents.evaluation import score
 
     out = tmp_path / "zero"
     base = "scripted:formation-known-n"
     argv = ["--base", base, "--env-from", str(student), "--out", str(out), *TINY]
-    assert recurrent_ppo.main(argv) == 0
+    assert run_main(argv) == 0
     log = json.loads((out / "train_log.json").read_text())
     assert log["base"] == base and log["env_kwargs"] == ENV
     assert log["val"][0] == {"iteration": 0, **log["base_val"]}
@@ -344,7 +343,7 @@ def test_the_start_must_be_one_student_or_one_base_in_an_env(
     save_student(rows, _model(space), {**ENV, "top_k": 8}, BASE)
     argv = [a.format(student=student, raw=raw, rows=rows) for a in argv]
     with pytest.raises(SystemExit):
-        recurrent_ppo.main([*argv, "--out", str(tmp_path / "x"), *TINY])
+        run_main([*argv, "--out", str(tmp_path / "x"), *TINY])
     assert message in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
 
@@ -362,10 +361,10 @@ def test_a_zero_start_in_a_models_env_and_its_own_directory_refused(space, tmp_p
     write_metadata(model, {"env_kwargs": ENV, "obs_norm": None})
     base = "scripted:formation-known-n"
     argv = ["--base", base, "--env-from", str(model), *TINY, "--iterations", "1"]
-    assert recurrent_ppo.main([*argv, "--out", str(tmp_path / "run")]) == 0
+    assert run_main([*argv, "--out", str(tmp_path / "run")]) == 0
     assert read_student_metadata(tmp_path / "run" / "student.pt")["env_kwargs"] == ENV
     with pytest.raises(SystemExit):
-        recurrent_ppo.main([*argv, "--out", str(model.parent)])
+        run_main([*argv, "--out", str(model.parent)])
     assert "holds --env-from" in capsys.readouterr().err
 
 
@@ -374,7 +373,7 @@ def test_a_previous_run_in_out_is_refused_without_overwrite(student, tmp_path, c
     out.mkdir()
     (out / "student.pt").write_bytes(b"a finished run")
     with pytest.raises(SystemExit):
-        recurrent_ppo.main(["--student", str(student), "--out", str(out), *TINY])
+        run_main(["--student", str(student), "--out", str(out), *TINY])
     err = capsys.readouterr().err
     assert "holds a previous run" in err and "--overwrite" in err
     assert [p.name for p in out.iterdir()] == ["student.pt"]

@@ -12,17 +12,17 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from agents.policies import load_policy, policy_observation  # noqa: E402
-from agents.sb3.history_fit import collect_sequences  # noqa: E402
 from agents.sb3.recurrent_student import (  # noqa: E402
     RecurrentStudentPolicy,
     _digest,
     load_student,
-    main,
     new_student,
     read_student_metadata,
     save_student,
 )
 from agents.sb3.residual import ResidualBase, base_in_unit_scale, compose  # noqa: E402
+from agents.sb3.sequences import collect_sequences  # noqa: E402
+from experiments.recurrent_student import main  # noqa: E402
 from swarm_env import parallel_env  # noqa: E402
 
 ENV = {"preset": "lab-3m-4", "task": "formation", "observation": "phd", "max_steps": 8}
@@ -305,9 +305,9 @@ def test_a_signal_keeps_the_last_completed_rounds_student(
 ):
     """A real signal in round 2: SIGINT as its episodes are collected, SIGTERM once its fit
     has moved the model (which must then not become student.pt). Exit 130 / 143."""
-    from agents.sb3 import history_fit
+    from agents.sb3 import sequences
 
-    real, calls = getattr(history_fit, where), []
+    real, calls = getattr(sequences, where), []
 
     def signalled(*args, **kwargs):
         calls.append(1)
@@ -316,7 +316,7 @@ def test_a_signal_keeps_the_last_completed_rounds_student(
             os.kill(os.getpid(), getattr(signal, name))
         return result
 
-    monkeypatch.setattr(history_fit, where, signalled)
+    monkeypatch.setattr(sequences, where, signalled)
     # Were the trainer's handler missing, a SIGTERM would end pytest: make it a plain
     # KeyboardInterrupt (then read as SIGINT, and the exit code check fails).
     previous = signal.signal(signal.SIGTERM, signal.default_int_handler)
@@ -347,9 +347,9 @@ def test_the_wall_time_budget_stops_after_a_round_with_its_student(tmp_path, cap
 
 
 def test_student_best_is_the_round_best_on_validation_not_the_last(tmp_path, monkeypatch):
-    import agents.sb3.report as report
+    import agents.evaluation as evaluation
 
-    real_score = report.score
+    real_score = evaluation.score
     errors = iter([0.09, 0.05, 0.07])  # the base, round 1, round 2: round 1 is best
 
     def score(*args, **kwargs):
@@ -357,7 +357,7 @@ def test_student_best_is_the_round_best_on_validation_not_the_last(tmp_path, mon
         result["mean"]["formation_error_m"] = next(errors)
         return result
 
-    monkeypatch.setattr(report, "score", score)
+    monkeypatch.setattr(evaluation, "score", score)
     out = tmp_path / "run"
     assert main([*ARGS, "--round-seeds", "0-1", "2", "--out", str(out)]) == 0
     log = json.loads((out / "train_log.json").read_text())
@@ -381,7 +381,7 @@ def test_a_rerun_into_the_same_out_leaves_no_student_of_the_earlier_run(tmp_path
 def test_report_scores_students_pooled_against_their_base_without_training_runs(
     env, tmp_path, capsys
 ):
-    from agents.sb3 import report
+    from experiments import report
 
     paths = [tmp_path / "s0.pt", tmp_path / "s1.pt"]
     for seed, path in enumerate(paths):
@@ -437,7 +437,7 @@ def test_evaluate_runs_a_student_in_its_own_env(env, tmp_path):
 
 
 def test_localization_table_scores_a_student_in_its_own_env(env, tmp_path):
-    from agents.sb3 import localization_table
+    from experiments import localization_table
 
     path = tmp_path / "s.pt"
     save_student(path, _student(env), ENV, BASE)

@@ -184,7 +184,7 @@ def test_train_residual_saves_a_model_that_starts_as_the_scripted_controller(tmp
     np.testing.assert_allclose(learned.model.policy.log_std.detach().numpy(), -2.0, rtol=0, atol=0)
     assert_drives_like_scripted(learned)
     # The one-table scorer: same motion, so the same task and localization metrics.
-    from agents.sb3.localization_table import main
+    from experiments.localization_table import main
 
     out = tmp_path / "table"
     assert (
@@ -261,9 +261,9 @@ def test_gain_mode_model_zip_scales_the_scripted_command(tmp_path, monkeypatch):
             moving += 0 < abs(base[agent][0]) < high[0] / 2  # the doubling is not clipped
         obs, _, _, _, infos = env.step(actions)
     assert moving > 0
-    # agents.sb3.residual_gains reads the gains back: 1 for the zero correction, [2, 1] here.
+    # experiments/residual_gains.py reads the gains back: 1 for the zero correction, [2, 1] here.
     from agents.sb3.policy import write_metadata
-    from agents.sb3.residual_gains import main, requested_gains
+    from experiments.residual_gains import main, requested_gains
 
     np.testing.assert_array_equal(requested_gains(path, [100]), np.ones((4 * 15, 2)))
     doubled = tmp_path / "doubled.zip"

@@ -12,19 +12,8 @@ import pytest
 
 pytest.importorskip("ray.rllib", reason="the ray extra is not installed")
 
-import ray  # noqa: E402
 
 ENV_KWARGS = {"preset": "lab-3m-4", "task": "formation", "max_steps": 10}
-
-
-@pytest.fixture(scope="module")
-def local_ray():
-    started = not ray.is_initialized()
-    if started:
-        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    yield
-    if started:
-        ray.shutdown()
 
 
 @pytest.fixture

@@ -68,7 +68,7 @@ def no_env(monkeypatch):
     monkeypatch.setattr(adapter, "make_vec_env", built)
     monkeypatch.setattr(torch, "set_num_threads", threads)
     # The kernels are compiled once per session (conftest); no compile check per refusal.
-    monkeypatch.setattr("swarm_phd.warmup.warm_if_cold", lambda: False)
+    monkeypatch.setattr("swarm_env.warmup.warm_if_cold", lambda: False)
 
 
 CLI_REFUSALS = [
@@ -192,10 +192,10 @@ def test_the_defaults_and_sb3s_own_exceptions_pass():
     check_ppo_kwargs({"target_kl": None, "clip_range_vf": None, "use_sde": True})
 
 
-def test_module_entry_point_refuses_in_one_line(previous_run):
-    """``python -m agents.sb3.train`` is ``swarm-phd train``: same refusal, same exit code."""
+def test_command_line_refuses_in_one_line(previous_run):
+    """``swarm-phd train`` from a shell (the module entry point): one line, exit code 2."""
     proc = subprocess.run(
-        [sys.executable, "-m", "agents.sb3.train", *BASE[1:], "--out", str(previous_run)]
+        [sys.executable, "-m", "swarm_phd.cli", *BASE, "--out", str(previous_run)]
         + ["--gamma", "2"],
         cwd=ROOT,
         capture_output=True,
@@ -237,7 +237,7 @@ def test_overwrite_trains_into_a_previous_run(previous_run):
 
 
 def test_run_dir_takes_a_new_or_empty_directory(tmp_path):
-    from swarm_phd.inputs import run_dir
+    from swarm_core.inputs import run_dir
 
     assert run_dir("--out", tmp_path / "new" / "run", overwrite=False) == tmp_path / "new" / "run"
     assert run_dir("--out", tmp_path, overwrite=False) == tmp_path  # empty

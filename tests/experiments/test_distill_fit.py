@@ -1,4 +1,4 @@
-"""agents.sb3.distill_fit: the per-phase fit of a distilled residual to its teacher."""
+"""experiments/distill_fit.py: the per-phase fit of a distilled residual to its teacher."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
-from agents.sb3.distill_fit import collect_fit, main, phase_table  # noqa: E402
+from experiments.distill_fit import collect_fit, main, phase_table  # noqa: E402
 from tests.agents.test_residual import train_frozen_residual  # noqa: E402
 
 

@@ -1,11 +1,11 @@
-"""The formation controller's error diagnosis (agents.formation_diagnosis)."""
+"""The formation controller's error diagnosis (experiments/formation_diagnosis.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from agents.formation_diagnosis import (
+from experiments.formation_diagnosis import (
     LostTeammateTally,
     _CommandTally,
     bearing_holder,
@@ -344,7 +344,7 @@ def test_the_env_is_closed_when_the_diagnosis_fails(tmp_path, monkeypatch):
         return act
 
     monkeypatch.setattr(policies, "load_policy", broken)
-    monkeypatch.setattr("agents.formation_diagnosis.estimate_reader", lambda spec, d: d)
+    monkeypatch.setattr("experiments.formation_diagnosis.estimate_reader", lambda spec, d: d)
     with pytest.raises(RuntimeError, match="policy failed"):
         diagnose("lab-3m-4", [200], 0, 5)
     assert closed

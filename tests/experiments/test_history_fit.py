@@ -1,4 +1,5 @@
-"""agents.sb3.history_fit: what one frame and what a history carry of a teacher's correction."""
+"""experiments/history_fit.py: what one frame and what a history carry of a teacher's
+correction."""
 
 from __future__ import annotations
 
@@ -10,9 +11,9 @@ import pytest
 
 pytest.importorskip("torch")
 
-from agents.sb3.distill_fit import phase_table  # noqa: E402
-from agents.sb3.history_fit import (  # noqa: E402
-    collect_sequences,
+from agents.sb3.sequences import collect_sequences  # noqa: E402
+from experiments.distill_fit import phase_table  # noqa: E402
+from experiments.history_fit import (  # noqa: E402
     fit_regressors,
     fit_rows,
     main,

@@ -1,4 +1,4 @@
-"""Paired returns of a scripted base at two gains (agents.sb3.paired_returns)."""
+"""Paired returns of a scripted base at two gains (experiments/paired_returns.py)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
-from agents.sb3 import paired_returns as pr  # noqa: E402
 from agents.sb3.batched import BatchedSwarmVecEnv  # noqa: E402
+from experiments import paired_returns as pr  # noqa: E402
 
 KWARGS = {
     "preset": "lab-3m-4",

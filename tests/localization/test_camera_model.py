@@ -110,7 +110,7 @@ def test_simulator_filter_bearing_noise_matches_the_simulated_camera(range_m):
     sampling error of 1500 pairs), not the all-range 0.45 deg RMS."""
     from swarm_env.config import SIMULATOR_PHD, make_config
     from swarm_env.sensors.camera import CameraSensor
-    from swarm_env.world.scene_builder import make_pair_scene
+    from swarm_env.sensors.scene_builder import make_pair_scene
 
     cfg = make_config("sim-6m-20")
     rng = np.random.default_rng(7)

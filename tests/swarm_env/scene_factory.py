@@ -1,4 +1,4 @@
-"""Test helpers around :mod:`swarm_env.world.scene_builder` (re-exported here).
+"""Test helpers around :mod:`swarm_env.sensors.scene_builder` (re-exported here).
 
 ``EXACT_LIDAR`` is the noise-free lidar of the analytic tests; ``sight_line_crosses_segments``
 a per-segment reference for the compiled camera kernel.
@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 
 from swarm_env.sensors.lidar import LidarConfig
-from swarm_env.world.scene import Scene
-from swarm_env.world.scene_builder import (  # noqa: F401  (re-exported for the tests)
+from swarm_env.sensors.scene import Scene
+from swarm_env.sensors.scene_builder import (  # noqa: F401  (re-exported for the tests)
     HOUSING_RADIUS_M,
     POST_RADIUS_M,
     RED_DECOY_RADIUS_M,

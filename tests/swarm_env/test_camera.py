@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from swarm_env.sensors.camera import CameraConfig, CameraSensor
-from swarm_env.world.scene import Scene
-from swarm_env.world.scene_builder import make_pair_scene
+from swarm_env.sensors.scene import Scene
+from swarm_env.sensors.scene_builder import make_pair_scene
 from tests.swarm_env.scene_factory import (
     SceneBuilder,
     make_arena_scene,

@@ -268,47 +268,6 @@ def test_scripted_policy_reads_the_task_filter():
     env.close()
 
 
-def test_sources_benchmark_scores_each_policy_and_setting(tmp_path):
-    """``benchmarks/encirclement_sources.py`` end to end on a 3 s run: one entry per policy and
-    intruder setting, mean and std over the seeds, and the task filter's track for
-    ``particle+filter``; a model path that does not exist is refused."""
-    import json
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    script = Path(__file__).resolve().parents[2] / "benchmarks" / "encirclement_sources.py"
-    cmd = [
-        sys.executable,
-        str(script),
-        "--duration",
-        "3",
-        "--seeds",
-        "0-1",
-        "--out",
-        str(tmp_path),
-    ]
-    run = subprocess.run(
-        cmd + ["--sources", "beacon,particle+filter"], capture_output=True, text=True, timeout=300
-    )
-    assert run.returncode == 0, run.stderr[-2000:]
-    result = json.loads((tmp_path / "encirclement_sources.json").read_text())
-    assert result["config"]["seeds"] == [0, 1]
-    scored = result["results"]["scripted:encirclement"]
-    assert set(scored) == {"beacon", "particle+filter"}
-    for setting in scored.values():
-        assert len(setting["radius_error_m"]["per_seed"]) == 2
-        assert setting["radius_error_m"]["std"] >= 0.0
-    assert "track_on_intruder" in scored["particle+filter"]
-    assert "track_on_intruder" not in scored["beacon"]
-    assert (tmp_path / "encirclement_sources.png").is_file()
-    bad = subprocess.run(
-        cmd + ["--policies", str(tmp_path / "missing.zip")], capture_output=True, text=True
-    )
-    assert bad.returncode != 0 and "does not exist" in bad.stderr
-
-
-# ------------------------------------------------ range-only sensing and the trilateration start
 def test_range_sensing_needs_the_particle_source_and_drops_the_bearing():
     with pytest.raises(ValueError, match="intruder_sensing"):
         EncirclementTask(intruder_sensing="range")  # beacon source
@@ -428,49 +387,3 @@ def test_scripted_policy_takes_the_range_only_reading_and_the_start():
     assert p.intruder_estimate("ugv_0") is None
     assert p._filters["ugv_0"].pending[0][0].shape == (3, 2)
     env.close()
-
-
-def test_sources_benchmark_range_only_settings_and_starts(tmp_path):
-    """The range-only settings' task parameters, and ``--particle-starts`` keying the results
-    ``SETTING/START`` (a 2 s run, one seed)."""
-    import json
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    bench = Path(__file__).resolve().parents[2] / "benchmarks"
-    sys.path.insert(0, str(bench))
-    try:
-        from encirclement_sources import setting_params
-    finally:
-        sys.path.remove(str(bench))
-    assert setting_params("particle-range") == {
-        "intruder_source": "particle",
-        "intruder_sensing": "range",
-    }
-    assert setting_params("particle-range+filter") == {
-        "intruder_source": "particle",
-        "intruder_features": "filter",
-        "intruder_sensing": "range",
-    }
-    assert setting_params("particle+filter") == {
-        "intruder_source": "particle",
-        "intruder_features": "filter",
-    }
-    assert setting_params("estimate") == {"intruder_source": "estimate"}
-    cmd = [sys.executable, str(bench / "encirclement_sources.py"), "--duration", "2"]
-    cmd += ["--seeds", "0", "--sources", "particle-range", "--out", str(tmp_path)]
-    run = subprocess.run(
-        cmd + ["--particle-starts", "uniform,trilateration"],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert run.returncode == 0, run.stderr[-2000:]
-    result = json.loads((tmp_path / "encirclement_sources.json").read_text())
-    assert set(result["results"]["scripted:encirclement"]) == {
-        "particle-range/uniform",
-        "particle-range/trilateration",
-    }
-    bad = subprocess.run(cmd + ["--particle-starts", "gps"], capture_output=True, text=True)
-    assert bad.returncode != 0 and "particle-starts" in bad.stderr

@@ -33,8 +33,8 @@ from swarm_env.sensors.lidar import (
     blind_mask,
 )
 from swarm_env.sensors.odometry import pulses_to_delta
-from swarm_env.world.scene import Scene
-from swarm_env.world.scene_builder import HOUSING_RADIUS_M
+from swarm_env.sensors.scene import Scene
+from swarm_env.sensors.scene_builder import HOUSING_RADIUS_M
 from swarm_env.world.sim import _drive_velocities, _due_readings
 from tests.swarm_env.scene_factory import (
     EXACT_LIDAR as EXACT,

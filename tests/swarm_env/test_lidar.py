@@ -22,7 +22,7 @@ from swarm_env.sensors.lidar import (
     LidarConfig,
     LidarSensor,
 )
-from swarm_env.world.scene_builder import make_pair_scene
+from swarm_env.sensors.scene_builder import make_pair_scene
 from tests.swarm_env.scene_factory import EXACT_LIDAR as EXACT
 from tests.swarm_env.scene_factory import (
     HOUSING_RADIUS_M,

@@ -19,10 +19,10 @@ from swarm_env.config import MAX_ROBOTS, PRESETS, make_config
 from swarm_env.observation import truth_table, truth_tables
 from swarm_env.sensors.camera import CameraConfig, CameraSensor
 from swarm_env.sensors.lidar import LidarSensor
+from swarm_env.sensors.scene_builder import SceneBuilder
+from swarm_env.sensors.spatial_index import build_grid, query
 from swarm_env.world.arena import sample_layout
-from swarm_env.world.scene_builder import SceneBuilder
 from swarm_env.world.sim import SimWorld, _truth_kernel
-from swarm_env.world.spatial_index import build_grid, query
 
 LIDAR_FIELDS = ("ranges_m", "intensities", "hit_owner", "hit_kind", "hit_index", "interfered")
 

@@ -198,7 +198,7 @@ def test_ugv_view_for_shared_policies():
 
 
 def test_centroid_controller_flies_towards_the_detections():
-    from swarm_env.sensors.downward_camera import AerialFrame
+    from swarm_core.aerial import AerialFrame
 
     frame = AerialFrame(0.0, 2.0, np.ones(2), np.array([[1.0, 0.0], [0.0, 0.4]]), np.zeros(2))
     np.testing.assert_allclose(centroid_command(frame, gain_per_s=0.5), [0.25, 0.1])
