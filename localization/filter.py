@@ -51,7 +51,7 @@ from .scan_evidence import (
     scan_memory_from_state,
 )
 
-__all__ = ["RobotCentricPHD"]
+__all__ = ["RobotCentricPHD", "estimate_table"]
 
 
 class RobotCentricPHD:
@@ -454,34 +454,8 @@ class RobotCentricPHD:
         self._mixture = None
 
     def estimate(self, threshold: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
-        """Extract neighbour position estimates (Vo & Ma 2006, Table III).
-
-        Every component with ``w >= threshold`` is reported ``max(1, floor(w + 0.5))`` times
-        (a component holding the mass of two close teammates counts as two), each copy
-        carrying weight ``w / count``. Rows are sorted by decreasing weight.
-
-        Parameters
-        ----------
-        threshold : float
-            Extraction threshold on component weights.
-
-        Returns
-        -------
-        positions : ndarray, shape (K, 2)
-            Estimated teammate positions ``[x_m, y_m]`` in the robot frame.
-        weights : ndarray, shape (K,)
-        """
-        threshold = float(threshold)
-        if not math.isfinite(threshold):
-            raise ValueError(f"threshold must be finite, got {threshold!r}")
-        table = self._table
-        w = table[ROW_W]
-        keep = np.flatnonzero(w >= threshold)
-        keep = keep[np.argsort(-w[keep], kind="stable")]
-        wk = w[keep]
-        counts = np.maximum(np.floor(wk + 0.5), 1.0).astype(np.intp)
-        positions = np.repeat(table[ROW_X : ROW_Y + 1, keep].T, counts, axis=0)
-        return positions, np.repeat(wk / counts, counts)
+        """Extract neighbour position estimates (:func:`estimate_table` of the current table)."""
+        return estimate_table(self._table, threshold)
 
     def _scan_on(self) -> bool:
         return self.config.scan_evidence and bool(self._scan[0])
@@ -548,6 +522,44 @@ MAX_INPUT_MAGNITUDE = 1e4
 #: update is O(components x measurements), and 20,000 detections took the reference over
 #: 100 s; a real scan holds a few tens (a 720-beam lidar yields at most ~240 clusters).
 MAX_MEASUREMENTS_PER_CALL = 4096
+
+
+def estimate_table(table: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray]:
+    """Extract neighbour position estimates from a ``(6, N)`` GM-PHD table (Vo & Ma 2006,
+    Table III).
+
+    Every component with ``w >= threshold`` is reported ``max(1, floor(w + 0.5))`` times
+    (a component holding the mass of two close teammates counts as two), each copy
+    carrying weight ``w / count``. Rows are sorted by decreasing weight.
+
+    Parameters
+    ----------
+    table : ndarray, shape (6, N)
+        Rows ``w, x, y, Pxx, Pxy, Pyy``.
+    threshold : float
+        Extraction threshold on component weights.
+
+    Returns
+    -------
+    positions : ndarray, shape (K, 2)
+        Estimated teammate positions ``[x_m, y_m]`` in the robot frame.
+    weights : ndarray, shape (K,)
+
+    Raises
+    ------
+    ValueError
+        If ``threshold`` is not finite.
+    """
+    threshold = float(threshold)
+    if not math.isfinite(threshold):
+        raise ValueError(f"threshold must be finite, got {threshold!r}")
+    w = table[ROW_W]
+    keep = np.flatnonzero(w >= threshold)
+    keep = keep[np.argsort(-w[keep], kind="stable")]
+    wk = w[keep]
+    counts = np.maximum(np.floor(wk + 0.5), 1.0).astype(np.intp)
+    positions = np.repeat(table[ROW_X : ROW_Y + 1, keep].T, counts, axis=0)
+    return positions, np.repeat(wk / counts, counts)
 
 
 def check_magnitude(values: np.ndarray, name: str) -> None:
