@@ -57,7 +57,7 @@ from .filter import (
     estimate_table,
 )
 from .mixture import N_ROWS, ROW_W, GaussianMixture
-from .protocol import LocalizerBase
+from .protocol import LocalizerBase, LocalizerView
 from .scan_evidence import MEMORY_LEN, N_BINS, scan_memory_from_state
 
 __all__ = ["FilterBank", "BankTable", "PHDBank", "BankView"]
@@ -122,8 +122,9 @@ class FilterBank(LocalizerBase):
 
     #: The family's padded tables; ``tables[0]`` is what :meth:`padded_tables` shows.
     tables: ClassVar[tuple[BankTable, ...]] = ()
-    #: The pure-numpy single filter whose math the kernel runs (``from_filters``, ``to_filter``).
-    reference: ClassVar[type] = object
+    #: The pure-numpy single filter whose math the kernel runs (``from_filters``, ``to_filter``,
+    #: ``set_mixture``), or None for a family without one.
+    reference: ClassVar[type | None] = None
 
     # ------------------------------------------------------------------ family hooks
     @classmethod
@@ -137,9 +138,11 @@ class FilterBank(LocalizerBase):
         raise NotImplementedError("a bank family must define pack_params")
 
     @staticmethod
-    def kernel(*arrays: Any) -> None:
-        """The compiled ``apply_calls(table_0, counts_0, ..., pending, pending_counts, clock,
-        scan_memory, calls, *params)`` that runs encoded calls on the state in place."""
+    def kernel(state: tuple, calls: tuple, params: tuple) -> None:
+        """The compiled ``apply_calls(state, calls, params)`` that runs encoded calls on the
+        bank's state in place: ``state = (table_0, counts_0, table_1, counts_1, ..., pending,
+        pending_counts, clock, scan_memory)`` (:meth:`kernel_state`), ``calls`` the encoded
+        batch (:mod:`localization.kernels`), ``params`` :meth:`pack_params`."""
         raise NotImplementedError("a bank family must define kernel")
 
     @staticmethod
@@ -150,7 +153,7 @@ class FilterBank(LocalizerBase):
 
     def filter_with_mixture(self, mixture: GaussianMixture) -> Any:
         """A reference filter whose first table is ``mixture`` (validated by it)."""
-        f = self.reference(self.config)
+        f = self._reference()(self.config)
         f.set_mixture(mixture)
         return f
 
@@ -215,9 +218,10 @@ class FilterBank(LocalizerBase):
         ValueError
             If ``filters`` is empty, holds another kind of filter, or the configs differ.
         """
+        reference = cls._reference()
         filters = list(filters)
-        name = cls.reference.__name__
-        if not filters or not all(isinstance(f, cls.reference) for f in filters):
+        name = reference.__name__
+        if not filters or not all(isinstance(f, reference) for f in filters):
             raise ValueError(f"filters must be a non-empty sequence of {name}")
         config = filters[0].config
         if any(f.config != config for f in filters):
@@ -231,8 +235,9 @@ class FilterBank(LocalizerBase):
         """Copy the state of ``f`` (a :attr:`reference` filter, same config) into robot
         ``robot``."""
         r = self._robot(robot)
-        if not isinstance(f, self.reference) or f.config != self.config:
-            raise ValueError(f"f must be a {self.reference.__name__} with the bank's config")
+        reference = self._reference()
+        if not isinstance(f, reference) or f.config != self.config:
+            raise ValueError(f"f must be a {reference.__name__} with the bank's config")
         state = f.__getstate__()
         tables = [np.asarray(state[t.name], dtype=float).reshape(N_ROWS, -1) for t in self.tables]
         for t, table, padded in zip(self.tables, tables, self._tables, strict=True):
@@ -258,7 +263,7 @@ class FilterBank(LocalizerBase):
     def to_filter(self, robot: int) -> Any:
         """An independent :attr:`reference` filter with robot ``robot``'s current state."""
         r = self._robot(robot)
-        f = self.reference(self.config)
+        f = self._reference()(self.config)
         state = {"config": self.config}
         for k, t in enumerate(self.tables):
             state[t.name] = self._table_of(k, r)
@@ -476,6 +481,12 @@ class FilterBank(LocalizerBase):
         self._run(batch, encoded)
 
     # ------------------------------------------------------------------ internals
+    @classmethod
+    def _reference(cls) -> type:
+        if cls.reference is None:
+            raise ValueError(f"{cls.__name__} has no reference filter to load from or convert to")
+        return cls.reference
+
     def _table_of(self, k: int, robot: int) -> np.ndarray:
         """Table ``k`` of robot ``robot`` (checked), ``(6, N)`` (a new array)."""
         return self._tables[k][:, robot, : self._counts[k][robot]].copy()
@@ -510,18 +521,15 @@ class FilterBank(LocalizerBase):
         self._reserve_pending(batch.max_points)
         self._run_encoded(encoded, set(batch.robots))
 
+    def kernel_state(self) -> tuple[np.ndarray, ...]:
+        """The state the :meth:`kernel` writes: ``(table_0, counts_0, ..., pending,
+        pending_counts, clock, scan_memory)``, the bank's own arrays (not copies)."""
+        tables = [a for pair in zip(self._tables, self._counts, strict=True) for a in pair]
+        return (*tables, self._pending, self._pending_counts, self._clock, self._scan_memory)
+
     def _run_encoded(self, encoded: tuple[np.ndarray, ...], robots: Any) -> None:
         """Run validated ``encoded`` calls touching ``robots``; pending room reserved."""
-        state = [a for pair in zip(self._tables, self._counts, strict=True) for a in pair]
-        self.kernel(
-            *state,
-            self._pending,
-            self._pending_counts,
-            self._clock,
-            self._scan_memory,
-            encoded,
-            *self._params,
-        )
+        self.kernel(self.kernel_state(), encoded, self._params)
         mixtures = self._mixtures
         for r in robots:
             mixtures[r] = None
@@ -563,7 +571,7 @@ class PHDBank(FilterBank):
         return config
 
 
-class BankView:
+class BankView(LocalizerView):
     """Robot ``robot`` of a :class:`FilterBank`, read and stepped like its family's single
     reference filter.
 
@@ -574,20 +582,15 @@ class BankView:
     Batch the calls on the bank in hot loops.
     """
 
-    __slots__ = ("bank", "robot")
+    __slots__ = ()
 
-    def __init__(self, bank: FilterBank, robot: int) -> None:
-        self.bank = bank
-        self.robot = robot
+    @property
+    def bank(self) -> FilterBank:
+        return self.localizer  # type: ignore[return-value]
 
     @property
     def config(self) -> Any:
         return self.bank.config
-
-    @property
-    def mixture(self) -> GaussianMixture:
-        """Current components (read-only, cached until the robot's next update)."""
-        return self.bank.mixture(self.robot)
 
     @property
     def table(self) -> np.ndarray:
@@ -610,25 +613,15 @@ class BankView:
             f"total_weight={self.total_weight:.3f})"
         )
 
-    def estimate(self, threshold: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
-        return self.bank.estimate(self.robot, threshold)
-
-    def identities(self) -> dict[int, np.ndarray]:
-        return self.bank.identities(self.robot)
-
     def predict(self, odometry: Any) -> None:
         self._one(("predict", odometry))
 
     def advance(self, stamp_s: float) -> None:
         self._one(("advance", stamp_s))
 
-    def update_lidar(
-        self,
-        points: Any,
-        null_bearings: Any = None,
-        sensor_pose: Any = None,
-        scan_profile: Any = None,
-    ) -> None:
+    def update_lidar(self, points, null_bearings=None, sensor_pose=None, scan_profile=None):
+        """As the reference's ``update_lidar``: ``points (M, 2)``, ``null_bearings (B,)``,
+        ``sensor_pose (3,)`` and ``scan_profile (N_BINS,)`` (each optional but the points)."""
         self._one(("lidar", points, null_bearings, sensor_pose, scan_profile))
 
     def update_camera(self, bearings: Any, sensor_pose: Any = None) -> None:
