@@ -134,7 +134,7 @@ class FilterBank(LocalizerBase):
 
     @staticmethod
     def pack_params(config: Any) -> tuple[np.ndarray, ...]:
-        """The model parameters the kernel takes after the encoded calls."""
+        """The model parameters of ``config``, the tuple the :meth:`kernel` takes as ``params``."""
         raise NotImplementedError("a bank family must define pack_params")
 
     @staticmethod
@@ -165,6 +165,8 @@ class FilterBank(LocalizerBase):
 
     # ------------------------------------------------------------------ construction
     def __init__(self, config: Any, n_robots: int) -> None:
+        if not self.tables:
+            raise NotImplementedError(f"{type(self).__name__} must define its tables")
         config = self.checked_config(config)
         if isinstance(n_robots, bool) or not isinstance(n_robots, (int, np.integer)):
             raise ValueError(f"n_robots must be an int >= 1, got {n_robots!r}")
