@@ -4,11 +4,13 @@ VENV := .venv
 PY := $(VENV)/bin/python
 PIP := $(PY) -m pip install --quiet
 TORCH_VERSION := 2.13.0
+# torchvision: only BenchMARL's videos use it (the marl extra pulls it); the build made for torch.
+TORCHVISION_VERSION := 0.28.0
 # The PyTorch CPU wheel index. On an ordinary Linux machine a plain `pip install torch` pulls
 # the CUDA build (several GB); the networks here are tiny and run on the CPU.
 TORCH_CPU_INDEX := https://download.pytorch.org/whl/cpu
 # What `make test` installs: everything the test suite imports.
-TEST_EXTRAS := rl,bridge,render,bench,dev,ray,docs
+TEST_EXTRAS := rl,bridge,render,bench,dev,ray,docs,marl,camera
 
 # Stamps: each step reruns only when the project's dependency list changes.
 CORE := $(VENV)/.core
@@ -26,11 +28,13 @@ $(CORE): pyproject.toml
 	$(PIP) -e .
 	touch $@
 
-# The CPU build of torch: the PyTorch CPU index first, with a short timeout; where that index
-# cannot be reached, the plain pin (a machine with the CPU wheel on disk takes that).
+# The CPU build of torch (and torchvision): the PyTorch CPU index first, with a short timeout;
+# where that index cannot be reached, the plain torch pin (a machine with the CPU wheel on disk
+# takes that; the marl extra then brings the registry's torchvision, which nothing here imports).
 $(TORCH): $(CORE)
 	$(PY) -c "import torch, sys; sys.exit(torch.__version__.split('+')[0] != '$(TORCH_VERSION)')" 2>/dev/null \
-	  || timeout 300 $(PIP) --timeout 15 --retries 1 torch==$(TORCH_VERSION) --index-url $(TORCH_CPU_INDEX) \
+	  || timeout 300 $(PIP) --timeout 15 --retries 1 torch==$(TORCH_VERSION) torchvision==$(TORCHVISION_VERSION) \
+	       --index-url $(TORCH_CPU_INDEX) \
 	  || $(PIP) torch==$(TORCH_VERSION)
 	touch $@
 

@@ -162,7 +162,7 @@ def random_motion(n_robots: int) -> tuple:
 def feed_paths(n_robots: int, n_steps: int, repeats: int) -> dict:
     """The filters alone, the two ways into the compiled bank, in this process: the call tuples
     (``feed.call_lists()``, re-read by the bank's batch encoder) against the packed arrays
-    (``feed.calls()``, :func:`localization.feed.pack_calls`), on the same ``n_steps`` recorded
+    (``bank.step(feed)``, :func:`localization.feed.pack_calls`), on the same ``n_steps`` recorded
     steps (after 20 to fill the filters) from the same bank state, alternated ``repeats``
     times; CPU seconds per env step, and the kernel alone. Both must end in the same bits."""
     import copy
@@ -172,7 +172,7 @@ def feed_paths(n_robots: int, n_steps: int, repeats: int) -> dict:
     env, step = random_motion(n_robots)
     for _ in range(20):
         step()
-    start_bank = copy.deepcopy(env.localizer.bank)
+    start_bank = copy.deepcopy(env.localizer)
     steps = [step() for _ in range(n_steps)]
     ids = env.possible_agents
     out: dict = {"n_robots": n_robots, "steps": n_steps, "tuples_ms": [], "packed_ms": []}
@@ -183,7 +183,10 @@ def feed_paths(n_robots: int, n_steps: int, repeats: int) -> dict:
             feeds = [SwarmFeed.from_world_step(s, ids) for s in steps]
             t = time.process_time()
             for f in feeds:
-                bank.apply(f.call_lists() if key == "tuples_ms" else f.calls())
+                if key == "tuples_ms":
+                    bank.apply(f.call_lists())
+                else:
+                    bank.step(f)
             out[key].append(1e3 * (time.process_time() - t) / n_steps)
             tables.append(bank.padded_tables()[0].tobytes())
         if tables[0] != tables[1]:

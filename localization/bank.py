@@ -1,16 +1,26 @@
-"""Many robots' GM-PHD filters advanced together: :class:`PHDBank`.
+"""Many robots' filters advanced together: the compiled filter banks.
 
-A swarm env runs one robot-centric GM-PHD filter per robot and makes ~100 small filter calls
-per control step. The bank keeps the ``R`` mixtures in one padded table and runs a whole batch
-of calls in one compiled function (:func:`localization.kernels.apply_calls`), so the cost is the
-arithmetic, not ~100 numpy calls per filter update. The table has shape ``(6, R, C)``: rows
+A swarm env runs one robot-centric filter per robot and makes ~100 small filter calls per
+control step. A bank keeps the ``R`` robots' states in padded tables and runs a whole batch of
+calls in one compiled function, so the cost is the arithmetic, not ~100 numpy calls per
+filter update.
+
+:class:`FilterBank` is the driver every compiled family shares: it validates and encodes the
+calls (:class:`_Batch`), keeps the per-robot tables, pending births, process-noise clocks and
+scan memories, runs the family's kernel, and is itself a
+:class:`~localization.protocol.Localizer` (``step(feed)`` runs the feed's packed arrays,
+``padded_tables()``, ``mixture(r)``, ``estimate(r)``, ``reset()``, pickling, ``views``). A
+family is a small subclass that names its hooks: its tables, its kernel and parameters, its
+reference filter and its extraction. :class:`PHDBank` (below) is the GM-PHD family;
+``localization.pmb.PMBBank`` the Poisson multi-Bernoulli one.
+
+:class:`PHDBank` keeps the ``R`` mixtures in one padded table of shape ``(6, R, C)``: rows
 ``w, x, y, Pxx, Pxy, Pyy``, robot ``r`` uses the first ``counts[r]`` of its ``C =
-max_components`` columns and the rest is zero.
-
-Every robot gets what its own :class:`~localization.RobotCentricPHD` (the pure-numpy reference)
-would compute for the same calls: the same components, values equal up to floating-point
-summation order, which ``tests/localization/test_bank.py`` checks (to 1e-10) on random call
-sequences for every model option.
+max_components`` columns and the rest is zero. Every robot gets what its own
+:class:`~localization.RobotCentricPHD` (the pure-numpy reference) would compute for the same
+calls: the same components, values equal up to floating-point summation order, which
+``tests/localization/test_bank.py`` checks (to 1e-10) on random call sequences for every model
+option.
 
 >>> import numpy as np
 >>> from localization import PHDBank, PHDConfig
@@ -24,8 +34,8 @@ GaussianMixture(...)
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Callable, Sequence
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -33,7 +43,7 @@ from swarm_core.validation import as_float_array
 
 from . import kernels
 from .config import PHDConfig
-from .feed import FeedCalls
+from .feed import SwarmFeed
 from .filter import (
     MAX_INPUT_MAGNITUDE,
     MAX_MEASUREMENTS_PER_CALL,
@@ -44,11 +54,13 @@ from .filter import (
     _checked_stamp,
     checked_pose,
     checked_scan_profile,
+    estimate_table,
 )
 from .mixture import N_ROWS, ROW_W, GaussianMixture
+from .protocol import LocalizerBase, LocalizerView
 from .scan_evidence import MEMORY_LEN, N_BINS, scan_memory_from_state
 
-__all__ = ["PHDBank", "PHDBankView"]
+__all__ = ["FilterBank", "BankTable", "PHDBank", "BankView"]
 
 _KIND_CODES = {
     "predict": kernels.PREDICT,
@@ -64,89 +76,155 @@ _F64 = np.dtype(np.float64)
 _STAMPS, _PROFILES = 17, 18
 
 
-class PHDBank:
-    """``n_robots`` robot-centric GM-PHD filters sharing one config, updated in batches.
+class BankTable:
+    """One padded per-robot table of a bank family: ``name`` (its key in the bank's pickled
+    state and in the reference filter's ``__getstate__``), ``count_name`` (the key of its
+    counts in the bank's pickled state) and ``width(config)``, its number of columns."""
+
+    __slots__ = ("name", "count_name", "width")
+
+    def __init__(self, name: str, count_name: str, width: Callable[[Any], int]) -> None:
+        self.name = name
+        self.count_name = count_name
+        self.width = width
+
+
+class FilterBank(LocalizerBase):
+    """``n_robots`` robot-centric filters of one family sharing one config, updated in
+    batches: the driver of every compiled family.
 
     Parameters
     ----------
-    config : PHDConfig
-        Configuration of every filter.
+    config
+        Configuration of every filter (the family's config class, see :meth:`checked_config`).
     n_robots : int
         Number of filters ``R`` (robot ``r`` is index ``r``).
 
     Notes
     -----
-    State: the padded ``(6, R, max_components)`` table, ``counts (R,)`` and each robot's
-    pending measurement births (``birth == "measurement"``). :meth:`predict`,
-    :meth:`update_lidar` and :meth:`update_camera` take ``robots``, an int array of distinct
-    robot indices ``(K,)``, and the per-robot inputs in the same order; :meth:`apply` takes
-    every robot's time-ordered call list at once (what the env does each step). Robots not
-    named are untouched. Every method validates all of its inputs before changing any state
-    (``ValueError`` naming the argument). Per robot, the math is that of
-    :class:`RobotCentricPHD`.
+    State: the family's padded tables ``(6, R, width)`` and their counts ``(R,)``, each
+    robot's pending measurement births, process-noise clock and scan memory.
+    :meth:`predict`, :meth:`update_lidar` and :meth:`update_camera` take ``robots``, an int
+    array of distinct robot indices ``(K,)``, and the per-robot inputs in the same order;
+    :meth:`apply` takes every robot's time-ordered call list at once, :meth:`step` a whole
+    :class:`~localization.feed.SwarmFeed` (what the env does each step). Robots not named are
+    untouched. Every method validates all of its inputs before changing any state
+    (``ValueError`` naming the argument). Per robot, the math is that of the family's
+    :attr:`reference` filter.
 
-    ``views`` holds one :class:`PHDBankView` per robot: ``.mixture``, ``.table``,
-    ``.estimate()``, ``.predict()``, ``.update_lidar()``, ``.update_camera()``, ``.reset()``...
-    as on :class:`RobotCentricPHD`, so code that reads a list of filters keeps working.
+    ``views`` holds one :class:`BankView` per robot, read and stepped like a single filter.
+
+    A family subclass sets the hooks: :attr:`tables` (the first is the one
+    :meth:`padded_tables` shows), :attr:`reference`, :attr:`weight_meaning`,
+    :meth:`checked_config`, :meth:`pack_params`, :meth:`kernel` and, where they differ from
+    the defaults, :meth:`estimate_table`, :attr:`reads_scans` and :meth:`filter_with_mixture`.
     """
 
-    def __init__(self, config: PHDConfig, n_robots: int) -> None:
-        if not isinstance(config, PHDConfig):
-            raise ValueError(f"config must be a PHDConfig, got {type(config).__name__}")
+    #: The family's padded tables; ``tables[0]`` is what :meth:`padded_tables` shows.
+    tables: ClassVar[tuple[BankTable, ...]] = ()
+    #: The pure-numpy single filter whose math the kernel runs (``from_filters``, ``to_filter``,
+    #: ``set_mixture``), or None for a family without one.
+    reference: ClassVar[type | None] = None
+
+    # ------------------------------------------------------------------ family hooks
+    @classmethod
+    def checked_config(cls, config: Any) -> Any:
+        """The family's config from ``config`` (``ValueError`` naming it when it is not one)."""
+        raise NotImplementedError(f"{cls.__name__} must define checked_config")
+
+    @staticmethod
+    def pack_params(config: Any) -> tuple[np.ndarray, ...]:
+        """The model parameters of ``config``, the tuple the :meth:`kernel` takes as ``params``."""
+        raise NotImplementedError("a bank family must define pack_params")
+
+    @staticmethod
+    def kernel(state: tuple, calls: tuple, params: tuple) -> None:
+        """The compiled ``apply_calls(state, calls, params)`` that runs encoded calls on the
+        bank's state in place: ``state = (table_0, counts_0, table_1, counts_1, ..., pending,
+        pending_counts, clock, scan_memory)`` (:meth:`kernel_state`), ``calls`` the encoded
+        batch (:mod:`localization.kernels`), ``params`` :meth:`pack_params`."""
+        raise NotImplementedError("a bank family must define kernel")
+
+    @staticmethod
+    def estimate_table(table: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray]:
+        """Robot extraction from its ``(6, N)`` table: ``positions (K, 2), weights (K,)``
+        (default: the GM-PHD's, :func:`localization.filter.estimate_table`)."""
+        return estimate_table(table, threshold)
+
+    def filter_with_mixture(self, mixture: GaussianMixture) -> Any:
+        """A reference filter whose first table is ``mixture`` (validated by it)."""
+        f = self._reference()(self.config)
+        f.set_mixture(mixture)
+        return f
+
+    @property
+    def reads_scans(self) -> bool:
+        """Whether the lidar calls' scan profiles are used (``config.reads_scans``); a
+        :class:`~localization.feed.SwarmFeed` packs them only then."""
+        return bool(self.config.reads_scans)
+
+    # ------------------------------------------------------------------ construction
+    def __init__(self, config: Any, n_robots: int) -> None:
+        if not self.tables:
+            raise NotImplementedError(f"{type(self).__name__} must define its tables")
+        config = self.checked_config(config)
         if isinstance(n_robots, bool) or not isinstance(n_robots, (int, np.integer)):
             raise ValueError(f"n_robots must be an int >= 1, got {n_robots!r}")
         if n_robots < 1:
             raise ValueError(f"n_robots must be an int >= 1, got {n_robots!r}")
         self.config = config
-        self.n_robots = int(n_robots)
-        self._params = kernels.pack_params(config)
-        self._table = np.zeros((N_ROWS, self.n_robots, config.max_components))
-        self._counts = np.zeros(self.n_robots, dtype=np.int64)
-        self._pending = np.zeros((self.n_robots, 8, 2))
-        self._pending_counts = np.zeros(self.n_robots, dtype=np.int64)
+        self.n_robots = r = int(n_robots)
+        self._params = self.pack_params(config)
+        self._tables = [np.zeros((N_ROWS, r, t.width(config))) for t in self.tables]
+        self._counts = [np.zeros(r, dtype=np.int64) for _ in self.tables]
+        self._pending = np.zeros((r, 8, 2))
+        self._pending_counts = np.zeros(r, dtype=np.int64)
         # Per robot: last stamp (nan: none yet), advanced since the last predict (kernels).
-        self._clock = new_clock(self.n_robots)
+        self._clock = new_clock(r)
         # Per robot: its last lidar scan (localization.scan_evidence), row 0 = none yet.
-        self._scan_memory = np.zeros((self.n_robots, MEMORY_LEN))
-        self._mixtures: list[GaussianMixture | None] = [None] * self.n_robots
-        self.views = [PHDBankView(self, r) for r in range(self.n_robots)]
+        self._scan_memory = np.zeros((r, MEMORY_LEN))
+        self._mixtures: list[GaussianMixture | None] = [None] * r
+        self._views = [BankView(self, i) for i in range(r)]
 
     def __getstate__(self) -> dict[str, Any]:
-        return {
-            "config": self.config,
-            "n_robots": self.n_robots,
-            "table": self._table,
-            "counts": self._counts,
-            "pending": self._pending,
-            "pending_counts": self._pending_counts,
-            "clock": self._clock,
-            "scan_memory": self._scan_memory,
-        }
+        state: dict[str, Any] = {"config": self.config, "n_robots": self.n_robots}
+        for t, table, counts in zip(self.tables, self._tables, self._counts, strict=True):
+            state[t.name] = table
+            state[t.count_name] = counts
+        state.update(
+            pending=self._pending,
+            pending_counts=self._pending_counts,
+            clock=self._clock,
+            scan_memory=self._scan_memory,
+        )
+        return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__init__(state["config"], state["n_robots"])  # type: ignore[misc]
-        self._table = np.array(state["table"], dtype=float)
-        self._counts = np.array(state["counts"], dtype=np.int64)
+        self._tables = [np.array(state[t.name], dtype=float) for t in self.tables]
+        self._counts = [np.array(state[t.count_name], dtype=np.int64) for t in self.tables]
         self._pending = np.array(state["pending"], dtype=float)
         self._pending_counts = np.array(state["pending_counts"], dtype=np.int64)
         if "clock" in state:  # absent from states pickled before the clock existed
             self._clock = np.array(state["clock"], dtype=float)
-        if "scan_memory" in state:  # absent from states pickled before the scan evidence
+        if "scan_memory" in state:  # absent from states pickled before the scan memory
             self._scan_memory = bank_scan_memory(state["scan_memory"], self.n_robots)
 
-    # ------------------------------------------------------------------ construction / export
     @classmethod
-    def from_filters(cls, filters: Sequence[RobotCentricPHD]) -> PHDBank:
-        """A bank holding copies of the states of ``filters`` (all with the same config).
+    def from_filters(cls, filters: Sequence[Any]) -> FilterBank:
+        """A bank holding copies of the states of ``filters`` (all of the family's
+        :attr:`reference` class, all with the same config).
 
         Raises
         ------
         ValueError
-            If ``filters`` is empty, holds a non-filter, or the configs differ.
+            If ``filters`` is empty, holds another kind of filter, or the configs differ.
         """
+        reference = cls._reference()
         filters = list(filters)
-        if not filters or not all(isinstance(f, RobotCentricPHD) for f in filters):
-            raise ValueError("filters must be a non-empty sequence of RobotCentricPHD")
+        name = reference.__name__
+        if not filters or not all(isinstance(f, reference) for f in filters):
+            raise ValueError(f"filters must be a non-empty sequence of {name}")
         config = filters[0].config
         if any(f.config != config for f in filters):
             raise ValueError("filters must all have the same config")
@@ -155,74 +233,76 @@ class PHDBank:
             bank.load_filter(r, f)
         return bank
 
-    def load_filter(self, robot: int, f: RobotCentricPHD) -> None:
-        """Copy the state of ``f`` (same config) into robot ``robot``."""
-        r = int(self._checked_robots([robot])[0])
-        if not isinstance(f, RobotCentricPHD) or f.config != self.config:
-            raise ValueError("f must be a RobotCentricPHD with the bank's config")
+    def load_filter(self, robot: int, f: Any) -> None:
+        """Copy the state of ``f`` (a :attr:`reference` filter, same config) into robot
+        ``robot``."""
+        r = self._robot(robot)
+        reference = self._reference()
+        if not isinstance(f, reference) or f.config != self.config:
+            raise ValueError(f"f must be a {reference.__name__} with the bank's config")
         state = f.__getstate__()
-        table = np.asarray(state["table"], dtype=float)
-        n = table.shape[1]
-        if n > self.config.max_components:
-            raise ValueError(
-                f"f has {n} components, more than max_components {self.config.max_components}"
-            )
+        tables = [np.asarray(state[t.name], dtype=float).reshape(N_ROWS, -1) for t in self.tables]
+        for t, table, padded in zip(self.tables, tables, self._tables, strict=True):
+            if table.shape[1] > padded.shape[2]:
+                raise ValueError(
+                    f"f has {table.shape[1]} {t.name} columns, more than the bank's "
+                    f"{padded.shape[2]}"
+                )
         births = np.asarray(state["pending_births"], dtype=float).reshape(-1, 2)
         memory = scan_memory_from_state(state["scan_memory"])  # checked before any change
         self._reserve_pending(births.shape[0])
-        self._table[:, r, :n] = table
-        self._table[:, r, n:] = 0.0
-        self._counts[r] = n
+        for table, padded, counts in zip(tables, self._tables, self._counts, strict=True):
+            n = table.shape[1]
+            padded[:, r, :n] = table
+            padded[:, r, n:] = 0.0
+            counts[r] = n
         self._pending[r, : births.shape[0]] = births
         self._pending_counts[r] = births.shape[0]
         self._clock[r] = state["clock"]
         self._scan_memory[r] = memory
         self._mixtures[r] = None
 
-    def to_filter(self, robot: int) -> RobotCentricPHD:
-        """An independent :class:`RobotCentricPHD` with robot ``robot``'s current state."""
-        r = int(self._checked_robots([robot])[0])
-        f = RobotCentricPHD(self.config)
-        f.__setstate__(
-            {
-                "config": self.config,
-                "table": self.table(r),
-                "pending_births": self.pending_births(r),
-                "clock": self._clock[r].copy(),
-                "scan_memory": self._scan_memory[r].copy(),
-            }
+    def to_filter(self, robot: int) -> Any:
+        """An independent :attr:`reference` filter with robot ``robot``'s current state."""
+        r = self._robot(robot)
+        f = self._reference()(self.config)
+        state = {"config": self.config}
+        for k, t in enumerate(self.tables):
+            state[t.name] = self._table_of(k, r)
+        state.update(
+            pending_births=self.pending_births(r),
+            clock=self._clock[r].copy(),
+            scan_memory=self._scan_memory[r].copy(),
         )
+        f.__setstate__(state)
         return f
 
-    def to_filters(self) -> list[RobotCentricPHD]:
+    def to_filters(self) -> list[Any]:
         """:meth:`to_filter` for every robot."""
         return [self.to_filter(r) for r in range(self.n_robots)]
 
     # ------------------------------------------------------------------ state access
     @property
-    def reads_scans(self) -> bool:
-        """Whether the lidar calls' scan profiles are used (``config.reads_scans``: the scan
-        evidence or the wide objects' camera clutter); a :class:`~localization.feed.SwarmFeed`
-        packs them only then."""
-        return self.config.reads_scans
+    def views(self) -> list[BankView]:  # type: ignore[override]
+        """One :class:`BankView` per robot."""
+        return self._views
 
     @property
     def counts(self) -> np.ndarray:
-        """Number of components per robot, shape ``(R,)`` (a copy)."""
-        return self._counts.astype(np.intp)
+        """Number of columns of the first table per robot, shape ``(R,)`` (a copy)."""
+        return self._counts[0].astype(np.intp)
 
     def padded_tables(self) -> tuple[np.ndarray, np.ndarray]:
-        """Every robot's table at once: a read-only view ``(6, R, max_components)`` (rows
+        """Every robot's first table at once: a read-only view ``(6, R, width)`` (rows
         ``w, x, y, pxx, pxy, pyy``; columns past ``counts[r]`` are zero) and ``counts (R,)``.
         """
-        view = self._table.view()
+        view = self._tables[0].view()
         view.setflags(write=False)
         return view, self.counts
 
     def table(self, robot: int) -> np.ndarray:
-        """Robot ``robot``'s component table, shape ``(6, N)`` (a new array)."""
-        robot = self._robot(robot)
-        return self._table[:, robot, : self._counts[robot]].copy()
+        """Robot ``robot``'s first table, shape ``(6, N)`` (a new array)."""
+        return self._table_of(0, self._robot(robot))
 
     def pending_births(self, robot: int) -> np.ndarray:
         """Robot ``robot``'s measurement births awaiting the next time update, ``(B, 2)`` m."""
@@ -230,34 +310,59 @@ class PHDBank:
         return self._pending[robot, : self._pending_counts[robot]].copy()
 
     def mixture(self, robot: int) -> GaussianMixture:
-        """Robot ``robot``'s PHD as a read-only :class:`GaussianMixture` (cached)."""
+        """Robot ``robot``'s first table as a read-only :class:`GaussianMixture` (cached)."""
         robot = self._robot(robot)
         mix = self._mixtures[robot]
         if mix is None:
-            mix = GaussianMixture.from_table(self._table[:, robot, : self._counts[robot]])
+            mix = GaussianMixture.from_table(self._tables[0][:, robot, : self._counts[0][robot]])
             self._mixtures[robot] = mix
         return mix
 
     def estimate(self, robot: int, threshold: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`RobotCentricPHD.estimate` of one robot: ``positions (K, 2), weights (K,)``."""
+        """The reference filter's ``estimate(threshold)`` of robot ``robot``:
+        ``positions (K, 2), weights (K,)``, heaviest first."""
         robot = self._robot(robot)
-        holder = _TableHolder(self._table[:, robot, : self._counts[robot]])
-        return RobotCentricPHD.estimate(holder, threshold)  # type: ignore[arg-type]
+        return self.estimate_table(self._tables[0][:, robot, : self._counts[0][robot]], threshold)
 
     def reset(self, robots: Any = None) -> None:
         """Back to the empty prior, for ``robots`` (default: every robot)."""
         rob = np.arange(self.n_robots) if robots is None else self._checked_robots(robots)
-        self._table[:, rob] = 0.0
-        self._counts[rob] = 0
+        for table, counts in zip(self._tables, self._counts, strict=True):
+            table[:, rob] = 0.0
+            counts[rob] = 0
         self._pending_counts[rob] = 0
         self._clock[rob] = new_clock(1)
         self._scan_memory[rob] = 0.0
         for r in rob.tolist():
             self._mixtures[r] = None
 
+    def set_mixture(self, robot: int, mixture: GaussianMixture) -> None:
+        """Robot ``robot``'s first table becomes ``mixture``, validated by the reference
+        filter (its other tables emptied, pending births cleared; clock and scan kept)."""
+        r = self._robot(robot)
+        f = self.filter_with_mixture(mixture)
+        state = f.__getstate__()
+        state["clock"] = self._clock[r].copy()
+        state["scan_memory"] = self._scan_memory[r].copy()
+        f.__setstate__(state)
+        self.load_filter(r, f)
+
     # ------------------------------------------------------------------ steps
+    def step(self, feed: SwarmFeed) -> None:
+        """Consume one env step of the whole swarm's measurements: its packed arrays
+        (:meth:`SwarmFeed.packed <localization.feed.SwarmFeed.packed>`) when they pass the
+        batch-wide checks, else its call tuples, whose checks name the bad value."""
+        self._check_feed(feed)
+        packed = feed.packed(self.reads_scans)
+        if packed is not None and all_finite(packed.encoded):
+            if packed.robots:
+                self._reserve_pending(packed.max_points)
+                self._run_encoded(packed.encoded, packed.robots)
+            return
+        self.apply(feed.call_lists())
+
     def predict(self, robots: Any, odometry: Any) -> None:
-        """Time update of ``robots`` (:meth:`RobotCentricPHD.predict`, one row per robot).
+        """Time update of ``robots`` (the reference's ``predict``, one row per robot).
 
         Parameters
         ----------
@@ -287,7 +392,7 @@ class PHDBank:
         self._run(batch)
 
     def update_lidar(self, robots: Any, points: Sequence[Any], null_bearings: Any = None) -> None:
-        """Lidar update of ``robots`` (:meth:`RobotCentricPHD.update_lidar`), then reduce.
+        """Lidar update of ``robots`` (the reference's ``update_lidar``).
 
         Parameters
         ----------
@@ -316,9 +421,8 @@ class PHDBank:
         self._run(batch)
 
     def update_camera(self, robots: Any, bearings: Sequence[Any]) -> None:
-        """Camera update of ``robots`` (:meth:`RobotCentricPHD.update_camera`), then reduce.
-
-        A no-op (after validation) in ``mode="lidar-only"``.
+        """Camera update of ``robots`` (the reference's ``update_camera``); a no-op (after
+        validation) in ``mode="lidar-only"``.
 
         Parameters
         ----------
@@ -346,15 +450,12 @@ class PHDBank:
         ----------
         calls : sequence of R sequences
             ``calls[r]`` is robot ``r``'s time-ordered list of ``("predict", odometry)``,
-            ``("lidar", points, null_bearings_or_None[, sensor_pose])`` and
-            ``("camera", bearings[, sensor_pose])``. The optional ``sensor_pose`` ``(3,)``
-            ``[x_m, y_m, psi_rad]`` (or None) is where the robot measured from, in the
-            filter's frame: the measurement is moved into it first (:mod:`localization.frames`).
-            ``("advance", stamp_s)`` moves the robot's process-noise clock to ``stamp_s``
-            (:meth:`RobotCentricPHD.advance`; any finite clock, e.g. ROS time).
-            A :meth:`SwarmFeed.calls() <localization.feed.SwarmFeed.calls>` sequence is run
-            from its packed arrays (:func:`localization.feed.pack_calls`, the same calls
-            encoded without tuples) whenever they pass the batch-wide checks.
+            ``("lidar", points, null_bearings_or_None[, sensor_pose[, scan_profile]])``,
+            ``("camera", bearings[, sensor_pose])`` and ``("advance", stamp_s)``. The optional
+            ``sensor_pose`` ``(3,)`` ``[x_m, y_m, psi_rad]`` (or None) is where the robot
+            measured from, in the filter's frame: the measurement is moved into it first
+            (:mod:`localization.frames`). ``("advance", stamp_s)`` moves the robot's
+            process-noise clock to ``stamp_s`` (any finite clock, e.g. ROS time).
 
         Raises
         ------
@@ -362,8 +463,6 @@ class PHDBank:
             A malformed call (``calls[r]`` and the argument are named), or not one list per
             robot. All calls are validated before any state changes.
         """
-        if run_packed(self, calls):  # a SwarmFeed's calls: its arrays, no tuples
-            return
         calls = list(calls)
         if len(calls) != self.n_robots:
             raise ValueError(
@@ -384,13 +483,15 @@ class PHDBank:
         self._run(batch, encoded)
 
     # ------------------------------------------------------------------ internals
-    def _robot(self, robot: Any) -> int:
-        """One robot index, checked (no negative wrap-around)."""
-        if isinstance(robot, bool) or not isinstance(robot, (int, np.integer)):
-            raise ValueError(f"robot must be an int index, got {robot!r}")
-        if not 0 <= robot < self.n_robots:
-            raise ValueError(f"robot must be in [0, {self.n_robots}), got {robot}")
-        return int(robot)
+    @classmethod
+    def _reference(cls) -> type:
+        if cls.reference is None:
+            raise ValueError(f"{cls.__name__} has no reference filter to load from or convert to")
+        return cls.reference
+
+    def _table_of(self, k: int, robot: int) -> np.ndarray:
+        """Table ``k`` of robot ``robot`` (checked), ``(6, N)`` (a new array)."""
+        return self._tables[k][:, robot, : self._counts[k][robot]].copy()
 
     def _checked_robots(self, robots: Any) -> np.ndarray:
         try:
@@ -422,25 +523,126 @@ class PHDBank:
         self._reserve_pending(batch.max_points)
         self._run_encoded(encoded, set(batch.robots))
 
+    def kernel_state(self) -> tuple[np.ndarray, ...]:
+        """The state the :meth:`kernel` writes: ``(table_0, counts_0, ..., pending,
+        pending_counts, clock, scan_memory)``, the bank's own arrays (not copies)."""
+        tables = [a for pair in zip(self._tables, self._counts, strict=True) for a in pair]
+        return (*tables, self._pending, self._pending_counts, self._clock, self._scan_memory)
+
     def _run_encoded(self, encoded: tuple[np.ndarray, ...], robots: Any) -> None:
         """Run validated ``encoded`` calls touching ``robots``; pending room reserved."""
-        fparams, iparams, sector_scaled, sector_params = self._params
-        kernels.apply_calls(
-            self._table,
-            self._counts,
-            self._pending,
-            self._pending_counts,
-            self._clock,
-            self._scan_memory,
-            encoded,
-            fparams,
-            iparams,
-            sector_scaled,
-            sector_params,
-        )
+        self.kernel(self.kernel_state(), encoded, self._params)
         mixtures = self._mixtures
         for r in robots:
             mixtures[r] = None
+
+
+class PHDBank(FilterBank):
+    """``n_robots`` robot-centric GM-PHD filters sharing one config, updated in batches
+    (:class:`FilterBank`; per robot the math of :class:`~localization.RobotCentricPHD`).
+
+    Parameters
+    ----------
+    config : PHDConfig
+        Configuration of every filter.
+    n_robots : int
+        Number of filters ``R`` (robot ``r`` is index ``r``).
+
+    Notes
+    -----
+    One table, ``(6, R, max_components)``: each robot's PHD components (``w`` = expected
+    number of teammates). Bounds per robot and filter call (``W = sum w``): a time update gives
+    ``W' <= P_s,max W + measurement_birth_weight B`` (``B``: detections of the last scan since
+    the last time update); a scan of ``M`` detections ``W' <= sum_i (1 - P_d,i) w_i + M``
+    (Bernoulli missed copies: ``w_i (1 - P_d,i) / (1 - r_i P_d,i)``, ``r_i = w_i / max(1,
+    ceil(w_i))``); a frame of ``K`` bearings the same with the camera's ``P_d`` and ``+ K (1 +
+    camera_birth_weight)`` with ray births; at most ``max_components`` components.
+    """
+
+    name = "phd"
+    weight_meaning = "phd-weight"
+    tables = (BankTable("table", "counts", lambda c: c.max_components),)
+    reference = RobotCentricPHD
+    pack_params = staticmethod(kernels.pack_params)
+    kernel = staticmethod(kernels.apply_calls)
+
+    @classmethod
+    def checked_config(cls, config: Any) -> PHDConfig:
+        if not isinstance(config, PHDConfig):
+            raise ValueError(f"config must be a PHDConfig, got {type(config).__name__}")
+        return config
+
+
+class BankView(LocalizerView):
+    """Robot ``robot`` of a :class:`FilterBank`, read and stepped like its family's single
+    reference filter.
+
+    For readers (``.mixture``, ``.table``, ``.estimate()``, ``.identities()``,
+    ``.total_weight``, ``len()``) and for occasional single-robot calls (``.predict()``,
+    ``.advance()``, ``.update_lidar()``, ``.update_camera()``, ``.reset()``,
+    ``.set_mixture()``), which run as batches of one: correct but without the speed-up.
+    Batch the calls on the bank in hot loops.
+    """
+
+    __slots__ = ()
+
+    @property
+    def bank(self) -> FilterBank:
+        return self.localizer  # type: ignore[return-value]
+
+    @property
+    def config(self) -> Any:
+        return self.bank.config
+
+    @property
+    def table(self) -> np.ndarray:
+        """Current ``(6, N)`` table (a read-only copy)."""
+        t = self.bank.table(self.robot)
+        t.flags.writeable = False
+        return t
+
+    @property
+    def total_weight(self) -> float:
+        """Sum of row ``w``: expected number of teammates (GM-PHD), ``sum r`` (PMB)."""
+        return float(self.bank._tables[0][ROW_W, self.robot].sum())
+
+    def __len__(self) -> int:
+        return int(self.bank._counts[0][self.robot])
+
+    def __repr__(self) -> str:
+        return (
+            f"BankView({type(self.bank).__name__}, robot={self.robot}, components={len(self)}, "
+            f"total_weight={self.total_weight:.3f})"
+        )
+
+    def predict(self, odometry: Any) -> None:
+        self._one(("predict", odometry))
+
+    def advance(self, stamp_s: float) -> None:
+        self._one(("advance", stamp_s))
+
+    def update_lidar(self, points, null_bearings=None, sensor_pose=None, scan_profile=None):
+        """As the reference's ``update_lidar``: ``points (M, 2)``, ``null_bearings (B,)``,
+        ``sensor_pose (3,)`` and ``scan_profile (N_BINS,)`` (each optional but the points)."""
+        self._one(("lidar", points, null_bearings, sensor_pose, scan_profile))
+
+    def update_camera(self, bearings: Any, sensor_pose: Any = None) -> None:
+        self._one(("camera", bearings, sensor_pose))
+
+    def reset(self) -> None:
+        self.bank.reset([self.robot])
+
+    def set_mixture(self, mixture: GaussianMixture) -> None:
+        """As the bank's :meth:`FilterBank.set_mixture` for this robot."""
+        self.bank.set_mixture(self.robot, mixture)
+
+    def to_filter(self) -> Any:
+        return self.bank.to_filter(self.robot)
+
+    def _one(self, call: tuple) -> None:
+        calls: list[list[tuple]] = [[] for _ in range(self.bank.n_robots)]
+        calls[self.robot].append(call)
+        self.bank.apply(calls)
 
 
 class _Batch:
@@ -590,32 +792,6 @@ class _Batch:
         )
 
 
-def run_packed(bank: Any, calls: Any) -> bool:
-    """Run ``calls`` on ``bank`` (a :class:`PHDBank` or a ``PMBBank``) from their packed arrays
-    if they are a checked :meth:`SwarmFeed.calls() <localization.feed.SwarmFeed.calls>`
-    (:func:`packed_of`); False (nothing done) otherwise."""
-    packed = packed_of(calls, bank.n_robots, bank.reads_scans)
-    if packed is None:
-        return False
-    if packed.robots:
-        bank._reserve_pending(packed.max_points)
-        bank._run_encoded(packed.encoded, packed.robots)
-    return True
-
-
-def packed_of(calls: Any, n_robots: int, scan_profiles: bool = True) -> Any:
-    """The :class:`~localization.feed.PackedCalls` behind ``calls`` when it is a
-    :meth:`SwarmFeed.calls() <localization.feed.SwarmFeed.calls>` of ``n_robots`` robots whose
-    arrays pass :func:`all_finite` (with the scan profiles only if ``scan_profiles``); else None
-    (the caller encodes the tuples, whose checks name any bad value)."""
-    if calls.__class__ is not FeedCalls or len(calls) != n_robots:
-        return None
-    packed = calls.feed.packed(scan_profiles)
-    if packed is None or not all_finite(packed.encoded):
-        return None
-    return packed
-
-
 def all_finite(encoded: tuple[np.ndarray, ...]) -> bool:
     """Whether the float buffers of an encoded batch hold only finite values within
     :data:`~localization.filter.MAX_INPUT_MAGNITUDE` (m or rad), finite stamps (seconds of any
@@ -699,87 +875,7 @@ def _is_f64(value: Any, ndim: int) -> bool:
     return type(value) is np.ndarray and value.dtype == _F64 and value.ndim == ndim
 
 
-class PHDBankView:
-    """Robot ``robot`` of a :class:`PHDBank`, with the :class:`RobotCentricPHD` interface.
-
-    For readers (``.mixture``, ``.table``, ``.estimate()``, ``.total_weight``, ``len()``) and
-    for occasional single-robot calls (``.predict()``, ``.update_lidar()``,
-    ``.update_camera()``, ``.reset()``, ``.set_mixture()``), which run as batches of one:
-    correct but without the speed-up. Batch the calls on the bank in hot loops.
-    """
-
-    __slots__ = ("bank", "robot")
-
-    def __init__(self, bank: PHDBank, robot: int) -> None:
-        self.bank = bank
-        self.robot = robot
-
-    @property
-    def config(self) -> PHDConfig:
-        return self.bank.config
-
-    @property
-    def mixture(self) -> GaussianMixture:
-        """Current PHD (read-only, cached until the robot's next update)."""
-        return self.bank.mixture(self.robot)
-
-    @property
-    def table(self) -> np.ndarray:
-        """Current ``(6, N)`` component table (a read-only copy)."""
-        t = self.bank.table(self.robot)
-        t.flags.writeable = False
-        return t
-
-    @property
-    def total_weight(self) -> float:
-        return float(self.bank._table[ROW_W, self.robot].sum())
-
-    def __len__(self) -> int:
-        return int(self.bank._counts[self.robot])
-
-    def __repr__(self) -> str:
-        return (
-            f"PHDBankView(robot={self.robot}, mode={self.config.mode!r}, "
-            f"components={len(self)}, total_weight={self.total_weight:.3f})"
-        )
-
-    def estimate(self, threshold: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
-        return self.bank.estimate(self.robot, threshold)
-
-    def predict(self, odometry: Any) -> None:
-        self.bank.predict([self.robot], np.asarray(_checked_odometry(odometry))[None])
-
-    def update_lidar(self, points: Any, null_bearings: Any = None) -> None:
-        self.bank.update_lidar(
-            [self.robot], [points], None if null_bearings is None else [null_bearings]
-        )
-
-    def update_camera(self, bearings: Any) -> None:
-        self.bank.update_camera([self.robot], [bearings])
-
-    def reset(self) -> None:
-        self.bank.reset([self.robot])
-
-    def set_mixture(self, mixture: GaussianMixture) -> None:
-        """Validated like :meth:`RobotCentricPHD.set_mixture` (clears pending births)."""
-        f = RobotCentricPHD(self.config)
-        f.set_mixture(mixture)
-        self.bank.load_filter(self.robot, f)
-
-    def to_filter(self) -> RobotCentricPHD:
-        return self.bank.to_filter(self.robot)
-
-
 # ---------------------------------------------------------------------- helpers
-class _TableHolder:
-    """Duck-typed stand-in so :meth:`RobotCentricPHD.estimate` runs on a bank table."""
-
-    __slots__ = ("_table",)
-
-    def __init__(self, table: np.ndarray) -> None:
-        self._table = table
-
-
 def _checked_bearings(value: Any) -> np.ndarray:
     return _checked_angles(value, "bearings")
 

@@ -132,7 +132,7 @@ class SwarmFeed:
         """Every robot's time-ordered filter calls (:func:`localizer_calls`; a sequence of R
         lists of call tuples, made on first access and shared by all localizers).
 
-        The compiled banks (``PHDBank.apply``, ``PMBBank.apply``) never make the tuples: they
+        The compiled banks (``PHDBank.step``, ``PMBBank.step``) never make the tuples: they
         take the whole swarm's calls as arrays from :meth:`packed` (the same calls, encoded).
         """
         return FeedCalls(self)
@@ -160,8 +160,7 @@ class SwarmFeed:
 
 class FeedCalls(Sequence):
     """:meth:`SwarmFeed.calls`: a read-only sequence of R per-robot call lists that builds the
-    tuples only when an element is read, so a compiled bank handed it can take the packed
-    arrays (:meth:`SwarmFeed.packed`) instead."""
+    tuples only when an element is read."""
 
     __slots__ = ("feed",)
 

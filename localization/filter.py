@@ -40,7 +40,7 @@ from . import object_clutter, phd
 from .config import CAMERA_BIRTH_RADIAL_STD_FRACTION, PHDConfig, config_with_overrides
 from .detection import DetectionModel
 from .frames import bearings_to_filter_frame, points_to_filter_frame
-from .mixture import ROW_PXX, ROW_W, ROW_X, ROW_Y, GaussianMixture, empty_table
+from .mixture import N_ROWS, ROW_PXX, ROW_W, ROW_X, ROW_Y, GaussianMixture, empty_table
 from .reducer import reduce
 from .scan_evidence import (
     MEMORY_LEN,
@@ -51,10 +51,148 @@ from .scan_evidence import (
     scan_memory_from_state,
 )
 
-__all__ = ["RobotCentricPHD"]
+__all__ = ["RobotCentricFilter", "RobotCentricPHD", "estimate_table"]
 
 
-class RobotCentricPHD:
+class RobotCentricFilter:
+    """What the robot-centric reference filters share (:class:`RobotCentricPHD`, the PMB's
+    ``RobotCentricPMB``): their state is a few ``(6, N)`` tables (:attr:`TABLES`, the first
+    the one shown as :attr:`mixture` / :attr:`table`), pending measurement births, a
+    process-noise clock and a scan memory; tables are never written in place (each call builds
+    new ones), so a shallow copy is an independent filter. Instances are picklable and
+    deep-copyable."""
+
+    __slots__ = ()
+    #: The state's tables: ``name`` is the ``__getstate__`` key, ``"_" + name`` the attribute.
+    TABLES: tuple[str, ...] = ("table",)
+
+    @property
+    def mixture(self) -> GaussianMixture:
+        """The first table as a read-only :class:`GaussianMixture` (cached until the next call)."""
+        if self._mixture is None:
+            self._mixture = GaussianMixture.from_table(self._shown())
+        return self._mixture
+
+    @property
+    def total_weight(self) -> float:
+        """Sum of the first table's weights (the expected number of teammates it holds)."""
+        return float(self._shown()[ROW_W].sum())
+
+    def __len__(self) -> int:
+        return int(self._shown().shape[1])
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = {"config": self.config}
+        state.update((name, getattr(self, "_" + name)) for name in self.TABLES)
+        state.update(
+            pending_births=self._pending_births,
+            clock=self._clock.as_array(),
+            scan_memory=self._scan,
+        )
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__init__(state["config"])  # type: ignore[misc]
+        for name in self.TABLES:
+            setattr(self, "_" + name, np.array(state[name], dtype=float).reshape(N_ROWS, -1))
+        self._pending_births = np.array(state["pending_births"], dtype=float).reshape(-1, 2)
+        if "clock" in state:  # absent from states pickled before the clock existed
+            self._clock = phd.ProcessClock.from_array(state["clock"])
+        if "scan_memory" in state:  # absent from states pickled before the scan memory
+            self._scan = scan_memory_from_state(state["scan_memory"])
+
+    def __copy__(self) -> Any:
+        new = object.__new__(type(self))
+        for name in self.__slots__:
+            setattr(new, name, getattr(self, name))
+        return new
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> Any:
+        new = self.__copy__()
+        for name in self.__slots__:
+            value = getattr(new, name)
+            if isinstance(value, np.ndarray):
+                setattr(new, name, value.copy())
+        new._mixture = None
+        return new
+
+    def _shown(self) -> np.ndarray:
+        return getattr(self, "_" + self.TABLES[0])
+
+    def _predict_clock(self, cfg: PHDConfig) -> float:
+        """The process-noise clock's time update: the variance ``q`` of its ``Q = q I``."""
+        self._clock, q = self._clock.predict(
+            cfg.process_noise_std_m**2, cfg.time_update == "measurement"
+        )
+        return q
+
+    def _advance_clock(self, stamp_s: float, cfg: PHDConfig) -> float:
+        """The clock moved to ``stamp_s`` (checked): the process-noise variance accrued."""
+        stamp = _checked_stamp(stamp_s)
+        self._clock, var = self._clock.advance(
+            stamp,
+            cfg.process_noise_std_m**2,
+            cfg.process_noise_interval_s,
+            cfg.time_update == "measurement",
+        )
+        return var
+
+    def _predicted_with_births(
+        self, table: np.ndarray, odo: np.ndarray, q: float, cfg: PHDConfig
+    ) -> np.ndarray:
+        """``table`` after the time update (:func:`phd.predict`, ``Q = q I``, weights times
+        ``P_s``), with the pending measurement births joined (``P_s = 1``): adaptive births
+        were measured in the previous frame, so they move with the frame and the next update
+        confirms or drops them. Reduced past ``max_components``. The GM-PHD's time update,
+        and the PMB's of its Poisson intensity."""
+        survival = self._model.survival(table)
+        if self._pending_births.shape[0]:
+            births = phd.birth_components(
+                self._pending_births,
+                cfg.measurement_birth_cov_scale * cfg.lidar_noise_var_m2,
+                cfg.measurement_birth_weight,
+            )
+            table = np.concatenate((table, births), axis=1)
+            survival = np.concatenate((survival, np.ones(births.shape[1])))
+        table = phd.predict(table, odo, survival, q)
+        if table.shape[1] > cfg.max_components:
+            table = reduce(table, cfg.prune_threshold, cfg.merge_threshold, cfg.max_components)
+        return table
+
+    def _after_predict(self, odo: np.ndarray) -> None:
+        """The scan memory's pose moves with the frame; the pending births are spent."""
+        if self._scan[0]:  # the scan was taken from a place the frame has moved away from
+            self._scan = self._scan.copy()
+            self._scan[1:4] = move_scan_pose(self._scan[1:4], odo)
+        self._pending_births = np.empty((0, 2))
+        self._mixture = None
+
+
+def lidar_inputs(
+    points: Any, null_bearings: Any, sensor_pose: Any, scan_profile: Any
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+    """A lidar call's checked inputs (``ValueError`` naming the bad one): ``points (M, 2)``
+    and ``null_bearings (B,)`` (or None) moved into the filter's frame from ``sensor_pose``
+    (:mod:`localization.frames`), the pose ``(3,)`` and the scan profile (or None)."""
+    pts = _checked_points(points)
+    profile = None if scan_profile is None else checked_scan_profile(scan_profile)
+    nulls = None if null_bearings is None else _checked_angles(null_bearings, "null_bearings")
+    pose = checked_pose(sensor_pose)
+    if pose is not None:
+        pts = points_to_filter_frame(pts, pose)
+        nulls = None if nulls is None else bearings_to_filter_frame(nulls, pose)
+    return pts, nulls, pose, profile
+
+
+def read_only(table: np.ndarray) -> np.ndarray:
+    """A zero-copy read-only view of ``table`` (the filters never write into an array they
+    have handed out: each call builds a new table)."""
+    view = table.view()
+    view.flags.writeable = False
+    return view
+
+
+class RobotCentricPHD(RobotCentricFilter):
     """Robot-centric GM-PHD filter for teammate positions in the observer's own frame.
 
     Parameters
@@ -156,70 +294,16 @@ class RobotCentricPHD:
         self._mixture = None
 
     @property
-    def mixture(self) -> GaussianMixture:
-        """Current PHD as a read-only :class:`GaussianMixture` (cached until the next call)."""
-        if self._mixture is None:
-            self._mixture = GaussianMixture.from_table(self._table)
-        return self._mixture
-
-    @property
     def table(self) -> np.ndarray:
-        """Current component table, shape ``(6, N)``, rows ``w, x, y, Pxx, Pxy, Pyy`` (read-only).
-
-        A zero-copy view for vectorised consumers; the filter never writes into an array
-        it has handed out (each call builds a new table).
-        """
-        view = self._table.view()
-        view.flags.writeable = False
-        return view
-
-    @property
-    def total_weight(self) -> float:
-        """Sum of weights: the expected number of teammates in the tracked neighbourhood."""
-        return float(self._table[ROW_W].sum())
-
-    def __len__(self) -> int:
-        return int(self._table.shape[1])
+        """Current component table, shape ``(6, N)``, rows ``w, x, y, Pxx, Pxy, Pyy`` (a
+        zero-copy read-only view, :func:`read_only`)."""
+        return read_only(self._table)
 
     def __repr__(self) -> str:
         return (
             f"RobotCentricPHD(mode={self.config.mode!r}, components={len(self)}, "
             f"total_weight={self.total_weight:.3f})"
         )
-
-    def __getstate__(self) -> dict[str, Any]:
-        return {
-            "config": self.config,
-            "table": self._table,
-            "pending_births": self._pending_births,
-            "clock": self._clock.as_array(),
-            "scan_memory": self._scan,
-        }
-
-    def __copy__(self) -> RobotCentricPHD:
-        # Config, detection model, birth table and the component table are never mutated
-        # in place, so a shallow copy is an independent filter.
-        new = object.__new__(RobotCentricPHD)
-        for name in self.__slots__:
-            setattr(new, name, getattr(self, name))
-        return new
-
-    def __deepcopy__(self, memo: dict[int, Any]) -> RobotCentricPHD:
-        new = self.__copy__()
-        new._table = self._table.copy()
-        new._pending_births = self._pending_births.copy()
-        new._scan = self._scan.copy()
-        new._mixture = None
-        return new
-
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__init__(state["config"])  # type: ignore[misc]
-        self._table = np.array(state["table"], dtype=float)
-        self._pending_births = np.array(state["pending_births"], dtype=float)
-        if "clock" in state:  # absent from states pickled before the clock existed
-            self._clock = phd.ProcessClock.from_array(state["clock"])
-        if "scan_memory" in state:  # absent from states pickled before the scan evidence
-            self._scan = scan_memory_from_state(state["scan_memory"])
 
     # ------------------------------------------------------------------ steps
     def predict(self, odometry: np.ndarray) -> None:
@@ -238,31 +322,9 @@ class RobotCentricPHD:
         """
         odo = _checked_odometry(odometry)
         cfg = self.config
-        table = self._table
-        survival = self._model.survival(table)
-        pending = self._pending_births
-        if pending.shape[0]:
-            # Adaptive births were measured in the previous frame: move them with the frame
-            # (no survival factor) and let the next update confirm or drop them.
-            births = phd.birth_components(
-                pending,
-                cfg.measurement_birth_cov_scale * cfg.lidar_noise_var_m2,
-                cfg.measurement_birth_weight,
-            )
-            table = np.concatenate((table, births), axis=1)
-            survival = np.concatenate((survival, np.ones(births.shape[1])))
-        self._clock, process_var = self._clock.predict(
-            cfg.process_noise_std_m**2, cfg.time_update == "measurement"
-        )
-        table = phd.predict(table, odo, survival, process_var)
-        if table.shape[1] > cfg.max_components:
-            table = self._reduce(table)
-        self._table = table
-        if self._scan[0]:  # the scan was taken from a place the frame has moved away from
-            self._scan = self._scan.copy()
-            self._scan[1:4] = move_scan_pose(self._scan[1:4], odo)
-        self._pending_births = np.empty((0, 2))
-        self._mixture = None
+        process_var = self._predict_clock(cfg)
+        self._table = self._predicted_with_births(self._table, odo, process_var, cfg)
+        self._after_predict(odo)
 
     def advance(self, stamp_s: float) -> None:
         """Time update of the process noise alone, to ``stamp_s`` (s), before a measurement
@@ -274,14 +336,7 @@ class RobotCentricPHD:
         ValueError
             If ``stamp_s`` is not a finite number.
         """
-        stamp = _checked_stamp(stamp_s)
-        cfg = self.config
-        self._clock, var = self._clock.advance(
-            stamp,
-            cfg.process_noise_std_m**2,
-            cfg.process_noise_interval_s,
-            cfg.time_update == "measurement",
-        )
+        var = self._advance_clock(stamp_s, self.config)
         if var > 0.0 and self._table.shape[1]:
             self._table = phd.diffuse(self._table, var)
             self._mixture = None
@@ -320,13 +375,7 @@ class RobotCentricPHD:
         ValueError
             If an argument has the wrong shape or non-finite values.
         """
-        pts = _checked_points(points)
-        profile = None if scan_profile is None else checked_scan_profile(scan_profile)
-        nulls = None if null_bearings is None else _checked_angles(null_bearings, "null_bearings")
-        pose = checked_pose(sensor_pose)
-        if pose is not None:
-            pts = points_to_filter_frame(pts, pose)
-            nulls = None if nulls is None else bearings_to_filter_frame(nulls, pose)
+        pts, nulls, pose, profile = lidar_inputs(points, null_bearings, sensor_pose, scan_profile)
         if self.config.reads_scans:  # the memory is kept only where it is used
             self._scan = scan_memory_of(profile, pose, self.config.models_wide_objects)
         cfg = self.config
@@ -454,34 +503,8 @@ class RobotCentricPHD:
         self._mixture = None
 
     def estimate(self, threshold: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
-        """Extract neighbour position estimates (Vo & Ma 2006, Table III).
-
-        Every component with ``w >= threshold`` is reported ``max(1, floor(w + 0.5))`` times
-        (a component holding the mass of two close teammates counts as two), each copy
-        carrying weight ``w / count``. Rows are sorted by decreasing weight.
-
-        Parameters
-        ----------
-        threshold : float
-            Extraction threshold on component weights.
-
-        Returns
-        -------
-        positions : ndarray, shape (K, 2)
-            Estimated teammate positions ``[x_m, y_m]`` in the robot frame.
-        weights : ndarray, shape (K,)
-        """
-        threshold = float(threshold)
-        if not math.isfinite(threshold):
-            raise ValueError(f"threshold must be finite, got {threshold!r}")
-        table = self._table
-        w = table[ROW_W]
-        keep = np.flatnonzero(w >= threshold)
-        keep = keep[np.argsort(-w[keep], kind="stable")]
-        wk = w[keep]
-        counts = np.maximum(np.floor(wk + 0.5), 1.0).astype(np.intp)
-        positions = np.repeat(table[ROW_X : ROW_Y + 1, keep].T, counts, axis=0)
-        return positions, np.repeat(wk / counts, counts)
+        """Extract neighbour position estimates (:func:`estimate_table` of the current table)."""
+        return estimate_table(self._table, threshold)
 
     def _scan_on(self) -> bool:
         return self.config.scan_evidence and bool(self._scan[0])
@@ -548,6 +571,55 @@ MAX_INPUT_MAGNITUDE = 1e4
 #: update is O(components x measurements), and 20,000 detections took the reference over
 #: 100 s; a real scan holds a few tens (a 720-beam lidar yields at most ~240 clusters).
 MAX_MEASUREMENTS_PER_CALL = 4096
+
+
+def estimate_table(table: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray]:
+    """Extract neighbour position estimates from a ``(6, N)`` GM-PHD table (Vo & Ma 2006,
+    Table III).
+
+    Every component with ``w >= threshold`` is reported ``max(1, floor(w + 0.5))`` times
+    (a component holding the mass of two close teammates counts as two), each copy
+    carrying weight ``w / count``. Rows are sorted by decreasing weight.
+
+    Parameters
+    ----------
+    table : ndarray, shape (6, N)
+        Rows ``w, x, y, Pxx, Pxy, Pyy``.
+    threshold : float
+        Extraction threshold on component weights.
+
+    Returns
+    -------
+    positions : ndarray, shape (K, 2)
+        Estimated teammate positions ``[x_m, y_m]`` in the robot frame.
+    weights : ndarray, shape (K,)
+
+    Raises
+    ------
+    ValueError
+        If ``threshold`` is not finite.
+    """
+    w = table[ROW_W]
+    keep = ranked_above(w, threshold)
+    wk = w[keep]
+    counts = np.maximum(np.floor(wk + 0.5), 1.0).astype(np.intp)
+    positions = np.repeat(table[ROW_X : ROW_Y + 1, keep].T, counts, axis=0)
+    return positions, np.repeat(wk / counts, counts)
+
+
+def ranked_above(weights: np.ndarray, threshold: float) -> np.ndarray:
+    """Indices of the ``weights`` at or above ``threshold``, heaviest first (ties: lower index).
+
+    Raises
+    ------
+    ValueError
+        If ``threshold`` is not finite.
+    """
+    threshold = float(threshold)
+    if not math.isfinite(threshold):
+        raise ValueError(f"threshold must be finite, got {threshold!r}")
+    keep = np.flatnonzero(weights >= threshold)
+    return keep[np.argsort(-weights[keep], kind="stable")]
 
 
 def check_magnitude(values: np.ndarray, name: str) -> None:

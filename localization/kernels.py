@@ -70,6 +70,29 @@ __all__ = [
 ]
 
 PREDICT, LIDAR, CAMERA, ADVANCE = 0, 1, 2, 3
+# Positions of the arrays in an encoded batch (module docstring).
+(
+    _ROBOTS,
+    _KINDS,
+    _INDEX,
+    _ODOMETRY,
+    _LIDAR_START,
+    _LIDAR_STOP,
+    _POINTS,
+    _NULL_START,
+    _NULL_STOP,
+    _NULLS,
+    _CAMERA_START,
+    _CAMERA_STOP,
+    _BEARINGS,
+    _LIDAR_POSE,
+    _LIDAR_HAS_POSE,
+    _CAMERA_POSE,
+    _CAMERA_HAS_POSE,
+    _STAMPS,
+    _PROFILES,
+    _LIDAR_HAS_PROFILE,
+) = range(20)
 
 
 class _Slots:
@@ -470,19 +493,35 @@ def diffuse(tab, n, var):
 
 
 @njit(cache=True)
-def _predict(tab, n, births, n_births, odo, q, fp, ip):
-    """Frame change + Q + survival; pending births join with ``P_s = 1``. Returns (table, n)."""
+def set_round_gaussian(out, col, w, x, y, var):
+    """Column ``col`` of ``out`` becomes the component ``(w, [x, y], var I)`` (a birth)."""
+    out[0, col] = w
+    out[1, col] = x
+    out[2, col] = y
+    out[3, col] = var
+    out[4, col] = 0.0
+    out[5, col] = var
+
+
+@njit(cache=True)
+def set_fixed_birth(out, col, fp):
+    """Column ``col`` of ``out`` becomes the seed's fixed birth component
+    (``birth == "fixed"``), which joins the prior of every lidar update."""
+    set_round_gaussian(out, col, fp[F_BIRTH_W], fp[F_BIRTH_X], fp[F_BIRTH_Y], fp[F_BIRTH_VAR])
+
+
+@njit(cache=True)
+def predict_with_births(tab, n, births, n_births, odo, q, fp, ip):
+    """Frame change + Q + survival of ``tab``'s first ``n`` columns; the ``n_births`` pending
+    ``births (B, 2)`` join with ``P_s = 1``; reduced past ``max_components``. Returns (table,
+    k). The GM-PHD's time update, and the PMB's of its Poisson intensity."""
     total = n + n_births
     out = np.empty((N_ROWS, total))
     out[:, :n] = tab[:, :n]
     for b in range(n_births):
-        col = n + b
-        out[0, col] = fp[F_MBIRTH_W]
-        out[1, col] = births[b, 0]
-        out[2, col] = births[b, 1]
-        out[3, col] = fp[F_MBIRTH_VAR]
-        out[4, col] = 0.0
-        out[5, col] = fp[F_MBIRTH_VAR]
+        set_round_gaussian(
+            out, n + b, fp[F_MBIRTH_W], births[b, 0], births[b, 1], fp[F_MBIRTH_VAR]
+        )
     frame_change(out, total, n, odo, q, fp, ip)
     if total > ip[I_MAX_COMPONENTS]:
         return reduce_table(out, total, fp[F_PRUNE], fp[F_MERGE], ip[I_MAX_COMPONENTS])
@@ -651,6 +690,41 @@ def _missed_moments(tab, n, pd, fp):
 
 
 @njit(cache=True)
+def lidar_component(tab, i, r, post_covs):
+    """The lidar (``H = I``, noise ``r I``) update of component ``i`` of ``tab``: writes its
+    posterior covariance ``[Pxx, Pxy, Pyy]`` into ``post_covs[:, i]`` and returns ``(mx, my,
+    h_xx, h_xy, h_yy, norm)``: its mean, ``-S^-1 / 2`` and the peak ``1 / (2 pi sqrt|S|)``
+    of its likelihood (:func:`lidar_exponent`; see ``gaussian.position_update``). Shared by
+    the GM-PHD and the PMB kernels."""
+    pxx, pxy, pyy = tab[3, i], tab[4, i], tab[5, i]
+    pxy2 = pxy * pxy
+    det_p = pxx * pyy - pxy2
+    inv_det_s = 1.0 / max((pxx + r) * (pyy + r) - pxy2, _TINY)
+    # -S^-1 / 2 (see gaussian.position_update)
+    h_xx = (pyy + r) * (-0.5 * inv_det_s)
+    h_xy = pxy * (0.5 * inv_det_s)
+    h_yy = (pxx + r) * (-0.5 * inv_det_s)
+    # Joseph form reduced to r S^-1 P: all terms non-negative
+    scale = r * inv_det_s
+    post_covs[0, i] = (pxx * r + det_p) * scale
+    post_covs[1, i] = (pxy * r) * scale
+    post_covs[2, i] = (pyy * r + det_p) * scale
+    return tab[1, i], tab[2, i], h_xx, h_xy, h_yy, math.sqrt(inv_det_s) * _INV_TWO_PI
+
+
+@njit(cache=True)
+def lidar_exponent(pts, h, mx, my, h_xx, h_xy, h_yy):
+    """``(-q / 2, e0, e1)`` of point ``pts[h]`` against the component of
+    :func:`lidar_component`: ``q`` its squared Mahalanobis distance, ``e = -S^-1 d / 2``
+    (the posterior mean is ``pts[h] + 2 r e``)."""
+    d0 = pts[h, 0] - mx
+    d1 = pts[h, 1] - my
+    e0 = h_xx * d0 + h_xy * d1
+    e1 = h_xy * d0 + h_yy * d1
+    return d0 * e0 + d1 * e1, e0, e1
+
+
+@njit(cache=True)
 def _lidar_update(tab, n, pts, nulls, fp, ip, sector_scaled, sector_params, memory):
     """Lidar GM-PHD update (H = I), pruned, then the scan's free-space evidence
     (``memory``: the robot's scan memory, :mod:`localization.scan_evidence`). Returns
@@ -674,13 +748,8 @@ def _lidar_update(tab, n, pts, nulls, fp, ip, sector_scaled, sector_params, memo
     n1 = n + 1 if fixed_birth else n
     prior = np.empty((N_ROWS, n1))
     prior[:, :n] = tab[:, :n]
-    if fixed_birth:  # the seed's birth component joins the prior of every lidar update
-        prior[0, n] = fp[F_BIRTH_W]
-        prior[1, n] = fp[F_BIRTH_X]
-        prior[2, n] = fp[F_BIRTH_Y]
-        prior[3, n] = fp[F_BIRTH_VAR]
-        prior[4, n] = 0.0
-        prior[5, n] = fp[F_BIRTH_VAR]
+    if fixed_birth:
+        set_fixed_birth(prior, n, fp)
     pd = _lidar_pd(prior, n1, nulls, fp, ip, sector_scaled, sector_params)
     if scan:
         pd *= _scan_factors(prior, n1, memory, 0.0, 0.0, fp)[0]
@@ -690,29 +759,12 @@ def _lidar_update(tab, n, pts, nulls, fp, ip, sector_scaled, sector_params, memo
     post_means = np.empty((2, n1, m))
     post_covs = np.empty((3, n1))
     for i in range(n1):
-        pxx, pxy, pyy = prior[3, i], prior[4, i], prior[5, i]
-        mx, my = prior[1, i], prior[2, i]
-        pxy2 = pxy * pxy
-        det_p = pxx * pyy - pxy2
-        inv_det_s = 1.0 / max((pxx + r) * (pyy + r) - pxy2, _TINY)
-        # -S^-1 / 2 (see gaussian.position_update)
-        h_xx = (pyy + r) * (-0.5 * inv_det_s)
-        h_xy = pxy * (0.5 * inv_det_s)
-        h_yy = (pxx + r) * (-0.5 * inv_det_s)
-        # Joseph form reduced to r S^-1 P: all terms non-negative
-        scale = r * inv_det_s
-        post_covs[0, i] = (pxx * r + det_p) * scale
-        post_covs[1, i] = (pxy * r) * scale
-        post_covs[2, i] = (pyy * r + det_p) * scale
-        norm = math.sqrt(inv_det_s) * _INV_TWO_PI
+        mx, my, h_xx, h_xy, h_yy, norm = lidar_component(prior, i, r, post_covs)
         pd_w = pd[i] * prior[0, i]
         floor = _negligible_exponent(pd_w, norm, kappa, prune)
         for h in range(m):
-            d0 = pts[h, 0] - mx
-            d1 = pts[h, 1] - my
-            e0 = h_xx * d0 + h_xy * d1
-            e1 = h_xy * d0 + h_yy * d1
-            exponent = d0 * e0 + d1 * e1  # <= 0: far pairs underflow to exactly 0
+            # exponent <= 0: far pairs underflow to exactly 0
+            exponent, e0, e1 = lidar_exponent(pts, h, mx, my, h_xx, h_xy, h_yy)
             if exponent < floor:
                 detected[i, h] = 0.0
                 continue
@@ -775,6 +827,37 @@ def camera_clutter(brg, memory, ox, oy, fp):
 
 
 @njit(cache=True)
+def camera_component(tab, i, fp, min_r2, post_covs):
+    """The camera's EKF bearing update of component ``i`` of ``tab`` (seen from the camera):
+    writes its posterior covariance ``[Pxx, Pxy, Pyy]`` (Joseph form) into ``post_covs[:, i]``
+    and returns ``(x, y, g0, g1, predicted, norm, half_inv_s)``: its mean, the gain, the
+    predicted bearing, the likelihood's peak ``1 / sqrt(2 pi S)`` and ``-1 / (2 S)``. Shared
+    by the GM-PHD and the PMB kernels."""
+    x, y = tab[1, i], tab[2, i]
+    pxx, pxy, pyy = tab[3, i], tab[4, i], tab[5, i]
+    noise = camera_bearing_var(math.hypot(x, y), fp)
+    # Guard: ||m||^2 floored so the atan2 Jacobian [-y, x] / r^2 stays finite.
+    inv_r2 = 1.0 / max(x * x + y * y, min_r2)
+    j0, j1 = -y * inv_r2, x * inv_r2
+    u0 = pxx * j0 + pxy * j1
+    u1 = pxy * j0 + pyy * j1
+    inv_s = 1.0 / (j0 * u0 + j1 * u1 + noise)  # S >= R_C > 0
+    g0, g1 = u0 * inv_s, u1 * inv_s
+    # Joseph form (I - K H) P (I - K H)^T + K R K^T: a sum of PSD terms.
+    b00, b01 = 1.0 - g0 * j0, -g0 * j1
+    b10, b11 = -g1 * j0, 1.0 - g1 * j1
+    bp00 = b00 * pxx + b01 * pxy
+    bp01 = b00 * pxy + b01 * pyy
+    bp10 = b10 * pxx + b11 * pxy
+    bp11 = b10 * pxy + b11 * pyy
+    post_covs[0, i] = bp00 * b00 + bp01 * b01 + g0 * noise * g0
+    post_covs[1, i] = bp00 * b10 + bp01 * b11 + g0 * noise * g1
+    post_covs[2, i] = bp10 * b10 + bp11 * b11 + g1 * noise * g1
+    predicted = math.atan2(y, x)
+    return x, y, g0, g1, predicted, math.sqrt(inv_s) * _INV_SQRT_TWO_PI, -0.5 * inv_s
+
+
+@njit(cache=True)
 def _camera_update(tab, n, brg, fp, ip, memory, ox, oy):
     """Camera EKF bearing GM-PHD update (+ ray births), pruned. Returns (table, k).
 
@@ -796,29 +879,7 @@ def _camera_update(tab, n, brg, fp, ip, memory, ox, oy):
     post_means = np.empty((2, n, m))
     post_covs = np.empty((3, n))
     for i in range(n):
-        x, y = tab[1, i], tab[2, i]
-        pxx, pxy, pyy = tab[3, i], tab[4, i], tab[5, i]
-        noise = camera_bearing_var(math.hypot(x, y), fp)
-        # Guard: ||m||^2 floored so the atan2 Jacobian [-y, x] / r^2 stays finite.
-        inv_r2 = 1.0 / max(x * x + y * y, min_r2)
-        j0, j1 = -y * inv_r2, x * inv_r2
-        u0 = pxx * j0 + pxy * j1
-        u1 = pxy * j0 + pyy * j1
-        inv_s = 1.0 / (j0 * u0 + j1 * u1 + noise)  # S >= R_C > 0
-        g0, g1 = u0 * inv_s, u1 * inv_s
-        # Joseph form (I - K H) P (I - K H)^T + K R K^T: a sum of PSD terms.
-        b00, b01 = 1.0 - g0 * j0, -g0 * j1
-        b10, b11 = -g1 * j0, 1.0 - g1 * j1
-        bp00 = b00 * pxx + b01 * pxy
-        bp01 = b00 * pxy + b01 * pyy
-        bp10 = b10 * pxx + b11 * pxy
-        bp11 = b10 * pxy + b11 * pyy
-        post_covs[0, i] = bp00 * b00 + bp01 * b01 + g0 * noise * g0
-        post_covs[1, i] = bp00 * b10 + bp01 * b11 + g0 * noise * g1
-        post_covs[2, i] = bp10 * b10 + bp11 * b11 + g1 * noise * g1
-        predicted = math.atan2(y, x)
-        norm = math.sqrt(inv_s) * _INV_SQRT_TWO_PI
-        half_inv_s = -0.5 * inv_s
+        x, y, g0, g1, predicted, norm, half_inv_s = camera_component(tab, i, fp, min_r2, post_covs)
         pd_w = pd[i] * tab[0, i]
         floor = _negligible_exponent(pd_w, norm, kappa, prune)
         for h in range(m):
@@ -1136,163 +1197,141 @@ def robot_runs(robots):
     return starts, n_groups
 
 
-@njit(cache=True, parallel=True)
-def apply_calls(
-    table,
-    counts,
-    pending,
-    pending_counts,
-    clock,
-    scan_memory,
-    calls,
-    fp,
-    ip,
-    sector_scaled,
-    sector_params,
-):
-    """Run ``Q`` encoded calls (module docstring) on the bank state, in place.
-
-    Parameters
-    ----------
-    table : ndarray, shape (6, R, C)
-        Rows ``w, x, y, Pxx, Pxy, Pyy``; robot ``r`` uses columns ``[:counts[r]]``, the rest
-        is kept at 0. ``C = max_components``.
-    counts : ndarray of int, shape (R,)
-    pending : ndarray, shape (R, Pmax, 2)
-        Measurement births awaiting the next time update (``birth == "measurement"``);
-        ``Pmax`` must be at least the largest lidar call's point count.
-    pending_counts : ndarray of int, shape (R,)
-    clock : ndarray, shape (R, 2)
-        Per robot: last stamp (s, nan before the first) and whether it was advanced since the
-        last predict (:func:`advance_clock`).
-    scan_memory : ndarray, shape (R, MEMORY_LEN)
-        Per robot: its last scan (:mod:`localization.scan_evidence`), ``[has_scan, x_m, y_m,
-        psi_rad, profile]``, the pose in the filter's frame. Written by lidar calls (with
-        ``scan_evidence`` only; a call without a profile clears it), moved by predicts.
-    calls : tuple of ndarray
-        ``robots, kinds, index, odometry, lidar_start, lidar_stop, points, null_start,
-        null_stop, nulls, camera_start, camera_stop, bearings, lidar_pose, lidar_has_pose,
-        camera_pose, camera_has_pose, stamps, profiles, lidar_has_profile`` (module docstring).
-    """
-    # Robots are independent: each thread takes whole robots, and runs their calls in order.
-    starts, n_groups = robot_runs(calls[0])
-    for g in prange(n_groups):
-        for q in range(starts[g], starts[g + 1]):
-            _apply_call(
-                q,
-                table,
-                counts,
-                pending,
-                pending_counts,
-                clock,
-                scan_memory,
-                calls,
-                fp,
-                ip,
-                sector_scaled,
-                sector_params,
-            )
+@njit(cache=True)
+def lidar_call_inputs(calls, j, memory, keep_scan, fp):
+    """Lidar call ``j``'s detections ``(M, 2)`` and null bearings ``(B,)``, moved into the
+    filter's frame when it has a sensor pose. With ``keep_scan`` its scan becomes the robot's
+    scan ``memory`` (:func:`_remember_scan`), with its wide objects where the camera clutter
+    reads them. Shared by the GM-PHD and the PMB drivers."""
+    pts = calls[_POINTS][calls[_LIDAR_START][j] : calls[_LIDAR_STOP][j]]
+    nul = calls[_NULLS][calls[_NULL_START][j] : calls[_NULL_STOP][j]]
+    if calls[_LIDAR_HAS_POSE][j]:
+        pts, nul = _to_filter_frame(pts, nul, calls[_LIDAR_POSE][j])
+    if keep_scan:  # else no 720-float copy
+        _remember_scan(
+            memory,
+            calls[_PROFILES],
+            calls[_LIDAR_HAS_PROFILE],
+            calls[_LIDAR_POSE],
+            calls[_LIDAR_HAS_POSE],
+            j,
+        )
+        if fp[F_WIDE_CLUTTER] > 0.0 and memory[0] != 0.0:
+            wide_objects_into(memory)
+    return pts, nul
 
 
 @njit(cache=True)
-def _apply_call(
-    q,
-    table,
-    counts,
-    pending,
-    pending_counts,
-    clock,
-    scan_memory,
-    calls,
-    fp,
-    ip,
-    sector_scaled,
-    sector_params,
-):
+def camera_call_inputs(calls, j):
+    """Camera call ``j``'s bearings ``(M,)``, rotated into the filter's frame when it has a
+    sensor pose, and the camera's position ``(x_m, y_m)`` in that frame (``0, 0`` without
+    one): the bearing model is read from there. Shared by the GM-PHD and the PMB drivers."""
+    brg = calls[_BEARINGS][calls[_CAMERA_START][j] : calls[_CAMERA_STOP][j]]
+    if not calls[_CAMERA_HAS_POSE][j]:
+        return brg, 0.0, 0.0
+    pose = calls[_CAMERA_POSE][j]
+    _, brg = _to_filter_frame(np.empty((0, 2)), brg, pose)
+    return brg, pose[0], pose[1]
+
+
+@njit(cache=True)
+def after_predict(pending_counts, r, memory, odo):
+    """After robot ``r``'s time update: its pending births are spent and its scan memory's
+    pose moves with the frame. Shared by the GM-PHD and the PMB drivers."""
+    pending_counts[r] = 0
+    if memory[0] != 0.0:
+        move_scan_pose_in_place(memory, odo)
+
+
+@njit(cache=True)
+def keep_measurement_births(pending, pending_counts, r, pts, explained, fp):
+    """Robot ``r``'s detections explained below ``measurement_birth_max_explained`` wait, as
+    its pending births, for the next time update. Shared by the GM-PHD and the PMB drivers."""
+    b = 0
+    for h in range(explained.shape[0]):
+        if explained[h] < fp[F_MBIRTH_MAX_EXPLAINED]:
+            pending[r, b, 0] = pts[h, 0]
+            pending[r, b, 1] = pts[h, 1]
+            b += 1
+    pending_counts[r] = b
+
+
+@njit(cache=True)
+def store_table(table, counts, r, out, n_out):
+    """Robot ``r``'s slice of the padded ``table`` becomes ``out``'s first ``n_out`` columns
+    (the rest zero)."""
+    table[:, r, :n_out] = out[:, :n_out]
+    table[:, r, n_out:] = 0.0
+    counts[r] = n_out
+
+
+@njit(cache=True)
+def _apply_call(q, state, calls, params):
     """Call ``q`` of :func:`apply_calls` on its robot's slice of the state."""
-    (
-        robots,
-        kinds,
-        index,
-        odometry,
-        lidar_start,
-        lidar_stop,
-        points,
-        null_start,
-        null_stop,
-        nulls,
-        camera_start,
-        camera_stop,
-        bearings,
-        lidar_pose,
-        lidar_has_pose,
-        camera_pose,
-        camera_has_pose,
-        stamps,
-        profiles,
-        lidar_has_profile,
-    ) = calls
-    max_components = ip[I_MAX_COMPONENTS]
-    measurement_birth = ip[I_BIRTH_MEASUREMENT]
-    max_explained = fp[F_MBIRTH_MAX_EXPLAINED]
-    r = robots[q]
-    kind = kinds[q]
-    j = index[q]
+    table, counts, pending, pending_counts, clock, scan_memory = state
+    fp, ip, sector_scaled, sector_params = params
+    r = calls[_ROBOTS][q]
+    kind = calls[_KINDS][q]
+    j = calls[_INDEX][q]
     n = counts[r]
     tab = table[:, r, :n]
     memory = scan_memory[r]
     if kind == ADVANCE:
-        diffuse(tab, n, advance_clock(clock, r, stamps[j], fp, ip))
+        diffuse(tab, n, advance_clock(clock, r, calls[_STAMPS][j], fp, ip))
         return
     if kind == PREDICT:
+        odo = calls[_ODOMETRY][j]
         q_var = predict_process_var(clock, r, fp, ip)
-        out, n_out = _predict(tab, n, pending[r], pending_counts[r], odometry[j], q_var, fp, ip)
-        pending_counts[r] = 0
-        if memory[0] != 0.0:
-            move_scan_pose_in_place(memory, odometry[j])
+        out, n_out = predict_with_births(tab, n, pending[r], pending_counts[r], odo, q_var, fp, ip)
+        after_predict(pending_counts, r, memory, odo)
     elif kind == LIDAR:
-        pts = points[lidar_start[j] : lidar_stop[j]]
-        nul = nulls[null_start[j] : null_stop[j]]
-        if lidar_has_pose[j]:
-            pts, nul = _to_filter_frame(pts, nul, lidar_pose[j])
-        if ip[I_SCAN_EVIDENCE] or fp[F_WIDE_CLUTTER] > 0.0:  # else no 720-float copy
-            _remember_scan(memory, profiles, lidar_has_profile, lidar_pose, lidar_has_pose, j)
-            if fp[F_WIDE_CLUTTER] > 0.0 and memory[0] != 0.0:
-                wide_objects_into(memory)
+        keep_scan = ip[I_SCAN_EVIDENCE] != 0 or fp[F_WIDE_CLUTTER] > 0.0
+        pts, nul = lidar_call_inputs(calls, j, memory, keep_scan, fp)
         cand, n_cand, explained = _lidar_update(
-            tab,
-            n,
-            pts,
-            nul,
-            fp,
-            ip,
-            sector_scaled,
-            sector_params,
-            memory,
+            tab, n, pts, nul, fp, ip, sector_scaled, sector_params, memory
         )
-        if measurement_birth:
-            b = 0
-            for h in range(explained.shape[0]):
-                if explained[h] < max_explained:
-                    pending[r, b, 0] = pts[h, 0]
-                    pending[r, b, 1] = pts[h, 1]
-                    b += 1
-            pending_counts[r] = b
-        out, n_out = _merge_cap(cand, n_cand, fp[F_MERGE], max_components)
+        if ip[I_BIRTH_MEASUREMENT]:
+            keep_measurement_births(pending, pending_counts, r, pts, explained, fp)
+        out, n_out = _merge_cap(cand, n_cand, fp[F_MERGE], ip[I_MAX_COMPONENTS])
     else:
         if ip[I_LIDAR_ONLY]:
             return
-        brg = bearings[camera_start[j] : camera_stop[j]]
-        if camera_has_pose[j]:
-            _, brg = _to_filter_frame(np.empty((0, 2)), brg, camera_pose[j])
-            sx, sy = camera_pose[j, 0], camera_pose[j, 1]
-            # The bearing model from the camera's position (RobotCentricPHD.update_camera).
-            seen = shift_means(tab, n, -sx, -sy)
-            cand, n_cand = _camera_update(seen, n, brg, fp, ip, memory, sx, sy)
-            shift_means_in_place(cand, n_cand, sx, sy)
-        else:
-            cand, n_cand = _camera_update(tab, n, brg, fp, ip, memory, 0.0, 0.0)
-        out, n_out = _merge_cap(cand, n_cand, fp[F_MERGE], max_components)
-    table[:, r, :n_out] = out[:, :n_out]
-    table[:, r, n_out:] = 0.0
-    counts[r] = n_out
+        # The bearing model from the camera's position (RobotCentricPHD.update_camera).
+        brg, sx, sy = camera_call_inputs(calls, j)
+        seen = shift_means(tab, n, -sx, -sy)
+        cand, n_cand = _camera_update(seen, n, brg, fp, ip, memory, sx, sy)
+        shift_means_in_place(cand, n_cand, sx, sy)
+        out, n_out = _merge_cap(cand, n_cand, fp[F_MERGE], ip[I_MAX_COMPONENTS])
+    store_table(table, counts, r, out, n_out)
+
+
+@njit(cache=True, parallel=True)
+def apply_calls(state, calls, params):
+    """Run ``Q`` encoded calls (module docstring) on the bank state, in place.
+
+    Parameters
+    ----------
+    state : tuple of ndarray
+        ``(table, counts, pending, pending_counts, clock, scan_memory)``: ``table (6, R, C)``
+        with rows ``w, x, y, Pxx, Pxy, Pyy`` (robot ``r`` uses columns ``[:counts[r]]``, the
+        rest is kept at 0; ``C = max_components``), ``counts (R,)``; ``pending (R, Pmax, 2)``
+        the measurement births awaiting the next time update (``birth == "measurement"``;
+        ``Pmax`` at least the largest lidar call's point count) and ``pending_counts (R,)``;
+        ``clock (R, 2)`` per robot its last stamp (s, nan before the first) and whether it
+        was advanced since the last predict (:func:`advance_clock`); ``scan_memory (R,
+        MEMORY_LEN)`` per robot its last scan (:mod:`localization.scan_evidence`),
+        ``[has_scan, x_m, y_m, psi_rad, profile, wide objects]``, the pose in the filter's
+        frame: written by lidar calls (where the scans are read; a call without a profile
+        clears it), moved by predicts.
+    calls : tuple of ndarray
+        ``robots, kinds, index, odometry, lidar_start, lidar_stop, points, null_start,
+        null_stop, nulls, camera_start, camera_stop, bearings, lidar_pose, lidar_has_pose,
+        camera_pose, camera_has_pose, stamps, profiles, lidar_has_profile`` (module docstring).
+    params : tuple of ndarray
+        :func:`pack_params`.
+    """
+    # Robots are independent: each thread takes whole robots, and runs their calls in order.
+    starts, n_groups = robot_runs(calls[_ROBOTS])
+    for g in prange(n_groups):
+        for q in range(starts[g], starts[g + 1]):
+            _apply_call(q, state, calls, params)

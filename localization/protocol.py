@@ -21,7 +21,7 @@ measurement; at most a configured number of components): see each class docstrin
 ``docs/localization.md``, "Bounds on weight and cardinality".
 
 Families are built by name through :mod:`localization.registry`. To add one, see
-``docs/architecture.md`` ("Add a new localizer").
+``docs/how-to/add-a-localizer-family.md``.
 """
 
 from __future__ import annotations

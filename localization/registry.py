@@ -11,7 +11,7 @@ Every entry builds a :class:`~localization.protocol.Localizer` from ``(n_robots,
 localizer runs on (the simulator presets' :data:`swarm_env.config.SIMULATOR_PHD`, or the seed's
 ``PHDConfig()`` for real robots); the ``-lc`` / ``-lo`` names set its ``mode``, the bare family
 names (``phd``, ``phd-reference``) keep it. :func:`register` adds a family (see
-``docs/architecture.md``, "Add a new localizer").
+``docs/how-to/add-a-localizer-family.md``).
 
 Each family's bound on total weight and cardinality is in its class docstring and in
 ``docs/localization.md`` ("Bounds on weight and cardinality"), checked after every filter call by
@@ -31,7 +31,7 @@ import numpy as np
 
 from swarm_core.records import LidarRecord, OdometryRecord
 
-from .bank import PHDBank, _TableHolder
+from .bank import FilterBank, PHDBank
 from .config import PHDConfig
 from .feed import SwarmFeed
 from .filter import (
@@ -41,9 +41,11 @@ from .filter import (
     _checked_points,
     _checked_stamp,
     check_magnitude,
+    estimate_table,
 )
 from .id_phd import IDPHD, IDPHDConfig
 from .mixture import GaussianMixture
+from .pmb.bank import PMBBank
 from .protocol import Localizer, LocalizerBase, tables_from_mixtures
 
 __all__ = [
@@ -52,7 +54,7 @@ __all__ = [
     "register",
     "make_localizer",
     "descriptions",
-    "BankLocalizer",
+    "bank_family",
     "ReferenceLocalizer",
     "IdentityLocalizer",
     "run_calls",
@@ -109,45 +111,23 @@ def make_localizer(
     return localizer
 
 
-# ---------------------------------------------------------------------- GM-PHD families
-class BankLocalizer(LocalizerBase):
-    """A compiled bank of every robot's filter (``PHDBank``, and any bank with its API:
-    ``apply(calls)``, ``reset()``, ``padded_tables()``, ``mixture(r)``, ``estimate(r, t)``),
-    fed one step's calls in one compiled call.
-
-    Bounds (per robot and filter call; ``docs/localization.md``, "Bounds on weight and
-    cardinality"). **GM-PHD** (``phd*``), ``W = sum w`` the expected number of teammates:
-    a time update gives ``W' <= P_s,max W + measurement_birth_weight B`` (``B``: detections of
-    the last scan since the last time update); a scan of ``M`` detections
-    ``W' <= sum_i (1 - P_d,i) w_i + M`` (Bernoulli missed copies: ``w_i (1 - P_d,i) /
-    (1 - r_i P_d,i)``, ``r_i = w_i / max(1, ceil(w_i))``); a frame of ``K`` bearings the same
-    with the camera's ``P_d`` and ``+ K (1 + camera_birth_weight)`` with ray births; at most
-    ``max_components`` components. **PMB** (``pmb*``, ``weight_meaning="existence"``):
-    ``sum r + sum Poisson w`` obeys the same time-update bound, and ``<= sum r + sum (1 - P_d)
-    w_Poisson + M`` (or ``K``) per update; every existence in ``[0, 1]``, at most
-    ``max_tracks`` tracks.
+# ---------------------------------------------------------------------- compiled banks
+def bank_family(bank_class: type[FilterBank], mode: str | None = None) -> Builder:
+    """The builder of a compiled bank family: ``bank_class(phd, n_robots)`` (the family's
+    :meth:`~localization.bank.FilterBank.checked_config` turns the World's ``PHDConfig`` into
+    its own config), with ``phd.mode`` set to ``mode`` unless it is None. A compiled bank is
+    itself the :class:`~localization.protocol.Localizer`: its class docstring states its
+    bounds on weight and cardinality. The ``pmb-lo`` entry, for one, is
+    ``register("pmb-lo", "...", bank_family(PMBBank, "lidar-only"))``.
     """
+    if not (isinstance(bank_class, type) and issubclass(bank_class, FilterBank)):
+        raise ValueError(f"bank_class must be a FilterBank subclass, got {bank_class!r}")
+    set_mode = _with_mode(mode)
 
-    def __init__(self, bank: Any, weight_meaning: str = "phd-weight") -> None:
-        self.bank = bank
-        self.n_robots = bank.n_robots
-        self.weight_meaning = weight_meaning
+    def build(n: int, phd: PHDConfig, seed: int) -> Localizer:
+        return bank_class(set_mode(phd), n)
 
-    def reset(self, robots: Sequence[int] | None = None) -> None:
-        self.bank.reset(None if robots is None else self._robots(robots))
-
-    def step(self, feed: SwarmFeed) -> None:
-        self._check_feed(feed)
-        self.bank.apply(feed.calls())
-
-    def padded_tables(self) -> tuple[np.ndarray, np.ndarray]:
-        return self.bank.padded_tables()
-
-    def mixture(self, robot: int) -> GaussianMixture:
-        return self.bank.mixture(self._robot(robot))
-
-    def estimate(self, robot: int, threshold: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
-        return self.bank.estimate(self._robot(robot), threshold)
+    return build
 
 
 def _check_records(robot: int, records: Any, stale: tuple[str, ...]) -> None:
@@ -195,7 +175,8 @@ class ReferenceLocalizer(LocalizerBase):
     """One pure-numpy single filter per robot (``filter_class``: the GM-PHD's
     :class:`~localization.RobotCentricPHD` or the PMB's ``RobotCentricPMB``): the readable
     reference of a compiled bank, same math, tens of times slower. Same bounds on weight and
-    cardinality as :class:`BankLocalizer` (its family's)."""
+    cardinality as its compiled bank (:class:`~localization.PHDBank`,
+    :class:`~localization.pmb.PMBBank`)."""
 
     def __init__(self, config: PHDConfig, n_robots: int, filter_class: type = RobotCentricPHD):
         self.config = config
@@ -301,8 +282,7 @@ class IdentityLocalizer(LocalizerBase):
 
     def estimate(self, robot: int, threshold: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
         # The GM-PHD's extraction (Vo & Ma) on this robot's teammate components.
-        holder = _TableHolder(self.mixture(robot).to_table())
-        return RobotCentricPHD.estimate(holder, threshold)  # type: ignore[arg-type]
+        return estimate_table(self.mixture(robot).to_table(), threshold)
 
     def identities(self, robot: int) -> dict[int, np.ndarray]:
         """ID-PHD: the mean of each ID's highest-weight component, whatever its weight (as
@@ -372,7 +352,7 @@ for _suffix, _mode in _MODES.items():
     register(
         f"phd{_suffix}",
         f"GM-PHD, {_MODE_TEXT[_suffix]} (compiled bank of every robot's filter)",
-        lambda n, phd, seed, _m=_set_mode: BankLocalizer(PHDBank(_m(phd), n)),
+        bank_family(PHDBank, _mode),
     )
     register(
         f"phd-reference{_suffix}",
@@ -407,15 +387,6 @@ register(
 )
 
 
-def _pmb_bank(mode: str | None) -> Builder:
-    def build(n: int, phd: PHDConfig, seed: int) -> Localizer:
-        from .pmb import PMBBank
-
-        return BankLocalizer(PMBBank(_with_mode(mode)(phd), n), weight_meaning="existence")
-
-    return build
-
-
 def _pmb_reference(mode: str | None) -> Builder:
     def build(n: int, phd: PHDConfig, seed: int) -> Localizer:
         from .pmb import RobotCentricPMB
@@ -429,7 +400,7 @@ for _suffix, _mode in _MODES.items():
     register(
         f"pmb{_suffix}",
         f"Poisson multi-Bernoulli, {_MODE_TEXT[_suffix]} (compiled bank; w = existence)",
-        _pmb_bank(_mode),
+        bank_family(PMBBank, _mode),
     )
     register(
         f"pmb-reference{_suffix}",

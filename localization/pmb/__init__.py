@@ -18,12 +18,12 @@ from __future__ import annotations
 from .config import PMBConfig, pmb_config
 from .filter import RobotCentricPMB, Tracks
 
-__all__ = ["PMBConfig", "pmb_config", "RobotCentricPMB", "Tracks", "PMBBank", "PMBBankView"]
+__all__ = ["PMBConfig", "pmb_config", "RobotCentricPMB", "Tracks", "PMBBank"]
 
 
 def __getattr__(name: str):
     # The bank imports numba; load it only when asked for.
-    if name in ("PMBBank", "PMBBankView"):
+    if name == "PMBBank":
         from . import bank
 
         return getattr(bank, name)

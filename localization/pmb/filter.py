@@ -42,16 +42,17 @@ import numpy as np
 from .. import object_clutter, phd
 from ..detection import DetectionModel
 from ..filter import (
+    RobotCentricFilter,
     _checked_angles,
     _checked_odometry,
-    _checked_points,
-    _checked_stamp,
     _shifted,
     checked_pose,
-    checked_scan_profile,
+    lidar_inputs,
+    ranked_above,
+    read_only,
     scan_memory_of,
 )
-from ..frames import bearings_to_filter_frame, points_to_filter_frame
+from ..frames import bearings_to_filter_frame
 from ..gaussian import bearing_update, position_update
 from ..mixture import (
     N_ROWS,
@@ -66,7 +67,7 @@ from ..mixture import (
     empty_table,
 )
 from ..reducer import reduce
-from ..scan_evidence import MEMORY_LEN, move_scan_pose, scan_memory_from_state
+from ..scan_evidence import MEMORY_LEN
 from .association import lbp_marginals
 from .config import pmb_config
 
@@ -99,7 +100,7 @@ class Tracks:
     covs: np.ndarray
 
 
-class RobotCentricPMB:
+class RobotCentricPMB(RobotCentricFilter):
     """Robot-centric track-oriented PMB filter for teammate positions in the observer's frame.
 
     Parameters
@@ -136,6 +137,7 @@ class RobotCentricPMB:
         "_clock",
         "_scan",
     )
+    TABLES = ("tracks", "poisson")
 
     def __init__(self, config: Any = None, **overrides: Any) -> None:
         self.config = config = pmb_config(config, overrides)
@@ -196,13 +198,6 @@ class RobotCentricPMB:
         self._mixture = None
 
     @property
-    def mixture(self) -> GaussianMixture:
-        """Tracks as a read-only :class:`GaussianMixture`: weights are existence probabilities."""
-        if self._mixture is None:
-            self._mixture = GaussianMixture.from_table(self._tracks)
-        return self._mixture
-
-    @property
     def tracks(self) -> Tracks:
         """The Bernoulli tracks: ``r (N,)``, ``means (N, 2)``, ``covs (N, 2, 2)`` (copies)."""
         r, means, covs = arrays_from_table(self._tracks)
@@ -216,66 +211,18 @@ class RobotCentricPMB:
     @property
     def table(self) -> np.ndarray:
         """Tracks as a read-only ``(6, N)`` table, rows ``r, x, y, Pxx, Pxy, Pyy``."""
-        view = self._tracks.view()
-        view.flags.writeable = False
-        return view
+        return read_only(self._tracks)
 
     @property
     def poisson_table(self) -> np.ndarray:
         """Poisson intensity as a read-only ``(6, K)`` table."""
-        view = self._poisson.view()
-        view.flags.writeable = False
-        return view
-
-    @property
-    def total_weight(self) -> float:
-        """Expected number of tracked teammates, ``sum r``."""
-        return float(self._tracks[ROW_W].sum())
-
-    def __len__(self) -> int:
-        return int(self._tracks.shape[1])
+        return read_only(self._poisson)
 
     def __repr__(self) -> str:
         return (
             f"RobotCentricPMB(mode={self.config.phd.mode!r}, tracks={len(self)}, "
             f"sum_r={self.total_weight:.3f}, poisson={self._poisson.shape[1]})"
         )
-
-    def __getstate__(self) -> dict[str, Any]:
-        return {
-            "config": self.config,
-            "tracks": self._tracks,
-            "poisson": self._poisson,
-            "pending_births": self._pending_births,
-            "clock": self._clock.as_array(),
-            "scan_memory": self._scan,
-        }
-
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__init__(state["config"])  # type: ignore[misc]
-        self._tracks = np.array(state["tracks"], dtype=float).reshape(N_ROWS, -1)
-        self._poisson = np.array(state["poisson"], dtype=float).reshape(N_ROWS, -1)
-        self._pending_births = np.array(state["pending_births"], dtype=float).reshape(-1, 2)
-        if "clock" in state:  # absent from states pickled before the clock existed
-            self._clock = phd.ProcessClock.from_array(state["clock"])
-        if "scan_memory" in state:  # absent from states pickled before the wide objects
-            self._scan = scan_memory_from_state(state["scan_memory"])
-
-    def __copy__(self) -> RobotCentricPMB:
-        # Tables are never mutated in place: a shallow copy is an independent filter.
-        new = object.__new__(RobotCentricPMB)
-        for name in self.__slots__:
-            setattr(new, name, getattr(self, name))
-        return new
-
-    def __deepcopy__(self, memo: dict[int, Any]) -> RobotCentricPMB:
-        new = self.__copy__()
-        new._tracks = self._tracks.copy()
-        new._poisson = self._poisson.copy()
-        new._pending_births = self._pending_births.copy()
-        new._scan = self._scan.copy()
-        new._mixture = None
-        return new
 
     # ------------------------------------------------------------------ steps
     def predict(self, odometry: Any) -> None:
@@ -292,41 +239,16 @@ class RobotCentricPMB:
         """
         odo = _checked_odometry(odometry)
         cfg = self.config.phd
-        self._clock, q = self._clock.predict(
-            cfg.process_noise_std_m**2, cfg.time_update == "measurement"
-        )
+        q = self._predict_clock(cfg)
         tracks = phd.predict(self._tracks, odo, self._model.survival(self._tracks), q)
-        poisson = self._poisson
-        survival = self._model.survival(poisson)
-        if self._pending_births.shape[0]:
-            births = phd.birth_components(
-                self._pending_births,
-                cfg.measurement_birth_cov_scale * cfg.lidar_noise_var_m2,
-                cfg.measurement_birth_weight,
-            )
-            poisson = np.concatenate((poisson, births), axis=1)
-            survival = np.concatenate((survival, np.ones(births.shape[1])))
-        poisson = phd.predict(poisson, odo, survival, q)
-        if poisson.shape[1] > cfg.max_components:
-            poisson = reduce(poisson, cfg.prune_threshold, cfg.merge_threshold, cfg.max_components)
-        self._tracks, self._poisson = tracks, poisson
-        if self._scan[0]:  # the scan was taken from a place the frame has moved away from
-            self._scan = self._scan.copy()
-            self._scan[1:4] = move_scan_pose(self._scan[1:4], odo)
-        self._pending_births = np.empty((0, 2))
-        self._mixture = None
+        self._poisson = self._predicted_with_births(self._poisson, odo, q, cfg)
+        self._tracks = tracks
+        self._after_predict(odo)
 
     def advance(self, stamp_s: float) -> None:
         """The process noise that accrued up to ``stamp_s`` (s), on the tracks and the Poisson
         intensity alike (as :meth:`localization.RobotCentricPHD.advance`)."""
-        stamp = _checked_stamp(stamp_s)
-        cfg = self.config.phd
-        self._clock, var = self._clock.advance(
-            stamp,
-            cfg.process_noise_std_m**2,
-            cfg.process_noise_interval_s,
-            cfg.time_update == "measurement",
-        )
+        var = self._advance_clock(stamp_s, self.config.phd)
         if var > 0.0:
             self._tracks = phd.diffuse(self._tracks, var)
             self._poisson = phd.diffuse(self._poisson, var)
@@ -358,15 +280,9 @@ class RobotCentricPMB:
             the filter has no scan until the next. The scan evidence
             (``PHDConfig.scan_evidence``) is the GM-PHD's only.
         """
-        pts = _checked_points(points)
-        profile = None if scan_profile is None else checked_scan_profile(scan_profile)
-        nulls = None if null_bearings is None else _checked_angles(null_bearings, "null_bearings")
-        pose = checked_pose(sensor_pose)
+        pts, nulls, pose, profile = lidar_inputs(points, null_bearings, sensor_pose, scan_profile)
         if self.config.phd.models_wide_objects:  # the memory is kept only where it is used
             self._scan = scan_memory_of(profile, pose, True)
-        if pose is not None:
-            pts = points_to_filter_frame(pts, pose)
-            nulls = None if nulls is None else bearings_to_filter_frame(nulls, pose)
         cfg = self.config.phd
         poisson = self._poisson
         fixed = cfg.birth == "fixed" and pts.shape[0] > 0
@@ -587,11 +503,6 @@ def _moment_match(
 def estimate_table(table: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray]:
     """``(means (K, 2), existences (K,))`` of the tracks of ``table`` with ``r >= threshold``,
     by decreasing ``r`` (ties: lower index). Each Bernoulli is at most one teammate."""
-    threshold = float(threshold)
-    if not math.isfinite(threshold):
-        raise ValueError(f"threshold must be finite, got {threshold!r}")
-    r = table[ROW_W]
-    keep = np.flatnonzero(r >= threshold)
-    keep = keep[np.argsort(-r[keep], kind="stable")]
+    keep = ranked_above(table[ROW_W], threshold)
     existences, means, _ = arrays_from_table(table[:, keep])
     return means, existences

@@ -8,7 +8,10 @@ the Poisson reduction are the GM-PHD engine's own compiled helpers
 (:mod:`localization.kernels`), so both filters share one implementation of the sensor models.
 
 Calls are encoded exactly as for the GM-PHD bank (:mod:`localization.kernels`, built by
-:class:`localization.bank._Batch`). Model parameters: the GM-PHD's ``fparams`` / ``iparams``
+:class:`localization.bank._Batch`), and the driver's steps around the updates (the calls'
+inputs in the filter's frame, the scan memory, the pending births, the padded tables) are that
+bank's own helpers: this module holds the PMB's time update, association and updates only.
+Model parameters: the GM-PHD's ``fparams`` / ``iparams``
 (:func:`localization.kernels.pack_params` of ``config.phd``) plus ``pf`` / ``pi`` below.
 
 State per robot ``r``: tracks ``(6, R, max_tracks)`` (rows ``r, x, y, Pxx, Pxy, Pyy``, first
@@ -27,12 +30,14 @@ from numba import njit, prange
 
 from .. import kernels as gk
 from ..kernels import (
+    _INDEX,
+    _KINDS,
+    _ODOMETRY,
+    _ROBOTS,
+    _STAMPS,
     ADVANCE,
     F_KAPPA_L,
     F_LIDAR_VAR,
-    F_MBIRTH_MAX_EXPLAINED,
-    F_MBIRTH_VAR,
-    F_MBIRTH_W,
     F_MERGE,
     F_MIN_RANGE,
     F_PRUNE,
@@ -45,22 +50,27 @@ from ..kernels import (
     PREDICT,
     _camera_pd,
     _lidar_pd,
-    _remember_scan,
-    _to_filter_frame,
     advance_clock,
-    camera_bearing_var,
+    after_predict,
+    camera_call_inputs,
     camera_clutter,
+    camera_component,
     diffuse,
     frame_change,
+    keep_measurement_births,
+    lidar_call_inputs,
+    lidar_component,
+    lidar_exponent,
     predict_process_var,
+    predict_with_births,
     reduce_table,
     robot_runs,
+    set_fixed_birth,
     shift_means,
     shift_means_in_place,
+    store_table,
 )
 from ..mixture import N_ROWS
-from ..object_clutter import wide_objects_into
-from ..scan_evidence import move_scan_pose_in_place
 from .config import PMBConfig
 
 __all__ = ["pack_pmb_params", "apply_calls"]
@@ -72,8 +82,6 @@ P_BP_ITER, P_MAX_TRACKS = 0, 1
 _TINY = 1e-300
 _FLOOR = 1e-100  # as localization.pmb.filter.FLOOR
 _TWO_PI = 2.0 * math.pi
-_INV_TWO_PI = 1.0 / _TWO_PI
-_INV_SQRT_TWO_PI = 1.0 / math.sqrt(_TWO_PI)
 
 
 def pack_pmb_params(config: PMBConfig) -> tuple[np.ndarray, ...]:
@@ -86,23 +94,11 @@ def pack_pmb_params(config: PMBConfig) -> tuple[np.ndarray, ...]:
 # ---------------------------------------------------------------------- time update
 @njit(cache=True)
 def _predict(tracks, nt, pois, npz, births, nb, odo, q, fp, ip):
-    """Returns (tracks, nt, poisson, np) after the time update (``q``: its Q variance)."""
+    """Returns (tracks, nt, poisson, np) after the time update (``q``: its Q variance): the
+    tracks' existences times ``P_s``, the Poisson intensity's as the GM-PHD's mixture."""
     t_out = tracks[:, :nt].copy()
     frame_change(t_out, nt, nt, odo, q, fp, ip)
-    total = npz + nb
-    p_out = np.empty((N_ROWS, total))
-    p_out[:, :npz] = pois[:, :npz]
-    for b in range(nb):
-        col = npz + b
-        p_out[0, col] = fp[F_MBIRTH_W]
-        p_out[1, col] = births[b, 0]
-        p_out[2, col] = births[b, 1]
-        p_out[3, col] = fp[F_MBIRTH_VAR]
-        p_out[4, col] = 0.0
-        p_out[5, col] = fp[F_MBIRTH_VAR]
-    frame_change(p_out, total, npz, odo, q, fp, ip)
-    if total > ip[I_MAX_COMPONENTS]:
-        p_out, total = reduce_table(p_out, total, fp[F_PRUNE], fp[F_MERGE], ip[I_MAX_COMPONENTS])
+    p_out, total = predict_with_births(pois, npz, births, nb, odo, q, fp, ip)
     return t_out, nt, p_out, total
 
 
@@ -378,13 +374,7 @@ def _lidar(tracks, nt, pois, npz, pts, nulls, fp, ip, sector_scaled, sector_para
     fixed = ip[I_BIRTH_FIXED] and m > 0
     union = _union(tracks, nt, pois, npz, 1 if fixed else 0)
     if fixed:  # the seed's birth joins the Poisson prior; its missed part is dropped
-        col = nt + npz
-        union[0, col] = fp[gk.F_BIRTH_W]
-        union[1, col] = fp[gk.F_BIRTH_X]
-        union[2, col] = fp[gk.F_BIRTH_Y]
-        union[3, col] = fp[gk.F_BIRTH_VAR]
-        union[4, col] = 0.0
-        union[5, col] = fp[gk.F_BIRTH_VAR]
+        set_fixed_birth(union, nt + npz, fp)
     total = union.shape[1]
     pd = _lidar_pd(union, total, nulls, fp, ip, sector_scaled, sector_params)
     r = fp[F_LIDAR_VAR]
@@ -393,25 +383,9 @@ def _lidar(tracks, nt, pois, npz, pts, nulls, fp, ip, sector_scaled, sector_para
     post_means = np.empty((2, total, m))  # read only where lik > 0
     post_covs = np.empty((3, total))
     for i in range(total):
-        pxx, pxy, pyy = union[3, i], union[4, i], union[5, i]
-        mx, my = union[1, i], union[2, i]
-        pxy2 = pxy * pxy
-        det_p = pxx * pyy - pxy2
-        inv_det_s = 1.0 / max((pxx + r) * (pyy + r) - pxy2, _TINY)
-        h_xx = (pyy + r) * (-0.5 * inv_det_s)
-        h_xy = pxy * (0.5 * inv_det_s)
-        h_yy = (pxx + r) * (-0.5 * inv_det_s)
-        scale = r * inv_det_s  # Joseph form reduced to r S^-1 P (gaussian.position_update)
-        post_covs[0, i] = (pxx * r + det_p) * scale
-        post_covs[1, i] = (pxy * r) * scale
-        post_covs[2, i] = (pyy * r + det_p) * scale
-        norm = math.sqrt(inv_det_s) * _INV_TWO_PI
+        mx, my, h_xx, h_xy, h_yy, norm = lidar_component(union, i, r, post_covs)
         for h in range(m):
-            d0 = pts[h, 0] - mx
-            d1 = pts[h, 1] - my
-            e0 = h_xx * d0 + h_xy * d1
-            e1 = h_xy * d0 + h_yy * d1
-            exponent = d0 * e0 + d1 * e1  # -q / 2
+            exponent, e0, e1 = lidar_exponent(pts, h, mx, my, h_xx, h_xy, h_yy)
             if exponent < gate:
                 continue
             lik[i, h] = math.exp(exponent) * norm
@@ -438,28 +412,9 @@ def _camera(tracks, nt, pois, npz, brg, fp, ip, pf, pi, memory, ox, oy):
     post_means = np.empty((2, total, m))  # read only where lik > 0
     post_covs = np.empty((3, total))
     for i in range(total):
-        x, y = union[1, i], union[2, i]
-        noise = camera_bearing_var(math.hypot(x, y), fp)
-        pxx, pxy, pyy = union[3, i], union[4, i], union[5, i]
-        inv_r2 = 1.0 / max(x * x + y * y, min_r2)
-        j0, j1 = -y * inv_r2, x * inv_r2
-        u0 = pxx * j0 + pxy * j1
-        u1 = pxy * j0 + pyy * j1
-        inv_s = 1.0 / (j0 * u0 + j1 * u1 + noise)
-        g0, g1 = u0 * inv_s, u1 * inv_s
-        # Joseph form, as localization.kernels._camera_update
-        b00, b01 = 1.0 - g0 * j0, -g0 * j1
-        b10, b11 = -g1 * j0, 1.0 - g1 * j1
-        bp00 = b00 * pxx + b01 * pxy
-        bp01 = b00 * pxy + b01 * pyy
-        bp10 = b10 * pxx + b11 * pxy
-        bp11 = b10 * pxy + b11 * pyy
-        post_covs[0, i] = bp00 * b00 + bp01 * b01 + g0 * noise * g0
-        post_covs[1, i] = bp00 * b10 + bp01 * b11 + g0 * noise * g1
-        post_covs[2, i] = bp10 * b10 + bp11 * b11 + g1 * noise * g1
-        predicted = math.atan2(y, x)
-        norm = math.sqrt(inv_s) * _INV_SQRT_TWO_PI
-        half_inv_s = -0.5 * inv_s
+        x, y, g0, g1, predicted, norm, half_inv_s = camera_component(
+            union, i, fp, min_r2, post_covs
+        )
         for h in range(m):
             innov = brg[h] - predicted
             if innov >= math.pi or innov < -math.pi:
@@ -476,159 +431,70 @@ def _camera(tracks, nt, pois, npz, brg, fp, ip, pf, pi, memory, ox, oy):
 
 
 # ---------------------------------------------------------------------- driver
-@njit(cache=True, parallel=True)
-def apply_calls(
-    tracks,
-    track_counts,
-    poisson,
-    poisson_counts,
-    pending,
-    pending_counts,
-    clock,
-    scan_memory,
-    calls,
-    fp,
-    ip,
-    sector_scaled,
-    sector_params,
-    pf,
-    pi,
-):
-    """Run the encoded calls on the bank state in place (robots in parallel, calls in order)."""
-    starts, n_groups = robot_runs(calls[0])
-    for g in prange(n_groups):
-        for q in range(starts[g], starts[g + 1]):
-            _apply_call(
-                q,
-                tracks,
-                track_counts,
-                poisson,
-                poisson_counts,
-                pending,
-                pending_counts,
-                clock,
-                scan_memory,
-                calls,
-                fp,
-                ip,
-                sector_scaled,
-                sector_params,
-                pf,
-                pi,
-            )
-
-
 @njit(cache=True)
-def _apply_call(
-    q,
-    tracks,
-    track_counts,
-    poisson,
-    poisson_counts,
-    pending,
-    pending_counts,
-    clock,
-    scan_memory,
-    calls,
-    fp,
-    ip,
-    sector_scaled,
-    sector_params,
-    pf,
-    pi,
-):
-    (
-        robots,
-        kinds,
-        index,
-        odometry,
-        lidar_start,
-        lidar_stop,
-        points,
-        null_start,
-        null_stop,
-        nulls,
-        camera_start,
-        camera_stop,
-        bearings,
-        lidar_pose,
-        lidar_has_pose,
-        camera_pose,
-        camera_has_pose,
-        stamps,
-        profiles,  # for the wide objects only: the scan evidence is the GM-PHD's
-        lidar_has_profile,
-    ) = calls
-    r = robots[q]
-    kind = kinds[q]
-    j = index[q]
+def _apply_call(q, state, calls, params):
+    tracks, track_counts, poisson, poisson_counts, pending, pending_counts, clock, memories = state
+    fp, ip, sector_scaled, sector_params, pf, pi = params
+    r = calls[_ROBOTS][q]
+    kind = calls[_KINDS][q]
+    j = calls[_INDEX][q]
     nt = track_counts[r]
     npz = poisson_counts[r]
     tab = tracks[:, r, :nt]
     pois = poisson[:, r, :npz]
-    memory = scan_memory[r]
+    memory = memories[r]
     if kind == ADVANCE:
-        var = advance_clock(clock, r, stamps[j], fp, ip)
+        var = advance_clock(clock, r, calls[_STAMPS][j], fp, ip)
         diffuse(tab, nt, var)
         diffuse(pois, npz, var)
         return
     if kind == PREDICT:
+        odo = calls[_ODOMETRY][j]
         q_var = predict_process_var(clock, r, fp, ip)
         t, n_t, p, n_p = _predict(
-            tab, nt, pois, npz, pending[r], pending_counts[r], odometry[j], q_var, fp, ip
+            tab, nt, pois, npz, pending[r], pending_counts[r], odo, q_var, fp, ip
         )
-        pending_counts[r] = 0
-        if memory[0] != 0.0:
-            move_scan_pose_in_place(memory, odometry[j])
+        after_predict(pending_counts, r, memory, odo)
     elif kind == LIDAR:
-        pts = points[lidar_start[j] : lidar_stop[j]]
-        nul = nulls[null_start[j] : null_stop[j]]
-        if lidar_has_pose[j]:
-            pts, nul = _to_filter_frame(pts, nul, lidar_pose[j])
-        if fp[F_WIDE_CLUTTER] > 0.0:  # else no 720-float copy (RobotCentricPMB.update_lidar)
-            _remember_scan(memory, profiles, lidar_has_profile, lidar_pose, lidar_has_pose, j)
-            if memory[0] != 0.0:
-                wide_objects_into(memory)
+        # The profiles are kept for the wide objects only: the scan evidence is the GM-PHD's.
+        pts, nul = lidar_call_inputs(calls, j, memory, fp[F_WIDE_CLUTTER] > 0.0, fp)
         t, n_t, p, n_p, explained = _lidar(
             tab, nt, pois, npz, pts, nul, fp, ip, sector_scaled, sector_params, pf, pi
         )
         if ip[I_BIRTH_MEASUREMENT]:
-            b = 0
-            for h in range(explained.shape[0]):
-                if explained[h] < fp[F_MBIRTH_MAX_EXPLAINED]:
-                    pending[r, b, 0] = pts[h, 0]
-                    pending[r, b, 1] = pts[h, 1]
-                    b += 1
-            pending_counts[r] = b
+            keep_measurement_births(pending, pending_counts, r, pts, explained, fp)
     else:
         if ip[I_LIDAR_ONLY]:
             return
-        brg = bearings[camera_start[j] : camera_stop[j]]
-        if camera_has_pose[j]:
-            _, brg = _to_filter_frame(np.empty((0, 2)), brg, camera_pose[j])
-            sx, sy = camera_pose[j, 0], camera_pose[j, 1]
-            # The bearing model from the camera's position (RobotCentricPMB.update_camera).
-            t, n_t, p, n_p = _camera(
-                shift_means(tab, nt, -sx, -sy),
-                nt,
-                shift_means(pois, npz, -sx, -sy),
-                npz,
-                brg,
-                fp,
-                ip,
-                pf,
-                pi,
-                memory,
-                sx,
-                sy,
-            )
-            shift_means_in_place(t, n_t, sx, sy)
-            shift_means_in_place(p, n_p, sx, sy)
-        else:
-            t, n_t, p, n_p = _camera(tab, nt, pois, npz, brg, fp, ip, pf, pi, memory, 0.0, 0.0)
-    tracks[:, r, :n_t] = t[:, :n_t]
-    tracks[:, r, n_t:] = 0.0
-    track_counts[r] = n_t
-    poisson[:, r, :n_p] = p[:, :n_p]
-    poisson[:, r, n_p:] = 0.0
-    poisson_counts[r] = n_p
+        # The bearing model from the camera's position (RobotCentricPMB.update_camera).
+        brg, sx, sy = camera_call_inputs(calls, j)
+        t, n_t, p, n_p = _camera(
+            shift_means(tab, nt, -sx, -sy),
+            nt,
+            shift_means(pois, npz, -sx, -sy),
+            npz,
+            brg,
+            fp,
+            ip,
+            pf,
+            pi,
+            memory,
+            sx,
+            sy,
+        )
+        shift_means_in_place(t, n_t, sx, sy)
+        shift_means_in_place(p, n_p, sx, sy)
+    store_table(tracks, track_counts, r, t, n_t)
+    store_table(poisson, poisson_counts, r, p, n_p)
+
+
+@njit(cache=True, parallel=True)
+def apply_calls(state, calls, params):
+    """Run the encoded calls on the bank state in place (robots in parallel, calls in order):
+    ``state = (tracks, track_counts, poisson, poisson_counts, pending, pending_counts, clock,
+    scan_memory)`` (module docstring), ``calls`` as :func:`localization.kernels.apply_calls`
+    takes them, ``params`` :func:`pack_pmb_params`."""
+    starts, n_groups = robot_runs(calls[_ROBOTS])
+    for g in prange(n_groups):
+        for q in range(starts[g], starts[g + 1]):
+            _apply_call(q, state, calls, params)

@@ -9,9 +9,11 @@ scanner's body frame. The cluster rules come from the sensor's geometry and nois
 cut: a cluster needs ``min_beams`` = 3 returns (the fewest that define an arc), and its width may
 exceed the housing diameter by ``width_noise_sigmas`` standard deviations of the difference of
 two returns' range noise at its range. A housing at range r spans about
-``2 asin(0.0325 / r) / 0.5 deg - 1`` clean returns (see ``LidarConfig.beam_footprint_deg``), so
-the detection probability falls from 1 at 1.86 m to 0 at 2.48 m; measured in
-``benchmarks/bench_detection_curves.py``. By construction:
+``2 asin(0.0325 / r) / 0.5 deg`` returns with thin rays (at least 3 up to 2.48 m, at least 2 up
+to 3.7 m) and one fewer with the simulated X4's footprint (``LidarConfig.beam_footprint_deg``),
+whose detection probability falls from 1 at 1.86 m to 0 at 2.48 m (measured in
+``benchmarks/bench_detection_curves.py``). A single missing return between two returns that
+link (a dropout) does not break a cluster (``max_gap_beams``). By construction:
 
 * decoy posts (radius <= 32.5 mm) pass: lidar false positives;
 * occluded robots, robots in a blind sector or interfered robots return nothing: false negatives;
@@ -19,11 +21,18 @@ the detection probability falls from 1 at 1.86 m to 0 at 2.48 m; measured in
   nearer object cuts a wall into a narrow visible sliver (a realistic false positive, rare at the
   seed's 2 m tracking range);
 * round objects wider than a housing (the arena's 120 mm red decoys) are rejected by the angular
-  extent test (``extent_test``): a cluster's returns cover at least its beams' spread plus one
-  footprint, which must fit within the angle a housing subtends at that range. The end-to-end
-  width alone must allow for two returns' range noise, and let a 120 mm cylinder pass 98-100 %
-  of the time from 1.5 to 3 m; beyond 2.5 m, where a housing can no longer give three returns,
-  only the extent test can tell three returns on a wider object from a housing;
+  extent test (``extent_test``): every return's ray meets the object, so the angle between a
+  cluster's first and last beams is at most the angle the object subtends, and a housing whose
+  front is the cluster's nearest return subtends ``2 asin(0.0325 / d)``. This holds for any
+  scanner, whatever its beam footprint does at an object's edge (thin rays that hit up to the
+  tangent, or a footprint that drops edge-straddling samples as the simulated X4's), so a
+  housing is never rejected for its extent. A 120 mm decoy spans ~1.85 times a housing's angle,
+  so its returns overflow that bound up to ~2.2 m whatever the scanner (to 3 m with thin
+  rays; ``tests/hardware_bridge/test_real_scans.py``); beyond, a scanner that drops its edge
+  samples leaves a decoy as few returns as a housing, and only ``beam_footprint_deg`` (a
+  scanner known to do so) tells them apart;
+  the end-to-end width alone must allow for two returns' range noise, and lets a 120 mm
+  cylinder pass 98-100 % of the time from 1.5 to 3 m;
 * two robots touching side by side merge into one wide cluster: both are missed.
 
 All K scans are segmented in one compiled pass (``_cluster_kernel``): each scan is walked once,
@@ -83,31 +92,45 @@ class LidarFeatureConfig:
         no cut. The seed's "range of the lidar is limited to 2m" (sec. 3.2) follows from the
         rules above (fewer returns at longer range), not from a threshold.
     extent_test : bool
-        Also require the cluster's angular extent to fit a housing. Every return's footprint
-        lies on the object (mixed returns at its edges are split off), so the object subtends
-        at least ``alpha + beam_footprint_deg``, with ``alpha`` the angle between the first and
-        last beams; a housing whose centre is ``d`` away subtends ``2 asin(max_width_m / 2 /
-        d)``. The cluster is kept when the first fits in the second, with ``d`` the mean range
-        plus ``housing_radius_m`` minus ``width_noise_sigmas`` range-noise standard deviations.
-        With the true centre distance the rule never rejects a housing that the footprint model
-        lets return (the number of beams whose footprint fits in its subtense is at most that
-        subtense over the spacing, plus one); the estimated distance is a few mm long and
-        noisy, which the margin covers (measured: no housing lost at any range); with
-        ``width_noise_sigmas=0`` there is no margin. It rejects wider round objects at every
-        range, including three returns on a 120 mm red decoy at 3 m. ``False`` gives the
-        end-to-end width test alone (the rule before 2026-12-02). The angles are the
-        scanner's, taken as exact (no angular jitter).
+        Also require the cluster's angular extent to fit a housing. Every return's ray meets
+        the object, so the angle ``alpha`` between the first and last beams is at most the
+        angle the object subtends. The housing's front is the cluster's nearest return
+        ``r_min`` (the ray nearest the housing's centre line is within half a beam spacing of
+        it: ``r_min`` exceeds the front by < 2 mm at 2.5 m), so its centre is ``d = r_min +
+        housing_radius_m`` away and it subtends ``2 asin(max_width_m / 2 / d)``; ``d`` is
+        taken ``width_noise_sigmas`` range-noise standard deviations nearer, for the noise of
+        ``r_min`` (measured on exact ray-cylinder scans with 4 mm noise and on the simulator's:
+        no housing lost from 0.3 to 2.5 m, ``tests/hardware_bridge/test_real_scans.py``). The
+        cluster is kept when ``alpha + beam_footprint_deg`` fits in that angle. It rejects a
+        120 mm decoy's returns wherever they overflow a housing's angle: up to ~2.2 m whatever
+        the beam footprint, to 3 m with thin rays. ``False`` gives the end-to-end width test
+        alone. The angles are the scanner's, taken as exact (no angular jitter).
     beam_footprint_deg : float
-        The scanner's sample footprint, as :class:`swarm_env.sensors.lidar.LidarConfig`'s (the
-        X4 head turns 0.5 deg during a sample). 0 gives the ideal thin-beam bound, the most
-        lenient.
+        The angular width that every return's beam is known to have on the object (the
+        simulated X4 drops a sample whose 0.5 deg footprint straddles an object's edge:
+        ``LidarConfig.beam_footprint_deg``). Default 0: thin rays, the bound that holds for
+        every scanner, including one that returns a range from any ray meeting the housing up
+        to its tangent. With 0.5 a housing seen by thin rays is rejected at about half of its
+        positions (at 1.12 m, seven returns span 3.0 deg + 0.5 > the 3.33 deg it subtends): set
+        it only for a scanner whose edge samples are known to drop; it then also rejects
+        120 mm decoys beyond 2.2 m.
     foreground_only : bool
         Keep only clusters standing in front of both neighbouring returns (or next to invalid
-        returns). A free-standing post or housing always does; a one-beam sliver of a wall
-        seen at grazing incidence (beyond what ``jump_range_gain`` keeps connected) or a wall
+        returns; the neighbour is the nearest return within ``max_gap_beams`` missing ones). A
+        free-standing post or housing always does; a one-beam sliver of a wall seen at grazing
+        incidence (beyond what ``jump_range_gain`` keeps connected) or a wall
         fragment showing between two nearer objects does not. Costs the robots partially
         hidden behind a nearer object, whose truncated arc would bias the centre anyway.
         ``False`` gives the seed's plain width test.
+    max_gap_beams : int
+        Missing returns (range 0) a cluster bridges: a return at most this many beams after
+        the previous one continues its cluster when their ranges link. A surface does not
+        vanish for one 0.5 deg sample: a real scanner drops single returns on dark or glancing
+        spots, and without the bridge a dropout splits a wall into fragments whose
+        no-return neighbours make them look free-standing (three returns between two
+        dropouts at 2 m pass every other rule), and splits a housing into two detections.
+        Two housings one beam apart (< 1 cm at 1 m) merge and are missed. Blind sectors
+        (10 deg) are never bridged. 0: every missing return breaks a cluster.
     """
 
     jump_threshold_m: float = 0.05
@@ -120,8 +143,9 @@ class LidarFeatureConfig:
     housing_radius_m: float = 0.0325
     tracking_range_m: float = 10.0
     extent_test: bool = True
-    beam_footprint_deg: float = 0.5
+    beam_footprint_deg: float = 0.0
     foreground_only: bool = True
+    max_gap_beams: int = 1
 
     def __post_init__(self) -> None:
         check_number_fields(self)
@@ -148,6 +172,15 @@ class LidarFeatureConfig:
                 raise ValueError(
                     f"LidarFeatureConfig.{name} must be > 0, got {getattr(self, name)!r}"
                 )
+        if (
+            isinstance(self.max_gap_beams, bool)
+            or not isinstance(self.max_gap_beams, (int, np.integer))
+            or not 0 <= self.max_gap_beams <= 8
+        ):
+            raise ValueError(
+                f"LidarFeatureConfig.max_gap_beams must be an int in [0, 8], got "
+                f"{self.max_gap_beams!r}"
+            )
         if not isinstance(self.min_beams, (int, np.integer)) or self.min_beams < 1:
             raise ValueError(
                 f"LidarFeatureConfig.min_beams must be an int >= 1, got {self.min_beams!r}"
@@ -253,7 +286,7 @@ def _extract(angles_rad, ranges_m, config, wider_than_housing_up_to, caller) -> 
 
 def cluster_rule(cfg: LidarFeatureConfig) -> tuple:
     """``cfg`` as :func:`_cluster_kernel`'s rule arguments (``jump_threshold`` to
-    ``foreground_only``), the form in which compiled callers pass it on."""
+    ``max_gap``), the form in which compiled callers pass it on."""
     return (
         cfg.jump_threshold_m,
         cfg.jump_range_gain,
@@ -266,6 +299,7 @@ def cluster_rule(cfg: LidarFeatureConfig) -> tuple:
         bool(cfg.extent_test),
         math.radians(cfg.beam_footprint_deg),
         bool(cfg.foreground_only),
+        int(cfg.max_gap_beams),
     )
 
 
@@ -297,13 +331,14 @@ def _cluster_kernel(
     extent_test,
     footprint,
     foreground_only,
+    max_gap,
     wider_than_housing_up_to,
 ):
     """Robot-like clusters of K scans: ``ranges`` (K, B) m (0 = no return), beam directions
     ``cos_a``, ``sin_a`` (B,). A cluster of mean range r is robot-like when its width is at
     most ``max_width + width_tol_const + width_tol_quadratic r^2`` and, with ``extent_test``,
     its returns' angular spread plus ``footprint`` (rad) fits the angle a ``max_width``
-    housing subtends at its range (see :class:`LidarFeatureConfig`).
+    housing subtends when its front is the nearest return (see :class:`LidarFeatureConfig`).
 
     With ``wider_than_housing_up_to`` > 0 (m) the test is inverted: the clusters kept are the
     ones that pass every other rule but are *not* robot-like, up to that end-to-end width
@@ -316,8 +351,8 @@ def _cluster_kernel(
     """
     n_scans, n_beams = ranges.shape
     wide = wider_than_housing_up_to > 0.0
-    # link[k, b]: beam b continues the cluster of beam b-1 (b = 0 links to B-1: the seam).
-    # Branch-free (`&` on the comparisons): returns and gaps alternate unpredictably.
+    # link[k, b]: return b continues the cluster of the previous return, at most max_gap
+    # missing returns before it (b = 0 looks back through B-1: the seam).
     link = np.empty((n_scans, n_beams), dtype=np.bool_)
     n_starts = 0  # every cluster starts at a valid beam not linked to its predecessor
     for k in range(n_scans):
@@ -325,6 +360,12 @@ def _cluster_kernel(
         prev = r[n_beams - 1]
         for b in range(n_beams):
             cur = r[b]
+            if not prev > 0.0 and cur > 0.0 and max_gap > 0:
+                # Look back over the dropouts for the previous return.
+                for g in range(2, max_gap + 2):
+                    prev = r[b - g]  # negative indices wrap through the seam
+                    if prev > 0.0:
+                        break
             link[k, b] = (
                 (cur > 0.0)
                 & (prev > 0.0)
@@ -356,19 +397,31 @@ def _cluster_kernel(
                 b = b + 1 if b + 1 < n_beams else 0
                 done += 1
                 continue
-            # A cluster starts at b (not linked to b-1); extend it while the next beam links.
+            # A cluster starts at b (not linked to its previous return); extend it while the
+            # next return, at most max_gap missing returns on, links.
             s = e = b
             n = 1
+            span = 1  # beams from s to e, missing returns included
             sum_r, sum_s, sum_c = r[b], sin_a[b], cos_a[b]
+            min_r = r[b]
             nxt = b + 1 if b + 1 < n_beams else 0
-            while done + n < n_beams and link[k, nxt]:
-                e = nxt
+            while done + span < n_beams:
+                q = nxt
+                gap = 0
+                while gap < max_gap and not r[q] > 0.0 and done + span + gap + 1 < n_beams:
+                    q = q + 1 if q + 1 < n_beams else 0
+                    gap += 1
+                if not link[k, q]:  # (a missing return is never linked)
+                    break
+                e = q
                 n += 1
+                span += gap + 1
                 sum_r += r[e]
                 sum_s += sin_a[e]
                 sum_c += cos_a[e]
+                min_r = min(min_r, r[e])
                 nxt = e + 1 if e + 1 < n_beams else 0
-            done += n
+            done += span
             b = nxt
             r_s, r_e = r[s], r[e]
             w = math.hypot(r_e * cos_a[e] - r_s * cos_a[s], r_e * sin_a[e] - r_s * sin_a[s])
@@ -382,8 +435,17 @@ def _cluster_kernel(
             elif not robot_like:
                 continue
             if foreground_only:
-                # Neighbours just outside: farther, or no return, for a standalone object.
+                # Neighbours just outside: farther, or no return, for a standalone object. The
+                # neighbour is the nearest return within max_gap dropouts of the cluster.
                 before, after = r[s - 1], r[nxt]
+                for g in range(2, max_gap + 2):
+                    if before > 0.0:
+                        break
+                    before = r[s - g]
+                for g in range(1, max_gap + 1):
+                    if after > 0.0:
+                        break
+                    after = r[(nxt + g) % n_beams]
                 if not (before == 0.0 or before > r_s) or not (after == 0.0 or after > r_e):
                     continue
             # The robot test judges a housing's centre in both modes, so that the wide objects
@@ -394,10 +456,11 @@ def _cluster_kernel(
                 continue
             phi = math.atan2(sum_s, sum_c)
             if extent_test and robot_like:
-                # The tolerances hold n_sigmas sqrt(2) sigma(r): the centre may be n_sigmas
-                # sigma(r) nearer than measured, which widens the housing's subtense.
-                near = (width_tol_const + width_tol_quadratic * mean_r * mean_r) / math.sqrt(2.0)
-                half = 0.5 * max_width / max(housing_r - near, 1e-9)
+                # A housing's front is the nearest return; its centre may be n_sigmas sigma
+                # nearer than measured (the tolerances hold n_sigmas sqrt(2) sigma), which
+                # widens its subtense.
+                near = (width_tol_const + width_tol_quadratic * min_r * min_r) / math.sqrt(2.0)
+                half = 0.5 * max_width / max(min_r + housing_radius - near, 1e-9)
                 subtense = 2.0 * math.asin(half) if half < 1.0 else math.pi
                 spread = abs(
                     math.atan2(

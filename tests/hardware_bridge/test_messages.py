@@ -335,3 +335,186 @@ def test_remote_hosts_need_the_explicit_flag():
     with pytest.raises(ValueError, match="allow_remote"):
         check_host("192.168.1.20", False)
     check_host("192.168.1.20", True)
+
+
+# ---------------------------------------------------------------------------- the ROS 2 package
+# ros/swarm_phd_msgs is built by colcon on the robots; here its files are checked against the
+# Python definitions the bridge parses, so the two cannot drift apart.
+
+import re  # noqa: E402
+import xml.etree.ElementTree as ET  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from hardware_bridge import estimate  # noqa: E402
+from hardware_bridge.messages import (  # noqa: E402
+    BEARINGS_STAMPED_MSG,
+    bearings_stamped_msg,
+    parse_bearings_stamped,
+)
+
+MSG_PACKAGE = Path(__file__).resolve().parents[2] / "ros" / "swarm_phd_msgs"
+_BUILTIN = {
+    "bool", "byte", "char", "float32", "float64", "int8", "uint8", "int16", "uint16",
+    "int32", "uint32", "int64", "uint64", "string", "wstring",
+}  # fmt: skip
+
+
+def msg_definition(text):
+    """``(fields, constants)`` of ROS 2 .msg text: fields ``[(type, name)]``, constants
+    ``[(type, name, value)]``; comments and blank lines dropped."""
+    fields, constants = [], []
+    for raw in text.splitlines():
+        line = raw.split("#", 1)[0].strip()
+        if not line:
+            continue
+        kind, rest = line.split(None, 1)
+        if "=" in rest:
+            name, value = (part.strip() for part in rest.split("=", 1))
+            constants.append((kind, name, value))
+        else:
+            assert " " not in rest.strip(), f"default values are not used here: {raw!r}"
+            fields.append((kind, rest.strip()))
+    return fields, constants
+
+
+def json_matches(kind, value):
+    """Does a rosbridge JSON value fit the .msg type ``kind``?"""
+    if kind.endswith("[]"):
+        return isinstance(value, list) and all(json_matches(kind[:-2], v) for v in value)
+    if kind in ("float32", "float64"):
+        return type(value) in (int, float)
+    if kind == "uint8":
+        return type(value) is int and 0 <= value <= 255
+    if kind == "string":
+        return isinstance(value, str)
+    if kind == "std_msgs/Header":
+        return set(value) == {"stamp", "frame_id"} and set(value["stamp"]) == {"sec", "nanosec"}
+    raise AssertionError(f"no JSON rule for {kind}")
+
+
+PACKAGE_MESSAGES = {
+    "BearingsStamped": (
+        BEARINGS_STAMPED_MSG,
+        bearings_stamped_msg(STAMP, np.array([0.5, -2.0]), frame_id="ugv_3/base_link"),
+    ),
+    "EstimateStamped": (
+        estimate.ESTIMATE_STAMPED_MSG,
+        estimate.estimate_stamped_msg(
+            STAMP,
+            np.array([0.9, 0.2]),
+            np.array([[1.0, 0.5], [-0.3, 2.0]]),
+            np.array([np.eye(2) * 0.01, [[0.04, 0.01], [0.01, 0.02]]]),
+            localizer="phd-lc",
+        ),
+    ),
+}
+
+
+@pytest.mark.parametrize("name", sorted(PACKAGE_MESSAGES))
+def test_msg_files_match_the_python_definitions(name):
+    text, built = PACKAGE_MESSAGES[name]
+    file_fields, file_constants = msg_definition((MSG_PACKAGE / "msg" / f"{name}.msg").read_text())
+    py_fields, py_constants = msg_definition(text)
+    assert file_fields == py_fields
+    assert file_constants == py_constants
+    # rosidl's naming rules: lower snake-case fields, upper-case constants, CamelCase types.
+    assert re.fullmatch(r"[A-Z][A-Za-z0-9]*", name)
+    for kind, field in file_fields:
+        assert re.fullmatch(r"[a-z][a-z0-9]*(_[a-z0-9]+)*", field), field
+        base = kind.removesuffix("[]")
+        assert base in _BUILTIN or re.fullmatch(r"[a-z][a-z0-9_]*/[A-Z][A-Za-z0-9]*", base), kind
+    for _, constant, _ in file_constants:
+        assert re.fullmatch(r"[A-Z][A-Z0-9_]*", constant), constant
+    # What the bridge builds is exactly the message's fields, each of the right JSON type.
+    assert list(built) == [field for _, field in file_fields]
+    for kind, field in file_fields:
+        assert json_matches(kind, built[field]), (field, built[field])
+    json.dumps(built)  # plain JSON for rosbridge
+
+
+def test_estimate_constants_are_the_python_codes():
+    _, constants = msg_definition((MSG_PACKAGE / "msg" / "EstimateStamped.msg").read_text())
+    assert {c[1]: int(c[2]) for c in constants} == {
+        "WEIGHT_INTENSITY": estimate.WEIGHT_INTENSITY,
+        "WEIGHT_EXISTENCE": estimate.WEIGHT_EXISTENCE,
+    }
+
+
+def test_package_builds_every_message_with_its_dependencies():
+    """CMakeLists.txt generates every .msg file and depends on every package the messages use;
+    package.xml declares the same name and the rosidl build, runtime and group."""
+    cmake = (MSG_PACKAGE / "CMakeLists.txt").read_text()
+    project = re.search(r"project\((\w+)\)", cmake).group(1)
+    call = re.search(r"rosidl_generate_interfaces\(\$\{PROJECT_NAME\}(.*?)\)", cmake, re.S).group(
+        1
+    )
+    listed = re.findall(r'"(msg/\w+\.msg)"', call)
+    files = sorted(f"msg/{p.name}" for p in (MSG_PACKAGE / "msg").glob("*.msg"))
+    assert sorted(listed) == files == sorted(f"msg/{n}.msg" for n in PACKAGE_MESSAGES)
+    used = {
+        kind.removesuffix("[]").split("/")[0]
+        for f in files
+        for kind, _ in msg_definition((MSG_PACKAGE / f).read_text())[0]
+        if "/" in kind
+    }
+    deps = set(re.search(r"DEPENDENCIES\s+([\w\s]+)", call).group(1).split())
+    assert used <= deps
+    for dep in deps:
+        assert f"find_package({dep} REQUIRED)" in cmake
+    assert "find_package(rosidl_default_generators REQUIRED)" in cmake
+    assert "ament_package()" in cmake
+    root = ET.parse(MSG_PACKAGE / "package.xml").getroot()
+    assert root.get("format") == "3"
+    assert root.findtext("name") == project == MSG_PACKAGE.name
+    tags = {(child.tag, (child.text or "").strip()) for child in root}
+    assert ("buildtool_depend", "ament_cmake") in tags
+    assert ("buildtool_depend", "rosidl_default_generators") in tags
+    assert ("exec_depend", "rosidl_default_runtime") in tags
+    assert ("member_of_group", "rosidl_interface_packages") in tags
+    for dep in deps:
+        assert ("depend", dep) in tags
+    assert root.find("export").findtext("build_type") == "ament_cmake"
+
+
+def test_bearings_stamped_round_trip_keeps_the_exposure_stamp():
+    msg = bearings_stamped_msg(STAMP, np.array([0.25, 3.0, -1.0]))
+    parsed = parse_bearings_stamped(json.loads(json.dumps(msg)))
+    assert parsed.stamp_ns == STAMP
+    np.testing.assert_allclose(parsed.bearings_rad, [0.25, 3.0, -1.0], atol=1e-6)
+
+
+def test_estimate_round_trip_and_bad_estimates_name_the_field():
+    w = np.array([0.8, 0.3, 0.05])
+    m = np.array([[1.2, -0.4], [0.0, 2.5], [-3.0, 0.1]])
+    p = np.array([[[0.02, 0.005], [0.005, 0.03]], np.eye(2) * 0.1, np.eye(2)])
+    msg = estimate.estimate_stamped_msg(
+        STAMP, w, m, p, localizer="pmb-lc", weight_kind="existence"
+    )
+    got = estimate.parse_estimate_stamped(json.loads(json.dumps(msg)))
+    assert (got.stamp_ns, got.localizer, got.weight_kind) == (STAMP, "pmb-lc", "existence")
+    np.testing.assert_array_equal(got.weights, w)
+    np.testing.assert_array_equal(got.means_m, m)
+    np.testing.assert_array_equal(got.covariances_m2, p)
+    empty = estimate.estimate_stamped_msg(STAMP, [], np.zeros((0, 2)), [], localizer="phd-lc")
+    assert estimate.parse_estimate_stamped(empty).means_m.shape == (0, 2)
+    bad = [
+        ("means", lambda d: d.update(means=d["means"][:-1])),
+        ("covariances", lambda d: d.update(covariances=d["covariances"] + [0.0])),
+        ("weights", lambda d: d["weights"].__setitem__(0, -0.1)),
+        ("weights", lambda d: d["weights"].__setitem__(0, "1")),
+        ("covariances", lambda d: d["covariances"].__setitem__(1, 0.3)),  # xy != yx
+        ("covariances", lambda d: d["covariances"].__setitem__(0, -1.0)),
+        ("weight_kind", lambda d: d.update(weight_kind=7)),
+        ("localizer", lambda d: d.update(localizer=3)),
+        ("header.stamp", lambda d: d["header"].update(stamp={"sec": 0, "nanosec": 0})),
+    ]
+    for field, corrupt in bad:
+        broken = copy.deepcopy(msg)
+        corrupt(broken)
+        with pytest.raises(InvalidMessage) as info:
+            estimate.parse_estimate_stamped(broken)
+        assert info.value.field == field, (field, str(info.value))
+    with pytest.raises(ValueError, match="means: expected shape"):
+        estimate.estimate_stamped_msg(STAMP, w, m[:2], p, localizer="phd-lc")
+    with pytest.raises(ValueError, match="weight_kind must be one of"):
+        estimate.estimate_stamped_msg(STAMP, w, m, p, localizer="phd-lc", weight_kind="mass")

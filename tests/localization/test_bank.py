@@ -253,8 +253,8 @@ def test_round_trip_and_views():
 
 def snapshot(bank: PHDBank):
     return (
-        bank._table.copy(),
-        bank._counts.copy(),
+        bank.padded_tables()[0].copy(),
+        bank.counts,
         [bank.pending_births(r) for r in range(bank.n_robots)],
     )
 

@@ -135,8 +135,8 @@ def _tables(loc, r: int) -> dict:
     or existence) and, per family, the rest of its mass (PMB's Poisson, ID-PHD's full mixture)."""
     table, counts = loc.padded_tables()
     out = {"table": table[:, r, : counts[r]].copy()}
-    if hasattr(loc, "bank") and hasattr(loc.bank, "poisson_table"):
-        out["poisson"] = loc.bank.poisson_table(r)
+    if hasattr(loc, "poisson_table"):  # the compiled PMB bank
+        out["poisson"] = loc.poisson_table(r)
     elif hasattr(loc, "filters") and hasattr(loc.filters[r], "poisson_table"):
         out["poisson"] = np.array(loc.filters[r].poisson_table)
     if loc.name == "id-phd":
@@ -157,10 +157,7 @@ def _xy_table(w: np.ndarray, m: np.ndarray, p: np.ndarray) -> np.ndarray:
 
 
 def _phd_config(loc, r: int) -> PHDConfig:
-    if hasattr(loc, "bank"):
-        cfg = loc.bank.config
-    else:
-        cfg = loc.filters[r].config
+    cfg = loc.filters[r].config if hasattr(loc, "filters") else loc.config
     return getattr(cfg, "phd", cfg)
 
 
@@ -264,7 +261,7 @@ def check_gm_phd(loc, before, after, kind, rec, r, state) -> None:
 
 
 def check_pmb(loc, before, after, kind, rec, r, state) -> None:
-    fcfg = loc.bank.config if hasattr(loc, "bank") else loc.filters[r].config
+    fcfg = loc.filters[r].config if hasattr(loc, "filters") else loc.config
     cfg = fcfg.phd
     t0, t1 = before["table"], after["table"]
     p0, p1 = before["poisson"], after["poisson"]

@@ -122,12 +122,13 @@ def test_motion_poses_match_the_scalar_function_bit_for_bit():
 
 
 def test_banks_take_the_packed_path_and_end_in_the_same_state():
-    """The bank fed ``feed.calls()`` (packed) and the bank fed the tuples hold the same bits."""
+    """The bank stepped on a feed (its packed arrays) and the bank fed the tuples hold the
+    same bits."""
     for make in (lambda: PHDBank(PHDConfig(), 6), lambda: PMBBank(PHDConfig(), 6)):
         a, b = make(), make()
         for repeat in range(3):  # the same calls again: the banks move on, both alike
             feed = hand_feed(True)
-            a.apply(feed.calls())
+            a.step(feed)
             assert not feed._calls  # no tuple was made
             b.apply(list(hand_feed(True).call_lists()))
             ta, ca = a.padded_tables()
@@ -146,10 +147,10 @@ def test_falls_back_on_what_it_cannot_vouch_for():
     bad = RobotMeasurements([OdometryRecord(0.1, [np.nan, 0, 0], [0, 0])])
     bank = PHDBank(PHDConfig(), 1)
     with pytest.raises(ValueError, match="odometry"):
-        bank.apply(SwarmFeed(0.1, [bad], [()]).calls())
+        bank.step(SwarmFeed(0.1, [bad], [()]))
     huge = RobotMeasurements([], [lidar(0.1, rng)], [CameraRecord(0.1, np.array([1e9]))])
     with pytest.raises(ValueError, match="calls\\[0\\]"):
-        bank.apply(SwarmFeed(0.1, [huge], [()]).calls())
+        bank.step(SwarmFeed(0.1, [huge], [()]))
     assert bank.counts.tolist() == [0]  # nothing changed
 
 
@@ -202,7 +203,6 @@ def test_env_rollout_is_bit_identical_to_the_tuple_path(family, monkeypatch):
     """A seeded env with the packed feed (the default) and one forced down the tuple path
     hold the same filter bits at every step, and the default makes no call tuple at all.
     ``phd-scan``: the GM-PHD with the scan evidence, the one bank that is packed the scans."""
-    import localization.bank
     import localization.feed
     from swarm_env import parallel_env
 
@@ -211,7 +211,8 @@ def test_env_rollout_is_bit_identical_to_the_tuple_path(family, monkeypatch):
             if packed:  # the env must never need the tuples
                 m.setattr(localization.feed, "localizer_calls", _no_tuples)
             else:
-                m.setattr(localization.bank, "packed_of", lambda *a: None)  # both banks'
+                # no packed arrays: both banks encode the feed's call tuples
+                m.setattr(localization.feed.SwarmFeed, "packed", lambda *a: None)
             if family == "phd-scan":
                 scan = dataclasses.replace(SIMULATOR_PHD, scan_evidence=True)
                 env = parallel_env("sim-6m-20", localizer="phd", phd=scan)

@@ -260,3 +260,34 @@ def test_bad_input_raises_before_any_change():
     for bad in (-1, R, 0.5):
         with pytest.raises(ValueError, match="robot"):
             bank.table(bad)
+
+
+def test_one_view_class_steps_and_loads_like_the_reference():
+    """The banks' one view class: a PMB robot stepped through its view (advance, scan profile)
+    and loaded with ``set_mixture`` holds what its RobotCentricPMB holds."""
+    from localization import PHDBank
+    from localization.bank import BankView
+    from localization.scan_evidence import N_BINS
+
+    cfg = PMBConfig(phd=SIMULATOR_PHD)
+    bank, f = PMBBank(cfg, 3), RobotCentricPMB(cfg)
+    view = bank.views[1]
+    assert type(view) is BankView and type(PHDBank(PHDConfig(), 2).views[0]) is BankView
+    profile = np.full(N_BINS, 2.5)
+    for target in (view, f):
+        target.advance(0.1)
+        target.update_lidar([[1.0, 0.5], [0.3, -0.8]], None, [0.02, 0.0, 0.01], profile)
+        target.advance(0.2)
+        target.update_camera([0.45, -1.2])
+    assert_same([f], PMBBank.from_filters([view.to_filter()]), "view")
+    np.testing.assert_allclose(bank.table(1), f.table, atol=1e-10)
+    np.testing.assert_allclose(bank.poisson_table(1), f.poisson_table, atol=1e-10)
+    tracks = GaussianMixture(np.array([0.9]), np.array([[1.0, 2.0]]), 0.04 * np.eye(2)[None])
+    view.set_mixture(tracks)
+    f.set_state(tracks)
+    np.testing.assert_array_equal(bank.table(1), f.table)
+    assert bank.poisson_table(1).shape == (6, 0) and view.mixture.weights.tolist() == [0.9]
+    assert repr(view).startswith("BankView(PMBBank, robot=1, components=1")
+    with pytest.raises(ValueError, match="tracks weights out of range"):
+        view.set_mixture(GaussianMixture(np.array([1.5]), np.zeros((1, 2)), np.eye(2)[None]))
+    np.testing.assert_array_equal(bank.table(1), f.table)  # unchanged

@@ -102,7 +102,10 @@ def test_out_of_range_action_is_clipped(env):
         ({"observation": "pixels"}, "observation"),
         ({"warp_drive": True}, "unknown config key 'warp_drive'"),
         ({"lidar": {"colour": 1}}, "unknown config key 'lidar.colour'"),
-        ({"lidar": {"beam_footprint_deg": 0.0}}, r"lidar_features.beam_footprint_deg=0.5 exceeds"),
+        (
+            {"lidar": {"beam_footprint_deg": 0.0}, "lidar_features": {"beam_footprint_deg": 0.5}},
+            r"lidar_features.beam_footprint_deg=0.5 exceeds",
+        ),
         ({"lidar_features": {"beam_footprint_deg": -1.0}}, "beam_footprint_deg"),
     ],
 )

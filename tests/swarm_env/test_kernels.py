@@ -331,7 +331,8 @@ def test_wrap_matches_wrap_angle():
 def reference_clusters(angles, ranges, cfg, wide_up_to=0.0):
     """The vectorised numpy extractor the kernel replaced (xy, scan, width, count); with
     ``wide_up_to`` > 0, the clusters the robot test rejects up to that width instead
-    (``extract_wide_objects``)."""
+    (``extract_wide_objects``). Every missing return breaks a cluster (``max_gap_beams=0``)."""
+    assert cfg.max_gap_beams == 0
     ranges = np.atleast_2d(ranges)
     n_scans, n_beams = ranges.shape
     valid = ranges > 0.0
@@ -379,10 +380,12 @@ def reference_clusters(angles, ranges, cfg, wide_up_to=0.0):
         mean_range = ranges[row, beams].mean()
         centre = mean_range + (0.5 * w if wide_up_to > 0.0 else cfg.housing_radius_m)
         if cfg.extent_test and fits:
-            # The returns' angular spread plus one footprint must fit a housing's subtense,
-            # its centre up to n_sigmas sigma(r) nearer than measured.
-            sigma = cfg.range_noise_std_m + cfg.range_noise_quadratic_per_m * mean_range**2
-            housing = mean_range + cfg.housing_radius_m  # the robot test's centre, either mode
+            # The returns' angular spread plus one footprint must fit the subtense of a
+            # housing whose front is the nearest return, its centre up to n_sigmas sigma(r)
+            # nearer than measured.
+            front = ranges[row, beams].min()
+            sigma = cfg.range_noise_std_m + cfg.range_noise_quadratic_per_m * front**2
+            housing = front + cfg.housing_radius_m  # the robot test's centre, either mode
             nearest = max(housing - cfg.width_noise_sigmas * sigma, 1e-9)
             subtense = 2.0 * math.asin(min(0.5 * cfg.max_width_m / nearest, 1.0))
             spread = abs(wrap_angle(angles[beams[-1]] - angles[beams[0]]))
@@ -397,13 +400,15 @@ def reference_clusters(angles, ranges, cfg, wide_up_to=0.0):
     return out
 
 
+_NO_GAP = LidarFeatureConfig(max_gap_beams=0)  # the reference breaks at every missing return
 FEATURE_CONFIGS = [
-    LidarFeatureConfig(),
-    LidarFeatureConfig(extent_test=False),
-    LidarFeatureConfig(beam_footprint_deg=0.0, width_noise_sigmas=0.0),
-    LidarFeatureConfig(foreground_only=False, jump_range_gain=0.0),
-    LidarFeatureConfig(min_beams=2, max_width_m=0.2, tracking_range_m=2.0),
-    LidarFeatureConfig(min_beams=1, width_noise_sigmas=0.0, max_width_m=0.078),
+    _NO_GAP,
+    dataclasses.replace(_NO_GAP, extent_test=False),
+    dataclasses.replace(_NO_GAP, beam_footprint_deg=0.5),
+    dataclasses.replace(_NO_GAP, beam_footprint_deg=0.0, width_noise_sigmas=0.0),
+    dataclasses.replace(_NO_GAP, foreground_only=False, jump_range_gain=0.0),
+    dataclasses.replace(_NO_GAP, min_beams=2, max_width_m=0.2, tracking_range_m=2.0),
+    dataclasses.replace(_NO_GAP, min_beams=1, width_noise_sigmas=0.0, max_width_m=0.078),
 ]
 
 
@@ -453,27 +458,31 @@ def test_cluster_kernel_matches_the_vectorised_extractor(cfg):
                 got.xy_m, np.array([d[2:4] for d in ref]).reshape(-1, 2), atol=1e-12
             )
             assert got.n_beams.tolist() == [d[5] for d in ref]
-    seam = extract_clusters(angles, random_scans(rng)[2:3], LidarFeatureConfig())
+    seam = extract_clusters(angles, random_scans(rng)[2:3], _NO_GAP)
     assert seam.xy_m.shape == (1, 2) and seam.xy_m[0, 0] < -0.9  # behind the robot, at -x
 
 
-def test_no_cluster_is_both_a_robot_and_a_wide_object():
-    """The wide objects are exactly what the robot test rejects: a noisy housing near the
-    ranges where its subtense crosses a beam step (1.8-2.6 m) is one or the other, never both
-    (a teammate reported as a wide object would turn its own camera bearing into clutter)."""
+@pytest.mark.parametrize("footprint_deg", [0.0, 0.5])
+def test_no_cluster_is_both_a_robot_and_a_wide_object(footprint_deg):
+    """The wide objects are exactly what the robot test rejects: noisy housings and 120 mm
+    decoys near the ranges where their subtenses cross a beam step (1.8-2.6 m) are one or the
+    other, never both (a teammate reported as a wide object would turn its own camera bearing
+    into clutter), with the geometric extent bound and with the footprint one."""
+    cfg = LidarFeatureConfig(beam_footprint_deg=footprint_deg)
     angles = LidarSensor(LidarConfig()).angles_rad
     rng = np.random.default_rng(4)
     n = 2000
     centre = rng.uniform(1.8, 2.6, n)[:, None]
+    radius = np.where(rng.random(n) < 0.5, HOUSING_RADIUS_M, 0.06)[:, None]
     phase = rng.uniform(-np.pi, np.pi, n)[:, None]
-    miss = centre * np.sin(angles[None, :] - phase)  # beam's distance from the housing's centre
+    miss = centre * np.sin(angles[None, :] - phase)  # beam's distance from the target's centre
     along = centre * np.cos(angles[None, :] - phase)
-    hit = (np.abs(miss) <= HOUSING_RADIUS_M) & (along > 0)
-    clean = along - np.sqrt(np.maximum(HOUSING_RADIUS_M**2 - miss**2, 0.0))
+    hit = (np.abs(miss) <= radius) & (along > 0)
+    clean = along - np.sqrt(np.maximum(radius**2 - miss**2, 0.0))
     noise = rng.normal(0.0, 1.0, clean.shape) * (0.01 + 0.0025 * clean**2)
     ranges = np.where(hit, clean + noise, 0.0)
-    robots = extract_clusters(angles, ranges)
-    wide = extract_wide_objects(angles, ranges, max_width_m=0.3)
+    robots = extract_clusters(angles, ranges, cfg)
+    wide = extract_wide_objects(angles, ranges, cfg, max_width_m=0.3)
     both = np.intersect1d(robots.scan_index, wide.scan_index)
     assert both.size == 0, both[:10]
     assert robots.scan_index.size > 100 and wide.scan_index.size > 10  # both sides exercised

@@ -512,11 +512,17 @@ def test_extractor_width_range_and_count_gates():
 
 def test_extent_test_keeps_housings_and_rejects_wider_cylinders_at_every_range():
     """The arena's 120 mm red decoy passes the end-to-end width test at 1.5-3 m (range noise
-    tolerance), never the angular extent test; a housing passes both alike. Targets clear of
-    the blind sectors (one that a blind sector cuts shows a narrower arc)."""
+    tolerance); the angular extent test rejects it up to 2.2 m with the geometric bound (the
+    default, which holds for any scanner) and at every range with the simulated scanner's own
+    footprint (``beam_footprint_deg=0.5``); a housing passes both alike. Targets clear of the
+    blind sectors (one that a blind sector cuts shows a narrower arc)."""
     rng = np.random.default_rng(5)
     cfg = LidarConfig(interference_tolerance_deg=0.0)
-    width_only = LidarFeatureConfig(extent_test=False)
+    configs = {
+        "default": None,
+        "footprint": LidarFeatureConfig(beam_footprint_deg=cfg.beam_footprint_deg),
+        "width_only": LidarFeatureConfig(extent_test=False),
+    }
     for r in (0.5, 1.0, 1.5, 2.0, 2.2, 3.0, 3.5):
         margin = math.degrees(math.asin(0.06 / r)) + 1.0
         scene, bearings = make_pair_scene(
@@ -538,18 +544,17 @@ def test_extent_test_keeps_housings_and_rejects_wider_cylinders_at_every_range()
             sensor = LidarSensor(cfg, target.n_robots)
             observers = np.arange(0, target.n_robots, 2)
             batch = sensor.scan(target, observers, np.ones(observers.size), rng)
-            for features in ("default", "width_only"):
-                dets = extract_clusters(
-                    batch.angles_rad,
-                    batch.ranges_m,
-                    None if features == "default" else width_only,
-                )
+            for features, feature_cfg in configs.items():
+                dets = extract_clusters(batch.angles_rad, batch.ranges_m, feature_cfg)
                 near = np.linalg.norm(dets.xy_m - truth[dets.scan_index], axis=1) <= 0.15
                 rates[name, features] = np.unique(dets.scan_index[near]).size / observers.size
         assert rates["housing", "default"] == rates["housing", "width_only"], r
+        assert rates["housing", "footprint"] == rates["housing", "width_only"], r
         if r <= 1.5:
             assert rates["housing", "default"] == 1.0, r  # every housing in reach is kept
-        assert rates["decoy", "default"] == 0.0, r
+        assert rates["decoy", "footprint"] == 0.0, r
+        if r <= 2.2:
+            assert rates["decoy", "default"] == 0.0, r
         if 1.5 <= r <= 3.0:
             assert rates["decoy", "width_only"] > 0.9, r  # what the width test alone lets by
 

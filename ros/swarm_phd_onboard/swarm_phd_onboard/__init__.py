@@ -1,0 +1,1 @@
+"""One swarm-phd robot's localizer on board (ROS 2)."""
