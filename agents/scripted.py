@@ -294,8 +294,9 @@ class VectorFieldPolicy(ScriptedPolicy):
         ``None`` (default): it moves again at ``deadband_mps``. Why: a correction just above
         the deadband that points sideways turns a differential drive at up to
         ``max_turn_rate_radps``, so a robot that chases its centroid estimate's noise keeps
-        turning, and its lidar's blind sectors sweep over its teammates (``docs/results.md``,
-        round 9). The stopped state is the controller's own history: a residual policy on top
+        turning, and its lidar's blind sectors sweep over its teammates (measured with
+        ``experiments/formation_diagnosis.py``). The stopped state is the controller's own
+        history: a residual policy on top
         of it does not see it.
     """
 
@@ -413,7 +414,7 @@ class VectorFieldPolicy(ScriptedPolicy):
 
         Why: the lidar is blind behind the four camera pillars (+-45, +-135 deg), exactly where
         a robot that drove radially into a square formation sees its two neighbours; it then
-        holds them by bearing alone, and loses them (``docs/results.md``, round 6)."""
+        holds them by bearing alone, and loses them (``experiments/formation_diagnosis.py``)."""
         rows = table[confident_rows(table, self.min_weight)]
         stop = np.zeros(2, dtype=np.float32)
         if not len(rows):
@@ -487,8 +488,8 @@ class FormationPolicy(VectorFieldPolicy):
     With ``pull_far`` it is also pulled towards those farther than the diameter ``2 r``. That
     rule is off by default: the components beyond the lidar's ~2 m are camera-only, and since
     the lidar extractor rejects red decoys (``LidarFeatureConfig.extent_test``) a red decoy's
-    camera track sits along its ray at 2-4 m as often as a far teammate does. Measured in
-    ``docs/results.md`` (round 4): on ``lab-3m-4`` validation seeds the pull raised the
+    camera track sits along its ray at 2-4 m as often as a far teammate does. Measured with
+    ``experiments/formation_diagnosis.py``: on ``lab-3m-4`` validation seeds the pull raised the
     formation error from 0.086 to 0.162 m.
     With ``swarm_size_centroid`` the swarm size N (from the features, below) rescales the
     weights: once at least N - 1 confident components are in sight and their weights sum to
@@ -496,7 +497,8 @@ class FormationPolicy(VectorFieldPolicy):
     weighted mean. Why: a PHD weight is not an existence probability of 1 for a teammate the
     robot has in sight; measured on the validation seeds, three confident components' weights
     sum to 2.4 after the spread discount, which shrinks ``c`` towards the robot by about 6 % and
-    parks it about 4 cm outside the circle (``docs/results.md``, round 10). The rescale keeps the
+    parks it about 4 cm outside the circle (``experiments/formation_diagnosis.py``). The rescale
+    keeps the
     weights' relative say (a camera-only track still counts less than a lidar-confirmed one).
     Off by default, so that the registered ``scripted:formation`` keeps its measured behaviour;
     the ``*-known-n`` controllers turn it on.

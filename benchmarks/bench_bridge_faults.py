@@ -4,7 +4,7 @@ soak. Regenerates ``docs/reference/reliability.md``.
 
     .venv/bin/python benchmarks/bench_bridge_faults.py                # full run, ~4 min
     .venv/bin/python benchmarks/bench_bridge_faults.py --quick        # fewer repetitions
-    .venv/bin/python benchmarks/bench_bridge_faults.py --write docs/reliability.md
+    .venv/bin/python benchmarks/bench_bridge_faults.py --write docs/reference/reliability.md
 
 Everything runs against the loopback robot server on 127.0.0.1 (ephemeral ports); the GIL and
 kill experiments put the robots or the env in a separate process.
@@ -586,7 +586,8 @@ def report(results: dict, command: str) -> str:
                 f"{r['exit']}{' **TRACEBACK**' if r['traceback'] else ''}",
                 "-" if r["steps"] is None else r["steps"],
                 _kv(r["skipped"]),
-                r["stderr"].replace("|", "\\|")[:160],
+                # code span: a message may hold brackets that Markdown would read as a link
+                "`" + r["stderr"].replace("`", "'").replace("|", "\\|")[:160] + "`",
             ]
             for r in results["corruption"]
         ],

@@ -14,7 +14,7 @@ What it measures (no timing; every figure is a statistic of the simulated sensor
 * **Lidar blind sectors' notch**: the housing at 0.6, 1, 1.5 and 2 m, at random offsets 0-9 deg
   from a random blind sector's centre, no interference; per 1 deg bin the detection rate over
   the full-view rate (20-40 deg off the centres), beside the filter's ``"visible-width"`` factor
-  (derived, not fitted: ``docs/localization.md``, "The blind sectors' notch") and the seed's
+  (derived, not fitted: ``docs/concepts/localizers.md``, "The blind sectors' notch") and the seed's
   bump.
 * **Camera** ``P_d(r)``: a teammate's red strip (the simulator's ``camera_holder_radius_m``)
   at range ``r``, free line of sight; detected = a blob from that strip. Also the bearing

@@ -13,7 +13,7 @@ Times, as the median over ``reps`` calls cycling through ``scenes`` random arena
 
 Targets: lidar batch of 14 < 3 ms, camera for 20 observers < 0.5 ms. The ``faults`` column is
 minor page faults per call: on glibc, freed heap tops go back to the OS and large temporaries
-fault back in, which can dominate on VMs (see docs/sensors.md, "Speed").
+fault back in, which can dominate on VMs (see docs/concepts/sensors.md, "Speed").
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ The same PPO (n_steps 128, batch 512, 10 epochs, Deep Sets extractor, torch 1 th
 same env (``lab-3m-4`` formation, PHD observations: 4 robots) through:
 
 - ``supersuit-2proc``: :func:`agents.sb3.adapter.make_vec_env`, 4 copies in 2 worker processes
-  (the configuration of ``docs/results.md``'s 440 transitions/s);
+  (the configuration of the results page's training-throughput row);
 - ``supersuit``: the same, 4 copies in this process;
 - ``batched-K``: :class:`agents.sb3.batched.BatchedSwarmVecEnv`, K copies sharing one localizer
   call per step;

@@ -8,7 +8,7 @@
 
 The env is :class:`swarm_env.env.SwarmEnv` itself (same spaces, localization, task and
 observation code) with a :class:`~hardware_bridge.world.RealWorld` instead of the simulator.
-See ``docs/hardware.md`` for running it on robots.
+See ``docs/how-to/real-robots.md`` for running it on robots.
 
 Modules: :mod:`~hardware_bridge.config` (``BridgeConfig``), :mod:`~hardware_bridge.messages`
 (validation and builders), :mod:`~hardware_bridge.transport` (rosbridge client),

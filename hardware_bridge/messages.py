@@ -59,7 +59,7 @@ SENSOR_OF_KIND = {
     "uav_detections": "uav_detections",
 }
 # The stamped bearings message (a package ``swarm_phd_msgs`` on the robots; see
-# docs/hardware.md). ROS 2 .msg syntax; registered in the bag typestore from this text.
+# docs/how-to/real-robots.md). ROS 2 .msg syntax; registered in the bag typestore from this text.
 BEARINGS_STAMPED_MSG = """std_msgs/Header header
 float32[] bearings
 """

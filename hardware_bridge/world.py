@@ -16,7 +16,8 @@ Timing (honest by construction):
   :class:`RobotsSilentError` listing the silent robots and sensors.
 
 ROS time is this host's ``time.time_ns()``; the robots' clocks must be synchronised to it
-(chrony, see ``docs/hardware.md``): a robot whose clock is behind by more than a sensor's stale
+(chrony, see ``docs/how-to/real-robots.md``): a robot whose clock is behind by more than a
+sensor's stale
 age looks silent.
 """
 

@@ -172,7 +172,7 @@ class PHDConfig:
         (the X4 at 1 m: 4.9 deg from the centre of a 10 deg sector). The
         seed's bump (sigma 5 deg) is wrong for the simulated X4: measured 0.04 at 2-4 deg
         from a centre against the bump's 0.17, and 0.93 at 6-8 deg against 0.62
-        (``docs/localization.md``, "The blind sectors' notch").
+        (``docs/concepts/localizers.md``, "The blind sectors' notch").
     lidar_beam_spacing_deg : float
         Angle between consecutive lidar beams (the X4: 720 per turn, 0.5 deg).
     lidar_min_returns : int

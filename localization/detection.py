@@ -12,7 +12,7 @@ has peak 1 at ``d = 0``, is periodic (no angle wrapping needed) and equals the G
 exponent, i.e. identical for the few-degree widths used here. It costs one small matrix
 product instead of ``atan2`` plus wrapping.
 
-Corrections to the seed (see ``docs/localization.md``):
+Corrections to the seed (see ``docs/concepts/localizers.md``):
 
 * eq. 20 (blind sectors) and eq. 22 (occlusion) are written as *sums* of factors; a product
   is what the text describes (each sector / each nearer robot removes detection), so we

@@ -11,7 +11,7 @@ env, ``swarm-phd evaluate``, the bridge and the replay all feed filters the same
 The compiled banks do not read those calls as Python tuples: :func:`pack_calls` encodes the
 whole swarm's calls straight into the bank's flat arrays in one pass (the same calls, bit for
 bit; ``tests/localization/test_packed_calls.py``), which at 1000 robots saves making and
-re-reading ~9,400 tuples per step (``docs/scaling.md``).
+re-reading ~9,400 tuples per step (``docs/how-to/scaling-out.md``).
 """
 
 from __future__ import annotations

@@ -654,7 +654,7 @@ class SeedScorer:
     Fed once per evaluation step with the truth of every observer at once (vectorised over
     observers, teammates and components; only GOSPA's assignment loops over observers).
 
-    **Definitions** (``docs/localization.md``, "Metrics"):
+    **Definitions** (``docs/concepts/localizers.md``, "Metrics"):
 
     * *In range*: the caller's ``in_range[i, j]`` mask (the evaluation: true distance from
       observer ``i`` to teammate ``j`` <= the scoring range ``range_m``). A *tracked teammate*
@@ -975,7 +975,8 @@ class SeedScorer:
         return {"per_robot": _floats(pct), **_stats(pct)}
 
     def summary(self, observer: int = 0) -> dict[str, Any]:
-        """Every figure, as a JSON-ready dict (keys documented in ``docs/localization.md``)."""
+        """Every figure, as a JSON-ready dict (keys documented in
+        ``docs/concepts/localizers.md``)."""
         nan = math.nan
         pairs = float(self.in_range_steps.sum())
         matched = float(self.matched_steps.sum())

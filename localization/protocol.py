@@ -18,7 +18,7 @@ estimate in one form:
 Each family bounds its total weight and its number of components per filter call (a time
 update: at most ``P_s`` times the mass plus the pending births; an update: at most one more per
 measurement; at most a configured number of components): see each class docstring and
-``docs/localization.md``, "Bounds on weight and cardinality".
+``docs/concepts/localizers.md``, "Bounds on weight and cardinality".
 
 Families are built by name through :mod:`localization.registry`. To add one, see
 ``docs/how-to/add-a-localizer-family.md``.

@@ -14,7 +14,8 @@ names (``phd``, ``phd-reference``) keep it. :func:`register` adds a family (see
 ``docs/how-to/add-a-localizer-family.md``).
 
 Each family's bound on total weight and cardinality is in its class docstring and in
-``docs/localization.md`` ("Bounds on weight and cardinality"), checked after every filter call by
+``docs/concepts/localizers.md`` ("Bounds on weight and cardinality"), checked after every filter
+call by
 ``tests/localization/test_localizer_bounds.py``.
 """
 
@@ -225,7 +226,7 @@ class IdentityLocalizer(LocalizerBase):
     seed ``003``'s / ``004``'s identifying sensors; needs ``feed.truth``). Camera records are
     not used.
 
-    Bounds (``docs/localization.md``, "Bounds on weight and cardinality"): ``id-phd`` as
+    Bounds (``docs/concepts/localizers.md``, "Bounds on weight and cardinality"): ``id-phd`` as
     :class:`~localization.id_phd.IDPHD` documents (its table holds the teammate-tagged part of
     that mass); ``ukf`` / ``pf``: one unit-weight component per identified teammate, so
     weight = count ``<= n_robots - 1``.

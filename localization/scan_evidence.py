@@ -78,7 +78,7 @@ hidden from the lidar by one loses its camera updates while it is hidden, never 
 Why it is off in the simulator's filter (``swarm_env.config.SIMULATOR_PHD``): alone it did not
 make the agents' estimate better; with the wide objects' camera clutter
 (:mod:`localization.object_clutter`) it does, at several times the filter's cost
-(``docs/localization.md``).
+(``docs/concepts/localizers.md``).
 
 This module holds the numpy reference (:func:`scan_profile`, :func:`scan_factors`) and the
 compiled versions the banks call (:func:`profile_into`, :func:`scan_factors_into`), checked

@@ -189,14 +189,15 @@ class ArenaConfig:
 
 
 #: The simulated lidar's range factor, fitted to its measured detection curve
-#: (``benchmarks/bench_detection_curves.py``; ``docs/sensors.md``, "Detection curves"): the
+#: (``benchmarks/bench_detection_curves.py``; ``docs/concepts/sensors.md``, "Detection curves"):
+#: the
 #: probability that the feature extractor reports a teammate's housing at range r, in free
 #: space, outside the blind sectors, without interference (the filter's other factors), is
 #: ``1 / (offset + exp(slope (r - midpoint)))`` with these values (1500 pairs per range,
 #: RMS residual 0.017 on 0.25-5.5 m). It follows from the geometry: a 65 mm housing gives
 #: ``2 asin(0.0325 / r) / 0.5 deg - 1`` clean returns and a cluster needs 3, so P_d is 1 up to
 #: 1.86 m, 0.73 at 2 m and 0 from 2.48 m. The seed's real X4 (eq. 19: 1.02, 8, 1.5 m) fades
-#: about 0.6 m sooner; what the simulated X4 leaves out is listed in ``docs/sensors.md``.
+#: about 0.6 m sooner; what the simulated X4 leaves out is listed in ``docs/concepts/sensors.md``.
 SIM_LIDAR_PD_OFFSET = 1.0
 SIM_LIDAR_PD_SLOPE_PER_M = 8.78
 SIM_LIDAR_PD_MIDPOINT_M = 2.14
@@ -245,7 +246,7 @@ SIM_CAMERA_CLUTTER_WIDE_OBJECT_SHARE_PER_RAD = 0.131
 #:   :data:`SIM_CAMERA_CLUTTER_PER_RAD`;
 #: * measurement-driven births of weight 0.25: teammates enter a robot's 2 m disc 0.085 times
 #:   per scan, and the seed's fixed birth needs 2-3 extra scans per newcomer;
-#: * the model corrections of ``docs/localization.md`` ("The camera's measurement model,
+#: * the model corrections of ``docs/concepts/localizers.md`` ("The camera's measurement model,
 #:   corrected"): the Bernoulli missed-detection term, process noise up to each measurement's
 #:   stamp, the camera's position in the bearing model (always on with motion compensation),
 #:   the range-dependent bearing noise and the moment-matched missed lidar copies.
@@ -258,7 +259,7 @@ SIMULATOR_PHD = PHDConfig(
     lidar_pd_slope_per_m=SIM_LIDAR_PD_SLOPE_PER_M,
     lidar_pd_midpoint_m=SIM_LIDAR_PD_MIDPOINT_M,
     # The notch the X4's beam geometry cuts where a pillar hides its beams, from the housing,
-    # the beams and the extractor's minimum returns (docs/localization.md, "The blind
+    # the beams and the extractor's minimum returns (docs/concepts/localizers.md, "The blind
     # sectors' notch"): the seed's bump (sigma 5 deg) expected 0.17 of the detections at 2-4
     # deg from a centre and 0.62 at 6-8 deg, where the simulator gives 0.04 and 0.93.
     blind_sector_model="visible-width",
@@ -273,12 +274,12 @@ SIMULATOR_PHD = PHDConfig(
     camera_target_radius_m=RobotConfig().camera_holder_radius_m,
     camera_clutter_intensity=SIM_CAMERA_CLUTTER_PER_RAD,
     # The decoys' blobs where the scan shows a wide object: a bearing there is explained by the
-    # object, not by a component on or behind it (docs/localization.md, "Clutter the lidar
+    # object, not by a component on or behind it (docs/concepts/localizers.md, "Clutter the lidar
     # places").
     camera_clutter_per_wide_object=SIM_CAMERA_CLUTTER_PER_WIDE_OBJECT,
     camera_wide_object_std_fraction=SIM_CAMERA_WIDE_OBJECT_STD_FRACTION,
     camera_clutter_wide_object_share_per_rad=SIM_CAMERA_CLUTTER_WIDE_OBJECT_SHARE_PER_RAD,
-    # One missed frame does not kill an established track (docs/localization.md, "Missed
+    # One missed frame does not kill an established track (docs/concepts/localizers.md, "Missed
     # detections: the Bernoulli term"). Camera-started tracks (camera_birth="ray") stay an
     # option, off here: measured, they put ghost components along the rays that the
     # formation controller follows (final error 0.05 -> 0.44 m, lab-3m-4, seed 0) and cost
@@ -286,11 +287,11 @@ SIMULATOR_PHD = PHDConfig(
     # instead (camera_clutter_intensity above counts them).
     missed_detection="bernoulli",
     # Process noise up to each measurement's stamp: three camera frames and a scan fall between
-    # two odometry samples (docs/localization.md, "When Q goes in").
+    # two odometry samples (docs/concepts/localizers.md, "When Q goes in").
     time_update="measurement",
     # The lidar's missed copies moment-matched under its range-dependent P_d (the GM-PHD's):
     # a track left at the range edge by a teammate that moved beyond it drifts outwards
-    # instead of being confirmed in place by the camera (docs/localization.md).
+    # instead of being confirmed in place by the camera (docs/concepts/localizers.md).
     lidar_missed_moments=True,
     # The scan's raw ranges as negative information (localization.scan_evidence), matched to
     # the simulated X4 but off. Alone it removed 80 % of the shadows behind the red decoys,
@@ -298,8 +299,8 @@ SIMULATOR_PHD = PHDConfig(
     # error 0.086 -> 0.132 m). With the wide objects' clutter above it helps (GOSPA 0.293 ->
     # 0.263 m, validation formation error 0.077 -> 0.062 m, held out 0.150 -> 0.135 m) but
     # the bearing quadrature cost 10x the filters' time when measured without the wide
-    # objects (docs/localization.md, "The scan's negative information"; docs/results.md,
-    # round 5): off until that cost is cut.
+    # objects (docs/concepts/localizers.md, "The scan's negative information"): off until that
+    # cost is cut.
     scan_evidence=False,
     scan_target_radius_m=RobotConfig().housing_radius_m,
     scan_range_noise_std_m=LidarConfig().range_noise_std_m,
@@ -495,13 +496,14 @@ PRESETS: dict[str, SwarmConfig] = {
         n_robots=4,
         arena=ArenaConfig(width_m=3.0, height_m=3.0, n_decoy_posts=2, n_red_decoys=1, n_boxes=0),
     ),
-    # Big swarms at the seed's density (docs/scaling.md, "Big swarms").
+    # Big swarms at the seed's density (docs/how-to/scaling-out.md, "Big swarms").
     "sim-13m-100": _dense(100),
     "sim-19m-200": _dense(200),
     "sim-30m-500": _dense(500),
     "sim-42m-1000": _dense(1000),
     # Seed 002's simulation: 3 UGVs wandering under a hovering UAV (2.8 m, swarm_env.uav),
-    # odometry broadcast at 10 Hz; 2.5 m x 2.5 m so the camera footprint covers it (docs/uav.md).
+    # odometry broadcast at 10 Hz; 2.5 m x 2.5 m so the camera footprint covers it
+    # (docs/how-to/studies/stegagno2013-uav.md).
     "seed-uav": SwarmConfig(
         n_robots=3,
         arena=ArenaConfig(width_m=2.5, height_m=2.5, n_decoy_posts=0, n_red_decoys=0, n_boxes=0),

@@ -40,7 +40,10 @@ COMPILING_COMMANDS = (
 PRESET_DESCRIPTIONS = {
     "sim-6m-20": "the source study's simulation: 20 UGVs, 6 m x 6 m walled arena, boxes, decoys",
     "lab-3m-4": "the source study's lab test area: 4 UGVs, 3 m x 3 m, 2 decoy posts, 1 red decoy",
-    "seed-uav": "seed 002: 3 UGVs, 2.5 m x 2.5 m, radio on, under a UAV (swarm-phd uav)",
+    "seed-uav": (
+        "the Stegagno et al. ICRA 2013 setup: 3 UGVs, 2.5 m x 2.5 m, radio on, under a UAV "
+        "(swarm-phd uav)"
+    ),
 }
 
 
@@ -106,19 +109,20 @@ _add(
 )
 _add(
     "seed003",
-    "seed 003: SLSQP direct estimation then centralized UKF on IR range-bearing readings, "
-    "5 robots",
+    "the low-cost IR swarm study: SLSQP direct estimation then a centralized UKF on IR "
+    "range-bearing readings, 5 robots",
     "swarm_phd.seed003",
 )
 _add(
     "mutual",
-    "seed 001: mutual localization from anonymous detections and the radio (P-MultiReg, "
-    "FastSLAM-MC), scored on the thesis's metrics",
+    "the Stegagno 2012 thesis: mutual localization from anonymous detections and the radio "
+    "(P-MultiReg, FastSLAM-MC), scored on the thesis's metrics",
     "swarm_phd.mutual",
 )
 _add(
     "uav",
-    "seed 002: a UAV identifies wandering UGVs with ID-PHD on its downward camera",
+    "the Stegagno et al. ICRA 2013 study: a UAV identifies wandering UGVs with ID-PHD on its "
+    "downward camera",
     "swarm_phd.uav",
 )
 _add("warmup", "compile the numba kernels ahead of time (first run only)", "swarm_phd.warmup")

@@ -50,6 +50,7 @@ import copy
 import math
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -131,8 +132,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--ray",
         action="store_true",
-        help="one Ray task per seed (swarm_phd/sweep.py): per-seed metrics, as the serial "
-        "run of each seed; writes <--out>/sweep.json, no figures",
+        help="one Ray task per seed (swarm_phd/sweep.py), added up as the serial run adds "
+        "its seeds: the same table, metrics.json and figures, faster with several CPUs",
     )
     from swarm_phd.sweep import add_ray_arguments
 
@@ -342,6 +343,10 @@ def evaluate_localization(
     also splits the share of in-range pair-steps above 0.30 m by step of the episode: where
     in it a motion loses its teammates (the first steps' births are every motion's).
 
+    Each seed is scored on its own (:func:`score_seed`) and the seeds' tallies are added in
+    the order of ``seeds`` (:func:`assemble`), so ``evaluate --ray``, which scores each seed in
+    its own process, gives the same numbers.
+
     Returns
     -------
     dict
@@ -352,8 +357,54 @@ def evaluate_localization(
         "identity": {...} (identity-aware localizers), "task": {...} (means over the seeds),
         "task_per_seed": [{"seed", **task metrics}] per finished seed, "wall_time_s": ...}``
     """
-    from agents.policies import load_policy
+    start = time.perf_counter()
+    env, n_steps, duration_s, spans = _episode_env(
+        preset, duration_s, localizers, policy, task, phases, overrides
+    )
+    runs: list[SeedRun] = []
+    interrupted = False
+    try:
+        for seed in progress.over(seeds, "evaluate", unit="seed"):
+            runs.append(
+                score_seed(env, policy, localizers, seed, n_steps, spans, first=seed == seeds[0])
+            )
+    except KeyboardInterrupt:
+        if not runs:
+            raise
+        interrupted = True
+        finished = [run.seed for run in runs]
+        print(
+            f"swarm-phd evaluate: interrupted; scoring the {len(finished)} finished seed(s) "
+            f"{finished}",
+            file=sys.stderr,
+        )
+    finally:
+        env.close()
+    return assemble(
+        runs,
+        preset=preset,
+        duration_s=duration_s,
+        localizers=localizers,
+        seeds=seeds,
+        policy=policy,
+        phases=phases,
+        interrupted=interrupted,
+        out_dir=out_dir,
+        start=start,
+    )
 
+
+def _episode_env(
+    preset: str | None,
+    duration_s: float,
+    localizers: list[str],
+    policy: str,
+    task: str | None,
+    phases: list[int] | None,
+    overrides: dict[str, Any],
+) -> tuple[SwarmEnv, int, float, list[tuple[int, int | None]] | None]:
+    """The checked arguments' env, its steps per seed, the duration that runs (a trained
+    policy's env ends its episodes where its training did) and the phase spans."""
     unknown = [name for name in localizers if name not in LOCALIZERS]
     if unknown or not localizers:
         raise ValueError(f"--localizer must name some of {sorted(LOCALIZERS)}, got {localizers}")
@@ -363,7 +414,7 @@ def evaluate_localization(
         from agents.evaluation import phase_spans
 
         spans = phase_spans(phases)  # ValueError before any rollout
-    start = time.perf_counter()
+    overrides = dict(overrides)
     radio = [name for name in localizers if LOCALIZERS[name].needs_comms]
     if radio and "comms" not in overrides:  # seed 001's methods hear teammates on the radio
         from localization.mutual.localizer import DEFAULT_RADIO
@@ -377,145 +428,246 @@ def evaluate_localization(
     if n_steps > env.config.max_steps:
         # A trained policy's env ends its episodes where its training did: say what runs.
         period = env.config.control_period_s
-        print(
+        progress.note(
             f"swarm-phd evaluate: {policy}'s env ends each episode after "
             f"{env.config.max_steps} steps: {env.config.max_steps * period:g} s per seed, not "
-            f"--duration {duration_s:g} s",
-            file=sys.stderr,
+            f"--duration {duration_s:g} s"
         )
         n_steps = env.config.max_steps
         duration_s = n_steps * period
-    base_phd = env.config.phd
+    return env, n_steps, duration_s, spans
+
+
+@dataclass
+class SeedRun:
+    """One seed's scoring (:func:`score_seed`): its own tallies, added up over the seeds by
+    :func:`assemble`. The trajectory and ugv_0's estimates (the figures) only for the first
+    seed; ``cost_s``: each localizer's seconds (not in the results: machine-dependent)."""
+
+    seed: int
+    env: dict[str, Any]
+    scorers: dict[str, SeedScorer]
+    camera_scorers: dict[str, SeedScorer]
+    id_scorers: dict[str, IdentityScorer]
+    figures: dict[str, dict[str, float]]
+    by_step: dict[str, np.ndarray]
+    task_metrics: dict[str, float]
+    paths: list[np.ndarray]
+    estimates: dict[str, list[np.ndarray]]
+    cost_s: dict[str, float]
+    steps_run: int
+
+
+def score_seed(
+    env: SwarmEnv,
+    policy: str,
+    localizers: list[str],
+    seed: int,
+    n_steps: int,
+    spans: list[tuple[int, int | None]] | None = None,
+    first: bool = True,
+) -> SeedRun:
+    """Run one episode of ``policy`` in ``env`` from ``seed`` and score every localizer on it
+    (fresh filters and scorers, seeded from ``seed`` alone). ``first``: the first seed of an
+    evaluation, whose trajectory, estimates and cardinality trace the figures draw."""
+    from agents.policies import load_policy
+
     n_agents = len(env.possible_agents)
     range_m = env.config.localization_range_m
+    # One localizer (every robot's filter) per name, fed the same records: a paired
+    # comparison, same motion, same measurements.
+    built = {name: make_localizer(name, n_agents, env.config.phd, seed) for name in localizers}
     # The seed's scoring per (observer, teammate); in range = the lidar tracking range for
     # every localizer (paired), and also the seed's camera range for those using the camera.
     scorers = {name: SeedScorer(n_agents, range_m) for name in localizers}
-    camera_scorers: dict[str, SeedScorer] = {}
-    id_scorers: dict[str, IdentityScorer] = {}
+    camera_scorers = {
+        name: SeedScorer(n_agents, CAMERA_SCORING_RANGE_M, trace_observer=None)
+        for name, loc in built.items()
+        if _uses_camera(loc)
+    }
+    id_scorers = {
+        name: IdentityScorer(env.config.n_robots)
+        for name, loc in built.items()
+        if loc.has_identities
+    }
+    act = load_policy(policy, env)
+    if hasattr(act, "reset"):
+        act.reset(seed)
+    by_step = {name: np.zeros((n_steps, 2), dtype=np.int64) for name in localizers}
     paths: list[np.ndarray] = []
     estimates: dict[str, list[np.ndarray]] = {name: [] for name in localizers}
-    task_metrics: list[dict[str, float]] = []
-    # Each localizer's headline figures per seed (the scorers' counts before and after it),
-    # so that two motions scored on the same seeds can be compared seed by seed.
-    per_seed: dict[str, list[dict[str, float]]] = {name: [] for name in localizers}
-    # Each localizer's step time (not in the results: they must not depend on the machine).
     cost_s = dict.fromkeys(localizers, 0.0)
-    # With phases: each localizer's (large, in range) pair counts per step of the episode,
-    # per finished seed (n_steps is the episode's length; a shorter episode leaves zeros).
-    step_counts: dict[str, list[np.ndarray]] = {name: [] for name in localizers}
-    n_done = 0
-    # Ctrl-C keeps the finished seeds: the scorers are saved after each seed and restored, and
-    # the per-seed lists cut back to the seeds they were saved with. (The trajectory and the
-    # estimates are of the first seed only, complete before anything is saved.)
-    finished: list[int] = []
-    saved: tuple | None = None
-    interrupted = False
-    try:
-        for seed in progress.over(seeds, "evaluate", unit="seed"):
-            # One localizer (every robot's filter) per name, fed the same records: a paired
-            # comparison, same motion, same measurements.
-            built = {name: make_localizer(name, n_agents, base_phd, seed) for name in localizers}
-            for name, loc in built.items():
-                if loc.has_identities and name not in id_scorers:
-                    id_scorers[name] = IdentityScorer(env.config.n_robots)
-                if _uses_camera(loc) and name not in camera_scorers:
-                    camera_scorers[name] = SeedScorer(
-                        n_agents, CAMERA_SCORING_RANGE_M, trace_observer=None
-                    )
-            act = load_policy(policy, env)
-            if hasattr(act, "reset"):
-                act.reset(seed)
-            counts_before = {name: seed_counts(scorers[name]) for name in localizers}
-            by_step = {name: np.zeros((n_steps, 2), dtype=np.int64) for name in localizers}
-            obs, infos = env.reset(seed=seed)
-            for t in progress.sim_steps(
-                n_steps, env.config.control_period_s, f"seed {seed}", leave=False
-            ):
-                if not env.agents:
-                    break
-                obs, _, _, _, infos = env.step(act(obs, infos))
-                step = env.last_world_step
-                truth = step.truth
-                feed = SwarmFeed.from_world_step(step, env.possible_agents)
-                for name, loc in built.items():
-                    t0 = time.perf_counter()
-                    loc.step(feed)
-                    cost_s[name] += time.perf_counter() - t0
-                    views = loc.views
-                    weights, means = weights_means_from_table(*loc.padded_tables())
-                    visible = _visible(truth, name in camera_scorers)
-                    tallied = _pair_tallies(scorers[name]) if spans is not None else None
-                    scorers[name].update(
-                        truth.relative_xy,
-                        truth.in_range["lidar"],
-                        weights,
-                        means,
-                        visible=visible,
-                        time_s=step.time_s if seed == seeds[0] else None,  # Fig. 8: first seed
-                    )
-                    if tallied is not None:  # this step's share of the scorer's own tallies
-                        by_step[name][t] = _pair_tallies(scorers[name]) - tallied
-                    if name in camera_scorers:
-                        camera_scorers[name].update(
-                            truth.relative_xy,
-                            in_range_pairs(truth.relative_xy, CAMERA_SCORING_RANGE_M),
-                            weights,
-                            means,
-                            visible=visible,
-                        )
-                    if name in id_scorers:
-                        for i in range(n_agents):
-                            id_scorers[name].add(
-                                i, truth, truth.in_range["lidar"][i], views[i].identities()
-                            )
-                    if seed == seeds[0]:
-                        estimates[name].append(_world_estimates(views[0], truth.poses[0]))
-                if seed == seeds[0]:
-                    paths.append(truth.poses[:, :2].copy())
-                n_done += 1
-            task_metrics.append(env.task.metrics())
-            for name in localizers:
-                per_seed[name].append(
-                    {
-                        "seed": seed,
-                        **seed_figures(counts_before[name], seed_counts(scorers[name])),
-                        **(phase_figures(by_step[name], spans) if spans is not None else {}),
-                    }
+    steps_run = 0
+    obs, infos = env.reset(seed=seed)
+    for t in progress.sim_steps(n_steps, env.config.control_period_s, f"seed {seed}", leave=False):
+        if not env.agents:
+            break
+        obs, _, _, _, infos = env.step(act(obs, infos))
+        step = env.last_world_step
+        truth = step.truth
+        feed = SwarmFeed.from_world_step(step, env.possible_agents)
+        for name, loc in built.items():
+            t0 = time.perf_counter()
+            loc.step(feed)
+            cost_s[name] += time.perf_counter() - t0
+            views = loc.views
+            weights, means = weights_means_from_table(*loc.padded_tables())
+            visible = _visible(truth, name in camera_scorers)
+            tallied = _pair_tallies(scorers[name]) if spans is not None else None
+            scorers[name].update(
+                truth.relative_xy,
+                truth.in_range["lidar"],
+                weights,
+                means,
+                visible=visible,
+                time_s=step.time_s if first else None,  # Fig. 8: the first seed
+            )
+            if tallied is not None:  # this step's share of the scorer's own tallies
+                by_step[name][t] = _pair_tallies(scorers[name]) - tallied
+            if name in camera_scorers:
+                camera_scorers[name].update(
+                    truth.relative_xy,
+                    in_range_pairs(truth.relative_xy, CAMERA_SCORING_RANGE_M),
+                    weights,
+                    means,
+                    visible=visible,
                 )
-                step_counts[name].append(by_step[name])
-            finished.append(seed)
-            saved = (copy.deepcopy((scorers, camera_scorers, id_scorers)), len(finished))
-    except KeyboardInterrupt:
-        if saved is None:
-            raise
-        interrupted = True
-        (scorers, camera_scorers, id_scorers), n_saved = saved
-        for done in (finished, task_metrics, *per_seed.values(), *step_counts.values()):
-            del done[n_saved:]
-        print(
-            f"swarm-phd evaluate: interrupted; scoring the {len(finished)} finished seed(s) "
-            f"{finished}",
-            file=sys.stderr,
-        )
+            if name in id_scorers:
+                for i in range(n_agents):
+                    id_scorers[name].add(
+                        i, truth, truth.in_range["lidar"][i], views[i].identities()
+                    )
+            if first:
+                estimates[name].append(_world_estimates(views[0], truth.poses[0]))
+        if first:
+            paths.append(truth.poses[:, :2].copy())
+        steps_run += 1
+    empty = seed_counts(SeedScorer(n_agents, range_m))
+    figures = {
+        name: {
+            **seed_figures(empty, seed_counts(scorers[name])),
+            **(phase_figures(by_step[name], spans) if spans is not None else {}),
+        }
+        for name in localizers
+    }
+    return SeedRun(
+        seed=seed,
+        env={
+            "n_agents": n_agents,
+            "n_robots": env.config.n_robots,
+            "localization_range_m": range_m,
+            "task": env.task.name,
+        },
+        scorers=scorers,
+        camera_scorers=camera_scorers,
+        id_scorers=id_scorers,
+        figures=figures,
+        by_step=by_step,
+        task_metrics=env.task.metrics(),
+        paths=paths,
+        estimates=estimates,
+        cost_s=cost_s,
+        steps_run=steps_run,
+    )
+
+
+#: Attributes of the scorers that are settings, the same in every seed's scorer; the others
+#: are tallies, added over the seeds by :func:`merge_tallies` (``trace``: the first seed's).
+SCORER_SETTINGS = frozenset(
+    {
+        "n_robots",
+        "range_m",
+        "trace_observer",
+        "error_threshold_m",
+        "accurate_threshold_m",
+        "bearing_threshold_deg",
+        "min_weight",
+        "over_pct",
+        "gospa_c",
+        "gospa_p",
+        "gospa_alpha",
+        "extraction_threshold",
+        "range_bins_m",
+        "n_observers",
+    }
+)
+
+
+def merge_tallies(scorers: list[Any]) -> Any:
+    """One scorer (:class:`SeedScorer` or :class:`IdentityScorer`) holding the tallies of
+    ``scorers`` (one per seed, in seed order) added up: arrays and numbers summed, lists
+    concatenated, dicts of numbers summed per key, the first's ``trace``; the settings
+    (:data:`SCORER_SETTINGS`) must agree. TypeError for an attribute of another kind (a new
+    tally this function does not know how to add)."""
+    merged = copy.deepcopy(scorers[0])
+    for other in scorers[1:]:
+        for name, value in vars(other).items():
+            mine = getattr(merged, name)
+            if name in SCORER_SETTINGS:
+                if not np.array_equal(np.asarray(mine), np.asarray(value)):
+                    raise ValueError(f"scorers with different {name}: {mine!r} and {value!r}")
+            elif name == "trace":
+                continue  # the first seed's (Fig. 8)
+            elif isinstance(value, (np.ndarray, list)):  # arrays summed, lists concatenated
+                setattr(merged, name, mine + value)
+            elif isinstance(value, dict):
+                setattr(merged, name, {k: mine[k] + value[k] for k in mine})
+            elif isinstance(value, (int, float, np.integer, np.floating)):
+                setattr(merged, name, mine + value)
+            else:
+                raise TypeError(f"cannot add {type(other).__name__}.{name} over seeds: {value!r}")
+    return merged
+
+
+def assemble(
+    runs: list[SeedRun],
+    *,
+    preset: str | None,
+    duration_s: float,
+    localizers: list[str],
+    seeds: list[int],
+    policy: str,
+    phases: list[int] | None = None,
+    interrupted: bool = False,
+    out_dir: Path | None = None,
+    start: float | None = None,
+) -> dict[str, Any]:
+    """The results of :func:`evaluate_localization` from its seeds' runs (in seed order),
+    written with the figures to ``out_dir`` (``metrics.json``) if given."""
+    from agents.evaluation import phase_spans
+
+    spans = phase_spans(phases) if phases is not None else None
+    if not runs:
+        raise ValueError("no seed finished: nothing to score")
+    facts = runs[0].env
+    n_done = sum(run.steps_run for run in runs)
     if n_done:
         cost = ", ".join(
-            f"{name} {1e3 * c / n_done:.1f} ({1e3 * c / n_done / n_agents:.2f})"
-            for name, c in cost_s.items()
+            f"{name} {1e3 * sum(r.cost_s[name] for r in runs) / n_done:.1f} "
+            f"({1e3 * sum(r.cost_s[name] for r in runs) / n_done / facts['n_agents']:.2f})"
+            for name in localizers
         )
-        print(f"swarm-phd evaluate: ms per env step (per observer): {cost}", file=sys.stderr)
-    preset = preset or _model_preset(policy)
-    task = env.task.name
+        progress.note(f"swarm-phd evaluate: ms per env step (per observer): {cost}")
+    scorers = {name: merge_tallies([r.scorers[name] for r in runs]) for name in localizers}
+    camera_scorers = {
+        name: merge_tallies([r.camera_scorers[name] for r in runs])
+        for name in runs[0].camera_scorers
+    }
+    id_scorers = {
+        name: merge_tallies([r.id_scorers[name] for r in runs]) for name in runs[0].id_scorers
+    }
+    finished = [run.seed for run in runs]
+    task_metrics = [run.task_metrics for run in runs]
     results = {
         "config": {
-            "preset": preset,
+            "preset": preset or _model_preset(policy),
             "duration_s": duration_s,
             "seeds": finished,
-            **({"interrupted": True, "seeds_requested": seeds} if interrupted else {}),
+            **({"interrupted": True, "seeds_requested": list(seeds)} if interrupted else {}),
             "policy": policy,
-            "task": task,
-            "n_robots": env.config.n_robots,
-            "localization_range_m": env.config.localization_range_m,
+            "task": facts["task"],
+            "n_robots": facts["n_robots"],
+            "localization_range_m": facts["localization_range_m"],
         },
         "localizers": {
             name: {
@@ -525,10 +677,10 @@ def evaluate_localization(
                     if name in camera_scorers
                     else {}
                 ),
-                "per_seed": per_seed[name],
+                "per_seed": [{"seed": run.seed, **run.figures[name]} for run in runs],
                 **(
-                    {"by_phase": phase_figures(sum(step_counts[name]), spans)}
-                    if spans is not None and step_counts[name]
+                    {"by_phase": phase_figures(sum(run.by_step[name] for run in runs), spans)}
+                    if spans is not None
                     else {}
                 ),
             }
@@ -543,16 +695,18 @@ def evaluate_localization(
         "task_per_seed": [
             {"seed": seed, **m} for seed, m in zip(finished, task_metrics, strict=True)
         ],
-        "wall_time_s": time.perf_counter() - start,
+        "wall_time_s": time.perf_counter() - start if start is not None else 0.0,
     }
-    env.close()
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
         write_json_atomically(out_dir / "metrics.json", results)
         from swarm_phd.figures import write_localization_figures
 
         traces = {name: scorers[name].trace for name in localizers}
-        write_localization_figures(out_dir, results, traces, np.array(paths), estimates)
+        first = runs[0]
+        write_localization_figures(
+            out_dir, results, traces, np.array(first.paths), first.estimates
+        )
     return results
 
 

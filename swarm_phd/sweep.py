@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from swarm_core import inputs
+from swarm_core import inputs, progress
 from swarm_core.atomic_files import write_json_atomically
 from swarm_core.inputs import parse_json_object, parse_seeds
 from swarm_env.config import PRESETS
@@ -415,40 +415,126 @@ def run(args: argparse.Namespace) -> int:
 
 
 def run_evaluate_ray(args: argparse.Namespace) -> int:
-    """``swarm-phd evaluate --ray``: the command's seeds as Ray tasks (one per seed, all
-    localizers each), merged as a sweep of one preset; per-seed tables, then the summary.
+    """``swarm-phd evaluate --ray``: the serial command's evaluation with each seed in its own
+    Ray task (:func:`swarm_phd.evaluate.score_seed`, one kernel thread per worker), the seeds'
+    tallies added in the order of ``--seeds`` as the serial run adds them
+    (:func:`swarm_phd.evaluate.assemble`): the same printed table, ``metrics.json`` and figures
+    in ``--out``, the same numbers, in the wall time of the slowest seed per worker.
 
-    Writes ``<--out>/sweep.json`` (default ``runs/evaluate_ray/sweep.json``). Figures are the
-    serial command's (they trace the first seed): run it without ``--ray`` for them.
+    A failed seed fails the command (exit 1, its error on stderr); Ctrl-C scores the seeds
+    finished so far, as the serial run does.
     """
-    from swarm_phd.evaluate import print_table
+    import ray
+
+    from swarm_env.warmup import warm_if_cold
+    from swarm_phd.evaluate import assemble, print_table
 
     if getattr(args, "compare", None):
         raise ValueError("--compare is not supported with --ray: run the two policies apart")
     overrides: dict[str, Any] = {}
     if args.task_params is not None:
         overrides["task_params"] = parse_json_object(args.task_params, "--task-params")
-    preset = args.preset
-    if preset is None:  # the serial command's default: the model's preset, else seed-sim
-        preset = "seed-sim"
-        from agents.policies import model_env_kwargs
-
-        preset = (model_env_kwargs(args.policy) or {}).get("preset", preset)
-    points = _command_grid(args, [preset], overrides)
-    out = Path(args.out or "runs/evaluate_ray") / "sweep.json"
-    merged = run_sweep(
-        points,
-        address=getattr(args, "address", None),
-        ray_num_cpus=getattr(args, "ray_num_cpus", None),
-        out=out,
+    localizers = _names(args.localizer, "--localizer")
+    seeds = parse_seeds(args.seeds)
+    grid([args.preset or "lab-3m-4"], localizers, seeds, args.duration)  # checks, no run
+    warm_if_cold()  # compile here once; the workers then load the kernels from the cache
+    start = time.perf_counter()
+    started = _start_ray(getattr(args, "address", None), getattr(args, "ray_num_cpus", None))
+    runs: dict[int, Any] = {}
+    durations: set[float] = set()
+    interrupted = False
+    try:
+        task = ray.remote(num_cpus=1)(_score_one_seed)
+        pending = {
+            task.remote(
+                args.preset,
+                args.duration,
+                localizers,
+                args.policy,
+                args.task,
+                overrides,
+                seed,
+                seed == seeds[0],
+            ): seed
+            for seed in seeds
+        }
+        try:
+            while pending:
+                ready, _ = ray.wait(list(pending), num_returns=1)
+                seed = pending.pop(ready[0])
+                try:
+                    run, duration_s = ray.get(ready[0])
+                except Exception as exc:  # noqa: BLE001 - RayTaskError wraps the worker's error
+                    cause = getattr(exc, "cause", None) or exc
+                    raise RuntimeError(
+                        f"seed {seed} failed: {type(cause).__name__}: {cause}"
+                    ) from exc
+                runs[seed] = run
+                durations.add(duration_s)
+                progress.note(f"evaluate --ray: seed {seed} done [{len(runs)}/{len(seeds)}]")
+        except KeyboardInterrupt:
+            if not runs:
+                raise
+            interrupted = True
+            for ref in pending:
+                ray.cancel(ref, force=True)
+            print(
+                f"swarm-phd evaluate: interrupted; scoring the {len(runs)} finished seed(s) "
+                f"{sorted(runs, key=seeds.index)}",
+                file=sys.stderr,
+            )
+    except RuntimeError as exc:
+        print(f"swarm-phd evaluate --ray: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        if started:
+            ray.shutdown()
+    (duration_s,) = durations
+    if duration_s != args.duration:
+        progress.note(
+            f"swarm-phd evaluate: {args.policy}'s env ends each episode earlier: "
+            f"{duration_s:g} s per seed, not --duration {args.duration:g} s"
+        )
+    results = assemble(
+        [runs[s] for s in seeds if s in runs],  # the serial run's order
+        preset=args.preset,
+        duration_s=duration_s,
+        localizers=localizers,
+        seeds=seeds,
+        policy=args.policy,
+        interrupted=interrupted,
+        out_dir=Path(args.out) if args.out else None,
+        start=start,
     )
-    for entry in merged["points"]:
-        if entry["status"] == "ok":
-            print(f"seed {entry['seed']}:")
-            print_table(entry["results"])
-    print_summary(merged)
-    print(f"-> {out}", file=sys.stderr)
-    return 1 if merged["failed"] else 0
+    print_table(results)
+    return 0
+
+
+def _score_one_seed(
+    preset: str | None,
+    duration_s: float,
+    localizers: list[str],
+    policy: str,
+    task: str | None,
+    overrides: dict[str, Any],
+    seed: int,
+    first: bool,
+) -> tuple[Any, float]:
+    """The Ray task of ``evaluate --ray``: one seed's :class:`swarm_phd.evaluate.SeedRun` and
+    the seconds per seed that ran, as the serial command builds and scores it."""
+    from swarm_core import progress
+    from swarm_core.threads import set_kernel_threads
+    from swarm_phd.evaluate import _episode_env, score_seed
+
+    progress.set_quiet(True)  # the driver prints a line per finished seed
+    set_kernel_threads(1)
+    env, n_steps, duration_s, spans = _episode_env(
+        preset, duration_s, localizers, policy, task, None, overrides
+    )
+    try:
+        return score_seed(env, policy, localizers, seed, n_steps, spans, first=first), duration_s
+    finally:
+        env.close()
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -24,7 +24,7 @@ from swarm_core.perception.fisheye_bearings import (  # noqa: E402
     frame_bearings,
     pair_bearings,
 )
-from swarm_env.world.scene_builder import SceneBuilder, make_arena_scene  # noqa: E402
+from swarm_env.sensors.scene_builder import SceneBuilder, make_arena_scene  # noqa: E402
 
 W, H = 1920, 1080  # the seed's cameras
 D = (0.03, -0.01, 0.002, -0.0005)  # a mild fisheye distortion, increasing over 0-90 deg

@@ -112,24 +112,31 @@ def test_write_json_atomic_replaces_whole_file(tmp_path):
     assert os.listdir(path.parent) == ["x.json"]
 
 
-def test_evaluate_ray_gives_each_seeds_serial_metrics(local_ray, tmp_path, capsys):
+def test_evaluate_ray_writes_the_serial_runs_metrics_and_figures(local_ray, tmp_path, capsys):
     from swarm_phd import evaluate
 
     parser = argparse.ArgumentParser()
     evaluate.add_arguments(parser)
-    args = parser.parse_args(
-        ["--ray", "--preset", "lab-3m-4", "--duration", "2", "--seeds", "3,4",
-         "--localizer", "phd-lc", "--out", str(tmp_path)]
-    )  # fmt: skip
+    common = ["--preset", "lab-3m-4", "--duration", "2", "--seeds", "3,4", "--localizer"]
+    common.append("phd-lc,id-phd")  # a camera localizer and an identity-aware one
+    args = parser.parse_args(["--ray", *common, "--out", str(tmp_path / "ray")])
     assert evaluate.run(args) == 0
-    merged = json.loads((tmp_path / "sweep.json").read_text())
-    assert merged["complete"] and not merged["failed"]
-    by_seed = {e["seed"]: e["results"] for e in merged["points"]}
-    for seed in (3, 4):
-        serial = evaluate.evaluate_localization("lab-3m-4", 2.0, ["phd-lc"], [seed])
-        assert _metrics(by_seed[seed]) == _metrics(serial)
-    printed = capsys.readouterr().out
-    assert "seed 3:" in printed and "seed 4:" in printed and "| phd-lc |" in printed
+    ray_printed = capsys.readouterr().out
+    args = parser.parse_args([*common, "--out", str(tmp_path / "serial")])
+    assert evaluate.run(args) == 0
+    serial_printed = capsys.readouterr().out
+    ray_run = json.loads((tmp_path / "ray" / "metrics.json").read_text())
+    serial = json.loads((tmp_path / "serial" / "metrics.json").read_text())
+    # Every number but the wall time, exactly: the seeds' tallies are added in the same order.
+    ray_run.pop("wall_time_s"), serial.pop("wall_time_s")
+    assert ray_run == serial
+    assert serial["config"]["seeds"] == [3, 4] and "identity" in serial
+    assert "at_camera_range" in serial["localizers"]["phd-lc"]
+    assert ray_printed == serial_printed and "| phd-lc (2 m) |" in serial_printed
+    ray_files = sorted(p.name for p in (tmp_path / "ray").iterdir())
+    assert ray_files == sorted(p.name for p in (tmp_path / "serial").iterdir())
+    assert "metrics.json" in ray_files and any(name.endswith(".png") for name in ray_files)
+    assert not (tmp_path / "ray" / "sweep.json").exists()
 
 
 def test_atomic_write_keeps_the_old_file_when_writing_fails(tmp_path):

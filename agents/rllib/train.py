@@ -34,6 +34,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -376,7 +377,7 @@ def _train(
                     if bar is not None:
                         bar.set_postfix_str(
                             f"return per agent {per_agent:.2f}"
-                            if per_agent == per_agent
+                            if math.isfinite(per_agent)
                             else "no episode finished yet",
                             refresh=False,
                         )

@@ -4,7 +4,7 @@ Asymmetric actor-critic (Pinto et al. 2018, "Asymmetric Actor Critic for Image-B
 Learning"; MAPPO's centralised value function, Yu et al. 2022): in simulation the critic may use
 information no robot has, because only the actor is deployed. PPO's advantages are then computed
 against a value function that knows where the teammates truly are, instead of one that has to
-guess the return from the robot's own noisy estimate (round 2 of ``docs/results.md``: a value
+guess the return from the robot's own noisy estimate (measured: a value
 function on the PHD observation explained 0.2-0.6 of the return's variance).
 
 Training (``swarm-phd train --critic-state``, batched VecEnv only) appends a critic block to

@@ -4,7 +4,7 @@ A teacher may know what no robot knows, because only its student is deployed ("l
 cheating", Chen et al. 2019). ``scripted:formation`` loses much of its accuracy to spurious
 components of its own PHD estimate, mostly camera-only tracks beyond the lidar's range (a red
 decoy's bearing, for example): its centroid estimate is off by ~0.16 m, ~0.04 m without them
-(``python -m agents.formation_diagnosis``, ``docs/results.md``, round 4). The teacher
+(``python -m experiments.formation_diagnosis``). The teacher
 here is the same controller on the same table with every component that sits on no true
 teammate removed: the controller the robot would run if it could tell decoys from teammates.
 A student distilled from it (``swarm-phd train --residual scripted:formation --warm-start
@@ -17,8 +17,9 @@ the table of the true neighbours within the lidar's range, the table ``observati
 gives, while the env (and the student) stays on the estimate. It is what
 ``scripted:NAME@truth`` scores, as a teacher whose labels fall on the states the student
 reaches from its own estimate. Its correction of the base ``scripted:NAME`` is what the
-estimate costs that controller: lost teammates, mostly (``docs/results.md``, rounds 12 and
-16). The table is not clipped to the observation space's bounds (20 m) as the truth encoder
+estimate costs that controller: lost teammates, mostly
+(``python -m experiments.distill_fit``). The table is not clipped to the observation space's
+bounds (20 m) as the truth encoder
 clips it: a teammate in lidar range never reaches them.
 
 Teachers are named ``privileged:NAME`` (:data:`TEACHERS`) or ``privileged:NAME@truth``; they

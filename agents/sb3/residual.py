@@ -23,8 +23,9 @@ scales the command instead:
 a state-dependent gain on each of the controller's two commands, from 1/4 to 4 times: a
 correction of 0.5 on ``v`` doubles the controller's pull. An additive correction that would do
 the same must grow with the command itself, which PPO's exploration at a fixed std does not
-find (docs/results.md, round 12); the gain mode makes "pull harder" one constant direction
-of the action (PPO did not find that either: round 13). A base command of zero stays zero
+find (``python -m experiments.residual_gains``); the gain mode makes "pull harder" one constant
+direction
+of the action (PPO did not find that either). A base command of zero stays zero
 (the gain cannot start a stopped robot).
 
 Training: ``swarm-phd train --residual scripted:formation`` (batched VecEnv only: the base

@@ -21,7 +21,8 @@ scope against the reference (ties, empty tables, padding with nonzero weights, N
 float64); a torch whose reduction order changed would fail it.
 
 The kernels are single-threaded numba functions, so they run on the thread that calls them:
-the trainer's one torch thread (see ``docs/agents.md``, Threads). They call no other module's
+the trainer's one torch thread (see ``docs/concepts/architecture.md``, Threads). They call no
+other module's
 kernel and read no module constant, so numba's own cache stamp (this file's) is enough: they
 need not share the project stamp of ``swarm_core.kernel_stamp.PACKAGES`` (add ``agents``
 there and in ``swarm_env.kernel_cache.PACKAGES`` if they ever do).

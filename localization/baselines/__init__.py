@@ -20,7 +20,7 @@ Seed ``003``'s swarm-level pair (:mod:`~localization.baselines.direct`: SLSQP di
 with no initial state and Kabsch alignment; :class:`CentralizedUKF`: one UKF per robot in one
 global frame) run in ``swarm-phd seed003``, not per observer.
 
-``docs/localization.md`` ("ID-PHD and baselines") lists what was adapted from the seeds.
+``docs/concepts/localizers.md`` ("ID-PHD and baselines") lists what was adapted from the seeds.
 """
 
 from __future__ import annotations

@@ -40,7 +40,7 @@ class IDPHD:
 
     Notes
     -----
-    Bounds (``docs/localization.md``, "Bounds on weight and cardinality"), ``W`` the total
+    Bounds (``docs/concepts/localizers.md``, "Bounds on weight and cardinality"), ``W`` the total
     weight over every tag: ``predict`` gives ``W' <= survival_probability (W + birth_weight
     B)`` (``B``: detections of the last scan; the split shares a weight among its copies);
     ``update_lidar`` with ``M`` detections ``W' <= sum_i (1 - P_d,i) w_i + M``. At most

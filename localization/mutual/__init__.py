@@ -15,7 +15,8 @@ dead-reckoned odometry and their anonymous detections, :class:`swarm_core.record
   association and orientation banks (chapter 5), the thesis's baseline.
 - :mod:`~localization.mutual.links`: own odometry and teammates' broadcasts, time alignment.
 
-``swarm-phd mutual`` runs them in the simulator; ``docs/mutual_localization.md`` explains them.
+``swarm-phd mutual`` runs them in the simulator; ``docs/how-to/studies/stegagno2012.md`` explains
+them.
 """
 
 from __future__ import annotations

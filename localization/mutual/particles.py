@@ -16,7 +16,7 @@ particles, vectorised (no loop over particles).
 Odometry noise per increment of length ``d`` and turn ``dpsi``: std ``trans_per_m * d + floor``
 on x and y and ``rot_per_m * d + rot_per_rad |dpsi| + floor`` on theta (measured in ``lab-3m-4``:
 translation 0.9 % of distance, heading 0.35 rad per metre, robust statistics of the wheel
-odometry against ground truth; see docs/mutual_localization.md).
+odometry against ground truth; see docs/how-to/studies/stegagno2012.md).
 """
 
 from __future__ import annotations

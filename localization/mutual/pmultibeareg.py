@@ -46,7 +46,8 @@ __all__ = ["PMultiBeaRegConfig", "PMultiBeaRegLocalizer"]
 
 #: Per feature source, the noise the measurement model and the triangle test assume (deg) and
 #: the ranges a teammate can be seen at (m), from the sensors' measured statistics
-#: (docs/sensors.md, RESULTS "Sensor detection curves"). Each bearing's std is the sensor's
+#: (docs/concepts/sensors.md, RESULTS "Sensor detection curves"). Each bearing's std is the
+#: sensor's
 #: bearing noise plus 2 deg for the sets' time gap (the radio's latency and the sensors'
 #: periods; the rotation is compensated, the translation cannot be: 1.5 cm at 1 m is 0.9 deg);
 #: the orientation combines two bearings (sqrt 2 x); the triangle tolerance is 2 x the bearing

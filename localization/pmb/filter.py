@@ -20,7 +20,7 @@ Each step::
     estimate:      tracks with r >= threshold
 
 Every public method validates all of its inputs before touching any state. The derivation is in
-``docs/localization.md`` ("Poisson multi-Bernoulli (PMB) localizer").
+``docs/concepts/localizers.md`` ("Poisson multi-Bernoulli (PMB) localizer").
 
 References
 ----------
@@ -117,7 +117,8 @@ class RobotCentricPMB(RobotCentricFilter):
     existence probabilities, what the project's metrics read), ``.tracks``, ``.poisson``
     (the undetected intensity), ``.table`` (tracks as a ``(6, N)`` table).
 
-    Bounds (``docs/localization.md``, "Bounds on weight and cardinality"), with ``n = sum r +
+    Bounds (``docs/concepts/localizers.md``, "Bounds on weight and cardinality"), with ``n = sum r
+    +
     sum w`` (tracks plus Poisson, the expected number of teammates): ``predict`` gives
     ``n' <= P_s,max n + measurement_birth_weight B`` (``B``: detections of the last scan);
     an update with ``M`` measurements ``n' <= sum r + sum_k (1 - P_d,k) w_k + M`` (each

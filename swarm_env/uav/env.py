@@ -22,7 +22,7 @@ are measured on the simulated camera at construction (:func:`measure_camera`), n
 Spaces differ per agent type: a UGV acts ``[v_mps, omega_radps]`` and observes its own PHD
 estimate; the UAV acts ``[vx, vy(, yaw_rate)(, climb_rate)]`` and observes
 :data:`UAV_COLUMNS` per UGV plus :data:`UAV_TAIL`. Parameter sharing is therefore per agent
-type (one policy for all UGVs, one for the UAV); see ``docs/uav.md``.
+type (one policy for all UGVs, one for the UAV); see ``docs/how-to/studies/stegagno2013-uav.md``.
 """
 
 from __future__ import annotations

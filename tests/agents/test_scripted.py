@@ -418,7 +418,8 @@ def test_formation_sensing_keeps_teammates_out_of_the_blind_sectors():
     """In a settled lab-3m-4 formation the plain controller leaves teammates within the
     lidar's range in its blind sectors' notches (P_blind < 0.5) for about an eighth of the time;
     the sensing turn lowers that and loses fewer of them (the diagnosis' measures; seed 201:
-    13.1 % -> 10.1 % in a notch, 5.6 % -> 4.8 % lost; docs/results.md round 8)."""
+    13.1 % -> 10.1 % in a notch, 5.6 % -> 4.8 % lost; measured with
+    experiments/formation_diagnosis.py)."""
     from experiments.formation_diagnosis import diagnose
 
     near = {

@@ -218,7 +218,7 @@ def test_lost_teammate_tally_by_hand():
 
 
 def test_lost_teammates_on_the_post_seed_and_on_the_truth():
-    """On the true-neighbour table no teammate is lost. On seed 105 (docs/results.md, round 6)
+    """On the true-neighbour table no teammate is lost. On seed 105 
     robots 2 and 3 lose each other behind the post between them: post-held losses, beyond the
     lidar's range, with the post in front; the lidar's detections of the teammates in its view
     match the filter's P_d (within 0.1 per scan)."""

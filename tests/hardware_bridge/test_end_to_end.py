@@ -26,7 +26,8 @@ N_STEPS = 80  # 8 s of real time, 4 robots (seed-lab)
 # localization may be this much worse than the pure simulator's, both with the simulator's
 # sensor model (the loopback's robots carry the simulator's sensors). Each live run's
 # trajectory and step boundaries differ, so one 8-s run is one draw from a spread with a long
-# tail, and the margins are set between that spread and a fault's signature (docs/hardware.md,
+# tail, and the margins are set between that spread and a fault's signature
+# (docs/how-to/real-robots.md,
 # "Localization over the loopback"). The simulator scores 2.2 % large error, 96.4 % accurate
 # and a 0.024 m median here, and spans 0.8-15.5 % large error over arenas 0-9. Live runs on a
 # quiet 2-core machine: 27 runs at 1.9-9.6 %, 83.1-95.1 % and 0.029-0.038 m; the tail seen in
@@ -55,7 +56,7 @@ class _SameArenaSim(SimWorld):
 def bridge_episode(tmp_path_factory):
     # The robots in a process of their own, as real robots are: in this process their
     # real-time sim shared the GIL with the bridge and the filters, the likely cause of a CI
-    # run with 12 of 80 steps without a fresh mocap pose (docs/hardware.md).
+    # run with 12 of 80 steps without a fresh mocap pose (docs/how-to/real-robots.md).
     server = LoopbackProcess("seed-lab", seed=SEED)
     server.start()
     bag = tmp_path_factory.mktemp("bridge") / "episode"

@@ -20,7 +20,7 @@ import pytest
 
 from swarm_core.perception.lidar_features import LidarFeatureConfig, extract_clusters
 from swarm_env.sensors.lidar import LidarConfig, LidarSensor
-from swarm_env.world.scene_builder import make_pair_scene
+from swarm_env.sensors.scene_builder import make_pair_scene
 
 HOUSING_M = 0.0325  # the lidar housing's radius (65 mm diameter)
 DECOY_M = 0.06  # the arena's red decoys

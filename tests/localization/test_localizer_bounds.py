@@ -1,5 +1,6 @@
 """Every localizer family keeps the bound on total weight and cardinality that it documents
-(``docs/localization.md``, "Bounds on weight and cardinality"), checked after every filter call
+(``docs/concepts/localizers.md``, "Bounds on weight and cardinality"), checked after every filter
+call
 of adversarial measurement streams: many detections, clutter bursts, repeated identical
 detections and bearings, empty scans and frames, far detections, lidar scans with no time
 update between them, and a long mixed run.

@@ -507,7 +507,7 @@ def test_feed_for_the_wrong_swarm_size_is_refused_unchanged():
 
 def sweep_configs() -> None:
     """Every config field x every value of :data:`SWEEP_VALUES` (what the property test
-    samples), with the outcome of each; the figures of ``docs/reliability.md``. Run:
+    samples), with the outcome of each; the figures of ``docs/reference/reliability.md``. Run:
     ``.venv/bin/python -m tests.swarm_env.test_invalid_inputs_property``."""
     import collections
     import signal
