@@ -54,3 +54,17 @@ def test_an_env_unpickled_after_many_unseeded_episodes_continues_bit_for_bit():
         if other is env:
             expected = poses
     assert all(np.array_equal(a, b) for a, b in zip(expected, poses, strict=True))
+
+
+def test_within_an_episode_the_record_grows_by_one_command_array_per_step():
+    env = parallel_env("lab-3m-4", max_steps=1000)
+    rng = np.random.default_rng(0)
+    env.reset(seed=1)
+    _run_episode(env, rng, 20)
+    before = len(pickle.dumps(env))
+    _run_episode(env, rng, 100)
+    per_step = (len(pickle.dumps(env)) - before) / 100
+    n = env.config.n_robots
+    assert 16 * n <= per_step <= 16 * n + 48, per_step  # the float64 commands and little else
+    kind, commands = env._replay_log[-1]
+    assert kind == "step" and commands.shape == (n, 2) and commands.dtype == np.float64
