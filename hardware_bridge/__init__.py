@@ -56,6 +56,7 @@ def real_env(
     record: str | None = None,
     bridge: BridgeConfig | dict | None = None,
     task_params: dict | None = None,
+    onboard: bool = False,
     **overrides: Any,
 ):
     """A PettingZoo ``ParallelEnv`` over real robots behind a rosbridge server.
@@ -78,6 +79,14 @@ def real_env(
         Record the episode(s) to a new ROS 2 bag directory at this path.
     bridge : BridgeConfig or dict, optional
         Watchdog, staleness, limits, geofence, queues.
+    onboard : bool
+        The robots run their own filters (``ros/swarm_phd_onboard``, family
+        ``config.localizer``, one of :data:`hardware_bridge.onboard.ONBOARD_FAMILIES`) and
+        publish ``/<robot>/swarm_phd/estimate``: the bridge subscribes to those instead of the
+        scans and bearings, and the observation is built from the received estimates by the
+        same encoder (``env.localizer`` is a
+        :class:`~hardware_bridge.estimate.ReceivedEstimates`). A stale estimate is named in
+        ``infos[agent]["stale"]`` and stops its robot; estimates are recorded in the bag.
     **overrides
         SwarmConfig fields (``control_period_s=0.1``, ``phd={"mode": "lidar-only"}``...).
         The filter defaults to the seed's own model, ``PHDConfig()`` (the seed's hardware),
@@ -115,9 +124,51 @@ def real_env(
             f"task {task_obj.name!r} needs {task_obj.n_extra_robots} simulated extra robot(s); "
             "it cannot run on real robots"
         )
-    world = _open_real_world(robots, config, host, port, allow_remote, bridge_cfg, record)
+    localizer = None
+    if onboard is not True and onboard is not False:
+        raise ValueError(f"onboard must be a bool, got {onboard!r}")
+    if onboard:
+        from hardware_bridge.onboard import ONBOARD_FAMILIES
+
+        if config.localizer not in ONBOARD_FAMILIES:
+            raise ValueError(
+                f"onboard=True: the robots run localizer={config.localizer!r}, which needs the "
+                f"radio or ground truth; on board: {list(ONBOARD_FAMILIES)}"
+            )
+        if config.observation != "phd" or config.lidar_sectors:
+            raise ValueError(
+                "onboard=True: the observation is built from the robots' estimates only "
+                f"(observation='phd', lidar_sectors=0), got observation={config.observation!r}, "
+                f"lidar_sectors={config.lidar_sectors} (the scans stay on the robots)"
+            )
+    meaning = "existence" if config.localizer.startswith("pmb") else "phd-weight"
+    world = _open_real_world(
+        robots,
+        config,
+        host,
+        port,
+        allow_remote,
+        bridge_cfg,
+        record,
+        onboard=onboard,
+        estimate_weight_kind=("existence" if meaning == "existence" else "intensity")
+        if onboard
+        else None,
+    )
     try:
-        env = SwarmEnv(config=config, task=task_obj, world=world, render_agent=robots[0])
+        if onboard:
+            from hardware_bridge.estimate import ReceivedEstimates
+
+            localizer = ReceivedEstimates(
+                robots, config.localizer, meaning, lambda: world.step_estimates
+            )
+        env = SwarmEnv(
+            config=config,
+            task=task_obj,
+            world=world,
+            localizer=localizer,
+            render_agent=robots[0],
+        )
     except BaseException:
         world.close()
         raise
@@ -126,7 +177,7 @@ def real_env(
     return env
 
 
-def _open_real_world(robots, config, host, port, allow_remote, bridge_cfg, record):
+def _open_real_world(robots, config, host, port, allow_remote, bridge_cfg, record, **world_kwargs):
     """The :class:`~hardware_bridge.world.RealWorld` of :func:`real_env` and
     :func:`real_supervised_env`, recording to a new bag at ``record`` if given (the bag is
     closed again if the world cannot start)."""
@@ -144,6 +195,7 @@ def _open_real_world(robots, config, host, port, allow_remote, bridge_cfg, recor
             use_mocap=bridge_cfg.use_mocap,
             uav_id=bridge_cfg.uav_id,
             odometry_jump_factor=bridge_cfg.odometry_jump_factor,
+            onboard=bool(world_kwargs.get("onboard", False)),
         )
     try:
         return RealWorld(
@@ -154,6 +206,7 @@ def _open_real_world(robots, config, host, port, allow_remote, bridge_cfg, recor
             allow_remote=allow_remote,
             bridge=bridge_cfg,
             recorder=recorder,
+            **world_kwargs,
         )
     except BaseException:
         if recorder is not None:

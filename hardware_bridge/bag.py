@@ -61,6 +61,8 @@ import numpy as np
 from hardware_bridge.assembly import RecordAssembler
 from hardware_bridge.comms import TeammateRelay
 from hardware_bridge.config import FEED_SENSORS
+from hardware_bridge.estimate import BAG_TYPE as ESTIMATE_BAG_TYPE
+from hardware_bridge.estimate import ESTIMATE_STAMPED_MSG
 from hardware_bridge.messages import (
     BAG_TYPES,
     BEARINGS_STAMPED_MSG,
@@ -88,7 +90,9 @@ STEP_TOPIC = "/bridge/step"
 STRING_TYPE = "std_msgs/msg/String"
 BAG_VERSION = 8
 SENSORS = ("lidar", "odometry", "camera", "mocap")
-ALL_BAG_TYPES = {**BAG_TYPES, **UAV_BAG_TYPES}
+ALL_BAG_TYPES = {**BAG_TYPES, **UAV_BAG_TYPES, "estimate": ESTIMATE_BAG_TYPE}
+#: What a bridge with on-board filters records of each robot besides :data:`SENSORS`.
+RECORDED_EXTRA = ("estimate",)
 
 
 class BagError(ValueError):
@@ -106,6 +110,7 @@ def _typestore():
 
     ts = get_typestore(Stores.ROS2_HUMBLE)
     ts.register(get_types_from_msg(BEARINGS_STAMPED_MSG, BAG_TYPES["camera_stamped"]))
+    ts.register(get_types_from_msg(ESTIMATE_STAMPED_MSG, ESTIMATE_BAG_TYPE))
     return ts
 
 
@@ -243,6 +248,15 @@ def to_rosbags(ts, sensor: str, msg: dict):
         return t[UAV_BAG_TYPES["uav_detections"]](
             header=_header(ts, msg["header"]), poses=[_pose(ts, p) for p in msg["poses"]]
         )
+    if sensor == "estimate":
+        return t[ESTIMATE_BAG_TYPE](
+            header=_header(ts, msg["header"]),
+            localizer=str(msg["localizer"]),
+            weight_kind=int(msg["weight_kind"]),
+            weights=np.asarray(msg["weights"], dtype=np.float64),
+            means=np.asarray(msg["means"], dtype=np.float64),
+            covariances=np.asarray(msg["covariances"], dtype=np.float64),
+        )
     raise ValueError(f"unknown sensor {sensor!r}")
 
 
@@ -340,6 +354,7 @@ class BagRecorder:
         use_mocap: bool = True,
         uav_id: str | None = None,
         odometry_jump_factor: float = 3.0,
+        onboard: bool = False,
     ) -> None:
         from rosbags.rosbag2 import Writer
 
@@ -362,6 +377,8 @@ class BagRecorder:
                     # same increments.
                     "odometry_jump_factor": odometry_jump_factor,
                     **({} if uav_id is None else {"uav": uav_id}),
+                    # The robots ran their own filters: the bag holds their estimates.
+                    **({"onboard": True} if onboard else {}),
                 }
             ),
         )
@@ -452,7 +469,7 @@ class BagRecorder:
                     ):
                         self.write(topic, msg_kind, stamp_ns, msg)
             for robot in self.robot_ids:
-                for sensor in SENSORS:
+                for sensor in SENSORS + RECORDED_EXTRA:
                     for _parsed, (topic, msg_kind, stamp_ns, msg) in used.get(robot, {}).get(
                         sensor, []
                     ):
@@ -594,6 +611,14 @@ class ReplayWorld:
         self.path = Path(path)
         meta = read_meta(self.path)
         self.meta = meta
+        if meta.get("onboard"):
+            raise BagError(
+                self.path,
+                "recorded with on-board filters (real_env(onboard=True)): it holds the robots' "
+                "estimates (/<robot>/swarm_phd/estimate) and odometry, not their scans and "
+                "bearings; replaying such a bag is not supported (read its estimates with "
+                "rosbags)",
+            )
         self.robot_ids = tuple(meta["robots"])
         self.uav_id: str | None = meta.get("uav")
         self._uav_ids = () if self.uav_id is None else (self.uav_id,)

@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-SENSORS = ("odometry", "lidar", "camera", "mocap")
+SENSORS = ("odometry", "lidar", "camera", "mocap", "estimate")
 FEED_SENSORS = ("odometry", "lidar", "camera")
 
 
@@ -28,6 +28,7 @@ BOUNDS: dict[str, tuple[float, float, bool]] = {
     "stale_camera_s": (0.0, 10.0, False),
     "stale_mocap_s": (0.0, 10.0, False),
     "stale_uav_s": (0.0, 10.0, False),
+    "stale_estimate_s": (0.0, 10.0, False),
     "connect_timeout_s": (0.0, 60.0, False),
     "reset_timeout_s": (0.0, 300.0, False),
     "max_speed_mps": (0.0, 10.0, False),
@@ -191,6 +192,12 @@ class BridgeConfig:
     stale_uav_s : float
         The UAV's pose or detections older than this at the end of a step are reported stale
         (``infos["uav_0"]["stale"]``).
+    stale_estimate_s : float
+        With on-board filters (``real_env(..., onboard=True)``): a robot whose newest
+        ``EstimateStamped`` is older than this at the end of a step is reported stale
+        (``"estimate"`` in ``infos[agent]["stale"]``), keeps its last estimate, and is sent
+        zero velocity until a fresh estimate arrives (its policy would be driving on an old
+        picture of its teammates).
     """
 
     watchdog_timeout_s: float = 0.3
@@ -234,6 +241,7 @@ class BridgeConfig:
     unstamped_bearings: tuple[str, ...] = ()
     uav_id: str | None = None
     stale_uav_s: float = 0.5
+    stale_estimate_s: float = 0.5
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):

@@ -148,3 +148,126 @@ def parse_estimate_stamped(msg: Any) -> Estimate:
         field, _, reason = str(exc).partition(": ")
         raise InvalidMessage(field, reason) from None
     return Estimate(stamp_ns, frame_id, localizer, names[kind], w, m, p)
+
+
+def estimate_topic(robot: str) -> str:
+    """The topic a robot's on-board filter publishes its ``EstimateStamped`` on."""
+    return f"/{robot}/swarm_phd/estimate"
+
+
+def estimate_frame(robot: str) -> str:
+    """The body frame an estimate of ``robot`` must name (``header.frame_id``)."""
+    return f"{robot}/base_link"
+
+
+def weight_kind_of(localizer_weight_meaning: str) -> str:
+    """``Localizer.weight_meaning`` (``phd-weight`` / ``existence``) as an estimate's
+    ``weight_kind`` (``intensity`` / ``existence``)."""
+    return "existence" if localizer_weight_meaning == "existence" else "intensity"
+
+
+class ReceivedEstimates:
+    """Every robot's teammate estimate as its on-board filter published it, read like a
+    :class:`~localization.protocol.Localizer` (the env's encoders, the task's estimate terms
+    and the evaluation read it through the same calls as a filter bank).
+
+    ``step(feed)`` ignores the feed's records (the robots filtered them on board) and takes,
+    for every robot, the newest estimate ``source()`` returns (``{robot: Estimate}``, the last
+    world step's, see :meth:`hardware_bridge.world.RealWorld.step_estimates`). A robot whose
+    estimate did not arrive in the step (stale) keeps its last one; ``reset`` empties them.
+
+    Parameters
+    ----------
+    robot_ids : sequence of str
+        In agent order.
+    name : str
+        The family the robots run (``phd-lc``, ``pmb-lc``...): the env's ``config.localizer``.
+    weight_meaning : str
+        ``"phd-weight"`` or ``"existence"``, what the robots' weights mean.
+    source : callable
+        ``() -> {robot: Estimate}``.
+    """
+
+    has_identities = False
+
+    def __init__(self, robot_ids, name: str, weight_meaning: str, source) -> None:
+        from localization.mixture import GaussianMixture
+
+        self.robot_ids = tuple(robot_ids)
+        self.n_robots = len(self.robot_ids)
+        self.name = str(name)
+        if weight_meaning not in ("phd-weight", "existence"):
+            raise ValueError(
+                f"weight_meaning must be 'phd-weight' or 'existence', got {weight_meaning!r}"
+            )
+        self.weight_meaning = weight_meaning
+        self._source = source
+        self._index = {r: i for i, r in enumerate(self.robot_ids)}
+        self._empty = GaussianMixture.empty()
+        self._mixtures = [self._empty] * self.n_robots
+        self._tables: tuple[np.ndarray, np.ndarray] | None = None
+        #: Stamp (ns) of each robot's estimate in use (0 before the first).
+        self.stamps_ns = np.zeros(self.n_robots, dtype=np.int64)
+
+    @property
+    def views(self):
+        from localization.protocol import LocalizerView
+
+        return [LocalizerView(self, r) for r in range(self.n_robots)]
+
+    def _robot(self, robot: int) -> int:
+        if isinstance(robot, bool) or not isinstance(robot, (int, np.integer)):
+            raise ValueError(f"robot must be an int index, got {robot!r}")
+        if not 0 <= robot < self.n_robots:
+            raise ValueError(f"robot must be in [0, {self.n_robots}), got {robot}")
+        return int(robot)
+
+    def reset(self, robots=None) -> None:
+        for r in range(self.n_robots) if robots is None else [self._robot(r) for r in robots]:
+            self._mixtures[r] = self._empty
+            self.stamps_ns[r] = 0
+        self._tables = None
+
+    def step(self, feed: Any) -> None:
+        from localization.feed import SwarmFeed
+        from localization.mixture import GaussianMixture
+
+        if not isinstance(feed, SwarmFeed):
+            raise ValueError(f"{self.name}: step() takes a SwarmFeed, got {type(feed).__name__}")
+        for robot, est in self._source().items():
+            i = self._index.get(robot)
+            if i is None:
+                raise ValueError(
+                    f"an estimate of unknown robot {robot!r} (robots: {self.robot_ids})"
+                )
+            self._mixtures[i] = GaussianMixture(est.weights, est.means_m, est.covariances_m2)
+            self.stamps_ns[i] = est.stamp_ns
+        self._tables = None
+
+    def padded_tables(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._tables is None:
+            from localization.protocol import tables_from_mixtures
+
+            table, counts = tables_from_mixtures(self._mixtures)
+            table.flags.writeable = False
+            counts.flags.writeable = False
+            self._tables = (table, counts)
+        return self._tables
+
+    def mixture(self, robot: int):
+        return self._mixtures[self._robot(robot)]
+
+    def estimate(self, robot: int, threshold: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+        """As the robots' family extracts: GM-PHD components ``round(w)`` times, Bernoulli
+        tracks once each (see :meth:`localization.protocol.Localizer.estimate`)."""
+        from localization.filter import estimate_table, ranked_above
+
+        m = self._mixtures[self._robot(robot)]
+        if self.weight_meaning == "existence":
+            keep = ranked_above(m.weights, threshold)
+            return m.means[keep].copy(), m.weights[keep].copy()
+        return estimate_table(m.to_table(), threshold)
+
+    def identities(self, robot: int) -> dict[int, np.ndarray]:
+        self._robot(robot)
+        return {}

@@ -14,6 +14,13 @@ header-less ``Twist``), so a robot stops by itself when ``cmd_vel`` goes silent,
 command older than that on arrival (held up by a frozen server, a reconnection) or older than the
 last one applied is never executed (``server.stale_commands``, ``server.out_of_order_commands``).
 
+With ``onboard=True`` every robot also runs its own filter, as ``ros/swarm_phd_onboard`` does on a
+robot: an :class:`~hardware_bridge.onboard.OnBoardFilter` of the family ``config.localizer``
+stepped on the robot's simulated records once per control period, whose estimate goes out on
+``/<robot>/swarm_phd/estimate`` (``swarm_phd_msgs/EstimateStamped``, stamped at the period's
+end; the last ones sent are kept in :attr:`LoopbackServer.published_estimates`), for
+``real_env(..., onboard=True)``.
+
 With ``uav=UAVConfig(...)`` it also flies seed ``002``'s supervisor (``uav_id``, default
 ``uav_0``): the env's kinematic UAV (:func:`swarm_env.uav.env.fly`) obeying ``/<uav>/cmd_vel``
 (same timeout and staleness rules; silence = hover), publishing its pose (its own noisy
@@ -51,6 +58,8 @@ from hardware_bridge.messages import (
     Counters,
     InvalidMessage,
     ground_detections_msg,
+    header,
+    parse_stamp,
     parse_twist,
     parse_twist_stamped,
     parse_uav_twist,
@@ -59,6 +68,7 @@ from hardware_bridge.messages import (
     uav_pose_msg,
     uav_topics,
 )
+from swarm_core.stamps import s_to_ns
 from swarm_env.config import SwarmConfig, make_config
 from swarm_env.world.sim import SimWorld
 
@@ -142,6 +152,8 @@ class LoopbackServer:
         Publish ``/mocap/<robot>/pose``.
     uav : UAVConfig, optional
         Fly a UAV supervisor too (module docstring), named ``uav_id``.
+    onboard : bool
+        Run each robot's filter on board and publish its estimate (module docstring).
     """
 
     def __init__(
@@ -158,6 +170,7 @@ class LoopbackServer:
         unstamped_bearings: tuple[str, ...] = (),
         uav: Any = None,
         uav_id: str = "uav_0",
+        onboard: bool = False,
         **overrides: Any,
     ) -> None:
         if host not in ("127.0.0.1", "localhost", "::1"):
@@ -201,6 +214,35 @@ class LoopbackServer:
         self.max_lag_s = 0.0
         self._truth_log: deque = deque(maxlen=int(20.0 / self.config.control_period_s))
         self._init_uav(uav, uav_id)
+        self._init_onboard(onboard)
+
+    def _init_onboard(self, onboard: bool) -> None:
+        from hardware_bridge.estimate import estimate_topic
+        from hardware_bridge.onboard import OnBoardFilter
+
+        if not isinstance(onboard, bool):
+            raise ValueError(f"onboard must be a bool, got {onboard!r}")
+        self.onboard = onboard
+        #: ``(stamp_ns, robot, EstimateStamped JSON)`` of the estimates sent, newest last.
+        self.published_estimates: deque = deque(maxlen=10_000)
+        self._filters: dict[str, OnBoardFilter] = {}
+        if onboard:
+            for robot in self.robot_ids:
+                self._filters[robot] = OnBoardFilter(robot, self.config, self.config.localizer)
+                self._topic_sensor[estimate_topic(robot)] = (robot, "estimate")
+
+    def _onboard_events(self, step: Any, stamp_ns: Callable[[float], int]) -> list[tuple]:
+        """Each robot's filter stepped on its records: its estimate, sent at the period's end
+        (after the sensors of that instant)."""
+        from hardware_bridge.estimate import estimate_topic
+
+        events = []
+        end_ns = stamp_ns(step.time_s)
+        for robot, onboard in self._filters.items():
+            msg = onboard.step_records(step.measurements[robot], s_to_ns(step.time_s))
+            msg["header"] = header(end_ns, msg["header"]["frame_id"])
+            events.append((step.time_s, 1_000, estimate_topic(robot), msg))
+        return events
 
     def _init_uav(self, uav: Any, uav_id: str) -> None:
         """The simulated UAV's state (``uav=None``: none)."""
@@ -376,6 +418,8 @@ class LoopbackServer:
         if self._sim_task is None:
             self.world.reset(np.random.default_rng(self.seed))
             self.emitter.reset()
+            for onboard in self._filters.values():
+                onboard.localizer.reset()
             self._running = True
             self._sim_task = asyncio.get_running_loop().create_task(self._sim_loop())
 
@@ -741,6 +785,11 @@ class LoopbackServer:
         while self._running:
             t_start = self.world.time_s
             step = await loop.run_in_executor(None, self.world.step, self._robot_commands())
+            onboard = (
+                await loop.run_in_executor(None, self._onboard_events, step, stamp_ns)
+                if self._filters
+                else []
+            )
             self.sim_steps += 1
             behind = time.monotonic() - (anchor["mono"] + t_start)
             if behind > 0.25:
@@ -761,6 +810,7 @@ class LoopbackServer:
                 )
             if self.uav is not None:
                 events.extend(self._uav_step(step, stamp_ns))
+            events.extend(onboard)
             if step.truth is not None:
                 entry = (
                     stamp_ns(step.time_s),
@@ -778,6 +828,9 @@ class LoopbackServer:
                 else:
                     self.max_lag_s = max(self.max_lag_s, -delay)
                 self._publish(topic, msg)
+                if topic.endswith("/swarm_phd/estimate"):
+                    robot = self._topic_sensor[topic][0]
+                    self.published_estimates.append((parse_stamp(msg), robot, msg))
             # Next period starts when the wall clock reaches the end of this one.
             delay = mono0 + step.time_s - time.monotonic()
             if delay > 0:
@@ -918,6 +971,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--uav", default=None, metavar="ID", help="also fly a UAV supervisor named ID (seed 002)"
     )
+    parser.add_argument(
+        "--onboard",
+        action="store_true",
+        help="every robot runs its own filter and publishes /<robot>/swarm_phd/estimate",
+    )
     args = parser.parse_args(argv)
     uav = None
     if args.uav is not None:
@@ -925,7 +983,12 @@ def main(argv: list[str] | None = None) -> int:
 
         uav = UAVConfig()
     server = LoopbackServer(
-        args.preset, port=args.port, seed=args.seed, uav=uav, uav_id=args.uav or "uav_0"
+        args.preset,
+        port=args.port,
+        seed=args.seed,
+        uav=uav,
+        uav_id=args.uav or "uav_0",
+        onboard=args.onboard,
     )
     log = open(args.twist_log, "a", buffering=1) if args.twist_log else None  # noqa: SIM115
     if log is not None:

@@ -38,6 +38,16 @@ from hardware_bridge.assembly import RecordAssembler
 from hardware_bridge.claim import RobotClaim
 from hardware_bridge.comms import TeammateRelay
 from hardware_bridge.config import FEED_SENSORS, BridgeConfig, make_bridge_config
+from hardware_bridge.estimate import (
+    ROS_TYPE as ESTIMATE_ROS_TYPE,
+)
+from hardware_bridge.estimate import (
+    WEIGHT_KINDS,
+    Estimate,
+    estimate_frame,
+    estimate_topic,
+    parse_estimate_stamped,
+)
 from hardware_bridge.messages import (
     ROS_TYPES,
     UAV_KINDS,
@@ -128,6 +138,16 @@ class RealWorld:
     bridge : BridgeConfig or dict, optional
     recorder : :class:`hardware_bridge.bag.BagRecorder`, optional
         Records every message the bridge uses and every command it sends.
+    onboard : bool
+        The robots run their own filters (``ros/swarm_phd_onboard``): subscribe to each
+        robot's ``EstimateStamped`` (:func:`~hardware_bridge.estimate.estimate_topic`) instead
+        of its scan and bearings. The sensor ``"estimate"`` then replaces ``lidar`` and
+        ``camera`` in the required sensors, the staleness report and the bag; each step's
+        newest estimates are :attr:`step_estimates`. A robot whose estimate is stale is sent
+        zero velocity (``safety.stale_estimate_stops``) until a fresh one arrives.
+    estimate_weight_kind : str, optional
+        ``"intensity"`` or ``"existence"``: an estimate whose weights mean the other thing
+        (a robot running another family than the policy expects) is refused.
     clock_ns : callable, optional
         ROS time in integer nanoseconds (default ``time.time_ns``).
 
@@ -151,8 +171,23 @@ class RealWorld:
         bridge: BridgeConfig | dict | None = None,
         recorder: Any = None,
         clock_ns: Callable[[], int] = time.time_ns,
+        onboard: bool = False,
+        estimate_weight_kind: str | None = None,
     ) -> None:
         check_host(host, allow_remote)
+        if not isinstance(onboard, bool):
+            raise ValueError(f"onboard must be a bool, got {onboard!r}")
+        if estimate_weight_kind is not None and estimate_weight_kind not in WEIGHT_KINDS:
+            raise ValueError(
+                f"estimate_weight_kind must be None or one of {sorted(WEIGHT_KINDS)}, got "
+                f"{estimate_weight_kind!r}"
+            )
+        self.onboard = onboard
+        self.estimate_weight_kind = estimate_weight_kind
+        #: With ``onboard``: each robot's newest estimate taken by the last reset/step (a robot
+        #: whose estimate is stale at the step's end is absent).
+        self.step_estimates: dict[str, Estimate] = {}
+        self._estimate_stale: set[str] = set()
         if isinstance(port, bool) or not isinstance(port, int) or not 0 < port < 65536:
             raise ValueError(f"port must be an int in 1..65535, got {port!r}")
         ids = tuple(check_robot_id(r) for r in robot_ids)
@@ -181,7 +216,18 @@ class RealWorld:
         # Teammates' odometry and detections for WorldStep.comms, with SwarmConfig.comms on.
         self.relay = TeammateRelay(ids) if config.comms.enabled else None
         self._lock = threading.Lock()
-        self._sensors = FEED_SENSORS + (("mocap",) if self.bridge.use_mocap else ())
+        feed = ("odometry", "estimate") if onboard else FEED_SENSORS
+        self._sensors = feed + (("mocap",) if self.bridge.use_mocap else ())
+        required = self.bridge.required_sensors
+        if onboard:  # the robots' scans and bearings stay on board
+            required = tuple(s for s in required if s not in ("lidar", "camera"))
+            required += () if "estimate" in required else ("estimate",)
+        elif "estimate" in required:
+            raise ValueError(
+                "BridgeConfig.required_sensors has 'estimate' but onboard=False (the bridge "
+                "runs the filters; set onboard=True to use the robots' own)"
+            )
+        self._required = required
         self._buffers = {
             (r, s): _Buffer(self.bridge.buffer_length) for r in ids for s in self._sensors
         }
@@ -202,6 +248,10 @@ class RealWorld:
             r: kind_topics(r, stamped_bearings=r not in self.bridge.unstamped_bearings)
             for r in ids
         }
+        if onboard:
+            for r in ids:
+                self._kinds[r]["estimate"] = ("estimate", estimate_topic(r))
+        self._ros_types = {**ROS_TYPES, "estimate": ESTIMATE_ROS_TYPE}
         for uav in self._uav_ids:
             self._kinds[uav] = {kind: (kind, uav_topics(uav)[kind]) for kind in UAV_KINDS}
         self._cmd_kind = "cmd_vel_stamped" if self.bridge.stamped_commands else "cmd_vel"
@@ -218,7 +268,7 @@ class RealWorld:
                 for sensor in self._sensors:
                     kind, topic = self._kinds[robot][sensor]
                     subscriptions.append(
-                        Subscription(topic, ROS_TYPES[kind], self._callback(robot, sensor))
+                        Subscription(topic, self._ros_types[kind], self._callback(robot, sensor))
                     )
                 publications[topics(robot)["cmd_vel"]] = ROS_TYPES[self._cmd_kind]
             for uav in self._uav_ids:
@@ -312,7 +362,7 @@ class RealWorld:
         where = f"{self.host}:{self.port}"
         deadline = time.monotonic() + self.bridge.reset_timeout_s
         if not self.client.wait_connected(self.bridge.connect_timeout_s):
-            silent = {r: list(self.bridge.required_sensors) for r in self.robot_ids}
+            silent = {r: list(self._required) for r in self.robot_ids}
             raise RobotsSilentError(silent, self.bridge.connect_timeout_s, False, where)
         self._stop_all("reset")
         if self.guard is not None and not self.guard.connected.wait(
@@ -349,6 +399,7 @@ class RealWorld:
         stale = self._stale(end_ns)  # once: what is recorded is what the step reports
         self.last_uav = self._uav_part(used, stale)
         measurements = self.assembler.reset_measurements(self._parsed(used))
+        self._take_estimates(used, stale)
         truth = self._truth(used, end_ns)
         self._last_end_ns = end_ns
         if self.recorder is not None:
@@ -446,6 +497,11 @@ class RealWorld:
             gap = start_mono - self._last_step_end_mono
             self.timing["max_gap_s"] = max(self.timing["max_gap_s"], gap)
         limited = self.limiter.limit(commands, self._fresh_mocap())
+        for i, robot in enumerate(self.robot_ids):
+            if robot in self._estimate_stale:  # driving on an old estimate: stop
+                limited[i] = 0.0
+                self.limiter.previous[i] = 0.0
+                self.counters.incr("safety.stale_estimate_stops")
         t_cmd_ns = self._clock_ns()
         cmd_mono = time.monotonic()
         # One-shot: a step the env gave no UAV command sends a hover, never a stale command.
@@ -479,6 +535,7 @@ class RealWorld:
         measurements = self.assembler.measurements(per_robot)
         stale = self._stale(end_ns)  # once: what is recorded is what the step reports
         self.last_uav = self._uav_part(used, stale)
+        self._take_estimates(used, stale)
         comms = {} if self.relay is None else self.relay.step(parsed, measurements)
         truth = self._truth(used, end_ns)
         self._step_index += 1
@@ -523,6 +580,20 @@ class RealWorld:
                 take.sort(key=lambda it: it[0].stamp_ns)
                 out[robot][sensor] = take
         return out
+
+    def _take_estimates(
+        self, used: dict[str, dict[str, list]], stale: dict[str, tuple[str, ...]]
+    ) -> None:
+        """:attr:`step_estimates` from the step's messages: each robot's newest estimate,
+        unless its estimate is stale at the step's end (then it is also stopped next step)."""
+        if not self.onboard:
+            return
+        self._estimate_stale = {r for r in self.robot_ids if "estimate" in stale.get(r, ())}
+        self.step_estimates = {
+            r: used[r]["estimate"][-1][0]
+            for r in self.robot_ids
+            if used.get(r, {}).get("estimate") and r not in self._estimate_stale
+        }
 
     @staticmethod
     def _parsed(used: dict[str, dict[str, list]]) -> dict[str, dict[str, list]]:
@@ -579,9 +650,7 @@ class RealWorld:
                     silent[uav] = missing
             for robot in self.robot_ids:
                 missing = [
-                    s
-                    for s in self.bridge.required_sensors
-                    if self._buffers[(robot, s)].newest_ns <= start_ns
+                    s for s in self._required if self._buffers[(robot, s)].newest_ns <= start_ns
                 ]
                 if missing:
                     silent[robot] = missing
@@ -644,16 +713,21 @@ class RealWorld:
                 self.counters.incr(f"{key}.received")
                 arrival = time.monotonic()
                 now_ns = self._clock_ns()
-                parsed = parse_message(
-                    kind,
-                    msg,
-                    arrival_ns=now_ns,
-                    max_beams=bridge.max_beams,
-                    max_bearings=bridge.max_bearings,
-                    max_position_m=bridge.max_position_m,
-                )
+                if kind == "estimate":
+                    parsed = self._parse_estimate(robot, msg)
+                else:
+                    parsed = parse_message(
+                        kind,
+                        msg,
+                        arrival_ns=now_ns,
+                        max_beams=bridge.max_beams,
+                        max_bearings=bridge.max_bearings,
+                        max_position_m=bridge.max_position_m,
+                    )
             except InvalidMessage as exc:
                 self.counters.reject(f"{key}.invalid", f"{robot} {sensor}: {exc}")
+                if kind == "estimate":  # which field, for the robot's maintainer
+                    self.counters.incr(f"estimate.invalid_field.{exc.field}")
                 return
             except Exception as exc:  # noqa: BLE001 - never let a message kill the reactor
                 self.counters.reject(f"{key}.invalid", f"{robot} {sensor}: {exc!r}")
@@ -711,6 +785,35 @@ class RealWorld:
             self.counters.incr(f"{key}.accepted")
 
         return on_message
+
+    def _parse_estimate(self, robot: str, msg: Any) -> Estimate:
+        """A robot's ``EstimateStamped``, validated (:func:`parse_estimate_stamped`), in that
+        robot's body frame, with positive-definite covariances, weights of the expected kind
+        and means within ``max_position_m``; :class:`InvalidMessage` names the field."""
+        est = parse_estimate_stamped(msg)
+        if est.frame_id != estimate_frame(robot):
+            raise InvalidMessage(
+                "header.frame_id",
+                f"expected {estimate_frame(robot)!r} (the estimate of {robot}), "
+                f"got {est.frame_id!r}",
+            )
+        p = est.covariances_m2
+        det = p[:, 0, 0] * p[:, 1, 1] - p[:, 0, 1] * p[:, 1, 0]
+        bad = np.flatnonzero((p[:, 0, 0] <= 0.0) | (det <= 0.0))
+        if bad.size:
+            raise InvalidMessage(
+                "covariances", f"component {int(bad[0])} is not positive definite"
+            )
+        if est.means_m.size and np.abs(est.means_m).max() > self.bridge.max_position_m:
+            raise InvalidMessage("means", f"beyond max_position_m={self.bridge.max_position_m} m")
+        expected = self.estimate_weight_kind
+        if expected is not None and est.weight_kind != expected:
+            raise InvalidMessage(
+                "weight_kind",
+                f"{est.weight_kind!r} ({est.localizer}) but the policy reads {expected!r} "
+                "weights: the robot runs another family",
+            )
+        return est
 
     # ------------------------------------------------------------------ safety side
     def _stop_all(self, reason: str) -> None:

@@ -100,6 +100,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="",
         help="comma-separated robots that publish legacy header-less Float32MultiArray bearings",
     )
+    parser.add_argument(
+        "--onboard",
+        action="store_true",
+        help="the robots run their own filters: subscribe to /<robot>/swarm_phd/estimate "
+        "instead of their scans and bearings (with --loopback the simulated robots run them)",
+    )
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
 
 
@@ -300,6 +306,8 @@ def _run(args: argparse.Namespace) -> int:
             seed=args.seed,
             faults=_faults(args.faults),
             unstamped_bearings=unstamped,
+            onboard=args.onboard,
+            localizer=env_kwargs["localizer"],
         )
         port = server.start()
         host = "127.0.0.1"
@@ -324,6 +332,7 @@ def _run(args: argparse.Namespace) -> int:
             record=args.record,
             bridge=bridge,
             max_steps=steps,
+            onboard=args.onboard,
             **env_kwargs,
         )
         if args.policy == "stop":

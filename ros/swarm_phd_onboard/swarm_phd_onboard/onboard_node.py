@@ -5,8 +5,8 @@ In the robot's namespace it subscribes to ``scan`` (``sensor_msgs/LaserScan``), 
 validates each message with the bridge's parsers (:mod:`hardware_bridge.messages`, the rules the
 bridge applies: a malformed message is counted and dropped), steps
 :class:`hardware_bridge.onboard.OnBoardFilter` at ``rate_hz`` (10 Hz, the swarm's control rate)
-and publishes ``estimate`` (``swarm_phd_msgs/EstimateStamped``), the robot's teammate mixture in
-its body frame.
+and publishes ``swarm_phd/estimate`` (``swarm_phd_msgs/EstimateStamped``), the robot's teammate
+mixture in its body frame.
 
 Parameters: ``robot`` (its id, e.g. ``ugv_3``; default: the namespace), ``localizer``
 (``phd-lc``; one of ``hardware_bridge.onboard.ONBOARD_FAMILIES``), ``preset`` (the swarm preset
@@ -59,7 +59,7 @@ class OnBoardNode(Node):
         config = make_config(param("preset").value)
         self.filter = OnBoardFilter(param("robot").value, config, param("localizer").value)
         self.counts: collections.Counter[str] = collections.Counter()
-        self.publisher = self.create_publisher(EstimateStamped, "estimate", 10)
+        self.publisher = self.create_publisher(EstimateStamped, "swarm_phd/estimate", 10)
         qos = qos_profile_sensor_data
         for kind, msg_type, topic, parse in (
             ("lidar", LaserScan, "scan", parse_laser_scan),
