@@ -89,14 +89,24 @@ class LearningLog:
         self.rows: list[dict[str, float]] = []
         self._next_line = 0.0
 
-    def add(self, agent_steps: int, episode_return: float, episodes: int, bar: Any = None):
-        self.rows.append(
-            {
-                "agent_steps": int(agent_steps),
-                "episode_return_mean": float(episode_return),
-                "episodes": int(episodes),
-            }
-        )
+    def add(
+        self,
+        agent_steps: int,
+        episode_return: float,
+        episodes: int,
+        bar: Any = None,
+        task_metric: tuple[str, float, int] | None = None,
+    ):
+        """One rollout's point; ``task_metric``: ``(name, mean, episodes)`` of the task's
+        first metric over the last finished training episodes, when the VecEnv reports it."""
+        row: dict[str, Any] = {
+            "agent_steps": int(agent_steps),
+            "episode_return_mean": float(episode_return),
+            "episodes": int(episodes),
+        }
+        if task_metric is not None:
+            row["task_metric"], row["task_metric_mean"], row["task_metric_episodes"] = task_metric
+        self.rows.append(row)
         if agent_steps >= self._next_line or agent_steps >= self.total:
             self._next_line = agent_steps + self.total / MAX_LINES
             ret = (
@@ -104,6 +114,9 @@ class LearningLog:
                 if math.isfinite(episode_return)
                 else "no episode finished yet (an episode is --max-steps env steps)"
             )
+            if task_metric is not None and task_metric[2]:
+                name, value, n = task_metric
+                ret += f"; {name} {value:.3f} (last {n} copy-episodes)"
             pct = 100.0 * agent_steps / self.total
             say(f"train: {agent_steps}/{self.total} agent steps ({pct:.0f} %): {ret}", bar)
 
@@ -111,7 +124,8 @@ class LearningLog:
         if not self.rows:
             return
         with path.open("w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=list(self.rows[0]))
+            fields = list(dict.fromkeys(k for row in self.rows for k in row))
+            writer = csv.DictWriter(f, fieldnames=fields)
             writer.writeheader()
             writer.writerows(self.rows)
 
@@ -215,6 +229,7 @@ def write_learning_curve(
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker
 
     metric = report.get("metric") if report else None
     n_panels = 2 if metric else 1
@@ -254,6 +269,20 @@ def write_learning_curve(
             label="trained (checkpoints, held-out seeds)",
         )
         panels.append((axes[1], metric, metric.replace("_", " ")))
+        training = [
+            (r["agent_steps"], r["task_metric_mean"])
+            for r in rows
+            if r.get("task_metric") == metric and r.get("task_metric_episodes")
+        ]
+        if training:
+            axes[1].plot(
+                [p[0] for p in training],
+                [p[1] for p in training],
+                color="tab:blue",
+                alpha=0.4,
+                lw=1,
+                label="trained (training episodes)",
+            )
     colours = {"random": "tab:gray"}
     if report:
         baselines = list(report["scores"])[1:]
@@ -268,7 +297,10 @@ def write_learning_curve(
                     color=colours.get(base, "tab:green"),
                     label=f"{base} (held-out seeds)",
                 )
+    thousands = matplotlib.ticker.FuncFormatter(lambda x, _: f"{x / 1000:g}k")
     for ax, _, ylabel in panels:
+        if steps and steps[-1] >= 10_000:
+            ax.xaxis.set_major_formatter(thousands)
         ax.set_xlabel("agent steps")
         ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)

@@ -394,7 +394,9 @@ def run(args: argparse.Namespace) -> int:
     overrides = parse_json_object(args.env_overrides, "--env-overrides")
     names = presets.known("--presets", _names(args.presets, "--presets"))
     points = _command_grid(args, names, overrides)
-    if not args.policy.endswith((".zip", ".pt")):  # a trained policy runs in its own env
+    from agents.policies import is_trained_model
+
+    if not is_trained_model(args.policy):  # a trained policy runs in its own env
         for preset in names:
             period = presets.control_period_s(preset, **overrides)
             inputs.duration("--duration", args.duration, period)

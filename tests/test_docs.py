@@ -36,6 +36,7 @@ BUDGETS = {
     "--timesteps": "128",
     "--seeds": lambda value: re.split(r"[,-]", value)[0],
     "--iterations": "1",
+    "--eval-seeds": "1",  # train's final scoring on held-out seeds
     "--n-copies": "2",
     "--num-cpus": "1",
     "--steps": "20",  # swarm-phd bridge runs in real time: 20 steps = 2 s

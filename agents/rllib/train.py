@@ -7,9 +7,17 @@ default: start a local Ray) and ``--ray-num-cpus``. Every robot maps to one modu
 (:data:`agents.rllib.env.SHARED_POLICY`).
 
 How the SB3 options map: ``--timesteps`` counts *agent* transitions (one env step of N robots
-is N), as in SB3; ``--n-steps`` is the rollout fragment per env copy, so one PPO iteration
-trains on ``n_steps x max(1, runners) x envs_per_runner`` env steps; ``--batch-size`` is the
-minibatch; ``--n-epochs``, ``--learning-rate``, ``--gamma``, ``--ent-coef`` as named.
+is N), as in SB3, rounded up to whole iterations (a first line says so); ``--n-steps`` is the
+rollout fragment per env copy, so one PPO iteration trains on ``n_steps x max(1, runners) x
+envs_per_runner`` env steps; ``--batch-size`` is the minibatch (default: 512 env steps, or the
+whole iteration when smaller; a larger one given is refused); ``--n-epochs``,
+``--learning-rate``, ``--gamma``, ``--ent-coef`` as named.
+
+The learning lines give RLlib's mean episode return divided by the robots (per agent, as the
+SB3 engine's), or "no episode finished yet" while the iterations so far were shorter than one
+episode (RLlib reports NaN then). The final evaluation and ``learning_curve.png`` are the SB3
+engine's (:mod:`agents.train_report`; the run directory is the policy, see
+:func:`agents.policies.load_policy`).
 ``--extractor`` and ``--n-copies`` / ``--num-cpus`` are SB3-only: RLlib's default MLP
 encoder reads the observation vector (the Deep Sets extractor is an SB3 module), and the
 runners replace the SB3 worker processes.
@@ -24,6 +32,7 @@ Writes, under ``--out``::
     checkpoints/step_<agent steps>/   every ``--checkpoint-every`` agent transitions
     train_summary.json    totals, wall time, why it stopped early (``interrupted``, ``stopped``),
                           each runner's kernel threads and env start-up / first-step seconds
+    learning_curve.csv / .png, final_evaluation.json    as the SB3 engine's
 
 Ctrl-C / SIGTERM save ``checkpoint/`` and exit 130 / 143, as the SB3 engine does;
 ``--max-wall-minutes`` stops after the iteration in which the budget passes (exit 0).
@@ -342,6 +351,7 @@ def _train(
     start = time.perf_counter()
     budget = WallBudget(max_wall_s)
     agent_steps = env_steps = 0
+    last_return: float | None = None
     rows: list[dict[str, Any]] = []
     runners: list[dict[str, Any]] = []
     try:
@@ -369,6 +379,12 @@ def _train(
                     _write_progress(out / "progress.csv", rows)
                     # RLlib's return is the sum over the episode's agents: per agent, as SB3's.
                     per_agent = row["episode_return_mean"] / n_agents
+                    if math.isfinite(per_agent):
+                        last_return = per_agent
+                    elif last_return is not None:
+                        # RLlib reports NaN for an iteration in which no episode ended: the
+                        # mean of the last finished episodes is the last one reported.
+                        per_agent = last_return
                     window = min(  # the episodes RLlib's mean is over
                         int(sampled.get("num_episodes_lifetime", 0)),
                         int(config.metrics_num_episodes_for_smoothing),

@@ -251,6 +251,8 @@ class BatchedSwarmVecEnv(VecEnv):
                 continue
             for i in range(n):
                 infos[k * n + i]["terminal_observation"] = obs[k * n + i].copy()
+            # The finished episode's task metrics, once per copy (its first agent's entry).
+            infos[k * n]["task_metrics"] = env.task.metrics()
             ended.append(k)
         if ended:
             fresh = self._reset_copies(ended, [None] * len(ended))

@@ -16,10 +16,21 @@ Writes, under ``--out``::
     monitor.csv               one row per agent-episode (VecMonitor): r, l, t
     tb/progress.csv           rollout/ep_rew_mean etc. per PPO iteration
     warm_start.zip/.json      with --warm-start: the cloned actor before PPO, and its fit
+    learning_curve.csv        one row per rollout: agent steps, mean episode return per agent
+                              (and the task's first metric) over the last finished episodes
+    final_evaluation.json     the held-out scores and the paired table (--eval-seeds > 0)
+    learning_curve.png        return and task metric against agent steps, baselines drawn
 
 Timesteps count *agent* transitions: one env step of N robots is N timesteps. PPO collects
 whole rollouts (``n_steps`` x agents), so the run ends at the first multiple of a rollout at or
-past ``--timesteps``; the progress bar counts to that number.
+past ``--timesteps``; a first line says so when that is more than asked, and the progress bar
+counts to that number. ``--batch-size`` defaults to 512, or the whole rollout when smaller.
+
+While it trains, a line per rollout (at most about ten) gives the mean episode return per agent
+and, with the batched VecEnv, the task's first metric over the last finished episodes. After
+it, :mod:`agents.train_report` scores the model, its checkpoints, the task's scripted controller
+and ``random`` on ``--eval-seeds`` held-out seeds (5 from the command line, none by default from
+Python) and prints the paired verdict table.
 
 Ctrl-C (SIGINT) or SIGTERM stops training cleanly: the current model is saved as ``model.zip``
 and as ``checkpoints/model_<steps>_steps.zip``, the env workers and logs are closed, and the
@@ -1042,14 +1053,32 @@ def _LearningCallback(base: type, log: Any, bar_callback: Any):  # noqa: N802 - 
     """A callback adding one point per rollout to ``log`` (:class:`agents.train_report.
     LearningLog`): the mean return of the last finished agent-episodes (SB3's window)."""
 
+    from collections import deque
+
     class LearningCallback(base):  # type: ignore[misc, valid-type]
+        def __init__(self) -> None:
+            super().__init__()
+            # The task's first metric of the last finished copy-episodes (the batched VecEnv
+            # reports each episode's task metrics when it ends), SB3's window of 100.
+            self.metric: str | None = None
+            self.values: deque[float] = deque(maxlen=100)
+
         def _on_rollout_end(self) -> None:
             episodes = [float(e["r"]) for e in self.model.ep_info_buffer]
             mean = sum(episodes) / len(episodes) if episodes else float("nan")
             bar = getattr(bar_callback, "bar", None)
-            log.add(self.num_timesteps, mean, len(episodes), bar)
+            metric = None
+            if self.metric is not None:
+                n = len(self.values)
+                metric = (self.metric, sum(self.values) / n if n else float("nan"), n)
+            log.add(self.num_timesteps, mean, len(episodes), bar, metric)
 
         def _on_step(self) -> bool:
+            for info in self.locals.get("infos", ()):
+                metrics = info.get("task_metrics")
+                if metrics:
+                    self.metric = self.metric or next(iter(metrics))
+                    self.values.append(float(metrics[self.metric]))
             return True
 
     return LearningCallback()

@@ -93,12 +93,20 @@ def test_sb3_defaults_train_report_and_draw_the_baselines(tmp_path, capsys):
     curve = list(csv.DictReader((out / "learning_curve.csv").open()))
     assert [int(r["agent_steps"]) for r in curve] == [64, 128]
     # The figure's panels: the return and the task metric, each with both baselines drawn.
-    drawn = write_learning_curve(
-        tmp_path / "again.png",
-        [{k: float(v) for k, v in r.items()} for r in curve],
-        report,
-        "t",
-    )
+    # The batched VecEnv reported each training episode's formation error: 4 episodes of 20.
+    # (none before the first episode ended, at env step 20 of the second rollout)
+    assert [r["task_metric"] for r in curve] == ["", "formation_error_m"]
+    assert curve[1]["task_metric_episodes"] == "1"
+    assert 0 < float(curve[1]["task_metric_mean"]) < 3
+    assert "; formation_error_m " in text and "(last 1 copy-episodes)" in text
+    rows = [
+        {
+            "agent_steps": int(r["agent_steps"]),
+            "episode_return_mean": float(r["episode_return_mean"]),
+        }
+        for r in curve
+    ]
+    drawn = write_learning_curve(tmp_path / "again.png", rows, report, "t")
     assert set(drawn) == {"episode_return", "formation_error_m"}
     for labels in drawn.values():
         assert "scripted:formation (held-out seeds)" in labels
@@ -121,16 +129,22 @@ def test_rllib_defaults_train_and_the_run_is_a_policy(local_ray, tmp_path, capsy
     from swarm_phd import bridge, record
 
     out = tmp_path / "rl"
-    argv = ["train", "--engine", "rllib", *TINY, "--timesteps", "100", "--n-steps", "16"]
+    argv = ["train", "--engine", "rllib", *TINY, "--timesteps", "150", "--n-steps", "8"]
     argv += ["--num-env-runners", "1", "--n-epochs", "1", "--eval-seeds", "2"]
-    # No --batch-size: the default minibatch (512) is cut to the iteration's 16 env steps.
+    # No --batch-size: the default minibatch (512) is cut to the iteration's 8 env steps.
     assert main([*argv, "--out", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "--timesteps 100 rounds up to 128 = 2 iterations of 64 agent steps" in text
-    assert "no episode finished yet" not in text.split("train: 128/128")[1]
+    assert "--timesteps 150 rounds up to 160 = 5 iterations of 32 agent steps" in text
+    lines = [line for line in text.splitlines() if line.startswith("train: ")]
+    assert len(lines) == 5 and "no episode finished yet" in lines[0]
+    # Episodes end at env steps 20 and 40 (iterations 3 and 5): iteration 4 ends none, and
+    # says the last mean, not "no episode".
+    assert "no episode finished yet" in lines[1]
+    assert all("mean episode return per agent" in line for line in lines[2:])
+    assert lines[3].split("agent ")[2] == lines[2].split("agent ")[2]
     assert "paired by seed" in text and " | scripted:formation | " in text
     config = json.loads((out / "train_config.json").read_text())
-    assert config["ppo"]["minibatch_size"] == 16
+    assert config["ppo"]["minibatch_size"] == 8
     assert (out / "learning_curve.png").is_file()
 
     # evaluate --policy RUN: the run's own env (preset, task, 20-step episodes).

@@ -218,7 +218,7 @@ def test_lost_teammate_tally_by_hand():
 
 
 def test_lost_teammates_on_the_post_seed_and_on_the_truth():
-    """On the true-neighbour table no teammate is lost. On seed 105 
+    """On the true-neighbour table no teammate is lost. On seed 105
     robots 2 and 3 lose each other behind the post between them: post-held losses, beyond the
     lidar's range, with the post in front; the lidar's detections of the teammates in its view
     match the filter's P_d (within 0.1 per scan)."""
@@ -226,7 +226,8 @@ def test_lost_teammates_on_the_post_seed_and_on_the_truth():
     assert out["lost_teammates"]["per_observer_step"] == 0.0
     out = diagnose("lab-3m-4", [105], from_step=150, max_steps=170)
     lost = out["lost_teammates"]
-    assert lost["bearing_held_by_share"]["post"] > 0.2, lost
+    # 0.14 with the lidar extractor that bridges single dropped returns (0.2-0.3 before it)
+    assert lost["bearing_held_by_share"]["post"] > 0.1, lost
     assert lost["beyond_lidar_range_share_by_holder"]["post"] > 0.5, lost
     assert lost["holder_in_front_share_by_holder"]["post"] == 1.0, lost
     near = out["teammates_in_lidar_range"]
