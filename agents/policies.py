@@ -78,7 +78,28 @@ def random_policy(env: Any, seed: int | None = 0) -> RandomPolicy:
     return RandomPolicy(env, seed)
 
 
-def load_policy(spec: str, env: Any) -> Any:
+#: Set to ``1`` by ``--trust-policy`` (evaluate, record, bridge), for this process and the
+#: workers it starts: :func:`load_policy` then loads SB3 zips from outside a training run
+#: with SB3's unpickling loader.
+TRUST_POLICY_ENV = "SWARM_PHD_TRUST_POLICY"
+
+
+def trust_policy_files() -> None:
+    """``--trust-policy``: let :func:`load_policy` unpickle SB3 zips that are not part of a
+    ``swarm-phd train`` run, in this process and the worker processes it starts."""
+    import os
+
+    os.environ[TRUST_POLICY_ENV] = "1"
+
+
+def trusts_policy_files() -> bool:
+    """Whether ``--trust-policy`` was given (:func:`trust_policy_files`)."""
+    import os
+
+    return os.environ.get(TRUST_POLICY_ENV) == "1"
+
+
+def load_policy(spec: str, env: Any, trust: bool | None = None) -> Any:
     """Build the policy named by ``spec`` for ``env``.
 
     ``"random"``: uniform actions from the agents' seeded action spaces. ``"scripted:NAME"``: a
@@ -88,6 +109,11 @@ def load_policy(spec: str, env: Any) -> Any:
     (:mod:`agents.sb3.recurrent_student`). A directory: the ``--out`` of ``swarm-phd train
     --engine rllib`` or one of its checkpoints (:func:`rllib_checkpoint`; the mean action of
     its shared module, :mod:`agents.rllib.policy`).
+
+    A ``.zip`` of a ``swarm-phd train`` run loads weights only (:mod:`agents.sb3.safe_load`);
+    another ``.zip`` is refused (ValueError naming ``--trust-policy``) unless ``trust`` (None:
+    whether ``--trust-policy`` was given, :func:`trusts_policy_files`), since SB3's loader
+    unpickles it.
     """
     if spec == "random":
         return random_policy(env)
@@ -109,7 +135,9 @@ def load_policy(spec: str, env: Any) -> Any:
             raise ValueError(f"policy file {spec!r} does not exist")
         from agents.sb3.policy import load_sb3_policy
 
-        return load_sb3_policy(spec, env)
+        if trust is None:
+            trust = trusts_policy_files()
+        return load_sb3_policy(spec, env, trust=trust)
     checkpoint = rllib_checkpoint(spec)
     if checkpoint is not None:  # a run of swarm-phd train --engine rllib
         from agents.rllib.policy import load_policy as load_rllib_policy

@@ -75,6 +75,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="default: a trained policy's (model.zip, student .pt) own preset, else sim-6m-20",
     )
+    parser.add_argument(
+        "--trust-policy",
+        action="store_true",
+        help="load an SB3 .zip from outside a swarm-phd train run with SB3's loader, which "
+        "unpickles objects stored in the file and so can run code in it: only for a file you "
+        "trained or verified yourself (a zip in its run directory loads weights only)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="the episode's seed (>= 0)")
     inputs.add_duration_argument(parser, 30.0)
     parser.add_argument(
@@ -295,6 +302,11 @@ def _run(
 
 def run(args: argparse.Namespace) -> int:
     from swarm_core.inputs import parse_json_object
+
+    if getattr(args, "trust_policy", False):
+        from agents.policies import trust_policy_files
+
+        trust_policy_files()
 
     overrides: dict[str, Any] = {}
     if args.task_params is not None:

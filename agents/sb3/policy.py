@@ -196,18 +196,45 @@ class SB3Policy:
         return actions
 
 
-def load_sb3_policy(path: str | Path, env: Any, deterministic: bool = True) -> SB3Policy:
-    """Load ``path`` for ``env``; the env's observation space must match the model's."""
+#: Why a zip from elsewhere is refused, and the flag that loads it anyway.
+UNTRUSTED_ZIP = (
+    "loading it with SB3's loader unpickles Python objects stored in it (its policy class, "
+    "spaces, schedules), which can run any code. Pass --trust-policy if you trained this file "
+    "yourself or trust its source (a zip inside its swarm-phd train --out directory, next to "
+    "train_config.json and env_kwargs.json, loads weights only and needs no flag)"
+)
+
+
+def load_sb3_policy(
+    path: str | Path, env: Any, deterministic: bool = True, trust: bool = False
+) -> SB3Policy:
+    """Load ``path`` for ``env``; the env's observation space must match the model's.
+
+    A zip of a ``swarm-phd train`` run (its ``train_config.json`` and ``env_kwargs.json``
+    beside it, or one directory up for a checkpoint) loads weights only
+    (:mod:`agents.sb3.safe_load`): nothing in it is unpickled. Any other zip needs ``trust``
+    (``--trust-policy``): SB3's own loader unpickles its ``data``, which can run code."""
     import torch
-    from stable_baselines3 import PPO
+
+    from agents.sb3.safe_load import load_weights_only, run_directory
 
     torch.set_num_threads(1)
+    own_run = run_directory(path) is not None
+    if not own_run and not trust:
+        raise ValueError(
+            f"policy {str(path)!r} is an SB3 model zip from outside a swarm-phd train run: "
+            + UNTRUSTED_ZIP
+        )
     meta = read_metadata(path)
-    if meta.get("recurrent"):
+    if own_run:
+        model: Any = load_weights_only(path, meta)
+    elif meta.get("recurrent"):
         from sb3_contrib import RecurrentPPO
 
         model = RecurrentPPO.load(str(path), device="cpu")
     else:
+        from stable_baselines3 import PPO
+
         model = PPO.load(str(path), device="cpu")
     agent = env.possible_agents[0]
     want = model.observation_space.shape

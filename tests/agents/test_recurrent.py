@@ -37,7 +37,8 @@ def test_recurrent_model_is_saved_with_its_kind(recurrent_model):
     config = json.loads((recurrent_model.parent / "train_config.json").read_text())
     assert config["recurrent"] is True
     policy = load_sb3_policy(recurrent_model, parallel_env(**KWARGS))
-    assert isinstance(policy.model, RecurrentPPO)
+    # Rebuilt from the run's JSON and loaded weights-only (agents.sb3.safe_load).
+    assert isinstance(policy.model.policy, RecurrentPPO.policy_aliases["MlpLstmPolicy"])
     assert policy.model.policy.lstm_actor.hidden_size == 8
 
 

@@ -266,8 +266,14 @@ def test_gain_mode_model_zip_scales_the_scripted_command(tmp_path, monkeypatch):
     from experiments.residual_gains import main, requested_gains
 
     np.testing.assert_array_equal(requested_gains(path, [100]), np.ones((4 * 15, 2)))
-    doubled = tmp_path / "doubled.zip"
-    learned.model.save(doubled)
+    # The policy loads weights only (no SB3 algorithm to save): SB3's model of the same run,
+    # given the changed weights, saved in the run directory.
+    from stable_baselines3 import PPO
+
+    sb3 = PPO.load(path, device="cpu")
+    sb3.policy.load_state_dict(learned.model.policy.state_dict())
+    doubled = tmp_path / "run" / "doubled.zip"
+    sb3.save(doubled)
     write_metadata(doubled, read_metadata(path))
     np.testing.assert_allclose(requested_gains(doubled, [100, 101]), [[2.0, 1.0]] * (2 * 4 * 15))
     assert main([str(doubled), "--seeds", "100", "--out", str(tmp_path / "g.json")]) == 0
@@ -334,7 +340,7 @@ def test_sde_residual_starts_as_its_base_and_records_the_noise(tmp_path):
     config = json.loads((tmp_path / "run" / "train_config.json").read_text())
     assert config["ppo"]["use_sde"] is True and config["ppo"]["sde_sample_freq"] == -1
     learned = load_sb3_policy(path, parallel_env(**KWARGS))
-    assert learned.model.use_sde
+    assert learned.model.policy.use_sde
     log_std = learned.model.policy.log_std.detach().numpy()
     assert log_std.shape == (128, 2)
     np.testing.assert_array_equal(log_std, -3.0)

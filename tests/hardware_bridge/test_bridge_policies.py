@@ -162,8 +162,8 @@ def test_a_student_and_a_scripted_controller_drive_the_loopback_robots(
     calls: dict[str, int] = {}
     load = agents.policies.load_policy
 
-    def counting_load(spec, env):  # counts the calls of the policy that drives the robots
-        policy = load(spec, env)
+    def counting_load(spec, env, **kwargs):  # counts the calls of the policy driving the robots
+        policy = load(spec, env, **kwargs)
 
         def act(obs, infos):
             calls[spec] = calls.get(spec, 0) + 1
