@@ -22,8 +22,8 @@ class ScriptedPolicy:
     """Base class: per-agent state is kept in dicts keyed by agent name."""
 
     name = "scripted"
-    #: The agents whose command of the last call was the seed's random walk (drawn from the
-    #: controller's own generator, so two instances disagree there). Set by every call.
+    #: The agents whose command of the last call was the Perera 2021 study's random walk (drawn
+    #: from the controller's own generator, so two instances disagree there). Set by every call.
     wandering: frozenset[str] | set[str] = frozenset()
 
     def __init__(self, max_speed_mps: float = 0.3, max_turn_rate_radps: float = 1.5) -> None:
@@ -57,7 +57,7 @@ def latest_scan(info: dict[str, Any]) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 class WanderPolicy(ScriptedPolicy):
-    """The seed's pseudo-random motion with lidar obstacle avoidance.
+    """Perera 2021's pseudo-random motion with lidar obstacle avoidance.
 
     Each robot cruises at ``cruise_fraction * v_max`` with a turn rate that follows an
     Ornstein-Uhlenbeck process (smooth random heading changes). When the nearest valid lidar return
@@ -230,8 +230,8 @@ def expected_lidar_detections(
     ``sum_k w_k P_range(r_k) P_blind(beta_k - turn)``.
 
     ``P_range`` and ``P_blind`` are the filter's own range and blind-sector factors
-    (``detection``, the filter's :class:`~localization.detection.DetectionModel`; seed eq. 18
-    without the occlusion and interference factors, which a turn does not change). Under the
+    (``detection``, the filter's :class:`~localization.detection.DetectionModel`; Perera 2021
+    eq. 18 without the occlusion and interference factors, which a turn does not change). Under the
     constant ``P_d`` model the filter has no blind sectors, so no turn gains anything."""
     points = np.asarray(points, dtype=float).reshape(-1, 2)
     weights = np.asarray(weights, dtype=float)
@@ -382,7 +382,7 @@ class VectorFieldPolicy(ScriptedPolicy):
                 self._wander._scan[agent] = scan
             table, odometry, features = split_observation(obs, self.top_k, self.n_sectors)
             u = self.desired_velocity(agent, table, odometry, features)
-            if u is None:  # nothing to act on: search (the seed's random walk)
+            if u is None:  # nothing to act on: search (Perera 2021's random walk)
                 actions[agent] = self._wander._act(agent)
                 self.wandering.add(agent)
                 self._stopped.discard(agent)
@@ -409,8 +409,8 @@ class VectorFieldPolicy(ScriptedPolicy):
         lidar would detect the most estimated teammates per scan
         (:func:`expected_lidar_detections`), if it gains ``sensing_margin`` detections over the
         current heading; else ``[0, 0]``. +-90 deg reaches every heading of a sector layout
-        that repeats every 180 deg (the seed's +-45, +-135 deg); an asymmetric layout can have
-        its best heading beyond it.
+        that repeats every 180 deg (the Perera 2021 study's +-45, +-135 deg); an asymmetric layout
+        can have its best heading beyond it.
 
         Why: the lidar is blind behind the four camera pillars (+-45, +-135 deg), exactly where
         a robot that drove radially into a square formation sees its two neighbours; it then
@@ -478,7 +478,7 @@ class VectorFieldPolicy(ScriptedPolicy):
 class FormationPolicy(VectorFieldPolicy):
     """Formation from the robot's own PHD estimate (task ``formation``).
 
-    Circle (the seed's T4): the centroid of the swarm as this robot sees it is
+    Circle (the Stegagno 2013 study's T4): the centroid of the swarm as this robot sees it is
     ``c = sum_k w_k m_k / (1 + sum_k w_k)`` over its confident components ``(w_k, m_k)`` plus
     itself (weight 1 at its origin); ``w_k`` is discounted by the component's spread (see
     :func:`estimated_neighbours`, reference variance 0.02 m^2) so that a camera-only track with
@@ -509,7 +509,7 @@ class FormationPolicy(VectorFieldPolicy):
     the shape from the mission (``shape=``). The chord also encodes the swarm size N; while the
     robot estimates fewer than N - 1 teammates its centroid is only a local one, so it first
     closes in on it (up to ``r / 2``). With fewer than ``min_neighbours`` estimated the robot
-    random-walks (the seed's wander) until it finds the swarm.
+    random-walks (the Perera 2021 study's wander) until it finds the swarm.
     """
 
     name = "formation"
@@ -597,8 +597,9 @@ class DispersionPolicy(VectorFieldPolicy):
     ``u = cruise [1, 0] - k_s sum_k w_k (spread - d_k) / spread * m_k / d_k``, with ``w_k``
     discounted by the component's spread as in :class:`FormationPolicy`. The cruise term keeps
     a spread-out swarm sweeping new cells; the lidar pushes it off walls and obstacles (the base
-    class). With nobody estimated within ``spread_m`` it random-walks (the seed's wander), which
-    is what a lone robot can do without a map. The robot never needs its own global position.
+    class). With nobody estimated within ``spread_m`` it random-walks (the Perera 2021 study's
+    wander), which is what a lone robot can do without a map. The robot never needs its own global
+    position.
     """
 
     name = "exploration"
@@ -652,19 +653,19 @@ class EncirclementPolicy(VectorFieldPolicy):
     """Enclose the intruder (task ``encirclement``) on a circle of radius ``r``, evenly spread.
 
     Where the intruder's position ``q`` (body frame) comes from is the task's
-    ``intruder_source`` (seed ``004``; :mod:`swarm_env.tasks.encirclement`):
+    ``intruder_source`` (Lee 2012; :mod:`swarm_env.tasks.encirclement`):
 
     - ``"beacon"`` (ablation): the beacon features ``[r, valid, cos b, sin b, rho]`` of this
       step, refined by the nearest confident PHD component within ``gate_m`` (the PHD is more
       precise; the beacon says which component is the intruder). While ``valid`` is 0 (no
       reading, e.g. real robots without motion capture) nothing says where the intruder is: the
       robot random-walks, as with nobody in sight.
-    - ``"particle"``: seed ``004``'s particle filter
+    - ``"particle"``: the Lee 2012 study's particle filter
       (:class:`localization.baselines.particle.ParticleFilterTracker`, one per robot, in its body
       frame), predicted every step with the robot's own odometry ``[v, omega]`` and updated with
       each range-bearing reading when one arrives (``valid`` = 1); ``q`` is its estimate. The
-      filter starts at the first reading (the seed's uniform cloud weighted by it), or with
-      ``particle_start="trilateration"`` (the task's) at its polar fix; a range-only reading
+      filter starts at the first reading (the Lee 2012 study's uniform cloud weighted by it), or
+      with ``particle_start="trilateration"`` (the task's) at its polar fix; a range-only reading
       (``cos b = sin b = 0``) has a NaN bearing, and a trilateration start waits for >= 3
       spread readings (random walk until then). With the
       task's ``intruder_features="filter"`` the features already are such a filter's estimate
@@ -857,7 +858,7 @@ class EncirclementPolicy(VectorFieldPolicy):
 
 def symmetry_metric(points: np.ndarray, phis: np.ndarray) -> np.ndarray:
     """The thesis' symmetry metric ``gamma_Z(phi) = sum_z min_z'' ||z - z''||^2`` with ``z''`` in
-    Z rotated by ``phi`` about its centroid (seed ``001``, chapter 12), for every ``phi``."""
+    Z rotated by ``phi`` about its centroid (Stegagno 2012, chapter 12), for every ``phi``."""
     c = points.mean(axis=0)
     z = points - c
     cos, sin = np.cos(phis), np.sin(phis)
@@ -883,7 +884,7 @@ def internal_minimum(points: np.ndarray, n_angles: int = 360) -> tuple[float, fl
 
 
 class AntiSymmetryPolicy(VectorFieldPolicy):
-    """The anti-symmetry control law (seed ``001``, chapter 12, eq. 46), robot-centric.
+    """The anti-symmetry control law (Stegagno 2012, chapter 12, eq. 46), robot-centric.
 
     Each robot takes ``Z`` = its confident PHD components plus itself (the origin), finds the
     rotation ``phi_bar`` about the centroid that minimises ``gamma_Z`` inside

@@ -84,7 +84,7 @@ def main() -> None:
         "--config",
         choices=("simulator", "seed"),
         default="simulator",
-        help="the env's SIMULATOR_PHD (default) or the seed's PHDConfig()",
+        help="the env's SIMULATOR_PHD (default) or the Perera 2021 study's PHDConfig()",
     )
     parser.add_argument(
         "--phd",

@@ -14,8 +14,8 @@ What it measures (no timing; every figure is a statistic of the simulated sensor
 * **Lidar blind sectors' notch**: the housing at 0.6, 1, 1.5 and 2 m, at random offsets 0-9 deg
   from a random blind sector's centre, no interference; per 1 deg bin the detection rate over
   the full-view rate (20-40 deg off the centres), beside the filter's ``"visible-width"`` factor
-  (derived, not fitted: ``docs/concepts/localizers.md``, "The blind sectors' notch") and the seed's
-  bump.
+  (derived, not fitted: ``docs/concepts/localizers.md``, "The blind sectors' notch") and the
+  Perera 2021 study's bump.
 * **Camera** ``P_d(r)``: a teammate's red strip (the simulator's ``camera_holder_radius_m``)
   at range ``r``, free line of sight; detected = a blob from that strip. Also the bearing
   error of the detected blobs.
@@ -26,9 +26,9 @@ What it measures (no timing; every figure is a statistic of the simulated sensor
   a housing, ``localization.object_clutter``): per scan, the non-teammate blobs on each per
   frame, their spread about its centre, and the share of the decoys' blobs they explain.
 
-Then fits the seed's sigmoid ``1 / (offset + exp(slope (r - midpoint)))`` (eqs. 19 and 30,
-``offset >= 1``) to both measured curves by least squares, and prints them beside the seed's
-eq. 19 / eq. 30. Writes a JSON (``--json``) and a figure (``--figure``).
+Then fits the Perera 2021 study's sigmoid ``1 / (offset + exp(slope (r - midpoint)))`` (eqs. 19 and
+30, ``offset >= 1``) to both measured curves by least squares, and prints them beside the
+study's eq. 19 / eq. 30. Writes a JSON (``--json``) and a figure (``--figure``).
 
 Run: ``.venv/bin/python benchmarks/bench_detection_curves.py`` (about a minute).
 """
@@ -69,7 +69,7 @@ MATCH_GATE_M = 0.15
 
 
 def seed_sigmoid(r, offset, slope, midpoint):
-    """The seed's range factor, eqs. (19) and (30)."""
+    """Perera 2021's range factor, eqs. (19) and (30)."""
     return 1.0 / (offset + np.exp(slope * (np.asarray(r) - midpoint)))
 
 
@@ -157,7 +157,8 @@ NOTCH_BINS_DEG = np.arange(0.0, 9.01, 1.0)
 
 def blind_sector_notch(rng, n_pairs: int) -> dict:
     """The lidar's detection rate by offset from a blind sector's centre over its full-view
-    rate, per range, beside the filter's notch and the seed's bump (both at the true bearing)."""
+    rate, per range, beside the filter's notch and the Perera 2021 study's bump (both at the true
+    bearing)."""
     notch = DetectionModel(SIMULATOR_PHD)
     bump = DetectionModel(dataclasses.replace(SIMULATOR_PHD, blind_sector_model="seed"))
     centres = np.asarray(SIMULATOR_PHD.blind_sector_centers_deg)
@@ -363,7 +364,7 @@ def plot(lidar, camera, lidar_fit, camera_fit, path: Path) -> None:
     ax = axes[0]
     ax.plot(lidar["range_m"], lidar["pd"], "o", ms=4, label="simulated (measured)")
     ax.plot(fine, seed_sigmoid(fine, *lidar_fit), "-", label=_fit_label(lidar_fit))
-    ax.plot(fine, seed_sigmoid(fine, *SEED_EQ19), "--", label="seed eq. 19 (real X4)")
+    ax.plot(fine, seed_sigmoid(fine, *SEED_EQ19), "--", label="Perera 2021 eq. 19 (real X4)")
     ax.set_title("Lidar: teammate housing (range factor)")
     ax.set_xlabel("range (m)")
     ax.set_ylabel("detection probability")
@@ -372,7 +373,7 @@ def plot(lidar, camera, lidar_fit, camera_fit, path: Path) -> None:
     ax.plot(camera["range_m"], camera["pd"], "o", ms=4, label="simulated (measured)")
     ax.plot(camera["range_m"], camera["pd_model"], ":", label="blob-area model (analytic)")
     ax.plot(fine, seed_sigmoid(fine, *camera_fit), "-", label=_fit_label(camera_fit))
-    ax.plot(fine, seed_sigmoid(fine, *SEED_EQ30), "--", label="seed eq. 30 (real cameras)")
+    ax.plot(fine, seed_sigmoid(fine, *SEED_EQ30), "--", label="Perera 2021 eq. 30 (real cameras)")
     ax.set_title("Camera: teammate red strip")
     ax.set_xlabel("range (m)")
     ax.legend(fontsize=8)
@@ -413,8 +414,9 @@ def main(argv: list[str] | None = None) -> int:
         f"{platform.machine()}, {time.strftime('%Y-%m-%d')}, {time.perf_counter() - t0:.0f} s"
     )
     print(
-        "| range (m) | lidar P_d | seed eq. 19 | fit | returns (sim / geometry) "
-        "| centre RMS (cm) | camera P_d | blob model | seed eq. 30 | fit | bearing RMS (deg) |"
+        "| range (m) | lidar P_d | Perera 2021 eq. 19 | fit | returns (sim / geometry) "
+        "| centre RMS (cm) | camera P_d | blob model | Perera 2021 eq. 30 | fit "
+        "| bearing RMS (deg) |"
     )
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for i, rr in enumerate(r):
@@ -447,7 +449,7 @@ def main(argv: list[str] | None = None) -> int:
         )
     print(
         "\nLidar blind sectors' notch: detection rate over the full-view rate / the filter's "
-        "visible-width factor / the seed's bump, by offset from a sector centre"
+        "visible-width factor / the Perera 2021 study's bump, by offset from a sector centre"
     )
     print(
         "| range (m) | full view | "

@@ -1,8 +1,8 @@
 """One robot's filter on board: CPU time per second of sensor data, on one core.
 
-The seed's robots ran their filter on an Odroid-XU4 in real time. This measures what
+Perera 2021's robots ran their filter on an Odroid-XU4 in real time. This measures what
 :class:`hardware_bridge.onboard.OnBoardFilter` costs one robot: the simulator records one
-robot's odometry (10 Hz), scans (7 Hz) and camera frames (30 Hz) in the seed's arena
+robot's odometry (10 Hz), scans (7 Hz) and camera frames (30 Hz) in the Perera 2021 study's arena
 (``sim-6m-20``, 20 robots wandering), then a fresh one-robot filter is stepped over those
 records alone, timed, numba on one thread and the process pinned to one core. Recording is not
 timed. The lidar feature extraction runs inside the step (it is part of the robot's work).

@@ -36,7 +36,7 @@ Usage::
     python benchmarks/bench_phd_vs_stonesoup.py [--quick] [--calls] [--env SECONDS] [--json PATH]
 
 ``--quick`` runs 60 scans and skips the 50-target case (a smoke test, ~10 s). ``--calls``
-also times single calls of the seed-configured filter (``PHDConfig()``, all detection
+also times single calls of the Perera 2021-configured filter (``PHDConfig()``, all detection
 factors on) from recorded states with ~20 components and 5 measurements: the env's hot path.
 ``--env SECONDS`` replays that many seconds of the env's own filter calls (seed-sim, 20 robots)
 through ``PHDBank`` and ``PMBBank`` and reports the cost per env step.

@@ -1,4 +1,5 @@
-"""Scaling curve: env throughput and memory from 20 to 1000 robots at the seed's density.
+"""Scaling curve: env throughput and memory from 20 to 1000 robots at the Perera 2021
+study's density.
 
 Each size runs its density-keeping preset (``sim-6m-20``, ``sim-13m-100``, ``sim-19m-200``,
 ``sim-30m-500``, ``sim-42m-1000``: the arena side grows as sqrt(n / 20), obstacles with the

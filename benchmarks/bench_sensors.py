@@ -1,4 +1,5 @@
-"""Micro-benchmark of the sensor models on the seed's arena (6 m x 6 m, 20 robots).
+"""Micro-benchmark of the sensor models on the Perera 2021 study's arena (6 m x 6 m,
+20 robots).
 
 Run from the repository root::
 

@@ -1,12 +1,12 @@
 """Where a localizer's surplus estimates come from: why lidar + camera reports more false
 teammates than lidar only.
 
-Runs ``sim-6m-20`` with the seed's wander motion and, every step after a warm-up, takes each
-observer's estimates with weight >= 0.5 within the 2 m scoring range (what GOSPA scores).
-An estimate with no teammate within 0.5 m is **false**, classed by what is there: a decoy post
-(within 0.2 m), a red decoy (within 0.3 m), the ray of a teammate (bearing within 4 deg; farther
-or nearer than it), a red decoy's ray, or other. Teammates with more than one estimate within
-0.3 m are **duplicates** (two estimates for one teammate). Per observer-step rates.
+Runs ``sim-6m-20`` with the Perera 2021 study's wander motion and, every step after a warm-up,
+takes each observer's estimates with weight >= 0.5 within the 2 m scoring range (what GOSPA
+scores). An estimate with no teammate within 0.5 m is **false**, classed by what is there: a decoy
+post (within 0.2 m), a red decoy (within 0.3 m), the ray of a teammate (bearing within 4 deg;
+farther or nearer than it), a red decoy's ray, or other. Teammates with more than one estimate
+within 0.3 m are **duplicates** (two estimates for one teammate). Per observer-step rates.
 
     python -m experiments.diagnose_false_estimates --localizer phd-lc --steps 600
 

@@ -27,8 +27,8 @@ robot's own PHD estimate; a learned policy sees that one reading only); ``partic
 (``intruder_sensing="range"``: same rate, loss and range noise, no bearing).
 
 ``--particle-starts uniform,trilateration`` runs every setting once per particle-filter start
-(``particle_start``: the seed's uniform cloud, or the triangulation / trilateration fix of
-:mod:`localization.baselines.particle`); the results are then keyed ``SETTING/START``::
+(``particle_start``: the Lee 2012 study's uniform cloud, or the triangulation / trilateration fix
+of :mod:`localization.baselines.particle`); the results are then keyed ``SETTING/START``::
 
     python -m experiments.encirclement_sources --duration 120 --seeds 100-104 \
         --sources particle,particle-range --particle-starts uniform,trilateration

@@ -69,8 +69,8 @@ def real_env(
     host, port : str, int
         The rosbridge server (``rosbridge_websocket``). Loopback by default.
     preset : str
-        SwarmConfig preset for the filter, control period, limits (``seed-lab`` = the seed's
-        real 3 m x 3 m testing area).
+        SwarmConfig preset for the filter, control period, limits (``seed-lab`` = the Perera 2021
+        study's real 3 m x 3 m testing area).
     task : str or Task
         A task without simulated extra robots.
     allow_remote : bool
@@ -89,8 +89,8 @@ def real_env(
         ``infos[agent]["stale"]`` and stops its robot; estimates are recorded in the bag.
     **overrides
         SwarmConfig fields (``control_period_s=0.1``, ``phd={"mode": "lidar-only"}``...).
-        The filter defaults to the seed's own model, ``PHDConfig()`` (the seed's hardware),
-        not the simulator presets' :data:`swarm_env.config.SIMULATOR_PHD`.
+        The filter defaults to the Perera 2021 study's own model, ``PHDConfig()`` (that study's
+        hardware), not the simulator presets' :data:`swarm_env.config.SIMULATOR_PHD`.
 
     Notes
     -----
@@ -106,7 +106,7 @@ def real_env(
     check_host(host, allow_remote)
     bridge_cfg = make_bridge_config(bridge)
     phd = overrides.get("phd")
-    if phd is None or isinstance(phd, dict):  # the seed's model, with any dict overrides
+    if phd is None or isinstance(phd, dict):  # Perera 2021's model, with any dict overrides
         overrides["phd"] = config_with_overrides(None, PHDConfig, phd or {})
     if robots is None:
         n = make_config(preset, **overrides).n_robots
@@ -230,7 +230,7 @@ def real_supervised_env(
     filter_lag_s: float | None = None,
     **overrides: Any,
 ):
-    """Seed ``002`` on real robots: :class:`swarm_env.uav.SupervisedSwarmEnv` (UGV agents plus
+    """Stegagno 2013 on real robots: :class:`swarm_env.uav.SupervisedSwarmEnv` (UGV agents plus
     ``uav_0``) over a :class:`~hardware_bridge.world.RealWorld` that also subscribes to the UAV
     ``uav_id`` (its pose and detections) and publishes its commands.
 

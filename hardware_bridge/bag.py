@@ -19,7 +19,7 @@ topic                          type                            what
 ``/bridge/step``               ``std_msgs/msg/String``          one JSON marker per reset/step
 =============================  ==============================  ===============================
 
-With a UAV supervisor (``BridgeConfig.uav_id``, seed ``002``) also ``/<uav>/pose``
+With a UAV supervisor (``BridgeConfig.uav_id``, Stegagno 2013) also ``/<uav>/pose``
 (``geometry_msgs/msg/PoseStamped``), ``/<uav>/camera/detections``
 (``geometry_msgs/msg/PoseArray``) and its commands on ``/<uav>/cmd_vel``; the metadata names it
 (``"uav"``) and :class:`ReplayWorld` replays its messages into ``last_uav`` as the live bridge

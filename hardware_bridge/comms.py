@@ -2,9 +2,9 @@
 
 In simulation :mod:`swarm_env.comms` models the radio. On real robots every robot already
 publishes its odometry (``/<robot>/odom``, a pose in its own odometry frame) and its scans over
-the network the bridge listens to, so what seed 001's mutual localization needs from a teammate
-(its odometry pose since start and its anonymous detections) is on the wire: this relay turns
-each robot's newest ``Odom`` and detections of a step into a
+the network the bridge listens to, so what the Stegagno 2012 thesis's mutual localization needs
+from a teammate (its odometry pose since start and its anonymous detections) is on the wire: this
+relay turns each robot's newest ``Odom`` and detections of a step into a
 :class:`~swarm_core.records.Broadcast` for every other robot. Loss and latency are the real
 network's (a robot whose odometry did not arrive in the step sends nothing), so there is no
 simulated channel here; the same relay serves the live bridge and the bag replay, which

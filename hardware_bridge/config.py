@@ -185,7 +185,7 @@ class BridgeConfig:
         Robots that publish legacy header-less ``std_msgs/Float32MultiArray`` bearings (stamped
         on arrival). Every other robot publishes ``swarm_phd_msgs/BearingsStamped``.
     uav_id : str or None
-        A UAV supervisor (seed ``002``) to subscribe to: its pose and downward-camera detections
+        A UAV supervisor (Stegagno 2013) to subscribe to: its pose and downward-camera detections
         (``hardware_bridge.messages.uav_topics``), validated and stamp-windowed like the UGVs'
         messages, recorded and replayed with them; its velocity command goes out with the
         UGVs' and is zeroed (hover) by every stop. ``reset()`` waits for both of its topics.

@@ -21,7 +21,7 @@ stepped on the robot's simulated records once per control period, whose estimate
 end; the last ones sent are kept in :attr:`LoopbackServer.published_estimates`), for
 ``real_env(..., onboard=True)``.
 
-With ``uav=UAVConfig(...)`` it also flies seed ``002``'s supervisor (``uav_id``, default
+With ``uav=UAVConfig(...)`` it also flies Stegagno 2013's supervisor (``uav_id``, default
 ``uav_0``): the env's kinematic UAV (:func:`swarm_env.uav.env.fly`) obeying ``/<uav>/cmd_vel``
 (same timeout and staleness rules; silence = hover), publishing its pose (its own noisy
 odometry, integrated from where it started, ``z`` = altitude) and each downward-camera frame of
@@ -969,7 +969,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--twist-log", default=None)
     parser.add_argument(
-        "--uav", default=None, metavar="ID", help="also fly a UAV supervisor named ID (seed 002)"
+        "--uav",
+        default=None,
+        metavar="ID",
+        help="also fly a UAV supervisor named ID (Stegagno 2013 study)",
     )
     parser.add_argument(
         "--onboard",

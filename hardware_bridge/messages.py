@@ -613,11 +613,12 @@ class Counters:
             LOGGER.warning("rejected message (%s, #%d): %s", key, n, detail[:300])
 
 
-# ---------------------------------------------------------------------------- the UAV (seed 002)
-# The supervisor's two topics: its pose estimate (the seed's optical flow + IMU + height sensor;
-# ``z`` is the altitude above the ground) and its downward camera's anonymous UGV positions,
-# already back-projected to the ground and expressed in its level frame (x forward, y left,
-# the UAV's yaw; roll and pitch compensated, seed 002 eqs. 2-4), one ``PoseArray`` per frame.
+# ------------------------------------------------------------- the UAV (Stegagno 2013 study)
+# The supervisor's two topics: its pose estimate (the Stegagno 2013 study's optical flow + IMU +
+# height sensor; ``z`` is the altitude above the ground) and its downward camera's anonymous UGV
+# positions, already back-projected to the ground and expressed in its level frame (x forward, y
+# left, the UAV's yaw; roll and pitch compensated, Stegagno 2013 eqs. 2-4), one ``PoseArray`` per
+# frame.
 UAV_ROS_TYPES = {
     "uav_pose": "geometry_msgs/PoseStamped",
     "uav_detections": "geometry_msgs/PoseArray",

@@ -152,7 +152,7 @@ class RealWorld:
         ROS time in integer nanoseconds (default ``time.time_ns``).
 
     With ``bridge.uav_id`` set, the world also subscribes to that UAV's pose and detections
-    (seed ``002``'s supervisor): after each ``reset()`` / ``step()``, :attr:`last_uav` holds the
+    (Stegagno 2013's supervisor): after each ``reset()`` / ``step()``, :attr:`last_uav` holds the
     step's validated UAV messages (:class:`~swarm_core.aerial.UAVMessages`; the newest
     of each at a reset), and :meth:`set_uav_command` sets the velocity command published with
     the UGVs' at the next step (stops and halts send the UAV a zero command: hover).

@@ -15,16 +15,15 @@ measurement updates), :mod:`~localization.reducer` (prune/merge/cap),
 robot's filter advanced in one compiled call, :mod:`~localization.kernels`),
 :mod:`~localization.frames` (measurements moved into the filter's frame) and
 :mod:`~localization.metrics`.
-:mod:`~localization.id_phd` (``IDPHD``: teammate identities from communicated odometry, seed
-``002``) and :mod:`~localization.baselines` (the seed ``003`` UKF and seed ``004`` particle
-filter, on identified range-bearing measurements) are the identity-aware localizers.
+:mod:`~localization.id_phd` (``IDPHD``: teammate identities from communicated odometry,
+Stegagno 2013) and :mod:`~localization.baselines` (the IR-UKF study's UKF and Lee 2012's
+particle filter, on identified range-bearing measurements) are the identity-aware localizers.
 
 References
 ----------
 .. [1] B.-N. Vo and W.-K. Ma, "The Gaussian Mixture Probability Hypothesis Density Filter",
    IEEE Trans. Signal Processing, 54(11):4091-4104, 2006.
-.. [2] Perera 2021, seed ``000`` of this project (PHD-filter relative localization with lidar
-   and camera), chapter 3.
+.. [2] Perera 2021 (PHD-filter relative localization with lidar and camera), chapter 3.
 """
 
 from __future__ import annotations

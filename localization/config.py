@@ -1,7 +1,7 @@
 """Configuration of the robot-centric GM-PHD filter.
 
-One frozen dataclass, :class:`PHDConfig`, holds every model parameter. Defaults are the seed
-thesis' values (Perera 2021, chapter 3, the seed's hardware) wherever the seed gives one; the
+One frozen dataclass, :class:`PHDConfig`, holds every model parameter. Defaults are the
+Perera 2021 thesis' values (chapter 3, its hardware) wherever the thesis gives one; the
 places where we had to choose (process noise, clutter, pruning, merging, guards) say so in the
 field description. The simulator's presets use :data:`swarm_env.config.SIMULATOR_PHD`, the
 same model with the birth and the lidar range factor matched to the simulated sensors.
@@ -12,7 +12,7 @@ References
 .. [1] B.-N. Vo and W.-K. Ma, "The Gaussian Mixture Probability Hypothesis Density Filter",
    IEEE Trans. Signal Processing, 54(11):4091-4104, 2006.
 .. [2] Perera 2021, "PHD-filter based relative localization for robot swarms with lidar and
-   camera" (the project's seed ``000``), chapter 3, eqs. (7)-(30).
+   camera", chapter 3, eqs. (7)-(30).
 """
 
 from __future__ import annotations
@@ -43,8 +43,8 @@ __all__ = [
 
 #: Sensor sets: lidar and camera (LC), or lidar only (LO: camera updates are no-ops).
 MODES = ("lidar-camera", "lidar-only")
-#: ``"fixed"``: seed eq. (11), one wide component per time update. ``"measurement"``: adaptive
-#: births from lidar detections that the current mixture does not explain.
+#: ``"fixed"``: Perera 2021 eq. (11), one wide component per time update. ``"measurement"``:
+#: adaptive births from lidar detections that the current mixture does not explain.
 BIRTH_MODELS = ("fixed", "measurement")
 #: ``"seed"``: product of range x blind sectors x occlusion x interference (eq. 18).
 #: ``"constant"``: ``lidar_detection_probability`` inside ``lidar_range_m``, 0 outside.
@@ -62,11 +62,11 @@ BLIND_SECTOR_MODELS = ("seed", "visible-width")
 LIDAR_BEAM_PHASES = ("drifting", "fixed")
 #: ``"seed"``: inverse sigmoid of range (eq. 10). ``"constant"``: ``survival_probability``.
 SURVIVAL_MODELS = ("seed", "constant")
-#: ``"none"``: only the lidar starts tracks (the seed). ``"ray"``: an unexplained camera
+#: ``"none"``: only the lidar starts tracks (Perera 2021). ``"ray"``: an unexplained camera
 #: bearing spawns components along its ray (bearing-only measurement-driven birth).
 CAMERA_BIRTH_MODELS = ("none", "ray")
-#: ``"phd"``: missed copy ``(1 - P_d) w`` (Vo & Ma, the seed). ``"bernoulli"``: each component's
-#: missed copy gets the exact Bernoulli missed-detection weight (see ``PHDConfig``).
+#: ``"phd"``: missed copy ``(1 - P_d) w`` (Vo & Ma, Perera 2021). ``"bernoulli"``: each
+#: component's missed copy gets the exact Bernoulli missed-detection weight (see ``PHDConfig``).
 MISSED_DETECTION_MODELS = ("phd", "bernoulli")
 TIME_UPDATE_MODELS = ("odometry", "measurement")
 #: A stamp this far (s) behind a robot's latest one means its clock was reset (a ROS ``/clock``
@@ -82,7 +82,7 @@ CAMERA_BIRTH_RADIAL_STD_FRACTION = 0.45
 
 @dataclass(frozen=True, slots=True)
 class PHDConfig:
-    """Parameters of :class:`~localization.RobotCentricPHD` (defaults: the seed's).
+    """Parameters of :class:`~localization.RobotCentricPHD` (defaults: the Perera 2021 study's).
 
     Attributes
     ----------
@@ -94,7 +94,7 @@ class PHDConfig:
         moving at 0.2-0.3 m/s covers 0.02-0.03 m per 10 Hz odometry step, and the observer's own
         odometry error adds a little. Scale it with your time-update period.
     time_update : str
-        When the process noise is added. ``"odometry"`` (the seed): all of ``Q`` at each
+        When the process noise is added. ``"odometry"`` (Perera 2021): all of ``Q`` at each
         odometry time update. ``"measurement"``: the random walk is continuous, variance rate
         ``Q / process_noise_interval_s``, and each lidar scan, camera frame and odometry sample
         first adds the share that accrued since the robot's previous one (the ``("advance",
@@ -102,7 +102,7 @@ class PHDConfig:
         arrive three times per odometry sample: under ``"odometry"`` a teammate keeps moving
         between them while its covariance stands still (1 cm of motion at 0.5 m is 1.2 sigma of
         the simulated camera's bearing noise there, per frame). Calls without stamps get
-        the seed's behaviour.
+        the Perera 2021 study's behaviour.
     process_noise_interval_s : float
         The interval over which ``process_noise_std_m`` accrues (the odometry period, 0.1 s).
     survival_model : str
@@ -113,15 +113,15 @@ class PHDConfig:
     survival_probability : float
         Constant ``P_s`` when ``survival_model == "constant"``.
     birth : str
-        ``"fixed"`` (default, seed eq. 11) or ``"measurement"`` (adaptive births, see below).
+        ``"fixed"`` (default, Perera 2021 eq. 11) or ``"measurement"`` (adaptive births, below).
         Measured in ``seed-sim`` (wander, 20 robots): teammates enter an observer's 2 m disc
-        0.085 times per lidar scan, and the seed's fixed birth (weight 0.001 spread over
-        ``N(0, 4 I)``) gives a first detection a weight of ~5e-4, so a newcomer needs two or
+        0.085 times per lidar scan, and the Perera 2021 study's fixed birth (weight 0.001 spread
+        over ``N(0, 4 I)``) gives a first detection a weight of ~5e-4, so a newcomer needs two or
         three more scans (0.3-0.4 s) to pass 0.1; adaptive births confirm it at the next
         time update (the simulator presets use them).
         The fixed birth component joins the prior of every *lidar* update (the only sensor
         that can initialise a position) and only its detected copies are kept, as in Stone
-        Soup; the seed adds it at every time update, where its lingering missed-detection
+        Soup; Perera 2021 adds it at every time update, where its lingering missed-detection
         copies get merged into tracks and inflate their covariances.
     birth_weight : float
         Weight of the fixed birth component (expected births per lidar scan). Seed: 0.001.
@@ -132,7 +132,7 @@ class PHDConfig:
         Seed: 2 m (``cov = diag(4, 4)``).
     measurement_birth_weight : float
         Weight of each adaptive birth component (``birth == "measurement"``): the expected
-        number of new teammates behind one unexplained detection (not in the seed). Default
+        number of new teammates behind one unexplained detection (not in Perera 2021). Default
         0.25, measured in
         ``seed-sim``: of the detections that spawn a birth, 22 % lie at a teammate with lidar +
         camera (the camera removes the decoy-post tracks, whose detections then spawn births
@@ -144,16 +144,17 @@ class PHDConfig:
         components, ``sum_i P_d w N / (kappa + sum_i P_d w N)``, is below this value.
         The birth enters the mixture at the next time update (Ristic et al. 2012 style).
     lidar_noise_std_m : float
-        Lidar position noise, ``R_L = lidar_noise_std_m**2 * I``. Seed eq. 17: 0.05 (0.0025 m^2).
+        Lidar position noise, ``R_L = lidar_noise_std_m**2 * I``. Perera 2021 eq. 17: 0.05
+        (0.0025 m^2).
     lidar_pd_model : str
         ``"seed"`` or ``"constant"`` (see ``LIDAR_PD_MODELS``).
     lidar_pd_offset, lidar_pd_slope_per_m, lidar_pd_midpoint_m : float
-        Range factor ``1 / (offset + exp(slope * (||m|| - midpoint)))``. Seed eq. 19 (1.02, 8,
-        1.5: ``P_d`` = 0.5 at 1.5 m, 0.05 at 1.9 m) describes the seed's hardware. The
+        Range factor ``1 / (offset + exp(slope * (||m|| - midpoint)))``. Perera 2021 eq. 19
+        (1.02, 8, 1.5: ``P_d`` = 0.5 at 1.5 m, 0.05 at 1.9 m) describes that study's hardware. The
         simulator presets use the fit to the simulated X4's measured curve, 1.0, 8.78, 2.14
         (``swarm_env.config.SIM_LIDAR_PD_*``: 1 up to 1.86 m, 0.73 at 2 m, 0 from 2.48 m).
-        With the seed's factor the filter inflates the weight of every teammate at 1.5-2 m
-        towards ``1/P_d``.
+        With the Perera 2021 study's factor the filter inflates the weight of every teammate at
+        1.5-2 m towards ``1/P_d``.
     lidar_detection_probability : float
         Constant ``P_d`` used by ``lidar_pd_model == "constant"``.
     lidar_range_m : float
@@ -170,7 +171,7 @@ class PHDConfig:
         ``lidar_beam_spacing_deg``) number at least ``lidar_min_returns``. That is a notch
         with edges ``<= 0.5 deg`` wide, ending where enough of the housing clears the sector
         (the X4 at 1 m: 4.9 deg from the centre of a 10 deg sector). The
-        seed's bump (sigma 5 deg) is wrong for the simulated X4: measured 0.04 at 2-4 deg
+        Perera 2021 bump (sigma 5 deg) is wrong for the simulated X4: measured 0.04 at 2-4 deg
         from a centre against the bump's 0.17, and 0.93 at 6-8 deg against 0.62
         (``docs/concepts/localizers.md``, "The blind sectors' notch").
     lidar_beam_spacing_deg : float
@@ -183,14 +184,14 @@ class PHDConfig:
         ``"visible-width"`` notch's edges are steps at the first beams past each sector's
         edges; with drifting beams, ramps one spacing wide.
     occlusion_std_deg : float
-        Angular std of the occlusion bump (seed eqs. 21-22: 3 deg).
+        Angular std of the occlusion bump (Perera 2021 eqs. 21-22: 3 deg).
     occlusion_min_separation_m : float
         A component only occludes components at least this much farther away (a teammate
-        cannot hide one that is at the same range). 0 reproduces the seed literally.
+        cannot hide one that is at the same range). 0 reproduces Perera 2021 literally.
     interference_depth : float
-        Depth of the interference notch (seed eq. 23: 0.6).
+        Depth of the interference notch (Perera 2021 eq. 23: 0.6).
     interference_std_deg : float
-        Angular std ``c`` of each null-return notch (the seed leaves ``c`` unspecified).
+        Angular std ``c`` of each null-return notch (Perera 2021 leaves ``c`` unspecified).
     lidar_clutter_intensity : float
         Lidar clutter intensity ``kappa_L`` per m^2 (Poisson false detections per unit area).
         The seed uses 0; 0 is allowed but then every unexplained detection is taken as a
@@ -207,7 +208,7 @@ class PHDConfig:
         (``swarm_env.config.SIM_CAMERA_NOISE_WIDTH_FRACTION``): 0.96 deg at 0.5 m, 0.24 deg
         at 2 m, where a constant would be 4x too tight close in or too loose far out.
     camera_pd_offset, camera_pd_slope_per_m, camera_pd_midpoint_m : float
-        Camera range factor (seed eq. 30: 1.1, 5, 4).
+        Camera range factor (Perera 2021 eq. 30: 1.1, 5, 4).
     camera_clutter_intensity : float
         Camera clutter intensity ``kappa_C`` per radian of bearing. Besides false red blobs it
         must account for the bearings of teammates the camera sees but the filter does not
@@ -222,12 +223,12 @@ class PHDConfig:
         intensity ``rho * integral_{r_in}^{inf} P_dC(r) r dr`` per radian (a ring of radius
         ``r``, width ``dr`` and angle ``dtheta`` holds ``rho r dr dtheta`` teammates, each
         reported with the camera's range factor ``P_dC(r)``), added to
-        ``camera_clutter_intensity``. Default 0 (the seed's model). Leave it 0 with
+        ``camera_clutter_intensity``. Default 0 (the Perera 2021 study's model). Leave it 0 with
         ``camera_birth="ray"``: the camera then tracks those teammates itself.
     camera_untracked_min_range_m : float
         Inner radius ``r_in`` of the untracked band (m): the tracked disc (the lidar's 2 m).
     camera_birth : str
-        ``"none"`` (the seed: only lidar detections start tracks) or ``"ray"``: a bearing
+        ``"none"`` (Perera 2021: only lidar detections start tracks) or ``"ray"``: a bearing
         whose explained fraction ``sum_i P_d w_i g_i / (kappa_C + sum_i ...)`` after the
         camera update is below ``camera_birth_max_explained`` adds
         ``camera_birth_components`` components along its ray, at the centres ``r_k`` of equal
@@ -246,7 +247,7 @@ class PHDConfig:
         Components per ray birth (default 6: 0.62 m cells over 0.3-4 m).
     camera_birth_min_range_m, camera_birth_max_range_m : float
         Range band of a ray birth (m). Defaults 0.3 (two robot radii: nearer than that is
-        our own body) and 4 (the camera's range, seed eq. 30's midpoint).
+        our own body) and 4 (the camera's range, Perera 2021 eq. 30's midpoint).
     camera_birth_max_explained : float
         Threshold on a bearing's explained fraction below which it spawns a ray (as
         ``measurement_birth_max_explained`` for the lidar).
@@ -261,7 +262,7 @@ class PHDConfig:
         camera restores). ``lidar_pd_model="seed"`` only; the GM-PHD engines only (the PMB
         ignores it).
     missed_detection : str
-        ``"phd"`` (Vo & Ma, the seed): a component's missed-detection copy keeps
+        ``"phd"`` (Vo & Ma, Perera 2021): a component's missed-detection copy keeps
         ``(1 - P_d) w``. ``"bernoulli"``: it keeps the exact Bernoulli filter's missed
         posterior ``w (1 - P_d) / (1 - r P_d + r Lambda)``, the component read as
         ``n = max(1, ceil(w))`` targets of existence ``r = w / n``, and
@@ -269,9 +270,9 @@ class PHDConfig:
         the component was detected, against clutter plus every other component. The PHD's
         ``(1 - P_d) w`` is its first-order (Poisson) approximation, exact only for ``r << 1``;
         at ``r ~ 1`` it takes an established track to ``1 - P_d`` after one missed frame
-        (0.09 with the seed's camera), while the exact missed posterior of a target that was
-        certainly there is still ``r (1 - P_d) / (1 - r P_d)`` (0.64 after a time update with
-        ``P_s = 0.95``): one dropped blob does not kill the track, three in a row do. With a
+        (0.09 with the Perera 2021 study's camera), while the exact missed posterior of a target
+        that was certainly there is still ``r (1 - P_d) / (1 - r P_d)`` (0.64 after a time update
+        with ``P_s = 0.95``): one dropped blob does not kill the track, three in a row do. With a
         gated measurement ``Lambda`` is large and the missed copy vanishes, so a detected
         track is not inflated towards ``1 / P_d``. Detected copies keep the PHD weights.
     scan_evidence : bool
@@ -281,13 +282,13 @@ class PHDConfig:
         scan in the lidar calls (a :class:`~localization.feed.SwarmFeed` packs it for a bank
         whose ``reads_scans`` is True, with this on or ``camera_clutter_per_wide_object`` > 0;
         its call tuples always carry it).
-        Default False: the seed's filter. The GM-PHD engines only (the PMB ignores it).
+        Default False: Perera 2021's filter. The GM-PHD engines only (the PMB ignores it).
     camera_clutter_per_wide_object : float
         Camera blobs per frame that are not teammates, per compact object wider than a housing
         in the last scan (:mod:`localization.object_clutter`): the camera clutter intensity
         rises on those objects' bearings by this many blobs, spread as their measured blobs
         are. Needs the scan, as ``scan_evidence`` does (:attr:`reads_scans`). Default 0 (off,
-        the seed's uniform clutter); the simulator's is measured
+        the Perera 2021 study's uniform clutter); the simulator's is measured
         (``swarm_env.config.SIM_CAMERA_CLUTTER_PER_WIDE_OBJECT``). The GM-PHD and the PMB
         engines.
     camera_wide_object_std_fraction : float
@@ -300,7 +301,7 @@ class PHDConfig:
         before a filter's first scan the objects are unknown and it keeps the whole. At most
         ``camera_clutter_intensity``.
     scan_target_radius_m : float
-        Radius of what the lidar sees of a teammate (seed 000: the X4's 65 mm housing); the
+        Radius of what the lidar sees of a teammate (Perera 2021: the X4's 65 mm housing); the
         scan evidence and the ``"visible-width"`` blind sectors.
     scan_range_noise_std_m, scan_range_noise_quadratic_per_m : float
         The scanner's range noise std ``a + b d^2`` at range ``d`` (the X4's, as
@@ -545,7 +546,7 @@ class PHDConfig:
     @property
     def camera_noise_var_rad2(self) -> float:
         """The constant part of the camera bearing noise variance ``R_C`` in rad^2 (all of it
-        when ``camera_noise_width_fraction == 0``, the seed)."""
+        when ``camera_noise_width_fraction == 0``, Perera 2021)."""
         return math.radians(self.camera_noise_std_deg) ** 2
 
     def camera_bearing_var(self, range_m: np.ndarray | float) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Survival and detection probabilities of the robot-centric GM-PHD (seed eqs. 10, 18-23, 29-30).
+"""Survival and detection probabilities of the GM-PHD (Perera 2021 eqs. 10, 18-23, 29-30).
 
 All factors are evaluated at the component means of the *prior* mixture, vectorised over
 components (and over component pairs for occlusion, components x null returns for
@@ -12,21 +12,21 @@ has peak 1 at ``d = 0``, is periodic (no angle wrapping needed) and equals the G
 exponent, i.e. identical for the few-degree widths used here. It costs one small matrix
 product instead of ``atan2`` plus wrapping.
 
-Corrections to the seed (see ``docs/concepts/localizers.md``):
+Corrections to Perera 2021 (see ``docs/concepts/localizers.md``):
 
 * eq. 20 (blind sectors) and eq. 22 (occlusion) are written as *sums* of factors; a product
   is what the text describes (each sector / each nearer robot removes detection), so we
-  multiply. The seed's ``N(theta; alpha, beta/2)`` is replaced by a bump of peak 1 with
+  multiply. Perera 2021's ``N(theta; alpha, beta/2)`` is replaced by a bump of peak 1 with
   ``sigma = beta/2``, so that ``P_d -> 0`` at the sector centre.
 * eq. 23 (interference) is also written as a sum; we use the product over null-return
   bearings ``b`` of ``1 - depth * bump(theta - b; c)``.
 * Each occlusion factor ``1 - w_j bump`` is clipped at 0: merged weights can exceed 1.
-* The blind sectors' bump is the seed's; ``blind_sector_model="visible-width"`` replaces it
-  with the notch that the scanner's beam geometry gives (:func:`visible_width_factor`).
+* The blind sectors' bump is the Perera 2021 study's; ``blind_sector_model="visible-width"``
+  replaces it with the notch that the scanner's beam geometry gives (:func:`visible_width_factor`).
 
 References
 ----------
-.. [1] Perera 2021, seed ``000`` of this project, chapter 3.
+.. [1] Perera 2021, chapter 3.
 """
 
 from __future__ import annotations
@@ -67,7 +67,7 @@ RAMP_MIN_STD_RAD = 1e-12
 def inverse_sigmoid(
     range_m: np.ndarray, offset: float, slope_per_m: float, midpoint_m: float
 ) -> np.ndarray:
-    """``1 / (offset + exp(slope * (range - midpoint)))`` (seed eqs. 10, 19, 30).
+    """``1 / (offset + exp(slope * (range - midpoint)))`` (Perera 2021 eqs. 10, 19, 30).
 
     Parameters
     ----------
@@ -292,7 +292,7 @@ def occlusion_factor(
     inv_var: float,
     min_separation_m: float,
 ) -> np.ndarray:
-    """Seed eqs. 21-22 as a product over nearer components ``j`` of ``1 - w_j bump``.
+    """Perera 2021 eqs. 21-22 as a product over nearer components ``j`` of ``1 - w_j bump``.
 
     Parameters
     ----------
@@ -326,7 +326,7 @@ def interference_factor(
     inv_var: float,
     depth: float,
 ) -> np.ndarray:
-    """Seed eq. 23 as a product over null-return bearings ``b`` of ``1 - depth * bump``.
+    """Perera 2021 eq. 23 as a product over null-return bearings ``b`` of ``1 - depth * bump``.
 
     Parameters
     ----------
@@ -403,7 +403,8 @@ class DetectionModel:
         self.__init__(config)  # type: ignore[misc]
 
     def survival(self, table: np.ndarray) -> np.ndarray:
-        """``P_s`` per component (seed eq. 10 or constant), shape (N,), of a ``(6, N)`` table."""
+        """``P_s`` per component (Perera 2021 eq. 10 or constant), shape (N,), of a ``(6, N)``
+        table."""
         cfg = self.config
         if cfg.survival_model == "constant":
             return np.full(table.shape[1:], cfg.survival_probability)
@@ -415,7 +416,7 @@ class DetectionModel:
         )
 
     def lidar(self, table: np.ndarray, null_bearings_rad: np.ndarray | None) -> np.ndarray:
-        """Lidar ``P_d`` per component (seed eq. 18 or constant), in ``[0, 1]``.
+        """Lidar ``P_d`` per component (Perera 2021 eq. 18 or constant), in ``[0, 1]``.
 
         Parameters
         ----------
@@ -526,7 +527,7 @@ class DetectionModel:
         return np.multiply.reduce(factors, axis=0)
 
     def camera(self, table: np.ndarray) -> np.ndarray:
-        """Camera ``P_d`` per component (seed eqs. 29-30), in ``[0, 1]``.
+        """Camera ``P_d`` per component (Perera 2021 eqs. 29-30), in ``[0, 1]``.
 
         ``table`` is ``(6, N)``; the result has shape ``(N,)``. Components closer than
         ``min_range_m`` get 0: their bearing is undefined.

@@ -19,7 +19,7 @@ References
 ----------
 .. [1] B.-N. Vo and W.-K. Ma, "The Gaussian Mixture Probability Hypothesis Density Filter",
    IEEE Trans. Signal Processing, 54(11):4091-4104, 2006.
-.. [2] Perera 2021, seed ``000`` of this project, chapter 3.
+.. [2] Perera 2021, chapter 3.
 .. [3] B. Ristic, D. Clark, B.-N. Vo, B.-T. Vo, "Adaptive target birth intensity for PHD and
    CPHD filters", IEEE Trans. Aerospace and Electronic Systems, 48(2), 2012 (measurement births).
 .. [4] B. Ristic, B.-T. Vo, B.-N. Vo, A. Farina, "A tutorial on Bernoulli filters: theory,
@@ -198,7 +198,7 @@ class RobotCentricPHD(RobotCentricFilter):
     Parameters
     ----------
     config : PHDConfig, optional
-        Filter configuration; the seed's defaults if omitted.
+        Filter configuration; the Perera 2021 study's defaults if omitted.
     **overrides
         Field values replacing those of ``config`` (``RobotCentricPHD(mode="lidar-only")``).
         Unknown names raise ``ValueError``.
@@ -307,7 +307,7 @@ class RobotCentricPHD(RobotCentricFilter):
 
     # ------------------------------------------------------------------ steps
     def predict(self, odometry: np.ndarray) -> None:
-        """Time update with the observer's own motion (seed eqs. 7-10).
+        """Time update with the observer's own motion (Perera 2021 eqs. 7-10).
 
         Parameters
         ----------
@@ -348,7 +348,7 @@ class RobotCentricPHD(RobotCentricFilter):
         sensor_pose: np.ndarray | None = None,
         scan_profile: np.ndarray | None = None,
     ) -> None:
-        """GM-PHD measurement update with lidar detections (seed eqs. 12-23), then reduce.
+        """GM-PHD measurement update with lidar detections (Perera 2021 eqs. 12-23), then reduce.
 
         Parameters
         ----------
@@ -391,7 +391,7 @@ class RobotCentricPHD(RobotCentricFilter):
             n = table.shape[1]
             fixed_birth = cfg.birth == "fixed"
             if fixed_birth:
-                # The seed's birth component (eq. 11) joins the prior of every lidar update.
+                # Perera 2021's birth component (eq. 11) joins the prior of every lidar update.
                 table = np.concatenate((table, self._fixed_birth), axis=1)
             pd = self._model.lidar(table, nulls) * self._visibility(table)
             out, explained = phd.lidar_update(
@@ -417,7 +417,7 @@ class RobotCentricPHD(RobotCentricFilter):
         self._mixture = None
 
     def update_camera(self, bearings: np.ndarray, sensor_pose: np.ndarray | None = None) -> None:
-        """GM-PHD measurement update with camera bearings (seed eqs. 24-30), then reduce.
+        """GM-PHD measurement update with camera bearings (Perera 2021 eqs. 24-30), then reduce.
 
         A no-op (after validation) when ``config.mode == "lidar-only"``.
 

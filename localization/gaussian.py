@@ -28,7 +28,7 @@ References
 ----------
 .. [1] B.-N. Vo and W.-K. Ma, "The Gaussian Mixture Probability Hypothesis Density Filter",
    IEEE Trans. Signal Processing, 54(11):4091-4104, 2006.
-.. [2] Perera 2021, seed ``000`` of this project, eqs. (13)-(16) and (25)-(28).
+.. [2] Perera 2021, eqs. (13)-(16) and (25)-(28).
 .. [3] R. S. Bucy and P. D. Joseph, "Filtering for Stochastic Processes with Applications to
    Guidance", 1968 (the Joseph stabilised covariance update).
 """
@@ -95,9 +95,9 @@ def frame_change_matrix(dx: float, dy: float, dpsi: float, process_var: float) -
     A point ``p`` fixed in the world, seen from a robot that moves by ``d = (dx, dy)`` and
     turns by ``dpsi`` (both in the robot frame at the start of the move), is at
     ``p' = R(dpsi)^T (p - d)`` afterwards: the frame rotates by ``+dpsi``, so points rotate by
-    ``-dpsi`` (the seed's eq. 7 writes ``R(dpsi)``, which is the inverse). Covariances map
-    with the same matrix, ``P' = R^T P R + Q``, ``Q = process_var * I`` (isotropic, so the
-    seed's ``R Q R^T`` is just ``Q``).
+    ``-dpsi`` (the Perera 2021 study's eq. 7 writes ``R(dpsi)``, which is the inverse). Covariances
+    map with the same matrix, ``P' = R^T P R + Q``, ``Q = process_var * I`` (isotropic, so the
+    study's ``R Q R^T`` is just ``Q``).
 
     Parameters
     ----------
@@ -231,8 +231,8 @@ def bearing_update(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """EKF update of every component with every bearing ``theta = atan2(y, x) + v``.
 
-    Jacobian ``H = [-y, x] / ||m||^2`` (the derivative of ``atan2``; the seed's eq. 28 divides
-    by ``||m||``, which is wrong by a factor ``||m||``). Innovations are wrapped to
+    Jacobian ``H = [-y, x] / ||m||^2`` (the derivative of ``atan2``; the Perera 2021 study's eq. 28
+    divides by ``||m||``, which is wrong by a factor ``||m||``). Innovations are wrapped to
     ``[-pi, pi)``.
 
     Parameters

@@ -477,7 +477,7 @@ def advance_clock(clock, r, stamp, fp, ip):
 @njit(cache=True)
 def predict_process_var(clock, r, fp, ip):
     """The ``Q`` variance of robot ``r``'s next predict: none if its clock was advanced since
-    the last one (the noise went in at each stamp), else all of it (the seed; unstamped calls).
+    the last one (the noise went in at each stamp), else all of it (Perera 2021; unstamped calls).
     Marks the clock as not advanced."""
     advanced = ip[I_TIME_UPDATE_MEASUREMENT] and clock[r, 1] != 0.0
     clock[r, 1] = 0.0
@@ -505,7 +505,7 @@ def set_round_gaussian(out, col, w, x, y, var):
 
 @njit(cache=True)
 def set_fixed_birth(out, col, fp):
-    """Column ``col`` of ``out`` becomes the seed's fixed birth component
+    """Column ``col`` of ``out`` becomes the Perera 2021 study's fixed birth component
     (``birth == "fixed"``), which joins the prior of every lidar update."""
     set_round_gaussian(out, col, fp[F_BIRTH_W], fp[F_BIRTH_X], fp[F_BIRTH_Y], fp[F_BIRTH_VAR])
 

@@ -1,8 +1,8 @@
-"""Localization metrics: OSPA, GOSPA, the seed's per-teammate error, and time accumulators.
+"""Localization metrics: OSPA, GOSPA, Perera 2021's per-teammate error, and time accumulators.
 
 Two accumulators: :class:`SeedScorer` scores a whole swarm per (observer, teammate) pair, the
-seed's Fig. 7 exactly (one bar per tracked teammate of one observer), plus the seed ``001``
-figures, RMSE, GOSPA with its split and cardinality (used by ``swarm-phd evaluate``);
+Perera 2021 study's Fig. 7 exactly (one bar per tracked teammate of one observer), plus the
+Stegagno 2012 figures, RMSE, GOSPA with its split and cardinality (used by ``swarm-phd evaluate``);
 :class:`LocalizationScorer` is the simpler per-call accumulator of the bridge and replay
 episodes (pooled per key).
 
@@ -35,7 +35,7 @@ References
    of multi-object filters", IEEE Trans. Signal Processing, 56(8), 2008.
 .. [2] A. S. Rahmathullah, A. F. Garcia-Fernandez, L. Svensson, "Generalized optimal
    sub-pattern assignment metric", FUSION 2017.
-.. [3] Perera 2021, seed ``000`` of this project, chapter 4 (figs. 7-8).
+.. [3] Perera 2021, chapter 4 (figs. 7-8).
 """
 
 from __future__ import annotations
@@ -68,7 +68,7 @@ __all__ = [
     "DEFAULT_RANGE_BINS_M",
 ]
 
-#: Default "in range" radius: the lidar's effective tracking range in the seed (m).
+#: Default "in range" radius: the lidar's effective tracking range in Perera 2021 (m).
 DEFAULT_RANGE_M = 2.0
 #: The seeds' scoring: a teammate's error is "large" above this (m, seed fig. 7) ...
 LARGE_ERROR_M = 0.30
@@ -240,7 +240,7 @@ def in_range_mask(relative_positions: np.ndarray, range_m: float = DEFAULT_RANGE
     relative_positions : array_like, shape (K, 2)
         True neighbour positions in the observer's frame (m).
     range_m : float
-        Radius (m); default the lidar tracking range of the seed (2 m).
+        Radius (m); default the lidar tracking range of Perera 2021 (2 m).
 
     Returns
     -------
@@ -336,13 +336,13 @@ def extract_estimates(
 
 @dataclass
 class LocalizationScorer:
-    """Accumulate the seed's localization statistics over time.
+    """Accumulate the Perera 2021 study's localization statistics over time.
 
     Two ways to feed it, each once per evaluation step:
 
     * ``update(truth, ids, mixture)``: one observer, the true positions (observer frame) of the
-      neighbours in range and their ids. Statistics are kept **per neighbour id** (the seed's
-      fig. 7: % of time each UGV's error exceeds 0.30 m).
+      neighbours in range and their ids. Statistics are kept **per neighbour id** (the Perera 2021
+      study's fig. 7: % of time each UGV's error exceeds 0.30 m).
     * ``add(observer, truth, mixture, range_m=None)``: a swarm of observers, each with its own
       filter. Statistics are kept **per observer** (pooled over its neighbours in range).
 
@@ -360,7 +360,7 @@ class LocalizationScorer:
     error_threshold_m : float
         "Large error" threshold (m), seed fig. 7: 0.30.
     accurate_threshold_m : float
-        "Accurate" threshold (m), seed ``001``: 0.1.
+        "Accurate" threshold (m), Stegagno 2012: 0.1.
     min_weight : float
         Components with weight ``<= min_weight`` are ignored for the error (seed: 0.1).
     cardinality_range_m : float or None
@@ -521,8 +521,8 @@ class LocalizationScorer:
         -------
         dict
             ``percent_large_error``, ``percent_accurate`` (pooled over neighbour-steps),
-            ``robots_over_25pct`` (keys with > 25 % large-error time, the seed's headline
-            count), ``cardinality_mae``, ``mean_weight_sum``, ``mean_true_count``,
+            ``robots_over_25pct`` (keys with > 25 % large-error time, the Perera 2021 study's
+            headline count), ``cardinality_mae``, ``mean_weight_sum``, ``mean_true_count``,
             ``median_error_m`` (finite errors only), ``gospa_mean``, ``scored_observations``
             (one per ``update``/``add`` call: observer-steps), and the per-key
             distributions ``pct_time_err_gt_30cm`` and ``pct_time_within_10cm``, each
@@ -550,7 +550,7 @@ class LocalizationScorer:
         }
 
 
-# --------------------------------------------------------------------------- the seed's scoring
+# ------------------------------------------------------------- the source studies' scoring
 def pad_mixtures(mixtures: list[GaussianMixture]) -> tuple[np.ndarray, np.ndarray]:
     """Stack every observer's mixture into padded arrays for :class:`SeedScorer`.
 
@@ -649,7 +649,7 @@ def _floats(values: np.ndarray) -> list[float]:
 
 
 class SeedScorer:
-    """The seed's localization scoring, per (observer, teammate) pair, for a whole swarm.
+    """The source studies' localization scoring, per (observer, teammate) pair, for a whole swarm.
 
     Fed once per evaluation step with the truth of every observer at once (vectorised over
     observers, teammates and components; only GOSPA's assignment loops over observers).
@@ -660,13 +660,13 @@ class SeedScorer:
       observer ``i`` to teammate ``j`` <= the scoring range ``range_m``). A *tracked teammate*
       of ``i`` is a ``j`` in range at least once; only tracked teammates get a bar.
     * *Matched component* of teammate ``j`` for observer ``i``: ``i``'s closest component with
-      weight ``> min_weight`` (seed 000: 0.1); the *error* is the distance to it, ``inf`` when
+      weight ``> min_weight`` (Perera 2021: 0.1); the *error* is the distance to it, ``inf`` when
       no component qualifies.
-    * *Seed 000 Fig. 7 bar* of pair ``(i, j)``: % of the steps with ``j`` in range whose error
-      is ``> error_threshold_m`` (0.30 m). ``ugv_0``'s bars are the seed's figure.
+    * *Perera 2021 Fig. 7 bar* of pair ``(i, j)``: % of the steps with ``j`` in range whose error
+      is ``> error_threshold_m`` (0.30 m). ``ugv_0``'s bars are the study's figure.
     * *Pooled per observer* (the earlier ``swarm-phd evaluate`` statistic): the same % over
       all of ``i``'s (step, teammate in range) pairs together.
-    * *Seed 001*: % of in-range steps with error ``< accurate_threshold_m`` (0.1 m), and with
+    * *Stegagno 2012*: % of in-range steps with error ``< accurate_threshold_m`` (0.1 m), and with
       bearing error ``< bearing_threshold_deg`` (7 deg); the bearing error is
       ``|wrap(atan2(matched mean) - atan2(truth))|``. An unmatched step fails both.
     * *RMSE* (m, deg): over in-range steps with a matched component, whatever its distance.
@@ -688,7 +688,7 @@ class SeedScorer:
         Observer whose per-step cardinality and GOSPA are kept in :attr:`trace` (Fig. 8)
         when :meth:`update` is given ``time_s``.
     error_threshold_m, accurate_threshold_m, bearing_threshold_deg, min_weight, over_pct :
-        0.30 m, 0.10 m, 7 deg, 0.1, 25 % (the seeds' values).
+        0.30 m, 0.10 m, 7 deg, 0.1, 25 % (the two studies' values).
     gospa_c, gospa_p, gospa_alpha, extraction_threshold :
         1 m, 2, 2, 0.5.
     range_bins_m : sequence of float
@@ -931,7 +931,7 @@ class SeedScorer:
         return _pct(self.large_steps, self.in_range_steps)
 
     def observer_bars(self, observer: int) -> dict[str, Any]:
-        """The seed's Fig. 7 for one observer: one bar per tracked teammate."""
+        """Perera 2021's Fig. 7 for one observer: one bar per tracked teammate."""
         if not 0 <= observer < self.n_robots:
             raise ValueError(f"observer must be in [0, {self.n_robots}), got {observer}")
         pct = self.per_pair_pct_large()[observer]

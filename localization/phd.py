@@ -13,7 +13,7 @@ References
 ----------
 .. [1] B.-N. Vo and W.-K. Ma, "The Gaussian Mixture Probability Hypothesis Density Filter",
    IEEE Trans. Signal Processing, 54(11):4091-4104, 2006, Table I.
-.. [2] Perera 2021, seed ``000`` of this project, eqs. (7)-(30).
+.. [2] Perera 2021, eqs. (7)-(30).
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ class ProcessClock:
     ``time_update == "measurement"``: the noise accrues continuously at the rate
     ``process_var / interval_s``; every stamped call (``("advance", stamp_s)``) adds what
     accrued since the previous stamp, and the next predict adds none. A predict that no
-    stamp preceded (unstamped calls, ``"odometry"``) adds all of ``Q``, as the seed does.
+    stamp preceded (unstamped calls, ``"odometry"``) adds all of ``Q``, as Perera 2021 does.
 
     Attributes
     ----------
@@ -105,7 +105,7 @@ def diffuse(table: np.ndarray, process_var: float) -> np.ndarray:
 def predict(
     table: np.ndarray, odometry: np.ndarray, survival: np.ndarray, process_var: float
 ) -> np.ndarray:
-    """GM-PHD time update with the observer's own odometry (seed eqs. 7-9).
+    """GM-PHD time update with the observer's own odometry (Perera 2021 eqs. 7-9).
 
     Parameters
     ----------
@@ -243,7 +243,7 @@ def missed_moments(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The lidar missed-detection posterior ``(1 - P_d(x)) N(x; m, P)``, moment-matched.
 
-    ``P_d(x) = g f(r(x))``: the range factor ``f`` (seed eq. 19's sigmoid) varies over the
+    ``P_d(x) = g f(r(x))``: the range factor ``f`` (Perera 2021 eq. 19's sigmoid) varies over the
     component, the angular factors ``g = P_d(m) / f(||m||)`` are taken at the mean. Along the
     range direction ``u = m / ||m||`` the range is linearised, ``r = ||m|| + s z``,
     ``s^2 = u^T P u``, ``z ~ N(0, 1)``, and 9-point Gauss-Hermite gives ``Z = E[1 - g f]``,
@@ -404,7 +404,7 @@ def lidar_update(
     bernoulli: bool = False,
     missed: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """GM-PHD update with lidar position measurements (seed eqs. 12-17, ``H = I``).
+    """GM-PHD update with lidar position measurements (Perera 2021 eqs. 12-17, ``H = I``).
 
     Parameters
     ----------
@@ -457,7 +457,7 @@ def camera_update(
     bernoulli: bool = False,
     visibility: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """GM-PHD update with camera bearings, one EKF step per component (seed eqs. 24-30).
+    """GM-PHD update with camera bearings, one EKF step per component (Perera 2021 eqs. 24-30).
 
     Parameters
     ----------

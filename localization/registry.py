@@ -8,9 +8,9 @@ and the replay.
 
 Every entry builds a :class:`~localization.protocol.Localizer` from ``(n_robots, phd, seed)``:
 ``phd`` is the :class:`~localization.PHDConfig` holding the sensor models of the World the
-localizer runs on (the simulator presets' :data:`swarm_env.config.SIMULATOR_PHD`, or the seed's
-``PHDConfig()`` for real robots); the ``-lc`` / ``-lo`` names set its ``mode``, the bare family
-names (``phd``, ``phd-reference``) keep it. :func:`register` adds a family (see
+localizer runs on (the simulator presets' :data:`swarm_env.config.SIMULATOR_PHD`, or the Perera
+2021 study's ``PHDConfig()`` for real robots); the ``-lc`` / ``-lo`` names set its ``mode``, the
+bare family names (``phd``, ``phd-reference``) keep it. :func:`register` adds a family (see
 ``docs/how-to/add-a-localizer-family.md``).
 
 Each family's bound on total weight and cardinality is in its class docstring and in
@@ -223,7 +223,7 @@ class IdentityLocalizer(LocalizerBase):
     odometry is stale sends no message. Lidar records go to ``update_lidar`` (ID-PHD,
     anonymous) or, for ``ukf`` / ``pf``, to ``update({j: (range, bearing)})`` with the identity
     of the true robot within :data:`ORACLE_GATE_M` of each detection (an oracle standing in for
-    seed ``003``'s / ``004``'s identifying sensors; needs ``feed.truth``). Camera records are
+    the IR-UKF / Lee 2012 studies' identifying sensors; needs ``feed.truth``). Camera records are
     not used.
 
     Bounds (``docs/concepts/localizers.md``, "Bounds on weight and cardinality"): ``id-phd`` as
@@ -287,7 +287,7 @@ class IdentityLocalizer(LocalizerBase):
 
     def identities(self, robot: int) -> dict[int, np.ndarray]:
         """ID-PHD: the mean of each ID's highest-weight component, whatever its weight (as
-        seed ``002`` defines the estimate; the static class is left out)."""
+        Stegagno 2013 defines the estimate; the static class is left out)."""
         f = self.filters[self._robot(robot)]
         if isinstance(f, IDPHD):
             return {i: p for i, p in f.estimate(min_weight=0.0).items() if i >= 0}
@@ -362,7 +362,7 @@ for _suffix, _mode in _MODES.items():
     )
 register(
     "id-phd",
-    "ID-PHD, seed 002 (lidar + teammates' communicated odometry; identities)",
+    "ID-PHD, Stegagno 2013 (lidar + teammates' communicated odometry; identities)",
     lambda n, phd, seed: IdentityLocalizer(
         [IDPHD(idphd_config(phd)) for _ in range(n)], oracle_identities=False
     ),
@@ -382,9 +382,9 @@ def _particle(n: int, phd: PHDConfig, seed: int) -> Localizer:
     return IdentityLocalizer(filters, oracle_identities=True)
 
 
-register("ukf", "seed 003 UKF per teammate (oracle-identified range-bearing)", _ukf)
+register("ukf", "IR-UKF study's UKF per teammate (oracle-identified range-bearing)", _ukf)
 register(
-    "pf", "seed 004 particle filter per teammate (oracle-identified range-bearing)", _particle
+    "pf", "Lee 2012 particle filter per teammate (oracle-identified range-bearing)", _particle
 )
 
 
@@ -410,7 +410,7 @@ for _suffix, _mode in _MODES.items():
     )
 
 
-# ---------------------------------------------------------------------- seed 001 (mutual)
+# ------------------------------------------------------- Stegagno 2012 thesis (mutual)
 def _mutual(method: str, **config: Any) -> Builder:
     def build(n: int, phd: PHDConfig, seed: int) -> Localizer:
         from .mutual.localizer import METHODS, MutualLocalizer
@@ -422,9 +422,9 @@ def _mutual(method: str, **config: Any) -> Builder:
 
 
 for _name, _method, _config, _text in (
-    ("p-multireg", "p-multireg", {}, "P-MultiReg, seed 001 ch. 6 (lidar registration"),
-    ("fastslam-mc", "fastslam-mc", {}, "FastSLAM-MC, seed 001 ch. 5 (lidar"),
-    ("p-multibeareg", "p-multibeareg", {}, "P-MultiBeaReg, seed 001 ch. 10 (camera bearings"),
+    ("p-multireg", "p-multireg", {}, "P-MultiReg, Stegagno 2012 ch. 6 (lidar registration"),
+    ("fastslam-mc", "fastslam-mc", {}, "FastSLAM-MC, Stegagno 2012 ch. 5 (lidar"),
+    ("p-multibeareg", "p-multibeareg", {}, "P-MultiBeaReg, Stegagno 2012 ch. 10 (camera bearings"),
     (
         "p-multibeareg-lidar",
         "p-multibeareg",

@@ -5,7 +5,7 @@ uses only those: a teammate beyond the extractor's ~2 m is "not detected", which
 nothing (``P_d`` ~ 0 there). The ranges themselves say more. Along each bearing the scan
 found the first surface at some range ``d``; both sensors sit on the robot's axis, so:
 
-* **Free space refutes** (the seed's "negative information", seed 000 section 6 and seed 001
+* **Free space refutes** ("negative information", Perera 2021 section 6 and Stegagno 2012
   on landmarks "expected and not seen"): if the beams at a component's bearing, all of whose
   footprints would have hit a 65 mm housing at the component's range ``r``, returned from
   beyond ``r``, no teammate is there. Up to the X4's range (a housing still takes a beam at

@@ -161,7 +161,7 @@ class CameraRecord:
 
 @dataclass(frozen=True, slots=True)
 class Broadcast:
-    """What one robot told its teammates over the radio (seed 001 ch. 5-6, seed 002).
+    """What one robot told its teammates over the radio (Stegagno 2012 ch. 5-6, Stegagno 2013).
 
     Robots are anonymous to each other's sensors, but not on the radio: a broadcast names its
     sender. Its contents are in the sender's own frames, so a receiver needs no shared frame.

@@ -1,10 +1,10 @@
 """The simulated radio: robots broadcast their odometry and anonymous detections to teammates.
 
-Seed 001's mutual localization (ch. 5-6, 10) and seed 002's ID-PHD need what teammates say
-about themselves: their own odometry since start and their anonymous feature sets. A real
-radio loses packets, delivers them late, and reaches only so far; the channel here models the
-three, per (sender, receiver) pair, with its own random stream so that switching the radio on
-never changes the sensors' noise.
+The Stegagno 2012 thesis's mutual localization (ch. 5-6, 10) and the Stegagno 2013 study's
+ID-PHD need what teammates say about themselves: their own odometry since start and their
+anonymous feature sets. A real radio loses packets, delivers them late, and reaches only so far;
+the channel here models the three, per (sender, receiver) pair, with its own random stream so
+that switching the radio on never changes the sensors' noise.
 
 The channel is generic over receivers: the UGVs hear each other, and an aerial supervisor (or
 any listener at a known position) can be added as an extra receiver.

@@ -1,9 +1,9 @@
-"""Configuration: one frozen dataclass per subsystem, seed values as defaults, named presets.
+"""Configuration: one frozen dataclass per subsystem, published values as defaults, named presets.
 
-``SwarmConfig`` gathers everything a simulated swarm needs. Presets reproduce the seed's setups
-(Perera 2021): ``seed-sim`` is the 6 m x 6 m Gazebo arena with 20 UGVs, ``seed-lab`` the 3 m x 3 m
-real testing area with 4 UGVs. :func:`make_config` applies keyword overrides to a preset and
-rejects unknown keys, so a typo never passes silently.
+``SwarmConfig`` gathers everything a simulated swarm needs. Presets reproduce the Perera 2021
+study's setups: ``seed-sim`` is the 6 m x 6 m Gazebo arena with 20 UGVs, ``seed-lab`` the
+3 m x 3 m real testing area with 4 UGVs. :func:`make_config` applies keyword overrides to a
+preset and rejects unknown keys, so a typo never passes silently.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ OBSERVATION_MODES = ("phd", "truth", "measurements")
 
 @dataclass(frozen=True, slots=True)
 class RobotConfig:
-    """A DFRobot Cherokey UGV with the seed's sensor tower.
+    """A DFRobot Cherokey UGV with the Perera 2021 study's sensor tower.
 
     Attributes
     ----------
@@ -143,7 +143,7 @@ class ArenaConfig:
             "red_decoy_radius_m",
         ):
             check_positive(f"arena.{name}", getattr(self, name))
-        # 1000: the 1000-robot preset keeps the seed's obstacle density (200 posts).
+        # 1000: the 1000-robot preset keeps the Perera 2021 study's obstacle density (200 posts).
         for name in ("n_decoy_posts", "n_red_decoys", "n_boxes"):
             check_int_range(f"arena.{name}", getattr(self, name), 0, 1000)
         if self.width_m > 100 or self.height_m > 100:
@@ -196,7 +196,7 @@ class ArenaConfig:
 #: ``1 / (offset + exp(slope (r - midpoint)))`` with these values (1500 pairs per range,
 #: RMS residual 0.017 on 0.25-5.5 m). It follows from the geometry: a 65 mm housing gives
 #: ``2 asin(0.0325 / r) / 0.5 deg - 1`` clean returns and a cluster needs 3, so P_d is 1 up to
-#: 1.86 m, 0.73 at 2 m and 0 from 2.48 m. The seed's real X4 (eq. 19: 1.02, 8, 1.5 m) fades
+#: 1.86 m, 0.73 at 2 m and 0 from 2.48 m. Perera 2021's real X4 (eq. 19: 1.02, 8, 1.5 m) fades
 #: about 0.6 m sooner; what the simulated X4 leaves out is listed in ``docs/concepts/sensors.md``.
 SIM_LIDAR_PD_OFFSET = 1.0
 SIM_LIDAR_PD_SLOPE_PER_M = 8.78
@@ -204,7 +204,7 @@ SIM_LIDAR_PD_MIDPOINT_M = 2.14
 
 #: The simulated cameras' range factor, fitted the same way to their measured curve (a
 #: teammate's 5 cm strip with free line of sight; RMS residual 0.023): 0.95 up to 3 m, 0.56
-#: at 4 m, 0.18 at 4.5 m, 0 from 4.75 m (seed eq. 30: 1.1, 5, 4 m).
+#: at 4 m, 0.18 at 4.5 m, 0 from 4.75 m (Perera 2021 eq. 30: 1.1, 5, 4 m).
 SIM_CAMERA_PD_OFFSET = 1.050
 SIM_CAMERA_PD_SLOPE_PER_M = 3.84
 SIM_CAMERA_PD_MIDPOINT_M = 4.08
@@ -235,9 +235,9 @@ SIM_CAMERA_CLUTTER_PER_WIDE_OBJECT = 0.878
 SIM_CAMERA_WIDE_OBJECT_STD_FRACTION = 0.280
 SIM_CAMERA_CLUTTER_WIDE_OBJECT_SHARE_PER_RAD = 0.131
 
-#: The robots' filter in the simulator: the seed's GM-PHD (``PHDConfig()``, which describes the
-#: seed's hardware) with its sensor models set from measurements of the simulated sensors
-#: (``benchmarks/bench_detection_curves.py``, above), never from a localization score:
+#: The robots' filter in the simulator: the Perera 2021 study's GM-PHD (``PHDConfig()``, which
+#: describes that study's hardware) with its sensor models set from measurements of the simulated
+#: sensors (``benchmarks/bench_detection_curves.py``, above), never from a localization score:
 #:
 #: * the lidar range factor :data:`SIM_LIDAR_PD_OFFSET`, ``_SLOPE_PER_M``, ``_MIDPOINT_M``, and
 #:   the blind sectors' notch derived from the scanner's geometry (``"visible-width"``);
@@ -245,13 +245,14 @@ SIM_CAMERA_CLUTTER_WIDE_OBJECT_SHARE_PER_RAD = 0.131
 #:   the bearing noise :data:`SIM_CAMERA_NOISE_STD_DEG`, ``_WIDTH_FRACTION`` and the clutter
 #:   :data:`SIM_CAMERA_CLUTTER_PER_RAD`;
 #: * measurement-driven births of weight 0.25: teammates enter a robot's 2 m disc 0.085 times
-#:   per scan, and the seed's fixed birth needs 2-3 extra scans per newcomer;
+#:   per scan, and the Perera 2021 study's fixed birth needs 2-3 extra scans per newcomer;
 #: * the model corrections of ``docs/concepts/localizers.md`` ("The camera's measurement model,
 #:   corrected"): the Bernoulli missed-detection term, process noise up to each measurement's
 #:   stamp, the camera's position in the bearing model (always on with motion compensation),
 #:   the range-dependent bearing noise and the moment-matched missed lidar copies.
 #:
-#: Real robots (:func:`hardware_bridge.real_env`) keep the seed's values unless overridden.
+#: Real robots (:func:`hardware_bridge.real_env`) keep the Perera 2021 study's values unless
+#: overridden.
 SIMULATOR_PHD = PHDConfig(
     birth="measurement",
     measurement_birth_weight=0.25,
@@ -260,8 +261,8 @@ SIMULATOR_PHD = PHDConfig(
     lidar_pd_midpoint_m=SIM_LIDAR_PD_MIDPOINT_M,
     # The notch the X4's beam geometry cuts where a pillar hides its beams, from the housing,
     # the beams and the extractor's minimum returns (docs/concepts/localizers.md, "The blind
-    # sectors' notch"): the seed's bump (sigma 5 deg) expected 0.17 of the detections at 2-4
-    # deg from a centre and 0.62 at 6-8 deg, where the simulator gives 0.04 and 0.93.
+    # sectors' notch"): the Perera 2021 study's bump (sigma 5 deg) expected 0.17 of the detections
+    # at 2-4 deg from a centre and 0.62 at 6-8 deg, where the simulator gives 0.04 and 0.93.
     blind_sector_model="visible-width",
     lidar_beam_spacing_deg=360.0 / LidarConfig().n_beams,
     lidar_min_returns=LidarFeatureConfig().min_beams,
@@ -283,8 +284,8 @@ SIMULATOR_PHD = PHDConfig(
     # detections: the Bernoulli term"). Camera-started tracks (camera_birth="ray") stay an
     # option, off here: measured, they put ghost components along the rays that the
     # formation controller follows (final error 0.05 -> 0.44 m, lab-3m-4, seed 0) and cost
-    # the seed metric a point; the bearings of teammates the lidar does not reach are clutter
-    # instead (camera_clutter_intensity above counts them).
+    # the Perera 2021 metric a point; the bearings of teammates the lidar does not reach are
+    # clutter instead (camera_clutter_intensity above counts them).
     missed_detection="bernoulli",
     # Process noise up to each measurement's stamp: three camera frames and a scan fall between
     # two odometry samples (docs/concepts/localizers.md, "When Q goes in").
@@ -322,7 +323,7 @@ class SwarmConfig:
     physics_substeps : int
         pymunk steps per control period; sensors fire on substep boundaries.
     max_steps : int
-        Episode truncation (3000 steps = the seed's 300 s at 0.1 s).
+        Episode truncation (3000 steps = the Perera 2021 study's 300 s at 0.1 s).
     observation : str
         ``"phd"`` (default: the agent's own PHD estimate), ``"truth"`` (true neighbours in range,
         same layout; an upper bound for ablations) or ``"measurements"`` (padded raw detections).
@@ -415,8 +416,8 @@ class SwarmConfig:
         if self.observation == "phd" and not self.localize:
             raise ValueError('observation="phd" needs localize=True')
         if self.localize and LOCALIZERS[self.localizer].needs_comms and not self.comms.enabled:
-            # Seed 001's methods learn who is who from the teammates' broadcasts: without the
-            # radio they would run and never know a teammate.
+            # The Stegagno 2012 thesis's methods learn who is who from the teammates' broadcasts:
+            # without the radio they would run and never know a teammate.
             raise ValueError(
                 f"localizer={self.localizer!r} needs the radio: set comms={{'enabled': True}} "
                 f"(comms.enabled is {self.comms.enabled})"
@@ -496,13 +497,13 @@ PRESETS: dict[str, SwarmConfig] = {
         n_robots=4,
         arena=ArenaConfig(width_m=3.0, height_m=3.0, n_decoy_posts=2, n_red_decoys=1, n_boxes=0),
     ),
-    # Big swarms at the seed's density (docs/how-to/scaling-out.md, "Big swarms").
+    # Big swarms at the Perera 2021 study's density (docs/how-to/scaling-out.md, "Big swarms").
     "sim-13m-100": _dense(100),
     "sim-19m-200": _dense(200),
     "sim-30m-500": _dense(500),
     "sim-42m-1000": _dense(1000),
-    # Seed 002's simulation: 3 UGVs wandering under a hovering UAV (2.8 m, swarm_env.uav),
-    # odometry broadcast at 10 Hz; 2.5 m x 2.5 m so the camera footprint covers it
+    # The Stegagno 2013 study's simulation: 3 UGVs wandering under a hovering UAV (2.8 m,
+    # swarm_env.uav), odometry broadcast at 10 Hz; 2.5 m x 2.5 m so the camera footprint covers it
     # (docs/how-to/studies/stegagno2013-uav.md).
     "seed-uav": SwarmConfig(
         n_robots=3,

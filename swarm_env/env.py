@@ -89,7 +89,7 @@ class SwarmEnv(ParallelEnv):
 
     ## Episode End
     1. Termination: defined by the task (``wander``: never).
-    2. Truncation: after ``max_steps`` steps (3000 = the seed's 300 s).
+    2. Truncation: after ``max_steps`` steps (3000 = the Perera 2021 study's 300 s).
 
     ## Arguments
     >>> from swarm_env import parallel_env

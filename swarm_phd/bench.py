@@ -1,10 +1,10 @@
 """``swarm-phd bench``: env throughput on the ``sim-6m-20`` preset (by default), one process.
 
-20 robots, all sensors at the seed's rates, random actions. Reported with localization off (the
-simulator alone) and with Lidar+Camera GM-PHD on every robot: env steps per second, the real-time
-factor (simulated seconds per wall second) and the lidar cost per scan (ray casting + feature
-extraction). Each case runs ``--repeats`` times (the machine is a shared VM whose speed drifts):
-the table gives the median run and the range of the real-time factor.
+20 robots, all sensors at the Perera 2021 study's rates, random actions. Reported with localization
+off (the simulator alone) and with Lidar+Camera GM-PHD on every robot: env steps per second, the
+real-time factor (simulated seconds per wall second) and the lidar cost per scan (ray casting +
+feature extraction). Each case runs ``--repeats`` times (the machine is a shared VM whose speed
+drifts): the table gives the median run and the range of the real-time factor.
 """
 
 from __future__ import annotations

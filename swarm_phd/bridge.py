@@ -4,8 +4,8 @@ wander by default, any scripted controller, or a trained ``.zip`` model or ``.pt
 ``--loopback`` is a dry run: it starts the loopback robot server (the simulator behind a
 rosbridge-compatible websocket on 127.0.0.1) in this process and drives it exactly as it would
 drive robots. Its robots carry the simulator's sensors, so the filter gets the preset's
-simulator model (``make_config(preset).phd``); real robots get the seed's hardware model
-(:func:`hardware_bridge.real_env`). ``--host H --robots ugv_0,ugv_1`` drives real robots (a
+simulator model (``make_config(preset).phd``); real robots get the Perera 2021 study's hardware
+model (:func:`hardware_bridge.real_env`). ``--host H --robots ugv_0,ugv_1`` drives real robots (a
 non-loopback host needs ``--allow-remote``). A trained policy runs in its own env's task,
 observation and preset (``agents.policies.trained_policy_env``), on ``len(robots)`` robots.
 Prints localization metrics and the task's metrics (when motion capture gives ground truth)
@@ -62,10 +62,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--trust-policy",
         action="store_true",
-        help="load an SB3 model.zip or an RLlib run although loading it runs code stored in "
-        "the file (both unpickle classes and spaces): only for a run you trained or verified "
-        "yourself "
-        "(a student.pt loads weights only and needs no flag)",
+        help="load an SB3 .zip from outside a swarm-phd train run, or an RLlib run, although "
+        "loading it runs code stored in the file (both unpickle classes and spaces): only for "
+        "a run you trained or verified yourself (a zip in its train --out directory and a "
+        "student.pt load weights only and need no flag)",
     )
     parser.add_argument(
         "--task",
@@ -171,12 +171,16 @@ def bridge_env_kwargs(
     elif spec.endswith((".zip", ".pt")):
         if not Path(spec).is_file():
             raise ValueError(f"--policy: policy file {spec!r} does not exist")
-        if spec.endswith(".zip") and not getattr(args, "trust_policy", False):
+        from agents.sb3.safe_load import run_directory
+
+        foreign_zip = spec.endswith(".zip") and run_directory(spec) is None
+        if foreign_zip and not getattr(args, "trust_policy", False):
             raise ValueError(
-                f"--policy {spec!r} is an SB3 model zip: loading one unpickles Python objects "
-                "stored in it (its policy class, spaces, schedules), which can run any code, "
-                "on the computer that drives the robots. Pass --trust-policy if you trained "
-                "this file yourself or trust its source (a student.pt loads weights only)"
+                f"--policy {spec!r} is an SB3 model zip from outside a swarm-phd train run: "
+                "loading one unpickles Python objects stored in it (its policy class, spaces, "
+                "schedules), which can run any code, on the computer that drives the robots. "
+                "Pass --trust-policy if you trained this file yourself or trust its source (a "
+                "zip in its train --out directory and a student.pt load weights only)"
             )
     elif rllib_checkpoint(spec) is not None:
         if not getattr(args, "trust_policy", False):
@@ -219,11 +223,13 @@ def bridge_env_kwargs(
         kwargs.pop("n_robots", None)  # one agent per named robot
     kwargs["localizer"] = args.localizer or kwargs.get("localizer") or "phd"
     if spec not in ("wander", "stop"):
-        _check_policy_acts(spec, kwargs, robots, steps)
+        _check_policy_acts(spec, kwargs, robots, steps, getattr(args, "trust_policy", False))
     return {**kwargs, "max_steps": steps}, dropped
 
 
-def _check_policy_acts(spec: str, kwargs: dict, robots: list[str] | None, steps: int) -> None:
+def _check_policy_acts(
+    spec: str, kwargs: dict, robots: list[str] | None, steps: int, trust: bool = False
+) -> None:
     """Build ``spec`` on a simulator with the bridge env's settings (ValueError if it cannot
     act there), before anything connects."""
     from agents.policies import load_policy
@@ -232,7 +238,7 @@ def _check_policy_acts(spec: str, kwargs: dict, robots: list[str] | None, steps:
     sized = {} if robots is None else {"n_robots": len(robots)}
     probe = parallel_env(**{**kwargs, **sized, "max_steps": steps})
     try:
-        load_policy(spec, probe)
+        load_policy(spec, probe, trust=trust)
     finally:
         probe.close()
 
@@ -346,12 +352,12 @@ def _run(args: argparse.Namespace) -> int:
                     seed=args.seed,
                 )
         else:  # the bridge's limits and geofence clip whatever it commands
-            policy = load_policy(args.policy, env)
+            policy = load_policy(args.policy, env, trust=getattr(args, "trust_policy", False))
         if not args.json:
             print(
                 f"bridge: {len(env.possible_agents)} robots {env.possible_agents} at "
                 f"{host}:{port}, {steps} steps of {env.config.control_period_s} s, "
-                f"{'the simulator' if args.loopback else 'the seed hardware'}'s sensor model; "
+                f"{'the simulator' if args.loopback else 'Perera 2021 hardware'}'s sensor model; "
                 f"preset {preset}; policy {args.policy}, task {env.task.name}, observation "
                 f"{env.config.observation}, localizer {env.config.localizer}"
             )

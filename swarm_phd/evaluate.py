@@ -1,26 +1,28 @@
-"""``swarm-phd evaluate``: the seed's localization experiment, under scripted or learned motion.
+"""``swarm-phd evaluate``: the Perera 2021 study's localization experiment, under scripted or
+learned motion.
 
 Every robot runs its own filter, for each requested localizer at once (``phd-lc``: Lidar+Camera,
 ``phd-lo``: Lidar-Only, ``id-phd``: ID-PHD on the lidar with every teammate's odometry as radio
-messages, ``ukf`` / ``pf``: the seed ``003`` / ``004`` baselines on identified range-bearing
+messages, ``ukf`` / ``pf``: the IR-UKF / Lee 2012 baselines on identified range-bearing
 detections), fed with the same records, so the comparison is paired: same motion,
-same measurements. The motion comes from ``--policy`` (default ``scripted:wander``, the seed's
-pseudo-random motion with obstacle avoidance; or ``random``, another ``scripted:NAME``, a
-trained ``model.zip`` or a recurrent student ``.pt``). ``--compare Q,R`` runs further policies
-on the same env and seeds: side by side, then each one against ``--policy`` paired by seed
-(:func:`paired_by_seed`: mean difference, its standard error, seeds better, verdict at 2 SE).
+same measurements. The motion comes from ``--policy`` (default ``scripted:wander``, the
+Perera 2021 study's pseudo-random motion with obstacle avoidance; or ``random``, another
+``scripted:NAME``, a trained ``model.zip`` or a recurrent student ``.pt``). ``--compare Q,R``
+runs further policies on the same env and seeds: side by side, then each one against
+``--policy`` paired by seed (:func:`paired_by_seed`: mean difference, its standard error,
+seeds better, verdict at 2 SE).
 
 Metrics (:class:`localization.metrics.SeedScorer`; definitions in ``docs/localization.md``,
 "Metrics"), every robot being an observer, "in range" = within ``localization_range_m`` (the
-lidar tracking range, 2 m) for every localizer, and also within 3 m (the seed's camera range,
-``at_camera_range``) for the localizers that use the camera:
+lidar tracking range, 2 m) for every localizer, and also within 3 m (the Perera 2021 study's camera
+range, ``at_camera_range``) for the localizers that use the camera:
 
-- ``seed_fig7``: the seed's Fig. 7, one bar per tracked teammate (in range at least once): the %
-  of the teammate's in-range time during which the observer's closest component with weight
-  > 0.1 is more than 0.30 m away; for ``observer_ugv_0`` (as the seed) and ``all_observers``
-  (every tracked pair), with the count above 25 % and the median;
+- ``seed_fig7``: the Perera 2021 study's Fig. 7, one bar per tracked teammate (in range at least
+  once): the % of the teammate's in-range time during which the observer's closest component with
+  weight > 0.1 is more than 0.30 m away; for ``observer_ugv_0`` (as the study) and
+  ``all_observers`` (every tracked pair), with the count above 25 % and the median;
 - ``pooled_per_observer``: the same % over all of an observer's (step, teammate) pairs
-  together (the statistic reported before; lower and not comparable with the seed's count);
+  together (the statistic reported before; lower and not comparable with Perera 2021's count);
 - ``seed001``: % of in-range time with position error < 0.1 m and bearing error < 7 deg;
   ``rmse_m`` / ``rmse_bearing_deg`` of the matched component;
 - ``gospa``: mean GOSPA (c = 1 m, p = 2, alpha = 2) between the teammates in range and the
@@ -35,8 +37,8 @@ observer, over the same pairs, the error of *that neighbour's own ID estimate*
 (:class:`IdentityScorer`). Their records: each robot's odometry records of the step stand for
 the radio messages (every teammate's own increment with its ID); ``ukf`` and ``pf`` get each
 lidar detection with the identity of the true robot within 0.2 m of it (an oracle standing in
-for seed ``003``'s / ``004``'s identifying sensors; other detections are dropped). Seed
-``001``'s ``p-multireg``, ``fastslam-mc`` and ``p-multibeareg`` read what each robot heard on
+for the IR-UKF / Lee 2012 studies' identifying sensors; other detections are dropped).
+Stegagno 2012's ``p-multireg``, ``fastslam-mc`` and ``p-multibeareg`` read what each robot heard on
 the radio: selecting one switches the radio on (``DEFAULT_RADIO`` of
 :mod:`localization.mutual.localizer`, unless ``comms`` is given), and a config with the radio
 off is refused. Their ``identity`` block adds the thesis's pooled % of pair-steps within 0.1 m,
@@ -74,7 +76,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--preset",
         default=None,
         help="default: a trained policy's (model.zip, student .pt) own preset, else sim-6m-20 "
-        "(alias seed-sim: the seed's 6 m x 6 m arena with 20 UGVs)",
+        "(alias seed-sim: the Perera 2021 study's 6 m x 6 m arena with 20 UGVs)",
+    )
+    parser.add_argument(
+        "--trust-policy",
+        action="store_true",
+        help="load an SB3 .zip from outside a swarm-phd train run with SB3's loader, which "
+        "unpickles objects stored in the file and so can run code in it: only for a file you "
+        "trained or verified yourself (a zip in its run directory loads weights only)",
     )
     inputs.add_duration_argument(parser, 300.0)
     parser.add_argument(
@@ -125,7 +134,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         choices=SCENARIOS,
         default="study",
         help="'study': the source study's experiment (or a policy's evaluation) with the "
-        "localizers above; 'seed003': seed 003's 5-robot experiment, IR readings with "
+        "localizers above; 'seed003': the IR-UKF study's 5-robot experiment, IR readings with "
         "identities, SLSQP direct estimation then the centralized UKF, errors after the Kabsch "
         "fit (swarm_phd/seed003.py; --preset, --duration, --seeds and --out apply)",
     )
@@ -161,6 +170,10 @@ def run(args: argparse.Namespace) -> int:
     import signal
 
     signal.signal(signal.SIGTERM, _interrupt)
+    if getattr(args, "trust_policy", False):  # this process and its workers
+        from agents.policies import trust_policy_files
+
+        trust_policy_files()
     if getattr(args, "scenario", "study") != "study" and getattr(args, "ray", False):
         raise ValueError(f"--ray runs the study's seeds; --scenario {args.scenario} is serial")
     # Refused before any episode: the control period is checked once the env is built.
@@ -230,8 +243,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_seed003(args: argparse.Namespace, seeds: list[int]) -> int:
-    """``--scenario seed003``: seed 003's centralized pipeline (not a per-robot localizer, so
-    ``--localizer``, ``--policy``, ``--task`` and ``--compare`` do not apply)."""
+    """``--scenario seed003``: the IR-UKF study's centralized pipeline (not a per-robot localizer,
+    so ``--localizer``, ``--policy``, ``--task`` and ``--compare`` do not apply)."""
     from swarm_phd.seed003 import print_summary, run_seed003
 
     for name, value, default in (
@@ -416,7 +429,7 @@ def _episode_env(
         spans = phase_spans(phases)  # ValueError before any rollout
     overrides = dict(overrides)
     radio = [name for name in localizers if LOCALIZERS[name].needs_comms]
-    if radio and "comms" not in overrides:  # seed 001's methods hear teammates on the radio
+    if radio and "comms" not in overrides:  # Stegagno 2012's methods hear teammates by radio
         from localization.mutual.localizer import DEFAULT_RADIO
 
         overrides["comms"] = dict(DEFAULT_RADIO)
@@ -477,8 +490,8 @@ def score_seed(
     # One localizer (every robot's filter) per name, fed the same records: a paired
     # comparison, same motion, same measurements.
     built = {name: make_localizer(name, n_agents, env.config.phd, seed) for name in localizers}
-    # The seed's scoring per (observer, teammate); in range = the lidar tracking range for
-    # every localizer (paired), and also the seed's camera range for those using the camera.
+    # The Perera 2021 study's scoring per (observer, teammate); in range = the lidar tracking range
+    # for every localizer (paired), and also that study's camera range for those using the camera.
     scorers = {name: SeedScorer(n_agents, range_m) for name in localizers}
     camera_scorers = {
         name: SeedScorer(n_agents, CAMERA_SCORING_RANGE_M, trace_observer=None)
@@ -899,7 +912,7 @@ def print_paired(rows: list[dict[str, Any]]) -> None:
         )
 
 
-#: The seed's camera range (seed 000, sec. 4: "2 meters was considered as the lidar sensor
+#: The Perera 2021 study's camera range (sec. 4: "2 meters was considered as the lidar sensor
 #: range and 3m for the camera sensor"): the second scoring range of camera localizers (m).
 CAMERA_SCORING_RANGE_M = 3.0
 
@@ -933,7 +946,7 @@ def _mean_dicts(items: list[dict[str, float]]) -> dict[str, float]:
 
 
 def print_table(results: dict[str, Any]) -> None:
-    """The seed's Fig. 7 statistic (per tracked teammate), then the other metrics (markdown)."""
+    """Perera 2021's Fig. 7 statistic (per tracked teammate), then the other metrics (markdown)."""
     cfg = results["config"]
     print(
         f"  {cfg['preset']}, {cfg['n_robots']} robots, {cfg['duration_s']:.0f} s x "
@@ -1016,8 +1029,8 @@ class IdentityScorer:
         self.accurate = np.zeros(n_observers)
         self.errors: list[float] = []
         self.heading_errors: list[float] = []
-        # Seed 001's thesis metrics (no estimate counts as an error): pair-steps with bearing
-        # error < 7 deg; with a heading estimate, heading-estimating pair-steps < 7 deg.
+        # The Stegagno 2012 thesis's metrics (no estimate counts as an error): pair-steps with
+        # bearing error < 7 deg; with a heading estimate, heading-estimating pair-steps < 7 deg.
         self.bearing_ok = 0
         self.heading_ok = 0
         self.heading_pairs = 0
@@ -1087,7 +1100,7 @@ def print_identity_table(results: dict[str, Any]) -> None:
     print(
         "  | localizer (own-ID estimate) | % time err > 30 cm (median robot) | pooled | "
         "% time < 10 cm | no estimate % | median err m | median heading err deg | "
-        "seed 001: % < 0.1 m / bearing < 7 deg / heading < 7 deg (pooled) |"
+        "Stegagno 2012: % < 0.1 m / bearing < 7 deg / heading < 7 deg (pooled) |"
     )
     print("  |---|---|---|---|---|---|---|---|")
     for name, m in ident.items():

@@ -1,4 +1,4 @@
-"""Figures of the localization experiment: the seed's Figs. 7-9, plus GOSPA over time.
+"""Figures of the localization experiment: the Perera 2021 study's Figs. 7-9, plus GOSPA over time.
 
 Inputs are what :func:`swarm_phd.evaluate.evaluate_localization` collects: the per-localizer
 :meth:`localization.metrics.SeedScorer.summary` dicts, the scorers' traces of observer
@@ -84,7 +84,7 @@ def write_localization_figures(
         untracked = ~np.isfinite(pct)
         if untracked.any():  # never in range: no bar, marked on the axis
             ax.plot(x[untracked], np.zeros(untracked.sum()), "x", color="k", ms=5)
-    ax.axhline(25, color="k", ls=":", lw=1, label="25 % (the seed's count threshold)")
+    ax.axhline(25, color="k", ls=":", lw=1, label="25 % (Perera 2021's count threshold)")
     ax.set_xticks(np.arange(len(teammates)), [f"{j}" for j in teammates])
     ax.set_xlabel("teammate ugv_j of observer ugv_0 (x: never in range; no x, no bar: 0 %)")
     ax.set_ylabel("% of in-range time with error > 0.30 m")

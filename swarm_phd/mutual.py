@@ -1,4 +1,4 @@
-"""``swarm-phd mutual``: seed ``001``'s mutual localization in the simulator, with the radio on.
+"""``swarm-phd mutual``: Stegagno 2012's mutual localization in the simulator, with the radio on.
 
 Every robot (or ``--observer``) runs the chosen method(s) (``p-multireg``, ``fastslam``,
 ``p-multibeareg``: :mod:`localization.mutual`) on its own wheel odometry, its own
@@ -365,8 +365,8 @@ def run_episode(
     )
     others = {c: make_localizer(c, len(ids), env.config.phd, seed) for c in compare}
     range_m = env.config.localization_range_m
-    # Turn rate capped as for seed 003's small robots (0.6 rad/s): the Khepera III of the thesis
-    # are slow, and the scans being compared are up to a lidar period apart.
+    # Turn rate capped as for the IR-UKF study's small robots (0.6 rad/s): the Khepera III of the
+    # thesis are slow, and the scans being compared are up to a lidar period apart.
     policy = WanderPolicy(
         max_speed_mps=speed_mps, max_turn_rate_radps=0.6, avoid_distance_m=0.35, seed=seed
     )

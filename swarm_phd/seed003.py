@@ -1,17 +1,17 @@
-"""``swarm-phd seed003``: seed ``003``'s 5-robot experiment, direct estimation, centralized UKF.
+"""``swarm-phd seed003``: the IR-UKF study's 5-robot experiment: direct estimation, central UKF.
 
 The simulated swarm (preset ``lab-3m-4`` with 5 robots, in a small obstacle-free arena like the
-seed's motion-capture floor) carries seed ``003``'s IR sensor (:mod:`swarm_env.sensors.ir`:
-~1 Hz, <= 1 m, identities, the seed's range and bearing noise), simulated from the simulator's
+study's motion-capture floor) carries its IR sensor (:mod:`swarm_env.sensors.ir`:
+~1 Hz, <= 1 m, identities, the study's range and bearing noise), simulated from the simulator's
 ground truth. The robots stand still for ``--init-s`` seconds; the IR readings of that window
 feed the direct estimation (:func:`localization.baselines.direct.direct_estimate`, SLSQP, no
 initial state), which initialises the centralized UKF
 (:class:`localization.baselines.centralized_ukf.CentralizedUKF`). Then the robots wander at the
-seed's speed (3 cm/s cruise) and the UKF runs on every robot's wheel odometry and the IR
-readings. For comparison (as in the seed), the direct estimation is also rerun on each second's
+study's speed (3 cm/s cruise) and the UKF runs on every robot's wheel odometry and the IR
+readings. For comparison (as in the study), the direct estimation is also rerun on each second's
 readings, warm-started from its previous solution.
 
-Errors are reported as the seed does: after the Kabsch fit (rotation + translation, det +1) of
+Errors are reported as the study does: after the Kabsch fit (rotation + translation, det +1) of
 the estimated positions onto the true ones, position RMSE (m) over the robots and heading RMSE
 (deg, wrapped) at every step; ``metrics.json`` holds their time means per seed and overall.
 """
@@ -34,7 +34,7 @@ from swarm_core.inputs import parse_json_object, parse_seeds
 from swarm_core.validation import check_number
 from swarm_env.sensors.ir import IRConfig, IRReadings, IRSensor
 
-#: The seed's reported accuracy: "about 10 cm, or on the order of the size of a robot".
+#: The IR-UKF study's reported accuracy: "about 10 cm, or on the order of the size of a robot".
 SEED_ACCURACY_M = 0.10
 
 
@@ -44,7 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="env preset for the robots and sensors (default: lab-3m-4, the lab-scale one)",
     )
-    parser.add_argument("--n-robots", type=int, default=5, help="the seed ran 5")
+    parser.add_argument("--n-robots", type=int, default=5, help="the IR-UKF study ran 5")
     parser.add_argument(
         "--arena-m", type=float, default=1.5, help="side of the square, obstacle-free arena (m)"
     )
@@ -176,7 +176,7 @@ def run_episode(
     dt = env.config.control_period_s
     n_steps = inputs.steps_in(env, "--duration", duration_s)
     ids = tuple(env.possible_agents)
-    # Turn rate capped at the seed's "typical rotation" (0.02 rad per 1/30 s, i.e. 0.6 rad/s).
+    # Turn rate capped at the IR-UKF study's "typical rotation" (0.02 rad per 1/30 s: 0.6 rad/s).
     policy = WanderPolicy(
         max_speed_mps=speed_mps, max_turn_rate_radps=0.6, avoid_distance_m=0.3, seed=seed
     )
@@ -235,7 +235,7 @@ def run_episode(
         trace["ukf_pos_m"].append(pos)
         trace["ukf_head_deg"].append(head)
         if step.time_s + 1e-9 >= next_direct_s:
-            # The seed's comparison: direct estimation on the last second's sweeps.
+            # The study's comparison: direct estimation on the last second's sweeps.
             next_direct_s += sensor.config.period_s
             w = IRReadings.concatenate(window)
             window = []
@@ -295,8 +295,8 @@ def run_seed003(
 ) -> dict[str, Any]:
     """Run every seed; return (and with ``out_dir`` write) the metrics and the figure.
 
-    The defaults are the seed's setup (:func:`add_arguments`'): 5 robots, a 1.5 m square,
-    3 s standstill, 5 cm/s, seed 003's IR figures (``IRConfig()``)."""
+    The defaults are the IR-UKF study's setup (:func:`add_arguments`'): 5 robots, a 1.5 m square,
+    3 s standstill, 5 cm/s, the study's IR figures (``IRConfig()``)."""
     if not seeds:
         raise ValueError("--seeds must name at least one integer")
     ir = IRConfig() if ir is None else ir
@@ -381,14 +381,14 @@ def write_figure(path: Path, episode: dict[str, Any], results: dict[str, Any]) -
     ax1.plot(
         dtr["time_s"], dtr["pos_m"], ".", label="direct (SLSQP, last 1 s)", color="tab:orange"
     )
-    ax1.axhline(SEED_ACCURACY_M, ls="--", color="grey", label="seed 003: ~10 cm")
+    ax1.axhline(SEED_ACCURACY_M, ls="--", color="grey", label="IR-UKF study: ~10 cm")
     ax1.set_ylabel("position RMSE (m)")
     ax1.legend(loc="upper right", fontsize=8)
     ax2.plot(tr["time_s"], tr["ukf_head_deg"], color="tab:blue")
     ax2.plot(dtr["time_s"], dtr["head_deg"], ".", color="tab:orange")
     ax2.set_ylabel("heading RMSE (deg)")
     ax2.set_xlabel("time (s)")
-    fig.suptitle(f"Seed 003 reproduction: {cfg['n_robots']} robots, seed {episode['seed']}")
+    fig.suptitle(f"IR-UKF study reproduction: {cfg['n_robots']} robots, seed {episode['seed']}")
     ir = cfg["ir"]
     fig.text(
         0.01,
@@ -409,7 +409,7 @@ def write_figure(path: Path, episode: dict[str, Any], results: dict[str, Any]) -
 def print_summary(results: dict[str, Any]) -> None:
     cfg, s = results["config"], results["summary"]
     print(
-        f"seed 003: {cfg['n_robots']} robots, {cfg['duration_s']:.0f} s x {len(cfg['seeds'])} "
+        f"IR-UKF study: {cfg['n_robots']} robots, {cfg['duration_s']:.0f} s x {len(cfg['seeds'])} "
         f"seeds, arena {cfg['arena_m']:g} m ({results['wall_time_s']:.1f} s wall)"
     )
     for e in results["episodes"]:
@@ -425,5 +425,5 @@ def print_summary(results: dict[str, Any]) -> None:
     print(
         f"  UKF position RMSE {s['ukf_pos_rmse_mean_m'] * 100:.1f} cm (worst seed "
         f"{s['ukf_pos_rmse_worst_seed_m'] * 100:.1f} cm), heading "
-        f"{s['ukf_head_rmse_mean_deg']:.1f} deg: {verdict} the seed's ~10 cm"
+        f"{s['ukf_head_rmse_mean_deg']:.1f} deg: {verdict} the study's ~10 cm"
     )

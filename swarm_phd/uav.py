@@ -1,22 +1,22 @@
-"""``swarm-phd uav``: seed ``002``'s experiment, a UAV identifying wandering UGVs with ID-PHD.
+"""``swarm-phd uav``: Stegagno 2013's experiment, a UAV identifying wandering UGVs with ID-PHD.
 
 The env is :class:`swarm_env.uav.SupervisedSwarmEnv` on preset ``seed-uav`` (3 UGVs in a 2.5 m
 square, a UAV at 2.8 m with a downward camera, the UGVs' odometry broadcast at 10 Hz). The UGVs
-wander (:class:`agents.scripted.WanderPolicy`: the seed's "random motion with obstacle
-avoidance"); the UAV hovers, as in the seed's simulation (``--uav-control hover``), or
-follows the centroid of its detections (``centroid``, the seed's visual-servoing task T1).
+wander (:class:`agents.scripted.WanderPolicy`: the Stegagno 2013 study's "random motion with
+obstacle avoidance"); the UAV hovers, as in that study's simulation (``--uav-control hover``),
+or follows the centroid of its detections (``centroid``, the study's visual-servoing task T1).
 
 Metrics, per identity ``i`` (UGV ``i``'s ID-PHD estimate: the mean of its heaviest component,
 against its true pose in the UAV's level frame):
 
 - **convergence time**: the first time from which the estimate stays within 0.12 m and 10 deg
-  (the seed's figures) for ``--hold-s`` seconds; ``nan`` if never;
+  (the Stegagno 2013 study's figures) for ``--hold-s`` seconds; ``nan`` if never;
 - after convergence: median / 95th percentile / max position error (m) and heading error
   (deg), and the fraction of time within both thresholds;
-- **final error**: the mean position and heading error over the last 10 s (the seed's "final
-  error").
+- **final error**: the mean position and heading error over the last 10 s (the
+  Stegagno 2013 study's "final error").
 
-The seed's result (sec. V): convergence in less than one minute, final error under 12 cm and
+The study's result (sec. V): convergence in less than one minute, final error under 12 cm and
 10 deg. ``--json`` writes everything, with the measured camera statistics the filter used.
 
 ``--loopback`` runs the same experiment over the hardware bridge: a
@@ -42,7 +42,7 @@ from swarm_core import inputs
 from swarm_core.inputs import parse_seeds
 from swarm_core.validation import check_number
 
-#: The seed's figures (sec. V).
+#: The Stegagno 2013 study's figures (sec. V).
 SEED_POSITION_M = 0.12
 SEED_HEADING_DEG = 10.0
 SEED_CONVERGENCE_S = 60.0
@@ -51,7 +51,9 @@ UAV_CONTROLS = ("hover", "centroid")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--preset", default=None, help="UGV preset (default: seed-uav, seed 002's setup)"
+        "--preset",
+        default=None,
+        help="UGV preset (default: seed-uav, the Stegagno 2013 study's setup)",
     )
     parser.add_argument(
         "--seeds", default="0,1,2", help="comma-separated integers or ranges (0-4)"
@@ -433,8 +435,8 @@ def run_seed002(
 
 
 def plot_errors(episode: dict[str, Any], path: Path) -> None:
-    """Seed ``002``'s Fig. 5: x, y and heading errors of each identity's estimate over time,
-    with the seed's bounds (0.12 m, 10 deg) and the UGV's wheel-slip steps shaded."""
+    """Stegagno 2013's Fig. 5: x, y and heading errors of each identity's estimate over time,
+    with Stegagno 2013's bounds (0.12 m, 10 deg) and the UGV's wheel-slip steps shaded."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -457,7 +459,7 @@ def plot_errors(episode: dict[str, Any], path: Path) -> None:
     axes[2].set_ylim(-60, 60)
     axes[0].legend(loc="upper right", ncol=n, fontsize=8)
     axes[0].set_title(
-        f"ID-PHD on the UAV, seed {episode['seed']}: dotted = seed 002's bounds, "
+        f"ID-PHD on the UAV, seed {episode['seed']}: dotted = Stegagno 2013's bounds, "
         "shaded = wheel slip",
         fontsize=9,
     )
@@ -471,7 +473,7 @@ def plot_errors(episode: dict[str, Any], path: Path) -> None:
 def format_summary(result: dict[str, Any]) -> str:
     s = result["summary"]
     lines = [
-        "seed 002 (ID-PHD on a UAV): per identity, the heaviest component vs the truth",
+        "Stegagno 2013 (ID-PHD on a UAV): per identity, the heaviest component vs the truth",
         f"{'seed':>4} {'id':>3} {'conv s':>7} {'pos med':>8} {'pos p95':>8} {'hdg med':>8} "
         f"{'hdg p95':>8} {'in thr':>7} {'final m':>8} {'final deg':>9} {'slip':>6} "
         f"{'p95 ns':>7} {'thr ns':>7}",
@@ -505,7 +507,7 @@ def format_summary(result: dict[str, Any]) -> str:
     )
     lines.append(
         f"UGVs inside the camera footprint {s['in_view_fraction_mean']:.1%} of the time; "
-        "seed 002 reports: convergence < 60 s, final error < 0.12 m and < 10 deg"
+        "Stegagno 2013 reports: convergence < 60 s, final error < 0.12 m and < 10 deg"
     )
     return "\n".join(lines)
 

@@ -26,7 +26,7 @@ from swarm_core.perception.fisheye_bearings import (  # noqa: E402
 )
 from swarm_env.sensors.scene_builder import SceneBuilder, make_arena_scene  # noqa: E402
 
-W, H = 1920, 1080  # the seed's cameras
+W, H = 1920, 1080  # the Perera 2021 study's cameras
 D = (0.03, -0.01, 0.002, -0.0005)  # a mild fisheye distortion, increasing over 0-90 deg
 THETA_D_90 = (math.pi / 2) * (1 + sum(k * (math.pi / 2) ** (2 * i + 2) for i, k in enumerate(D)))
 F = 950.0 / THETA_D_90  # 90 deg off axis lands 950 px from the centre: the whole half circle

@@ -1,24 +1,24 @@
-"""Seed ``003``'s centralized tracker: one UKF per robot, all in one global frame.
+"""The IR-UKF study's centralized tracker: one UKF per robot, all in one global frame.
 
-Seed ``003`` (Sec. III-B): a central controller runs a UKF per robot, state ``(x, y, psi)`` in a
-global frame (the frame of the direct estimate that initialises it):
+The IR-UKF study (Sec. III-B): a central controller runs a UKF per robot, state ``(x, y, psi)``
+in a global frame (the frame of the direct estimate that initialises it):
 
 - *predict*: differential-drive motion from the robot's own odometry increment
   ``(dx, dy, dpsi)`` (body frame at the interval's start, :class:`swarm_core.records.
   OdometryRecord`): ``p' = p + R(psi) (dx, dy)``, ``psi' = psi + dpsi``, pushed through the
-  unscented transform, plus diagonal process noise. The seed's noise: sigma 0.1 cm in position and
+  unscented transform, plus diagonal process noise. The study's noise: sigma 0.1 cm in position and
   0.02 rad in heading per 1/30 s predict step (it predicted at 30 Hz), scaled here to the actual
   interval as a random walk (variance proportional to time).
 - *update*: robot ``i`` measures robots ``S_i``; the others' current estimates are treated as
-  known landmarks (the seed's "landmark measurement model", eq. 4): ``rho = ||m_j - p_i||``,
-  ``b = atan2`` of ``m_j - p_i`` in ``i``'s frame, with the bearing residual wrapped to
-  ``[-pi, pi)``. Seed ``003`` zeroes the residual of robots not seen in a sweep; here they are
-  removed exactly (their rows have no sigma spread and no residual, so the gain ignores them).
-  Where the seed treats the landmark as exact, its position variance is added to the
-  reading's (range: ``+ tr(P_j) / 2``, bearing: ``+ tr(P_j) / (2 rho^2)``), so that an uncertain
-  teammate does not pull hard.
+  known landmarks (the IR-UKF study's "landmark measurement model", eq. 4):
+  ``rho = ||m_j - p_i||``, ``b = atan2`` of ``m_j - p_i`` in ``i``'s frame, with the bearing
+  residual wrapped to ``[-pi, pi)``. The study zeroes the residual of robots not seen in a
+  sweep; here they are removed exactly (their rows have no sigma spread and no residual, so the
+  gain ignores them). Where the study treats the landmark as exact, its position variance is added
+  to the reading's (range: ``+ tr(P_j) / 2``, bearing: ``+ tr(P_j) / (2 rho^2)``), so that an
+  uncertain teammate does not pull hard.
 - sigma points: Van der Merwe's scaled set, ``2n + 1 = 7`` points (``alpha``, ``beta``,
-  ``kappa`` as seed ``003``/FilterPy).
+  ``kappa`` as the study/FilterPy).
 
 Every robot's filter is one slice of ``(N, ...)`` arrays: no Python loop over robots or sigma
 points. Readings of one batch update every observer at once from the prior estimates.
@@ -44,7 +44,7 @@ __all__ = ["CentralizedUKF", "CentralizedUKFConfig"]
 
 @dataclass(frozen=True, slots=True)
 class CentralizedUKFConfig:
-    """Parameters (units in the names). Defaults: seed ``003``'s choices (Sec. II-B): range
+    """Parameters (units in the names). Defaults: the IR-UKF study's choices (Sec. II-B): range
     sigma 18.6 cm (the outlier-skewed value it adopted), bearing sigma 5 deg ("a few degrees";
     the text we have lost its figure), motion sigma 0.1 cm and 0.02 rad per 1/30 s step."""
 
@@ -73,7 +73,7 @@ class CentralizedUKFConfig:
 
 
 class CentralizedUKF:
-    """One UKF per robot in a shared global frame (seed ``003``).
+    """One UKF per robot in a shared global frame (IR-UKF study).
 
     ``initialize(poses)``, ``predict(deltas, dt_s)``, ``update(observer, target, range_m,
     bearing_rad)``; ``poses`` (N, 3) and ``covs`` (N, 3, 3) are the current estimate.

@@ -1,7 +1,7 @@
-"""Seed ``003``'s direct estimation: every robot's pose from identified range-bearing readings,
+"""The IR-UKF study's direct estimation: every robot's pose from identified range-bearing readings,
 with no initial state, by SLSQP; and the Kabsch alignment used to report its errors.
 
-Seed ``003`` (Sec. III-A, eq. 2): with ``p_i``, ``psi_i`` robot ``i``'s global position and
+The IR-UKF study (Sec. III-A, eq. 2): with ``p_i``, ``psi_i`` robot ``i``'s global position and
 heading and ``z_ij = rho_ij (cos b_ij, sin b_ij)`` robot ``j`` as ``i`` measures it in ``i``'s
 body frame, minimise over all poses::
 
@@ -9,15 +9,16 @@ body frame, minimise over all poses::
 
 with ``scipy.optimize.minimize(method="SLSQP")``. The swarm's global rotation and translation
 are free (3 DOF): the gauge is fixed by holding robot ``anchor`` at the origin with heading 0,
-so ``3 (N - 1)`` unknowns remain, and each reading gives 2 equations; the seed's eq. 3 needs
-``2 |readings| >= 3 N - 3``. ``J`` and its gradient are one vectorised expression over readings.
+so ``3 (N - 1)`` unknowns remain, and each reading gives 2 equations; the IR-UKF study's eq. 3
+needs ``2 |readings| >= 3 N - 3``. ``J`` and its gradient are one vectorised expression over
+readings.
 
 The problem is not convex (headings): the first start composes the readings along a spanning tree
 from the anchor (position of ``j`` from ``i``'s reading; ``j``'s heading from ``j``'s own reading
 of ``i`` when there is one), the others are random; the lowest ``J`` wins.
 
 :func:`kabsch` (Kabsch 1976, proper rotation, ``det R = +1``) fits the estimate onto ground
-truth (centroids aligned, then the best rotation) for error reporting, as the seed does.
+truth (centroids aligned, then the best rotation) for error reporting, as the study does.
 """
 
 from __future__ import annotations
@@ -90,7 +91,7 @@ class DirectResult:
     """``poses`` (N, 3) in the gauge frame (``anchor`` at the origin, heading 0); ``cost`` the
     final ``J`` (m^2); ``rms_residual_m`` = sqrt(J / K); ``observable`` (N,) bool: robots linked
     to the anchor by readings; ``heading_observable`` (N,): robots that made a reading (the
-    others' headings are not in ``J``); ``enough_readings``: the seed's eq. 3."""
+    others' headings are not in ``J``); ``enough_readings``: the IR-UKF study's eq. 3."""
 
     poses: np.ndarray
     cost: float
@@ -154,12 +155,12 @@ def direct_estimate(
     ftol: float = 1e-14,
     maxiter: int = 500,
 ) -> DirectResult:
-    """Minimise seed ``003``'s eq. 2 with SLSQP, robot ``anchor`` held at the origin, heading 0.
+    """Minimise the IR-UKF study's eq. 2 by SLSQP, robot ``anchor`` held at the origin, heading 0.
 
     Parameters
     ----------
     observer, target : int arrays (K,)
-        Who measured whom (identities, seed ``003``'s IR modulation).
+        Who measured whom (identities, the IR-UKF study's IR modulation).
     range_m, bearing_rad : arrays (K,)
         The readings in the observer's body frame (REP-103).
     n_robots : int

@@ -1,6 +1,6 @@
-"""Seed ``004``'s baseline: particle-filter mutual localization from range and bearing.
+"""The Lee 2012 study's baseline: particle-filter mutual localization from range and bearing.
 
-Seed ``004`` (Lee et al. 2012) localises each teammate with a particle filter fed with the
+Lee et al. (2012) localise each teammate with a particle filter fed with the
 range and bearing its sensor measures to that (identified) teammate, cycling through:
 
 1. *deterministic drift*: a damped constant-velocity model;
@@ -11,7 +11,7 @@ range and bearing its sensor measures to that (identified) teammate, cycling thr
 
 Here each particle is ``(x_m, y_m, vx_mps, vy_mps)`` of one teammate in the observer's body
 frame, and the observer's own odometry moves every particle with the frame
-(``p <- R(dpsi)^T (p - d)``, velocities rotated by ``R(dpsi)^T``). Seed ``004`` exchanges no
+(``p <- R(dpsi)^T (p - d)``, velocities rotated by ``R(dpsi)^T``). Lee 2012 exchanges no
 odometry, so neither does this filter (``teammate_odometry`` is accepted and ignored, to share
 the call shape of the other localizers). "The state space" for re-seeding is the sensing disc
 (``reseed_range_m``) and the speed box ``|v| <= max_speed_mps``. The likelihood is Gaussian in
@@ -19,13 +19,13 @@ range and in the wrapped bearing residual. Steps 2-3 run only for teammates meas
 update; the estimate is the mean of the resampled (non re-seeded) particles. All teammates'
 particles are one ``(T, N, 4)`` array: no Python loop over teammates or particles.
 
-**Range-only readings** (seed ``004``'s wireless ranging): a reading ``(range_m, nan)`` (or a
+**Range-only readings** (Lee 2012's wireless ranging): a reading ``(range_m, nan)`` (or a
 1-vector ``(range_m,)``) carries no bearing; its likelihood is the range term alone.
 
-**The start** (``start``, seed ``004``'s triangulation / trilateration):
+**The start** (``start``, Lee 2012's triangulation / trilateration):
 
 - ``"uniform"`` (default): the cloud starts uniform over the state space, weighted at once by
-  the first reading (what the seed's filter does).
+  the first reading (what the Lee 2012 study's filter does).
 - ``"trilateration"``: with a bearing, the first reading alone fixes the teammate (one-station
   triangulation): particles drawn around the polar point with the range and bearing noise.
   Range-only readings are buffered with the observer's own position at the time (the origin of
@@ -163,7 +163,7 @@ class ParticleConfig:
 
 
 class ParticleFilterTracker:
-    """One particle cloud per identified teammate, in the observer frame (seed ``004``).
+    """One particle cloud per identified teammate, in the observer frame (Lee 2012).
 
     Bounds: one unit-weight component per cloud, so weight = count = the number of distinct
     IDs ever measured (clouds are never dropped; ``predict`` adds none, ``update`` adds exactly

@@ -1,6 +1,6 @@
-"""Seed ``003``'s tracking baseline: one UKF per identified teammate, range-bearing updates.
+"""The IR-UKF study's tracking baseline: one UKF per identified teammate, range-bearing updates.
 
-Seed ``003`` (a low-cost swarm with IR range-bearing sensing that carries identities) tracks
+The IR-UKF study (a low-cost swarm with IR range-bearing sensing that carries identities) tracks
 every robot with its own unscented Kalman filter: a differential-drive motion model, and the
 range-bearing landmark model of Labbe's FilterPy book with a **wrapped angle residual**. It
 runs them on a central computer in a global frame. Here the same filters run on the observer,
@@ -122,7 +122,7 @@ def _psd(covs: np.ndarray, floor: float = 1e-12) -> np.ndarray:
 
 
 class UKFTracker:
-    """One UKF per identified teammate, in the observer's body frame (seed ``003``).
+    """One UKF per identified teammate, in the observer's body frame (IR-UKF study).
 
     ``predict(own_odometry, teammate_odometry)``, ``update(measurements)`` with
     ``{id: (range_m, bearing_rad)}``, ``estimate() -> {id: (x, y, psi)}``, ``mixture``.

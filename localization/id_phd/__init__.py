@@ -1,6 +1,6 @@
 """ID-PHD: a robot-centric GM-PHD whose components carry teammate identities.
 
-Stegagno et al. (ICRA 2013, seed ``002``) let a supervisor that sees *anonymous* positions of
+Stegagno et al. (ICRA 2013) let a supervisor that sees *anonymous* positions of
 its teammates recover *who is who* from the odometry each teammate broadcasts with its ID.
 Here the observer is a ground robot of the swarm: it sees anonymous lidar detections in its own
 body frame (as :class:`~localization.RobotCentricPHD` does) and receives, by radio, every
@@ -10,7 +10,7 @@ Each component has a **tag** (``-1`` not yet associated, ``i >= 0`` robot ``i``,
 false positive, whose odometry is null) and a Gaussian over the teammate's pose
 ``(x, y, psi)`` in the observer frame (3x3 covariance).
 
-Time update (seed ``002`` eqs. 14-19, derived from total probability in seed ``001``, 13.2).
+Time update (Stegagno 2013 eqs. 14-19, derived from total probability in Stegagno 2012, 13.2).
 The teammate moves by its own increment ``u_i = (d_i, dpsi_i)`` (expressed in its frame at the
 start of the interval); the observer moves by ``u_0 = (d_0, dpsi_0)`` (in its frame). In the
 old observer frame the teammate ends at ``p + R(psi) d_i`` with heading ``psi + dpsi_i``; the new
@@ -19,12 +19,13 @@ observer frame has origin ``d_0`` and is turned by ``+dpsi_0``, so::
     p'   = R(dpsi_0)^T (p + R(psi) d_i - d_0)
     psi' = psi + dpsi_i - dpsi_0
 
-(seed eq. 18). The covariance is ``F P F^T + J_i C_i J_i^T + J_0 C_0 J_0^T`` (eq. 19) with the
-Jacobians of that map (:func:`compose_relative`). A static object (tag ``-2``) has ``u_i = 0``.
+(Stegagno 2013 eq. 18). The covariance is ``F P F^T + J_i C_i J_i^T + J_0 C_0 J_0^T`` (eq. 19)
+with the Jacobians of that map (:func:`compose_relative`). A static object (tag ``-2``) has
+``u_i = 0``.
 
 Untagged components (births) are split into one copy per *candidate* robot (every robot
 whose odometry has been received, except those already "recovered": tag weight >=
-``recovered_weight``, seed ``001`` 13.2) plus one copy for the static class, the weight divided
+``recovered_weight``, Stegagno 2012 13.2) plus one copy for the static class, the weight divided
 equally (eq. 15). Since a single position says nothing about the teammate's heading, each
 robot copy is further split into ``birth_heading_hypotheses`` evenly spaced headings (sharing
 that robot's share of the weight). Every copy is tagged from then on.

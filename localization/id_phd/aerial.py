@@ -1,13 +1,13 @@
-"""ID-PHD on an aerial observer: seed ``002``'s own setting (a UAV over the UGVs).
+"""ID-PHD on an aerial observer: the Stegagno 2013 study's own setting (a UAV over the UGVs).
 
 The state of each component is a UGV's pose ``(x, y, psi)`` in the UAV's level frame ``H_0``
-(origin under the UAV, x along its yaw; seed ``002`` Problem 3). The time update is the ground
+(origin under the UAV, x along its yaw; Stegagno 2013 Problem 3). The time update is the ground
 mode's (:meth:`IDPHD.predict`: the UGV's broadcast odometry increment composed with the UAV's own
 planar increment, eq. 18-19). What differs is the measurement: the downward camera's anonymous
 positions, whose
 
 - detection probability is ``P_d`` for a component whose mean lies inside the camera's footprint
-  and 0 outside (seed ``002``: "the probability of detection p_D^h of each component can be
+  and 0 outside (Stegagno 2013: "the probability of detection p_D^h of each component can be
   computed by considering whether or not its mean falls in the field of view"),
 - noise std grows with altitude (``noise_per_altitude * h``),
 - clutter is ``clutter_per_frame`` false positives spread uniformly over the footprint, i.e. an

@@ -1,5 +1,5 @@
 """ID-PHD time update: a teammate's communicated odometry composed with the observer's own
-(seed ``002`` eqs. 14-19), and the split of untagged components over the candidate robots."""
+(Stegagno 2013 eqs. 14-19), and the split of untagged components over the candidate robots."""
 
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ def compose_relative(
     teammate_var: np.ndarray,
     own_var: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Time update of teammate poses in a moving observer frame (seed ``002`` eqs. 18-19).
+    """Time update of teammate poses in a moving observer frame (Stegagno 2013 eqs. 18-19).
 
     Parameters
     ----------
@@ -89,7 +89,7 @@ def split_untagged(
     """Split every untagged component over the candidate robots and the static class.
 
     Each untagged component of weight ``w`` becomes ``len(candidates) + 1`` identity copies of
-    weight ``w / (len(candidates) + 1)`` (seed ``002`` eq. 15, the static class ``-2`` counts as
+    weight ``w / (len(candidates) + 1)`` (Stegagno 2013 eq. 15, the static class ``-2`` counts as
     one identity). A robot copy is further split into ``heading_hypotheses`` copies with
     headings ``psi_0 + 2 pi k / H`` and heading variance ``min(P_psi, (pi / H)^2)``, each of
     weight ``w / ((len(candidates) + 1) H)``; the static copy keeps the original component.

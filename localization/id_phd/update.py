@@ -1,5 +1,5 @@
 """ID-PHD measurement update: GM-PHD on the ``(x, y)`` part of ``(x, y, psi)`` components
-(seed ``002`` eqs. 20-21), the heading row following from the same gain."""
+(Stegagno 2013 eqs. 20-21), the heading row following from the same gain."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Mutual localization from anonymous measurements and the radio (seed ``001``).
+"""Mutual localization from anonymous measurements and the radio (Stegagno 2012).
 
 Each robot estimates its teammates' relative poses ``(x, y, theta)`` and identities from its own
 wheel odometry, its own anonymous lidar detections and what teammates broadcast (their

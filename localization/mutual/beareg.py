@@ -1,4 +1,4 @@
-"""P-MultiBeaReg: bearing-only multiple registration (seed ``001`` chapter 10, Algorithm 2).
+"""P-MultiBeaReg: bearing-only multiple registration (Stegagno 2012 chapter 10, Algorithm 2).
 
 Each robot's feature set is a set of anonymous **bearings** ``B_a`` (its own frame). Three robots
 ``a, b, c`` that see each other form a triangle: in ``B_a`` the bearings to ``b`` and ``c``

@@ -1,4 +1,4 @@
-"""Robot-centric FastSLAM with Monte-Carlo data association (seed ``001`` chapter 5).
+"""Robot-centric FastSLAM with Monte-Carlo data association (Stegagno 2012 chapter 5).
 
 The thesis's baseline for mutual localization from anonymous measurements. Each of ``P``
 particles is one hypothesis of the whole scene in the observer's body frame (the observer's own

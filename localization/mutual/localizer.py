@@ -1,4 +1,4 @@
-"""Seed ``001``'s three mutual-localization methods behind the project's
+"""The Stegagno 2012 thesis's three mutual-localization methods behind the project's
 :class:`~localization.protocol.Localizer` protocol.
 
 :class:`MutualLocalizer` holds one per-observer system (``p-multireg``:
@@ -29,7 +29,7 @@ particles); the loops are over the robots (observers), the teammates each observ
 filter for (motion updates, registrations' hypotheses), and, in FastSLAM-MC, the handful of
 detections of one scan. ``n_particles`` (per teammate filter for P-MultiReg /
 P-MultiBeaReg, per observer for FastSLAM-MC) bounds the work per observer; figures in
-``benchmarks/RESULTS.md`` ("Seed 001 methods behind the Localizer protocol").
+``benchmarks/RESULTS.md`` ("Stegagno 2012 methods behind the Localizer protocol").
 """
 
 from __future__ import annotations
@@ -75,7 +75,7 @@ def observer_rng(seed: int, method_index: int, observer_index: int) -> np.random
 
 
 class MutualLocalizer(LocalizerBase):
-    """Every robot's mutual-localization system of one seed-``001`` method.
+    """Every robot's mutual-localization system of one Stegagno 2012 method.
 
     Parameters
     ----------

@@ -1,4 +1,4 @@
-"""P-MultiReg: probabilistic multiple registration (seed ``001`` section 6.1, Algorithm 1).
+"""P-MultiReg: probabilistic multiple registration (Stegagno 2012 section 6.1, Algorithm 1).
 
 The observer ``i`` registers its observation ``Z_i`` (detections plus its origin, labelled ``i``)
 with every teammate's ``Z_j`` (same, in ``j``'s frame, origin labelled ``j``). Each iteration:

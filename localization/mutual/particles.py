@@ -1,4 +1,4 @@
-"""One particle filter per teammate over its relative pose (seed ``001`` section 6.2).
+"""One particle filter per teammate over its relative pose (Stegagno 2012 section 6.2).
 
 State ``x_j = (z_j, theta_j)``: teammate ``j``'s pose in the observer's body frame, ``P``
 particles, vectorised (no loop over particles).

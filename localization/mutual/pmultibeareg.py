@@ -1,4 +1,4 @@
-"""The P-MultiBeaReg system of one observer (seed ``001`` chapter 10, Fig. 33).
+"""The P-MultiBeaReg system of one observer (Stegagno 2012 chapter 10, Fig. 33).
 
 As :class:`~localization.mutual.pmultireg.PMultiRegLocalizer`, with bearings instead of
 positions: every ``update_period_s`` the observer's bearings and those of the teammates whose set

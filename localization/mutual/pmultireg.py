@@ -1,4 +1,4 @@
-"""The P-MultiReg mutual localization system of one observer (seed ``001`` chapter 6, Fig. 16).
+"""The P-MultiReg mutual localization system of one observer (Stegagno 2012 chapter 6, Fig. 16).
 
 Per env step the observer absorbs its own wheel odometry (motion update of every teammate's
 particle filter, eq. 13), the teammates' broadcasts (their communicated odometry pose gives each

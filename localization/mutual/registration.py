@@ -1,4 +1,4 @@
-"""Binary registration of two anonymous feature sets (seed ``001`` section 6.1, Fig. 17).
+"""Binary registration of two anonymous feature sets (Stegagno 2012 section 6.1, Fig. 17).
 
 A *registration* of a source set ``S`` (a teammate ``j``'s observation: its detections plus its
 own origin, in ``j``'s body frame) onto a target set ``T`` (the observer's observation, or the

@@ -1,4 +1,4 @@
-"""Planar pose algebra of seed ``001`` (chapter 2), vectorised over leading axes.
+"""Planar pose algebra of the Stegagno 2012 thesis (chapter 2), vectorised over leading axes.
 
 A pose ``x = (z, theta)`` is ``[x_m, y_m, theta_rad]`` (REP-103: yaw counter-clockwise). With
 ``R(phi)`` the rotation by ``phi``::

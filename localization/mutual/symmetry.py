@@ -1,4 +1,4 @@
-"""Rotational symmetry of an observation set: seed ``001`` chapter 4 (Lemma 1, Propositions 1-4).
+"""Rotational symmetry of an observation set: Stegagno 2012 chapter 4 (Lemma 1, Propositions 1-4).
 
 With anonymous position measurements and a complete measuring graph, the formation is uniquely
 recoverable from the robots' observation sets iff the observer's set ``Z_1`` (its detections

@@ -41,9 +41,9 @@ class PMBConfig:
     Attributes
     ----------
     phd : PHDConfig
-        Every model shared with the GM-PHD (see the module docstring). Default: the seed's
-        ``PHDConfig()``; pass the same object the GM-PHD gets (e.g. the simulator preset) so
-        that ``pmb-lc`` and ``phd-lc`` see identical sensor models.
+        Every model shared with the GM-PHD (see the module docstring). Default: the Perera 2021
+        study's ``PHDConfig()``; pass the same object the GM-PHD gets (e.g. the simulator preset)
+        so that ``pmb-lc`` and ``phd-lc`` see identical sensor models.
     gate_sigma : float
         A (track or Poisson component, measurement) pair whose squared Mahalanobis distance of
         the innovation exceeds ``gate_sigma**2`` gets likelihood 0. Default 4: such a pair's
@@ -63,13 +63,13 @@ class PMBConfig:
     recycle_threshold : float
         After each update, Bernoulli tracks with existence ``r`` below this move into the
         Poisson intensity as a component of weight ``r`` (Williams 2012 "recycling"; 0.1 is the
-        value used there). A Bernoulli below 0.1 is not reported by the seed's metric (weight
-        > 0.1) nor by any extraction threshold in use, and in the Poisson it is merged/pruned
-        like any PHD component; when it is detected again it comes back as a new Bernoulli
-        with ``r = e / (kappa + e)``. (Not tuned.)
+        value used there). A Bernoulli below 0.1 is not reported by the Perera 2021 study's metric
+        (weight > 0.1) nor by any extraction threshold in use, and in the Poisson it is
+        merged/pruned like any PHD component; when it is detected again it comes back as a new
+        Bernoulli with ``r = e / (kappa + e)``. (Not tuned.)
     max_tracks : int
         Cap on the number of Bernoulli tracks (the largest ``r`` are kept; the others are
-        recycled, so no mass is lost). Default 32: an observer in the seed's 20-robot swarm has
+        recycled, so no mass is lost). Default 32: an observer in Perera 2021's 20-robot swarm has
         at most 19 teammates, and the cap leaves room for obstacle tracks (decoys, walls).
         Also the width of :class:`~localization.pmb.PMBBank`'s padded track table. (Not tuned.)
     """

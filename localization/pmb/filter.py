@@ -288,8 +288,8 @@ class RobotCentricPMB(RobotCentricFilter):
         poisson = self._poisson
         fixed = cfg.birth == "fixed" and pts.shape[0] > 0
         if fixed:
-            # As the GM-PHD: the seed's birth joins the prior of every lidar update with
-            # detections; only its detected part is kept (its missed part is dropped below).
+            # As the GM-PHD: the Perera 2021 study's birth joins the prior of every lidar update
+            # with detections; only its detected part is kept (its missed part is dropped below).
             poisson = np.concatenate((poisson, self._fixed_birth), axis=1)
         union = np.concatenate((self._tracks, poisson), axis=1)
         pd = self._model.lidar(union, nulls)

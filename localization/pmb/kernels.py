@@ -373,7 +373,7 @@ def _lidar(tracks, nt, pois, npz, pts, nulls, fp, ip, sector_scaled, sector_para
     m = pts.shape[0]
     fixed = ip[I_BIRTH_FIXED] and m > 0
     union = _union(tracks, nt, pois, npz, 1 if fixed else 0)
-    if fixed:  # the seed's birth joins the Poisson prior; its missed part is dropped
+    if fixed:  # Perera 2021's birth joins the Poisson prior; its missed part is dropped
         set_fixed_birth(union, nt + npz, fp)
     total = union.shape[1]
     pd = _lidar_pd(union, total, nulls, fp, ip, sector_scaled, sector_params)

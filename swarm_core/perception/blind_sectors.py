@@ -1,4 +1,4 @@
-"""Lidar beams hidden by the camera pillars (the seed's four blind sectors, eq. 20)."""
+"""Lidar beams hidden by the camera pillars (Perera 2021's four blind sectors, eq. 20)."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Red-strip bearings from a robot's two fisheye images: the camera node's image-to-bearings core.
 
-Every robot carries a red strip around its camera holder (seed 000, "Camera measurements"); two
+Every robot carries a red strip around its camera holder (Perera 2021, "Camera measurements"); two
 180 deg fisheye lenses, back to back at the holder, see the whole circle. This module turns one
 frame of each into the bearings of the red blobs in the robot frame (REP-103: x forward, y left,
 angles counter-clockwise, radians in ``[-pi, pi)``), the measurement the filters' camera update

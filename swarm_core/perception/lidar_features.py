@@ -19,7 +19,7 @@ link (a dropout) does not break a cluster (``max_gap_beams``). By construction:
 * occluded robots, robots in a blind sector or interfered robots return nothing: false negatives;
 * walls and large obstacles form wide clusters and are rejected, except small fragments where a
   nearer object cuts a wall into a narrow visible sliver (a realistic false positive, rare at the
-  seed's 2 m tracking range);
+  Perera 2021 study's 2 m tracking range);
 * round objects wider than a housing (the arena's 120 mm red decoys) are rejected by the angular
   extent test (``extent_test``): every return's ray meets the object, so the angle between a
   cluster's first and last beams is at most the angle the object subtends, and a housing whose
@@ -83,13 +83,13 @@ class LidarFeatureConfig:
     min_beams : int
         Minimum returns in a kept cluster. Default 3: three points define a circle, so three
         returns are the fewest whose arc shape can be told from a wall edge, a range spike or a
-        mixed pixel (the seed recognises teammates as "a small set of points, which has a shape
+        mixed pixel (Perera 2021 recognises teammates as "a small set of points, which has a shape
         of an arch"). With one or two returns any surface edge would pass the width test.
     housing_radius_m : float
         The centre estimate is pushed this far behind the mean return, along the beam.
     tracking_range_m : float
         Detections whose centre is farther are dropped. Default 10 m, the X4's maximum range:
-        no cut. The seed's "range of the lidar is limited to 2m" (sec. 3.2) follows from the
+        no cut. Perera 2021's "range of the lidar is limited to 2m" (sec. 3.2) follows from the
         rules above (fewer returns at longer range), not from a threshold.
     extent_test : bool
         Also require the cluster's angular extent to fit a housing. Every return's ray meets
@@ -121,7 +121,7 @@ class LidarFeatureConfig:
         incidence (beyond what ``jump_range_gain`` keeps connected) or a wall
         fragment showing between two nearer objects does not. Costs the robots partially
         hidden behind a nearer object, whose truncated arc would bias the centre anyway.
-        ``False`` gives the seed's plain width test.
+        ``False`` gives the Perera 2021 study's plain width test.
     max_gap_beams : int
         Missing returns (range 0) a cluster bridges: a return at most this many beams after
         the previous one continues its cluster when their ranges link. A surface does not

@@ -1,6 +1,6 @@
 """Two 180-deg fisheye cameras (front + back = 360 deg) detecting red colour blobs: bearings only.
 
-Model (seed 000, "Camera measurements"): every robot carries a red strip on its camera holder;
+Model (Perera 2021, "Camera measurements"): every robot carries a red strip on its camera holder;
 the colour-blob detector reports the bearing of each red blob in the robot frame, without
 identity. A red circle ``t`` (a robot's strip or a red decoy) is *visible* to observer ``k`` when
 
@@ -11,7 +11,7 @@ identity. A red circle ``t`` (a robot's strip or a red decoy) is *visible* to ob
 * the straight line between the two centres crosses no wall/box segment and passes outside
   every camera-occluding circle except the observer's own and the target's own.
 
-Blob detection (physical, seed 000 "Camera measurements": 1920x1080 fisheyes covering 180 deg,
+Blob detection (physical, Perera 2021 "Camera measurements": 1920x1080 fisheyes covering 180 deg,
 red colour threshold, blobs). A red strip of radius R and height ``strip_height_m`` at range d
 covers ``A(d) = f^2 x 2 asin(R / d) x strip_height_m / d`` pixels, ``f = pixels_per_rad``
 (equidistant fisheye). In each frame a fraction ``u ~ U(fill_min, 1)`` of it passes the colour
@@ -72,7 +72,7 @@ class CameraConfig:
     strip_height_m : float
         Height of the red strip (and of a red decoy's red band). The seed does not give it:
         15 mm (a roll of tape), our choice, which puts the 50 % detection range at 4.1 m,
-        matching the seed's "~3-4 m" camera range.
+        matching the Perera 2021 study's "~3-4 m" camera range.
     min_blob_area_px : float
         Smallest blob the detector keeps, in pixels (OpenCV ``SimpleBlobDetector``'s default
         ``minArea`` = 25).
@@ -82,7 +82,7 @@ class CameraConfig:
         ideal blobs: centroid at the strip's centre, detected wherever the area suffices.
     bearing_noise_std_deg : float
         Extra Gaussian bearing noise beyond the centroid and quantisation terms (lens
-        calibration, timing). Default 0: the simulated lens is ideal. The seed's hardware
+        calibration, timing). Default 0: the simulated lens is ideal. Perera 2021's hardware
         reports R_C = "25 deg" (5 deg std read as a variance), which includes such errors.
     miss_probability : float
         Chance a blob that passes the area test is still lost in a frame (motion blur,

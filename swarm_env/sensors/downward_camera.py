@@ -1,6 +1,6 @@
-"""A UAV's downward camera: anonymous ground positions of the UGVs under it (seed ``002``).
+"""A UAV's downward camera: anonymous ground positions of the UGVs under it (Stegagno 2013).
 
-Seed ``002`` (Stegagno et al., ICRA 2013, sec. III-IV) segments marker-covered UGVs in the image
+Stegagno et al. (ICRA 2013, sec. III-IV) segment marker-covered UGVs in the image
 of a downward USB webcam (25 Hz) and back-projects each feature with the height sensor (eq. 2),
 giving *anonymous* positions of the UGVs in the UAV's level frame ``H_0`` (x forward, y left,
 the UAV's yaw; roll and pitch compensated). The output has Gaussian noise, misses (false
@@ -14,7 +14,7 @@ The model here produces those positions directly:
   webcam's (60 deg x 47 deg, 640 px wide).
 - **Noise**: a pixel error of ``pixel_noise_std_px`` back-projected at altitude ``h`` is
   ``h * pixel_noise_std_px / f_px`` metres on the ground (``f_px = (W / 2) / tan(hfov / 2)``),
-  isotropic: the noise grows linearly with altitude. The seed's Fig. 6 reads 20 px as about
+  isotropic: the noise grows linearly with altitude. Stegagno 2013's Fig. 6 reads 20 px as about
   10 cm, i.e. 5 mm/px: with ``f_px = 554`` that puts its UAV at ``h ~ 2.8 m``.
 - **Misses**: each UGV inside the footprint is detected with ``detection_probability``.
 - **Clutter**: ``Poisson(clutter_per_frame)`` false positives per frame, uniform over the

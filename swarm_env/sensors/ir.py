@@ -1,9 +1,9 @@
-"""Seed ``003``'s IR range-bearing sensor with identities, simulated from true poses.
+"""The IR-UKF study's IR range-bearing sensor with identities, simulated from true poses.
 
-Seed ``003`` (Sec. II): every robot carries an IR LED pulsed at its own frequency (the identity,
+The IR-UKF study (Sec. II): each robot carries an IR LED pulsed at its own frequency (the identity,
 recovered from the FFT bin) and two phototransistors swept by a servo; one sweep gives, for every
 neighbour in view, its identity, bearing (the sweep angle of the peak) and range (from the peak
-height through a calibrated power law). Figures taken from the seed:
+height through a calibrated power law). Figures taken from the study:
 
 - one sweep per second ("the update rate is approximately 1 Hz");
 - neighbours seen up to 1 m ("range and bearing estimates of robots that are 1 m away or closer");
@@ -13,13 +13,13 @@ height through a calibrated power law). Figures taken from the seed:
   read as a *longer* range. Modelled as a two-part mixture: Gaussian core ``range_std_m`` =
   0.072 m, plus with probability ``outlier_probability`` a positive offset uniform in
   ``outlier_offset_m``. With the defaults (0.08, [0.3, 0.9] m) the mixture's standard deviation is
-  0.186 m at any range and every outlier at 0.61 m reads > 0.9 m, as in the seed;
-- bearing noise "a few degrees" (the seed's exact figure is lost from the text we have; its
+  0.186 m at any range and every outlier at 0.61 m reads > 0.9 m, as in the study;
+- bearing noise "a few degrees" (the IR-UKF study's exact figure is lost from the text we have; its
   reasoning: ~1 s sweep delay times the robots' turn rate). Default 5 deg.
 
-Per-robot calibration error (seed ``003``, Sec. IV: "accumulated systematic calibration error"
+Per-robot calibration error (IR-UKF study, Sec. IV: "accumulated systematic calibration error"
 from the per-sensor power-law fits): each observer's ranges are scaled by ``1 + e_i``,
-``e_i ~ N(0, range_scale_std)`` drawn at reset. Default 0 (the seed gives no figure); the docs
+``e_i ~ N(0, range_scale_std)`` drawn at reset. Default 0 (the study gives no figure); the docs
 report the effect of a few per cent.
 
 Motion during the sweep (``sweep_motion=True``): the servo takes a whole period to sweep the
@@ -27,7 +27,7 @@ circle, so each neighbour is seen at the instant the sweep passes its bearing (f
 sweep's start to +pi at its end), while the sweep is reported at its end. The seed puts this
 delay (0.5 s on average) times the robots' turn rate at the root of its bearing error. With it on,
 ``step`` reads each pair from the poses it was given at that instant (the latest at or before
-it), so the consumer sees the delay. Default off: ``bearing_std_deg`` is the seed's *total*
+it), so the consumer sees the delay. Default off: ``bearing_std_deg`` is the IR-UKF study's *total*
 bearing sigma, delay included.
 
 Readings that fall in a blind spot entirely (no peak) are dropped with probability
@@ -61,7 +61,7 @@ def _check_real(name: str, value: object, low: float, high: float, low_open: boo
 
 @dataclass(frozen=True, slots=True)
 class IRConfig:
-    """The IR sensor of seed ``003`` (units in the names), validated on construction."""
+    """The IR sensor of the IR-UKF study (units in the names), validated on construction."""
 
     rate_hz: float = 1.0
     max_range_m: float = 1.0
@@ -107,7 +107,7 @@ class IRConfig:
     @property
     def effective_range_std_m(self) -> float:
         """Standard deviation of the whole range-error mixture (core + outliers), m: the value
-        seed ``003`` put in its filter ("the actual skewed value")."""
+        the study put in its filter ("the actual skewed value")."""
         p, (a, b) = self.outlier_probability, self.outlier_offset_m
         m, v = 0.5 * (a + b), (b - a) ** 2 / 12.0
         return math.sqrt(self.range_std_m**2 + p * v + p * (1.0 - p) * m * m)

@@ -7,7 +7,7 @@ that interval, and keeps the nearest hit per beam in place. Walls subtend wide i
 a closed arena their intervals tile the circle about once, so the work stays
 ~ (K x B + small shapes' beams).
 
-Model (seed 000, section "Lidar"; defaults from the YDLidar X4 data sheet the seed quotes):
+Model (Perera 2021, section "Lidar"; defaults from the YDLidar X4 data sheet the study quotes):
 
 * 720 beams per revolution (0.5 deg), beam k at robot-frame angle ``-pi + k 2 pi / B``;
   7 Hz; returns between ``range_min_m`` and ``range_max_m``, else range 0 ("no return").
@@ -22,7 +22,7 @@ Model (seed 000, section "Lidar"; defaults from the YDLidar X4 data sheet the se
 * Intensity = surface intensity x ``1 / (1 + (r / intensity_falloff_m)^2)`` x log-normal noise,
   so a valid return always has intensity > 0 and range 0 + intensity 0 marks a null.
 * Four blind sectors where the camera pillars sit inside ``range_min_m``: range 0, intensity 0.
-* Interference (seed's eq. 23 phenomenon): beam k of robot i is fired at
+* Interference (Perera 2021's eq. 23 phenomenon): beam k of robot i is fired at
   ``stamp_i - 1/rate_i + (k / B) / rate_i``; if it hits robot j's housing while j's spinning
   head points back at i (within ``interference_tolerance_deg``, and not into j's own blind
   sector), the beam returns a null. Each head spins at ``rate_hz`` plus a per-robot offset, so
@@ -71,7 +71,7 @@ MAX_RANGE_M = 100.0
 
 @dataclass(frozen=True, slots=True)
 class LidarConfig:
-    """YDLidar X4 parameters (seed 000; defaults are the seed's values where it gives them).
+    """YDLidar X4 parameters (Perera 2021; defaults are the study's values where it gives them).
 
     Attributes
     ----------
@@ -101,7 +101,7 @@ class LidarConfig:
     intensity_falloff_m : float
         Range at which the return intensity halves.
     blind_sector_centers_deg, blind_sector_widths_deg : tuple of float
-        Camera-pillar blind sectors in the robot frame (seed eq. 20: "determined
+        Camera-pillar blind sectors in the robot frame (Perera 2021 eq. 20: "determined
         experimentally"; the values here are the pillar geometry of the Cherokey build).
     interference_tolerance_deg : float
         Half-angle within which another robot's head must point back at the scanner for a beam

@@ -1,12 +1,12 @@
 """Wheel odometry: encoder pulses of the true wheel motion, with slip, as U = [dx, dy, dpsi].
 
-The seed's Cherokey has 16-pulse encoders behind a 120:1 gearbox, i.e. 1920 pulses per wheel
+Perera 2021's Cherokey has 16-pulse encoders behind a 120:1 gearbox, i.e. 1920 pulses per wheel
 revolution (Perera 2021, sec. 5.3). The wheels turn as the motor controller drives them (the
 acceleration-limited command), so when the body is blocked by a wall or pushed by a teammate the
 encoders keep counting: that is wheel slip, and it shows up in the odometry exactly as on a real
 robot. Small random slip is added on every physics substep.
 
-Equations (31)-(32) of the seed, with the sign of (32) fixed for REP-103: the seed writes
+Equations (31)-(32) of Perera 2021, with the sign of (32) fixed for REP-103: the study writes
 ``P_L - P_R`` (clockwise positive); a left turn (counter-clockwise, positive yaw) has the right
 wheel travelling further, so ``dpsi = 2 pi r_w (P_R - P_L) / (1920 w_ax)``.
 """
@@ -53,7 +53,7 @@ class OdometryConfig:
 def pulses_to_delta(
     pulses: np.ndarray, wheel_radius_m: float, axle_width_m: float, pulses_per_revolution: int
 ) -> np.ndarray:
-    """Seed eqs. (31)-(32): pulse counts to body-frame displacement.
+    """Perera 2021 eqs. (31)-(32): pulse counts to body-frame displacement.
 
     Parameters
     ----------

@@ -10,7 +10,7 @@ For controlled sensor experiments (the detection-curve and speed benchmarks) and
     b.add_walls(6.0, 6.0)                        # arena walls centred on the origin
     scene = b.build()
 
-``make_arena_scene(rng, ...)`` draws a random arena like the seed's (6 m x 6 m, 20 robots);
+``make_arena_scene(rng, ...)`` draws a random arena like Perera 2021's (6 m x 6 m, 20 robots);
 ``make_pair_scene(rng, range_m, n_pairs)`` isolated (observer, target) pairs at one range, for
 detection-probability measurements.
 """
@@ -24,7 +24,7 @@ import numpy as np
 
 from swarm_env.sensors.scene import Scene
 
-HOUSING_RADIUS_M = 0.0325  # YDLidar X4 housing, 65 mm diameter (seed 000)
+HOUSING_RADIUS_M = 0.0325  # YDLidar X4 housing, 65 mm diameter (Perera 2021)
 STRIP_RADIUS_M = 0.045  # red strip around the camera holder
 POST_RADIUS_M = 0.03  # decoy post: slimmer than a housing, so the lidar extractor accepts it
 RED_DECOY_RADIUS_M = 0.05
@@ -130,7 +130,7 @@ def make_arena_scene(
     size_m: float = 6.0,
     clearance_m: float = 0.25,
 ) -> Scene:
-    """A random walled arena like the seed's (6 m x 6 m, 20 robots), objects non-overlapping.
+    """A random walled arena like Perera 2021's (6 m x 6 m, 20 robots), objects non-overlapping.
 
     Boxes (0.3-0.6 m sides) are placed first, then robots, posts and red decoys by rejection
     sampling with ``clearance_m`` between centres and from walls and boxes.

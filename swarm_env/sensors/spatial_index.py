@@ -1,12 +1,12 @@
 """A uniform grid (cell list) over shapes, so a sensor reading visits only nearby shapes.
 
 The sensors' brute-force kernels test every reading against every shape of the scene, which
-costs ``readings x shapes``: with the seed's density kept (the arena grows with the swarm) that
-is O(N^2) per step, although each robot only ever sees a disc of fixed size (lidar reach ~10 m,
-camera ~5 m). A :class:`CellGrid` bins the shapes once per sensor call (a counting sort, O(M));
-a reading then gathers the shapes of the cells that reach within its radius, and runs exactly
-the brute-force tests on them. The index only decides which shapes are *tested*, never what a
-test answers: every shape it leaves out fails the reading's own range test, so the results are
+costs ``readings x shapes``: with the Perera 2021 study's density kept (the arena grows with the
+swarm) that is O(N^2) per step, although each robot only ever sees a disc of fixed size (lidar
+reach ~10 m, camera ~5 m). A :class:`CellGrid` bins the shapes once per sensor call (a counting
+sort, O(M)); a reading then gathers the shapes of the cells that reach within its radius, and runs
+exactly the brute-force tests on them. The index only decides which shapes are *tested*, never what
+a test answers: every shape it leaves out fails the reading's own range test, so the results are
 bit for bit those of the brute-force kernels (``tests/swarm_env/test_spatial_index.py``).
 
 Layout: each shape is binned by its centre ``xy`` (circle centre, segment midpoint) and has an
@@ -24,7 +24,7 @@ import math
 import numpy as np
 from numba import njit
 
-#: Default cell side, m: ~ a robot's neighbourhood at the seed's density (0.56 robots / m^2).
+#: Default cell side, m: ~ a robot's neighbourhood at Perera 2021's density (0.56 robots / m^2).
 CELL_M = 1.0
 #: At most this many cells along a side: a scene with a far outlier does not allocate a huge
 #: grid (the cells grow instead).

@@ -21,7 +21,7 @@ if TYPE_CHECKING:
 
 class Task:
     """Base class: subclasses override what they need. The defaults describe a task with no
-    reward, no features, no extra robots and no termination (the seed's free wandering)."""
+    reward, no features, no extra robots and no termination (Perera 2021's free wandering)."""
 
     name = "base"
     n_extra_robots = 0

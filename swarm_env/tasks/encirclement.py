@@ -1,4 +1,4 @@
-"""``encirclement``: enclose a moving intruder in a circle (seed ``004``, particle-filter swarms).
+"""``encirclement``: enclose a moving intruder in a circle (Lee 2012, particle-filter swarms).
 
 The intruder is one extra robot that is not an agent: same chassis, lidar housing and red strip,
 so every lidar and camera sees it like any teammate (it shows up in the PHD like one), but it has
@@ -28,19 +28,19 @@ agent's frame with Gaussian noise, and ``valid`` = 1.0 when this reading exists.
 ``cos b, sin b, rho`` are 0) when the beacon cannot be computed: the beacon is simulated from
 the ground truth, so a real swarm without motion capture (``truth is None``) or a world without
 the intruder has none, and a bare ``rho = 0`` would read as "the intruder is right here". This
-models the seed's setting, where every robot ranges the intruder by radio (seed ``004``: "range
-(and bearing) to others by wireless"): a real intruder carrying no beacon could not be told apart
-from a teammate by anonymous lidar/camera detections, so without the beacon the PHD alone does not
-say which component to enclose. With ``beacon=False`` only ``[r]`` is given.
+models the Lee 2012 study's setting, where every robot ranges the intruder by radio (Lee 2012:
+"range (and bearing) to others by wireless"): a real intruder carrying no beacon could not be
+told apart from a teammate by anonymous lidar/camera detections, so without the beacon the PHD
+alone does not say which component to enclose. With ``beacon=False`` only ``[r]`` is given.
 
-Where the intruder's position comes from (``intruder_source``, seed ``004``; the scripted
+Where the intruder's position comes from (``intruder_source``, Lee 2012; the scripted
 controller :class:`agents.scripted.EncirclementPolicy` reads the same parameter):
 
 - ``"beacon"`` (the ablation, default): a fresh reading every step, simulated from the ground
   truth; the controller encloses that reading (refined by the nearest PHD component).
 - ``"particle"``: the same kind of reading, but only at ``reading_rate_hz`` with probability
-  ``reading_dropout`` of losing each (seed ``004``'s radio ranging; ``valid`` = 1 only on the
-  step a reading arrives). Each robot's controller runs seed ``004``'s particle filter
+  ``reading_dropout`` of losing each (Lee 2012's radio ranging; ``valid`` = 1 only on the
+  step a reading arrives). Each robot's controller runs Lee 2012's particle filter
   (:class:`localization.baselines.particle.ParticleFilterTracker`) on them with its own
   odometry, and encloses the filter's estimate.
   With ``intruder_sensing="range"`` (``"particle"`` only) a reading carries the range only,
@@ -58,7 +58,7 @@ What the features carry (``intruder_features``):
 - ``"reading"`` (default): the raw reading of the step, as above (``valid`` = 1 only when one
   arrives). The scripted controller runs its own filter on them; a memoryless learned policy
   sees a reading on 2 steps in 10 (``particle``) or once (``estimate``).
-- ``"filter"`` (``intruder_source="particle"`` only): the task runs seed ``004``'s particle
+- ``"filter"`` (``intruder_source="particle"`` only): the task runs Lee 2012's particle
   filter for every robot itself and the features are the filter's estimate every step (``valid``
   = 1 from the first reading on; range-only with ``particle_start="trilateration"``, from the
   fix on), so a learned policy observes what the scripted one encloses.
@@ -119,7 +119,7 @@ class EncirclementTask(Task):
         ``beacon=True`` unless ``"beacon"``.
     reading_rate_hz, reading_dropout : float
         ``"particle"`` only: readings per second per robot (default 2 Hz) and the probability
-        of losing each (default 0.2). Seed ``004`` gives neither: stated assumptions.
+        of losing each (default 0.2). Lee 2012 gives neither: stated assumptions.
     intruder_features : {"reading", "filter"}
         What the features carry (module docstring): the raw reading (default) or, with
         ``intruder_source="particle"``, the estimate of a particle filter the task runs per robot.

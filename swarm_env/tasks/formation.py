@@ -1,5 +1,6 @@
-"""``formation``: the swarm forms a circle of radius ``r`` around its own centroid (the seed's
-UAV/UGV task T4), or, with ``shape="lattice"``, every robot keeps distance ``d`` to its neighbours.
+"""``formation``: the swarm forms a circle of radius ``r`` around its own centroid (the
+Stegagno 2013 study's UAV/UGV task T4), or, with ``shape="lattice"``, every robot keeps distance
+``d`` to its neighbours.
 
 Rewards (per agent i, per step, metres; ground-truth world positions ``p``):
 
@@ -20,9 +21,10 @@ change which policy is optimal, but it credits each agent's own motion at once.
 Optional localization term (``localization_weight`` = w > 0): ``r_i -= w u_i``, ``u_i`` in [0, 1]
 (:mod:`swarm_env.tasks.localization_term`): with ``localization_term="unseen"`` (default) the
 fraction of i's teammates that its lidar and camera did not both detect at their last tick; with
-``"estimate"`` the fraction that i's own estimate misplaces by more than 0.30 m (the seed's
-scoring). Motion that keeps teammates measured keeps them localized. Off by default; when on,
-the metrics add the episode mean of ``u`` (``unseen_fraction`` or ``mislocalized_fraction``).
+``"estimate"`` the fraction that i's own estimate misplaces by more than 0.30 m (the
+Perera 2021 study's scoring). Motion that keeps teammates measured keeps them localized. Off by
+default; when on, the metrics add the episode mean of ``u`` (``unseen_fraction`` or
+``mislocalized_fraction``).
 
 Termination: never (holding the formation is the task). Truncation: ``max_steps`` of the config.
 

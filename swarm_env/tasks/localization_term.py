@@ -7,10 +7,11 @@
   only the simulator's visibility masks.
 - ``"estimate"``: the fraction of i's teammates that i's *own estimate* misplaces: no component
   of weight > 0.1 within 0.30 m of the teammate's true position (:func:`mislocalized_fraction`).
-  That is the per-pair error of the seed's scoring (:class:`localization.metrics.SeedScorer`,
-  the "% of pair-steps above 0.30 m" of ``swarm-phd evaluate``), over every teammate rather than
-  those within 2 m, so that leaving a teammate's range does not lower the penalty. It reads the
-  env's localizer after this step's update (simulation only: it needs ground truth).
+  That is the per-pair error of the Perera 2021 study's scoring
+  (:class:`localization.metrics.SeedScorer`, the "% of pair-steps above 0.30 m" of
+  ``swarm-phd evaluate``), over every teammate rather than those within 2 m, so that leaving a
+  teammate's range does not lower the penalty. It reads the env's localizer after this step's
+  update (simulation only: it needs ground truth).
 
 The episode mean of ``u`` goes to the task metrics as ``unseen_fraction`` or
 ``mislocalized_fraction``.

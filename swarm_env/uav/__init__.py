@@ -1,4 +1,4 @@
-"""A UAV supervisor over the UGV swarm (seed ``002``): kinematic quadrotor, downward camera,
+"""A UAV supervisor over the UGV swarm (Stegagno 2013): kinematic quadrotor, downward camera,
 the UGVs' odometry over the radio, and ID-PHD on board (see :mod:`swarm_env.uav.env`)."""
 
 from __future__ import annotations

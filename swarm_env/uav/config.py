@@ -1,4 +1,4 @@
-"""The UAV supervisor's configuration (seed ``002``: an AscTec Pelican over Khepera III UGVs)."""
+"""The UAV supervisor's configuration (Stegagno 2013: an AscTec Pelican over Khepera III UGVs)."""
 
 from __future__ import annotations
 
@@ -33,7 +33,7 @@ class UAVConfig:
     geofence_margin_m : float
         The UAV's projection stays within the arena grown by this margin.
     odometry_std_mps, odometry_std_radps : float
-        Noise of the UAV's own motion estimate (seed ``002``: optical flow + IMU), per axis, as
+        Noise of the UAV's own motion estimate (Stegagno 2013: optical flow + IMU), per axis, as
         white velocity noise: the increment over ``dt`` has std ``sigma * dt``.
     camera : DownwardCameraConfig
     """

@@ -21,13 +21,13 @@ from swarm_core.aerial import AerialFrame
 
 
 def hover_command(frame: AerialFrame | None) -> np.ndarray:
-    """Hold position (seed ``002``'s simulation: the UAV hovers for the whole run)."""
+    """Hold position (Stegagno 2013's simulation: the UAV hovers for the whole run)."""
     return np.zeros(2)
 
 
 def centroid_command(frame: AerialFrame | None, gain_per_s: float = 0.5) -> np.ndarray:
-    """Body velocity ``gain * centroid`` towards the centroid of the frame's detections (seed
-    ``002``'s visual-servoing task T1: keep the UGVs' centroid at the image centre)."""
+    """Body velocity ``gain * centroid`` towards the centroid of the frame's detections
+    (Stegagno 2013's visual-servoing task T1: keep the UGVs' centroid at the image centre)."""
     if frame is None or frame.detections.shape[0] == 0:
         return np.zeros(2)
     return gain_per_s * frame.detections.mean(axis=0)

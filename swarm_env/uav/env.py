@@ -1,11 +1,11 @@
-"""A UGV swarm with a UAV supervisor (seed ``002``), as a PettingZoo parallel env.
+"""A UGV swarm with a UAV supervisor (Stegagno 2013), as a PettingZoo parallel env.
 
 Agents: ``ugv_0 .. ugv_{n-1}`` (exactly the :class:`~swarm_env.env.SwarmEnv` agents, same spaces,
 observations and rewards) plus ``uav_0``. The env composes an unchanged ``SwarmEnv`` (the UGVs,
 their physics, sensors and filters) and adds, per control period:
 
 1. the UAV's kinematic motion from its action (it flies above everything: no collisions) and
-   its noisy estimate of that motion (optical flow + IMU in the seed);
+   its noisy estimate of that motion (optical flow + IMU in Stegagno 2013);
 2. the radio: the UGVs broadcast their dead-reckoned odometry pose (``SwarmRadio`` with the UAV as
    an extra listener; loss, latency and radius from ``SwarmConfig.comms``);
 3. a frame of the downward camera (:mod:`swarm_env.sensors.downward_camera`) when one is due;
@@ -130,7 +130,7 @@ class SupervisedSwarmEnv(ParallelEnv):
     Parameters
     ----------
     preset : str
-        A ``SwarmConfig`` preset (default ``"seed-uav"``, seed ``002``'s setup).
+        A ``SwarmConfig`` preset (default ``"seed-uav"``, Stegagno 2013's setup).
     uav : UAVConfig, optional
     task, task_params :
         The UGVs' task, as for :class:`SwarmEnv`.

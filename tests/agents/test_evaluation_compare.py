@@ -136,7 +136,7 @@ def test_evaluate_compare_end_to_end(tmp_path):
     assert (out / "compare2" / "metrics.json").is_file()
     assert all("formation_error_m" in r and "phd-lc GOSPA" in r for r in rows)
     assert all("phd-lc ugv_0 teammates > 25 %" in r for r in rows)
-    # The seed's scoring, per tracked teammate of ugv_0 and over all observers, and the
+    # Perera 2021's scoring, per tracked teammate of ugv_0 and over all observers, and the
     # pooled per-observer figure, under their own names.
     metrics = json.loads((out / "metrics.json").read_text())
     lc = metrics["localizers"]["phd-lc"]

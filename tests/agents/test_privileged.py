@@ -96,7 +96,7 @@ def test_residual_labels_are_the_teachers_correction_of_the_base():
     )
     assert len(same) == 320
     np.testing.assert_array_equal(same.actions, 0.0)
-    # A teacher that only random-walks (the seed's wander) has nothing to teach either.
+    # A teacher that only random-walks (Perera 2021's wander) has nothing to teach either.
     wander = collect_demonstrations(
         KWARGS, "scripted:wander", 160, n_copies=2, residual="scripted:formation"
     )

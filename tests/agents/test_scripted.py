@@ -174,7 +174,7 @@ def test_dispersion_pushes_away_from_close_neighbours_and_cruises_otherwise():
     w = 1.0 / (1.0 + 0.002 / 0.02)  # the spread discount of estimated_neighbours
     expected = np.array([0.18, 0.0]) - 0.4 * w * (1.0 / 1.5) * np.array([1.0, 0.0])
     np.testing.assert_allclose(u, expected)
-    table[0, 1] = 2.0  # beyond spread_m: nobody close, so the seed's wander
+    table[0, 1] = 2.0  # beyond spread_m: nobody close, so Perera 2021's wander
     assert policy.desired_velocity("ugv_0", table, np.zeros(2), np.zeros(0)) is None
     with pytest.raises(ValueError, match="spread_m"):
         DispersionPolicy(spread_m=0.0)
@@ -287,8 +287,8 @@ def test_expected_lidar_detections_by_hand():
     counter-clockwise turn puts it dead ahead, where the expectation is w * P_range(1 m) times
     the other three sectors' factors: 1 for the X4's notch (``"visible-width"``, 0 only within
     about 5 deg of a centre), ``1 - exp((cos(delta) - 1) / sigma^2)``, sigma = 5 deg, for the
-    seed's bump. Under the constant P_d model the filter has no sectors: every turn expects the
-    same."""
+    Perera 2021 bump. Under the constant P_d model the filter has no sectors: every turn expects
+    the same."""
     from localization.detection import DetectionModel, inverse_sigmoid
     from swarm_env.config import SIMULATOR_PHD as phd
 

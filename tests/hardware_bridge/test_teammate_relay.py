@@ -34,7 +34,7 @@ def test_relay_sends_each_robots_newest_odometry_and_detections_to_the_others():
     a = out["b"][0]
     assert a.stamp_s == 1.1 and np.allclose(a.odometry_pose, [0.4, 0.5, 0.6])
     assert np.allclose(a.detections, [[1.0, 0.0]]) and a.detections_stamp_s == 1.08
-    # The newest camera frame's bearings (seed 001's P-MultiBeaReg features).
+    # The newest camera frame's bearings (the Stegagno 2012 thesis's P-MultiBeaReg features).
     assert np.allclose(a.bearings_rad, [0.2, -1.0]) and a.bearings_stamp_s == 1.07
     assert out["b"][1].detections.shape == (0, 2)  # c has not scanned yet
     assert out["b"][1].bearings_rad.size == 0 and np.isnan(out["b"][1].bearings_stamp_s)

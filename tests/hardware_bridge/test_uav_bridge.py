@@ -1,6 +1,6 @@
-"""Seed 002's UAV supervisor over the bridge: the loopback server flies a simulated UAV that
-publishes its pose and camera detections and obeys its cmd_vel; ``real_supervised_env`` runs
-the UGVs and the UAV's ID-PHD through real websockets; the recorded bag replays to the same
+"""The Stegagno 2013 study's UAV supervisor over the bridge: the loopback server flies a simulated
+UAV that publishes its pose and camera detections and obeys its cmd_vel; ``real_supervised_env``
+runs the UGVs and the UAV's ID-PHD through real websockets; the recorded bag replays to the same
 estimates; bad UAV messages are refused and counted; a silent UAV fails the reset."""
 
 from __future__ import annotations
@@ -96,9 +96,9 @@ def uav_episode(tmp_path_factory):
 
 def test_uav_identifies_every_ugv_over_the_bridge(uav_episode):
     # The UAV's ID-PHD from real websocket messages: every identity within 5 cm and 10 deg
-    # (seed 002's bounds: 12 cm, 10 deg) of the truth at the step's end after 6 s. A wrong
+    # (Stegagno 2013's bounds: 12 cm, 10 deg) of the truth at the step's end after 6 s. A wrong
     # identity or a frame error is off by the UGVs' spacing (~1 m) or by a turn.
-    # Seed 002's bounds: a moving UGV (<= 0.2 m/s) compared with the truth at the step's end
+    # Stegagno 2013's bounds: a moving UGV (<= 0.2 m/s) compared with the truth at the step's end
     # also measures the radio's and the machine's latency (0.3 s x 0.2 m/s = 6 cm under load).
     for pos_err, psi_err in uav_episode["errors"]:
         assert pos_err < 0.12

@@ -4,12 +4,12 @@ A static observer at the origin (heading +x); ``n_targets`` teammates move in a 
 around it (random-walk velocity, bouncing off the walls). Every 0.1 s the observer's filter
 gets a time update; a lidar scan arrives at ~7 Hz and a camera frame at 10 Hz.
 
-* Lidar: a teammate is detected with the seed's range probability (eq. 19), never inside a
-  hard blind sector of the configured width, never when a nearer teammate is within the
+* Lidar: a teammate is detected with the Perera 2021 study's range probability (eq. 19), never
+  inside a hard blind sector of the configured width, never when a nearer teammate is within the
   occlusion angle, with N(0, 0.05^2 I) noise; Poisson clutter (mean ``lidar_clutter``)
   uniform in the 2 m disc.
-* Camera: detection with the seed's camera range probability (eq. 30), occlusion as above,
-  N(0, (5 deg)^2) bearing noise; Poisson clutter uniform in bearing.
+* Camera: detection with the Perera 2021 study's camera range probability (eq. 30), occlusion as
+  above, N(0, (5 deg)^2) bearing noise; Poisson clutter uniform in bearing.
 
 Everything is drawn from one seeded generator, so a run is deterministic.
 """

@@ -1,4 +1,4 @@
-"""Seed baselines: the UKF tracker (seed 003) and the particle filter (seed 004)."""
+"""Source-study baselines: the UKF tracker (IR-UKF study) and the particle filter (Lee 2012)."""
 
 from __future__ import annotations
 
@@ -193,7 +193,7 @@ def test_ukf_covariances_stay_symmetric_pd(sequence):
             assert np.isfinite(x).all() and abs(x[2]) <= math.pi
 
 
-# ------------------------------------------- seed 004: range-only readings and the filter's start
+# ------------------------------------------ Lee 2012: range-only readings and the filter's start
 def test_trilaterate_recovers_the_point_from_exact_ranges():
     from localization.baselines.particle import trilaterate
 

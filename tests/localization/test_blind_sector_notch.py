@@ -160,8 +160,8 @@ def measured_notch(range_m: float, offsets_deg: np.ndarray, seed: int) -> np.nda
 def test_the_notch_matches_the_simulated_lidar(range_m):
     """Against ground truth: per 1.5 deg bin of offset, the simulator's detection rate is its
     full-view rate at that range (measured 20-40 deg from the centres) times the filter's notch
-    to within 0.1 (about 3 standard errors), while the seed's bump misses it by more than 0.1
-    somewhere at every range."""
+    to within 0.1 (about 3 standard errors), while the Perera 2021 study's bump misses it by more
+    than 0.1 somewhere at every range."""
     rng = np.random.default_rng(11)
     offsets = np.concatenate((rng.uniform(0.0, 9.0, 1200), rng.uniform(20.0, 40.0, 400)))
     found = measured_notch(range_m, offsets, seed=int(100 * range_m))

@@ -69,7 +69,7 @@ def test_range_dependent_bearing_variance_by_hand():
     # a target wider than its range (R > r) saturates at W = pi
     wide = PHDConfig(camera_noise_width_fraction=1.0, camera_target_radius_m=0.5)
     assert wide.camera_bearing_var(0.2) == pytest.approx(wide.camera_noise_var_rad2 + math.pi**2)
-    assert PHDConfig().camera_bearing_var(3.0) == PHDConfig().camera_noise_var_rad2  # the seed
+    assert PHDConfig().camera_bearing_var(3.0) == PHDConfig().camera_noise_var_rad2  # Perera 2021
 
 
 @pytest.mark.parametrize("engine", ["reference", "bank"])

@@ -79,8 +79,8 @@ def test_compose_static_object_follows_frame_change():
 
 def test_compose_matches_simulator_ground_truth():
     """Compose each robot pair's true relative pose with the sim's own odometry records: the
-    result is the next true relative pose to within the encoders' slip; the seed's sign
-    (rotating by +dpsi_0) is far off."""
+    result is the next true relative pose to within the encoders' slip; the Stegagno 2013
+    study's sign (rotating by +dpsi_0) is far off."""
     from swarm_env import parallel_env
 
     env = parallel_env("seed-lab", observation="measurements", localize=False)

@@ -333,9 +333,10 @@ def check_oracle(loc, before, after, kind, rec, r, state) -> None:
 
 
 def check_mutual(loc, before, after, kind, rec, r, state) -> None:
-    """Seed 001's methods: one existence-1 component per teammate it holds a belief about, and
-    only real teammates (the feeds carry the others' broadcasts of the same adversarial scans:
-    FastSLAM-MC holds both teammates by the end; the registrations find none in the clutter)."""
+    """The Stegagno 2012 thesis's methods: one existence-1 component per teammate it holds a belief
+    about, and only real teammates (the feeds carry the others' broadcasts of the same adversarial
+    scans: FastSLAM-MC holds both teammates by the end; the registrations find none in the
+    clutter)."""
     t1 = after["table"]
     np.testing.assert_array_equal(t1[ROW_W], 1.0)
     assert after["ids"] <= set(range(R)) - {r} and len(after["ids"]) == t1.shape[1]
@@ -352,8 +353,9 @@ def _checker(name: str):
 
 
 # ---------------------------------------------------------------------- the runs
-#: Config variants: the simulator's (measurement births, Bernoulli missed copies), the seed's
-#: ``PHDConfig()`` (fixed birth, PHD missed copies), and camera ray births with a constant P_s.
+#: Config variants: the simulator's (measurement births, Bernoulli missed copies), the
+#: Perera 2021 study's ``PHDConfig()`` (fixed birth, PHD missed copies), and camera ray births with
+#: a constant P_s.
 CONFIGS = {
     "sim": SIMULATOR_PHD,
     "seed": PHDConfig(),
@@ -372,8 +374,8 @@ CASES = [(name, "sim") for name in ALL] + [
 
 
 def _broadcasts(records: list[RobotMeasurements], t: float) -> list[tuple[Broadcast, ...]]:
-    """What each robot hears from the others (seed 001's radio): its still pose and the
-    (adversarial) detections of its scan this step."""
+    """What each robot hears from the others (the Stegagno 2012 thesis's radio): its still pose and
+    the (adversarial) detections of its scan this step."""
     sent = [
         Broadcast(f"ugv_{j}", t, TRUTH.poses[j], rec.lidar[0].detections if rec.lidar else _NO2)
         for j, rec in enumerate(records)
@@ -407,8 +409,8 @@ def _run(name: str, config: PHDConfig, n_mix: int, seed: int = 0) -> int:
 
 @pytest.mark.parametrize(("name", "config"), CASES)
 def test_localizer_keeps_its_documented_bound(name, config):
-    # numpy families are slower; seed 001's methods (FastSLAM: an EKF per landmark per
-    # particle) slower still
+    # numpy families are slower; the Stegagno 2012 thesis's methods (FastSLAM: an EKF per landmark
+    # per particle) slower still
     slow = name == "id-phd" or LOCALIZERS[name].needs_comms
     n_mix = 30 if slow else 40 if "reference" in name else 150
     assert _run(name, CONFIGS[config], n_mix) >= 90 * R

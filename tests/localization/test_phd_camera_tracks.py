@@ -15,7 +15,7 @@ from localization.reducer import reduce
 
 
 def camera_pd(cfg: PHDConfig, r: float) -> float:
-    """Seed eq. 30 by hand."""
+    """Perera 2021 eq. 30 by hand."""
     return 1.0 / (cfg.camera_pd_offset + math.exp(cfg.camera_pd_slope_per_m * (r - 4.0)))
 
 
@@ -160,7 +160,7 @@ def test_unexplained_bearing_starts_a_ray_explained_one_does_not():
     assert ray.sum() == cfg.camera_birth_components
     assert table[0, ray].sum() == pytest.approx(cfg.camera_birth_weight, rel=1e-12)
     assert not (np.abs(np.arctan2(table[2], table[1])) > 0.2).sum() - ray.sum()
-    # off by default: the seed's model
+    # off by default: the Perera 2021 study's model
     g = one_track(PHDConfig(), 1.0, xy=(1.0, 0.0), var=0.005)
     g.update_camera(np.array([0.0, 2.0]))
     assert len(g) == 1

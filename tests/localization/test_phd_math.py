@@ -94,7 +94,7 @@ def test_bearing_jacobian_matches_finite_differences(rng):
             ]
         )
         assert np.allclose(jac, fd, rtol=1e-5, atol=1e-8)
-        # The seed's H = [-y, x] / ||m|| is wrong by a factor ||m|| (fails unless ||m|| = 1).
+        # Perera 2021's H = [-y, x] / ||m|| is wrong by a factor ||m|| (fails unless ||m|| = 1).
         seed_h = np.array([-m[1], m[0]]) / np.hypot(*m)
         assert np.allclose(seed_h / np.hypot(*m), fd, rtol=1e-5)
 
@@ -182,7 +182,7 @@ def test_frame_change_static_teammate_stays_put_in_world(rng):
         pose = pose + np.array([c * odo[0] - s * odo[1], s * odo[0] + c * odo[1], odo[2]])
         table = phd.predict(table, odo, np.ones(1), 0.0)
         assert np.allclose(table[1:3, 0], rel(pose, target), atol=1e-9)
-    # The seed's eq. 7 as written, R(dpsi) (m - d), drifts away from the truth.
+    # Perera 2021's eq. 7 as written, R(dpsi) (m - d), drifts away from the truth.
     m = rel(np.array([0.0, 0.0, 0.0]), target)
     odo = np.array([0.1, 0.0, 0.5])
     c, s = math.cos(odo[2]), math.sin(odo[2])

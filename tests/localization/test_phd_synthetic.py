@@ -1,4 +1,4 @@
-"""End-to-end: on the same synthetic data, lidar + camera beats lidar only (seed's claim)."""
+"""End-to-end: on the same synthetic data, lidar + camera beats lidar only (Perera 2021)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from tests.localization.scenario import run_scenario
 
 
 def test_lidar_camera_beats_lidar_only_on_the_seed_metric():
-    # The synthetic sensors follow the seed's models (eq. 19 lidar range factor, fixed
+    # The synthetic sensors follow the Perera 2021 study's models (eq. 19 lidar range factor, fixed
     # births), so the filters run with them: PHDConfig().
     lc = [
         run_scenario("lidar-camera", seed=s, steps=400, config=PHDConfig(mode="lidar-camera"))

@@ -2,7 +2,7 @@
 
 Hand-derived: with a random walk of variance ``q`` per ``T`` seconds, a stamp ``dt`` after the
 previous one adds ``q dt / T`` to every covariance, a predict after stamps adds nothing more, and
-an unstamped predict adds all of ``q`` (the seed). The compiled banks match the references on
+an unstamped predict adds all of ``q`` (Perera 2021). The compiled banks match the references on
 random stamped call sequences.
 """
 
@@ -58,7 +58,7 @@ def test_noise_accrues_between_stamps_and_sums_to_q_per_period(family):
     assert pxx(f) == pytest.approx(0.01 + Q, abs=1e-15)
     f.predict(np.zeros(3))  # the period's noise is already in
     assert pxx(f) == pytest.approx(0.01 + Q, abs=1e-15)
-    f.predict(np.zeros(3))  # no stamp since the last predict: the seed's whole Q
+    f.predict(np.zeros(3))  # no stamp since the last predict: Perera 2021's whole Q
     assert pxx(f) == pytest.approx(0.01 + 2 * Q, abs=1e-15)
     assert f.table[4, 0] == 0.0  # isotropic: no cross term
 

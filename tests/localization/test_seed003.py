@@ -1,4 +1,4 @@
-"""Seed 003: IR sensor, direct estimation (SLSQP), Kabsch alignment, centralized UKF."""
+"""The IR-UKF study: IR sensor, direct estimation (SLSQP), Kabsch alignment, centralized UKF."""
 
 from __future__ import annotations
 
@@ -235,14 +235,14 @@ def test_ir_noise_statistics_match_the_config():
     n_sweeps = 40000
     r = sensor.measure(poses, np.zeros(n_sweeps, dtype=int))
     err = r.range_m - 0.61
-    core = err[r.range_m < 0.9]  # the seed's outlier cut (readings > 90 cm)
+    core = err[r.range_m < 0.9]  # the IR-UKF study's outlier cut (readings > 90 cm)
     n = len(r)
     assert abs(n / n_sweeps - (1 - cfg.dropout_probability)) < 4 * math.sqrt(
         0.05 * 0.95 / n_sweeps
     )
     # standard deviation of a sample std ~ sigma / sqrt(2 n): allow 5 of those
     assert abs(core.std() - cfg.range_std_m) < 5 * cfg.range_std_m / math.sqrt(2 * len(core))
-    assert abs(err.std() - 0.186) < 0.005  # the seed's 18.6 cm with outliers
+    assert abs(err.std() - 0.186) < 0.005  # the IR-UKF study's 18.6 cm with outliers
     outliers = np.mean(r.range_m >= 0.9)
     p = cfg.outlier_probability
     assert abs(outliers - p) < 4 * math.sqrt(p * (1 - p) / n)
@@ -337,7 +337,7 @@ def test_evaluate_runs_the_seed003_scenario(tmp_path, capsys):
     assert main([*argv, "--out", str(out), "-q"]) == 0
     data = json.loads((out / "metrics.json").read_text())
     assert data["config"]["n_robots"] == 5 and data["config"]["duration_s"] == 8.0
-    assert data["summary"]["ukf_pos_rmse_mean_m"] < 0.15  # the seed's ~10 cm, with margin
+    assert data["summary"]["ukf_pos_rmse_mean_m"] < 0.15  # the IR-UKF study's ~10 cm, with margin
     assert main([*argv, "--policy", "random"]) != 0
     assert "--scenario seed003 takes no --policy" in capsys.readouterr().err
     assert main([*argv, "--ray"]) != 0  # Ray fans out the study's seeds only

@@ -1,5 +1,5 @@
-"""The seed's Fig. 7 scoring per (observer, teammate), seed 001 metrics, GOSPA split and
-cardinality (:class:`localization.metrics.SeedScorer`), on hand-derived cases."""
+"""The Perera 2021 study's Fig. 7 scoring per (observer, teammate), Stegagno 2012 metrics, GOSPA
+split and cardinality (:class:`localization.metrics.SeedScorer`), on hand-derived cases."""
 
 from __future__ import annotations
 

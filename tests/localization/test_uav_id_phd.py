@@ -1,4 +1,4 @@
-"""ID-PHD on the UAV (seed 002's setting): the camera update by hand, identities recovered."""
+"""ID-PHD on the UAV (Stegagno 2013's setting): the camera update by hand, identities recovered."""
 
 from __future__ import annotations
 
@@ -106,7 +106,7 @@ def test_identities_positions_and_headings_recovered_on_a_short_scenario():
     """Three UGVs on different arcs under a hovering UAV at 2.8 m; the camera model's clutter,
     misses and noise; odometry broadcast at 10 Hz with one broadcast in five lost (the next one
     carries the whole displacement). Over the last 5 s of 20 s, every identity is within 5 cm and
-    the seed's 10 deg at least 90 % of the time (a lost broadcast during a sharp turn can cost a
+    the study's 10 deg at least 90 % of the time (a lost broadcast during a sharp turn can cost a
     few frames)."""
     rng = np.random.default_rng(3)
     cam_cfg = DownwardCameraConfig()
@@ -152,7 +152,7 @@ def test_identities_positions_and_headings_recovered_on_a_short_scenario():
 
 
 def _within_seed_bounds(uav_info: dict) -> list[bool]:
-    """Per UGV, whether the UAV's estimate is within seed 002's bounds (0.12 m, 10 deg) of the
+    """Per UGV, whether the UAV's estimate is within Stegagno 2013's bounds (0.12 m, 10 deg) of the
     truth in its level frame."""
     est, truth = uav_info["estimate"], uav_info["truth"]["ugv_level_poses"]
     return [
@@ -166,7 +166,7 @@ def _within_seed_bounds(uav_info: dict) -> list[bool]:
 
 def test_env_recovers_every_identity():
     """The env's UAV (seed-uav, wandering UGVs, hovering UAV) identifies all three UGVs: over
-    the last 3 s of a 12 s run each identity is within the seed's 0.12 m and 10 deg."""
+    the last 3 s of a 12 s run each identity is within Stegagno 2013's 0.12 m and 10 deg."""
     from agents.scripted import WanderPolicy
     from swarm_env.uav import UAV_ID, SupervisedSwarmEnv
 

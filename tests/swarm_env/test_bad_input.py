@@ -175,8 +175,8 @@ def test_every_numeric_config_field_refuses_non_numbers_and_non_finite_values():
 )
 @pytest.mark.parametrize("bad", [5, None, "x"])
 def test_a_sub_config_of_the_wrong_type_is_refused_naming_it(group, bad):
-    """Not an AttributeError deep in a check, nor (``phd=None``) the seed's hardware model
-    silently in place of the preset's."""
+    """Not an AttributeError deep in a check, nor (``phd=None``) the Perera 2021 study's
+    hardware model silently in place of the preset's."""
     from swarm_env.config import make_config
 
     with pytest.raises(

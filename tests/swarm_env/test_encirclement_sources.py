@@ -1,4 +1,4 @@
-"""Encirclement (seed 004): where the intruder's position comes from (``intruder_source``)."""
+"""Encirclement (Lee 2012): where the intruder's position comes from (``intruder_source``)."""
 
 from __future__ import annotations
 

@@ -687,7 +687,7 @@ def test_centre_error_grows_with_range_but_stays_below_the_filter_noise():
         dets = extract_clusters(batch.angles_rad, batch.ranges_m)
         truth = r * np.stack([np.cos(bearings), np.sin(bearings)], axis=1)
         errs.append(np.sqrt(np.mean(np.sum((dets.xy_m - truth[dets.scan_index]) ** 2, axis=1))))
-    assert errs[0] < errs[1] < 0.05  # the seed filter's R_L sigma is 5 cm
+    assert errs[0] < errs[1] < 0.05  # Perera 2021's R_L sigma is 5 cm
 
 
 @pytest.mark.parametrize("r", [1.0, 3.0, 5.0])

@@ -56,7 +56,7 @@ def test_grid_query_returns_every_shape_within_reach():
 
 @pytest.fixture(scope="module")
 def crowd():
-    """A stepped 200-robot world at the seed's density and a time-stacked scene of it."""
+    """A stepped 200-robot world at Perera 2021's density and a time-stacked scene of it."""
     world = SimWorld(make_config("sim-19m-200"))
     world.reset(np.random.default_rng(3))
     rng = np.random.default_rng(4)

@@ -294,7 +294,7 @@ def test_cli_uav_prints_and_writes_the_metrics(tmp_path, capsys):
     args = ["uav", "--seeds", "1", "--duration", "8", "--hold-s", "2", "-q"]
     assert main([*args, "--json", str(out), "--figure", str(fig)]) == 0
     text = capsys.readouterr().out
-    assert "seed 002" in text and "converged" in text
+    assert "Stegagno 2013" in text and "converged" in text
     result = json.loads(out.read_text())
     assert result["setup"]["preset"] == "seed-uav"
     ids = result["episodes"][0]["identities"]

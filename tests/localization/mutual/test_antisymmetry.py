@@ -1,5 +1,6 @@
 """The anti-symmetry law of agents/scripted.py breaks symmetric formations faster than random
-motion (seed 001 section 12.1), measured on the thesis's kinematic setting over several seeds."""
+motion (Stegagno 2012 section 12.1), measured on the thesis's kinematic setting over several
+seeds."""
 
 from __future__ import annotations
 

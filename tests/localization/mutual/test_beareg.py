@@ -1,4 +1,4 @@
-"""P-MultiBeaReg (seed 001 chapter 10): triangles, 3-intersections, bearing-orientations."""
+"""P-MultiBeaReg (Stegagno 2012 chapter 10): triangles, 3-intersections, bearing-orientations."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""FastSLAM with Monte-Carlo data association (seed 001 chapter 5) on a synthetic swarm."""
+"""FastSLAM with Monte-Carlo data association (Stegagno 2012 chapter 5) on a synthetic swarm."""
 
 from __future__ import annotations
 

@@ -1,6 +1,7 @@
-"""Seed 001's methods behind the Localizer protocol (``localization.mutual.localizer``): the
-protocol, the plumbing from the feed (own records, broadcasts, stale sensors), bad input, and
-an end-to-end check against the simulator's ground truth."""
+"""The Stegagno 2012 thesis's methods behind the Localizer protocol
+(``localization.mutual.localizer``): the protocol, the plumbing from the feed (own records,
+broadcasts, stale sensors), bad input, and an end-to-end check against the simulator's ground
+truth."""
 
 from __future__ import annotations
 

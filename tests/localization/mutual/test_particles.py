@@ -1,4 +1,4 @@
-"""The per-teammate particle filter (seed 001 section 6.2) and the P-MultiReg system."""
+"""The per-teammate particle filter (Stegagno 2012 section 6.2) and the P-MultiReg system."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Binary registration (seed 001 section 6.1): hand-derived cases."""
+"""Binary registration (Stegagno 2012 section 6.1): hand-derived cases."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Rotational symmetry and the number of registration solutions (seed 001, Props. 1-4)."""
+"""Rotational symmetry and the number of registration solutions (Stegagno 2012, Props. 1-4)."""
 
 from __future__ import annotations
 
