@@ -163,9 +163,9 @@ def run(args: argparse.Namespace) -> int:
             "real one fades from ~1.3 m), so inside the 2 m scoring disc the camera adds "
             "bearings, not positions; and bearings from teammates beyond the lidar keep some "
             f"surplus tracks alive (LC's weight in range is {over:+.2f} teammates from the "
-            "truth in this run). The measured causes are in benchmarks/RESULTS.md ('The "
-            "lidar's missed copies moment-matched'). `--localizer pmb-lc` in `swarm-phd "
-            "evaluate` runs the multi-Bernoulli filter."
+            "truth in this run). The measured figures and their causes: docs/results.md "
+            "('Localization accuracy') and docs/how-to/studies/perera2021.md. `--localizer "
+            "pmb-lc` in `swarm-phd evaluate` runs the multi-Bernoulli filter."
         )
     return 0
 
