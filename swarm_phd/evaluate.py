@@ -71,6 +71,28 @@ from swarm_env.env import SwarmEnv
 SCENARIOS = ("study", "seed003")
 
 
+def add_policy_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--policy``, ``--task`` and ``--task-params``: what runs, as every command that runs a
+    policy in its own env takes them (evaluate, record)."""
+    parser.add_argument(
+        "--policy",
+        default="scripted:wander",
+        help="'scripted:NAME', 'privileged:NAME', 'random', a trained model.zip, a recurrent "
+        "student .pt or the --out directory of train --engine rllib",
+    )
+    parser.add_argument(
+        "--task",
+        default=None,
+        help="default: the model's task for a model.zip or student .pt, else 'wander'",
+    )
+    parser.add_argument(
+        "--task-params",
+        default=None,
+        help="JSON dict of task parameters, merged over a model's own (default: the model's, "
+        "else {})",
+    )
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--preset",
@@ -92,23 +114,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"comma-separated, from {sorted(LOCALIZERS)} (`swarm-phd list` describes them)",
     )
     parser.add_argument("--seeds", default="0", help="comma-separated integers or ranges (0-4)")
-    parser.add_argument(
-        "--policy",
-        default="scripted:wander",
-        help="'scripted:NAME', 'privileged:NAME', 'random', a trained model.zip, a recurrent "
-        "student .pt or the --out directory of train --engine rllib",
-    )
-    parser.add_argument(
-        "--task",
-        default=None,
-        help="default: the model's task for a model.zip or student .pt, else 'wander'",
-    )
-    parser.add_argument(
-        "--task-params",
-        default=None,
-        help="JSON dict of task parameters, merged over a model's own (default: the model's, "
-        "else {})",
-    )
+    add_policy_arguments(parser)
     parser.add_argument(
         "--compare",
         default=None,

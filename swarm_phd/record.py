@@ -53,23 +53,9 @@ _FFMPEG = {
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--policy",
-        default="scripted:wander",
-        help="'scripted:NAME', 'random', 'privileged:NAME', a trained model.zip or a recurrent "
-        "student .pt (`swarm-phd list`; as evaluate --policy)",
-    )
-    parser.add_argument(
-        "--task",
-        default=None,
-        help="default: the model's task for a model.zip or student .pt, else 'wander'",
-    )
-    parser.add_argument(
-        "--task-params",
-        default=None,
-        help="JSON dict of task parameters, merged over a model's own (default: the model's, "
-        "else {})",
-    )
+    from swarm_phd.evaluate import add_policy_arguments
+
+    add_policy_arguments(parser)
     parser.add_argument(
         "--preset",
         default=None,
