@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from agents import scripted
+from agents.pretrained import resolve as resolve_pretrained
 
 SCRIPTED: dict[str, Callable[..., scripted.ScriptedPolicy]] = {
     "wander": scripted.WanderPolicy.for_env,
@@ -102,7 +103,8 @@ def trusts_policy_files() -> bool:
 def load_policy(spec: str, env: Any, trust: bool | None = None) -> Any:
     """Build the policy named by ``spec`` for ``env``.
 
-    ``"random"``: uniform actions from the agents' seeded action spaces. ``"scripted:NAME"``: a
+    ``"random"``: uniform actions from the agents' seeded action spaces. ``"pretrained:NAME"``:
+    a policy shipped with the package (:mod:`agents.pretrained`). ``"scripted:NAME"``: a
     controller from :data:`SCRIPTED`. ``"privileged:NAME"``: a training teacher that also reads
     the simulator's truth (:mod:`agents.sb3.privileged`; a reference, not deployable). Anything
     ending in ``.zip``: a trained SB3 model; in ``.pt``: a recurrent residual student
@@ -115,6 +117,7 @@ def load_policy(spec: str, env: Any, trust: bool | None = None) -> Any:
     whether ``--trust-policy`` was given, :func:`trusts_policy_files`), since SB3's loader
     unpickles it.
     """
+    spec = resolve_pretrained(spec)
     if spec == "random":
         return random_policy(env)
     if spec.startswith("scripted:"):
@@ -144,8 +147,8 @@ def load_policy(spec: str, env: Any, trust: bool | None = None) -> Any:
 
         return load_rllib_policy(checkpoint, env)
     raise ValueError(
-        "policy must be 'random', 'scripted:NAME', 'privileged:NAME', a .zip model, a .pt "
-        "recurrent student or an RLlib run directory (or its checkpoint/), "
+        "policy must be 'random', 'scripted:NAME', 'pretrained:NAME', 'privileged:NAME', a .zip "
+        "model, a .pt recurrent student or an RLlib run directory (or its checkpoint/), "
         f"got {spec!r}"
     )
 
@@ -155,6 +158,7 @@ def rllib_checkpoint(spec: str) -> Path | None:
     ``swarm-phd train --engine rllib`` (its final ``checkpoint/``), that ``checkpoint/``, or one
     of its ``checkpoints/step_<agent steps>/``. The run's ``env_kwargs.json`` must sit next to
     them (:func:`rllib_env_kwargs`)."""
+    spec = resolve_pretrained(spec)
     path = Path(spec)
     if spec.endswith((".zip", ".pt")) or not path.is_dir():
         return None
@@ -183,12 +187,14 @@ def rllib_env_kwargs(checkpoint: Path) -> dict[str, Any]:
 def is_trained_model(spec: str) -> bool:
     """Whether ``spec`` names a trained policy file or run (SB3 ``.zip``, student ``.pt``, RLlib
     run directory): a policy that carries its own env settings (:func:`model_env_kwargs`)."""
+    spec = resolve_pretrained(spec)
     return spec.endswith((".zip", ".pt")) or rllib_checkpoint(spec) is not None
 
 
 def model_env_kwargs(spec: str) -> dict[str, Any] | None:
     """The env kwargs a trained policy was trained in (an SB3 ``.zip``, a recurrent student
     ``.pt`` or an RLlib run directory), or ``None`` for a policy by name."""
+    spec = resolve_pretrained(spec)
     if spec.endswith(".zip"):
         from agents.sb3.policy import read_metadata
 
@@ -242,6 +248,7 @@ def policy_observation(spec: str) -> str | None:
     the robot's PHD estimate), or ``None`` if it ignores the observation (``random``,
     ``scripted:wander``: lidar only). Models carry their own mode (see ``agents.sb3.policy``);
     a recurrent student (``.pt``) and an RLlib run read their env's."""
+    spec = resolve_pretrained(spec)
     if spec.endswith(".pt"):
         from agents.sb3.recurrent_student import read_student_metadata
 

@@ -9,15 +9,16 @@ the final policy on held-out seeds against the task's best scripted controller a
 (:mod:`agents.train_report`: ``final_evaluation.json``, the verdict table,
 ``learning_curve.png``). Its run directory holds each stage's own directory and files (the
 final policy is the last stage's: ``ppo/student.pt`` or ``ppo/model.zip``, loadable wherever
-a policy is accepted) and ``recipe.json`` (the recipe, its stages' settings, the training and held-out seeds, the
-commit, the held-out scores, the wall time).
+a policy is accepted) and ``recipe.json`` (the recipe, its stages' settings, the training and
+held-out seeds, the commit, the held-out scores, the wall time).
 
 The recipes (the budgets are for this project's 2-core machine, one thread):
 
-- ``formation``: a recurrent residual student on ``scripted:formation-known-n-fast``, distilled
-  by DAgger from the same controller reading the truth (:func:`agents.sb3.recurrent_student.distill`,
-  3 rounds over 400 episodes), then fine-tuned by PPO on the task's reward
-  (:func:`agents.sb3.recurrent_ppo.finetune`, 40 iterations of 16 episodes); about an hour.
+- ``formation``: a recurrent residual student on ``scripted:formation-known-n-fast``,
+  distilled by DAgger from the same controller reading the truth
+  (:func:`agents.sb3.recurrent_student.distill`, 3 rounds over 400 episodes), then
+  fine-tuned by PPO on the task's reward (:func:`agents.sb3.recurrent_ppo.finetune`, 40
+  iterations of 16 episodes); about an hour.
 - ``exploration`` and ``encirclement``: a residual policy on the task's scripted controller
   (the correction starts at zero, so the policy starts as the controller) trained by PPO on the
   task's reward (:func:`agents.sb3.train.train`, 150,000 agent steps, 8 batched copies); 10-20
@@ -34,9 +35,10 @@ import math
 import shutil
 import subprocess
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from swarm_core import inputs
 from swarm_core.atomic_files import write_json_atomically
@@ -56,7 +58,8 @@ DEFAULT_RECIPE_EVAL_SEEDS = 20
 class Recipe:
     """One task's recipe: its env, the baselines its final policy is scored against, and the
     function that runs its stages into a directory and returns the final policy's path
-    (``run(out, seed, scale, max_wall_s) -> (policy path, learning-curve rows, stages)``)."""
+    (``run(out, seed, scale, max_wall_s, progress_bar) -> (policy path, learning-curve rows,
+    stages)``)."""
 
     name: str
     task: str
@@ -70,7 +73,9 @@ def _scaled(n: int, scale: float) -> int:
     return max(1, int(round(n * scale)))
 
 
-def _formation(out: Path, seed: int, scale: float, max_wall_s: float | None):
+def _formation(
+    out: Path, seed: int, scale: float, max_wall_s: float | None, progress_bar: bool = True
+):
     """DAgger rounds into a recurrent student, then PPO on the task's reward."""
     from agents.sb3.recurrent_ppo import FinetuneConfig, prepare_finetune, run_finetune
     from agents.sb3.recurrent_student import DistillConfig, distill
@@ -159,7 +164,9 @@ def _formation(out: Path, seed: int, scale: float, max_wall_s: float | None):
 def _residual_ppo(task: str):
     """PPO of a residual policy on ``scripted:<task>`` (the correction starts at zero)."""
 
-    def run(out: Path, seed: int, scale: float, max_wall_s: float | None):
+    def run(
+        out: Path, seed: int, scale: float, max_wall_s: float | None, progress_bar: bool = True
+    ):
         from agents.sb3.train import _train
 
         env_kwargs = {**_LAB, "task": task}
@@ -183,6 +190,7 @@ def _residual_ppo(task: str):
             },
             "max_wall_s": max_wall_s,
             "eval_seeds": 0,
+            "progress_bar": progress_bar,
         }
         model, interrupted = _train(env_kwargs, timesteps, out / "ppo", **options)
         if interrupted:
@@ -304,6 +312,7 @@ def run_recipe(
     scale: float = 1.0,
     overwrite: bool = False,
     max_wall_s: float | None = None,
+    progress_bar: bool = True,
 ) -> int:
     """Run recipe ``name`` into ``out`` (module doc); returns the exit code (0, or 130 / 143
     after SIGINT / SIGTERM, the stage's files kept). Every argument is checked before
@@ -325,7 +334,7 @@ def run_recipe(
     started = time.monotonic()
     print(f"recipe {name}: {recipe.summary}" + (f" (budgets x {scale:g})" if scale < 1 else ""))
     try:
-        policy, rows, stages = recipe.run(out, seed, scale, max_wall_s)
+        policy, rows, stages = recipe.run(out, seed, scale, max_wall_s, progress_bar)
     except _Stopped as stop:
         print(f"recipe {name}: stopped; the stage's files are in {out}")
         return stop.code

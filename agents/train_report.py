@@ -146,8 +146,8 @@ def final_evaluation(
 ) -> dict[str, Any]:
     """Score ``policy`` (the final model), each of ``checkpoints`` (``(agent steps, spec)``)
     and ``baselines`` (default: the task's, :func:`baselines_for`) on ``seeds``; pair the
-    policy against each baseline by seed on the headline task metric and the episode return. Returns the report written to
-    ``final_evaluation.json``."""
+    policy against each baseline by seed on the headline task metric and the episode return.
+    Returns the report written to ``final_evaluation.json``."""
     from agents.evaluation import paired_difference, score
     from swarm_core import progress
 

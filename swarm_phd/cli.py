@@ -162,7 +162,25 @@ def listing() -> str:
     lines.append("localizers (evaluate --localizer):")
     for name, desc in _localizers().items():
         lines.append(f"  {name:<16} {desc}")
+    lines.append("trained policies shipped (--policy pretrained:NAME; train --recipe NAME):")
+    lines.extend(f"  {name:<16} {desc}" for name, desc in _pretrained().items())
     return "\n".join(lines)
+
+
+def _pretrained() -> dict[str, str]:
+    """Each shipped policy: its recipe and its held-out result against the task's best
+    scripted controller (:mod:`agents.pretrained`)."""
+    from agents.pretrained import card, names
+
+    out = {}
+    for name in names():
+        c = card(name)
+        g = c["goal"]
+        out[name] = (
+            f"{c['summary']}; {g['metric']} {g['policy_mean']:.3f} vs {g['baseline']} "
+            f"{g['baseline_mean']:.3f} on {g['n_seeds']} held-out seeds ({g['verdict']})"
+        )
+    return out
 
 
 def _localizers() -> dict[str, str]:

@@ -119,7 +119,9 @@ def check_policy_name(spec: str) -> None:
     model file must exist. (Whether a known policy can act in the env is checked when it is
     built on it, still before any step.)"""
     from agents.policies import SCRIPTED
+    from agents.pretrained import resolve
 
+    spec = resolve(spec)  # pretrained:NAME: its file (an unknown name lists the known)
     if spec == "random" or spec.startswith("privileged:"):
         return
     if spec.startswith("scripted:"):
@@ -134,7 +136,9 @@ def check_policy_name(spec: str) -> None:
 
         if rllib_checkpoint(spec) is not None:
             return
-    known = ["random", *(f"scripted:{name}" for name in SCRIPTED)]
+    from agents.pretrained import PREFIX, names
+
+    known = ["random", *(f"scripted:{name}" for name in SCRIPTED), *(PREFIX + n for n in names())]
     raise ValueError(
         f"--policy: unknown policy {spec!r}; known: {', '.join(known)}, 'privileged:NAME' "
         "(a training teacher), a trained model.zip, a recurrent student .pt or the --out "
