@@ -22,7 +22,8 @@ def test_an_unknown_recipe_or_pretrained_name_lists_the_known(tmp_path, capsys):
         check_recipe("fly")
     assert main(["train", "--recipe", "fly", "--out", str(tmp_path / "r")]) == 2
     assert "known: formation, exploration, encirclement" in capsys.readouterr().err
-    with pytest.raises(ValueError, match="--policy: unknown pretrained policy 'pretrained:fly'; known: pretrained:"):
+    message = "--policy: unknown pretrained policy 'pretrained:fly'; known: pretrained:"
+    with pytest.raises(ValueError, match=message):
         pretrained.resolve("pretrained:fly")
     assert main(["evaluate", "--policy", "pretrained:fly", "--out", str(tmp_path / "e")]) == 2
     assert "pretrained:formation" in capsys.readouterr().err
