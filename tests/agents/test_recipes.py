@@ -112,3 +112,12 @@ def test_a_shipped_policy_reproduces_its_card_on_a_held_out_seed(name):
     got = score(spec, card["env_kwargs"], [100_000])["per_seed"][0]
     want = card["held_out_per_seed"][0]
     assert got[card["goal"]["metric"]] == pytest.approx(want[card["goal"]["metric"]], abs=1e-9)
+
+
+def test_a_shipped_policy_is_recorded_in_its_own_env(tmp_path, capsys):
+    pytest.importorskip("imageio_ffmpeg")
+    out = tmp_path / "exploration.gif"
+    argv = ["record", "--policy", "pretrained:exploration", "--duration", "1", "--fps", "5"]
+    assert main([*argv, "--out", str(out), "--quiet"]) == 0
+    assert "task exploration, 4 UGVs" in capsys.readouterr().out
+    assert out.stat().st_size > 1000
