@@ -2,8 +2,9 @@
 
     python tools/ship_pretrained.py runs/recipe_formation formation
 
-Copies the run's final policy (``ppo/student.pt``, or ``ppo/model.zip`` with the run's
-``train_config.json`` and ``env_kwargs.json``, so it loads weights only) into
+Copies the run's final policy (``ppo/student.pt``, or ``ppo/model.zip``'s weights and metadata
+without its optimizer state or pickled objects, with the run's ``train_config.json`` and
+``env_kwargs.json``, so it loads weights only) into
 ``agents/pretrained/NAME/`` and writes ``card.json`` from the run's ``recipe.json`` and
 ``final_evaluation.json``: the recipe and its command, the commit, the training and held-out
 seeds, the held-out scores, the paired rows against the baselines and the goal (at least as
@@ -43,6 +44,20 @@ def goal(paired: list[dict], metric: str, baseline: str) -> dict:
     }
 
 
+#: The members of an SB3 zip the weights-only loader reads (:mod:`agents.sb3.safe_load`); the
+#: optimizer's state and the pickled ``data`` are left out of a shipped policy.
+KEPT_MEMBERS = ("policy.pth", "swarm_phd.json", "_stable_baselines3_version", "system_info.txt")
+
+
+def _weights_only_zip(src: Path, dest: Path) -> None:
+    import zipfile
+
+    with zipfile.ZipFile(src) as zin, zipfile.ZipFile(dest, "w", zipfile.ZIP_DEFLATED) as zout:
+        for member in KEPT_MEMBERS:
+            if member in zin.namelist():
+                zout.writestr(member, zin.read(member))
+
+
 def ship(run: Path, name: str, note: str | None = None) -> Path:
     recipe = json.loads((run / "recipe.json").read_text())
     report = json.loads((run / "final_evaluation.json").read_text())
@@ -51,7 +66,10 @@ def ship(run: Path, name: str, note: str | None = None) -> Path:
     if dest.exists():
         shutil.rmtree(dest)
     dest.mkdir(parents=True)
-    shutil.copyfile(policy, dest / policy.name)
+    if policy.suffix == ".zip":
+        _weights_only_zip(policy, dest / policy.name)
+    else:
+        shutil.copyfile(policy, dest / policy.name)
     if policy.suffix == ".zip":
         for extra in ("train_config.json", "env_kwargs.json"):
             shutil.copyfile(policy.parent / extra, dest / extra)
