@@ -8,8 +8,9 @@ without its optimizer state or pickled objects, with the run's ``train_config.js
 ``agents/pretrained/NAME/`` and writes ``card.json`` from the run's ``recipe.json`` and
 ``final_evaluation.json``: the recipe and its command, the commit, the training and held-out
 seeds, the held-out scores, the paired rows against the baselines and the goal (at least as
-good as the task's best scripted controller, the first baseline, on the task metric: met
-unless the policy is worse by more than 2 SE). ``--note`` adds what limits a policy that
+good as the task's best scripted controller, the first baseline, on the task metric: "met" when
+the paired mean difference is not in the controller's favour, "tie" when it is but within 2
+SE, "missed" beyond). ``--note`` adds what limits a policy that
 misses it. The results page's table of shipped policies is generated from the cards
 (``python experiments/results_page.py``).
 """
@@ -30,6 +31,16 @@ sys.path.insert(0, str(ROOT))
 def goal(paired: list[dict], metric: str, baseline: str) -> dict:
     """The paired row of ``metric`` against ``baseline`` and whether the goal is met."""
     row = next(r for r in paired if r["metric"] == metric and r["baseline"] == baseline)
+    from agents.evaluation import higher_is_better
+
+    # met: at least as good in the mean; tie: worse in the mean but within 2 SE; missed.
+    better_sign = 1.0 if higher_is_better(metric) else -1.0
+    if row["verdict"].startswith("worse"):
+        status = "missed"
+    elif better_sign * row["mean_difference"] >= 0:
+        status = "met"
+    else:
+        status = "tie"
     return {
         "baseline": baseline,
         "metric": metric,
@@ -40,7 +51,8 @@ def goal(paired: list[dict], metric: str, baseline: str) -> dict:
         "seeds_better": row["seeds_better"],
         "n_seeds": row["n_seeds"],
         "verdict": row["verdict"],
-        "met": not row["verdict"].startswith("worse"),
+        "status": status,
+        "met": status == "met",
     }
 
 
@@ -55,7 +67,9 @@ def _weights_only_zip(src: Path, dest: Path) -> None:
     with zipfile.ZipFile(src) as zin, zipfile.ZipFile(dest, "w", zipfile.ZIP_DEFLATED) as zout:
         for member in KEPT_MEMBERS:
             if member in zin.namelist():
-                zout.writestr(member, zin.read(member))
+                # a fixed date: the same weights make the same bytes (no churn in git)
+                info = zipfile.ZipInfo(member, date_time=(1980, 1, 1, 0, 0, 0))
+                zout.writestr(info, zin.read(member), zipfile.ZIP_DEFLATED)
 
 
 def ship(run: Path, name: str, note: str | None = None) -> Path:
@@ -126,15 +140,18 @@ def write_result_file() -> Path:
                 _fmt(c["held_out"]["random"][g["metric"]]),
                 f"{g['mean_difference']:+.4f} (SE {se:.4f}; {g['seeds_better']} of "
                 f"{g['n_seeds']} seeds better)",
-                ("met" if g["met"] else "missed") + f": {g['verdict']}",
+                f"{g['status']}: {g['verdict']}",
             ]
         )
-    met = [c["name"] for c in cards if c["goal"]["met"]]
-    missed = [c["name"] for c in cards if not c["goal"]["met"]]
+    met = [c["name"] for c in cards if c["goal"]["status"] == "met"]
+    tied = [c["name"] for c in cards if c["goal"]["status"] == "tie"]
+    missed = [c["name"] for c in cards if c["goal"]["status"] == "missed"]
     notes = [
         "`lab-3m-4`, 4 robots, 300 steps (30 s), the default observation (each robot's own "
         "GM-PHD estimate); held-out seeds no stage trained or validated on, paired by seed; "
-        "goal: not worse than the task's best scripted controller by more than 2 SE.",
+        "goal: at least as good as the task's best scripted controller (met: the paired mean "
+        "difference is not in the controller's favour; tie: it is, within 2 SE; missed: "
+        "beyond 2 SE).",
     ]
     notes += [f"`pretrained:{c['name']}`: {c['note']}" for c in cards if c.get("note")]
     result = {
@@ -147,6 +164,7 @@ def write_result_file() -> Path:
             for c in cards
         ),
         "verdict": (f"met by {', '.join(met)}" if met else "met by none")
+        + (f"; tied within 2 SE (worse in the mean) by {', '.join(tied)}" if tied else "")
         + (f"; missed by {', '.join(missed)}" if missed else ""),
         "table": {
             "columns": [
