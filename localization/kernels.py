@@ -599,13 +599,7 @@ def _posterior(
             weights[n + i * m + h] = w
             k += w >= prune
     out = np.empty((N_ROWS, k))
-    col = 0
-    for i in range(n):
-        if weights[i] >= prune:
-            out[0, col] = weights[i]
-            for r in range(1, N_ROWS):
-                out[r, col] = missed_tab[r, i]
-            col += 1
+    col = _kept_missed(out, weights, missed_tab, n, prune)
     for i in range(n):
         for h in range(m):
             w = weights[n + i * m + h]
@@ -618,6 +612,21 @@ def _posterior(
                 out[5, col] = post_covs[2, i]
                 col += 1
     return out, k, explained
+
+
+@njit(cache=True)
+def _kept_missed(out, weights, missed_tab, n, prune):
+    """The first columns of a posterior table ``out``: the missed copies whose weight
+    ``weights[i]`` (``i < n``) is at least ``prune``, with ``missed_tab``'s means and
+    covariances, in order. Returns how many."""
+    col = 0
+    for i in range(n):
+        if weights[i] >= prune:
+            out[0, col] = weights[i]
+            for r in range(1, N_ROWS):
+                out[r, col] = missed_tab[r, i]
+            col += 1
+    return col
 
 
 @njit(cache=True)
@@ -842,7 +851,8 @@ def camera_gate(tab, i, fp, min_r2):
     u1 = pxy * j0 + pyy * j1
     inv_s = 1.0 / (j0 * u0 + j1 * u1 + noise)  # S >= R_C > 0
     predicted = math.atan2(y, x)
-    return j0, j1, u0, u1, inv_s, noise, predicted, math.sqrt(inv_s) * _INV_SQRT_TWO_PI, -0.5 * inv_s
+    norm = math.sqrt(inv_s) * _INV_SQRT_TWO_PI
+    return j0, j1, u0, u1, inv_s, noise, predicted, norm, -0.5 * inv_s
 
 
 @njit(cache=True)
@@ -1015,13 +1025,7 @@ def _camera_posterior(
         pair_w[p] *= inv_denom[pair_h[p]]
         k += pair_w[p] >= prune
     out = np.empty((N_ROWS, k))
-    col = 0
-    for i in range(n):
-        if missed[i] >= prune:
-            out[0, col] = missed[i]
-            for r in range(1, N_ROWS):
-                out[r, col] = tab[r, i]
-            col += 1
+    col = _kept_missed(out, missed, tab, n, prune)
     for i in range(n):
         for p in range(first[i], first[i + 1]):
             if pair_w[p] >= prune:

@@ -18,31 +18,15 @@ from swarm_env.config import SIMULATOR_PHD
 
 @njit
 def _times_posterior_visibility(detected, post_means, post_covs, n, m, memory, ox, oy, fp):
-    n_pairs = 0
+    """``detected`` times each detected copy's visibility (its own scan factor: the factors
+    are per component)."""
+    one = np.ones((N_ROWS, 1))
     for i in range(n):
-        for h in range(m):
-            n_pairs += detected[i, h] > 0.0
-    if n_pairs == 0:
-        return
-    pairs = np.empty((N_ROWS, n_pairs))
-    col = 0
-    for i in range(n):
+        one[3:, 0] = post_covs[:, i]
         for h in range(m):
             if detected[i, h] > 0.0:
-                pairs[0, col] = 1.0
-                pairs[1, col] = post_means[0, i, h]
-                pairs[2, col] = post_means[1, i, h]
-                pairs[3, col] = post_covs[0, i]
-                pairs[4, col] = post_covs[1, i]
-                pairs[5, col] = post_covs[2, i]
-                col += 1
-    visible = K._scan_factors(pairs, n_pairs, memory, ox, oy, fp)[0]
-    col = 0
-    for i in range(n):
-        for h in range(m):
-            if detected[i, h] > 0.0:
-                detected[i, h] *= visible[col]
-                col += 1
+                one[1:3, 0] = post_means[:, i, h]
+                detected[i, h] *= K._scan_factors(one, 1, memory, ox, oy, fp)[0][0]
 
 
 @njit
@@ -139,13 +123,16 @@ CONFIGS = [
     {"scan_evidence": True},
     {"camera_birth": "ray"},
     {"scan_evidence": True, "camera_birth": "ray"},
-    {"missed_detection": "phd"}, {"missed_detection": "bernoulli"},
+    {"missed_detection": "phd"},
+    {"missed_detection": "bernoulli"},
     {"prune_threshold": 1e-12},
     {"camera_clutter_per_wide_object": 0.0},
 ]
 
 
-@pytest.mark.parametrize("overrides", CONFIGS, ids=lambda o: ",".join(map(str, o.items())) or "env")
+@pytest.mark.parametrize(
+    "overrides", CONFIGS, ids=lambda o: ",".join(map(str, o.items())) or "env"
+)
 def test_sparse_camera_update_equals_the_dense_one_bit_for_bit(overrides):
     try:
         config = dataclasses.replace(SIMULATOR_PHD, **overrides)
