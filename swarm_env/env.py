@@ -115,7 +115,8 @@ class SwarmEnv(ParallelEnv):
     visibility per sensor; absent without ground truth), ``measurements`` (the raw records of the
     step, as dicts of arrays), ``stale`` (sensors reported silent by a real World) and ``comms``
     (the teammates' :class:`~swarm_core.records.Broadcast` received this step, with
-    ``comms={"enabled": True}``; see :mod:`swarm_env.comms`).
+    ``comms={"enabled": True}``; see :mod:`swarm_env.comms`). Each agent's info is a ``dict``
+    built on first use (:class:`LazyInfo`): a loop that never reads them does not pay for them.
 
     ## Pickling
     An env that simulates its World (the one it builds, or a ``SimWorld`` passed as ``world=``)
