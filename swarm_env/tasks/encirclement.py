@@ -76,16 +76,13 @@ enclosed transitions per minute).
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from swarm_core.world import GroundTruth
 from swarm_env.tasks.base import Task
 from swarm_env.tasks.common import check_choice, check_param, max_angular_gap
-
-if TYPE_CHECKING:
-    from swarm_env.world.arena import Layout
 
 PATHS = ("circle", "static")
 INTRUDER_SOURCES = ("beacon", "particle", "estimate")
@@ -364,19 +361,11 @@ class EncirclementTask(Task):
                     f"{arena.width_m} m x {arena.height_m} m arena"
                 )
 
-    def reset(
-        self,
-        truth: GroundTruth | None,
-        rng: np.random.Generator,
-        arena: Any,
-        *,
-        layout: Layout | None = None,
-    ) -> None:
-        self._rng = rng
+    def start(self, truth: GroundTruth | None) -> None:
         self._loop_radius_m = (
             self.path_radius_m
             if self.path_radius_m is not None
-            else 0.25 * min(arena.width_m, arena.height_m)
+            else 0.25 * min(self._arena.width_m, self._arena.height_m)
         )
         self._heading = 0.0
         self._prev_xy = None

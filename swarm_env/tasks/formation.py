@@ -38,7 +38,7 @@ spacing error, true centroid x, y in the robot's body frame]``, lattice ``[latti
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -50,9 +50,6 @@ from swarm_env.tasks.common import (
     pairwise_distances,
 )
 from swarm_env.tasks.localization_term import LocalizationTerm
-
-if TYPE_CHECKING:
-    from swarm_env.world.arena import Layout
 
 SHAPES = ("circle", "lattice")
 _NEIGHBOUR_FACTOR = 1.5
@@ -165,17 +162,9 @@ class FormationTask(Task):
         return np.tile(np.asarray(row, dtype=float), (n_agents, 1))
 
     # -- episode --------------------------------------------------------------------------
-    def reset(
-        self,
-        truth: GroundTruth | None,
-        rng: np.random.Generator,
-        arena: Any,
-        *,
-        layout: Layout | None = None,
-    ) -> None:
+    def start(self, truth: GroundTruth | None) -> None:
         self._errors = []
         self._spacing_errors = []
-        self.localization.reset()
         self._previous = None
         if truth is not None:
             shape_err, spacing_err = self.errors(truth.poses[:, :2])
