@@ -301,6 +301,8 @@ class VectorFieldPolicy(ScriptedPolicy):
     """
 
     observation_modes = ("phd", "truth")
+    #: The task a subclass is written for: :meth:`for_env` refuses an env with another one.
+    task: str | None = None
 
     def __init__(
         self,
@@ -353,6 +355,8 @@ class VectorFieldPolicy(ScriptedPolicy):
     def for_env(cls, env: Any, sensing_turn: bool = False, **kwargs: Any) -> ScriptedPolicy:
         """The controller for ``env``; ``sensing_turn``: arrived robots turn their lidar's
         blind sectors off their teammates, as ``env.config.phd`` models them."""
+        if cls.task is not None and env.task.name != cls.task:
+            raise ValueError(f"scripted:{cls.name} needs task={cls.task!r}, got {env.task.name!r}")
         if sensing_turn:
             kwargs.setdefault("sensing_model", env.config.phd)
         mode = env.config.observation
@@ -513,11 +517,11 @@ class FormationPolicy(VectorFieldPolicy):
     """
 
     name = "formation"
+    task = "formation"
 
     def __init__(
         self,
-        max_speed_mps: float = 0.3,
-        max_turn_rate_radps: float = 1.5,
+        *,
         shape: str = "circle",
         k_p: float = 0.8,
         k_s: float = 0.6,
@@ -536,13 +540,12 @@ class FormationPolicy(VectorFieldPolicy):
         self.k_p = k_p
         self.k_s = k_s
         self.min_neighbours = min_neighbours
-        super().__init__(max_speed_mps, max_turn_rate_radps, **kwargs)
+        super().__init__(**kwargs)
 
     @classmethod
     def for_env(cls, env: Any, **kwargs: Any) -> ScriptedPolicy:
-        if env.task.name != "formation":
-            raise ValueError(f"scripted:formation needs task='formation', got {env.task.name!r}")
-        kwargs.setdefault("shape", env.task.shape)
+        if env.task.name == cls.task:
+            kwargs.setdefault("shape", env.task.shape)
         return super().for_env(env, **kwargs)
 
     def centroid(
@@ -603,11 +606,11 @@ class DispersionPolicy(VectorFieldPolicy):
     """
 
     name = "exploration"
+    task = "exploration"
 
     def __init__(
         self,
-        max_speed_mps: float = 0.3,
-        max_turn_rate_radps: float = 1.5,
+        *,
         spread_m: float = 1.5,
         k_s: float = 0.4,
         cruise_fraction: float = 0.6,
@@ -619,15 +622,7 @@ class DispersionPolicy(VectorFieldPolicy):
         self.spread_m = float(spread_m)
         self.k_s = float(k_s)
         self.cruise_fraction = float(cruise_fraction)
-        super().__init__(max_speed_mps, max_turn_rate_radps, **kwargs)
-
-    @classmethod
-    def for_env(cls, env: Any, **kwargs: Any) -> ScriptedPolicy:
-        if env.task.name != "exploration":
-            raise ValueError(
-                f"scripted:exploration needs task='exploration', got {env.task.name!r}"
-            )
-        return super().for_env(env, **kwargs)
+        super().__init__(**kwargs)
 
     def desired_velocity(self, agent, table, odometry, features):
         pts, w = estimated_neighbours(table, self.min_weight, reference_variance_m2=0.02)
@@ -684,12 +679,12 @@ class EncirclementPolicy(VectorFieldPolicy):
     """
 
     name = "encirclement"
+    task = "encirclement"
     sources = ("beacon", "particle", "estimate")
 
     def __init__(
         self,
-        max_speed_mps: float = 0.3,
-        max_turn_rate_radps: float = 1.5,
+        *,
         k_p: float = 0.8,
         k_t: float = 0.4,
         gate_m: float = 0.4,
@@ -724,7 +719,7 @@ class EncirclementPolicy(VectorFieldPolicy):
                 f"particle_start must be 'uniform' or 'trilateration', got {particle_start!r}"
             )
         self.particle_start = particle_start
-        super().__init__(max_speed_mps, max_turn_rate_radps, **kwargs)
+        super().__init__(**kwargs)
 
     @classmethod
     def for_env(cls, env: Any, **kwargs: Any) -> ScriptedPolicy:
@@ -900,8 +895,7 @@ class AntiSymmetryPolicy(VectorFieldPolicy):
 
     def __init__(
         self,
-        max_speed_mps: float = 0.3,
-        max_turn_rate_radps: float = 1.5,
+        *,
         alpha_mps: float = 0.1,
         gamma_stop_m2: float | None = 0.04,
         n_angles: int = 180,
@@ -910,7 +904,7 @@ class AntiSymmetryPolicy(VectorFieldPolicy):
         self.alpha_mps = alpha_mps
         self.gamma_stop_m2 = gamma_stop_m2
         self.n_angles = n_angles
-        super().__init__(max_speed_mps, max_turn_rate_radps, **kwargs)
+        super().__init__(**kwargs)
 
     def reset(self, seed: int | None = None) -> None:
         super().reset(seed)
