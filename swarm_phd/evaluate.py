@@ -64,7 +64,6 @@ from localization.registry import LOCALIZERS, make_localizer
 from swarm_core import inputs, progress
 from swarm_core.atomic_files import write_json_atomically
 from swarm_core.inputs import parse_json_object, parse_seeds
-from swarm_env import parallel_env
 from swarm_env.env import SwarmEnv
 
 #: ``--scenario`` values.
@@ -286,30 +285,6 @@ def shared_env_kwargs(
     return kwargs
 
 
-def _make_env(preset: str | None, task: str | None, policy: str, **overrides: Any) -> SwarmEnv:
-    from agents.policies import trained_policy_env
-
-    model = trained_policy_env(policy, preset, task, **overrides)
-    if model is not None:  # a trained model (.zip) or recurrent student (.pt): its own env
-        preset, task, overrides = model.pop("preset"), model.pop("task"), model
-    else:
-        from agents.policies import policy_observation
-
-        observation = policy_observation(policy)
-        if observation is None:
-            # Policies that ignore the observation: skip the env's own filters (the evaluation
-            # runs its own banks of filters below) unless the task's reward scores them.
-            from swarm_env.tasks import task_needs_estimates
-
-            overrides.setdefault("observation", "measurements")
-            overrides.setdefault(
-                "localize", task_needs_estimates(task or "wander", overrides.get("task_params"))
-            )
-        else:  # e.g. scripted:formation acts on the robot's own PHD estimate
-            overrides.setdefault("observation", observation)
-    return parallel_env(preset or "seed-sim", task=task or "wander", **overrides)
-
-
 #: The figures :func:`seed_figures` gives per seed (keys of ``results["localizers"][name]
 #: ["per_seed"]``), each as in :meth:`SeedScorer.summary` over that seed alone.
 PER_SEED_FIGURES = ("gospa_mean_m", "pooled_per_observer_median_pct", "pct_pair_steps_err_gt_30cm")
@@ -439,7 +414,9 @@ def _episode_env(
         from localization.mutual.localizer import DEFAULT_RADIO
 
         overrides["comms"] = dict(DEFAULT_RADIO)
-    env = _make_env(preset, task, policy, **overrides)
+    from agents.policies import policy_env
+
+    env = policy_env(preset, task, policy, **overrides)
     if radio and not env.config.comms.enabled:
         env.close()
         raise ValueError(f"localizers {radio} need the radio: comms.enabled is False")

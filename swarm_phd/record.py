@@ -181,8 +181,7 @@ def record(
     ``overrides`` go to the env (``task_params``, config fields such as ``n_robots``), over a
     trained policy's own settings. Returns what was written (:class:`Recording`). Raises
     ValueError, naming the argument, before anything runs or is written."""
-    from agents.policies import load_policy
-    from swarm_phd.evaluate import _make_env as policy_env
+    from agents.policies import load_policy, policy_env
 
     path = check_out("--out", out)
     inputs.seed("--seed", seed)
