@@ -158,19 +158,6 @@ def _interrupt(signum, frame) -> None:
     raise KeyboardInterrupt  # SIGTERM scores the finished seeds, as Ctrl-C does
 
 
-def _check_out(out: str, overwrite: bool) -> None:
-    """``--out`` as ``train`` takes it: new or empty, unless ``--overwrite`` (a rerun must never
-    silently replace finished results)."""
-    p = inputs.output_dir("--out", out)
-    held = sorted(x.name for x in p.iterdir()) if p.is_dir() else []
-    if held and not overwrite:
-        shown = ", ".join(held[:4]) + (", ..." if len(held) > 4 else "")
-        raise ValueError(
-            f"--out {out!r} holds earlier results ({shown}): choose a new directory, or pass "
-            "--overwrite to write into it anyway"
-        )
-
-
 def run(args: argparse.Namespace) -> int:
     import signal
 
@@ -185,7 +172,14 @@ def run(args: argparse.Namespace) -> int:
     inputs.duration("--duration", args.duration)
     seeds = parse_seeds(args.seeds)
     if args.out:
-        _check_out(args.out, getattr(args, "overwrite", False))
+        # As train takes it: a rerun must never silently replace finished results.
+        inputs.run_dir(
+            "--out",
+            args.out,
+            overwrite=getattr(args, "overwrite", False),
+            holding="earlier results",
+            action="write into",
+        )
     if getattr(args, "ray", False):
         from swarm_phd.sweep import run_evaluate_ray
 
