@@ -93,6 +93,18 @@ def trust_policy_files() -> None:
     os.environ[TRUST_POLICY_ENV] = "1"
 
 
+def add_trust_policy_argument(parser: Any) -> None:
+    """``--trust-policy`` of ``evaluate`` and ``record`` (an ``argparse`` parser): the commands
+    then call :func:`trust_policy_files`."""
+    parser.add_argument(
+        "--trust-policy",
+        action="store_true",
+        help="load an SB3 .zip from outside a swarm-phd train run with SB3's loader, which "
+        "unpickles objects stored in the file and so can run code in it: only for a file you "
+        "trained or verified yourself (a zip in its run directory loads weights only)",
+    )
+
+
 def trusts_policy_files() -> bool:
     """Whether ``--trust-policy`` was given (:func:`trust_policy_files`)."""
     import os

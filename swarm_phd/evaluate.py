@@ -93,19 +93,15 @@ def add_policy_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from agents.policies import add_trust_policy_argument
+
     parser.add_argument(
         "--preset",
         default=None,
         help="default: a trained policy's (model.zip, student .pt) own preset, else sim-6m-20 "
         "(alias seed-sim: the Perera 2021 study's 6 m x 6 m arena with 20 UGVs)",
     )
-    parser.add_argument(
-        "--trust-policy",
-        action="store_true",
-        help="load an SB3 .zip from outside a swarm-phd train run with SB3's loader, which "
-        "unpickles objects stored in the file and so can run code in it: only for a file you "
-        "trained or verified yourself (a zip in its run directory loads weights only)",
-    )
+    add_trust_policy_argument(parser)
     inputs.add_duration_argument(parser, 300.0)
     parser.add_argument(
         "--localizer",
