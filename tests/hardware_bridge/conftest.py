@@ -7,9 +7,14 @@ every test shares it; each test gets its own server and its own bridge client.
 from __future__ import annotations
 
 import logging
+import os
+import subprocess
+import sys
 import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 
+import numpy as np
 import pytest
 
 pytest.importorskip("roslibpy")
@@ -17,6 +22,8 @@ pytest.importorskip("rosbags")
 pytest.importorskip("websockets")
 
 from hardware_bridge.loopback import FaultConfig, LoopbackServer  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def wait_until(predicate: Callable[[], bool], timeout_s: float, poll_s: float = 0.01) -> bool:
@@ -27,6 +34,74 @@ def wait_until(predicate: Callable[[], bool], timeout_s: float, poll_s: float = 
             return True
         time.sleep(poll_s)
     return predicate()
+
+
+def zero_times(server: LoopbackServer, after: float) -> dict[str, float]:
+    """First zero-velocity cmd_vel per robot that ``server`` received after ``after``
+    (monotonic s)."""
+    out: dict[str, float] = {}
+    for t, robot, v, w in server.twists():
+        if t > after and v == 0.0 and w == 0.0 and robot not in out:
+            out[robot] = t
+    return out
+
+
+def drive(env, steps: int, v: float = 0.2) -> dict | None:
+    """``steps`` env steps commanding every agent ``[v, 0]``; the last step's infos."""
+    infos = None
+    for _ in range(steps):
+        _, _, _, _, infos = env.step({a: np.array([v, 0.0], dtype=np.float32) for a in env.agents})
+    return infos
+
+
+def hold_the_gil(seconds: float) -> None:
+    """Busy-loop for ``seconds`` without letting another thread of this process run (a step
+    that hangs holding the GIL: only another process can act)."""
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(10.0)
+    try:
+        t0 = time.monotonic()
+        x = 0
+        while time.monotonic() - t0 < seconds:
+            x += 1
+    finally:
+        sys.setswitchinterval(interval)
+
+
+def read_twist_log(log: Path) -> list[tuple[float, str, float, float, bool]]:
+    """A robot process's ``--twist-log``: ``(t, robot, v, w, applied)`` per command received."""
+    out = []
+    for line in log.read_text().splitlines():
+        t, robot, v, w, _age, applied = line.split()
+        out.append((float(t), robot, float(v), float(w), applied == "1"))
+    return out
+
+
+@pytest.fixture
+def robot_process(tmp_path: Path) -> Iterator[tuple[int, Path]]:
+    """Loopback robots in another process (its own GIL), logging every command they receive:
+    yields ``(port, twist log path)``; the process ends (stdin closed) after the test."""
+    log = tmp_path / "twists.log"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hardware_bridge.loopback", "--twist-log", str(log)],
+        cwd=ROOT,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+    )
+    try:
+        line = proc.stdout.readline()
+        assert line.strip().isdigit(), f"loopback process did not start: {line!r}"
+        yield int(line), log
+    finally:
+        proc.stdin.close()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+        proc.stdout.close()
 
 
 @pytest.fixture

@@ -14,21 +14,7 @@ import numpy as np
 import pytest
 
 from hardware_bridge import real_env
-from tests.hardware_bridge.conftest import wait_until
-
-
-def _zero_times(server, after: float) -> dict[str, float]:
-    """First zero-velocity cmd_vel per robot received after ``after`` (monotonic s)."""
-    out: dict[str, float] = {}
-    for t, robot, v, w in server.twists():
-        if t > after and v == 0.0 and w == 0.0 and robot not in out:
-            out[robot] = t
-    return out
-
-
-def _drive(env, steps: int, v: float = 0.2) -> None:
-    for _ in range(steps):
-        env.step({a: np.array([v, 0.0], dtype=np.float32) for a in env.agents})
+from tests.hardware_bridge.conftest import drive, wait_until, zero_times
 
 
 @pytest.mark.timeout(30)
@@ -38,11 +24,11 @@ def test_watchdog_sends_zero_twist_within_0_6_s_of_the_client_stalling(loopback)
     try:
         env.reset(seed=0)
         t_first = time.monotonic()
-        _drive(env, 5)
+        drive(env, 5)
         t_stall = time.monotonic()  # the controller stops calling step() here
         robots = set(env.possible_agents)
-        assert wait_until(lambda: set(_zero_times(server, t_stall)) == robots, 1.5)
-        zeros = _zero_times(server, t_stall)
+        assert wait_until(lambda: set(zero_times(server, t_stall)) == robots, 1.5)
+        zeros = zero_times(server, t_stall)
         # No stop while the controller was stepping: every command in between was motion.
         during = [(t, r, v) for t, r, v, _ in server.twists() if t_first < t <= t_stall]
         assert len(during) >= 4 * 4 and all(v > 0 for _, _, v in during)
@@ -56,7 +42,7 @@ def test_watchdog_sends_zero_twist_within_0_6_s_of_the_client_stalling(loopback)
             1.0,
         )
         # Stepping again resumes motion.
-        _drive(env, 2)
+        drive(env, 2)
     finally:
         env.close()
 
@@ -67,7 +53,7 @@ def test_exception_in_step_and_close_stop_the_robots_at_once(loopback, monkeypat
     env = real_env(port=server.port, preset="seed-lab")
     try:
         env.reset(seed=0)
-        _drive(env, 3)
+        drive(env, 3)
 
         def boom(*args, **kwargs):
             raise RuntimeError("planner crashed")
@@ -76,15 +62,15 @@ def test_exception_in_step_and_close_stop_the_robots_at_once(loopback, monkeypat
         t0 = time.monotonic()
         with pytest.raises(RuntimeError, match="planner crashed"):
             env.step({a: np.array([0.2, 0.0]) for a in env.agents})
-        assert wait_until(lambda: len(_zero_times(server, t0)) == 4, 0.3)
-        assert max(_zero_times(server, t0).values()) - t0 < 0.2
+        assert wait_until(lambda: len(zero_times(server, t0)) == 4, 0.3)
+        assert max(zero_times(server, t0).values()) - t0 < 0.2
         monkeypatch.undo()
-        _drive(env, 2)
+        drive(env, 2)
         t1 = time.monotonic()
     finally:
         env.close()
-    assert wait_until(lambda: len(_zero_times(server, t1)) == 4, 0.3)
-    assert max(_zero_times(server, t1).values()) - t1 < 0.2
+    assert wait_until(lambda: len(zero_times(server, t1)) == 4, 0.3)
+    assert max(zero_times(server, t1).values()) - t1 < 0.2
 
 
 @pytest.mark.timeout(30)
@@ -97,14 +83,14 @@ def test_sigint_stops_the_robots_before_keyboard_interrupt(loopback):
     env = real_env(port=server.port, preset="seed-lab")
     try:
         env.reset(seed=0)
-        _drive(env, 3)
+        drive(env, 3)
         t0 = time.monotonic()
         with pytest.raises(KeyboardInterrupt):
             os.kill(os.getpid(), signal.SIGINT)
             time.sleep(2.0)  # interrupted by the signal
         # Well before the 0.5 s step timeout could have fired.
-        assert wait_until(lambda: len(_zero_times(server, t0)) == 4, 0.3)
-        assert max(_zero_times(server, t0).values()) - t0 < 0.25
+        assert wait_until(lambda: len(zero_times(server, t0)) == 4, 0.3)
+        assert max(zero_times(server, t0).values()) - t0 < 0.25
     finally:
         env.close()
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
