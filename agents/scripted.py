@@ -19,7 +19,11 @@ from swarm_env.observation import ESTIMATE_COLUMNS
 
 
 class ScriptedPolicy:
-    """Base class: per-agent state is kept in dicts keyed by agent name."""
+    """Base class: per-agent state is kept in dicts keyed by agent name.
+
+    ``max_speed_mps`` (m/s) and ``max_turn_rate_radps`` (rad/s) are the robot's command limits
+    (``for_env`` takes them from ``env.config.robot``); the subclasses take them as keywords,
+    beside their own parameters."""
 
     name = "scripted"
     #: The agents whose command of the last call was the Perera 2021 study's random walk (drawn
@@ -70,16 +74,16 @@ class WanderPolicy(ScriptedPolicy):
 
     def __init__(
         self,
-        max_speed_mps: float = 0.3,
-        max_turn_rate_radps: float = 1.5,
+        *,
         cruise_fraction: float = 0.6,
         avoid_distance_m: float = 0.45,
         front_half_angle_deg: float = 50.0,
         turn_noise: float = 0.6,
         seed: int | None = 0,
+        **limits: float,
     ) -> None:
-        super().__init__(max_speed_mps, max_turn_rate_radps)
-        self.cruise_mps = cruise_fraction * max_speed_mps
+        super().__init__(**limits)
+        self.cruise_mps = cruise_fraction * self.max_speed_mps
         self.avoid_distance_m = avoid_distance_m
         self.front_half_angle_rad = np.deg2rad(front_half_angle_deg)
         self.turn_noise = turn_noise
@@ -306,8 +310,7 @@ class VectorFieldPolicy(ScriptedPolicy):
 
     def __init__(
         self,
-        max_speed_mps: float = 0.3,
-        max_turn_rate_radps: float = 1.5,
+        *,
         top_k: int = 16,
         min_weight: float = 0.5,
         avoid_distance_m: float = 0.3,
@@ -319,6 +322,7 @@ class VectorFieldPolicy(ScriptedPolicy):
         sensing_model: PHDConfig | None = None,
         sensing_margin: float = 0.2,
         restart_mps: float | None = None,
+        **limits: float,
     ) -> None:
         if sensing_model is not None and not isinstance(sensing_model, PHDConfig):
             raise TypeError(
@@ -337,7 +341,7 @@ class VectorFieldPolicy(ScriptedPolicy):
                 f"got {restart_mps!r}"
             )
         self.restart_mps = restart_mps
-        super().__init__(max_speed_mps, max_turn_rate_radps)
+        super().__init__(**limits)
         self.sensing_model = sensing_model
         self.sensing_margin = sensing_margin
         self._sensing_detection = None if sensing_model is None else DetectionModel(sensing_model)
@@ -372,7 +376,11 @@ class VectorFieldPolicy(ScriptedPolicy):
         seed = self._seed if seed is None else seed
         self._rng = np.random.default_rng(seed)
         self._scan: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-        self._wander = WanderPolicy(self.max_speed_mps, self.max_turn_rate_radps, seed=seed)
+        self._wander = WanderPolicy(
+            max_speed_mps=self.max_speed_mps,
+            max_turn_rate_radps=self.max_turn_rate_radps,
+            seed=seed,
+        )
         self.wandering = set()
         self._stopped: set[str] = set()  # agents that arrived and have not moved since
 

@@ -218,7 +218,9 @@ def _episode(env: Any, server: Any, seed: int, n_steps: int, uav_control: str) -
     from swarm_env.uav.control import uav_action
 
     robot = env.config.robot
-    policy = WanderPolicy(robot.max_speed_mps, robot.max_turn_rate_radps, seed=seed)
+    policy = WanderPolicy(
+        max_speed_mps=robot.max_speed_mps, max_turn_rate_radps=robot.max_turn_rate_radps, seed=seed
+    )
     obs, infos = env.reset(seed=seed)
     n = len(env.ugv_agents)
     times, pos_err, head_err, in_view, slip, signed = [], [], [], [], [], []
