@@ -13,6 +13,7 @@ import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -21,6 +22,7 @@ pytest.importorskip("roslibpy")
 pytest.importorskip("rosbags")
 pytest.importorskip("websockets")
 
+from hardware_bridge import real_env  # noqa: E402
 from hardware_bridge.loopback import FaultConfig, LoopbackServer  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -118,6 +120,40 @@ def loopback() -> Iterator[Callable[..., LoopbackServer]]:
     yield make
     for server in servers:
         server.close()
+
+
+@pytest.fixture
+def guarded_lab(robot_process: tuple[int, Path]) -> Iterator[tuple[Any, Path]]:
+    """A ``real_env`` (preset ``seed-lab``) on :func:`robot_process`'s robots, reset with seed 0
+    and its guard process connected: yields ``(env, twist log path)``; the env is closed after
+    the test, before the robots' process ends."""
+    port, log = robot_process
+    env = real_env(port=port, preset="seed-lab", bridge={"reset_timeout_s": 20.0})
+    try:
+        env.reset(seed=0)
+        assert env.world.guard is not None and env.world.guard.connected.is_set()
+        yield env, log
+    finally:
+        env.close()
+
+
+@pytest.fixture
+def lab(loopback) -> Iterator[Callable[..., tuple[LoopbackServer, Any]]]:
+    """Factory: ``lab(**env_kwargs)`` -> ``(server, env)``, a started loopback server and a
+    ``real_env`` on it (preset ``seed-lab``), reset with seed 0. Every env it made is closed
+    after the test (closing twice is a no-op, so a test may close it itself)."""
+    envs: list[Any] = []
+
+    def make(**kwargs: Any) -> tuple[LoopbackServer, Any]:
+        server = loopback()
+        env = real_env(port=server.port, preset="seed-lab", **kwargs)
+        envs.append(env)
+        env.reset(seed=0)
+        return server, env
+
+    yield make
+    for env in envs:
+        env.close()
 
 
 @pytest.fixture(autouse=True)
