@@ -201,11 +201,8 @@ class EncirclementTask(Task):
         self.intruder_features = check_choice(
             self.name, "intruder_features", intruder_features, INTRUDER_FEATURES
         )
-        if intruder_features == "filter" and intruder_source != "particle":
-            raise ValueError(
-                f"task {self.name!r}: intruder_features='filter' needs "
-                f"intruder_source='particle', got {intruder_source!r}"
-            )
+        if intruder_features == "filter":
+            self._check_particle_source("intruder_features='filter'", intruder_source)
         if isinstance(n_particles, bool) or not isinstance(n_particles, (int, np.integer)):
             raise ValueError(
                 f"task {self.name!r}: n_particles must be an int, got {n_particles!r}"
@@ -218,10 +215,11 @@ class EncirclementTask(Task):
         self.intruder_sensing = check_choice(
             self.name, "intruder_sensing", intruder_sensing, INTRUDER_SENSING
         )
-        if intruder_sensing == "range" and intruder_source != "particle":
-            raise ValueError(
-                f"task {self.name!r}: intruder_sensing='range' needs intruder_source='particle' "
-                f"(the other sources use the reading's bearing), got {intruder_source!r}"
+        if intruder_sensing == "range":
+            self._check_particle_source(
+                "intruder_sensing='range'",
+                intruder_source,
+                "the other sources use the reading's bearing",
             )
         self.particle_start = check_choice(
             self.name, "particle_start", particle_start, PARTICLE_STARTS
@@ -239,6 +237,16 @@ class EncirclementTask(Task):
         self._last_omega = 0.0
         self._errors: list[float] = []
         self._gaps: list[float] = []
+
+    def _check_particle_source(self, option: str, intruder_source: str, why: str = "") -> None:
+        """Refuse ``option`` (e.g. ``"intruder_features='filter'"``) unless the intruder source
+        is the particle filter; ``why`` is said in brackets."""
+        if intruder_source != "particle":
+            because = f" ({why})" if why else ""
+            raise ValueError(
+                f"task {self.name!r}: {option} needs intruder_source='particle'{because}, "
+                f"got {intruder_source!r}"
+            )
 
     @property
     def n_features(self) -> int:
