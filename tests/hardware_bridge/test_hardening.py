@@ -42,22 +42,18 @@ ROOT = Path(__file__).resolve().parents[2]
 
 # ---------------------------------------------------------------------------- robots always stop
 @pytest.mark.timeout(40)
-def test_halt_stops_every_robot_at_once_is_idempotent_and_never_raises(loopback):
-    server = loopback()
-    env = real_env(port=server.port, preset="seed-lab")
+def test_halt_stops_every_robot_at_once_is_idempotent_and_never_raises(lab):
+    server, env = lab()
     world = env.world
-    try:
-        env.reset(seed=0)
-        drive(env, 3)
-        t0 = time.monotonic()
-        world.halt()
-        world.halt()
-        assert wait_until(lambda: len(zero_times(server, t0)) == 4, 0.3)
-        assert max(zero_times(server, t0).values()) - t0 < 0.2
-        drive(env, 2)  # stepping again resumes motion
-        assert any(v > 0 for t, _, v, _ in server.twists() if t > t0 + 0.05)
-    finally:
-        env.close()
+    drive(env, 3)
+    t0 = time.monotonic()
+    world.halt()
+    world.halt()
+    assert wait_until(lambda: len(zero_times(server, t0)) == 4, 0.3)
+    assert max(zero_times(server, t0).values()) - t0 < 0.2
+    drive(env, 2)  # stepping again resumes motion
+    assert any(v > 0 for t, _, v, _ in server.twists() if t > t0 + 0.05)
+    env.close()
     world.halt()  # after close: a no-op, no exception
     with pytest.raises(RuntimeError, match="after close"):
         world.step(np.zeros((4, 2)))
@@ -66,45 +62,35 @@ def test_halt_stops_every_robot_at_once_is_idempotent_and_never_raises(loopback)
 
 
 @pytest.mark.timeout(40)
-def test_an_exception_outside_the_world_stops_the_robots_at_once(loopback, monkeypatch):
-    server = loopback()
-    env = real_env(port=server.port, preset="seed-lab")
-    try:
-        env.reset(seed=0)
-        drive(env, 3)
+def test_an_exception_outside_the_world_stops_the_robots_at_once(lab, monkeypatch):
+    server, env = lab()
+    drive(env, 3)
 
-        def boom(*args, **kwargs):
-            raise RuntimeError("reward code crashed")
+    def boom(*args, **kwargs):
+        raise RuntimeError("reward code crashed")
 
-        monkeypatch.setattr(env.task, "rewards", boom)
-        t0 = time.monotonic()
-        with pytest.raises(RuntimeError, match="reward code crashed"):
-            drive(env, 1)
-        # Well before the 0.5 s stall timer: the env called world.halt().
-        assert wait_until(lambda: len(zero_times(server, t0)) == 4, 0.35)
-        assert max(zero_times(server, t0).values()) - t0 < 0.35
-    finally:
-        env.close()
+    monkeypatch.setattr(env.task, "rewards", boom)
+    t0 = time.monotonic()
+    with pytest.raises(RuntimeError, match="reward code crashed"):
+        drive(env, 1)
+    # Well before the 0.5 s stall timer: the env called world.halt().
+    assert wait_until(lambda: len(zero_times(server, t0)) == 4, 0.35)
+    assert max(zero_times(server, t0).values()) - t0 < 0.35
 
 
 @pytest.mark.timeout(40)
-def test_step_raises_a_clear_error_once_the_link_is_down_past_the_grace(loopback):
-    server = loopback()
-    env = real_env(port=server.port, preset="seed-lab", bridge={"transport_grace_s": 1.0})
-    try:
-        env.reset(seed=0)
-        drive(env, 2)
-        t_down = time.monotonic()
-        server.stop()
-        with pytest.raises(TransportLostError, match=f"127.0.0.1:{server.port}") as err:
-            for _ in range(60):
-                drive(env, 1)
-        elapsed = time.monotonic() - t_down
-        assert 1.0 <= elapsed < 3.0, elapsed
-        assert "transport_grace_s=1.0" in str(err.value)
-        assert env.world.watchdog.tripped
-    finally:
-        env.close()
+def test_step_raises_a_clear_error_once_the_link_is_down_past_the_grace(lab):
+    server, env = lab(bridge={"transport_grace_s": 1.0})
+    drive(env, 2)
+    t_down = time.monotonic()
+    server.stop()
+    with pytest.raises(TransportLostError, match=f"127.0.0.1:{server.port}") as err:
+        for _ in range(60):
+            drive(env, 1)
+    elapsed = time.monotonic() - t_down
+    assert 1.0 <= elapsed < 3.0, elapsed
+    assert "transport_grace_s=1.0" in str(err.value)
+    assert env.world.watchdog.tripped
 
 
 @pytest.mark.timeout(40)
@@ -170,26 +156,20 @@ def test_a_frozen_server_never_executes_a_stale_command(loopback):
 
 
 @pytest.mark.timeout(300)  # the robot process may compile the numba kernels first
-def test_the_guard_process_stops_the_robots_while_the_env_holds_the_gil(robot_process):
-    port, log = robot_process
-    env = real_env(port=port, preset="seed-lab", bridge={"reset_timeout_s": 20.0})
-    try:
-        env.reset(seed=0)
-        assert env.world.guard is not None and env.world.guard.connected.is_set()
-        drive(env, 5)
-        t_stall = time.monotonic()
-        hold_the_gil(2.0)  # no other thread of this process runs for 2 s
-        time.sleep(0.2)
-        zeros = {}
-        for t, robot, v, w, applied in read_twist_log(log):
-            if t > t_stall and applied and v == 0.0 and w == 0.0 and robot not in zeros:
-                zeros[robot] = t - t_stall
-        assert set(zeros) == set(env.possible_agents), zeros
-        # The 0.5 s timeout plus the guard's poll (0.53 s measured), not the 2 s stall (2.05 s
-        # without the guard); the margin is for a loaded machine.
-        assert max(zeros.values()) < 1.2, zeros
-    finally:
-        env.close()
+def test_the_guard_process_stops_the_robots_while_the_env_holds_the_gil(guarded_lab):
+    env, log = guarded_lab
+    drive(env, 5)
+    t_stall = time.monotonic()
+    hold_the_gil(2.0)  # no other thread of this process runs for 2 s
+    time.sleep(0.2)
+    zeros = {}
+    for t, robot, v, w, applied in read_twist_log(log):
+        if t > t_stall and applied and v == 0.0 and w == 0.0 and robot not in zeros:
+            zeros[robot] = t - t_stall
+    assert set(zeros) == set(env.possible_agents), zeros
+    # The 0.5 s timeout plus the guard's poll (0.53 s measured), not the 2 s stall (2.05 s
+    # without the guard); the margin is for a loaded machine.
+    assert max(zeros.values()) < 1.2, zeros
 
 
 @pytest.mark.timeout(300)  # the env process may compile the numba kernels first
@@ -339,24 +319,19 @@ def test_integrate_odometry_inverts_the_increment():
 
 
 @pytest.mark.timeout(60)
-def test_reset_clears_a_poisoned_stamp_state(loopback):
-    server = loopback()
-    env = real_env(port=server.port, preset="seed-lab")
+def test_reset_clears_a_poisoned_stamp_state(lab):
+    server, env = lab()
     world = env.world
-    try:
-        env.reset(seed=0)
-        drive(env, 2, v=0.0)
-        # Poison every stamp state as a bad message did before the fix (an hour ahead).
-        with world._lock:
-            for buf in world._buffers.values():
-                buf.newest_ns = time.time_ns() + 3600 * 10**9
-        world.assembler._baseline["ugv_0"] = Odom(time.time_ns() + 3600 * 10**9, 0, 0, 0, 0, 0)
-        env.reset(seed=0)
-        infos = drive(env, 5, v=0.0)
-        assert all(not info["stale"] for info in infos.values()), infos
-        assert infos["ugv_0"]["measurements"]["odometry"], "ugv_0 odometry still silenced"
-    finally:
-        env.close()
+    drive(env, 2, v=0.0)
+    # Poison every stamp state as a bad message did before the fix (an hour ahead).
+    with world._lock:
+        for buf in world._buffers.values():
+            buf.newest_ns = time.time_ns() + 3600 * 10**9
+    world.assembler._baseline["ugv_0"] = Odom(time.time_ns() + 3600 * 10**9, 0, 0, 0, 0, 0)
+    env.reset(seed=0)
+    infos = drive(env, 5, v=0.0)
+    assert all(not info["stale"] for info in infos.values()), infos
+    assert infos["ugv_0"]["measurements"]["odometry"], "ugv_0 odometry still silenced"
 
 
 @pytest.mark.timeout(90)

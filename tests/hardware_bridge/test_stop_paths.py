@@ -86,32 +86,26 @@ def test_a_step_hung_after_its_command_stops_the_robots_within_the_bound(loopbac
 
 @pytest.mark.timeout(300)  # the robot process may compile the numba kernels first
 def test_a_gil_holding_hung_step_is_stopped_by_the_guard_within_the_bound(
-    robot_process, monkeypatch
+    guarded_lab, monkeypatch
 ):
-    port, log = robot_process
-    env = real_env(port=port, preset="seed-lab", bridge={"reset_timeout_s": 20.0})
+    env, log = guarded_lab
     world = env.world
-    try:
-        env.reset(seed=0)
-        assert world.guard is not None and world.guard.connected.is_set()
-        drive(env, 5)
-        t0 = time.monotonic()
-        take = world._take
+    drive(env, 5)
+    t0 = time.monotonic()
+    take = world._take
 
-        def hung_take(*args, **kwargs):  # hangs holding the GIL: no thread of ours runs
-            hold_the_gil(1.5)
-            return take(*args, **kwargs)
+    def hung_take(*args, **kwargs):  # hangs holding the GIL: no thread of ours runs
+        hold_the_gil(1.5)
+        return take(*args, **kwargs)
 
-        monkeypatch.setattr(world, "_take", hung_take)
-        drive(env, 1)
-        monkeypatch.setattr(world, "_take", take)
-        time.sleep(0.2)
-        delays = stop_delays(_applied(log), t0)
-        assert set(delays) == set(env.possible_agents), delays
-        print(f"GIL-holding hung step stop delays (s): {_fmt(delays)}")
-        assert max(delays.values()) < BOUND_S, delays
-    finally:
-        env.close()
+    monkeypatch.setattr(world, "_take", hung_take)
+    drive(env, 1)
+    monkeypatch.setattr(world, "_take", take)
+    time.sleep(0.2)
+    delays = stop_delays(_applied(log), t0)
+    assert set(delays) == set(env.possible_agents), delays
+    print(f"GIL-holding hung step stop delays (s): {_fmt(delays)}")
+    assert max(delays.values()) < BOUND_S, delays
 
 
 _DRIVER = """
@@ -172,34 +166,28 @@ def test_a_frozen_env_process_is_stopped_by_the_guard_within_the_bound(loopback)
 
 
 @pytest.mark.timeout(300)  # the robot process may compile the numba kernels first
-def test_a_dead_guard_is_logged_restarted_and_stops_a_gil_stall(robot_process, caplog):
-    port, log = robot_process
-    env = real_env(port=port, preset="seed-lab", bridge={"reset_timeout_s": 20.0})
+def test_a_dead_guard_is_logged_restarted_and_stops_a_gil_stall(guarded_lab, caplog):
+    env, log = guarded_lab
     world = env.world
-    try:
-        env.reset(seed=0)
-        guard = world.guard
-        assert guard is not None and guard.connected.is_set()
-        drive(env, 3)
-        old_pid = guard.proc.pid
-        with caplog.at_level(logging.WARNING, logger="hardware_bridge"):
-            os.kill(old_pid, signal.SIGKILL)
-            drive(env, 5)  # 0.5 s: the watchdog notices within a tick and restarts it
-            assert wait_until(lambda: guard.restarts == 1 and guard.connected.is_set(), 10.0)
-        assert guard.proc.pid != old_pid and guard.alive
-        assert world.counters.get("guard.restarts") == 1
-        assert any(
-            f"guard process {old_pid} died" in r.getMessage() and "-9" in r.getMessage()
-            for r in caplog.records
-        ), [r.getMessage() for r in caplog.records]
-        drive(env, 3)  # the restarted guard gets this step's deadlines
-        t0 = time.monotonic()
-        hold_the_gil(1.5)  # between steps, holding the GIL: only the guard can act
-        time.sleep(0.2)
-        delays = stop_delays(_applied(log), t0 - 0.5)
-        assert set(delays) == set(env.possible_agents), delays
-        # Between steps: period + watchdog_timeout_s + poll after the last command (0.41 s).
-        print(f"restarted guard, GIL stall stop delays (s): {_fmt(delays)}")
-        assert max(delays.values()) < BOUND_S, delays
-    finally:
-        env.close()
+    guard = world.guard
+    drive(env, 3)
+    old_pid = guard.proc.pid
+    with caplog.at_level(logging.WARNING, logger="hardware_bridge"):
+        os.kill(old_pid, signal.SIGKILL)
+        drive(env, 5)  # 0.5 s: the watchdog notices within a tick and restarts it
+        assert wait_until(lambda: guard.restarts == 1 and guard.connected.is_set(), 10.0)
+    assert guard.proc.pid != old_pid and guard.alive
+    assert world.counters.get("guard.restarts") == 1
+    assert any(
+        f"guard process {old_pid} died" in r.getMessage() and "-9" in r.getMessage()
+        for r in caplog.records
+    ), [r.getMessage() for r in caplog.records]
+    drive(env, 3)  # the restarted guard gets this step's deadlines
+    t0 = time.monotonic()
+    hold_the_gil(1.5)  # between steps, holding the GIL: only the guard can act
+    time.sleep(0.2)
+    delays = stop_delays(_applied(log), t0 - 0.5)
+    assert set(delays) == set(env.possible_agents), delays
+    # Between steps: period + watchdog_timeout_s + poll after the last command (0.41 s).
+    print(f"restarted guard, GIL stall stop delays (s): {_fmt(delays)}")
+    assert max(delays.values()) < BOUND_S, delays
