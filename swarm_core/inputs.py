@@ -57,14 +57,20 @@ def steps_in(env: Any, flag: str, duration_s: float) -> int:
 def add_duration_argument(
     parser: argparse.ArgumentParser, default: float, what: str = "simulated seconds"
 ) -> None:
-    """``--duration`` (s), for a command to share; :func:`duration` checks it. (``mutual``,
-    ``seed003``, ``sweep`` and ``uav`` still define their own.)"""
+    """``--duration`` (s), for a command to share; :func:`duration` checks it. (``mutual``
+    defines its own: without one, each scenario runs for its own duration.)"""
     parser.add_argument(
         "--duration",
         type=float,
         default=default,
         help=f"{what} (at least one control period)",
     )
+
+
+def add_seed_argument(parser: argparse.ArgumentParser, what: str = "random seed") -> None:
+    """``--seed`` (an integer >= 0, default 0), for a command to share; :func:`seed` checks
+    it."""
+    parser.add_argument("--seed", type=int, default=0, help=f"{what} (>= 0)")
 
 
 def parse_seeds(text: str, name: str = "--seeds") -> list[int]:

@@ -63,7 +63,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="default: a trained policy's (model.zip, student .pt) own preset, else sim-6m-20",
     )
     add_trust_policy_argument(parser)
-    parser.add_argument("--seed", type=int, default=0, help="the episode's seed (>= 0)")
+    inputs.add_seed_argument(parser, "the episode's seed")
     inputs.add_duration_argument(parser, 30.0)
     parser.add_argument(
         "--fps",
