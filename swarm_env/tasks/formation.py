@@ -100,20 +100,11 @@ class FormationTask(Task):
                     f"task {self.name!r}: spacing_m applies to shape='lattice'; "
                     "a circle's spacing follows from radius_m and the robot count"
                 )
-            self.radius_m = check_param(
-                self.name,
-                "radius_m",
-                0.8 if radius_m is None else radius_m,
-                0.0,
-                20.0,
-                low_open=True,
-            )
+            radius_m = 0.8 if radius_m is None else radius_m
+            spacing_weight = 0.5 if spacing_weight is None else spacing_weight
+            self.radius_m = check_param(self.name, "radius_m", radius_m, 0.0, 20.0, low_open=True)
             self.spacing_weight = check_param(
-                self.name,
-                "spacing_weight",
-                0.5 if spacing_weight is None else spacing_weight,
-                0.0,
-                10.0,
+                self.name, "spacing_weight", spacing_weight, 0.0, 10.0
             )
             self.spacing_m = None
         else:
@@ -123,13 +114,9 @@ class FormationTask(Task):
                         f"task {self.name!r}: {name} applies to shape='circle', "
                         "not 'lattice' (use spacing_m)"
                     )
+            spacing_m = 0.6 if spacing_m is None else spacing_m
             self.spacing_m = check_param(
-                self.name,
-                "spacing_m",
-                0.6 if spacing_m is None else spacing_m,
-                0.0,
-                20.0,
-                low_open=True,
+                self.name, "spacing_m", spacing_m, 0.0, 20.0, low_open=True
             )
             self.radius_m = None
             self.spacing_weight = 0.0
