@@ -79,6 +79,18 @@ def read_twist_log(log: Path) -> list[tuple[float, str, float, float, bool]]:
     return out
 
 
+def end_process(proc: subprocess.Popen, wait_s: float) -> None:
+    """Wait up to ``wait_s`` for ``proc`` to exit, kill it if it has not, and close its pipes."""
+    try:
+        proc.wait(wait_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait(5)
+    for pipe in (proc.stdin, proc.stdout):
+        if pipe is not None:
+            pipe.close()
+
+
 @pytest.fixture
 def robot_process(tmp_path: Path) -> Iterator[tuple[int, Path]]:
     """Loopback robots in another process (its own GIL), logging every command they receive:
@@ -97,13 +109,8 @@ def robot_process(tmp_path: Path) -> Iterator[tuple[int, Path]]:
         assert line.strip().isdigit(), f"loopback process did not start: {line!r}"
         yield int(line), log
     finally:
-        proc.stdin.close()
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(5)
-        proc.stdout.close()
+        proc.stdin.close()  # the loopback process ends at the end of its input
+        end_process(proc, 10.0)
 
 
 @pytest.fixture

@@ -23,6 +23,7 @@ import pytest
 from hardware_bridge import real_env
 from tests.hardware_bridge.conftest import (
     drive,
+    end_process,
     hold_the_gil,
     read_twist_log,
     wait_until,
@@ -157,12 +158,7 @@ def test_a_frozen_env_process_is_stopped_by_the_guard_within_the_bound(loopback)
         if proc.poll() is None:
             proc.send_signal(signal.SIGCONT)
             proc.terminate()
-            try:
-                proc.wait(20)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(5)
-        proc.stdout.close()
+        end_process(proc, 20.0)
 
 
 @pytest.mark.timeout(300)  # the robot process may compile the numba kernels first
