@@ -23,7 +23,11 @@ pytest.importorskip("rosbags")
 pytest.importorskip("websockets")
 
 from hardware_bridge import real_env  # noqa: E402
-from hardware_bridge.loopback import FaultConfig, LoopbackServer  # noqa: E402
+from hardware_bridge.loopback import (  # noqa: E402
+    FaultConfig,
+    LoopbackServer,
+    spawn,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -70,15 +74,6 @@ def hold_the_gil(seconds: float) -> None:
         sys.setswitchinterval(interval)
 
 
-def read_twist_log(log: Path) -> list[tuple[float, str, float, float, bool]]:
-    """A robot process's ``--twist-log``: ``(t, robot, v, w, applied)`` per command received."""
-    out = []
-    for line in log.read_text().splitlines():
-        t, robot, v, w, _age, applied = line.split()
-        out.append((float(t), robot, float(v), float(w), applied == "1"))
-    return out
-
-
 def end_process(proc: subprocess.Popen, wait_s: float) -> None:
     """Wait up to ``wait_s`` for ``proc`` to exit, kill it if it has not, and close its pipes."""
     try:
@@ -96,18 +91,9 @@ def robot_process(tmp_path: Path) -> Iterator[tuple[int, Path]]:
     """Loopback robots in another process (its own GIL), logging every command they receive:
     yields ``(port, twist log path)``; the process ends (stdin closed) after the test."""
     log = tmp_path / "twists.log"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "hardware_bridge.loopback", "--twist-log", str(log)],
-        cwd=ROOT,
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-    )
+    proc, port = spawn(log, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
     try:
-        line = proc.stdout.readline()
-        assert line.strip().isdigit(), f"loopback process did not start: {line!r}"
-        yield int(line), log
+        yield port, log
     finally:
         proc.stdin.close()  # the loopback process ends at the end of its input
         end_process(proc, 10.0)

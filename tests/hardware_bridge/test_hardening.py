@@ -18,7 +18,7 @@ import pytest
 from hardware_bridge import real_env
 from hardware_bridge.assembly import RecordAssembler, integrate_odometry, odometry_increment
 from hardware_bridge.bag import ReplayWorld
-from hardware_bridge.loopback import FaultConfig, hostile_inputs
+from hardware_bridge.loopback import FaultConfig, hostile_inputs, read_twist_log
 from hardware_bridge.messages import (
     InvalidMessage,
     Odom,
@@ -32,7 +32,6 @@ from swarm_env.config import make_config
 from tests.hardware_bridge.conftest import (
     drive,
     hold_the_gil,
-    read_twist_log,
     wait_until,
     zero_times,
 )

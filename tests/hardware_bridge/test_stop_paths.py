@@ -21,11 +21,11 @@ from pathlib import Path
 import pytest
 
 from hardware_bridge import real_env
+from hardware_bridge.loopback import read_twist_log
 from tests.hardware_bridge.conftest import (
     drive,
     end_process,
     hold_the_gil,
-    read_twist_log,
     wait_until,
 )
 
@@ -187,3 +187,12 @@ def test_a_dead_guard_is_logged_restarted_and_stops_a_gil_stall(guarded_lab, cap
     # Between steps: period + watchdog_timeout_s + poll after the last command (0.41 s).
     print(f"restarted guard, GIL stall stop delays (s): {_fmt(delays)}")
     assert max(delays.values()) < BOUND_S, delays
+
+
+def test_a_twist_log_reads_back_as_main_writes_it(tmp_path):
+    log = tmp_path / "twists.log"
+    log.write_text("12.5 ugv_0 0.2 -0.1 0.03 1\n12.75 ugv_3 0.0 0.0 0.61 0\n")
+    assert read_twist_log(log) == [
+        (12.5, "ugv_0", 0.2, -0.1, True),
+        (12.75, "ugv_3", 0.0, 0.0, False),
+    ]
