@@ -93,6 +93,18 @@ def trust_policy_files() -> None:
     os.environ[TRUST_POLICY_ENV] = "1"
 
 
+def add_trust_policy_argument(parser: Any) -> None:
+    """``--trust-policy`` of ``evaluate`` and ``record`` (an ``argparse`` parser): the commands
+    then call :func:`trust_policy_files`."""
+    parser.add_argument(
+        "--trust-policy",
+        action="store_true",
+        help="load an SB3 .zip from outside a swarm-phd train run with SB3's loader, which "
+        "unpickles objects stored in the file and so can run code in it: only for a file you "
+        "trained or verified yourself (a zip in its run directory loads weights only)",
+    )
+
+
 def trusts_policy_files() -> bool:
     """Whether ``--trust-policy`` was given (:func:`trust_policy_files`)."""
     import os
@@ -241,6 +253,32 @@ def model_on_task(
     overrides = dict(overrides)
     given = overrides.pop("task_params", None) or {}
     return {**out, **overrides, "task": task or own, "task_params": {**params, **given}}
+
+
+def policy_env(preset: str | None, task: str | None, policy: str, **overrides: Any) -> Any:
+    """The env ``policy`` (a ``load_policy`` spec) runs in, as evaluate and record build it:
+    a trained policy's own env (:func:`trained_policy_env`, ``preset``, ``task`` and
+    ``overrides`` over its settings), else ``preset`` (default ``seed-sim``) and ``task``
+    (default ``wander``) with the observation mode the policy reads. Policies that ignore the
+    observation get raw measurements and no filters in the env (an evaluation runs its own),
+    unless the task's reward scores the estimates. Returns a ``SwarmEnv``."""
+    from swarm_env import parallel_env
+
+    model = trained_policy_env(policy, preset, task, **overrides)
+    if model is not None:  # a trained model (.zip) or recurrent student (.pt): its own env
+        preset, task, overrides = model.pop("preset"), model.pop("task"), model
+    else:
+        observation = policy_observation(policy)
+        if observation is None:
+            from swarm_env.tasks import task_needs_estimates
+
+            overrides.setdefault("observation", "measurements")
+            overrides.setdefault(
+                "localize", task_needs_estimates(task or "wander", overrides.get("task_params"))
+            )
+        else:  # e.g. scripted:formation acts on the robot's own PHD estimate
+            overrides.setdefault("observation", observation)
+    return parallel_env(preset or "seed-sim", task=task or "wander", **overrides)
 
 
 def policy_observation(spec: str) -> str | None:

@@ -50,7 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="env steps (default: a trained policy's episode length, else 100 = 10 s)",
     )
-    parser.add_argument("--seed", type=int, default=0, help="random seed (>= 0)")
+    inputs.add_seed_argument(parser)
     parser.add_argument(
         "--policy",
         default="wander",

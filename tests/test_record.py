@@ -65,7 +65,7 @@ def no_env(monkeypatch):
     def refuse(*args, **kwargs):
         raise AssertionError("an env was built before the input was checked")
 
-    monkeypatch.setattr("swarm_phd.evaluate._make_env", refuse)
+    monkeypatch.setattr("agents.policies.policy_env", refuse)
 
 
 @pytest.mark.parametrize(
