@@ -57,6 +57,36 @@ STUDY = {
     "lab-3m-4": "teammates' error time 12.7, 2.6, 0.2 % (LC); 20.7, 10.9, 1.0 % (LO)",
 }
 BANDS_M = ((0.0, 1.0), (1.0, 2.0), (2.0, 3.0))
+
+#: The PMB's camera-only teammates in its Poisson part (``PHDConfig.camera_birth="ray"``,
+#: :class:`localization.pmb.RobotCentricPMB`), every parameter from a measured statistic of
+#: the simulated camera (``swarm_env.config``, the notes on ``SIM_CAMERA_CLUTTER_PER_RAD`` and
+#: ``SIM_CAMERA_PD_*``, ``benchmarks/bench_detection_curves.py``):
+#:
+#: * clutter: only the false blobs, 1.29 red-decoy + 0.10 random blobs per frame = 0.22 /rad
+#:   (the other 1.00 /rad of ``SIM_CAMERA_CLUTTER_PER_RAD`` are teammates beyond the lidar's
+#:   reach, which the Poisson part now holds);
+#: * each unexplained bearing's ray carries the measured share of such bearings that are
+#:   teammates, 1.00 / 1.22 = 0.82, spread over the camera's reach, 0.3 m to 4.75 m (where the
+#:   measured detection curve reaches 0), in proportion to ``r P_d(r)``.
+CAMERA_FALSE_BLOBS_PER_RAD = 0.22
+CAMERA_UNTRACKED_TEAMMATES_PER_RAD = 1.00
+CAMERA_REACH_M = 4.75
+CAMERA_RAYS = "pmb-lc (camera rays)"
+
+
+def camera_rays_phd(phd: Any) -> Any:
+    """``phd`` with the PMB's camera-only teammates in its Poisson part (:data:`CAMERA_RAYS`)."""
+    import dataclasses
+
+    return dataclasses.replace(
+        phd,
+        camera_birth="ray",
+        camera_birth_weight=CAMERA_UNTRACKED_TEAMMATES_PER_RAD
+        / (CAMERA_UNTRACKED_TEAMMATES_PER_RAD + CAMERA_FALSE_BLOBS_PER_RAD),
+        camera_birth_max_range_m=CAMERA_REACH_M,
+        camera_clutter_intensity=CAMERA_FALSE_BLOBS_PER_RAD,
+    )
 CAUSES = ("absent", "displaced", "low_weight", "not_visible")
 
 
@@ -98,46 +128,104 @@ def summarize(name: str, block: dict[str, Any], cost_ms: float) -> dict[str, Any
     }
 
 
-def run_preset(preset: str, seeds: list[int], duration_s: float) -> dict[str, Any]:
-    """The four localizers on ``seeds`` of ``preset`` (see the module doc): per localizer the
-    figures of :func:`summarize`."""
+def _scored(
+    preset: str, seeds: list[int], duration_s: float, names: list[str], **overrides: Any
+) -> tuple[dict[str, Any], dict[str, float]]:
+    """:func:`assemble`'s localizer blocks of ``names`` on ``seeds`` of ``preset`` (with
+    ``overrides`` of its config), and each one's ms per env step."""
     from swarm_env import parallel_env
     from swarm_phd.evaluate import assemble, score_seed
 
-    env = parallel_env(preset, task="wander", observation="measurements", localize=False)
+    env = parallel_env(
+        preset, task="wander", observation="measurements", localize=False, **overrides
+    )
     try:
         n_steps = int(round(duration_s / env.config.control_period_s))
         runs = [
-            score_seed(env, "scripted:wander", list(LOCALIZERS), seed, n_steps, first=k == 0)
+            score_seed(env, "scripted:wander", names, seed, n_steps, first=k == 0)
             for k, seed in enumerate(seeds)
         ]
     finally:
         env.close()
     results = assemble(
-        runs,
-        preset=preset,
-        duration_s=duration_s,
-        localizers=list(LOCALIZERS),
-        seeds=seeds,
+        runs, preset=preset, duration_s=duration_s, localizers=names, seeds=seeds,
         policy="scripted:wander",
     )
-    steps = sum(r.steps_run for r in runs)
-    return {
-        name: summarize(
-            name,
-            results["localizers"][name],
-            1e3 * sum(r.cost_s[name] for r in runs) / max(steps, 1),
-        )
-        for name in LOCALIZERS
-    }
+    steps = max(sum(r.steps_run for r in runs), 1)
+    cost = {name: 1e3 * sum(r.cost_s[name] for r in runs) / steps for name in names}
+    return results["localizers"], cost
+
+
+def run_preset(
+    preset: str, seeds: list[int], duration_s: float, camera_rays: bool = False
+) -> dict[str, Any]:
+    """The four localizers on ``seeds`` of ``preset`` (see the module doc): per localizer the
+    figures of :func:`summarize`. ``camera_rays``: also :data:`CAMERA_RAYS`, the PMB with the
+    camera-only teammates in its Poisson part, on the same motion and measurements (the
+    filters do not act on the world: same seed, same records)."""
+    blocks, cost = _scored(preset, seeds, duration_s, list(LOCALIZERS))
+    rows = {name: summarize(name, blocks[name], cost[name]) for name in LOCALIZERS}
+    if camera_rays:
+        from swarm_env.config import make_config
+
+        phd = camera_rays_phd(make_config(preset).phd)
+        blocks, cost = _scored(preset, seeds, duration_s, ["pmb-lc"], phd=phd)
+        rows[CAMERA_RAYS] = summarize(CAMERA_RAYS, blocks["pmb-lc"], cost["pmb-lc"])
+    return rows
+
+
+def alternated_cost(
+    preset: str, seed: int, duration_s: float, camera_rays: bool = False
+) -> dict[str, float]:
+    """ms per env step of ``phd-lc`` and ``pmb-lc`` (and :data:`CAMERA_RAYS`) fed the same
+    records of one episode, their order rotated every step (so load changes on a shared
+    machine fall on each alike): the cost ratio of the issue's goal."""
+    import itertools
+
+    from agents.policies import load_policy
+    from localization.feed import SwarmFeed
+    from localization.registry import make_localizer
+    from swarm_env import parallel_env
+
+    env = parallel_env(preset, task="wander", observation="measurements", localize=False)
+    try:
+        n = len(env.possible_agents)
+        phd = env.config.phd
+        built = {
+            "phd-lc": make_localizer("phd-lc", n, phd, seed),
+            "pmb-lc": make_localizer("pmb-lc", n, phd, seed),
+        }
+        if camera_rays:
+            built[CAMERA_RAYS] = make_localizer("pmb-lc", n, camera_rays_phd(phd), seed)
+        names = list(built)
+        spent = dict.fromkeys(names, 0.0)
+        act = load_policy("scripted:wander", env)
+        if hasattr(act, "reset"):
+            act.reset(seed)
+        obs, infos = env.reset(seed=seed)
+        steps = int(round(duration_s / env.config.control_period_s))
+        for t in range(steps):
+            obs, _, _, _, infos = env.step(act(obs, infos))
+            feed = SwarmFeed.from_world_step(env.last_world_step, env.possible_agents)
+            order = names[t % len(names) :] + names[: t % len(names)]
+            for name in itertools.islice(order, len(order)):
+                t0 = time.perf_counter()
+                built[name].step(feed)
+                spent[name] += time.perf_counter() - t0
+    finally:
+        env.close()
+    return {name: 1e3 * spent[name] / max(steps, 1) for name in names}
 
 
 def _f(value: float, digits: int = 2) -> str:
     return "n/a" if not math.isfinite(value) else f"{value:.{digits}f}"
 
 
-def goals(preset: str, rows: dict[str, dict[str, Any]]) -> list[str]:
-    """The issue's goals for ``preset``, each as met / missed with its numbers."""
+def goals(
+    preset: str, rows: dict[str, dict[str, Any]], cost_ms: dict[str, float] | None = None
+) -> list[str]:
+    """The issue's goals for ``preset``, each as met / missed with its numbers; ``cost_ms``:
+    :func:`alternated_cost`'s, for the cost ratio (else each row's own)."""
     out = []
     for fam in ("phd", "pmb"):
         lc, lo = rows[f"{fam}-lc"], rows[f"{fam}-lo"]
@@ -156,16 +244,35 @@ def goals(preset: str, rows: dict[str, dict[str, Any]]) -> list[str]:
                 f"pair-median {_f(lc['pair_median_pct'])} vs {_f(lo['pair_median_pct'])} % "
                 f"(goal: LC no worse on both): {'met' if met else 'missed'}"
             )
-    if preset == "sim-6m-20":
-        phd, pmb = rows["phd-lc"], rows["pmb-lc"]
-        gain = 1.0 - pmb["gospa_m"] / phd["gospa_m"]
-        cost = pmb["cost_ms_per_step"] / phd["cost_ms_per_step"]
-        met = gain >= 0.15 and pmb["pair_median_pct"] < phd["pair_median_pct"] and cost <= 1.5
+    if CAMERA_RAYS in rows and preset != "perera2021":
+        rays, lo = rows[CAMERA_RAYS], rows["pmb-lo"]
+        met = rays["gospa_m"] <= lo["gospa_m"] and rays["pair_median_pct"] <= lo["pair_median_pct"]
         out.append(
-            f"pmb-lc vs phd-lc: GOSPA {100 * gain:+.1f} % lower (goal >= 15 %), pair-median "
-            f"{_f(pmb['pair_median_pct'])} vs {_f(phd['pair_median_pct'])} %, cost "
-            f"{_f(cost)}x (goal <= 1.5x): {'met' if met else 'missed'}"
+            f"{CAMERA_RAYS} vs pmb-lo: GOSPA {_f(rays['gospa_m'], 3)} vs {_f(lo['gospa_m'], 3)} m, "
+            f"pair-median {_f(rays['pair_median_pct'])} vs {_f(lo['pair_median_pct'])} % "
+            f"(goal: LC no worse on both): {'met' if met else 'missed'}"
         )
+    if preset == "sim-6m-20":
+        phd = rows["phd-lc"]
+        for name in ("pmb-lc", CAMERA_RAYS):
+            if name not in rows:
+                continue
+            pmb = rows[name]
+            gain = 1.0 - pmb["gospa_m"] / phd["gospa_m"]
+            alternated = (cost_ms or {}).get(name)
+            cost = (
+                alternated / cost_ms["phd-lc"]
+                if alternated is not None
+                else pmb["cost_ms_per_step"] / phd["cost_ms_per_step"]
+            )
+            met = (
+                gain >= 0.15 and pmb["pair_median_pct"] < phd["pair_median_pct"] and cost <= 1.5
+            )
+            out.append(
+                f"{name} vs phd-lc: GOSPA {100 * gain:.1f} % lower (goal >= 15 %), pair-median "
+                f"{_f(pmb['pair_median_pct'])} vs {_f(phd['pair_median_pct'])} % (goal: lower), "
+                f"cost {_f(cost)}x (goal <= 1.5x): {'met' if met else 'missed'}"
+            )
     return out
 
 
@@ -176,6 +283,7 @@ def result_file(
     report: list[int],
     duration_s: float,
     command: str,
+    cost_ms: dict[str, float] | None = None,
 ) -> dict[str, Any]:
     """The results-page file of one preset (``experiments/results/README.md``)."""
     lidar_camera = preset != "lab-3m-4"
@@ -208,7 +316,7 @@ def result_file(
                 _f(r["cost_ms_per_step"], 1),
             ]
         )
-    verdicts = goals(preset, rows)
+    verdicts = goals(preset, rows, cost_ms)
     lc, lo = rows["phd-lc"], rows["phd-lo"]
     return {
         "section": "Localization accuracy",
@@ -242,6 +350,7 @@ def result_file(
         "source": "this command's output, the file itself (per-localizer figures under `rows`)",
         "seeds": {"decision": decision, "report": report},
         "rows": rows,
+        **({"cost_alternated_ms_per_step": cost_ms} if cost_ms else {}),
     }
 
 
@@ -300,8 +409,14 @@ def main(argv: list[str] | None = None) -> int:
     for preset in presets:
         duration = args.duration or DURATION_S.get(preset, 120.0)
         t0 = time.perf_counter()
-        rows = run_preset(preset, report, duration)
-        data = result_file(preset, rows, decision, report, duration, command.strip())
+        rays = preset != "perera2021"  # the study's own filter there, as it describes it
+        rows = run_preset(preset, report, duration, camera_rays=rays)
+        cost = (
+            alternated_cost(preset, report[0], min(duration, 30.0), camera_rays=True)
+            if preset == "sim-6m-20"
+            else None
+        )
+        data = result_file(preset, rows, decision, report, duration, command.strip(), cost)
         path = out / f"localization_conditions_{preset.replace('-', '_')}.json"
         path.write_text(json.dumps(_finite(data), indent=1, allow_nan=False) + "\n")
         print(f"{preset}: {time.perf_counter() - t0:.0f} s -> {path}")
