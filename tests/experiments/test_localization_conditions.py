@@ -36,9 +36,23 @@ def test_goals_say_missed_when_the_camera_makes_it_worse():
     }
     verdicts = lc.goals("sim-6m-20", rows)
     assert verdicts[0].endswith("missed") and verdicts[1].endswith("met")
-    assert "GOSPA +25.9 % lower" in verdicts[2] and verdicts[2].endswith("met")
+    assert "GOSPA 25.9 % lower" in verdicts[2] and verdicts[2].endswith("met")
+    # The cost ratio from the alternated timing when given: 2x phd-lc's misses the goal.
+    slow = lc.goals("sim-6m-20", rows, {"phd-lc": 1.0, "pmb-lc": 2.0})
+    assert "cost 2.00x" in slow[2] and slow[2].endswith("missed")
     study = lc.goals("perera2021", rows)
     assert study[0].endswith("missed")  # 2.7 / 3.5 < 2x
+
+
+def test_camera_rays_config_comes_from_the_measured_camera():
+    from swarm_env.config import SIMULATOR_PHD
+
+    phd = lc.camera_rays_phd(SIMULATOR_PHD)
+    assert phd.camera_birth == "ray"
+    assert phd.camera_birth_weight == pytest.approx(1.00 / 1.22)
+    assert phd.camera_clutter_intensity == pytest.approx(0.22)
+    assert phd.camera_birth_max_range_m == 4.75
+    assert phd.lidar_pd_midpoint_m == SIMULATOR_PHD.lidar_pd_midpoint_m  # the rest unchanged
 
 
 def test_tiny_run_writes_a_results_page_file(tmp_path):
@@ -60,6 +74,14 @@ def test_tiny_run_writes_a_results_page_file(tmp_path):
     # The camera localizers are scored to 3 m, the lidar-only ones are not.
     assert data["rows"]["pmb-lc"]["by_range_pct"]["2-3"] is not None
     assert data["rows"]["pmb-lo"]["by_range_pct"]["2-3"] is None
+
+
+def test_tiny_simulator_run_has_the_camera_rays_row(tmp_path):
+    assert lc.main(["--presets", "lab-3m-4", "--report-seeds", "4", "--duration", "2",
+                    "--out", str(tmp_path)]) == 0
+    data = json.loads((tmp_path / "localization_conditions_lab_3m_4.json").read_text())
+    assert data["table"]["rows"][-1][0] == lc.CAMERA_RAYS
+    assert any(v.startswith(lc.CAMERA_RAYS) for v in data["verdict"].split("; "))
 
 
 def test_report_seeds_must_not_be_decision_seeds(tmp_path):
