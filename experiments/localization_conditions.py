@@ -94,6 +94,8 @@ def camera_rays_phd(phd: Any) -> Any:
         camera_birth_max_range_m=CAMERA_REACH_M,
         camera_clutter_intensity=CAMERA_FALSE_BLOBS_PER_RAD,
     )
+
+
 CAUSES = ("absent", "displaced", "low_weight", "not_visible")
 
 
@@ -155,7 +157,11 @@ def _scored(
     finally:
         env.close()
     results = assemble(
-        runs, preset=preset, duration_s=duration_s, localizers=names, seeds=seeds,
+        runs,
+        preset=preset,
+        duration_s=duration_s,
+        localizers=names,
+        seeds=seeds,
         policy="scripted:wander",
     )
     steps = max(sum(r.steps_run for r in runs), 1)
@@ -237,8 +243,16 @@ def goals(
     for fam in ("phd", "pmb"):
         lc, lo = rows[f"{fam}-lc"], rows[f"{fam}-lo"]
         if preset == "perera2021":
-            ratio = lo["pair_median_pct"] / lc["pair_median_pct"] if lc["pair_median_pct"] else math.inf
-            met = ratio >= 2.0 and lc["ugv0_above_25"] < 4 and lo["ugv0_above_25"] > lc["ugv0_above_25"]
+            ratio = (
+                lo["pair_median_pct"] / lc["pair_median_pct"]
+                if lc["pair_median_pct"]
+                else math.inf
+            )
+            met = (
+                ratio >= 2.0
+                and lc["ugv0_above_25"] < 4
+                and lo["ugv0_above_25"] > lc["ugv0_above_25"]
+            )
             out.append(
                 f"{fam}: LO/LC pair-median {_f(ratio)}x (goal >= 2x), ugv_0 above 25 %: LC "
                 f"{lc['ugv0_above_25']}, LO {lo['ugv0_above_25']} (goal LC < 4 < LO): "
@@ -255,7 +269,8 @@ def goals(
         rays, lo = rows[CAMERA_RAYS], rows["pmb-lo"]
         met = rays["gospa_m"] <= lo["gospa_m"] and rays["pair_median_pct"] <= lo["pair_median_pct"]
         out.append(
-            f"{CAMERA_RAYS} vs pmb-lo: GOSPA {_f(rays['gospa_m'], 3)} vs {_f(lo['gospa_m'], 3)} m, "
+            f"{CAMERA_RAYS} vs pmb-lo: GOSPA {_f(rays['gospa_m'], 3)} vs "
+            f"{_f(lo['gospa_m'], 3)} m, "
             f"pair-median {_f(rays['pair_median_pct'])} vs {_f(lo['pair_median_pct'])} % "
             f"(goal: LC no worse on both): {'met' if met else 'missed'}"
         )
@@ -272,9 +287,7 @@ def goals(
                 if alternated is not None
                 else pmb["cost_ms_per_step"] / phd["cost_ms_per_step"]
             )
-            met = (
-                gain >= 0.15 and pmb["pair_median_pct"] < phd["pair_median_pct"] and cost <= 1.5
-            )
+            met = gain >= 0.15 and pmb["pair_median_pct"] < phd["pair_median_pct"] and cost <= 1.5
             out.append(
                 f"{name} vs phd-lc: GOSPA {100 * gain:.1f} % lower (goal >= 15 %), pair-median "
                 f"{_f(pmb['pair_median_pct'])} vs {_f(phd['pair_median_pct'])} % (goal: lower), "
@@ -411,7 +424,7 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     command = "python -m experiments.localization_conditions " + " ".join(
-        (argv if argv is not None else sys.argv[1:])
+        argv if argv is not None else sys.argv[1:]
     )
     for preset in presets:
         duration = args.duration or DURATION_S.get(preset, 120.0)

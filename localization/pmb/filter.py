@@ -40,7 +40,6 @@ from typing import Any
 import numpy as np
 
 from .. import object_clutter, phd
-from ..config import CAMERA_BIRTH_RADIAL_STD_FRACTION
 from ..detection import DetectionModel
 from ..filter import (
     RobotCentricFilter,
@@ -383,18 +382,7 @@ class RobotCentricPMB(RobotCentricFilter):
             # phd.ray_births); a track is born only when a lidar detection falls on it.
             unexplained = brg[explained < cfg.camera_birth_max_explained]
             if unexplained.shape[0]:
-                births = phd.ray_births(
-                    unexplained,
-                    cfg.camera_birth_weight,
-                    cfg.camera_birth_components,
-                    cfg.camera_birth_min_range_m,
-                    cfg.camera_birth_max_range_m,
-                    CAMERA_BIRTH_RADIAL_STD_FRACTION,
-                    cfg.camera_bearing_var,
-                    cfg.camera_pd_offset,
-                    cfg.camera_pd_slope_per_m,
-                    cfg.camera_pd_midpoint_m,
-                )
+                births = phd.camera_ray_births(cfg, unexplained)
                 births = births[:, births[ROW_W] >= cfg.prune_threshold]
                 if births.shape[1]:
                     self._poisson = reduce(

@@ -72,9 +72,7 @@ def camera_bearing_errors(
     ``camera_fade`` as the env does: per pair, the error (rad, wrapped) of the bearing of the
     teammate's strip, NaN where it was not detected, shape (n_pairs,)."""
     cfg = make_config(preset)
-    scene, bearings_rad = make_pair_scene(
-        rng, range_m, n_pairs, cfg.robot.camera_holder_radius_m
-    )
+    scene, bearings_rad = make_pair_scene(rng, range_m, n_pairs, cfg.robot.camera_holder_radius_m)
     observers = np.arange(0, scene.n_robots, 2)
     batch = CameraSensor(cfg.camera).observe(scene, observers, rng)
     frames, sources = batch.bearings, batch.sources

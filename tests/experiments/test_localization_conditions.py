@@ -23,8 +23,12 @@ def test_band_pct_weights_bins_by_their_pair_steps():
 
 
 def _row(median, gospa, ugv0, cost=1.0):
-    return {"pair_median_pct": median, "gospa_m": gospa, "ugv0_above_25": ugv0,
-            "cost_ms_per_step": cost}
+    return {
+        "pair_median_pct": median,
+        "gospa_m": gospa,
+        "ugv0_above_25": ugv0,
+        "cost_ms_per_step": cost,
+    }
 
 
 def test_goals_say_missed_when_the_camera_makes_it_worse():
@@ -55,15 +59,18 @@ def test_camera_rays_config_comes_from_the_measured_camera():
     assert phd.lidar_pd_midpoint_m == SIMULATOR_PHD.lidar_pd_midpoint_m  # the rest unchanged
 
 
-def test_tiny_run_writes_a_results_page_file(tmp_path):
-    code = lc.main(
-        ["--presets", "perera2021", "--decision-seeds", "0", "--report-seeds", "4",
-         "--duration", "2", "--out", str(tmp_path)]
-    )
-    assert code == 0
-    path = tmp_path / "localization_conditions_perera2021.json"
+def _tiny(tmp_path, preset: str, *extra: str) -> dict:
+    """A 2 s run of ``preset`` on report seed 4: its results file, checked by the page."""
+    args = ["--presets", preset, "--report-seeds", "4", "--duration", "2", *extra]
+    assert lc.main([*args, "--out", str(tmp_path)]) == 0
+    path = tmp_path / f"localization_conditions_{preset.replace('-', '_')}.json"
     data = json.loads(path.read_text())
     _check(path.name, data)  # the results page accepts it
+    return data
+
+
+def test_tiny_run_writes_a_results_page_file(tmp_path):
+    data = _tiny(tmp_path, "perera2021", "--decision-seeds", "0")
     assert data["seeds"] == {"decision": [0], "report": [4]}
     assert [r[0] for r in data["table"]["rows"]] == list(lc.LOCALIZERS)
     for name in lc.LOCALIZERS:
@@ -77,16 +84,24 @@ def test_tiny_run_writes_a_results_page_file(tmp_path):
 
 
 def test_tiny_simulator_run_has_the_camera_rays_row(tmp_path):
-    assert lc.main(["--presets", "lab-3m-4", "--report-seeds", "4", "--duration", "2",
-                    "--out", str(tmp_path)]) == 0
-    data = json.loads((tmp_path / "localization_conditions_lab_3m_4.json").read_text())
+    data = _tiny(tmp_path, "lab-3m-4")
     assert data["table"]["rows"][-1][0] == lc.CAMERA_RAYS
     assert any(v.startswith(lc.CAMERA_RAYS) for v in data["verdict"].split("; "))
 
 
 def test_report_seeds_must_not_be_decision_seeds(tmp_path):
     with pytest.raises(ValueError, match="decision seeds"):
-        lc.main(["--presets", "lab-3m-4", "--decision-seeds", "0,1", "--report-seeds", "1",
-                 "--out", str(tmp_path)])
+        lc.main(
+            [
+                "--presets",
+                "lab-3m-4",
+                "--decision-seeds",
+                "0,1",
+                "--report-seeds",
+                "1",
+                "--out",
+                str(tmp_path),
+            ]
+        )
     with pytest.raises(ValueError, match="preset"):
         lc.main(["--presets", "nope", "--out", str(tmp_path)])

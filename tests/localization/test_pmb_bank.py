@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-
 import pickle
 
 import numpy as np

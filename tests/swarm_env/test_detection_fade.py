@@ -118,7 +118,9 @@ def test_thinning_keeps_order_and_leaves_clutter():
 
 
 def _rollout(preset: str, seed: int, steps: int, **overrides):
-    env = parallel_env(preset, task="wander", observation="measurements", localize=False, **overrides)
+    env = parallel_env(
+        preset, task="wander", observation="measurements", localize=False, **overrides
+    )
     try:
         env.reset(seed=seed)
         far_lidar, far_camera, trace = 0, 0, []
@@ -141,7 +143,9 @@ def _rollout(preset: str, seed: int, steps: int, **overrides):
 def test_env_applies_the_fades_deterministically():
     a = _rollout("perera2021", 3, 20)
     b = _rollout("perera2021", 3, 20)
-    assert len(a[2]) == len(b[2]) and all(np.array_equal(x, y) for x, y in zip(a[2], b[2]))
+    assert len(a[2]) == len(b[2]) and all(
+        np.array_equal(x, y) for x, y in zip(a[2], b[2], strict=True)
+    )
     unfaded = _rollout("perera2021", 3, 20, lidar_fade=None, camera_fade=None)
     # eq. 19 keeps < 30 % beyond 1.6 m where the geometric lidar keeps nearly all; eq. 30
     # drops about 10 % of every bearing.
