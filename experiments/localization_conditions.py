@@ -423,6 +423,7 @@ def main(argv: list[str] | None = None) -> int:
         raise ValueError(f"--duration must be > 0 s, got {args.duration!r}")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    commit = _commit()  # the code that runs: later commits during the run are not it
     command = "python -m experiments.localization_conditions " + " ".join(
         argv if argv is not None else sys.argv[1:]
     )
@@ -437,6 +438,7 @@ def main(argv: list[str] | None = None) -> int:
             else None
         )
         data = result_file(preset, rows, decision, report, duration, command.strip(), cost)
+        data["commit"] = commit
         path = out / f"localization_conditions_{preset.replace('-', '_')}.json"
         path.write_text(json.dumps(_finite(data), indent=1, allow_nan=False) + "\n")
         print(f"{preset}: {time.perf_counter() - t0:.0f} s -> {path}")
