@@ -394,6 +394,11 @@ class PHDConfig:
     max_components: int = 64
     min_range_m: float = 0.1
 
+    @classmethod
+    def perera2021(cls) -> PHDConfig:
+        """The Perera 2021 study's filter: its eqs. 10-30 with its stated constants."""
+        return cls()
+
     def __post_init__(self) -> None:
         check_number_fields(self)
         _check_choice("mode", self.mode, MODES)

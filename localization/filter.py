@@ -37,7 +37,7 @@ import numpy as np
 from swarm_core.validation import as_float_array
 
 from . import object_clutter, phd
-from .config import CAMERA_BIRTH_RADIAL_STD_FRACTION, PHDConfig, config_with_overrides
+from .config import PHDConfig, config_with_overrides
 from .detection import DetectionModel
 from .frames import bearings_to_filter_frame, points_to_filter_frame
 from .mixture import N_ROWS, ROW_PXX, ROW_W, ROW_X, ROW_Y, GaussianMixture, empty_table
@@ -485,18 +485,7 @@ class RobotCentricPHD(RobotCentricFilter):
                 # join this frame's posterior (the bearing is their own update).
                 unexplained = brg[explained < cfg.camera_birth_max_explained]
                 if unexplained.shape[0]:
-                    births = phd.ray_births(
-                        unexplained,
-                        cfg.camera_birth_weight,
-                        cfg.camera_birth_components,
-                        cfg.camera_birth_min_range_m,
-                        cfg.camera_birth_max_range_m,
-                        CAMERA_BIRTH_RADIAL_STD_FRACTION,
-                        cfg.camera_bearing_var,
-                        cfg.camera_pd_offset,
-                        cfg.camera_pd_slope_per_m,
-                        cfg.camera_pd_midpoint_m,
-                    )
+                    births = phd.camera_ray_births(cfg, unexplained)
                     births[ROW_W] *= self._visibility(births, offset)
                     out = np.concatenate((out, births), axis=1)
         self._table = self._reduce(out)

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .config import PROCESS_CLOCK_RESET_S
+from .config import CAMERA_BIRTH_RADIAL_STD_FRACTION, PROCESS_CLOCK_RESET_S
 from .detection import inverse_sigmoid
 from .gaussian import TINY, bearing_update, frame_change_matrix, position_update
 from .mixture import N_ROWS, ROW_PXX, ROW_PXY, ROW_PYY, ROW_W, ROW_X, ROW_Y
@@ -38,6 +38,7 @@ __all__ = [
     "camera_update",
     "missed_weights",
     "ray_births",
+    "camera_ray_births",
 ]
 
 
@@ -393,6 +394,25 @@ def ray_births(
     out[ROW_PXY] = (radial_var - cross_var) * (c * s)
     out[ROW_PYY] = radial_var * (s * s) + cross_var * (c * c)
     return out.reshape(N_ROWS, -1)
+
+
+def camera_ray_births(config, bearings: np.ndarray) -> np.ndarray:
+    """:func:`ray_births` of ``bearings`` (M,) with ``config``'s (a ``PHDConfig``) camera
+    birth and camera models: ``camera_birth_weight`` per bearing over
+    ``[camera_birth_min_range_m, camera_birth_max_range_m]`` in ``camera_birth_components``
+    cells, the range-dependent ``R_C`` and the camera's range factor. Shape (6, M K)."""
+    return ray_births(
+        bearings,
+        config.camera_birth_weight,
+        config.camera_birth_components,
+        config.camera_birth_min_range_m,
+        config.camera_birth_max_range_m,
+        CAMERA_BIRTH_RADIAL_STD_FRACTION,
+        config.camera_bearing_var,
+        config.camera_pd_offset,
+        config.camera_pd_slope_per_m,
+        config.camera_pd_midpoint_m,
+    )
 
 
 def lidar_update(

@@ -39,6 +39,10 @@ COMPILING_COMMANDS = (
 #: What each preset models (``swarm_env.config.PRESETS`` holds the values).
 PRESET_DESCRIPTIONS = {
     "sim-6m-20": "the source study's simulation: 20 UGVs, 6 m x 6 m walled arena, boxes, decoys",
+    "perera2021": (
+        "the source study's simulation with its own sensors and filter: 20 UGVs, 6 m x 6 m, "
+        "lidar fading as its eq. 19, camera bearings with 5 deg noise fading as eq. 30, no decoys"
+    ),
     "lab-3m-4": "the source study's lab test area: 4 UGVs, 3 m x 3 m, 2 decoy posts, 1 red decoy",
     "seed-uav": (
         "the Stegagno et al. ICRA 2013 setup: 3 UGVs, 2.5 m x 2.5 m, radio on, under a UAV "

@@ -891,10 +891,12 @@ CAMERA_SCORING_RANGE_M = 3.0
 
 
 def _uses_camera(localizer: Any) -> bool:
-    """Whether ``localizer`` runs camera updates (its PHD config's mode is lidar-camera)."""
+    """Whether ``localizer`` runs camera updates (its PHD config's mode is lidar-camera; a
+    PMB's config holds its PHD config as ``phd``)."""
     config = getattr(localizer, "config", None) or getattr(
         getattr(localizer, "bank", None), "config", None
     )
+    config = getattr(config, "phd", config)
     return getattr(config, "mode", None) == "lidar-camera"
 
 
