@@ -287,6 +287,9 @@ def write_learning_curve(
     colours = {"random": "tab:gray"}
     if report:
         baselines = list(report["scores"])[1:]
+        others = iter(("tab:green", "tab:orange", "tab:purple", "tab:brown", "tab:olive"))
+        for base in baselines:
+            colours.setdefault(base, next(others, "tab:green"))
         for ax, key, _ in panels:
             for base in baselines:
                 value = report["scores"][base]["mean"].get(key)
