@@ -59,7 +59,7 @@ def test_tracks_two_static_teammates():
     ],
 )
 def test_bad_input_raises_naming_argument_and_leaves_state_unchanged(method, args, name):
-    f = tracked_filter(PHDConfig(birth="measurement"))
+    f = tracked_filter(PHDConfig.perera2021().replace(births={"model": "measurement"}))
     f.update_lidar(np.array([[1.5, -1.5]]))  # leaves a pending measurement birth
     before = snapshot(f)
     with pytest.raises(ValueError, match=name):
@@ -104,15 +104,15 @@ def test_error_messages_show_the_offending_value():
 )
 def test_bad_config_raises_naming_the_field(field, value):
     with pytest.raises(ValueError, match=field):
-        PHDConfig(**{field: value})
+        PHDConfig.perera2021().replace(**{field: value})
 
 
 def test_config_is_frozen_and_keyword_overrides_work():
-    cfg = PHDConfig()
+    cfg = PHDConfig.perera2021()
     with pytest.raises(AttributeError):
         cfg.mode = "lidar-only"  # type: ignore[misc]
-    f = RobotCentricPHD(cfg, mode="lidar-only", max_components=10)
-    assert f.config.mode == "lidar-only" and f.config.max_components == 10
+    f = RobotCentricPHD(cfg, mode="lidar-only", reduction={"max_components": 10})
+    assert f.config.mode == "lidar-only" and f.config.reduction.max_components == 10
     with pytest.raises(ValueError, match="unknown"):
         RobotCentricPHD(cfg, not_a_field=1)
     with pytest.raises(ValueError, match="PHDConfig"):
@@ -133,7 +133,7 @@ def test_empty_updates_are_valid_and_apply_missed_detection():
 
 
 def test_lidar_only_mode_ignores_camera():
-    f = tracked_filter(PHDConfig(mode="lidar-only"))
+    f = tracked_filter(PHDConfig.perera2021().replace(mode="lidar-only"))
     before = snapshot(f)
     f.update_camera(np.array([0.3, -2.0]))
     assert_unchanged(f, before)
@@ -159,7 +159,7 @@ def test_mixture_is_a_read_only_snapshot():
 
 
 def test_pickle_and_deepcopy_give_independent_equal_filters():
-    f = tracked_filter(PHDConfig(birth="measurement"))
+    f = tracked_filter(PHDConfig.perera2021().replace(births={"model": "measurement"}))
     f.update_lidar(np.array([[1.0, 0.3], [-0.5, 0.8], [1.7, -0.2]]))
     for clone in (pickle.loads(pickle.dumps(f)), copy.deepcopy(f), copy.copy(f)):
         assert clone.config == f.config
@@ -213,7 +213,7 @@ def test_set_mixture_validates():
 
 
 def test_measurement_birth_confirms_a_new_teammate_in_a_few_scans():
-    f = RobotCentricPHD(PHDConfig(birth="measurement"))
+    f = RobotCentricPHD(PHDConfig.perera2021().replace(births={"model": "measurement"}))
     z = np.array([[0.8, -0.4]])
     counts = []
     for _ in range(4):
@@ -232,7 +232,7 @@ def test_measurement_birth_confirms_a_new_teammate_in_a_few_scans():
 
 
 def test_interference_lowers_detection_probability_at_null_bearings():
-    f = tracked_filter(PHDConfig(mode="lidar-only"))
+    f = tracked_filter(PHDConfig.perera2021().replace(mode="lidar-only"))
     g = copy.deepcopy(f)
     bearing = math.atan2(0.3, 1.0)
     f.update_lidar(np.empty((0, 2)))
@@ -242,7 +242,7 @@ def test_interference_lowers_detection_probability_at_null_bearings():
 
 
 def test_component_count_stays_capped():
-    cfg = PHDConfig(max_components=8)
+    cfg = PHDConfig.perera2021().replace(reduction={"max_components": 8})
     f = RobotCentricPHD(cfg)
     rng = np.random.default_rng(0)
     for _ in range(30):

@@ -12,11 +12,21 @@ def test_lidar_camera_beats_lidar_only_on_the_seed_metric():
     # The synthetic sensors follow the Perera 2021 study's models (eq. 19 lidar range factor, fixed
     # births), so the filters run with them: PHDConfig().
     lc = [
-        run_scenario("lidar-camera", seed=s, steps=400, config=PHDConfig(mode="lidar-camera"))
+        run_scenario(
+            "lidar-camera",
+            seed=s,
+            steps=400,
+            config=PHDConfig.perera2021().replace(mode="lidar-camera"),
+        )
         for s in (0, 1)
     ]
     lo = [
-        run_scenario("lidar-only", seed=s, steps=400, config=PHDConfig(mode="lidar-only"))
+        run_scenario(
+            "lidar-only",
+            seed=s,
+            steps=400,
+            config=PHDConfig.perera2021().replace(mode="lidar-only"),
+        )
         for s in (0, 1)
     ]
     for c, o in zip(lc, lo, strict=True):

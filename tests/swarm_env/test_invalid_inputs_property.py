@@ -142,7 +142,7 @@ def test_any_config_field_refuses_hostile_values_naming_it_or_runs(field, value)
     [
         # Found by the property test above (each was accepted, or failed without the field).
         ({"n_robots": 10**400}, "n_robots is too large"),  # was OverflowError
-        ({"phd": {"birth_weight": 10**400}}, "birth_weight is too large"),
+        ({"phd": {"births": {"weight": 10**400}}}, "birth_weight is too large"),
         ({"lidar_features": {"foreground_only": None}}, "foreground_only must be True or False"),
         ({"localize": 1}, "localize must be True or False"),
         ({"arena": {"box_size_range_m": 0.5}}, "box_size_range_m must be a tuple"),  # TypeError
@@ -167,17 +167,19 @@ PHD_GAPS = [
     # PHDConfig once accepted these; the env then failed with an error that did not name the
     # field (OverflowError, ZeroDivisionError, numba's SystemError). Now refused by its
     # plausibility bounds and the max_components cost guard.
-    {"process_noise_std_m": 1e300},
-    {"birth_std_m": 1e300},
-    {"lidar_noise_std_m": 1e300},
-    {"camera_noise_std_deg": 1e300},
-    {"occlusion_std_deg": 1e300},
-    {"occlusion_std_deg": 1e-300},
-    {"interference_std_deg": 1e-300},
-    {"measurement_birth_cov_scale": 1e300},  # numba SystemError inside apply_calls
-    {"camera_noise_width_fraction": 1e300},  # numba SystemError
-    {"process_noise_interval_s": 1e-300},  # numba SystemError (Q / interval overflows)
-    {"max_components": 10**18},  # "array is too big" from numpy, no field named
+    {"prediction": {"process_noise_std_m": 1e300}},
+    {"births": {"std_m": 1e300}},
+    {"lidar": {"noise_std_m": 1e300}},
+    {"camera": {"noise_std_deg": 1e300}},
+    {"lidar": {"occlusion_std_deg": 1e300}},
+    {"lidar": {"occlusion_std_deg": 1e-300}},
+    {"lidar": {"interference_std_deg": 1e-300}},
+    {"births": {"measurement_cov_scale": 1e300}},  # numba SystemError inside apply_calls
+    {"camera": {"noise_width_fraction": 1e300}},  # numba SystemError
+    {
+        "prediction": {"process_noise_interval_s": 1e-300}
+    },  # numba SystemError (Q / interval overflows)
+    {"reduction": {"max_components": 10**18}},  # "array is too big" from numpy, no field named
 ]
 
 
