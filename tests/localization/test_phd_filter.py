@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import math
 import pickle
+import re
 
 import numpy as np
 import pytest
@@ -81,30 +82,52 @@ def test_error_messages_show_the_offending_value():
     "field, value",
     [
         ("mode", "camera-only"),
-        ("birth", "adaptive"),
-        ("lidar_pd_model", "sigmoid"),
-        ("process_noise_std_m", -0.1),
-        ("process_noise_std_m", float("nan")),
-        ("lidar_noise_std_m", 0.0),
-        ("survival_probability", 1.5),
-        ("lidar_detection_probability", -0.1),
-        ("prune_threshold", 1.0),
-        ("merge_threshold", 0.0),
-        ("max_components", 0),
-        ("max_components", 2.5),
-        ("blind_sector_widths_deg", (10.0, 10.0)),
-        ("blind_sector_centers_deg", (45.0, float("inf"), 0.0, 1.0)),
-        ("birth_mean_m", (0.0,)),
-        ("survival_offset", 0.5),
-        ("camera_clutter_intensity", -1.0),
-        ("interference_depth", 2.0),
-        ("min_range_m", 0.0),
-        ("birth_weight", "0.1"),
+        ("births.model", "adaptive"),
+        ("lidar.pd_model", "sigmoid"),
+        ("prediction.process_noise_std_m", -0.1),
+        ("prediction.process_noise_std_m", float("nan")),
+        ("lidar.noise_std_m", 0.0),
+        ("prediction.survival_probability", 1.5),
+        ("lidar.detection_probability", -0.1),
+        ("reduction.prune_threshold", 1.0),
+        ("reduction.merge_threshold", 0.0),
+        ("reduction.max_components", 0),
+        ("reduction.max_components", 2.5),
+        ("lidar.blind_sector_widths_deg", (10.0, 10.0)),
+        ("lidar.blind_sector_centers_deg", (45.0, float("inf"), 0.0, 1.0)),
+        ("births.mean_m", (0.0,)),
+        ("prediction.survival_offset", 0.5),
+        ("camera.clutter_intensity", -1.0),
+        ("lidar.interference_depth", 2.0),
+        ("reduction.min_range_m", 0.0),
+        ("births.weight", "0.1"),
     ],
 )
 def test_bad_config_raises_naming_the_field(field, value):
-    with pytest.raises(ValueError, match=field):
-        PHDConfig.perera2021().replace(**{field: value})
+    """Each component checks its own fields: the error names ``component.field``."""
+    component, _, name = field.rpartition(".")
+    change = {component: {name: value}} if component else {field: value}
+    with pytest.raises(ValueError, match=re.escape(field)):
+        PHDConfig.perera2021().replace(**change)
+
+
+@pytest.mark.parametrize(
+    "old, new",
+    [
+        ("camera_noise_std_deg", "camera.noise_std_deg"),
+        ("birth", "births.model"),
+        ("lidar_pd_offset", "lidar.pd_offset"),
+        ("max_components", "reduction.max_components"),
+        ("process_noise_std_m", "prediction.process_noise_std_m"),
+    ],
+)
+def test_an_old_flat_field_is_refused_naming_its_new_place(old, new):
+    with pytest.raises(ValueError, match=re.escape(f"{old} is now {new}")):
+        PHDConfig().replace(**{old: 1.0})
+    with pytest.raises(ValueError, match=re.escape(f"{old} is now {new}")):
+        RobotCentricPHD(**{old: 1.0})
+    with pytest.raises(ValueError, match="scan_evidence was removed"):
+        PHDConfig().replace(scan_evidence=False)
 
 
 def test_config_is_frozen_and_keyword_overrides_work():
