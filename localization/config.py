@@ -112,6 +112,7 @@ class _Checks:
     """The field checks of the components: every error names ``<component>.<field>`` (the
     component's ``PREFIX``) and the value."""
 
+    __slots__ = ()
     PREFIX: ClassVar[str] = ""
 
     def _name(self, name: str) -> str:
@@ -174,9 +175,8 @@ class PredictionModel(_Checks):
         ``("advance", stamp_s)`` calls :func:`~localization.feed.localizer_calls` emits). The
         simulated camera frames arrive three times per odometry sample: under ``"odometry"`` a
         teammate keeps moving between them while its covariance stands still (1 cm of motion at
-        0.5 m is 1.2 sigma of the simulated camera's bearing noise there, per frame;
-        ``docs/concepts/localizers.md``, "When Q goes in"). Calls without stamps get the
-        Perera 2021 study's behaviour.
+        0.5 m is 1.2 sigma of the simulated camera's bearing noise there, per frame). Calls
+        without stamps get the Perera 2021 study's behaviour.
     process_noise_interval_s : float
         The interval over which ``process_noise_std_m`` accrues (the odometry period, 0.1 s).
     survival_model : str
@@ -256,8 +256,8 @@ class LidarModel(_Checks):
         ``<= 0.5 deg`` wide, ending where enough of the housing clears the sector (the X4 at
         1 m: 4.9 deg from the centre of a 10 deg sector). The Perera 2021 bump (sigma 5 deg) is
         wrong for the simulated X4: measured 0.04 at 2-4 deg from a centre against the bump's
-        0.17, and 0.93 at 6-8 deg against 0.62 (``docs/concepts/localizers.md``, "The blind
-        sectors' notch").
+        0.17, and 0.93 at 6-8 deg against 0.62 (``benchmarks/RESULTS.md``, "Sensor detection
+        curves").
     beam_spacing_deg : float
         Angle between consecutive beams: the X4's 720 per turn, 0.5 deg (the simulated
         ``LidarConfig.n_beams``).
@@ -682,8 +682,7 @@ class PHDConfig:
         at ``r ~ 1`` it takes an established track to ``1 - P_d`` after one missed frame
         (0.09 with the Perera 2021 study's camera), while the exact missed posterior of a target
         that was certainly there is still ``r (1 - P_d) / (1 - r P_d)`` (0.64 after a time update
-        with ``P_s = 0.95``): one dropped blob does not kill the track, three in a row do
-        (``docs/concepts/localizers.md``, "Missed detections: the Bernoulli term"). With a
+        with ``P_s = 0.95``): one dropped blob does not kill the track, three in a row do. With a
         gated measurement ``Lambda`` is large and the missed copy vanishes, so a detected
         track is not inflated towards ``1 / P_d``. Detected copies keep the PHD weights.
     prediction : PredictionModel

@@ -74,10 +74,9 @@ class PMBBank(FilterBank):
 
     @property
     def reads_scans(self) -> bool:
-        """Whether the lidar calls' scan profiles are used: for the wide objects' camera
-        clutter (``config.phd.models_wide_objects``); the scan evidence is the GM-PHD's
-        only. A :class:`~localization.feed.SwarmFeed` packs them only then."""
-        return bool(self.config.phd.models_wide_objects)
+        """Whether the lidar calls' scan profiles are used (``PHDConfig.reads_scans``). A
+        :class:`~localization.feed.SwarmFeed` packs them only then."""
+        return self.config.phd.reads_scans
 
     def filter_with_mixture(self, mixture: GaussianMixture) -> RobotCentricPMB:
         """A reference filter whose tracks are ``mixture`` (weights = existences in

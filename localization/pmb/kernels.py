@@ -456,7 +456,7 @@ def _apply_call(q, state, calls, params):
         )
         after_predict(pending_counts, r, memory, odo)
     elif kind == LIDAR:
-        # The profiles are kept for the wide objects only: the scan evidence is the GM-PHD's.
+        # The profiles are kept for the wide objects' camera clutter only.
         pts, nul = lidar_call_inputs(calls, j, memory, fp[F_WIDE_CLUTTER] > 0.0, fp)
         t, n_t, p, n_p, explained = _lidar(
             tab, nt, pois, npz, pts, nul, fp, ip, sector_scaled, sector_params, pf, pi
