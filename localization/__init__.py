@@ -5,9 +5,9 @@ odometry, lidar detections, camera bearings) and estimates, in its own body fram
 teammates are around it and where. Nothing here knows about the simulator, PettingZoo or ROS.
 
 >>> from localization import PHDConfig, RobotCentricPHD
->>> f = RobotCentricPHD(PHDConfig())          # seed defaults; PHDConfig(mode="lidar-only") for LO
+>>> f = RobotCentricPHD(PHDConfig())  # the simulator's model; PHDConfig.perera2021(): the study's
 
-Modules: :mod:`~localization.config` (``PHDConfig``), :mod:`~localization.mixture`
+Modules: :mod:`~localization.config` (``PHDConfig`` and its components), :mod:`~localization.mixture`
 (``GaussianMixture`` and the component table), :mod:`~localization.gaussian` (Kalman/EKF
 math), :mod:`~localization.detection` (``P_s``, ``P_d``), :mod:`~localization.phd` (time and
 measurement updates), :mod:`~localization.reducer` (prune/merge/cap),

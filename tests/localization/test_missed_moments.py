@@ -38,15 +38,6 @@ def test_moments_match_monte_carlo(mean, cov):
 
 def test_flat_detection_probability_leaves_the_copy_as_the_seed_has_it():
     """Well inside the lidar's range f is flat: the missed copy is the prior reweighted."""
-    cfg = PHDConfig.perera2021().replace(
-        lidar={
-            "missed_moments": True,
-            "pd_offset": 1.0,
-            "pd_midpoint_m": 3.0,
-            "pd_slope_per_m": 8.78,
-            "occlusion_min_separation_m": 0.0,
-        }
-    )
     plain = PHDConfig.perera2021().replace(
         lidar={
             "pd_offset": 1.0,
@@ -55,6 +46,7 @@ def test_flat_detection_probability_leaves_the_copy_as_the_seed_has_it():
             "occlusion_min_separation_m": 0.0,
         }
     )
+    cfg = plain.replace(lidar={"missed_moments": True})
     mix = GaussianMixture(np.array([0.8]), np.array([[0.6, 0.2]]), np.array([0.002 * np.eye(2)]))
     tables = []
     for c in (cfg, plain):

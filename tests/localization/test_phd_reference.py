@@ -275,6 +275,12 @@ def test_occlusion_hides_the_farther_component():
     assert pd[0] > 0.9
 
 
+def assert_table_is(table: np.ndarray, reference: tuple) -> None:
+    """``table`` (6, N) holds the reference's ``(weights, means, covariances)``."""
+    for got, want in zip(arrays_from_table(table), reference, strict=True):
+        assert np.allclose(got, want, rtol=RTOL, atol=ATOL)
+
+
 @pytest.mark.parametrize("seed", range(8))
 def test_lidar_update_matches_reference(seed):
     rng = np.random.default_rng(100 + seed)
@@ -292,11 +298,7 @@ def test_lidar_update_matches_reference(seed):
 
     table = table_from_arrays(w, m, c)
     out, _ = phd.lidar_update(table, points, pd, 0.0025, 0.3)
-    gw, gm, gc = arrays_from_table(out)
-    rw, rm, rc = ref_lidar_update(w, m, c, points, pd, 0.0025, 0.3)
-    assert np.allclose(gw, rw, rtol=RTOL, atol=ATOL)
-    assert np.allclose(gm, rm, rtol=RTOL, atol=ATOL)
-    assert np.allclose(gc, rc, rtol=RTOL, atol=ATOL)
+    assert_table_is(out, ref_lidar_update(w, m, c, points, pd, 0.0025, 0.3))
 
 
 @pytest.mark.parametrize("seed", range(8))
@@ -312,11 +314,7 @@ def test_camera_update_matches_reference(seed):
     from localization import phd
 
     out, _ = phd.camera_update(table_from_arrays(w, m, c), bearings, pd, rcam, 0.2, 0.1)
-    gw, gm, gc = arrays_from_table(out)
-    rw, rm, rc = ref_camera_update(w, m, c, bearings, pd, rcam, 0.2, 0.1)
-    assert np.allclose(gw, rw, rtol=RTOL, atol=ATOL)
-    assert np.allclose(gm, rm, rtol=RTOL, atol=ATOL)
-    assert np.allclose(gc, rc, rtol=RTOL, atol=ATOL)
+    assert_table_is(out, ref_camera_update(w, m, c, bearings, pd, rcam, 0.2, 0.1))
 
 
 @pytest.mark.parametrize("seed", range(12))
