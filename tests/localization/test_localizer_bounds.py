@@ -302,19 +302,19 @@ def check_pmb(loc, before, after, kind, rec, r, state) -> None:
 def check_id_phd(loc, before, after, kind, rec, r, state) -> None:
     cfg = loc.filters[r].config
     w0, w1 = before["full_w"].sum(), after["full_w"].sum()
-    assert after["full_w"].shape[0] <= cfg.reduction.max_components
+    assert after["full_w"].shape[0] <= cfg.max_components
     assert after["table"][ROW_W].sum() <= w1 + TOL  # the teammates' part of the mixture
     teammates = set(range(R)) - {r}
     tags = set(after["tags"].tolist())
     assert tags <= teammates | {-1, -2}, f"robot {r}: tags {tags}"
     assert after["ids"] <= teammates
     if rec.odometry:
-        bound = cfg.prediction.survival_probability * (w0 + cfg.births.weight * state["pending"])
+        bound = cfg.survival_probability * (w0 + cfg.birth_weight * state["pending"])
     elif rec.lidar:
         lid = rec.lidar[0]
         pd = _lowest_pd_after_advance(DetectionModel(cfg.detection), before["full_table"], lid)
         bound = (before["full_w"] * (1.0 - pd)).sum() + lid.detections.shape[0]
-        assert np.all(after["full_w"] >= cfg.reduction.prune_threshold)
+        assert np.all(after["full_w"] >= cfg.prune_threshold)
     else:  # camera frames are not used
         np.testing.assert_array_equal(after["full_w"], before["full_w"])
         return

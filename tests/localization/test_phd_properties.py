@@ -55,8 +55,8 @@ def assert_valid(f: RobotCentricPHD) -> None:
         min_size=1,
         max_size=6,
     ),
+    birth=st.sampled_from(["fixed", "measurement"]),
     pd_model=st.sampled_from(["seed", "constant"]),
-    births={"model": st.sampled_from(["fixed", "measurement"])},
 )
 def test_updates_keep_a_valid_mixture(steps, birth, pd_model):
     f = RobotCentricPHD(
