@@ -87,11 +87,12 @@ def score(
     ``phases`` (first steps), also of each per-step task series over each phase
     (:func:`phase_metrics`, e.g. ``formation_error_m@150-``)."""
     from agents.policies import load_policy
+    from agents.pretrained import resolve
     from swarm_env import parallel_env
     from swarm_env.tasks import task_needs_estimates
 
     kwargs = dict(env_kwargs)
-    spec = policy_spec
+    spec = resolve(policy_spec)
     # A localization term on the estimate needs the filters whatever the policy reads.
     needs = task_needs_estimates(kwargs.get("task", "wander"), kwargs.get("task_params"))
     # scripted:NAME@truth runs in an env on the truth; privileged:NAME@truth reads the truth

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from agents import scripted
+from agents.pretrained import resolve as resolve_pretrained
 
 SCRIPTED: dict[str, Callable[..., scripted.ScriptedPolicy]] = {
     "wander": scripted.WanderPolicy.for_env,
@@ -92,6 +93,18 @@ def trust_policy_files() -> None:
     os.environ[TRUST_POLICY_ENV] = "1"
 
 
+def add_trust_policy_argument(parser: Any) -> None:
+    """``--trust-policy`` of ``evaluate`` and ``record`` (an ``argparse`` parser): the commands
+    then call :func:`trust_policy_files`."""
+    parser.add_argument(
+        "--trust-policy",
+        action="store_true",
+        help="load an SB3 .zip from outside a swarm-phd train run with SB3's loader, which "
+        "unpickles objects stored in the file and so can run code in it: only for a file you "
+        "trained or verified yourself (a zip in its run directory loads weights only)",
+    )
+
+
 def trusts_policy_files() -> bool:
     """Whether ``--trust-policy`` was given (:func:`trust_policy_files`)."""
     import os
@@ -102,7 +115,8 @@ def trusts_policy_files() -> bool:
 def load_policy(spec: str, env: Any, trust: bool | None = None) -> Any:
     """Build the policy named by ``spec`` for ``env``.
 
-    ``"random"``: uniform actions from the agents' seeded action spaces. ``"scripted:NAME"``: a
+    ``"random"``: uniform actions from the agents' seeded action spaces. ``"pretrained:NAME"``:
+    a policy shipped with the package (:mod:`agents.pretrained`). ``"scripted:NAME"``: a
     controller from :data:`SCRIPTED`. ``"privileged:NAME"``: a training teacher that also reads
     the simulator's truth (:mod:`agents.sb3.privileged`; a reference, not deployable). Anything
     ending in ``.zip``: a trained SB3 model; in ``.pt``: a recurrent residual student
@@ -115,6 +129,7 @@ def load_policy(spec: str, env: Any, trust: bool | None = None) -> Any:
     whether ``--trust-policy`` was given, :func:`trusts_policy_files`), since SB3's loader
     unpickles it.
     """
+    spec = resolve_pretrained(spec)
     if spec == "random":
         return random_policy(env)
     if spec.startswith("scripted:"):
@@ -144,8 +159,8 @@ def load_policy(spec: str, env: Any, trust: bool | None = None) -> Any:
 
         return load_rllib_policy(checkpoint, env)
     raise ValueError(
-        "policy must be 'random', 'scripted:NAME', 'privileged:NAME', a .zip model, a .pt "
-        "recurrent student or an RLlib run directory (or its checkpoint/), "
+        "policy must be 'random', 'scripted:NAME', 'pretrained:NAME', 'privileged:NAME', a .zip "
+        "model, a .pt recurrent student or an RLlib run directory (or its checkpoint/), "
         f"got {spec!r}"
     )
 
@@ -155,6 +170,7 @@ def rllib_checkpoint(spec: str) -> Path | None:
     ``swarm-phd train --engine rllib`` (its final ``checkpoint/``), that ``checkpoint/``, or one
     of its ``checkpoints/step_<agent steps>/``. The run's ``env_kwargs.json`` must sit next to
     them (:func:`rllib_env_kwargs`)."""
+    spec = resolve_pretrained(spec)
     path = Path(spec)
     if spec.endswith((".zip", ".pt")) or not path.is_dir():
         return None
@@ -183,12 +199,14 @@ def rllib_env_kwargs(checkpoint: Path) -> dict[str, Any]:
 def is_trained_model(spec: str) -> bool:
     """Whether ``spec`` names a trained policy file or run (SB3 ``.zip``, student ``.pt``, RLlib
     run directory): a policy that carries its own env settings (:func:`model_env_kwargs`)."""
+    spec = resolve_pretrained(spec)
     return spec.endswith((".zip", ".pt")) or rllib_checkpoint(spec) is not None
 
 
 def model_env_kwargs(spec: str) -> dict[str, Any] | None:
     """The env kwargs a trained policy was trained in (an SB3 ``.zip``, a recurrent student
     ``.pt`` or an RLlib run directory), or ``None`` for a policy by name."""
+    spec = resolve_pretrained(spec)
     if spec.endswith(".zip"):
         from agents.sb3.policy import read_metadata
 
@@ -237,11 +255,38 @@ def model_on_task(
     return {**out, **overrides, "task": task or own, "task_params": {**params, **given}}
 
 
+def policy_env(preset: str | None, task: str | None, policy: str, **overrides: Any) -> Any:
+    """The env ``policy`` (a ``load_policy`` spec) runs in, as evaluate and record build it:
+    a trained policy's own env (:func:`trained_policy_env`, ``preset``, ``task`` and
+    ``overrides`` over its settings), else ``preset`` (default ``seed-sim``) and ``task``
+    (default ``wander``) with the observation mode the policy reads. Policies that ignore the
+    observation get raw measurements and no filters in the env (an evaluation runs its own),
+    unless the task's reward scores the estimates. Returns a ``SwarmEnv``."""
+    from swarm_env import parallel_env
+
+    model = trained_policy_env(policy, preset, task, **overrides)
+    if model is not None:  # a trained model (.zip) or recurrent student (.pt): its own env
+        preset, task, overrides = model.pop("preset"), model.pop("task"), model
+    else:
+        observation = policy_observation(policy)
+        if observation is None:
+            from swarm_env.tasks import task_needs_estimates
+
+            overrides.setdefault("observation", "measurements")
+            overrides.setdefault(
+                "localize", task_needs_estimates(task or "wander", overrides.get("task_params"))
+            )
+        else:  # e.g. scripted:formation acts on the robot's own PHD estimate
+            overrides.setdefault("observation", observation)
+    return parallel_env(preset or "seed-sim", task=task or "wander", **overrides)
+
+
 def policy_observation(spec: str) -> str | None:
     """The observation mode a scripted policy reads (``"phd"`` for the controllers acting on
     the robot's PHD estimate), or ``None`` if it ignores the observation (``random``,
     ``scripted:wander``: lidar only). Models carry their own mode (see ``agents.sb3.policy``);
     a recurrent student (``.pt``) and an RLlib run read their env's."""
+    spec = resolve_pretrained(spec)
     if spec.endswith(".pt"):
         from agents.sb3.recurrent_student import read_student_metadata
 

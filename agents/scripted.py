@@ -19,7 +19,11 @@ from swarm_env.observation import ESTIMATE_COLUMNS
 
 
 class ScriptedPolicy:
-    """Base class: per-agent state is kept in dicts keyed by agent name."""
+    """Base class: per-agent state is kept in dicts keyed by agent name.
+
+    ``max_speed_mps`` (m/s) and ``max_turn_rate_radps`` (rad/s) are the robot's command limits
+    (``for_env`` takes them from ``env.config.robot``); the subclasses take them as keywords,
+    beside their own parameters."""
 
     name = "scripted"
     #: The agents whose command of the last call was the Perera 2021 study's random walk (drawn
@@ -70,16 +74,16 @@ class WanderPolicy(ScriptedPolicy):
 
     def __init__(
         self,
-        max_speed_mps: float = 0.3,
-        max_turn_rate_radps: float = 1.5,
+        *,
         cruise_fraction: float = 0.6,
         avoid_distance_m: float = 0.45,
         front_half_angle_deg: float = 50.0,
         turn_noise: float = 0.6,
         seed: int | None = 0,
+        **limits: float,
     ) -> None:
-        super().__init__(max_speed_mps, max_turn_rate_radps)
-        self.cruise_mps = cruise_fraction * max_speed_mps
+        super().__init__(**limits)
+        self.cruise_mps = cruise_fraction * self.max_speed_mps
         self.avoid_distance_m = avoid_distance_m
         self.front_half_angle_rad = np.deg2rad(front_half_angle_deg)
         self.turn_noise = turn_noise
@@ -301,11 +305,12 @@ class VectorFieldPolicy(ScriptedPolicy):
     """
 
     observation_modes = ("phd", "truth")
+    #: The task a subclass is written for: :meth:`for_env` refuses an env with another one.
+    task: str | None = None
 
     def __init__(
         self,
-        max_speed_mps: float = 0.3,
-        max_turn_rate_radps: float = 1.5,
+        *,
         top_k: int = 16,
         min_weight: float = 0.5,
         avoid_distance_m: float = 0.3,
@@ -317,6 +322,7 @@ class VectorFieldPolicy(ScriptedPolicy):
         sensing_model: PHDConfig | None = None,
         sensing_margin: float = 0.2,
         restart_mps: float | None = None,
+        **limits: float,
     ) -> None:
         if sensing_model is not None and not isinstance(sensing_model, PHDConfig):
             raise TypeError(
@@ -335,7 +341,7 @@ class VectorFieldPolicy(ScriptedPolicy):
                 f"got {restart_mps!r}"
             )
         self.restart_mps = restart_mps
-        super().__init__(max_speed_mps, max_turn_rate_radps)
+        super().__init__(**limits)
         self.sensing_model = sensing_model
         self.sensing_margin = sensing_margin
         self._sensing_detection = None if sensing_model is None else DetectionModel(sensing_model)
@@ -353,6 +359,8 @@ class VectorFieldPolicy(ScriptedPolicy):
     def for_env(cls, env: Any, sensing_turn: bool = False, **kwargs: Any) -> ScriptedPolicy:
         """The controller for ``env``; ``sensing_turn``: arrived robots turn their lidar's
         blind sectors off their teammates, as ``env.config.phd`` models them."""
+        if cls.task is not None and env.task.name != cls.task:
+            raise ValueError(f"scripted:{cls.name} needs task={cls.task!r}, got {env.task.name!r}")
         if sensing_turn:
             kwargs.setdefault("sensing_model", env.config.phd)
         mode = env.config.observation
@@ -368,7 +376,11 @@ class VectorFieldPolicy(ScriptedPolicy):
         seed = self._seed if seed is None else seed
         self._rng = np.random.default_rng(seed)
         self._scan: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-        self._wander = WanderPolicy(self.max_speed_mps, self.max_turn_rate_radps, seed=seed)
+        self._wander = WanderPolicy(
+            max_speed_mps=self.max_speed_mps,
+            max_turn_rate_radps=self.max_turn_rate_radps,
+            seed=seed,
+        )
         self.wandering = set()
         self._stopped: set[str] = set()  # agents that arrived and have not moved since
 
@@ -513,11 +525,11 @@ class FormationPolicy(VectorFieldPolicy):
     """
 
     name = "formation"
+    task = "formation"
 
     def __init__(
         self,
-        max_speed_mps: float = 0.3,
-        max_turn_rate_radps: float = 1.5,
+        *,
         shape: str = "circle",
         k_p: float = 0.8,
         k_s: float = 0.6,
@@ -536,13 +548,12 @@ class FormationPolicy(VectorFieldPolicy):
         self.k_p = k_p
         self.k_s = k_s
         self.min_neighbours = min_neighbours
-        super().__init__(max_speed_mps, max_turn_rate_radps, **kwargs)
+        super().__init__(**kwargs)
 
     @classmethod
     def for_env(cls, env: Any, **kwargs: Any) -> ScriptedPolicy:
-        if env.task.name != "formation":
-            raise ValueError(f"scripted:formation needs task='formation', got {env.task.name!r}")
-        kwargs.setdefault("shape", env.task.shape)
+        if env.task.name == cls.task:
+            kwargs.setdefault("shape", env.task.shape)
         return super().for_env(env, **kwargs)
 
     def centroid(
@@ -603,11 +614,11 @@ class DispersionPolicy(VectorFieldPolicy):
     """
 
     name = "exploration"
+    task = "exploration"
 
     def __init__(
         self,
-        max_speed_mps: float = 0.3,
-        max_turn_rate_radps: float = 1.5,
+        *,
         spread_m: float = 1.5,
         k_s: float = 0.4,
         cruise_fraction: float = 0.6,
@@ -619,15 +630,7 @@ class DispersionPolicy(VectorFieldPolicy):
         self.spread_m = float(spread_m)
         self.k_s = float(k_s)
         self.cruise_fraction = float(cruise_fraction)
-        super().__init__(max_speed_mps, max_turn_rate_radps, **kwargs)
-
-    @classmethod
-    def for_env(cls, env: Any, **kwargs: Any) -> ScriptedPolicy:
-        if env.task.name != "exploration":
-            raise ValueError(
-                f"scripted:exploration needs task='exploration', got {env.task.name!r}"
-            )
-        return super().for_env(env, **kwargs)
+        super().__init__(**kwargs)
 
     def desired_velocity(self, agent, table, odometry, features):
         pts, w = estimated_neighbours(table, self.min_weight, reference_variance_m2=0.02)
@@ -684,12 +687,12 @@ class EncirclementPolicy(VectorFieldPolicy):
     """
 
     name = "encirclement"
+    task = "encirclement"
     sources = ("beacon", "particle", "estimate")
 
     def __init__(
         self,
-        max_speed_mps: float = 0.3,
-        max_turn_rate_radps: float = 1.5,
+        *,
         k_p: float = 0.8,
         k_t: float = 0.4,
         gate_m: float = 0.4,
@@ -724,7 +727,7 @@ class EncirclementPolicy(VectorFieldPolicy):
                 f"particle_start must be 'uniform' or 'trilateration', got {particle_start!r}"
             )
         self.particle_start = particle_start
-        super().__init__(max_speed_mps, max_turn_rate_radps, **kwargs)
+        super().__init__(**kwargs)
 
     @classmethod
     def for_env(cls, env: Any, **kwargs: Any) -> ScriptedPolicy:
@@ -900,8 +903,7 @@ class AntiSymmetryPolicy(VectorFieldPolicy):
 
     def __init__(
         self,
-        max_speed_mps: float = 0.3,
-        max_turn_rate_radps: float = 1.5,
+        *,
         alpha_mps: float = 0.1,
         gamma_stop_m2: float | None = 0.04,
         n_angles: int = 180,
@@ -910,7 +912,7 @@ class AntiSymmetryPolicy(VectorFieldPolicy):
         self.alpha_mps = alpha_mps
         self.gamma_stop_m2 = gamma_stop_m2
         self.n_angles = n_angles
-        super().__init__(max_speed_mps, max_turn_rate_radps, **kwargs)
+        super().__init__(**kwargs)
 
     def reset(self, seed: int | None = None) -> None:
         super().reset(seed)

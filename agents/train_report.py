@@ -142,16 +142,17 @@ def final_evaluation(
     env_kwargs: dict[str, Any],
     seeds: list[int],
     checkpoints: list[tuple[int, str]] = (),
+    baselines: list[str] | None = None,
 ) -> dict[str, Any]:
     """Score ``policy`` (the final model), each of ``checkpoints`` (``(agent steps, spec)``)
-    and the task's baselines on ``seeds``; pair the policy against each baseline by seed on
-    the headline task metric and the episode return. Returns the report written to
-    ``final_evaluation.json``."""
+    and ``baselines`` (default: the task's, :func:`baselines_for`) on ``seeds``; pair the
+    policy against each baseline by seed on the headline task metric and the episode return.
+    Returns the report written to ``final_evaluation.json``."""
     from agents.evaluation import paired_difference, score
     from swarm_core import progress
 
     task = env_kwargs.get("task", "wander")
-    specs = [policy, *baselines_for(task)]
+    specs = [policy, *(baselines_for(task) if baselines is None else baselines)]
     scores: dict[str, Any] = {}
     for spec in progress.over(specs, "final evaluation", unit="policy"):
         scores[spec] = score(spec, env_kwargs, seeds)

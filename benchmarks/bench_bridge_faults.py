@@ -36,7 +36,13 @@ from hardware_bridge import real_env  # noqa: E402
 from hardware_bridge.bag import BagError, ReplayWorld  # noqa: E402
 from hardware_bridge.config import BridgeConfig  # noqa: E402
 from hardware_bridge.faults import CORRUPTIONS, copy_bag  # noqa: E402
-from hardware_bridge.loopback import FaultConfig, LoopbackServer, hostile_inputs  # noqa: E402
+from hardware_bridge.loopback import (  # noqa: E402
+    FaultConfig,
+    LoopbackServer,
+    hostile_inputs,
+    read_twist_log,
+    spawn,
+)
 from hardware_bridge.world import TransportLostError  # noqa: E402
 from swarm_core.atomic_files import write_text_atomically  # noqa: E402
 
@@ -92,24 +98,11 @@ def stall_latency(n: int) -> dict:
 
 
 def _robot_process(log: Path) -> tuple[subprocess.Popen, int]:
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "hardware_bridge.loopback", "--twist-log", str(log)],
-        cwd=ROOT,
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        env=ENV,
-    )
-    return proc, int(proc.stdout.readline())
+    return spawn(log, cwd=ROOT, env=ENV)
 
 
 def _log_entries(log: Path) -> list[tuple[float, str, float, float]]:
-    out = []
-    for line in log.read_text().splitlines():
-        t, robot, v, w, _age, applied = line.split()
-        if applied == "1":
-            out.append((float(t), robot, float(v), float(w)))
-    return out
+    return [(t, robot, v, w) for t, robot, v, w, applied in read_twist_log(log) if applied]
 
 
 def gil_stall(n: int, guard: bool, stall_s: float = 2.0) -> dict:

@@ -56,8 +56,6 @@ from agents.evaluation import (
 from swarm_core.atomic_files import atomic_write
 from swarm_core.inputs import parse_json_object, parse_seeds
 
-METRICS = ("formation_error_m", "final_formation_error_m", "spacing_error_m")
-
 
 def monitor_curve(run_dir: Path, window: int = 200) -> tuple[np.ndarray, np.ndarray]:
     """(agent timesteps, moving-average episode return) from ``monitor.csv``."""

@@ -98,6 +98,7 @@ def real_env(
     The returned env refuses pickling, copying and vectorisation (it drives real robots).
     """
     from hardware_bridge.config import make_bridge_config
+    from hardware_bridge.estimate import weight_kind_of
     from hardware_bridge.transport import check_host
     from localization.config import PHDConfig, config_with_overrides
     from swarm_env.config import make_config
@@ -152,9 +153,7 @@ def real_env(
         bridge_cfg,
         record,
         onboard=onboard,
-        estimate_weight_kind=("existence" if meaning == "existence" else "intensity")
-        if onboard
-        else None,
+        estimate_weight_kind=weight_kind_of(meaning) if onboard else None,
     )
     try:
         if onboard:

@@ -109,11 +109,8 @@ class RobotEmitter:
             self.odom_pose[robot] = integrate_odometry(self.odom_pose[robot], r.delta)
             t = stamp_ns(r.stamp_s)
             kind, topic = kinds["odometry"]
-            out.append(
-                Outgoing(
-                    r.stamp_s, 0, "odometry", kind, topic, t, self._odometry(robot, t, r.velocity)
-                )
-            )
+            msg = self._odometry(robot, t, r.velocity)
+            out.append(Outgoing(r.stamp_s, _ORDER["odometry"], "odometry", kind, topic, t, msg))
         scan_time = 1.0 / cfg.lidar.rate_hz
         for r in records.lidar:
             t = stamp_ns(r.stamp_s)
@@ -128,7 +125,7 @@ class RobotEmitter:
                 scan_time_s=scan_time,
                 frame_id=f"{robot}/laser",
             )
-            out.append(Outgoing(r.stamp_s, 1, "lidar", kind, topic, t, msg))
+            out.append(Outgoing(r.stamp_s, _ORDER["lidar"], "lidar", kind, topic, t, msg))
         for r in records.camera:
             t = stamp_ns(r.stamp_s)
             kind, topic = kinds["camera"]
@@ -136,11 +133,12 @@ class RobotEmitter:
                 msg = bearings_stamped_msg(t, r.bearings_rad, frame_id=f"{robot}/camera")
             else:
                 msg = bearings_msg(r.bearings_rad)
-            out.append(Outgoing(r.stamp_s, 2, "camera", kind, topic, t, msg))
+            out.append(Outgoing(r.stamp_s, _ORDER["camera"], "camera", kind, topic, t, msg))
         if truth is not None:
             time_s, pose = truth
             t = stamp_ns(time_s)
             kind, topic = kinds["mocap"]
-            out.append(Outgoing(time_s, 3, "mocap", kind, topic, t, pose_stamped_msg(t, *pose)))
+            msg = pose_stamped_msg(t, *pose)
+            out.append(Outgoing(time_s, _ORDER["mocap"], "mocap", kind, topic, t, msg))
         out.sort(key=lambda o: (o.t_s, o.order))
         return out

@@ -44,11 +44,14 @@ import asyncio
 import json
 import logging
 import math
+import subprocess
+import sys
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -954,6 +957,39 @@ def hostile_inputs(robot: str, now_ns: int, max_message_bytes: int) -> dict[str,
 
 
 # ---------------------------------------------------------------------------- subprocess entry
+def spawn(
+    twist_log: str | Path, cwd: str | Path | None = None, env: dict[str, str] | None = None
+) -> tuple[subprocess.Popen, int]:
+    """Loopback robots in a new process (its own GIL; :func:`main`), logging every command
+    they receive to ``twist_log``: returns ``(process, port)`` once it serves. It serves until
+    its stdin closes; its stdout is a pipe, its stderr discarded. ``cwd`` and ``env`` are the
+    child's (default: this process's)."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hardware_bridge.loopback", "--twist-log", str(twist_log)],
+        cwd=cwd,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        env=env,
+    )
+    line = proc.stdout.readline()
+    if not line.strip().isdigit():
+        proc.kill()
+        proc.wait(5)
+        raise RuntimeError(f"loopback process did not start: {line!r}")
+    return proc, int(line)
+
+
+def read_twist_log(path: str | Path) -> list[tuple[float, str, float, float, bool]]:
+    """A ``--twist-log`` file (:func:`main`): ``(monotonic_s, robot, v_mps, omega_radps,
+    applied)`` per command received, in order."""
+    out = []
+    for line in Path(path).read_text().splitlines():
+        t, robot, v, w, _age, applied = line.split()
+        out.append((float(t), robot, float(v), float(w), applied == "1"))
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     """``python -m hardware_bridge.loopback --port 0 [--twist-log FILE] [--uav uav_0]``: serve
     (with a UAV supervisor if asked) until stdin
@@ -961,7 +997,6 @@ def main(argv: list[str] | None = None) -> int:
     without starving the robots). Prints the port, then logs every ``cmd_vel`` received to
     ``FILE`` as ``monotonic_s robot v omega age_s applied`` lines."""
     import argparse
-    import sys
 
     parser = argparse.ArgumentParser(prog="python -m hardware_bridge.loopback")
     parser.add_argument("--port", type=int, default=0)

@@ -17,14 +17,13 @@ refused.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
 
 from hardware_bridge.assembly import RecordAssembler
-from hardware_bridge.estimate import estimate_stamped_msg
-from hardware_bridge.messages import Bearings, Odom, Scan, check_robot_id, ns_to_s, s_to_ns
+from hardware_bridge.estimate import estimate_stamped_msg, weight_kind_of
+from hardware_bridge.messages import Bearings, Odom, Scan, check_robot_id, ns_to_s
 from localization.feed import SwarmFeed
 from localization.registry import LOCALIZERS, make_localizer
 from swarm_core.records import RobotMeasurements
@@ -66,8 +65,7 @@ class OnBoardFilter:
 
     @property
     def weight_kind(self) -> str:
-        meaning = getattr(self.localizer, "weight_meaning", "phd-weight")
-        return "existence" if meaning == "existence" else "intensity"
+        return weight_kind_of(getattr(self.localizer, "weight_meaning", "phd-weight"))
 
     def add(self, message: Odom | Scan | Bearings) -> None:
         """Queue one validated message for the next :meth:`step`."""
@@ -111,13 +109,6 @@ class OnBoardFilter:
             weight_kind=self.weight_kind,
             frame_id=f"{self.robot}/base_link",
         )
-
-
-def replay_records(
-    onboard: OnBoardFilter, steps: Iterable[tuple[float, RobotMeasurements]]
-) -> list[dict[str, Any]]:
-    """Step ``onboard`` over ``(time_s, records)`` pairs; the estimates, in order."""
-    return [onboard.step_records(records, s_to_ns(t)) for t, records in steps]
 
 
 def mixture_arrays(msg: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -471,7 +471,8 @@ def _pack(
         has_profile,
     )
     max_points = int(n_points.max()) if n_l else 0
-    return PackedCalls(encoded, max_points, np.unique(robots).tolist())
+    # the robots with a record, ascending (each record is two of its calls)
+    return PackedCalls(encoded, max_points, np.flatnonzero(per_robot.sum(axis=0)).tolist())
 
 
 @njit(cache=True)

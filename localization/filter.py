@@ -37,7 +37,7 @@ import numpy as np
 from swarm_core.validation import as_float_array
 
 from . import object_clutter, phd
-from .config import CAMERA_BIRTH_RADIAL_STD_FRACTION, PHDConfig, config_with_overrides
+from .config import PHDConfig, config_with_overrides
 from .detection import DetectionModel
 from .frames import bearings_to_filter_frame, points_to_filter_frame
 from .mixture import N_ROWS, ROW_PXX, ROW_W, ROW_X, ROW_Y, GaussianMixture, empty_table
@@ -121,7 +121,8 @@ class RobotCentricFilter:
     def _predict_clock(self, cfg: PHDConfig) -> float:
         """The process-noise clock's time update: the variance ``q`` of its ``Q = q I``."""
         self._clock, q = self._clock.predict(
-            cfg.prediction.process_noise_std_m**2, cfg.prediction.time_update == "measurement"
+            cfg.prediction.process_noise_std_m**2,
+            cfg.prediction.time_update == "measurement",
         )
         return q
 
@@ -483,18 +484,7 @@ class RobotCentricPHD(RobotCentricFilter):
                 # join this frame's posterior (the bearing is their own update).
                 unexplained = brg[explained < cfg.births.camera_max_explained]
                 if unexplained.shape[0]:
-                    births = phd.ray_births(
-                        unexplained,
-                        cfg.births.camera_weight,
-                        cfg.births.camera_components,
-                        cfg.births.camera_min_range_m,
-                        cfg.births.camera_max_range_m,
-                        CAMERA_BIRTH_RADIAL_STD_FRACTION,
-                        cfg.camera_bearing_var,
-                        cfg.camera.pd_offset,
-                        cfg.camera.pd_slope_per_m,
-                        cfg.camera.pd_midpoint_m,
-                    )
+                    births = phd.camera_ray_births(cfg, unexplained)
                     out = np.concatenate((out, births), axis=1)
         self._table = self._reduce(out)
         self._mixture = None

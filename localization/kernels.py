@@ -561,13 +561,7 @@ def _posterior(
             weights[n + i * m + h] = w
             k += w >= prune
     out = np.empty((N_ROWS, k))
-    col = 0
-    for i in range(n):
-        if weights[i] >= prune:
-            out[0, col] = weights[i]
-            for r in range(1, N_ROWS):
-                out[r, col] = missed_tab[r, i]
-            col += 1
+    col = _kept_missed(out, weights, missed_tab, n, prune)
     for i in range(n):
         for h in range(m):
             w = weights[n + i * m + h]
@@ -580,6 +574,21 @@ def _posterior(
                 out[5, col] = post_covs[2, i]
                 col += 1
     return out, k, explained
+
+
+@njit(cache=True)
+def _kept_missed(out, weights, missed_tab, n, prune):
+    """The first columns of a posterior table ``out``: the missed copies whose weight
+    ``weights[i]`` (``i < n``) is at least ``prune``, with ``missed_tab``'s means and
+    covariances, in order. Returns how many."""
+    col = 0
+    for i in range(n):
+        if weights[i] >= prune:
+            out[0, col] = weights[i]
+            for r in range(1, N_ROWS):
+                out[r, col] = missed_tab[r, i]
+            col += 1
+    return col
 
 
 @njit(cache=True)
@@ -778,12 +787,11 @@ def camera_clutter(brg, memory, ox, oy, fp):
 
 
 @njit(cache=True)
-def camera_component(tab, i, fp, min_r2, post_covs):
-    """The camera's EKF bearing update of component ``i`` of ``tab`` (seen from the camera):
-    writes its posterior covariance ``[Pxx, Pxy, Pyy]`` (Joseph form) into ``post_covs[:, i]``
-    and returns ``(x, y, g0, g1, predicted, norm, half_inv_s)``: its mean, the gain, the
-    predicted bearing, the likelihood's peak ``1 / sqrt(2 pi S)`` and ``-1 / (2 S)``. Shared
-    by the GM-PHD and the PMB kernels."""
+def camera_gate(tab, i, fp, min_r2):
+    """The camera's bearing model at component ``i`` of ``tab`` (seen from the camera): its
+    Jacobian ``(j0, j1)``, ``u = P J^T``, ``1 / S``, the noise ``R_C``, the predicted bearing,
+    the likelihood's peak ``1 / sqrt(2 pi S)`` and ``-1 / (2 S)``: what gating a bearing
+    needs, before :func:`camera_posterior_cov`."""
     x, y = tab[1, i], tab[2, i]
     pxx, pxy, pyy = tab[3, i], tab[4, i], tab[5, i]
     noise = camera_bearing_var(math.hypot(x, y), fp)
@@ -793,6 +801,17 @@ def camera_component(tab, i, fp, min_r2, post_covs):
     u0 = pxx * j0 + pxy * j1
     u1 = pxy * j0 + pyy * j1
     inv_s = 1.0 / (j0 * u0 + j1 * u1 + noise)  # S >= R_C > 0
+    predicted = math.atan2(y, x)
+    norm = math.sqrt(inv_s) * _INV_SQRT_TWO_PI
+    return j0, j1, u0, u1, inv_s, noise, predicted, norm, -0.5 * inv_s
+
+
+@njit(cache=True)
+def camera_posterior_cov(tab, i, j0, j1, u0, u1, inv_s, noise, post_covs):
+    """The EKF bearing update's posterior covariance of component ``i`` (Joseph form) from
+    :func:`camera_gate`'s terms, written into ``post_covs[:, i]``; returns the gain
+    ``(g0, g1)``."""
+    pxx, pxy, pyy = tab[3, i], tab[4, i], tab[5, i]
     g0, g1 = u0 * inv_s, u1 * inv_s
     # Joseph form (I - K H) P (I - K H)^T + K R K^T: a sum of PSD terms.
     b00, b01 = 1.0 - g0 * j0, -g0 * j1
@@ -804,8 +823,19 @@ def camera_component(tab, i, fp, min_r2, post_covs):
     post_covs[0, i] = bp00 * b00 + bp01 * b01 + g0 * noise * g0
     post_covs[1, i] = bp00 * b10 + bp01 * b11 + g0 * noise * g1
     post_covs[2, i] = bp10 * b10 + bp11 * b11 + g1 * noise * g1
-    predicted = math.atan2(y, x)
-    return x, y, g0, g1, predicted, math.sqrt(inv_s) * _INV_SQRT_TWO_PI, -0.5 * inv_s
+    return g0, g1
+
+
+@njit(cache=True)
+def camera_component(tab, i, fp, min_r2, post_covs):
+    """The camera's EKF bearing update of component ``i`` of ``tab`` (seen from the camera):
+    writes its posterior covariance ``[Pxx, Pxy, Pyy]`` (Joseph form) into ``post_covs[:, i]``
+    and returns ``(x, y, g0, g1, predicted, norm, half_inv_s)``: its mean, the gain, the
+    predicted bearing, the likelihood's peak ``1 / sqrt(2 pi S)`` and ``-1 / (2 S)``
+    (:func:`camera_gate` then :func:`camera_posterior_cov`). Used by the PMB kernels."""
+    j0, j1, u0, u1, inv_s, noise, predicted, norm, half_inv_s = camera_gate(tab, i, fp, min_r2)
+    g0, g1 = camera_posterior_cov(tab, i, j0, j1, u0, u1, inv_s, noise, post_covs)
+    return tab[1, i], tab[2, i], g0, g1, predicted, norm, half_inv_s
 
 
 @njit(cache=True)
@@ -813,7 +843,15 @@ def _camera_update(tab, n, brg, fp, ip, memory, ox, oy):
     """Camera EKF bearing GM-PHD update (+ ray births), pruned. Returns (table, k).
 
     ``tab`` is seen from the camera: the filter's frame shifted by ``(-ox, -oy)``, which is
-    how the scan memory's pose is read (its wide objects' clutter)."""
+    how the scan memory's pose is read (its wide objects' clutter).
+
+    Sparse: of the ``n x M`` (component, bearing) pairs only those above the component's
+    :func:`_negligible_exponent` are kept (in component-major order, bearings ascending:
+    ``first (n + 1,)`` bounds each component's run), and a component's posterior covariance
+    is made only when it has one. Every kept value is computed by the same operations in the
+    same order as the dense update over all pairs (``_camera_update_dense`` in
+    ``tests/localization/test_camera_sparse.py``), and a dropped pair adds exactly 0 to every
+    sum, so the result is the same to the bit."""
     m = brg.shape[0]
     prune = fp[F_PRUNE]
     pd = _camera_pd(tab, n, fp)
@@ -823,11 +861,18 @@ def _camera_update(tab, n, brg, fp, ip, memory, ox, oy):
     kappa = fp[F_KAPPA_C_UNIFORM] if memory[0] != 0.0 else fp[F_KAPPA_C]
     kappas = camera_clutter(brg, memory, ox, oy, fp)
     min_r2 = fp[F_MIN_RANGE] * fp[F_MIN_RANGE]
-    detected = np.empty((n, m))
-    post_means = np.empty((2, n, m))
+    # Per kept pair: its bearing, P_d w N and the posterior mean (the exponent and the
+    # innovation wait in pair_w / pair_x until the component's gain is known).
+    pair_h = np.empty(n * m, dtype=np.int64)
+    pair_w = np.empty(n * m)
+    pair_x = np.empty(n * m)
+    pair_y = np.empty(n * m)
+    first = np.empty(n + 1, dtype=np.int64)
     post_covs = np.empty((3, n))
+    p = 0
     for i in range(n):
-        x, y, g0, g1, predicted, norm, half_inv_s = camera_component(tab, i, fp, min_r2, post_covs)
+        first[i] = p
+        j0, j1, u0, u1, inv_s, noise, predicted, norm, half_inv_s = camera_gate(tab, i, fp, min_r2)
         pd_w = pd[i] * tab[0, i]
         floor = _negligible_exponent(pd_w, norm, kappa, prune)
         for h in range(m):
@@ -836,28 +881,78 @@ def _camera_update(tab, n, brg, fp, ip, memory, ox, oy):
                 innov = _wrap(innov)
             exponent = (innov * innov) * half_inv_s
             if exponent < floor:
-                detected[i, h] = 0.0
                 continue
-            detected[i, h] = math.exp(exponent) * norm * pd_w
-            post_means[0, i, h] = x + g0 * innov
-            post_means[1, i, h] = y + g1 * innov
-    out, k, explained = _posterior(
-        tab,
-        n,
-        pd,
-        detected,
-        post_means,
-        post_covs,
-        kappas,
-        prune,
-        -1,
+            pair_h[p] = h
+            pair_w[p] = exponent
+            pair_x[p] = innov
+            p += 1
+        if p == first[i]:
+            continue
+        g0, g1 = camera_posterior_cov(tab, i, j0, j1, u0, u1, inv_s, noise, post_covs)
+        x, y = tab[1, i], tab[2, i]
+        for q in range(first[i], p):
+            innov = pair_x[q]
+            pair_w[q] = math.exp(pair_w[q]) * norm * pd_w
+            pair_x[q] = x + g0 * innov
+            pair_y[q] = y + g1 * innov
+    first[n] = p
+    out, k, explained = _camera_posterior(
+        tab, n, pd, pair_h, pair_w, pair_x, pair_y, first, post_covs, kappas, prune,
         ip[I_MISSED_BERNOULLI],
-        tab,
-        pd,
-    )
+    )  # fmt: skip
     if ip[I_CAMERA_BIRTH]:
         return _with_ray_births(out, k, brg, explained, fp, ip)
     return out, k
+
+
+@njit(cache=True)
+def _camera_posterior(
+    tab, n, missed_pd, pair_h, pair_w, pair_x, pair_y, first, post_covs, kappa, prune, bernoulli
+):
+    """:func:`_posterior` of the camera's kept pairs (:func:`_camera_update`): the same
+    weights from the same sums, the kept missed copies (means and covariances of ``tab``,
+    ``P_d`` of ``missed_pd``) then the kept detected copies, component-major. Overwrites
+    ``pair_w`` with the detected weights. Returns the ``(6, k)`` table, ``k`` and
+    ``explained (M,)``."""
+    m = kappa.shape[0]
+    sums = np.zeros(m)
+    for p in range(first[n]):  # per bearing, components in increasing order
+        sums[pair_h[p]] += pair_w[p]
+    explained = np.empty(m)
+    inv_denom = np.empty(m)
+    for h in range(m):
+        # Guard: zero clutter and underflowed likelihoods give weights 0, not 0/0.
+        inv_denom[h] = 1.0 / max(sums[h] + kappa[h], _TINY)
+        explained[h] = sums[h] * inv_denom[h]
+    missed = np.empty(n)
+    k = 0
+    for i in range(n):
+        w = tab[0, i] - missed_pd[i] * tab[0, i]  # (1 - P_d) w
+        if bernoulli:
+            evidence = 0.0  # w_i Lambda_i
+            for p in range(first[i], first[i + 1]):
+                h = pair_h[p]
+                others = max(sums[h] - pair_w[p], 0.0) + kappa[h]
+                evidence += pair_w[p] / max(others, _TINY)
+            w = _bernoulli_missed(tab[0, i], missed_pd[i], evidence)
+        missed[i] = w
+        k += w >= prune
+    for p in range(first[n]):
+        pair_w[p] *= inv_denom[pair_h[p]]
+        k += pair_w[p] >= prune
+    out = np.empty((N_ROWS, k))
+    col = _kept_missed(out, missed, tab, n, prune)
+    for i in range(n):
+        for p in range(first[i], first[i + 1]):
+            if pair_w[p] >= prune:
+                out[0, col] = pair_w[p]
+                out[1, col] = pair_x[p]
+                out[2, col] = pair_y[p]
+                out[3, col] = post_covs[0, i]
+                out[4, col] = post_covs[1, i]
+                out[5, col] = post_covs[2, i]
+                col += 1
+    return out, k, explained
 
 
 @njit(cache=True)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .config import PROCESS_CLOCK_RESET_S
+from .config import CAMERA_BIRTH_RADIAL_STD_FRACTION, PROCESS_CLOCK_RESET_S
 from .detection import inverse_sigmoid
 from .gaussian import TINY, bearing_update, frame_change_matrix, position_update
 from .mixture import N_ROWS, ROW_PXX, ROW_PXY, ROW_PYY, ROW_W, ROW_X, ROW_Y
@@ -37,6 +37,7 @@ __all__ = [
     "camera_update",
     "missed_weights",
     "ray_births",
+    "camera_ray_births",
 ]
 
 
@@ -392,6 +393,25 @@ def ray_births(
     out[ROW_PXY] = (radial_var - cross_var) * (c * s)
     out[ROW_PYY] = radial_var * (s * s) + cross_var * (c * c)
     return out.reshape(N_ROWS, -1)
+
+
+def camera_ray_births(config, bearings: np.ndarray) -> np.ndarray:
+    """:func:`ray_births` of ``bearings`` (M,) with ``config``'s (a ``PHDConfig``) camera
+    birth and camera models: ``births.camera_weight`` per bearing over
+    ``[births.camera_min_range_m, births.camera_max_range_m]`` in ``births.camera_components``
+    cells, the range-dependent ``R_C`` and the camera's range factor. Shape (6, M K)."""
+    return ray_births(
+        bearings,
+        config.births.camera_weight,
+        config.births.camera_components,
+        config.births.camera_min_range_m,
+        config.births.camera_max_range_m,
+        CAMERA_BIRTH_RADIAL_STD_FRACTION,
+        config.camera_bearing_var,
+        config.camera.pd_offset,
+        config.camera.pd_slope_per_m,
+        config.camera.pd_midpoint_m,
+    )
 
 
 def lidar_update(

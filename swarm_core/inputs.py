@@ -57,14 +57,20 @@ def steps_in(env: Any, flag: str, duration_s: float) -> int:
 def add_duration_argument(
     parser: argparse.ArgumentParser, default: float, what: str = "simulated seconds"
 ) -> None:
-    """``--duration`` (s), for a command to share; :func:`duration` checks it. (``mutual``,
-    ``seed003``, ``sweep`` and ``uav`` still define their own.)"""
+    """``--duration`` (s), for a command to share; :func:`duration` checks it. (``mutual``
+    defines its own: without one, each scenario runs for its own duration.)"""
     parser.add_argument(
         "--duration",
         type=float,
         default=default,
         help=f"{what} (at least one control period)",
     )
+
+
+def add_seed_argument(parser: argparse.ArgumentParser, what: str = "random seed") -> None:
+    """``--seed`` (an integer >= 0, default 0), for a command to share; :func:`seed` checks
+    it."""
+    parser.add_argument("--seed", type=int, default=0, help=f"{what} (>= 0)")
 
 
 def parse_seeds(text: str, name: str = "--seeds") -> list[int]:
@@ -152,17 +158,26 @@ def add_overwrite_argument(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def run_dir(flag: str, path: str | Path, *, overwrite: bool) -> Path:
-    """A training run's directory: new or empty, unless ``overwrite``. A rerun with the same
-    ``--out`` would otherwise replace a finished run's model, empty its monitor and mix its
-    checkpoints with the new run's: "choose a new directory or pass --overwrite"."""
+def run_dir(
+    flag: str,
+    path: str | Path,
+    *,
+    overwrite: bool,
+    holding: str = "a previous run",
+    action: str = "train into",
+) -> Path:
+    """A run's output directory: new or empty, unless ``overwrite``. A rerun with the same
+    ``--out`` would otherwise replace a finished run's model (or results), empty its monitor
+    and mix its checkpoints with the new run's: "choose a new directory or pass --overwrite".
+    ``holding`` and ``action`` word the refusal (``"{flag} ... holds {holding} (...): ...
+    pass --overwrite to {action} it anyway"``); the defaults speak of training."""
     p = output_dir(flag, path)
     held = sorted(x.name for x in p.iterdir()) if p.is_dir() else []
     if held and not overwrite:
         shown = ", ".join(held[:4]) + (", ..." if len(held) > 4 else "")
         raise ValueError(
-            f"{flag} {str(path)!r} holds a previous run ({shown}): choose a new directory, "
-            "or pass --overwrite to train into it anyway"
+            f"{flag} {str(path)!r} holds {holding} ({shown}): choose a new directory, "
+            f"or pass --overwrite to {action} it anyway"
         )
     return p
 

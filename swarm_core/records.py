@@ -4,8 +4,9 @@ Every record is stamped in seconds of the World's clock (sim time, or the robots
 ROS time) and expressed in the measuring robot's body frame (REP-103: x forward, y left, yaw
 counter-clockwise, metres, radians). Records are immutable; arrays inside them are read-only
 views of what the producer passed in (no copy), so a producer must not write to an array after
-making a record of it. ``Record._make(...)`` skips the checks, for producers (the simulator) that
-already hold read-only float64 arrays of the documented shapes.
+making a record of it. ``Record._make(...)`` (the fields' values in their order) skips the
+checks, for producers (the simulator) that already hold read-only float64 arrays of the
+documented shapes.
 """
 
 from __future__ import annotations
@@ -45,6 +46,16 @@ def _frozen(array: np.ndarray, shape: tuple[int, ...] | None = None, ndim: int =
     return out
 
 
+def _unchecked(cls: type, *values: object) -> object:
+    """The records' ``_make``: a ``cls`` whose slots (its dataclass fields, in order) hold
+    ``values``, without ``__init__`` and ``__post_init__``. Unchecked: the arrays must already be
+    read-only float64 of the documented shapes (see :func:`_frozen`)."""
+    record = _new(cls)
+    for name, value in zip(cls.__slots__, values, strict=False):  # unchecked, as the rest
+        _set(record, name, value)
+    return record
+
+
 @dataclass(frozen=True, slots=True)
 class OdometryRecord:
     """Own motion between the previous odometry sample and ``stamp_s``.
@@ -68,15 +79,7 @@ class OdometryRecord:
         object.__setattr__(self, "delta", _frozen(self.delta, shape=(3,)))
         object.__setattr__(self, "velocity", _frozen(self.velocity, shape=(2,)))
 
-    @classmethod
-    def _make(cls, stamp_s: float, delta: np.ndarray, velocity: np.ndarray) -> OdometryRecord:
-        """Unchecked constructor (see :func:`_frozen`): the arrays must already be read-only
-        float64 of the documented shapes."""
-        record = _new(cls)
-        _set(record, "stamp_s", stamp_s)
-        _set(record, "delta", delta)
-        _set(record, "velocity", velocity)
-        return record
+    _make = classmethod(_unchecked)
 
 
 @dataclass(frozen=True, slots=True)
@@ -111,25 +114,7 @@ class LidarRecord:
             object.__setattr__(self, name, _frozen(getattr(self, name), ndim=1))
         object.__setattr__(self, "detections", _frozen(self.detections, shape=(-1, 2)))
 
-    @classmethod
-    def _make(
-        cls,
-        stamp_s: float,
-        angles_rad: np.ndarray,
-        ranges_m: np.ndarray,
-        intensities: np.ndarray,
-        detections: np.ndarray,
-        null_bearings_rad: np.ndarray,
-    ) -> LidarRecord:
-        """Unchecked constructor (see :meth:`OdometryRecord._make`)."""
-        record = _new(cls)
-        _set(record, "stamp_s", stamp_s)
-        _set(record, "angles_rad", angles_rad)
-        _set(record, "ranges_m", ranges_m)
-        _set(record, "intensities", intensities)
-        _set(record, "detections", detections)
-        _set(record, "null_bearings_rad", null_bearings_rad)
-        return record
+    _make = classmethod(_unchecked)
 
 
 @dataclass(frozen=True, slots=True)
@@ -150,13 +135,7 @@ class CameraRecord:
     def __post_init__(self) -> None:
         object.__setattr__(self, "bearings_rad", _frozen(self.bearings_rad, ndim=1))
 
-    @classmethod
-    def _make(cls, stamp_s: float, bearings_rad: np.ndarray) -> CameraRecord:
-        """Unchecked constructor (see :meth:`OdometryRecord._make`)."""
-        record = _new(cls)
-        _set(record, "stamp_s", stamp_s)
-        _set(record, "bearings_rad", bearings_rad)
-        return record
+    _make = classmethod(_unchecked)
 
 
 @dataclass(frozen=True, slots=True)
@@ -228,14 +207,7 @@ class RobotMeasurements:
     lidar: list[LidarRecord] = field(default_factory=list)
     camera: list[CameraRecord] = field(default_factory=list)
 
-    @classmethod
-    def _make(cls, odometry: list, lidar: list, camera: list) -> RobotMeasurements:
-        """Constructor without the dataclass machinery (the simulator makes 20 per step)."""
-        record = _new(cls)
-        _set(record, "odometry", odometry)
-        _set(record, "lidar", lidar)
-        _set(record, "camera", camera)
-        return record
+    _make = classmethod(_unchecked)  # without the dataclass machinery (20 per sim step)
 
     def in_time_order(self) -> list[OdometryRecord | LidarRecord | CameraRecord]:
         """All records merged by stamp; on equal stamps odometry comes first (predict first)."""

@@ -191,11 +191,6 @@ class CommsChannel:
             self._receiver_names.append(receiver)
         return slot
 
-    @property
-    def in_flight(self) -> int:
-        """Deliveries sent but not yet received."""
-        return int(self._arrive.shape[0])
-
 
 class SwarmRadio:
     """The robots' side of the radio in the simulator.

@@ -25,6 +25,7 @@ from swarm_core.validation import (
 )
 from swarm_env.comms import CommsConfig
 from swarm_env.sensors.camera import CameraConfig
+from swarm_env.sensors.detection_fade import RangeFade
 from swarm_env.sensors.lidar import LidarConfig
 from swarm_env.sensors.odometry import OdometryConfig
 
@@ -242,6 +243,10 @@ class SwarmConfig:
     comms : CommsConfig
         The robots' radio (off by default): teammates' odometry and anonymous detections, with
         loss, latency and a radius; received broadcasts are in ``infos[agent]["comms"]``.
+    lidar_fade, camera_fade : RangeFade or None
+        None (default): each sensor detects what its geometry lets it. A
+        :class:`~swarm_env.sensors.detection_fade.RangeFade`: its detections are also kept only
+        with that probability of their range (``perera2021``: the study's eqs. 19 and 30).
     """
 
     n_robots: int = 20
@@ -252,6 +257,8 @@ class SwarmConfig:
     lidar_features: LidarFeatureConfig = field(default_factory=LidarFeatureConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
     comms: CommsConfig = field(default_factory=CommsConfig)
+    lidar_fade: RangeFade | None = None
+    camera_fade: RangeFade | None = None
     phd: PHDConfig = SIMULATOR_PHD
     control_period_s: float = 0.1
     physics_substeps: int = 5
@@ -273,6 +280,10 @@ class SwarmConfig:
                     f"{name} must be a {kind.__name__} (as an override, a dict of its "
                     f"fields also), got {getattr(self, name)!r}"
                 )
+        for name in ("lidar_fade", "camera_fade"):
+            value = getattr(self, name)
+            if value is not None and not isinstance(value, RangeFade):
+                raise ValueError(f"{name} must be a RangeFade or None, got {value!r}")
         check_number_fields(self)
         check_int_range("n_robots", self.n_robots, 1, MAX_ROBOTS)
         check_positive("control_period_s", self.control_period_s)
@@ -376,8 +387,35 @@ def _dense(n_robots: int) -> SwarmConfig:
     )
 
 
+#: The Perera 2021 study's cameras as its simulation made them ("the camera measurements were
+#: generated directly using the UGV locations. A zero mean Gaussian noise was added"): every
+#: teammate's strip within line of sight, its bearing plus Gaussian noise of the filter's
+#: R_C (5 deg std, eq. 28), no false blobs, no lost frames, ideal blob centroids (fill 1); the
+#: range fade is eq. 30's (``PERERA2021_CAMERA_FADE``).
+PERERA2021_CAMERA = CameraConfig(
+    bearing_noise_std_deg=PHDConfig.perera2021().camera.noise_std_deg,
+    fill_min=1.0,
+    miss_probability=0.0,
+    false_positive_rate=0.0,
+)
+
+#: The Perera 2021 study's simulation (its section 4): 20 UGVs in a 6 m x 6 m walled arena,
+#: 300 s, the lidar fading as eq. 19 and the cameras as eq. 30 (5 deg noise, no clutter), the
+#: X4's four pillar blind sectors (``LidarConfig``, the filter's eq. 20 sectors), and the
+#: study's own filter (``PHDConfig.perera2021()``). Its simulation names no obstacles besides
+#: the walls and the robots, and generates the camera's bearings from the UGVs' positions, so
+#: there are no decoy posts, red decoys or boxes (docs/how-to/studies/perera2021.md).
+PERERA2021 = SwarmConfig(
+    arena=ArenaConfig(n_decoy_posts=0, n_red_decoys=0, n_boxes=0),
+    camera=PERERA2021_CAMERA,
+    lidar_fade=RangeFade.perera2021_lidar(),
+    camera_fade=RangeFade.perera2021_camera(),
+    phd=PHDConfig.perera2021(),
+)
+
 PRESETS: dict[str, SwarmConfig] = {
     "sim-6m-20": SwarmConfig(),
+    "perera2021": PERERA2021,
     "lab-3m-4": SwarmConfig(
         n_robots=4,
         arena=ArenaConfig(width_m=3.0, height_m=3.0, n_decoy_posts=2, n_red_decoys=1, n_boxes=0),

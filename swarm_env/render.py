@@ -260,35 +260,24 @@ def draw_dynamic(
                 zorder=3,
                 label="lidar return (ray to range)",
             )
-            if len(scan.detections):
-                det = scan.detections @ rot.T + origin
-                ax.scatter(
-                    det[:, 0],
-                    det[:, 1],
-                    marker="x",
-                    color="k",
-                    s=28,
-                    lw=1.0,
-                    zorder=8,
-                    label="lidar detection",
-                )
+            det = scan.detections
             caption.append(f"lidar scan {env.time_s - scan.stamp_s:.2f} s old")
         else:  # no scan seen yet (7 Hz lidar, 10 Hz steps): the env's held detections only
             held = getattr(env, "last_detections", None)
             det = None if held is None else np.asarray(held[i_focus]).reshape(-1, 2)
-            if det is not None and len(det):
-                det = det @ rot.T + origin
-                ax.scatter(
-                    det[:, 0],
-                    det[:, 1],
-                    marker="x",
-                    color="k",
-                    s=28,
-                    lw=1.0,
-                    zorder=8,
-                    label="lidar detection",
-                )
             caption.append("no lidar scan in this step (rays not drawn)")
+        if det is not None and len(det):
+            det = det @ rot.T + origin
+            ax.scatter(
+                det[:, 0],
+                det[:, 1],
+                marker="x",
+                color="k",
+                s=28,
+                lw=1.0,
+                zorder=8,
+                label="lidar detection",
+            )
         if frame is not None and len(frame.bearings_rad):
             reach = float(getattr(env.config.camera, "range_max_m", 2.0))
             b = np.asarray(frame.bearings_rad)

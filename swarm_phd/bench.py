@@ -25,7 +25,7 @@ from swarm_phd.runner import rollout
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--preset", default="sim-6m-20")
     inputs.add_duration_argument(parser, 60.0, "simulated seconds per case")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (>= 0)")
+    inputs.add_seed_argument(parser)
     parser.add_argument("--repeats", type=int, default=3, help="runs per case (median shown)")
     parser.add_argument(
         "--localizer",

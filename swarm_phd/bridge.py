@@ -50,7 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="env steps (default: a trained policy's episode length, else 100 = 10 s)",
     )
-    parser.add_argument("--seed", type=int, default=0, help="random seed (>= 0)")
+    inputs.add_seed_argument(parser)
     parser.add_argument(
         "--policy",
         default="wander",
@@ -155,9 +155,10 @@ def bridge_env_kwargs(
     a simulator with these settings, so one that cannot act on them (another observation size,
     a controller without its task) is refused here too."""
     from agents.policies import SCRIPTED, policy_observation, rllib_checkpoint, trained_policy_env
+    from agents.pretrained import resolve
     from swarm_core.inputs import parse_json_object
 
-    spec = args.policy
+    spec = resolve(args.policy)  # pretrained:NAME: its file (an unknown name lists the known)
     if spec.startswith("privileged:"):
         raise ValueError(
             f"--policy {spec!r} is a training teacher that reads the simulator's truth; it "
@@ -192,8 +193,9 @@ def bridge_env_kwargs(
             )
     elif spec not in ("wander", "stop", "random"):
         raise ValueError(
-            "--policy must be 'wander', 'stop', 'random', 'scripted:NAME', a .zip model, a .pt "
-            f"student or the --out directory of swarm-phd train --engine rllib, got {spec!r}"
+            "--policy must be 'wander', 'stop', 'random', 'scripted:NAME', 'pretrained:NAME', a "
+            ".zip model, a .pt student or the --out directory of swarm-phd train --engine "
+            f"rllib, got {spec!r}"
         )
     overrides: dict = {}
     if args.task_params is not None:

@@ -39,6 +39,10 @@ COMPILING_COMMANDS = (
 #: What each preset models (``swarm_env.config.PRESETS`` holds the values).
 PRESET_DESCRIPTIONS = {
     "sim-6m-20": "the source study's simulation: 20 UGVs, 6 m x 6 m walled arena, boxes, decoys",
+    "perera2021": (
+        "the source study's simulation with its own sensors and filter: 20 UGVs, 6 m x 6 m, "
+        "lidar fading as its eq. 19, camera bearings with 5 deg noise fading as eq. 30, no decoys"
+    ),
     "lab-3m-4": "the source study's lab test area: 4 UGVs, 3 m x 3 m, 2 decoy posts, 1 red decoy",
     "seed-uav": (
         "the Stegagno et al. ICRA 2013 setup: 3 UGVs, 2.5 m x 2.5 m, radio on, under a UAV "
@@ -162,7 +166,25 @@ def listing() -> str:
     lines.append("localizers (evaluate --localizer):")
     for name, desc in _localizers().items():
         lines.append(f"  {name:<16} {desc}")
+    lines.append("trained policies shipped (--policy pretrained:NAME; train --recipe NAME):")
+    lines.extend(f"  {name:<16} {desc}" for name, desc in _pretrained().items())
     return "\n".join(lines)
+
+
+def _pretrained() -> dict[str, str]:
+    """Each shipped policy: its recipe and its held-out result against the task's best
+    scripted controller (:mod:`agents.pretrained`)."""
+    from agents.pretrained import card, names
+
+    out = {}
+    for name in names():
+        c = card(name)
+        g = c["goal"]
+        out[name] = (
+            f"{c['summary']}; {g['metric']} {g['policy_mean']:.3f} vs {g['baseline']} "
+            f"{g['baseline_mean']:.3f} on {g['n_seeds']} held-out seeds ({g['verdict']})"
+        )
+    return out
 
 
 def _localizers() -> dict[str, str]:

@@ -33,7 +33,7 @@ COMPARED = (("lidar only", "phd-lo"), ("lidar + camera", "phd-lc"))
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--preset", default="sim-6m-20")
     inputs.add_duration_argument(parser, 60.0)
-    parser.add_argument("--seed", type=int, default=0, help="random seed (>= 0)")
+    inputs.add_seed_argument(parser)
     parser.add_argument("--out", default="runs/demo", help="output directory")
     parser.add_argument(
         "--frames", type=int, default=120, help="animation frames (an integer >= 0; 0: none)"

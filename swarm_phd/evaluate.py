@@ -64,7 +64,6 @@ from localization.registry import LOCALIZERS, make_localizer
 from swarm_core import inputs, progress
 from swarm_core.atomic_files import write_json_atomically
 from swarm_core.inputs import parse_json_object, parse_seeds
-from swarm_env import parallel_env
 from swarm_env.env import SwarmEnv
 
 #: ``--scenario`` values.
@@ -94,19 +93,15 @@ def add_policy_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from agents.policies import add_trust_policy_argument
+
     parser.add_argument(
         "--preset",
         default=None,
         help="default: a trained policy's (model.zip, student .pt) own preset, else sim-6m-20 "
         "(alias seed-sim: the Perera 2021 study's 6 m x 6 m arena with 20 UGVs)",
     )
-    parser.add_argument(
-        "--trust-policy",
-        action="store_true",
-        help="load an SB3 .zip from outside a swarm-phd train run with SB3's loader, which "
-        "unpickles objects stored in the file and so can run code in it: only for a file you "
-        "trained or verified yourself (a zip in its run directory loads weights only)",
-    )
+    add_trust_policy_argument(parser)
     inputs.add_duration_argument(parser, 300.0)
     parser.add_argument(
         "--localizer",
@@ -159,19 +154,6 @@ def _interrupt(signum, frame) -> None:
     raise KeyboardInterrupt  # SIGTERM scores the finished seeds, as Ctrl-C does
 
 
-def _check_out(out: str, overwrite: bool) -> None:
-    """``--out`` as ``train`` takes it: new or empty, unless ``--overwrite`` (a rerun must never
-    silently replace finished results)."""
-    p = inputs.output_dir("--out", out)
-    held = sorted(x.name for x in p.iterdir()) if p.is_dir() else []
-    if held and not overwrite:
-        shown = ", ".join(held[:4]) + (", ..." if len(held) > 4 else "")
-        raise ValueError(
-            f"--out {out!r} holds earlier results ({shown}): choose a new directory, or pass "
-            "--overwrite to write into it anyway"
-        )
-
-
 def run(args: argparse.Namespace) -> int:
     import signal
 
@@ -186,7 +168,14 @@ def run(args: argparse.Namespace) -> int:
     inputs.duration("--duration", args.duration)
     seeds = parse_seeds(args.seeds)
     if args.out:
-        _check_out(args.out, getattr(args, "overwrite", False))
+        # As train takes it: a rerun must never silently replace finished results.
+        inputs.run_dir(
+            "--out",
+            args.out,
+            overwrite=getattr(args, "overwrite", False),
+            holding="earlier results",
+            action="write into",
+        )
     if getattr(args, "ray", False):
         from swarm_phd.sweep import run_evaluate_ray
 
@@ -284,30 +273,6 @@ def shared_env_kwargs(
     kwargs["preset"] = preset or kwargs.get("preset") or "seed-sim"
     kwargs["task"] = kwargs["task"] or "wander"
     return kwargs
-
-
-def _make_env(preset: str | None, task: str | None, policy: str, **overrides: Any) -> SwarmEnv:
-    from agents.policies import trained_policy_env
-
-    model = trained_policy_env(policy, preset, task, **overrides)
-    if model is not None:  # a trained model (.zip) or recurrent student (.pt): its own env
-        preset, task, overrides = model.pop("preset"), model.pop("task"), model
-    else:
-        from agents.policies import policy_observation
-
-        observation = policy_observation(policy)
-        if observation is None:
-            # Policies that ignore the observation: skip the env's own filters (the evaluation
-            # runs its own banks of filters below) unless the task's reward scores them.
-            from swarm_env.tasks import task_needs_estimates
-
-            overrides.setdefault("observation", "measurements")
-            overrides.setdefault(
-                "localize", task_needs_estimates(task or "wander", overrides.get("task_params"))
-            )
-        else:  # e.g. scripted:formation acts on the robot's own PHD estimate
-            overrides.setdefault("observation", observation)
-    return parallel_env(preset or "seed-sim", task=task or "wander", **overrides)
 
 
 #: The figures :func:`seed_figures` gives per seed (keys of ``results["localizers"][name]
@@ -439,7 +404,9 @@ def _episode_env(
         from localization.mutual.localizer import DEFAULT_RADIO
 
         overrides["comms"] = dict(DEFAULT_RADIO)
-    env = _make_env(preset, task, policy, **overrides)
+    from agents.policies import policy_env
+
+    env = policy_env(preset, task, policy, **overrides)
     if radio and not env.config.comms.enabled:
         env.close()
         raise ValueError(f"localizers {radio} need the radio: comms.enabled is False")
@@ -924,10 +891,12 @@ CAMERA_SCORING_RANGE_M = 3.0
 
 
 def _uses_camera(localizer: Any) -> bool:
-    """Whether ``localizer`` runs camera updates (its PHD config's mode is lidar-camera)."""
+    """Whether ``localizer`` runs camera updates (its PHD config's mode is lidar-camera; a
+    PMB's config holds its PHD config as ``phd``)."""
     config = getattr(localizer, "config", None) or getattr(
         getattr(localizer, "bank", None), "config", None
     )
+    config = getattr(config, "phd", config)
     return getattr(config, "mode", None) == "lidar-camera"
 
 

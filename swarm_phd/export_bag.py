@@ -21,7 +21,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, help="new bag directory (must not exist)")
     inputs.add_duration_argument(parser, 10.0)
     parser.add_argument("--preset", default="seed-lab")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (>= 0)")
+    inputs.add_seed_argument(parser)
 
 
 def run(args: argparse.Namespace) -> int:

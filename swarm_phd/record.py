@@ -53,6 +53,7 @@ _FFMPEG = {
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from agents.policies import add_trust_policy_argument
     from swarm_phd.evaluate import add_policy_arguments
 
     add_policy_arguments(parser)
@@ -61,14 +62,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="default: a trained policy's (model.zip, student .pt) own preset, else sim-6m-20",
     )
-    parser.add_argument(
-        "--trust-policy",
-        action="store_true",
-        help="load an SB3 .zip from outside a swarm-phd train run with SB3's loader, which "
-        "unpickles objects stored in the file and so can run code in it: only for a file you "
-        "trained or verified yourself (a zip in its run directory loads weights only)",
-    )
-    parser.add_argument("--seed", type=int, default=0, help="the episode's seed (>= 0)")
+    add_trust_policy_argument(parser)
+    inputs.add_seed_argument(parser, "the episode's seed")
     inputs.add_duration_argument(parser, 30.0)
     parser.add_argument(
         "--fps",
@@ -119,7 +114,9 @@ def check_policy_name(spec: str) -> None:
     model file must exist. (Whether a known policy can act in the env is checked when it is
     built on it, still before any step.)"""
     from agents.policies import SCRIPTED
+    from agents.pretrained import resolve
 
+    spec = resolve(spec)  # pretrained:NAME: its file (an unknown name lists the known)
     if spec == "random" or spec.startswith("privileged:"):
         return
     if spec.startswith("scripted:"):
@@ -134,7 +131,9 @@ def check_policy_name(spec: str) -> None:
 
         if rllib_checkpoint(spec) is not None:
             return
-    known = ["random", *(f"scripted:{name}" for name in SCRIPTED)]
+    from agents.pretrained import PREFIX, names
+
+    known = ["random", *(f"scripted:{name}" for name in SCRIPTED), *(PREFIX + n for n in names())]
     raise ValueError(
         f"--policy: unknown policy {spec!r}; known: {', '.join(known)}, 'privileged:NAME' "
         "(a training teacher), a trained model.zip, a recurrent student .pt or the --out "
@@ -177,8 +176,7 @@ def record(
     ``overrides`` go to the env (``task_params``, config fields such as ``n_robots``), over a
     trained policy's own settings. Returns what was written (:class:`Recording`). Raises
     ValueError, naming the argument, before anything runs or is written."""
-    from agents.policies import load_policy
-    from swarm_phd.evaluate import _make_env as policy_env
+    from agents.policies import load_policy, policy_env
 
     path = check_out("--out", out)
     inputs.seed("--seed", seed)

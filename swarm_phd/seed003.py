@@ -48,7 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--arena-m", type=float, default=1.5, help="side of the square, obstacle-free arena (m)"
     )
-    parser.add_argument("--duration", type=float, default=60.0, help="simulated seconds")
+    inputs.add_duration_argument(parser, 60.0)
     parser.add_argument(
         "--init-s",
         type=float,

@@ -83,7 +83,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--seeds", default="0-3", help="comma-separated integers and ranges, e.g. '0-9' or '0,5'"
     )
-    parser.add_argument("--duration", type=float, default=300.0, help="simulated seconds")
+    inputs.add_duration_argument(parser, 300.0)
     parser.add_argument(
         "--policy", default="scripted:wander", help="'scripted:NAME', 'random' or a model.zip"
     )

@@ -58,7 +58,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--seeds", default="0,1,2", help="comma-separated integers or ranges (0-4)"
     )
-    parser.add_argument("--duration", type=float, default=120.0, help="simulated seconds")
+    inputs.add_duration_argument(parser, 120.0)
     parser.add_argument("--uav-control", choices=UAV_CONTROLS, default="hover")
     parser.add_argument("--altitude", type=float, default=None, help="UAV altitude (m)")
     parser.add_argument("--loss", type=float, default=None, help="radio loss probability")
@@ -218,7 +218,9 @@ def _episode(env: Any, server: Any, seed: int, n_steps: int, uav_control: str) -
     from swarm_env.uav.control import uav_action
 
     robot = env.config.robot
-    policy = WanderPolicy(robot.max_speed_mps, robot.max_turn_rate_radps, seed=seed)
+    policy = WanderPolicy(
+        max_speed_mps=robot.max_speed_mps, max_turn_rate_radps=robot.max_turn_rate_radps, seed=seed
+    )
     obs, infos = env.reset(seed=seed)
     n = len(env.ugv_agents)
     times, pos_err, head_err, in_view, slip, signed = [], [], [], [], [], []

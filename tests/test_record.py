@@ -65,7 +65,7 @@ def no_env(monkeypatch):
     def refuse(*args, **kwargs):
         raise AssertionError("an env was built before the input was checked")
 
-    monkeypatch.setattr("swarm_phd.evaluate._make_env", refuse)
+    monkeypatch.setattr("agents.policies.policy_env", refuse)
 
 
 @pytest.mark.parametrize(
@@ -77,6 +77,7 @@ def no_env(monkeypatch):
         (["--policy", "scripted:dance"], "unknown policy 'scripted:dance'; known: random, "),
         (["--policy", "greedy"], "scripted:formation"),
         (["--policy", "{tmp}/missing.zip"], "does not exist"),
+        (["--policy", "pretrained:dance"], "unknown pretrained policy 'pretrained:dance'; known"),
         (["--duration", "0"], "--duration"),
         (["--fps", "-1"], "--fps must be a finite number > 0.0, got -1.0"),
         (["--seed", "-3"], "--seed must be an integer >= 0, got -3"),

@@ -38,6 +38,10 @@ from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
 ENV_NAME = "swarm_phd"
 #: The one module every agent maps to.
 SHARED_POLICY = "shared"
+#: The info key of the task's headline metric at an episode's end, and the prefix of the
+#: value :class:`TaskMetricCallback` logs in the runners' results (``task/<metric>``).
+TASK_METRIC_KEY = "task_metric"
+TASK_METRIC_PREFIX = "task/"
 #: Seconds each env of this process took to build and reset, and its first step (the first
 #: calls of the sensor and filter kernels load them from numba's cache, or compile them).
 _STARTUP_S: list[float] = []
@@ -71,16 +75,47 @@ class SwarmRLlibEnv(ParallelPettingZooEnv):
 
     def step(self, action_dict: dict[str, Any]):
         if self._stepped:
-            return super().step(action_dict)
+            return self._with_task_metric(super().step(action_dict))
         start = time.perf_counter()
         result = super().step(action_dict)
         _FIRST_STEP_S.append(time.perf_counter() - start)
         self._stepped = True
-        return result
+        return self._with_task_metric(result)
+
+    def _with_task_metric(self, result: tuple) -> tuple:
+        """At the episode's end, the task's headline metric (its first) in every agent's info
+        (``TASK_METRIC_KEY``: ``(name, value)``), for :class:`TaskMetricCallback`."""
+        obs, rewards, terminated, truncated, infos = result
+        if terminated.get("__all__") or truncated.get("__all__"):
+            metrics = self.par_env.unwrapped.task.metrics()
+            if metrics:
+                name = next(iter(metrics))
+                for agent in infos:
+                    infos[agent] = {**infos[agent], TASK_METRIC_KEY: (name, metrics[name])}
+        return obs, rewards, terminated, truncated, infos
 
     def render(self) -> Any:
         # RLlib passes self.render_mode to a PettingZoo render() that takes none (module doc).
         return self.par_env.render()
+
+
+def task_metric_callback() -> type:
+    """The RLlib callback class that logs each finished episode's task metric (mean over
+    RLlib's smoothing window) as ``task/<metric>`` in the env runners' results, so that the
+    trainer prints it beside the return, as the SB3 engine does."""
+    from ray.rllib.callbacks.callbacks import RLlibCallback
+
+    class TaskMetricCallback(RLlibCallback):
+        def on_episode_end(self, *, episode, metrics_logger=None, **kwargs) -> None:
+            if metrics_logger is None:
+                return
+            for info in episode.get_infos(-1).values():
+                if isinstance(info, dict) and TASK_METRIC_KEY in info:
+                    name, value = info[TASK_METRIC_KEY]
+                    metrics_logger.log_value(TASK_METRIC_PREFIX + name, float(value))
+                    return
+
+    return TaskMetricCallback
 
 
 def make_env(config: dict[str, Any]) -> SwarmRLlibEnv:

@@ -14,10 +14,11 @@ whole iteration when smaller; a larger one given is refused); ``--n-epochs``,
 ``--learning-rate``, ``--gamma``, ``--ent-coef`` as named.
 
 The learning lines give RLlib's mean episode return divided by the robots (per agent, as the
-SB3 engine's), or "no episode finished yet" while the iterations so far were shorter than one
-episode (RLlib reports NaN then). The final evaluation and ``learning_curve.png`` are the SB3
-engine's (:mod:`agents.train_report`; the run directory is the policy, see
-:func:`agents.policies.load_policy`).
+SB3 engine's) and the task's headline metric over the same finished episodes (logged by the env
+runners, :func:`agents.rllib.env.task_metric_callback`), or "no episode finished yet" while the
+iterations so far were shorter than one episode (RLlib reports NaN then). The final evaluation
+and ``learning_curve.png`` are the SB3 engine's (:mod:`agents.train_report`; the run directory
+is the policy, see :func:`agents.policies.load_policy`).
 ``--extractor`` and ``--n-copies`` / ``--num-cpus`` are SB3-only: RLlib's default MLP
 encoder reads the observation vector (the Deep Sets extractor is an SB3 module), and the
 runners replace the SB3 worker processes.
@@ -121,12 +122,6 @@ def run(args: argparse.Namespace) -> int:
     given = [flag for flag, on in sb3_only.items() if on]
     if given:
         raise ValueError(f"swarm-phd train --engine rllib: {', '.join(given)} are SB3-only")
-    if getattr(args, "extractor", "mlp") == "sets":
-        print(
-            "swarm-phd train --engine rllib: the Deep Sets extractor is SB3-only; "
-            "RLlib's default MLP encoder reads the observation vector",
-            file=sys.stderr,
-        )
     ppo = {
         "rollout_fragment_length": args.n_steps,
         "num_epochs": args.n_epochs,
@@ -163,6 +158,18 @@ def train(*args: Any, **kwargs: Any) -> Path:
     return _train(*args, **kwargs)[0]
 
 
+def _task_metric(sampled: dict[str, Any], window: int) -> tuple[str, float, int] | None:
+    """The task's headline metric over the last finished episodes, from the runners' results
+    (:class:`agents.rllib.env.task_metric_callback`), as :class:`LearningLog` takes it."""
+    from agents.rllib.env import TASK_METRIC_PREFIX
+
+    for key, value in sampled.items():
+        if isinstance(key, str) and key.startswith(TASK_METRIC_PREFIX):
+            if isinstance(value, (int, float)) and math.isfinite(value):
+                return key[len(TASK_METRIC_PREFIX) :], float(value), window
+    return None
+
+
 def build_config(
     env_kwargs: dict[str, Any],
     *,
@@ -184,7 +191,7 @@ def build_config(
     from ray.rllib.core.rl_module.multi_rl_module import MultiRLModuleSpec
     from ray.rllib.core.rl_module.rl_module import RLModuleSpec
 
-    from agents.rllib.env import SHARED_POLICY, policy_mapping_fn, register
+    from agents.rllib.env import SHARED_POLICY, policy_mapping_fn, register, task_metric_callback
 
     if num_env_runners < 0:
         raise ValueError(f"--num-env-runners must be >= 0, got {num_env_runners}")
@@ -229,6 +236,7 @@ def build_config(
         .rl_module(
             rl_module_spec=MultiRLModuleSpec(rl_module_specs={SHARED_POLICY: RLModuleSpec()})
         )
+        .callbacks(task_metric_callback())
         .debugging(seed=seed)
     )
 
@@ -343,6 +351,10 @@ def _train(
     )
     if rounded:
         say(rounded.replace("rollout", "iteration"))
+    say(
+        f"rllib PPO: {planned} agent steps, one module shared by the {n_agents} robots, RLlib's "
+        "default MLP encoder over the observation vector"
+    )
     log = LearningLog(planned, "rllib")
     started = start_ray(address, ray_num_cpus)
     algo = None
@@ -389,7 +401,7 @@ def _train(
                         int(sampled.get("num_episodes_lifetime", 0)),
                         int(config.metrics_num_episodes_for_smoothing),
                     )
-                    log.add(new_agent, per_agent, window, bar)
+                    log.add(new_agent, per_agent, window, bar, _task_metric(sampled, window))
                     if bar is not None:
                         bar.set_postfix_str(
                             f"return per agent {per_agent:.2f}"

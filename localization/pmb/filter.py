@@ -311,7 +311,10 @@ class RobotCentricPMB(RobotCentricFilter):
 
         A no-op (after validation) in ``mode="lidar-only"``. New tracks from bearings come
         only from the Poisson intensity's own mass (see the module docs); no position is
-        invented along the ray.
+        invented along the ray. With ``PHDConfig.births.camera="ray"`` bearings start no
+        track at all: what the Poisson part explains stays in it, and the bearings nothing
+        explains add their ray (``phd.ray_births``) to it, so a teammate only the camera sees
+        is held as undetected mass until a lidar detection confirms it.
 
         Parameters
         ----------
@@ -361,7 +364,8 @@ class RobotCentricPMB(RobotCentricFilter):
         j0, j1 = -means[1] * inv_r2, means[0] * inv_r2
         s = j0 * j0 * union[ROW_PXX] + 2.0 * j0 * j1 * union[ROW_PXY] + j1 * j1 * union[ROW_PYY]
         scale = np.sqrt(_TWO_PI * (s + var))
-        self._update(
+        to_poisson = cfg.births.camera == "ray"
+        explained = self._update(
             union,
             self._poisson,
             pd,
@@ -370,7 +374,23 @@ class RobotCentricPMB(RobotCentricFilter):
             lik,
             scale,
             object_clutter.camera_clutter(cfg, brg, self._scan, offset),  # per bearing
+            births_to_poisson=to_poisson,
         )
+        if to_poisson:
+            # Bearings nothing explains: a teammate somewhere along the ray, undetected so
+            # far. Its mass joins the Poisson part (the range prior over the camera's reach,
+            # phd.ray_births); a track is born only when a lidar detection falls on it.
+            unexplained = brg[explained < cfg.births.camera_max_explained]
+            if unexplained.shape[0]:
+                births = phd.camera_ray_births(cfg, unexplained)
+                births = births[:, births[ROW_W] >= cfg.reduction.prune_threshold]
+                if births.shape[1]:
+                    self._poisson = reduce(
+                        np.concatenate((self._poisson, births), axis=1),
+                        cfg.reduction.prune_threshold,
+                        cfg.reduction.merge_threshold,
+                        cfg.reduction.max_components,
+                    )
 
     def estimate(self, threshold: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
         """Tracks with ``r >= threshold``, by decreasing ``r`` (each Bernoulli is at most one
@@ -396,8 +416,14 @@ class RobotCentricPMB(RobotCentricFilter):
         lik: np.ndarray,
         scale: np.ndarray,
         kappa: float | np.ndarray,
+        births_to_poisson: bool = False,
     ) -> np.ndarray:
         """Track-oriented PMB update from per-component likelihoods; returns ``explained (M,)``.
+
+        ``births_to_poisson``: the Bernoullis a measurement would start from the Poisson part
+        stay in it as Poisson components, one per (component, measurement) pair, unmatched (a
+        bearing says a teammate is on its ray, not where: the camera's births, with
+        ``PHDConfig.births.camera="ray"``).
 
         ``union`` is ``[tracks | poisson]`` ``(6, N + K)`` (``poisson`` may end with the fixed
         birth, whose missed part is dropped), ``pd (N + K,)``, ``post_means (2, N + K, M)``,
@@ -439,7 +465,20 @@ class RobotCentricPMB(RobotCentricFilter):
         k_stored = self._poisson.shape[1]
         missed = poisson[:, :k_stored].copy()
         missed[ROW_W] -= pd_w[n : n + k_stored]
-        self._finish(np.concatenate((updated, new), axis=1), missed)
+        if births_to_poisson:
+            # Each Poisson component's copy updated by each measurement it explains, weighted
+            # by its share of that measurement's new Bernoulli (measurement-major): the
+            # mixture is kept, not moment-matched, so a ray's range cells stay apart.
+            jj, kk = np.nonzero(ew[:, born].T > 0.0)
+            j = born[jj]
+            det = np.empty((N_ROWS, j.size))
+            det[ROW_W] = p_unused[j] * ew[kk, j] / c[j]
+            det[ROW_X] = post_means[0, n + kk, j]
+            det[ROW_Y] = post_means[1, n + kk, j]
+            det[ROW_PXX:] = post_covs[:, n + kk]
+            self._finish(updated, np.concatenate((missed, det), axis=1))
+        else:
+            self._finish(np.concatenate((updated, new), axis=1), missed)
         new_frac = e / np.maximum(c, _TINY)
         return 1.0 - p_unused + p_unused * new_frac
 

@@ -44,6 +44,7 @@ from ..kernels import (
     F_WIDE_CLUTTER,
     I_BIRTH_FIXED,
     I_BIRTH_MEASUREMENT,
+    I_CAMERA_BIRTH,
     I_LIDAR_ONLY,
     I_MAX_COMPONENTS,
     LIDAR,
@@ -318,7 +319,34 @@ def _core(union, nt, k_stored, pd, lik, post_means, post_covs, kappa, pf, pi):
     explained = np.empty(m)
     for j in range(m):
         explained[j] = 1.0 - p_unused[j] + p_unused[j] * (e[j] / max(c[j], _TINY))
-    return out, nt + n_born, missed, explained
+    return out, nt + n_born, missed, explained, p_unused, c
+
+
+@njit(cache=True)
+def _poisson_detections(union, nt, k, pd, lik, post_means, post_covs, p_unused, c):
+    """The Poisson part's detected copies (RobotCentricPMB._update, ``births_to_poisson``):
+    per measurement ``j`` the Poisson explains, per component ``kk`` it gates with, the
+    updated copy of weight ``p_unused_j P_d w_kk g_kk,j / c_j``, measurement-major (6, D)."""
+    m = lik.shape[1]
+    count = 0
+    for j in range(m):
+        for kk in range(k):
+            count += lik[nt + kk, j] * pd[nt + kk] * union[0, nt + kk] > 0.0
+    out = np.empty((N_ROWS, count))
+    col = 0
+    for j in range(m):
+        for kk in range(k):
+            w = lik[nt + kk, j] * (pd[nt + kk] * union[0, nt + kk])
+            if not w > 0.0:
+                continue
+            out[0, col] = p_unused[j] * w / c[j]
+            out[1, col] = post_means[0, nt + kk, j]
+            out[2, col] = post_means[1, nt + kk, j]
+            out[3, col] = post_covs[0, nt + kk]
+            out[4, col] = post_covs[1, nt + kk]
+            out[5, col] = post_covs[2, nt + kk]
+            col += 1
+    return out
 
 
 @njit(cache=True)
@@ -391,7 +419,7 @@ def _lidar(tracks, nt, pois, npz, pts, nulls, fp, ip, sector_scaled, sector_para
             lik[i, h] = math.exp(exponent) * norm
             post_means[0, i, h] = pts[h, 0] + (2.0 * r) * e0
             post_means[1, i, h] = pts[h, 1] + (2.0 * r) * e1
-    out, n_out, missed, explained = _core(
+    out, n_out, missed, explained, _, _ = _core(
         union, nt, npz, pd, lik, post_means, post_covs, np.full(m, fp[F_KAPPA_L]), pf, pi
     )
     t, n_t, p, n_p = _finish(out, n_out, missed, fp, ip, pf, pi)
@@ -426,8 +454,23 @@ def _camera(tracks, nt, pois, npz, brg, fp, ip, pf, pi, memory, ox, oy):
             post_means[0, i, h] = x + g0 * innov
             post_means[1, i, h] = y + g1 * innov
     kappa = camera_clutter(brg, memory, ox, oy, fp)  # per bearing, as the GM-PHD's
-    out, n_out, missed, _ = _core(union, nt, npz, pd, lik, post_means, post_covs, kappa, pf, pi)
-    return _finish(out, n_out, missed, fp, ip, pf, pi)
+    out, n_out, missed, explained, p_unused, c = _core(
+        union, nt, npz, pd, lik, post_means, post_covs, kappa, pf, pi
+    )
+    if not ip[I_CAMERA_BIRTH]:
+        return _finish(out, n_out, missed, fp, ip, pf, pi)
+    # camera_birth="ray" (RobotCentricPMB._camera_update): the would-be new tracks stay in the
+    # Poisson part as its updated copies, and the unexplained bearings' rays join it.
+    det = _poisson_detections(union, nt, total - nt, pd, lik, post_means, post_covs, p_unused, c)
+    k_missed = missed.shape[1]
+    pois = np.empty((N_ROWS, k_missed + det.shape[1]))
+    pois[:, :k_missed] = missed
+    pois[:, k_missed:] = det
+    t, n_t, p, n_p = _finish(out[:, :nt].copy(), nt, pois, fp, ip, pf, pi)
+    p2, n_p2 = gk._with_ray_births(p, n_p, brg, explained, fp, ip)
+    if n_p2 > n_p:
+        p, n_p = reduce_table(p2, n_p2, fp[F_PRUNE], fp[F_MERGE], ip[I_MAX_COMPONENTS])
+    return t, n_t, p, n_p
 
 
 # ---------------------------------------------------------------------- driver

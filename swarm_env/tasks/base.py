@@ -25,6 +25,10 @@ class Task:
 
     name = "base"
     n_extra_robots = 0
+    #: The episode's generator, ArenaConfig and obstacle layout, kept by :meth:`reset`.
+    _rng: np.random.Generator | None = None
+    _arena: Any = None
+    _layout: Layout | None = None
 
     def __init__(self, **params: Any) -> None:
         if params:
@@ -57,8 +61,21 @@ class Task:
 
         ``arena`` is the ArenaConfig (bounds, obstacle sizes); ``layout`` the episode's obstacle
         geometry when the World has one (``SimWorld.layout``; ``None`` on real robots), for tasks
-        that score contact with obstacles.
+        that score contact with obstacles. The task keeps the three (``_rng``, ``_arena``,
+        ``_layout``) for the episode, restarts its :attr:`localization` term, then calls
+        :meth:`start`: subclasses override that, not this.
         """
+        self._rng = rng
+        self._arena = arena
+        self._layout = layout
+        if self.localization is not None:
+            self.localization.reset()
+        self.start(truth)
+
+    def start(self, truth: GroundTruth | None) -> None:
+        """Reset the task's own episode state; called by :meth:`reset` once the episode's
+        generator, arena and layout are in place. ``truth`` is the first step's ground truth
+        (``None`` on real robots without motion capture). Default: nothing to reset."""
 
     def extra_commands(self, truth: GroundTruth | None, dt_s: float) -> np.ndarray | None:
         """Commands ``(E, 2)`` for the non-agent robots this task adds, or ``None``."""

@@ -76,16 +76,13 @@ enclosed transitions per minute).
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from swarm_core.world import GroundTruth
 from swarm_env.tasks.base import Task
 from swarm_env.tasks.common import check_choice, check_param, max_angular_gap
-
-if TYPE_CHECKING:
-    from swarm_env.world.arena import Layout
 
 PATHS = ("circle", "static")
 INTRUDER_SOURCES = ("beacon", "particle", "estimate")
@@ -204,11 +201,8 @@ class EncirclementTask(Task):
         self.intruder_features = check_choice(
             self.name, "intruder_features", intruder_features, INTRUDER_FEATURES
         )
-        if intruder_features == "filter" and intruder_source != "particle":
-            raise ValueError(
-                f"task {self.name!r}: intruder_features='filter' needs "
-                f"intruder_source='particle', got {intruder_source!r}"
-            )
+        if intruder_features == "filter":
+            self._check_particle_source("intruder_features='filter'", intruder_source)
         if isinstance(n_particles, bool) or not isinstance(n_particles, (int, np.integer)):
             raise ValueError(
                 f"task {self.name!r}: n_particles must be an int, got {n_particles!r}"
@@ -221,10 +215,11 @@ class EncirclementTask(Task):
         self.intruder_sensing = check_choice(
             self.name, "intruder_sensing", intruder_sensing, INTRUDER_SENSING
         )
-        if intruder_sensing == "range" and intruder_source != "particle":
-            raise ValueError(
-                f"task {self.name!r}: intruder_sensing='range' needs intruder_source='particle' "
-                f"(the other sources use the reading's bearing), got {intruder_source!r}"
+        if intruder_sensing == "range":
+            self._check_particle_source(
+                "intruder_sensing='range'",
+                intruder_source,
+                "the other sources use the reading's bearing",
             )
         self.particle_start = check_choice(
             self.name, "particle_start", particle_start, PARTICLE_STARTS
@@ -242,6 +237,16 @@ class EncirclementTask(Task):
         self._last_omega = 0.0
         self._errors: list[float] = []
         self._gaps: list[float] = []
+
+    def _check_particle_source(self, option: str, intruder_source: str, why: str = "") -> None:
+        """Refuse ``option`` (e.g. ``"intruder_features='filter'"``) unless the intruder source
+        is the particle filter; ``why`` is said in brackets."""
+        if intruder_source != "particle":
+            because = f" ({why})" if why else ""
+            raise ValueError(
+                f"task {self.name!r}: {option} needs intruder_source='particle'{because}, "
+                f"got {intruder_source!r}"
+            )
 
     @property
     def n_features(self) -> int:
@@ -364,19 +369,11 @@ class EncirclementTask(Task):
                     f"{arena.width_m} m x {arena.height_m} m arena"
                 )
 
-    def reset(
-        self,
-        truth: GroundTruth | None,
-        rng: np.random.Generator,
-        arena: Any,
-        *,
-        layout: Layout | None = None,
-    ) -> None:
-        self._rng = rng
+    def start(self, truth: GroundTruth | None) -> None:
         self._loop_radius_m = (
             self.path_radius_m
             if self.path_radius_m is not None
-            else 0.25 * min(arena.width_m, arena.height_m)
+            else 0.25 * min(self._arena.width_m, self._arena.height_m)
         )
         self._heading = 0.0
         self._prev_xy = None

@@ -35,7 +35,7 @@ swarm's coverage map; what it can learn is to spread out and keep moving.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -43,9 +43,6 @@ from swarm_core.world import GroundTruth
 from swarm_env.tasks.base import Task
 from swarm_env.tasks.common import check_param, collisions
 from swarm_env.tasks.localization_term import LocalizationTerm
-
-if TYPE_CHECKING:
-    from swarm_env.world.arena import Layout
 
 
 class ExplorationTask(Task):
@@ -102,8 +99,6 @@ class ExplorationTask(Task):
         self.wall_margin_m = check_param(self.name, "wall_margin_m", wall_margin_m, 0.0, 5.0)
         self.localization = LocalizationTerm(self.name, localization_weight, localization_term)
         self.localization_weight = self.localization.weight
-        self._arena: Any = None
-        self._layout: Layout | None = None
         self.covered = np.zeros((0, 0), dtype=bool)
         self._collision_steps = 0
         self._steps = 0
@@ -123,21 +118,11 @@ class ExplorationTask(Task):
     def check_arena(self, arena: Any) -> None:
         self.grid_shape(arena)
 
-    def reset(
-        self,
-        truth: GroundTruth | None,
-        rng: np.random.Generator,
-        arena: Any,
-        *,
-        layout: Layout | None = None,
-    ) -> None:
-        self._arena = arena
-        self._layout = layout
-        self.covered = np.zeros(self.grid_shape(arena), dtype=bool)
+    def start(self, truth: GroundTruth | None) -> None:
+        self.covered = np.zeros(self.grid_shape(self._arena), dtype=bool)
         self._collision_steps = 0
         self._steps = 0
         self._robot_steps = 0
-        self.localization.reset()
         if truth is not None:
             self._cover(truth.poses[:, :2])  # the start cells are free: no reward for them
 

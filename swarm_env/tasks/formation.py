@@ -38,7 +38,7 @@ spacing error, true centroid x, y in the robot's body frame]``, lattice ``[latti
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -50,9 +50,6 @@ from swarm_env.tasks.common import (
     pairwise_distances,
 )
 from swarm_env.tasks.localization_term import LocalizationTerm
-
-if TYPE_CHECKING:
-    from swarm_env.world.arena import Layout
 
 SHAPES = ("circle", "lattice")
 _NEIGHBOUR_FACTOR = 1.5
@@ -103,20 +100,11 @@ class FormationTask(Task):
                     f"task {self.name!r}: spacing_m applies to shape='lattice'; "
                     "a circle's spacing follows from radius_m and the robot count"
                 )
-            self.radius_m = check_param(
-                self.name,
-                "radius_m",
-                0.8 if radius_m is None else radius_m,
-                0.0,
-                20.0,
-                low_open=True,
-            )
+            radius_m = 0.8 if radius_m is None else radius_m
+            spacing_weight = 0.5 if spacing_weight is None else spacing_weight
+            self.radius_m = check_param(self.name, "radius_m", radius_m, 0.0, 20.0, low_open=True)
             self.spacing_weight = check_param(
-                self.name,
-                "spacing_weight",
-                0.5 if spacing_weight is None else spacing_weight,
-                0.0,
-                10.0,
+                self.name, "spacing_weight", spacing_weight, 0.0, 10.0
             )
             self.spacing_m = None
         else:
@@ -126,13 +114,9 @@ class FormationTask(Task):
                         f"task {self.name!r}: {name} applies to shape='circle', "
                         "not 'lattice' (use spacing_m)"
                     )
+            spacing_m = 0.6 if spacing_m is None else spacing_m
             self.spacing_m = check_param(
-                self.name,
-                "spacing_m",
-                0.6 if spacing_m is None else spacing_m,
-                0.0,
-                20.0,
-                low_open=True,
+                self.name, "spacing_m", spacing_m, 0.0, 20.0, low_open=True
             )
             self.radius_m = None
             self.spacing_weight = 0.0
@@ -165,17 +149,9 @@ class FormationTask(Task):
         return np.tile(np.asarray(row, dtype=float), (n_agents, 1))
 
     # -- episode --------------------------------------------------------------------------
-    def reset(
-        self,
-        truth: GroundTruth | None,
-        rng: np.random.Generator,
-        arena: Any,
-        *,
-        layout: Layout | None = None,
-    ) -> None:
+    def start(self, truth: GroundTruth | None) -> None:
         self._errors = []
         self._spacing_errors = []
-        self.localization.reset()
         self._previous = None
         if truth is not None:
             shape_err, spacing_err = self.errors(truth.poses[:, :2])

@@ -29,6 +29,7 @@ from swarm_core.world import GroundTruth, WorldStep, relative_positions, truth_f
 from swarm_env.comms import SwarmRadio
 from swarm_env.config import SwarmConfig
 from swarm_env.sensors.camera import CameraSensor
+from swarm_env.sensors.detection_fade import thin_bearings, thin_points
 from swarm_env.sensors.lidar import LidarSensor
 from swarm_env.sensors.odometry import WheelEncoders
 from swarm_env.sensors.scene import Scene
@@ -358,6 +359,8 @@ class SimWorld:
         detections = extract_detections(
             batch.angles_rad, batch.ranges_m, self.config.lidar_features
         )
+        if self.config.lidar_fade is not None:  # a stated range curve (the Perera 2021 study's)
+            detections = thin_points(detections, self.config.lidar_fade, self._rng)
         # Null bearings of every scan in one compiled pass, then sliced per scan.
         bounds, null_beam = null_beams(batch.ranges_m, batch.intensities, self.lidar.blind_mask)
         null_bearings = batch.angles_rad[null_beam]
@@ -420,9 +423,17 @@ class SimWorld:
         batch = self.camera.observe(
             scene, robots, self._rng, time_index=when, indexed=self._indexed
         )
+        frames = batch.bearings
+        if self.config.camera_fade is not None:  # a stated range curve (the Perera 2021 study's)
+            origins, _ = scene.observer_poses(robots, when)
+            frames, _ = thin_bearings(
+                frames, batch.sources, scene.circle_xy, origins, self.config.camera_fade, self._rng
+            )
+            for bearings in frames:
+                bearings.setflags(write=False)
         make = CameraRecord._make
         frame_stamps = stamps[when].tolist()
-        for i, stamp, bearings in zip(robots.tolist(), frame_stamps, batch.bearings, strict=True):
+        for i, stamp, bearings in zip(robots.tolist(), frame_stamps, frames, strict=True):
             record = make(stamp, bearings)
             out[i].append(record)
             self.last_camera[i] = record
@@ -432,7 +443,7 @@ class SimWorld:
         if self.config.sensor_stats:
             rel = self._relative_at(poses)
             for k, (i, sub) in enumerate(zip(robots.tolist(), when.tolist(), strict=True)):
-                self.stats["camera"].add_bearings(batch.bearings[k], _others(rel[sub], i))
+                self.stats["camera"].add_bearings(frames[k], _others(rel[sub], i))
         return out
 
     def _relative_at(self, poses: np.ndarray) -> np.ndarray:

@@ -9,8 +9,9 @@ import statistics
 
 import pytest
 
+from agents.policies import policy_env
 from agents.sb3.policy import write_metadata
-from swarm_phd.evaluate import _make_env, paired_by_seed, shared_env_kwargs
+from swarm_phd.evaluate import paired_by_seed, shared_env_kwargs
 
 
 @pytest.fixture
@@ -39,7 +40,7 @@ def fake_model(tmp_path):
 
 
 def test_model_env_defaults_to_the_models_settings(fake_model):
-    env = _make_env(None, None, fake_model)
+    env = policy_env(None, None, fake_model)
     assert env.config.n_robots == 4 and env.config.observation == "truth"
     assert env.task.name == "formation" and env.task.radius_m == 0.7
 
@@ -53,7 +54,7 @@ def test_task_params_given_are_merged_over_the_models_own(fake_model):
     merged = {"radius_m": 0.7, "progress_weight": 10}
     assert trained_policy_env(fake_model, **given)["task_params"] == merged
     assert shared_env_kwargs(fake_model, None, None, **given)["task_params"] == merged
-    env = _make_env(None, None, fake_model, **given)
+    env = policy_env(None, None, fake_model, **given)
     assert env.task.radius_m == 0.7 and env.task.progress_weight == 10
     assert trained_policy_env(fake_model, task="wander", **given)["task_params"] == {
         "progress_weight": 10
@@ -85,9 +86,9 @@ def test_a_model_without_a_task_was_trained_on_wander():
 
 
 def test_scripted_phd_controller_gets_a_phd_env():
-    env = _make_env("seed-lab", "formation", "scripted:formation")
+    env = policy_env("seed-lab", "formation", "scripted:formation")
     assert env.config.observation == "phd" and env.config.localize
-    env = _make_env("seed-lab", None, "scripted:wander")
+    env = policy_env("seed-lab", None, "scripted:wander")
     assert env.config.observation == "measurements" and not env.config.localize
 
 

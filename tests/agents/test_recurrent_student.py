@@ -416,11 +416,12 @@ def test_report_scores_students_pooled_against_their_base_without_training_runs(
 
 
 def test_evaluate_runs_a_student_in_its_own_env(env, tmp_path):
-    from swarm_phd.evaluate import _make_env, _model_preset, evaluate_localization
+    from agents.policies import policy_env
+    from swarm_phd.evaluate import _model_preset, evaluate_localization
 
     path = tmp_path / "s.pt"
     save_student(path, _student(env), {**ENV, "task_params": {"radius_m": 0.7}}, BASE)
-    made = _make_env(None, None, str(path))
+    made = policy_env(None, None, str(path))
     try:  # the student's env: its preset, task, parameters and observation
         assert made.config.n_robots == 4 and made.config.observation == "phd"
         assert made.task.name == "formation" and made.task.radius_m == 0.7

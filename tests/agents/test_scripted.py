@@ -45,8 +45,10 @@ def test_controllers_refuse_envs_they_cannot_run_in():
     env = parallel_env("seed-lab", task="formation", observation="measurements", localize=False)
     with pytest.raises(ValueError, match="observation='phd'"):
         load_policy("scripted:formation", env)
-    with pytest.raises(ValueError, match="task='formation'"):
-        load_policy("scripted:formation", parallel_env("seed-lab"))
+    wander = parallel_env("seed-lab")
+    for name, task in (("formation", "formation"), ("exploration", "exploration")):
+        with pytest.raises(ValueError, match=f"scripted:{name} needs task='{task}', got 'wander'"):
+            load_policy(f"scripted:{name}", wander)
     no_beacon = parallel_env("seed-lab", task="encirclement", task_params={"beacon": False})
     with pytest.raises(ValueError, match="beacon"):
         load_policy("scripted:encirclement", no_beacon)

@@ -133,7 +133,8 @@ def test_rllib_defaults_train_and_the_run_is_a_policy(local_ray, tmp_path, capsy
     argv += ["--num-env-runners", "1", "--n-epochs", "1", "--eval-seeds", "2"]
     # No --batch-size: the default minibatch (512) is cut to the iteration's 8 env steps.
     assert main([*argv, "--out", str(out)]) == 0
-    text = capsys.readouterr().out
+    first = capsys.readouterr()
+    text = first.out
     assert "--timesteps 150 rounds up to 160 = 5 iterations of 32 agent steps" in text
     lines = [line for line in text.splitlines() if line.startswith("train: ")]
     assert len(lines) == 5 and "no episode finished yet" in lines[0]
@@ -142,6 +143,9 @@ def test_rllib_defaults_train_and_the_run_is_a_policy(local_ray, tmp_path, capsy
     assert "no episode finished yet" in lines[1]
     assert all("mean episode return per agent" in line for line in lines[2:])
     assert lines[3].split("agent ")[2] == lines[2].split("agent ")[2]
+    # The task's headline metric, from the env runners, beside the return once episodes end.
+    assert "; formation_error_m " in lines[2] and "; formation_error_m " in lines[4]
+    assert "RLlib's default MLP encoder" in text and "Deep Sets" not in first.err
     assert "paired by seed" in text and " | scripted:formation | " in text
     config = json.loads((out / "train_config.json").read_text())
     assert config["ppo"]["minibatch_size"] == 8

@@ -18,7 +18,7 @@ import pytest
 from hardware_bridge import real_env
 from hardware_bridge.assembly import RecordAssembler, integrate_odometry, odometry_increment
 from hardware_bridge.bag import ReplayWorld
-from hardware_bridge.loopback import FaultConfig, hostile_inputs
+from hardware_bridge.loopback import FaultConfig, hostile_inputs, read_twist_log
 from hardware_bridge.messages import (
     InvalidMessage,
     Odom,
@@ -29,44 +29,30 @@ from hardware_bridge.messages import (
 )
 from hardware_bridge.world import RealWorld, TransportLostError
 from swarm_env.config import make_config
-from tests.hardware_bridge.conftest import wait_until
+from tests.hardware_bridge.conftest import (
+    drive,
+    hold_the_gil,
+    wait_until,
+    zero_times,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _zero_times(server, after: float) -> dict[str, float]:
-    out: dict[str, float] = {}
-    for t, robot, v, w in server.twists():
-        if t > after and v == 0.0 and w == 0.0 and robot not in out:
-            out[robot] = t
-    return out
-
-
-def _drive(env, steps: int, v: float = 0.2):
-    infos = None
-    for _ in range(steps):
-        _, _, _, _, infos = env.step({a: np.array([v, 0.0], dtype=np.float32) for a in env.agents})
-    return infos
-
-
 # ---------------------------------------------------------------------------- robots always stop
 @pytest.mark.timeout(40)
-def test_halt_stops_every_robot_at_once_is_idempotent_and_never_raises(loopback):
-    server = loopback()
-    env = real_env(port=server.port, preset="seed-lab")
+def test_halt_stops_every_robot_at_once_is_idempotent_and_never_raises(lab):
+    server, env = lab()
     world = env.world
-    try:
-        env.reset(seed=0)
-        _drive(env, 3)
-        t0 = time.monotonic()
-        world.halt()
-        world.halt()
-        assert wait_until(lambda: len(_zero_times(server, t0)) == 4, 0.3)
-        assert max(_zero_times(server, t0).values()) - t0 < 0.2
-        _drive(env, 2)  # stepping again resumes motion
-        assert any(v > 0 for t, _, v, _ in server.twists() if t > t0 + 0.05)
-    finally:
-        env.close()
+    drive(env, 3)
+    t0 = time.monotonic()
+    world.halt()
+    world.halt()
+    assert wait_until(lambda: len(zero_times(server, t0)) == 4, 0.3)
+    assert max(zero_times(server, t0).values()) - t0 < 0.2
+    drive(env, 2)  # stepping again resumes motion
+    assert any(v > 0 for t, _, v, _ in server.twists() if t > t0 + 0.05)
+    env.close()
     world.halt()  # after close: a no-op, no exception
     with pytest.raises(RuntimeError, match="after close"):
         world.step(np.zeros((4, 2)))
@@ -75,45 +61,35 @@ def test_halt_stops_every_robot_at_once_is_idempotent_and_never_raises(loopback)
 
 
 @pytest.mark.timeout(40)
-def test_an_exception_outside_the_world_stops_the_robots_at_once(loopback, monkeypatch):
-    server = loopback()
-    env = real_env(port=server.port, preset="seed-lab")
-    try:
-        env.reset(seed=0)
-        _drive(env, 3)
+def test_an_exception_outside_the_world_stops_the_robots_at_once(lab, monkeypatch):
+    server, env = lab()
+    drive(env, 3)
 
-        def boom(*args, **kwargs):
-            raise RuntimeError("reward code crashed")
+    def boom(*args, **kwargs):
+        raise RuntimeError("reward code crashed")
 
-        monkeypatch.setattr(env.task, "rewards", boom)
-        t0 = time.monotonic()
-        with pytest.raises(RuntimeError, match="reward code crashed"):
-            _drive(env, 1)
-        # Well before the 0.5 s stall timer: the env called world.halt().
-        assert wait_until(lambda: len(_zero_times(server, t0)) == 4, 0.35)
-        assert max(_zero_times(server, t0).values()) - t0 < 0.35
-    finally:
-        env.close()
+    monkeypatch.setattr(env.task, "rewards", boom)
+    t0 = time.monotonic()
+    with pytest.raises(RuntimeError, match="reward code crashed"):
+        drive(env, 1)
+    # Well before the 0.5 s stall timer: the env called world.halt().
+    assert wait_until(lambda: len(zero_times(server, t0)) == 4, 0.35)
+    assert max(zero_times(server, t0).values()) - t0 < 0.35
 
 
 @pytest.mark.timeout(40)
-def test_step_raises_a_clear_error_once_the_link_is_down_past_the_grace(loopback):
-    server = loopback()
-    env = real_env(port=server.port, preset="seed-lab", bridge={"transport_grace_s": 1.0})
-    try:
-        env.reset(seed=0)
-        _drive(env, 2)
-        t_down = time.monotonic()
-        server.stop()
-        with pytest.raises(TransportLostError, match=f"127.0.0.1:{server.port}") as err:
-            for _ in range(60):
-                _drive(env, 1)
-        elapsed = time.monotonic() - t_down
-        assert 1.0 <= elapsed < 3.0, elapsed
-        assert "transport_grace_s=1.0" in str(err.value)
-        assert env.world.watchdog.tripped
-    finally:
-        env.close()
+def test_step_raises_a_clear_error_once_the_link_is_down_past_the_grace(lab):
+    server, env = lab(bridge={"transport_grace_s": 1.0})
+    drive(env, 2)
+    t_down = time.monotonic()
+    server.stop()
+    with pytest.raises(TransportLostError, match=f"127.0.0.1:{server.port}") as err:
+        for _ in range(60):
+            drive(env, 1)
+    elapsed = time.monotonic() - t_down
+    assert 1.0 <= elapsed < 3.0, elapsed
+    assert "transport_grace_s=1.0" in str(err.value)
+    assert env.world.watchdog.tripped
 
 
 @pytest.mark.timeout(40)
@@ -123,14 +99,14 @@ def test_an_oversize_message_is_refused_and_counted_and_the_link_stays_up(loopba
     env = real_env(port=server.port, preset="seed-lab", bridge={"max_message_bytes": limit})
     try:
         env.reset(seed=0)
-        _drive(env, 2)
+        drive(env, 2)
         payload = hostile_inputs("ugv_0", time.time_ns(), limit)["oversize"]
         assert len(payload) > limit
         server.send_raw(payload)
         world = env.world
         assert wait_until(lambda: world.counters.get("transport.oversize") == 1, 2.0)
         accepted = world.counters.get("odometry.accepted")
-        _drive(env, 5)
+        drive(env, 5)
         assert world.counters.get("transport.lost") == 0
         assert world.counters.get("transport.publish_dropped") == 0
         assert not world.watchdog.trips
@@ -157,11 +133,11 @@ def test_a_frozen_server_never_executes_a_stale_command(loopback):
     )
     try:
         env.reset(seed=0)
-        _drive(env, 3)
+        drive(env, 3)
         t_pause = time.monotonic()
         server.pause(1.5)  # SIGSTOP-like: nothing read for 1.5 s, the client keeps commanding
         while time.monotonic() < t_pause + 1.5:
-            _drive(env, 1)
+            drive(env, 1)
         time.sleep(0.3)  # the burst lands
         log = _command_ages(server, t_pause)
         assert log, "nothing arrived after the pause"
@@ -178,60 +154,21 @@ def test_a_frozen_server_never_executes_a_stale_command(loopback):
         env.close()
 
 
-def _start_robot_process(tmp_path: Path) -> tuple[subprocess.Popen, int, Path]:
-    log = tmp_path / "twists.log"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "hardware_bridge.loopback", "--twist-log", str(log)],
-        cwd=ROOT,
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-    )
-    line = proc.stdout.readline()
-    assert line.strip().isdigit(), f"loopback process did not start: {line!r}"
-    return proc, int(line), log
-
-
-def _read_log(log: Path) -> list[tuple[float, str, float, float, bool]]:
-    out = []
-    for line in log.read_text().splitlines():
-        t, robot, v, w, _age, applied = line.split()
-        out.append((float(t), robot, float(v), float(w), applied == "1"))
-    return out
-
-
 @pytest.mark.timeout(300)  # the robot process may compile the numba kernels first
-def test_the_guard_process_stops_the_robots_while_the_env_holds_the_gil(tmp_path):
-    proc, port, log = _start_robot_process(tmp_path)
-    env = real_env(port=port, preset="seed-lab", bridge={"reset_timeout_s": 20.0})
-    try:
-        env.reset(seed=0)
-        assert env.world.guard is not None and env.world.guard.connected.is_set()
-        _drive(env, 5)
-        # A stall that holds the GIL: no other thread of this process runs for 2 s.
-        interval = sys.getswitchinterval()
-        sys.setswitchinterval(5.0)
-        try:
-            t_stall = time.monotonic()
-            x = 0
-            while time.monotonic() - t_stall < 2.0:
-                x += 1
-        finally:
-            sys.setswitchinterval(interval)
-        time.sleep(0.2)
-        zeros = {}
-        for t, robot, v, w, applied in _read_log(log):
-            if t > t_stall and applied and v == 0.0 and w == 0.0 and robot not in zeros:
-                zeros[robot] = t - t_stall
-        assert set(zeros) == set(env.possible_agents), zeros
-        # The 0.5 s timeout plus the guard's poll (0.53 s measured), not the 2 s stall (2.05 s
-        # without the guard); the margin is for a loaded machine.
-        assert max(zeros.values()) < 1.2, zeros
-    finally:
-        env.close()
-        proc.stdin.close()
-        proc.wait(10)
+def test_the_guard_process_stops_the_robots_while_the_env_holds_the_gil(guarded_lab):
+    env, log = guarded_lab
+    drive(env, 5)
+    t_stall = time.monotonic()
+    hold_the_gil(2.0)  # no other thread of this process runs for 2 s
+    time.sleep(0.2)
+    zeros = {}
+    for t, robot, v, w, applied in read_twist_log(log):
+        if t > t_stall and applied and v == 0.0 and w == 0.0 and robot not in zeros:
+            zeros[robot] = t - t_stall
+    assert set(zeros) == set(env.possible_agents), zeros
+    # The 0.5 s timeout plus the guard's poll (0.53 s measured), not the 2 s stall (2.05 s
+    # without the guard); the margin is for a loaded machine.
+    assert max(zeros.values()) < 1.2, zeros
 
 
 @pytest.mark.timeout(300)  # the env process may compile the numba kernels first
@@ -261,8 +198,8 @@ def test_the_guard_stops_the_robots_when_the_env_process_is_killed(loopback, tmp
         proc.kill()  # SIGKILL: no finally, no atexit, no watchdog thread
         proc.wait(5)
         # Nothing of the env process runs any more: only the guard can have sent these.
-        assert wait_until(lambda: len(_zero_times(server, t_kill)) == 4, 1.5)
-        assert max(_zero_times(server, t_kill).values()) - t_kill < 1.0
+        assert wait_until(lambda: len(zero_times(server, t_kill)) == 4, 1.5)
+        assert max(zero_times(server, t_kill).values()) - t_kill < 1.0
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -381,24 +318,19 @@ def test_integrate_odometry_inverts_the_increment():
 
 
 @pytest.mark.timeout(60)
-def test_reset_clears_a_poisoned_stamp_state(loopback):
-    server = loopback()
-    env = real_env(port=server.port, preset="seed-lab")
+def test_reset_clears_a_poisoned_stamp_state(lab):
+    server, env = lab()
     world = env.world
-    try:
-        env.reset(seed=0)
-        _drive(env, 2, v=0.0)
-        # Poison every stamp state as a bad message did before the fix (an hour ahead).
-        with world._lock:
-            for buf in world._buffers.values():
-                buf.newest_ns = time.time_ns() + 3600 * 10**9
-        world.assembler._baseline["ugv_0"] = Odom(time.time_ns() + 3600 * 10**9, 0, 0, 0, 0, 0)
-        env.reset(seed=0)
-        infos = _drive(env, 5, v=0.0)
-        assert all(not info["stale"] for info in infos.values()), infos
-        assert infos["ugv_0"]["measurements"]["odometry"], "ugv_0 odometry still silenced"
-    finally:
-        env.close()
+    drive(env, 2, v=0.0)
+    # Poison every stamp state as a bad message did before the fix (an hour ahead).
+    with world._lock:
+        for buf in world._buffers.values():
+            buf.newest_ns = time.time_ns() + 3600 * 10**9
+    world.assembler._baseline["ugv_0"] = Odom(time.time_ns() + 3600 * 10**9, 0, 0, 0, 0, 0)
+    env.reset(seed=0)
+    infos = drive(env, 5, v=0.0)
+    assert all(not info["stale"] for info in infos.values()), infos
+    assert infos["ugv_0"]["measurements"]["odometry"], "ugv_0 odometry still silenced"
 
 
 @pytest.mark.timeout(90)
@@ -479,7 +411,7 @@ def test_recorded_stamped_and_unstamped_bearings_replay_identically(loopback, tm
         env.reset(seed=0)
         fed = {a: 0 for a in env.possible_agents}
         for _ in range(15):
-            infos = _drive(env, 1, v=0.1)
+            infos = drive(env, 1, v=0.1)
             for a, info in infos.items():
                 fed[a] += len(info["measurements"]["camera"])
         assert all(n > 0 for n in fed.values()), fed

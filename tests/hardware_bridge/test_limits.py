@@ -210,7 +210,8 @@ def test_evaluate_refuses_an_out_holding_earlier_results(tmp_path, capsys):
     (out / "metrics.json").write_text("{}")
     assert main(["evaluate", *TINY, "--out", str(out)]) == 2
     err = capsys.readouterr().err
-    assert "--out" in err and "metrics.json" in err and "--overwrite" in err
+    assert "--out" in err and "holds earlier results (metrics.json)" in err
+    assert "pass --overwrite to write into it anyway" in err
     assert (out / "metrics.json").read_text() == "{}"  # untouched
 
 

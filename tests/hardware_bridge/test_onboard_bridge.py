@@ -22,6 +22,7 @@ import pytest
 from hardware_bridge import real_env
 from hardware_bridge.onboard import mixture_arrays
 from swarm_env.config import make_config
+from tests.swarm_env.test_env_api import phd_table
 
 from .conftest import wait_until
 
@@ -73,18 +74,10 @@ def test_onboard_over_the_loopback_observes_the_robots_own_filters(loopback, tmp
                 np.testing.assert_array_equal(got.means, m)
                 np.testing.assert_array_equal(got.covs, p)
                 # The observation: the K heaviest, as the simulator's encoder lays them out.
-                order = np.argsort(-w, kind="stable")[:K]
-                want = np.zeros((K, COLUMNS))
-                n = order.size
-                want[:n, 0] = w[order]
-                want[:n, 1:3] = m[order]
-                want[:n, 3] = p[order, 0, 0]
-                want[:n, 4] = p[order, 0, 1]
-                want[:n, 5] = p[order, 1, 1]
-                want[:n, 6] = 1.0
+                want = phd_table(w, m, p, K)
                 np.testing.assert_allclose(_estimate_rows(obs[agent]), want, rtol=1e-6, atol=1e-7)
                 compared += 1
-                components += n
+                components += min(w.size, K)
         counters = env.world.counters_snapshot()
     finally:
         env.close()

@@ -14,77 +14,54 @@ import numpy as np
 import pytest
 
 from hardware_bridge import real_env
-from tests.hardware_bridge.conftest import wait_until
-
-
-def _zero_times(server, after: float) -> dict[str, float]:
-    """First zero-velocity cmd_vel per robot received after ``after`` (monotonic s)."""
-    out: dict[str, float] = {}
-    for t, robot, v, w in server.twists():
-        if t > after and v == 0.0 and w == 0.0 and robot not in out:
-            out[robot] = t
-    return out
-
-
-def _drive(env, steps: int, v: float = 0.2) -> None:
-    for _ in range(steps):
-        env.step({a: np.array([v, 0.0], dtype=np.float32) for a in env.agents})
+from tests.hardware_bridge.conftest import drive, wait_until, zero_times
 
 
 @pytest.mark.timeout(30)
-def test_watchdog_sends_zero_twist_within_0_6_s_of_the_client_stalling(loopback):
-    server = loopback()
-    env = real_env(port=server.port, preset="seed-lab")
-    try:
-        env.reset(seed=0)
-        t_first = time.monotonic()
-        _drive(env, 5)
-        t_stall = time.monotonic()  # the controller stops calling step() here
-        robots = set(env.possible_agents)
-        assert wait_until(lambda: set(_zero_times(server, t_stall)) == robots, 1.5)
-        zeros = _zero_times(server, t_stall)
-        # No stop while the controller was stepping: every command in between was motion.
-        during = [(t, r, v) for t, r, v, _ in server.twists() if t_first < t <= t_stall]
-        assert len(during) >= 4 * 4 and all(v > 0 for _, _, v in during)
-        latency = {r: t - t_stall for r, t in zeros.items()}
-        assert all(dt <= 0.6 for dt in latency.values()), latency
-        timeout = env.world.bridge.watchdog_timeout_s
-        assert all(dt >= timeout - 0.05 for dt in latency.values()), f"fired early {latency}"
-        # It keeps the robots stopped (repeats) until the next step.
-        assert wait_until(
-            lambda: len([1 for t, *_ in server.twists() if t > max(zeros.values()) + 0.1]) >= 4,
-            1.0,
-        )
-        # Stepping again resumes motion.
-        _drive(env, 2)
-    finally:
-        env.close()
+def test_watchdog_sends_zero_twist_within_0_6_s_of_the_client_stalling(lab):
+    server, env = lab()
+    t_first = time.monotonic()
+    drive(env, 5)
+    t_stall = time.monotonic()  # the controller stops calling step() here
+    robots = set(env.possible_agents)
+    assert wait_until(lambda: set(zero_times(server, t_stall)) == robots, 1.5)
+    zeros = zero_times(server, t_stall)
+    # No stop while the controller was stepping: every command in between was motion.
+    during = [(t, r, v) for t, r, v, _ in server.twists() if t_first < t <= t_stall]
+    assert len(during) >= 4 * 4 and all(v > 0 for _, _, v in during)
+    latency = {r: t - t_stall for r, t in zeros.items()}
+    assert all(dt <= 0.6 for dt in latency.values()), latency
+    timeout = env.world.bridge.watchdog_timeout_s
+    assert all(dt >= timeout - 0.05 for dt in latency.values()), f"fired early {latency}"
+    # It keeps the robots stopped (repeats) until the next step.
+    assert wait_until(
+        lambda: len([1 for t, *_ in server.twists() if t > max(zeros.values()) + 0.1]) >= 4,
+        1.0,
+    )
+    # Stepping again resumes motion.
+    drive(env, 2)
 
 
 @pytest.mark.timeout(30)
-def test_exception_in_step_and_close_stop_the_robots_at_once(loopback, monkeypatch):
-    server = loopback()
-    env = real_env(port=server.port, preset="seed-lab")
-    try:
-        env.reset(seed=0)
-        _drive(env, 3)
+def test_exception_in_step_and_close_stop_the_robots_at_once(lab, monkeypatch):
+    server, env = lab()
+    drive(env, 3)
 
-        def boom(*args, **kwargs):
-            raise RuntimeError("planner crashed")
+    def boom(*args, **kwargs):
+        raise RuntimeError("planner crashed")
 
-        monkeypatch.setattr(env.world.limiter, "limit", boom)
-        t0 = time.monotonic()
-        with pytest.raises(RuntimeError, match="planner crashed"):
-            env.step({a: np.array([0.2, 0.0]) for a in env.agents})
-        assert wait_until(lambda: len(_zero_times(server, t0)) == 4, 0.3)
-        assert max(_zero_times(server, t0).values()) - t0 < 0.2
-        monkeypatch.undo()
-        _drive(env, 2)
-        t1 = time.monotonic()
-    finally:
-        env.close()
-    assert wait_until(lambda: len(_zero_times(server, t1)) == 4, 0.3)
-    assert max(_zero_times(server, t1).values()) - t1 < 0.2
+    monkeypatch.setattr(env.world.limiter, "limit", boom)
+    t0 = time.monotonic()
+    with pytest.raises(RuntimeError, match="planner crashed"):
+        env.step({a: np.array([0.2, 0.0]) for a in env.agents})
+    assert wait_until(lambda: len(zero_times(server, t0)) == 4, 0.3)
+    assert max(zero_times(server, t0).values()) - t0 < 0.2
+    monkeypatch.undo()
+    drive(env, 2)
+    t1 = time.monotonic()
+    env.close()
+    assert wait_until(lambda: len(zero_times(server, t1)) == 4, 0.3)
+    assert max(zero_times(server, t1).values()) - t1 < 0.2
 
 
 @pytest.mark.timeout(30)
@@ -92,21 +69,17 @@ def test_exception_in_step_and_close_stop_the_robots_at_once(loopback, monkeypat
     threading.current_thread() is not threading.main_thread(),
     reason="signals are delivered to the main thread",
 )
-def test_sigint_stops_the_robots_before_keyboard_interrupt(loopback):
-    server = loopback()
-    env = real_env(port=server.port, preset="seed-lab")
-    try:
-        env.reset(seed=0)
-        _drive(env, 3)
-        t0 = time.monotonic()
-        with pytest.raises(KeyboardInterrupt):
-            os.kill(os.getpid(), signal.SIGINT)
-            time.sleep(2.0)  # interrupted by the signal
-        # Well before the 0.5 s step timeout could have fired.
-        assert wait_until(lambda: len(_zero_times(server, t0)) == 4, 0.3)
-        assert max(_zero_times(server, t0).values()) - t0 < 0.25
-    finally:
-        env.close()
+def test_sigint_stops_the_robots_before_keyboard_interrupt(lab):
+    server, env = lab()
+    drive(env, 3)
+    t0 = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(2.0)  # interrupted by the signal
+    # Well before the 0.5 s step timeout could have fired.
+    assert wait_until(lambda: len(zero_times(server, t0)) == 4, 0.3)
+    assert max(zero_times(server, t0).values()) - t0 < 0.25
+    env.close()
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 

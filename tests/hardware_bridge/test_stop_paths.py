@@ -18,11 +18,16 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from hardware_bridge import real_env
-from tests.hardware_bridge.conftest import wait_until
+from hardware_bridge.loopback import read_twist_log
+from tests.hardware_bridge.conftest import (
+    drive,
+    end_process,
+    hold_the_gil,
+    wait_until,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 BOUND_S = 0.6
@@ -47,46 +52,9 @@ def _fmt(delays: dict[str, float]) -> dict[str, float]:
     return {r: round(d, 3) for r, d in sorted(delays.items())}
 
 
-def _drive(env, steps: int, v: float = 0.2) -> None:
-    for _ in range(steps):
-        env.step({a: np.array([v, 0.0]) for a in env.agents})
-
-
-def _hold_the_gil(seconds: float) -> None:
-    interval = sys.getswitchinterval()
-    sys.setswitchinterval(10.0)
-    try:
-        t0 = time.monotonic()
-        x = 0
-        while time.monotonic() - t0 < seconds:
-            x += 1
-    finally:
-        sys.setswitchinterval(interval)
-
-
-def _robot_process(tmp_path: Path) -> tuple[subprocess.Popen, int, Path]:
-    """Robots in another process (its own GIL), logging every command they receive."""
-    log = tmp_path / "twists.log"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "hardware_bridge.loopback", "--twist-log", str(log)],
-        cwd=ROOT,
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-    )
-    line = proc.stdout.readline()
-    assert line.strip().isdigit(), f"loopback process did not start: {line!r}"
-    return proc, int(line), log
-
-
-def _logged_twists(log: Path) -> list[tuple[float, str, float, float]]:
-    out = []
-    for line in log.read_text().splitlines():
-        t, robot, v, w, _age, applied = line.split()
-        if applied == "1":
-            out.append((float(t), robot, float(v), float(w)))
-    return out
+def _applied(log: Path) -> list[tuple[float, str, float, float]]:
+    """The commands the robot process applied (``read_twist_log`` less the refused)."""
+    return [(t, robot, v, w) for t, robot, v, w, applied in read_twist_log(log) if applied]
 
 
 @pytest.mark.timeout(60)
@@ -96,7 +64,7 @@ def test_a_step_hung_after_its_command_stops_the_robots_within_the_bound(loopbac
     world = env.world
     try:
         env.reset(seed=0)
-        _drive(env, 5)
+        drive(env, 5)
         t0 = time.monotonic()
         take = world._take
 
@@ -105,46 +73,40 @@ def test_a_step_hung_after_its_command_stops_the_robots_within_the_bound(loopbac
             return take(*args, **kwargs)
 
         monkeypatch.setattr(world, "_take", hung_take)
-        _drive(env, 1)
+        drive(env, 1)
         monkeypatch.setattr(world, "_take", take)
         delays = stop_delays(server.twists(), t0)
         assert set(delays) == set(env.possible_agents), delays
         print(f"hung step stop delays (s): {_fmt(delays)}")
         assert max(delays.values()) < BOUND_S, delays
         assert any("step() running" in reason for _, reason in world.watchdog.trips)
-        _drive(env, 2)  # the next step drives again
+        drive(env, 2)  # the next step drives again
     finally:
         env.close()
 
 
 @pytest.mark.timeout(300)  # the robot process may compile the numba kernels first
-def test_a_gil_holding_hung_step_is_stopped_by_the_guard_within_the_bound(tmp_path, monkeypatch):
-    proc, port, log = _robot_process(tmp_path)
-    env = real_env(port=port, preset="seed-lab", bridge={"reset_timeout_s": 20.0})
+def test_a_gil_holding_hung_step_is_stopped_by_the_guard_within_the_bound(
+    guarded_lab, monkeypatch
+):
+    env, log = guarded_lab
     world = env.world
-    try:
-        env.reset(seed=0)
-        assert world.guard is not None and world.guard.connected.is_set()
-        _drive(env, 5)
-        t0 = time.monotonic()
-        take = world._take
+    drive(env, 5)
+    t0 = time.monotonic()
+    take = world._take
 
-        def hung_take(*args, **kwargs):  # hangs holding the GIL: no thread of ours runs
-            _hold_the_gil(1.5)
-            return take(*args, **kwargs)
+    def hung_take(*args, **kwargs):  # hangs holding the GIL: no thread of ours runs
+        hold_the_gil(1.5)
+        return take(*args, **kwargs)
 
-        monkeypatch.setattr(world, "_take", hung_take)
-        _drive(env, 1)
-        monkeypatch.setattr(world, "_take", take)
-        time.sleep(0.2)
-        delays = stop_delays(_logged_twists(log), t0)
-        assert set(delays) == set(env.possible_agents), delays
-        print(f"GIL-holding hung step stop delays (s): {_fmt(delays)}")
-        assert max(delays.values()) < BOUND_S, delays
-    finally:
-        env.close()
-        proc.stdin.close()
-        proc.wait(10)
+    monkeypatch.setattr(world, "_take", hung_take)
+    drive(env, 1)
+    monkeypatch.setattr(world, "_take", take)
+    time.sleep(0.2)
+    delays = stop_delays(_applied(log), t0)
+    assert set(delays) == set(env.possible_agents), delays
+    print(f"GIL-holding hung step stop delays (s): {_fmt(delays)}")
+    assert max(delays.values()) < BOUND_S, delays
 
 
 _DRIVER = """
@@ -196,45 +158,41 @@ def test_a_frozen_env_process_is_stopped_by_the_guard_within_the_bound(loopback)
         if proc.poll() is None:
             proc.send_signal(signal.SIGCONT)
             proc.terminate()
-            try:
-                proc.wait(20)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(5)
-        proc.stdout.close()
+        end_process(proc, 20.0)
 
 
 @pytest.mark.timeout(300)  # the robot process may compile the numba kernels first
-def test_a_dead_guard_is_logged_restarted_and_stops_a_gil_stall(tmp_path, caplog):
-    proc, port, log = _robot_process(tmp_path)
-    env = real_env(port=port, preset="seed-lab", bridge={"reset_timeout_s": 20.0})
+def test_a_dead_guard_is_logged_restarted_and_stops_a_gil_stall(guarded_lab, caplog):
+    env, log = guarded_lab
     world = env.world
-    try:
-        env.reset(seed=0)
-        guard = world.guard
-        assert guard is not None and guard.connected.is_set()
-        _drive(env, 3)
-        old_pid = guard.proc.pid
-        with caplog.at_level(logging.WARNING, logger="hardware_bridge"):
-            os.kill(old_pid, signal.SIGKILL)
-            _drive(env, 5)  # 0.5 s: the watchdog notices within a tick and restarts it
-            assert wait_until(lambda: guard.restarts == 1 and guard.connected.is_set(), 10.0)
-        assert guard.proc.pid != old_pid and guard.alive
-        assert world.counters.get("guard.restarts") == 1
-        assert any(
-            f"guard process {old_pid} died" in r.getMessage() and "-9" in r.getMessage()
-            for r in caplog.records
-        ), [r.getMessage() for r in caplog.records]
-        _drive(env, 3)  # the restarted guard gets this step's deadlines
-        t0 = time.monotonic()
-        _hold_the_gil(1.5)  # between steps, holding the GIL: only the guard can act
-        time.sleep(0.2)
-        delays = stop_delays(_logged_twists(log), t0 - 0.5)
-        assert set(delays) == set(env.possible_agents), delays
-        # Between steps: period + watchdog_timeout_s + poll after the last command (0.41 s).
-        print(f"restarted guard, GIL stall stop delays (s): {_fmt(delays)}")
-        assert max(delays.values()) < BOUND_S, delays
-    finally:
-        env.close()
-        proc.stdin.close()
-        proc.wait(10)
+    guard = world.guard
+    drive(env, 3)
+    old_pid = guard.proc.pid
+    with caplog.at_level(logging.WARNING, logger="hardware_bridge"):
+        os.kill(old_pid, signal.SIGKILL)
+        drive(env, 5)  # 0.5 s: the watchdog notices within a tick and restarts it
+        assert wait_until(lambda: guard.restarts == 1 and guard.connected.is_set(), 10.0)
+    assert guard.proc.pid != old_pid and guard.alive
+    assert world.counters.get("guard.restarts") == 1
+    assert any(
+        f"guard process {old_pid} died" in r.getMessage() and "-9" in r.getMessage()
+        for r in caplog.records
+    ), [r.getMessage() for r in caplog.records]
+    drive(env, 3)  # the restarted guard gets this step's deadlines
+    t0 = time.monotonic()
+    hold_the_gil(1.5)  # between steps, holding the GIL: only the guard can act
+    time.sleep(0.2)
+    delays = stop_delays(_applied(log), t0 - 0.5)
+    assert set(delays) == set(env.possible_agents), delays
+    # Between steps: period + watchdog_timeout_s + poll after the last command (0.41 s).
+    print(f"restarted guard, GIL stall stop delays (s): {_fmt(delays)}")
+    assert max(delays.values()) < BOUND_S, delays
+
+
+def test_a_twist_log_reads_back_as_main_writes_it(tmp_path):
+    log = tmp_path / "twists.log"
+    log.write_text("12.5 ugv_0 0.2 -0.1 0.03 1\n12.75 ugv_3 0.0 0.0 0.61 0\n")
+    assert read_twist_log(log) == [
+        (12.5, "ugv_0", 0.2, -0.1, True),
+        (12.75, "ugv_3", 0.0, 0.0, False),
+    ]

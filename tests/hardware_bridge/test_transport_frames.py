@@ -10,7 +10,6 @@ import time
 import numpy as np
 import pytest
 
-from hardware_bridge import real_env
 from tests.hardware_bridge.conftest import wait_until
 
 CLOSE_FRAME = json.dumps({"op": "publish", "topic": "close", "msg": {}})  # 46 bytes
@@ -44,50 +43,40 @@ def _moving_commands(server, after: float) -> dict[str, int]:
 
 
 @pytest.mark.timeout(90)
-def test_hostile_frames_are_counted_and_the_command_path_stays_up(loopback):
-    server = loopback()
-    env = real_env(port=server.port, preset="seed-lab", max_steps=10_000)
+def test_hostile_frames_are_counted_and_the_command_path_stays_up(lab):
+    server, env = lab(max_steps=10_000)
     world = env.world
-    try:
-        env.reset(seed=0)
-        robots = set(env.possible_agents)
-        for frame, counter in HOSTILE_FRAMES:
-            before = world.counters.get(counter)
-            server.send_raw(frame)
-            assert wait_until(lambda c=counter, b=before: world.counters.get(c) == b + 1, 3.0), (
-                frame,
-                world.counters_snapshot(),
-            )
-        t_sent = time.monotonic()
-        odometry = world.counters.get("odometry.accepted")
-        # 7 s of steps: past the 5.1 s after which a dropped command path used to raise.
-        for _ in range(70):
-            env.step({a: np.array([0.15, 0.0]) for a in env.agents})
-        moved = _moving_commands(server, t_sent)
-        assert set(moved) == robots and min(moved.values()) >= 60, moved
-        assert world.counters.get("odometry.accepted") - odometry >= 4 * 50
-        assert world.counters.get("transport.lost") == 0
-        assert world.counters.get("transport.publish_dropped") == 0
-        assert world.client.connected
-        assert not any("transport lost" in reason for _, reason in world.watchdog.trips)
-        assert world.rejected_total() >= len(HOSTILE_FRAMES)
-    finally:
-        env.close()
+    robots = set(env.possible_agents)
+    for frame, counter in HOSTILE_FRAMES:
+        before = world.counters.get(counter)
+        server.send_raw(frame)
+        assert wait_until(lambda c=counter, b=before: world.counters.get(c) == b + 1, 3.0), (
+            frame,
+            world.counters_snapshot(),
+        )
+    t_sent = time.monotonic()
+    odometry = world.counters.get("odometry.accepted")
+    # 7 s of steps: past the 5.1 s after which a dropped command path used to raise.
+    for _ in range(70):
+        env.step({a: np.array([0.15, 0.0]) for a in env.agents})
+    moved = _moving_commands(server, t_sent)
+    assert set(moved) == robots and min(moved.values()) >= 60, moved
+    assert world.counters.get("odometry.accepted") - odometry >= 4 * 50
+    assert world.counters.get("transport.lost") == 0
+    assert world.counters.get("transport.publish_dropped") == 0
+    assert world.client.connected
+    assert not any("transport lost" in reason for _, reason in world.watchdog.trips)
+    assert world.rejected_total() >= len(HOSTILE_FRAMES)
 
 
 @pytest.mark.timeout(60)
-def test_a_message_on_a_subscribed_topic_still_reaches_its_robot(loopback):
+def test_a_message_on_a_subscribed_topic_still_reaches_its_robot(lab):
     """The table lookup routes real data: a hand-made odometry frame for ugv_0 is validated
     like every other (an invalid one is counted under the robot's sensor)."""
-    server = loopback()
-    env = real_env(port=server.port, preset="seed-lab")
+    server, env = lab()
     world = env.world
-    try:
-        env.reset(seed=0)
-        topic = world._kinds["ugv_0"]["odometry"][1]
-        before = world.counters.get("odometry.invalid")
-        server.send_raw(json.dumps({"op": "publish", "topic": topic, "msg": {"pose": "x"}}))
-        assert wait_until(lambda: world.counters.get("odometry.invalid") == before + 1, 3.0)
-        assert world.counters.get("transport.unplaced") == 0
-    finally:
-        env.close()
+    topic = world._kinds["ugv_0"]["odometry"][1]
+    before = world.counters.get("odometry.invalid")
+    server.send_raw(json.dumps({"op": "publish", "topic": topic, "msg": {"pose": "x"}}))
+    assert wait_until(lambda: world.counters.get("odometry.invalid") == before + 1, 3.0)
+    assert world.counters.get("transport.unplaced") == 0

@@ -125,6 +125,10 @@ CONFIGS = {
             camera={"clutter_intensity": 0.0},
         )
     ),
+    "camera-rays-to-poisson": PMBConfig(phd=phd(births={"model": "measurement", "camera": "ray"})),
+    "camera-rays-simulator": PMBConfig(
+        phd=SIMULATOR_PHD.replace(births={"camera": "ray", "camera_max_range_m": 4.7})
+    ),
     "one-bp-sweep-wide-gate": PMBConfig(
         phd=phd(births={"model": "measurement"}),
         bp_max_iterations=1,
@@ -145,6 +149,36 @@ def test_bank_matches_reference_filters(name):
     assert max(len(f) for f in filters) > 0
     if name == "track-cap":
         assert max(len(f) for f in filters) == 3
+
+
+def test_camera_rays_stay_poisson_until_the_lidar_confirms():
+    """With camera_birth="ray" a bearing starts no track: its ray joins the Poisson part
+    (weight camera_birth_weight over the camera's reach), repeated bearings keep it there, and
+    a lidar detection on the ray starts a track there (with the Poisson mass as its prior)."""
+    cfg = PMBConfig(
+        phd=phd(
+            births={"model": "measurement", "camera": "ray"}, lidar={"clutter_intensity": 0.05}
+        )
+    )
+    f = RobotCentricPMB(cfg)
+    bearing = 0.6
+    f.update_camera(np.array([bearing]))
+    poisson = np.asarray(f.poisson_table)
+    assert len(f) == 0
+    assert poisson[0].sum() == pytest.approx(cfg.phd.births.camera_weight, rel=1e-6)
+    angles = np.arctan2(poisson[2], poisson[1])
+    assert np.allclose(angles, bearing, atol=1e-9)  # all of it on the ray
+    for _ in range(5):
+        f.update_camera(np.array([bearing]))
+    assert len(f) == 0  # bearings alone never start a track
+    target = 1.0 * np.array([np.cos(bearing), np.sin(bearing)])  # P_d(1 m) = 0.95 (eq. 19)
+    f.update_lidar(target[None, :])
+    means, existences = f.estimate(threshold=0.5)
+    assert means.shape == (1, 2) and np.linalg.norm(means[0] - target) < 0.1
+
+
+def test_bank_matches_with_sensor_poses_camera_rays():
+    run_both(CONFIGS["camera-rays-simulator"], seed=2, with_poses=True)
 
 
 def test_bank_matches_with_sensor_poses():

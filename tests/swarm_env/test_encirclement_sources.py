@@ -387,3 +387,25 @@ def test_scripted_policy_takes_the_range_only_reading_and_the_start():
     assert p.intruder_estimate("ugv_0") is None
     assert p._filters["ugv_0"].pending[0][0].shape == (3, 2)
     env.close()
+
+
+@pytest.mark.parametrize(
+    "params, message",
+    [
+        (
+            {"intruder_features": "filter", "intruder_source": "beacon"},
+            "task 'encirclement': intruder_features='filter' needs intruder_source='particle', "
+            "got 'beacon'",
+        ),
+        (
+            {"intruder_sensing": "range", "intruder_source": "estimate"},
+            "task 'encirclement': intruder_sensing='range' needs intruder_source='particle' "
+            "(the other sources use the reading's bearing), got 'estimate'",
+        ),
+    ],
+)
+def test_particle_only_options_refuse_another_source(params, message):
+    with pytest.raises(ValueError) as err:
+        EncirclementTask(**params)
+    assert str(err.value) == message
+    EncirclementTask(**{**params, "intruder_source": "particle"})  # the source they need

@@ -26,7 +26,6 @@ import collections
 import sys
 
 import message_filters
-import rclpy
 import yaml
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
@@ -40,6 +39,7 @@ from swarm_core.perception.fisheye_bearings import (
     decode_image,
     pair_bearings,
 )
+from swarm_core.ros_node import run_node
 
 _NS = 1_000_000_000
 _INT_PARAMS = ("hue_max_low", "hue_min_high", "saturation_min", "value_min", "min_area_px")
@@ -120,22 +120,8 @@ class CameraNode(Node):
 
 
 def main(argv: list[str] | None = None) -> int:
-    rclpy.init(args=argv if argv is not None else sys.argv)
-    try:
-        node = CameraNode()
-    except FrameError as exc:  # a bad calibration or parameter: say which, then stop
-        print(f"swarm_phd_camera: {exc}", file=sys.stderr)
-        rclpy.shutdown()
-        return 2
-    try:
-        rclpy.spin(node)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
-    return 0
+    # a bad calibration or parameter: said on stderr, status 2
+    return run_node(CameraNode, "swarm_phd_camera", FrameError, argv)
 
 
 if __name__ == "__main__":

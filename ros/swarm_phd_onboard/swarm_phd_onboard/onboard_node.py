@@ -18,7 +18,6 @@ from __future__ import annotations
 import collections
 import sys
 
-import rclpy
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
@@ -34,6 +33,7 @@ from hardware_bridge.messages import (
     parse_odometry,
 )
 from hardware_bridge.onboard import OnBoardFilter
+from swarm_core.ros_node import run_node
 from swarm_env.config import make_config
 
 
@@ -89,22 +89,8 @@ class OnBoardNode(Node):
 
 
 def main(argv: list[str] | None = None) -> int:
-    rclpy.init(args=argv if argv is not None else sys.argv)
-    try:
-        node = OnBoardNode()
-    except ValueError as exc:  # a bad robot id, family or preset: say which, then stop
-        print(f"swarm_phd_onboard: {exc}", file=sys.stderr)
-        rclpy.shutdown()
-        return 2
-    try:
-        rclpy.spin(node)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
-    return 0
+    # a bad robot id, family or preset: said on stderr, status 2
+    return run_node(OnBoardNode, "swarm_phd_onboard", ValueError, argv)
 
 
 if __name__ == "__main__":
