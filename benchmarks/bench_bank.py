@@ -19,7 +19,6 @@ per step) the filters take.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import platform
 import time
@@ -32,7 +31,6 @@ from localization import PHDBank, PHDConfig, RobotCentricPHD
 from localization.feed import localizer_calls
 from localization.registry import run_calls
 from swarm_env import parallel_env
-from swarm_env.config import SIMULATOR_PHD
 
 
 def record_calls(preset: str, duration_s: float, seed: int) -> tuple[list, float]:
@@ -60,16 +58,22 @@ def run_filters(filters: list[RobotCentricPHD], calls: list) -> None:
 
 
 def _overrides(items: list[str]) -> dict:
-    """``["camera_birth=ray", "camera_birth_weight=0.5"]`` -> a dict of PHDConfig fields."""
-    out = {}
+    """``["births.camera=ray", "births.camera_weight=0.5"]`` -> the nested dict
+    :meth:`PHDConfig.replace` takes (``{"births": {"camera": "ray", ...}}``)."""
+    out: dict = {}
     for item in items:
         name, sep, text = item.partition("=")
         if not sep:
             raise SystemExit(f"--phd must be FIELD=VALUE, got {item!r}")
         try:
-            out[name] = json.loads(text)
+            value = json.loads(text)
         except json.JSONDecodeError:
-            out[name] = text
+            value = text
+        *path, leaf = name.split(".")
+        target = out
+        for key in path:
+            target = target.setdefault(key, {})
+        target[leaf] = value
     return out
 
 
@@ -84,22 +88,22 @@ def main() -> None:
         "--config",
         choices=("simulator", "seed"),
         default="simulator",
-        help="the env's SIMULATOR_PHD (default) or the Perera 2021 study's PHDConfig()",
+        help="the simulator presets' PHDConfig() (default) or PHDConfig.perera2021()",
     )
     parser.add_argument(
         "--phd",
         action="append",
         default=[],
         metavar="FIELD=VALUE",
-        help="PHDConfig field override, repeatable (e.g. --phd camera_birth=ray); VALUE is "
+        help="PHDConfig field override, repeatable (e.g. --phd births.camera=ray); VALUE is "
         "parsed as JSON, else taken as a string",
     )
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
     steps, period = record_calls(args.preset, args.duration, args.seed)
     n_warm = int(round(args.warmup / period))
-    base = SIMULATOR_PHD if args.config == "simulator" else PHDConfig()
-    config = dataclasses.replace(base, mode=args.mode, **_overrides(args.phd))
+    base = PHDConfig() if args.config == "simulator" else PHDConfig.perera2021()
+    config = base.replace(mode=args.mode, **_overrides(args.phd))
     n_robots = len(steps[0])
     bank = PHDBank(config, n_robots)
     filters = [RobotCentricPHD(config) for _ in range(n_robots)]

@@ -54,7 +54,7 @@ from scipy.optimize import curve_fit  # noqa: E402
 
 from localization.detection import DetectionModel  # noqa: E402
 from localization.object_clutter import wide_objects  # noqa: E402
-from localization.scan_evidence import scan_profile  # noqa: E402
+from localization.scan_memory import scan_profile  # noqa: E402
 from swarm_core.perception.lidar_features import extract_clusters  # noqa: E402
 from swarm_env.config import SIMULATOR_PHD, make_config  # noqa: E402
 from swarm_env.sensors.camera import CameraSensor  # noqa: E402
@@ -160,8 +160,8 @@ def blind_sector_notch(rng, n_pairs: int) -> dict:
     rate, per range, beside the filter's notch and the Perera 2021 study's bump (both at the true
     bearing)."""
     notch = DetectionModel(SIMULATOR_PHD)
-    bump = DetectionModel(dataclasses.replace(SIMULATOR_PHD, blind_sector_model="seed"))
-    centres = np.asarray(SIMULATOR_PHD.blind_sector_centers_deg)
+    bump = DetectionModel(SIMULATOR_PHD.replace(lidar={"blind_sector_model": "seed"}))
+    centres = np.asarray(SIMULATOR_PHD.lidar.blind_sector_centers_deg)
     out = {"offset_bins_deg": NOTCH_BINS_DEG.tolist(), "ranges": []}
     for r in NOTCH_RANGES_M:
         offsets = rng.uniform(0.0, 9.0, n_pairs)

@@ -1,7 +1,7 @@
 """The feed's packing cost with and without the lidar scans' profiles (issue 13).
 
 ``SwarmFeed.packed(scan_profiles)`` bins every lidar scan into a 720-bin profile only for a bank
-that reads them (``PHDConfig.scan_evidence``). This measures the CPU time of packing one env
+that reads them (``PHDConfig.reads_scans``). This measures the CPU time of packing one env
 step, with and without the profiles, on the same recorded steps, alternated in one process.
 
     .venv/bin/python benchmarks/bench_feed_profiles.py --sizes 20,1000

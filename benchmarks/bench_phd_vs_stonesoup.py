@@ -36,8 +36,9 @@ Usage::
     python benchmarks/bench_phd_vs_stonesoup.py [--quick] [--calls] [--env SECONDS] [--json PATH]
 
 ``--quick`` runs 60 scans and skips the 50-target case (a smoke test, ~10 s). ``--calls``
-also times single calls of the Perera 2021-configured filter (``PHDConfig()``, all detection
-factors on) from recorded states with ~20 components and 5 measurements: the env's hot path.
+also times single calls of the Perera 2021-configured filter (``PHDConfig.perera2021()``,
+all detection factors on) from recorded states with ~20 components and 5 measurements: the
+env's hot path.
 ``--env SECONDS`` replays that many seconds of the env's own filter calls (seed-sim, 20 robots)
 through ``PHDBank`` and ``PMBBank`` and reports the cost per env step.
 """
@@ -126,23 +127,27 @@ def extract(weights: np.ndarray, means: np.ndarray) -> np.ndarray:
 
 
 def our_config(pd_range_m: float = 1e6, birth: str = "fixed") -> PHDConfig:
-    return PHDConfig(
+    return PHDConfig.perera2021().replace(
         mode="lidar-only",
-        process_noise_std_m=Q_STD_M,
-        survival_model="constant",
-        survival_probability=PS,
-        birth=birth,
-        birth_weight=BIRTH_WEIGHT,
-        birth_std_m=BIRTH_STD_M,
-        measurement_birth_weight=BIRTH_WEIGHT,
-        lidar_noise_std_m=NOISE_STD_M,
-        lidar_pd_model="constant",
-        lidar_detection_probability=PD,
-        lidar_range_m=pd_range_m,
-        lidar_clutter_intensity=CLUTTER_DENSITY,
-        prune_threshold=PRUNE,
-        merge_threshold=MERGE,
-        max_components=CAP,
+        prediction={
+            "process_noise_std_m": Q_STD_M,
+            "survival_model": "constant",
+            "survival_probability": PS,
+        },
+        births={
+            "model": birth,
+            "weight": BIRTH_WEIGHT,
+            "std_m": BIRTH_STD_M,
+            "measurement_weight": BIRTH_WEIGHT,
+        },
+        lidar={
+            "noise_std_m": NOISE_STD_M,
+            "pd_model": "constant",
+            "detection_probability": PD,
+            "range_m": pd_range_m,
+            "clutter_intensity": CLUTTER_DENSITY,
+        },
+        reduction={"prune_threshold": PRUNE, "merge_threshold": MERGE, "max_components": CAP},
     )
 
 
@@ -295,7 +300,7 @@ def _recorded_states(n_states: int = 40, seed: int = 1) -> list[tuple]:
     import copy
 
     rng = np.random.default_rng(seed)
-    f = RobotCentricPHD(PHDConfig())
+    f = RobotCentricPHD(PHDConfig.perera2021())
     n_mates = 24
     pos = rng.uniform(-3.0, 3.0, size=(n_mates, 2))
     out = []

@@ -175,7 +175,7 @@ class LostTeammateTally:
         self.offset_range_weight = np.zeros(n_bins)
         self.offset_predicted = np.zeros(n_bins)
         self.offset_detections = np.zeros(n_bins)
-        self._centres_rad = np.radians(np.asarray(detection.config.blind_sector_centers_deg))
+        self._centres_rad = np.radians(np.asarray(detection.config.lidar.blind_sector_centers_deg))
 
     def add(
         self,
@@ -678,7 +678,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--env-overrides",
         default=None,
-        help='env keywords as JSON, e.g. \'{"phd": {"scan_evidence": true}}\'',
+        help='env keywords as JSON, e.g. \'{"phd": {"lidar": {"noise_std_m": 0.04}}}\'',
     )
     parser.add_argument("--out", default=None, help="JSON summary file")
     args = parser.parse_args(argv)

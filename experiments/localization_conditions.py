@@ -18,7 +18,7 @@ nearest one too far, ``low_weight`` below 0.1, ``not_visible`` out of line of si
 the filter's cost per env step (ms, all robots).
 
 On the simulator presets a fifth row, ``pmb-lc (camera rays)``, is the PMB with the teammates
-only the camera sees held in its Poisson part (``PHDConfig.camera_birth="ray"``:
+only the camera sees held in its Poisson part (``PHDConfig.births.camera="ray"``:
 :data:`CAMERA_FALSE_BLOBS_PER_RAD` and the other constants below, from the measured camera
 statistics), on the same motion and measurements. On ``sim-6m-20`` the cost of ``phd-lc``,
 ``pmb-lc`` and that row is also measured alternated in one run (:func:`alternated_cost`, 30 s
@@ -65,7 +65,7 @@ STUDY = {
 }
 BANDS_M = ((0.0, 1.0), (1.0, 2.0), (2.0, 3.0))
 
-#: The PMB's camera-only teammates in its Poisson part (``PHDConfig.camera_birth="ray"``,
+#: The PMB's camera-only teammates in its Poisson part (``PHDConfig.births.camera="ray"``,
 #: :class:`localization.pmb.RobotCentricPMB`), every parameter from a measured statistic of
 #: the simulated camera (``swarm_env.config``, the notes on ``SIM_CAMERA_CLUTTER_PER_RAD`` and
 #: ``SIM_CAMERA_PD_*``, ``benchmarks/bench_detection_curves.py``):
@@ -84,15 +84,15 @@ CAMERA_RAYS = "pmb-lc (camera rays)"
 
 def camera_rays_phd(phd: Any) -> Any:
     """``phd`` with the PMB's camera-only teammates in its Poisson part (:data:`CAMERA_RAYS`)."""
-    import dataclasses
 
-    return dataclasses.replace(
-        phd,
-        camera_birth="ray",
-        camera_birth_weight=CAMERA_UNTRACKED_TEAMMATES_PER_RAD
-        / (CAMERA_UNTRACKED_TEAMMATES_PER_RAD + CAMERA_FALSE_BLOBS_PER_RAD),
-        camera_birth_max_range_m=CAMERA_REACH_M,
-        camera_clutter_intensity=CAMERA_FALSE_BLOBS_PER_RAD,
+    return phd.replace(
+        births={
+            "camera": "ray",
+            "camera_weight": CAMERA_UNTRACKED_TEAMMATES_PER_RAD
+            / (CAMERA_UNTRACKED_TEAMMATES_PER_RAD + CAMERA_FALSE_BLOBS_PER_RAD),
+            "camera_max_range_m": CAMERA_REACH_M,
+        },
+        camera={"clutter_intensity": CAMERA_FALSE_BLOBS_PER_RAD},
     )
 
 

@@ -88,9 +88,10 @@ def real_env(
         :class:`~hardware_bridge.estimate.ReceivedEstimates`). A stale estimate is named in
         ``infos[agent]["stale"]`` and stops its robot; estimates are recorded in the bag.
     **overrides
-        SwarmConfig fields (``control_period_s=0.1``, ``phd={"mode": "lidar-only"}``...).
-        The filter defaults to the Perera 2021 study's own model, ``PHDConfig()`` (that study's
-        hardware), not the simulator presets' :data:`swarm_env.config.SIMULATOR_PHD`.
+        SwarmConfig fields (``control_period_s=0.1``, ``phd={"mode": "lidar-only"}``,
+        ``phd={"lidar": {"noise_std_m": 0.04}}``...). The filter defaults to the Perera 2021
+        study's own model, ``PHDConfig.perera2021()`` (that study's hardware), not the
+        simulator presets' ``PHDConfig()``; a ``phd`` dict overrides fields of the former.
 
     Notes
     -----
@@ -108,7 +109,7 @@ def real_env(
     bridge_cfg = make_bridge_config(bridge)
     phd = overrides.get("phd")
     if phd is None or isinstance(phd, dict):  # Perera 2021's model, with any dict overrides
-        overrides["phd"] = config_with_overrides(None, PHDConfig, phd or {})
+        overrides["phd"] = config_with_overrides(PHDConfig.perera2021(), PHDConfig, phd or {})
     if robots is None:
         n = make_config(preset, **overrides).n_robots
         robots = [f"ugv_{i}" for i in range(n)]

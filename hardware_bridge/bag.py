@@ -81,6 +81,7 @@ from hardware_bridge.messages import (
     uav_twist_msg,
 )
 from hardware_bridge.signals import critical
+from localization.config import nest_flat_phd
 from swarm_core.aerial import UAVMessages, uav_messages
 from swarm_core.world import WorldStep, reject_extra_commands
 from swarm_env.config import SwarmConfig, make_config
@@ -134,6 +135,8 @@ def config_from_dict(data: dict[str, Any]) -> SwarmConfig:
         return value
 
     base = SwarmConfig()
+    if isinstance(data.get("phd"), dict):  # bags of earlier releases store a flat PHDConfig
+        data = {**data, "phd": nest_flat_phd(data["phd"])}
     converted = convert(base, data)
     return make_config(config=base, **converted)
 

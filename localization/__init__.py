@@ -5,11 +5,12 @@ odometry, lidar detections, camera bearings) and estimates, in its own body fram
 teammates are around it and where. Nothing here knows about the simulator, PettingZoo or ROS.
 
 >>> from localization import PHDConfig, RobotCentricPHD
->>> f = RobotCentricPHD(PHDConfig())          # seed defaults; PHDConfig(mode="lidar-only") for LO
+>>> f = RobotCentricPHD(PHDConfig())  # the simulator's model; PHDConfig.perera2021(): the study's
 
-Modules: :mod:`~localization.config` (``PHDConfig``), :mod:`~localization.mixture`
-(``GaussianMixture`` and the component table), :mod:`~localization.gaussian` (Kalman/EKF
-math), :mod:`~localization.detection` (``P_s``, ``P_d``), :mod:`~localization.phd` (time and
+Modules: :mod:`~localization.config` (``PHDConfig`` and its components),
+:mod:`~localization.mixture` (``GaussianMixture`` and the component table),
+:mod:`~localization.gaussian` (Kalman/EKF math), :mod:`~localization.detection` (``P_s``,
+``P_d``), :mod:`~localization.phd` (time and
 measurement updates), :mod:`~localization.reducer` (prune/merge/cap),
 :mod:`~localization.filter` (the orchestrator), :mod:`~localization.bank` (``PHDBank``: every
 robot's filter advanced in one compiled call, :mod:`~localization.kernels`),

@@ -58,7 +58,7 @@ from .filter import (
 )
 from .mixture import N_ROWS, ROW_W, GaussianMixture
 from .protocol import LocalizerBase, LocalizerView
-from .scan_evidence import MEMORY_LEN, N_BINS, scan_memory_from_state
+from .scan_memory import MEMORY_LEN, N_BINS, scan_memory_from_state
 
 __all__ = ["FilterBank", "BankTable", "PHDBank", "BankView"]
 
@@ -181,7 +181,7 @@ class FilterBank(LocalizerBase):
         self._pending_counts = np.zeros(r, dtype=np.int64)
         # Per robot: last stamp (nan: none yet), advanced since the last predict (kernels).
         self._clock = new_clock(r)
-        # Per robot: its last lidar scan (localization.scan_evidence), row 0 = none yet.
+        # Per robot: its last lidar scan (localization.scan_memory), row 0 = none yet.
         self._scan_memory = np.zeros((r, MEMORY_LEN))
         self._mixtures: list[GaussianMixture | None] = [None] * r
         self._views = [BankView(self, i) for i in range(r)]
@@ -561,7 +561,7 @@ class PHDBank(FilterBank):
 
     name = "phd"
     weight_meaning = "phd-weight"
-    tables = (BankTable("table", "counts", lambda c: c.max_components),)
+    tables = (BankTable("table", "counts", lambda c: c.reduction.max_components),)
     reference = RobotCentricPHD
     pack_params = staticmethod(kernels.pack_params)
     kernel = staticmethod(kernels.apply_calls)
@@ -811,7 +811,7 @@ def all_finite(encoded: tuple[np.ndarray, ...]) -> bool:
 
 def bank_scan_memory(value: Any, n_robots: int) -> np.ndarray:
     """A bank's saved scan memories as today's ``(n_robots, MEMORY_LEN)``
-    (:func:`~localization.scan_evidence.scan_memory_from_state`, which names what is wrong).
+    (:func:`~localization.scan_memory.scan_memory_from_state`, which names what is wrong).
 
     Raises
     ------

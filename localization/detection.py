@@ -271,12 +271,12 @@ def blind_sector_first_beams(config: PHDConfig) -> tuple[np.ndarray, float]:
     evaluated here with its expressions so both sides of an edge round alike. Drifting beams
     start at the edge itself, with a ramp one spacing wide.
     """
-    centres = np.radians(np.asarray(config.blind_sector_centers_deg, dtype=float))
-    halves = 0.5 * np.radians(np.asarray(config.blind_sector_widths_deg, dtype=float))
-    spacing = math.radians(config.lidar_beam_spacing_deg)
-    if config.lidar_beam_phase == "drifting":
+    centres = np.radians(np.asarray(config.lidar.blind_sector_centers_deg, dtype=float))
+    halves = 0.5 * np.radians(np.asarray(config.lidar.blind_sector_widths_deg, dtype=float))
+    spacing = math.radians(config.lidar.beam_spacing_deg)
+    if config.lidar.beam_phase == "drifting":
         return np.stack((halves, halves), axis=1).reshape(-1, 2), spacing
-    n_beams = round(360.0 / config.lidar_beam_spacing_deg)
+    n_beams = round(360.0 / config.lidar.beam_spacing_deg)
     angles = -np.pi + np.arange(n_beams) * (2.0 * np.pi / n_beams)
     offsets = wrap_angle(angles[:, None] - centres)  # (B, K)
     visible = ~(np.abs(offsets) <= halves)
@@ -355,8 +355,8 @@ def blind_sector_geometry(config: PHDConfig) -> tuple[np.ndarray, np.ndarray]:
     """``(directions, inv_var)`` of ``config``'s lidar blind sectors: the unit vectors of their
     centres ``alpha_k``, shape (K, 2), and ``1 / sigma_k^2`` with ``sigma_k = beta_k / 2``
     (rad^-2), shape (K,)."""
-    centres = np.radians(np.asarray(config.blind_sector_centers_deg, dtype=float))
-    sigmas = 0.5 * np.radians(np.asarray(config.blind_sector_widths_deg, dtype=float))
+    centres = np.radians(np.asarray(config.lidar.blind_sector_centers_deg, dtype=float))
+    sigmas = 0.5 * np.radians(np.asarray(config.lidar.blind_sector_widths_deg, dtype=float))
     return np.stack((np.cos(centres), np.sin(centres)), axis=1).reshape(-1, 2), 1.0 / sigmas**2
 
 
@@ -393,8 +393,8 @@ class DetectionModel:
         self._sector_half_widths = 1.0 / np.sqrt(self._sector_inv_var)  # (K, 1)
         first_beams, self._sector_edge_ramp = blind_sector_first_beams(config)
         self._sector_first_beams = (first_beams[:, :1], first_beams[:, 1:])  # (K, 1) each
-        self._occlusion_inv_var = 1.0 / math.radians(config.occlusion_std_deg) ** 2
-        self._interference_inv_var = 1.0 / math.radians(config.interference_std_deg) ** 2
+        self._occlusion_inv_var = 1.0 / math.radians(config.lidar.occlusion_std_deg) ** 2
+        self._interference_inv_var = 1.0 / math.radians(config.lidar.interference_std_deg) ** 2
 
     def __getstate__(self) -> PHDConfig:
         return self.config
@@ -406,13 +406,13 @@ class DetectionModel:
         """``P_s`` per component (Perera 2021 eq. 10 or constant), shape (N,), of a ``(6, N)``
         table."""
         cfg = self.config
-        if cfg.survival_model == "constant":
-            return np.full(table.shape[1:], cfg.survival_probability)
+        if cfg.prediction.survival_model == "constant":
+            return np.full(table.shape[1:], cfg.prediction.survival_probability)
         return inverse_sigmoid(
             np.hypot(table[ROW_X], table[ROW_Y]),
-            cfg.survival_offset,
-            cfg.survival_slope_per_m,
-            cfg.survival_range_m,
+            cfg.prediction.survival_offset,
+            cfg.prediction.survival_slope_per_m,
+            cfg.prediction.survival_range_m,
         )
 
     def lidar(self, table: np.ndarray, null_bearings_rad: np.ndarray | None) -> np.ndarray:
@@ -431,12 +431,12 @@ class DetectionModel:
         ndarray, shape (N,)
         """
         cfg = self.config
-        if cfg.lidar_pd_model == "constant":
+        if cfg.lidar.pd_model == "constant":
             return self.lidar_range_factor(np.hypot(table[ROW_X], table[ROW_Y]))
-        ranges, units = unit_bearings(table[ROW_X : ROW_Y + 1], cfg.min_range_m)
+        ranges, units = unit_bearings(table[ROW_X : ROW_Y + 1], cfg.reduction.min_range_m)
         pd = self.lidar_range_factor(ranges)
         if self._sector_dirs.shape[0]:
-            if cfg.blind_sector_model == "seed":
+            if cfg.lidar.blind_sector_model == "seed":
                 pd *= blind_sector_factor(
                     units, self._sector_dirs, self._sector_inv_var, self._sector_scaled
                 )
@@ -446,7 +446,7 @@ class DetectionModel:
                     units[1] ** 2 * table[ROW_PXX]
                     - 2.0 * units[0] * units[1] * table[ROW_PXY]
                     + units[0] ** 2 * table[ROW_PYY]
-                ) / np.maximum(ranges, cfg.min_range_m) ** 2
+                ) / np.maximum(ranges, cfg.reduction.min_range_m) ** 2
                 pd *= self._visible_width_factor(
                     units, ranges, np.sqrt(np.maximum(bearing_var, 0.0))
                 )
@@ -456,11 +456,11 @@ class DetectionModel:
                 ranges,
                 table[ROW_W],
                 self._occlusion_inv_var,
-                cfg.occlusion_min_separation_m,
+                cfg.lidar.occlusion_min_separation_m,
             )
         if null_bearings_rad is not None and null_bearings_rad.shape[0]:
             pd *= interference_factor(
-                units, null_bearings_rad, self._interference_inv_var, cfg.interference_depth
+                units, null_bearings_rad, self._interference_inv_var, cfg.lidar.interference_depth
             )
         # Every factor is in [0, 1] by construction, so the product needs no final clip.
         return pd
@@ -470,10 +470,10 @@ class DetectionModel:
         eq. 19's sigmoid, or the constant model's ``P_d`` within ``lidar_range_m`` (0 beyond)."""
         cfg = self.config
         ranges_m = np.asarray(ranges_m, dtype=float)
-        if cfg.lidar_pd_model == "constant":
-            return (ranges_m <= cfg.lidar_range_m) * cfg.lidar_detection_probability
+        if cfg.lidar.pd_model == "constant":
+            return (ranges_m <= cfg.lidar.range_m) * cfg.lidar.detection_probability
         return inverse_sigmoid(
-            ranges_m, cfg.lidar_pd_offset, cfg.lidar_pd_slope_per_m, cfg.lidar_pd_midpoint_m
+            ranges_m, cfg.lidar.pd_offset, cfg.lidar.pd_slope_per_m, cfg.lidar.pd_midpoint_m
         )
 
     def lidar_blind_sector_factor(
@@ -488,10 +488,10 @@ class DetectionModel:
         sector's centre. The ``"seed"`` bump ignores range and std. The constant model has no
         sectors (1 everywhere), as in :meth:`lidar`."""
         bearings_rad = np.asarray(bearings_rad, dtype=float)
-        if self.config.lidar_pd_model == "constant" or not self._sector_dirs.shape[0]:
+        if self.config.lidar.pd_model == "constant" or not self._sector_dirs.shape[0]:
             return np.ones(bearings_rad.shape)
         units = np.stack((np.cos(bearings_rad), np.sin(bearings_rad)))
-        if self.config.blind_sector_model == "seed":
+        if self.config.lidar.blind_sector_model == "seed":
             return blind_sector_factor(
                 units, self._sector_dirs, self._sector_inv_var, self._sector_scaled
             )
@@ -519,10 +519,10 @@ class DetectionModel:
             self._sector_half_widths,
             self._sector_first_beams,
             self._sector_edge_ramp,
-            cfg.scan_target_radius_m,
-            math.radians(cfg.scan_beam_footprint_deg),
-            math.radians(cfg.lidar_beam_spacing_deg),
-            cfg.lidar_min_returns,
+            cfg.lidar.target_radius_m,
+            math.radians(cfg.lidar.beam_footprint_deg),
+            math.radians(cfg.lidar.beam_spacing_deg),
+            cfg.lidar.min_returns,
         )
         return np.multiply.reduce(factors, axis=0)
 
@@ -533,17 +533,17 @@ class DetectionModel:
         ``min_range_m`` get 0: their bearing is undefined.
         """
         cfg = self.config
-        ranges, units = unit_bearings(table[ROW_X : ROW_Y + 1], cfg.min_range_m)
+        ranges, units = unit_bearings(table[ROW_X : ROW_Y + 1], cfg.reduction.min_range_m)
         pd = inverse_sigmoid(
-            ranges, cfg.camera_pd_offset, cfg.camera_pd_slope_per_m, cfg.camera_pd_midpoint_m
+            ranges, cfg.camera.pd_offset, cfg.camera.pd_slope_per_m, cfg.camera.pd_midpoint_m
         )
-        pd *= ranges >= cfg.min_range_m
+        pd *= ranges >= cfg.reduction.min_range_m
         if table.shape[-1] > 1:
             pd *= occlusion_factor(
                 units,
                 ranges,
                 table[ROW_W],
                 self._occlusion_inv_var,
-                cfg.occlusion_min_separation_m,
+                cfg.lidar.occlusion_min_separation_m,
             )
         return pd

@@ -36,7 +36,7 @@ from swarm_core.world import GroundTruth, WorldStep
 
 from . import kernels
 from .filter import MAX_MEASUREMENTS_PER_CALL
-from .scan_evidence import N_BINS, profile_into, profiles_of
+from .scan_memory import N_BINS, profile_into, profiles_of
 
 __all__ = ["SwarmFeed", "FeedCalls", "PackedCalls", "localizer_calls", "pack_calls", "Call"]
 
@@ -246,8 +246,8 @@ def localizer_calls(
 
 
 def scan_profile_of(record: LidarRecord) -> np.ndarray:
-    """The scan of ``record`` as a profile ``(N_BINS,)`` (:mod:`localization.scan_evidence`),
-    compiled; :func:`localization.scan_evidence.scan_profile` is its reference.
+    """The scan of ``record`` as a profile ``(N_BINS,)`` (:mod:`localization.scan_memory`),
+    compiled; :func:`localization.scan_memory.scan_profile` is its reference.
 
     Raises
     ------
@@ -334,7 +334,7 @@ def pack_calls(
     poses one compiled pass (:func:`_motion_poses`). With ``scan_profiles=False`` the lidar
     calls carry no profile (flags 0, a ``(0, N_BINS)`` array): at 1000 robots binning every
     scan costs ~7 ms per step that a filter which does not read scans never uses
-    (``PHDConfig.reads_scans``: ``scan_evidence`` or the wide objects' camera clutter).
+    (``PHDConfig.reads_scans``: the wide objects' camera clutter).
 
     With ``scan_profiles`` (the default) the result equals, array for array and bit for bit,
     the bank's encoding of

@@ -42,12 +42,11 @@ from .detection import DetectionModel
 from .frames import bearings_to_filter_frame, points_to_filter_frame
 from .mixture import N_ROWS, ROW_PXX, ROW_W, ROW_X, ROW_Y, GaussianMixture, empty_table
 from .reducer import reduce
-from .scan_evidence import (
+from .scan_memory import (
     MEMORY_LEN,
     N_BINS,
     WIDE_OBJECTS_AT,
     move_scan_pose,
-    scan_factors,
     scan_memory_from_state,
 )
 
@@ -122,7 +121,8 @@ class RobotCentricFilter:
     def _predict_clock(self, cfg: PHDConfig) -> float:
         """The process-noise clock's time update: the variance ``q`` of its ``Q = q I``."""
         self._clock, q = self._clock.predict(
-            cfg.process_noise_std_m**2, cfg.time_update == "measurement"
+            cfg.prediction.process_noise_std_m**2,
+            cfg.prediction.time_update == "measurement",
         )
         return q
 
@@ -131,9 +131,9 @@ class RobotCentricFilter:
         stamp = _checked_stamp(stamp_s)
         self._clock, var = self._clock.advance(
             stamp,
-            cfg.process_noise_std_m**2,
-            cfg.process_noise_interval_s,
-            cfg.time_update == "measurement",
+            cfg.prediction.process_noise_std_m**2,
+            cfg.prediction.process_noise_interval_s,
+            cfg.prediction.time_update == "measurement",
         )
         return var
 
@@ -149,14 +149,19 @@ class RobotCentricFilter:
         if self._pending_births.shape[0]:
             births = phd.birth_components(
                 self._pending_births,
-                cfg.measurement_birth_cov_scale * cfg.lidar_noise_var_m2,
-                cfg.measurement_birth_weight,
+                cfg.births.measurement_cov_scale * cfg.lidar.noise_var_m2,
+                cfg.births.measurement_weight,
             )
             table = np.concatenate((table, births), axis=1)
             survival = np.concatenate((survival, np.ones(births.shape[1])))
         table = phd.predict(table, odo, survival, q)
-        if table.shape[1] > cfg.max_components:
-            table = reduce(table, cfg.prune_threshold, cfg.merge_threshold, cfg.max_components)
+        if table.shape[1] > cfg.reduction.max_components:
+            table = reduce(
+                table,
+                cfg.reduction.prune_threshold,
+                cfg.reduction.merge_threshold,
+                cfg.reduction.max_components,
+            )
         return table
 
     def _after_predict(self, odo: np.ndarray) -> None:
@@ -234,15 +239,15 @@ class RobotCentricPHD(RobotCentricFilter):
         self.config = config = config_with_overrides(config, PHDConfig, overrides)
         self._model = DetectionModel(config)
         self._fixed_birth = phd.birth_components(
-            np.asarray([config.birth_mean_m], dtype=float),
-            config.birth_std_m**2,
-            config.birth_weight,
+            np.asarray([config.births.mean_m], dtype=float),
+            config.births.std_m**2,
+            config.births.weight,
         )
         self._table = empty_table()
         self._pending_births = np.empty((0, 2))
         self._mixture: GaussianMixture | None = None
         self._clock = phd.ProcessClock()
-        # The last lidar scan (localization.scan_evidence): [has_scan, x, y, psi, profile,
+        # The last lidar scan (localization.scan_memory): [has_scan, x, y, psi, profile,
         # wide objects (localization.object_clutter)].
         self._scan = np.zeros(MEMORY_LEN)
 
@@ -274,10 +279,10 @@ class RobotCentricPHD(RobotCentricFilter):
         table = mixture.to_table()
         if not np.isfinite(table).all():
             raise ValueError("mixture must be finite")
-        if table.shape[1] > self.config.max_components:
+        if table.shape[1] > self.config.reduction.max_components:
             raise ValueError(
                 f"mixture has {table.shape[1]} components, more than max_components "
-                f"{self.config.max_components}"
+                f"{self.config.reduction.max_components}"
             )
         # The bound every measurement obeys, for the state too (the bank's kernels rely on it).
         check_magnitude(table[ROW_X : ROW_Y + 1], "mixture means")
@@ -328,7 +333,8 @@ class RobotCentricPHD(RobotCentricFilter):
 
     def advance(self, stamp_s: float) -> None:
         """Time update of the process noise alone, to ``stamp_s`` (s), before a measurement
-        taken then (``PHDConfig.time_update == "measurement"``; else only the clock moves).
+        taken then (``PHDConfig.prediction.time_update == "measurement"``; else only the clock
+        moves).
         Means and weights are unchanged: the ego-motion comes with the next :meth:`predict`.
 
         Raises
@@ -362,13 +368,11 @@ class RobotCentricPHD(RobotCentricFilter):
             moved since the last time update); points and null bearings are moved into the
             filter's frame first (:mod:`localization.frames`).
         scan_profile : array_like, shape (N_BINS,), optional
-            The scan's :func:`~localization.scan_evidence.scan_profile` (m, 0 = unknown).
+            The scan's :func:`~localization.scan_memory.scan_profile` (m, 0 = unknown).
             With ``config.reads_scans`` it becomes the filter's scan memory, with its wide
             objects (:mod:`localization.object_clutter`) where ``models_wide_objects``: later
-            camera frames take their clutter from it, and with ``scan_evidence`` the lidar's
-            ``P_d`` is times each component's visibility, the weights after the update are
-            times ``1 - P_free``, and camera frames are judged against it. Without one the
-            filter has no scan until the next.
+            camera frames take their clutter from it. Without one the filter has no scan until
+            the next.
 
         Raises
         ------
@@ -382,24 +386,24 @@ class RobotCentricPHD(RobotCentricFilter):
         table = self._table
         bernoulli = cfg.missed_detection == "bernoulli"
         if pts.shape[0] == 0:
-            pd = self._model.lidar(table, nulls) * self._visibility(table)
+            pd = self._model.lidar(table, nulls)
             missed = self._lidar_missed(table, pd)
             out = (table if missed is None else missed[1]).copy()
             out[ROW_W] = self._missed_only(table, pd if missed is None else missed[0])
             explained = np.empty(0)
         else:
             n = table.shape[1]
-            fixed_birth = cfg.birth == "fixed"
+            fixed_birth = cfg.births.model == "fixed"
             if fixed_birth:
                 # Perera 2021's birth component (eq. 11) joins the prior of every lidar update.
                 table = np.concatenate((table, self._fixed_birth), axis=1)
-            pd = self._model.lidar(table, nulls) * self._visibility(table)
+            pd = self._model.lidar(table, nulls)
             out, explained = phd.lidar_update(
                 table,
                 pts,
                 pd,
-                cfg.lidar_noise_var_m2,
-                cfg.lidar_clutter_intensity,
+                cfg.lidar.noise_var_m2,
+                cfg.lidar.clutter_intensity,
                 bernoulli,
                 self._lidar_missed(table, pd),
             )
@@ -408,11 +412,8 @@ class RobotCentricPHD(RobotCentricFilter):
                 # component would be merged into the heaviest track at every reduction
                 # (Vo & Ma's gate uses the candidate's covariance) and inflate its covariance.
                 out[ROW_W, n] = 0.0
-        if self._scan_on():
-            out = out.copy()
-            out[ROW_W] *= 1.0 - self._scan_factors(out)[1]
-        if cfg.birth == "measurement":
-            self._pending_births = pts[explained < cfg.measurement_birth_max_explained]
+        if cfg.births.model == "measurement":
+            self._pending_births = pts[explained < cfg.births.measurement_max_explained]
         self._table = self._reduce(out)
         self._mixture = None
 
@@ -461,13 +462,13 @@ class RobotCentricPHD(RobotCentricFilter):
 
     def _camera_update(self, brg: np.ndarray, offset: np.ndarray) -> None:
         """The update of ``self._table``, whose frame is the filter's shifted by ``-offset``
-        (the camera's view; the scan memory's pose is shifted alike)."""
+        (the camera's view; the scan memory's pose is read alike)."""
         cfg = self.config
         table = self._table
         detection_prob = self._model.camera(table)
         if brg.shape[0] == 0:
             out = table.copy()
-            out[ROW_W] = self._missed_only(table, detection_prob * self._visibility(table, offset))
+            out[ROW_W] = self._missed_only(table, detection_prob)
         else:
             out, explained = phd.camera_update(
                 table,
@@ -475,18 +476,15 @@ class RobotCentricPHD(RobotCentricFilter):
                 detection_prob,
                 cfg.camera_bearing_var(np.hypot(table[ROW_X], table[ROW_Y])),
                 object_clutter.camera_clutter(cfg, brg, self._scan, offset),
-                cfg.min_range_m,
+                cfg.reduction.min_range_m,
                 cfg.missed_detection == "bernoulli",
-                # each copy against the scan where it would be: see phd.camera_update
-                (lambda t: self._visibility(t, offset)) if self._scan_on() else None,
             )
-            if cfg.camera_birth == "ray":
+            if cfg.births.camera == "ray":
                 # Bearings the mixture does not explain start tracks along their rays; they
                 # join this frame's posterior (the bearing is their own update).
-                unexplained = brg[explained < cfg.camera_birth_max_explained]
+                unexplained = brg[explained < cfg.births.camera_max_explained]
                 if unexplained.shape[0]:
                     births = phd.camera_ray_births(cfg, unexplained)
-                    births[ROW_W] *= self._visibility(births, offset)
                     out = np.concatenate((out, births), axis=1)
         self._table = self._reduce(out)
         self._mixture = None
@@ -495,48 +493,18 @@ class RobotCentricPHD(RobotCentricFilter):
         """Extract neighbour position estimates (:func:`estimate_table` of the current table)."""
         return estimate_table(self._table, threshold)
 
-    def _scan_on(self) -> bool:
-        return self.config.scan_evidence and bool(self._scan[0])
-
-    def _scan_factors(
-        self, table: np.ndarray, offset: np.ndarray | None = None
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """:func:`~localization.scan_evidence.scan_factors` of ``table`` (in the filter's frame
-        shifted by ``-offset``) against the scan memory."""
-        cfg = self.config
-        pose = self._scan[1:4].copy()
-        if offset is not None:
-            pose[:2] -= offset
-        return scan_factors(
-            table,
-            pose,
-            self._scan[4:WIDE_OBJECTS_AT],
-            cfg.scan_target_radius_m,
-            cfg.scan_range_noise_std_m,
-            cfg.scan_range_noise_quadratic_per_m,
-            math.radians(cfg.scan_beam_footprint_deg),
-            cfg.scan_margin_sigmas,
-            cfg.min_range_m,
-        )
-
-    def _visibility(self, table: np.ndarray, offset: np.ndarray | None = None) -> np.ndarray:
-        """Each component's visibility against the scan memory, ``(N,)``; 1 without it."""
-        if not self._scan_on():
-            return np.ones(table.shape[1])
-        return self._scan_factors(table, offset)[0]
-
     def _lidar_missed(self, table: np.ndarray, pd: np.ndarray):
         """The lidar missed copies' ``P_d`` and shape (``lidar_missed_moments``), or None."""
         cfg = self.config
-        if not cfg.lidar_missed_moments or cfg.lidar_pd_model != "seed":
+        if not cfg.lidar.missed_moments or cfg.lidar.pd_model != "seed":
             return None
         return phd.missed_moments(
             table,
             pd,
-            cfg.lidar_pd_offset,
-            cfg.lidar_pd_slope_per_m,
-            cfg.lidar_pd_midpoint_m,
-            cfg.min_range_m,
+            cfg.lidar.pd_offset,
+            cfg.lidar.pd_slope_per_m,
+            cfg.lidar.pd_midpoint_m,
+            cfg.reduction.min_range_m,
         )
 
     def _missed_only(self, table: np.ndarray, detection_prob: np.ndarray) -> np.ndarray:
@@ -547,7 +515,12 @@ class RobotCentricPHD(RobotCentricFilter):
 
     def _reduce(self, table: np.ndarray) -> np.ndarray:
         cfg = self.config
-        return reduce(table, cfg.prune_threshold, cfg.merge_threshold, cfg.max_components)
+        return reduce(
+            table,
+            cfg.reduction.prune_threshold,
+            cfg.reduction.merge_threshold,
+            cfg.reduction.max_components,
+        )
 
 
 # ---------------------------------------------------------------------- input checks
@@ -626,12 +599,12 @@ def check_magnitude(values: np.ndarray, name: str) -> None:
 
 
 def checked_scan_profile(value: Any) -> np.ndarray:
-    """A scan profile (:mod:`localization.scan_evidence`): ``(N_BINS,)`` finite ranges >= 0 m
+    """A scan profile (:mod:`localization.scan_memory`): ``(N_BINS,)`` finite ranges >= 0 m
     (0 = unknown), within the input bound."""
     profile = as_float_array(value, "scan_profile")
     if profile.shape != (N_BINS,):
         raise ValueError(
-            f"scan_profile must have shape ({N_BINS},) (localization.scan_evidence), got shape "
+            f"scan_profile must have shape ({N_BINS},) (localization.scan_memory), got shape "
             f"{profile.shape}"
         )
     check_magnitude(profile, "scan_profile")
@@ -644,7 +617,7 @@ def checked_scan_profile(value: Any) -> np.ndarray:
 def scan_memory_of(
     profile: np.ndarray | None, pose: np.ndarray | None, with_wide_objects: bool
 ) -> np.ndarray:
-    """A filter's scan memory ``(MEMORY_LEN,)`` (:mod:`localization.scan_evidence`) after a
+    """A filter's scan memory ``(MEMORY_LEN,)`` (:mod:`localization.scan_memory`) after a
     lidar call: ``[1, x, y, psi]`` of the pose the scan was taken from (the filter's origin
     without one), its ``profile (N_BINS,)`` and, ``with_wide_objects``, the profile's wide
     objects (:func:`localization.object_clutter.wide_objects`). A call without a profile

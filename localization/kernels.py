@@ -30,7 +30,7 @@ Encoding of a batch of ``Q`` calls (all arrays, built by :class:`~localization.P
 * advance ``j`` (:data:`ADVANCE`): ``stamps[j]``, the time (s) the robot's clock moves to,
   adding the process noise that accrued since (``time_update == "measurement"``);
 * ``profiles (L, N_BINS)`` with flags ``lidar_has_profile (L,)``: lidar call ``j``'s scan
-  profile (:mod:`localization.scan_evidence`), which becomes the robot's scan memory (with
+  profile (:mod:`localization.scan_memory`), which becomes the robot's scan memory (with
   its wide objects, :mod:`localization.object_clutter`); a batch for a bank that does not
   read scans (``PHDConfig.reads_scans``) may carry ``(0, N_BINS)`` and all flags 0 (the
   profiles are read only where the flag is set).
@@ -57,7 +57,7 @@ from .detection import (
 from .mixture import N_ROWS
 from .object_clutter import clutter_density_into, wide_objects_into
 from .phd import GH_NODES, GH_WEIGHTS
-from .scan_evidence import WIDE_OBJECTS_AT, move_scan_pose_in_place, scan_factors_into
+from .scan_memory import WIDE_OBJECTS_AT, move_scan_pose_in_place
 
 __all__ = [
     "PREDICT",
@@ -118,75 +118,71 @@ def _inv_var_deg(std_deg: float) -> float:
 
 
 _F = _Slots(np.float64)  # fparams
-F_PROCESS_VAR = _F.slot(lambda c: c.process_noise_std_m**2)
-F_PROCESS_INTERVAL = _F.slot(lambda c: c.process_noise_interval_s)
-F_PS_OFFSET = _F.slot(lambda c: c.survival_offset)
-F_PS_SLOPE = _F.slot(lambda c: c.survival_slope_per_m)
-F_PS_RANGE = _F.slot(lambda c: c.survival_range_m)
-F_PS_CONST = _F.slot(lambda c: c.survival_probability)
-F_BIRTH_W = _F.slot(lambda c: c.birth_weight)
-F_BIRTH_X = _F.slot(lambda c: c.birth_mean_m[0])
-F_BIRTH_Y = _F.slot(lambda c: c.birth_mean_m[1])
-F_BIRTH_VAR = _F.slot(lambda c: c.birth_std_m**2)
-F_MBIRTH_W = _F.slot(lambda c: c.measurement_birth_weight)
-F_MBIRTH_VAR = _F.slot(lambda c: c.measurement_birth_cov_scale * c.lidar_noise_var_m2)
-F_MBIRTH_MAX_EXPLAINED = _F.slot(lambda c: c.measurement_birth_max_explained)
-F_LIDAR_VAR = _F.slot(lambda c: c.lidar_noise_var_m2)
-F_LPD_OFFSET = _F.slot(lambda c: c.lidar_pd_offset)
-F_LPD_SLOPE = _F.slot(lambda c: c.lidar_pd_slope_per_m)
-F_LPD_MID = _F.slot(lambda c: c.lidar_pd_midpoint_m)
-F_LPD_CONST = _F.slot(lambda c: c.lidar_detection_probability)
-F_LIDAR_RANGE = _F.slot(lambda c: c.lidar_range_m)
-F_OCC_INV_VAR = _F.slot(lambda c: _inv_var_deg(c.occlusion_std_deg))
-F_OCC_SEPARATION = _F.slot(lambda c: c.occlusion_min_separation_m)
-F_INT_DEPTH = _F.slot(lambda c: c.interference_depth)
-F_INT_INV_VAR = _F.slot(lambda c: _inv_var_deg(c.interference_std_deg))
-F_KAPPA_L = _F.slot(lambda c: c.lidar_clutter_intensity)
-F_CAMERA_VAR = _F.slot(lambda c: c.camera_noise_var_rad2)
-F_CAMERA_WIDTH_FRACTION = _F.slot(lambda c: c.camera_noise_width_fraction)
-F_CAMERA_TARGET_RADIUS = _F.slot(lambda c: c.camera_target_radius_m)
-F_CPD_OFFSET = _F.slot(lambda c: c.camera_pd_offset)
-F_CPD_SLOPE = _F.slot(lambda c: c.camera_pd_slope_per_m)
-F_CPD_MID = _F.slot(lambda c: c.camera_pd_midpoint_m)
+F_PROCESS_VAR = _F.slot(lambda c: c.prediction.process_noise_std_m**2)
+F_PROCESS_INTERVAL = _F.slot(lambda c: c.prediction.process_noise_interval_s)
+F_PS_OFFSET = _F.slot(lambda c: c.prediction.survival_offset)
+F_PS_SLOPE = _F.slot(lambda c: c.prediction.survival_slope_per_m)
+F_PS_RANGE = _F.slot(lambda c: c.prediction.survival_range_m)
+F_PS_CONST = _F.slot(lambda c: c.prediction.survival_probability)
+F_BIRTH_W = _F.slot(lambda c: c.births.weight)
+F_BIRTH_X = _F.slot(lambda c: c.births.mean_m[0])
+F_BIRTH_Y = _F.slot(lambda c: c.births.mean_m[1])
+F_BIRTH_VAR = _F.slot(lambda c: c.births.std_m**2)
+F_MBIRTH_W = _F.slot(lambda c: c.births.measurement_weight)
+F_MBIRTH_VAR = _F.slot(lambda c: c.births.measurement_cov_scale * c.lidar.noise_var_m2)
+F_MBIRTH_MAX_EXPLAINED = _F.slot(lambda c: c.births.measurement_max_explained)
+F_LIDAR_VAR = _F.slot(lambda c: c.lidar.noise_var_m2)
+F_LPD_OFFSET = _F.slot(lambda c: c.lidar.pd_offset)
+F_LPD_SLOPE = _F.slot(lambda c: c.lidar.pd_slope_per_m)
+F_LPD_MID = _F.slot(lambda c: c.lidar.pd_midpoint_m)
+F_LPD_CONST = _F.slot(lambda c: c.lidar.detection_probability)
+F_LIDAR_RANGE = _F.slot(lambda c: c.lidar.range_m)
+F_OCC_INV_VAR = _F.slot(lambda c: _inv_var_deg(c.lidar.occlusion_std_deg))
+F_OCC_SEPARATION = _F.slot(lambda c: c.lidar.occlusion_min_separation_m)
+F_INT_DEPTH = _F.slot(lambda c: c.lidar.interference_depth)
+F_INT_INV_VAR = _F.slot(lambda c: _inv_var_deg(c.lidar.interference_std_deg))
+F_KAPPA_L = _F.slot(lambda c: c.lidar.clutter_intensity)
+F_CAMERA_VAR = _F.slot(lambda c: c.camera.noise_var_rad2)
+F_CAMERA_WIDTH_FRACTION = _F.slot(lambda c: c.camera.noise_width_fraction)
+F_CAMERA_TARGET_RADIUS = _F.slot(lambda c: c.camera.target_radius_m)
+F_CPD_OFFSET = _F.slot(lambda c: c.camera.pd_offset)
+F_CPD_SLOPE = _F.slot(lambda c: c.camera.pd_slope_per_m)
+F_CPD_MID = _F.slot(lambda c: c.camera.pd_midpoint_m)
 # false blobs + untracked teammates (PHDConfig.camera_clutter_total_per_rad)
 F_KAPPA_C = _F.slot(lambda c: c.camera_clutter_total_per_rad)
 # the same less the wide objects' share where they are modelled
 # (PHDConfig.camera_clutter_uniform_per_rad)
 F_KAPPA_C_UNIFORM = _F.slot(lambda c: c.camera_clutter_uniform_per_rad)
-F_PRUNE = _F.slot(lambda c: c.prune_threshold)
-F_MERGE = _F.slot(lambda c: c.merge_threshold)
-F_MIN_RANGE = _F.slot(lambda c: c.min_range_m)
-F_CBIRTH_W = _F.slot(lambda c: c.camera_birth_weight)
-F_CBIRTH_MIN_RANGE = _F.slot(lambda c: c.camera_birth_min_range_m)
-F_CBIRTH_MAX_RANGE = _F.slot(lambda c: c.camera_birth_max_range_m)
-F_CBIRTH_MAX_EXPLAINED = _F.slot(lambda c: c.camera_birth_max_explained)
+F_PRUNE = _F.slot(lambda c: c.reduction.prune_threshold)
+F_MERGE = _F.slot(lambda c: c.reduction.merge_threshold)
+F_MIN_RANGE = _F.slot(lambda c: c.reduction.min_range_m)
+F_CBIRTH_W = _F.slot(lambda c: c.births.camera_weight)
+F_CBIRTH_MIN_RANGE = _F.slot(lambda c: c.births.camera_min_range_m)
+F_CBIRTH_MAX_RANGE = _F.slot(lambda c: c.births.camera_max_range_m)
+F_CBIRTH_MAX_EXPLAINED = _F.slot(lambda c: c.births.camera_max_explained)
 F_CBIRTH_RADIAL_FRACTION = _F.slot(lambda c: CAMERA_BIRTH_RADIAL_STD_FRACTION)
-F_SCAN_RADIUS = _F.slot(lambda c: c.scan_target_radius_m)
-F_SCAN_STD0 = _F.slot(lambda c: c.scan_range_noise_std_m)
-F_SCAN_STD2 = _F.slot(lambda c: c.scan_range_noise_quadratic_per_m)
-F_SCAN_FOOTPRINT = _F.slot(lambda c: math.radians(c.scan_beam_footprint_deg))
-F_SCAN_MARGIN = _F.slot(lambda c: c.scan_margin_sigmas)
-F_WIDE_CLUTTER = _F.slot(lambda c: c.camera_clutter_per_wide_object * c.models_wide_objects)
-F_WIDE_STD_FRACTION = _F.slot(lambda c: c.camera_wide_object_std_fraction)
-F_BEAM_SPACING = _F.slot(lambda c: math.radians(c.lidar_beam_spacing_deg))
-F_MIN_RETURNS = _F.slot(lambda c: float(c.lidar_min_returns))
+F_TARGET_RADIUS = _F.slot(lambda c: c.lidar.target_radius_m)
+F_BEAM_FOOTPRINT = _F.slot(lambda c: math.radians(c.lidar.beam_footprint_deg))
+F_WIDE_CLUTTER = _F.slot(lambda c: c.camera.clutter_per_wide_object * c.models_wide_objects)
+F_WIDE_STD_FRACTION = _F.slot(lambda c: c.camera.wide_object_std_fraction)
+F_BEAM_SPACING = _F.slot(lambda c: math.radians(c.lidar.beam_spacing_deg))
+F_MIN_RETURNS = _F.slot(lambda c: float(c.lidar.min_returns))
 F_EDGE_RAMP = _F.slot(lambda c: blind_sector_first_beams(c)[1])
 N_FPARAMS = len(_F.transforms)
 
 _I = _Slots(np.int64)  # iparams (flags are 0 / 1)
-I_MAX_COMPONENTS = _I.slot(lambda c: c.max_components)
-I_SURVIVAL_CONSTANT = _I.slot(lambda c: c.survival_model == "constant")
-I_BIRTH_FIXED = _I.slot(lambda c: c.birth == "fixed")
-I_BIRTH_MEASUREMENT = _I.slot(lambda c: c.birth == "measurement")
-I_LIDAR_PD_CONSTANT = _I.slot(lambda c: c.lidar_pd_model == "constant")
+I_MAX_COMPONENTS = _I.slot(lambda c: c.reduction.max_components)
+I_SURVIVAL_CONSTANT = _I.slot(lambda c: c.prediction.survival_model == "constant")
+I_BIRTH_FIXED = _I.slot(lambda c: c.births.model == "fixed")
+I_BIRTH_MEASUREMENT = _I.slot(lambda c: c.births.model == "measurement")
+I_LIDAR_PD_CONSTANT = _I.slot(lambda c: c.lidar.pd_model == "constant")
 I_LIDAR_ONLY = _I.slot(lambda c: c.mode == "lidar-only")
-I_CAMERA_BIRTH = _I.slot(lambda c: c.camera_birth == "ray")
-I_TIME_UPDATE_MEASUREMENT = _I.slot(lambda c: c.time_update == "measurement")
-I_CBIRTH_COMPONENTS = _I.slot(lambda c: c.camera_birth_components)
+I_CAMERA_BIRTH = _I.slot(lambda c: c.births.camera == "ray")
+I_TIME_UPDATE_MEASUREMENT = _I.slot(lambda c: c.prediction.time_update == "measurement")
+I_CBIRTH_COMPONENTS = _I.slot(lambda c: c.births.camera_components)
 I_MISSED_BERNOULLI = _I.slot(lambda c: c.missed_detection == "bernoulli")
-I_LIDAR_MISSED_MOMENTS = _I.slot(lambda c: c.lidar_missed_moments and c.lidar_pd_model == "seed")
-I_SCAN_EVIDENCE = _I.slot(lambda c: c.scan_evidence)
-I_BLIND_VISIBLE_WIDTH = _I.slot(lambda c: c.blind_sector_model == "visible-width")
+I_LIDAR_MISSED_MOMENTS = _I.slot(lambda c: c.lidar.missed_moments and c.lidar.pd_model == "seed")
+I_BLIND_VISIBLE_WIDTH = _I.slot(lambda c: c.lidar.blind_sector_model == "visible-width")
 N_IPARAMS = len(_I.transforms)
 
 _TINY = 1e-300  # as localization.gaussian.TINY: floor of every divisor
@@ -287,10 +283,10 @@ def _visible_width_blind(ux, uy, r, d, pxx, pxy, pyy, fp, sector_scaled, sector_
     """Product over sectors of :func:`localization.detection.visible_width_factor` for the
     component with unit bearing ``(ux, uy)`` (``m / d``), range ``r`` and covariance ``P``."""
     std = math.sqrt(max(uy * uy * pxx - 2.0 * ux * uy * pxy + ux * ux * pyy, 0.0)) / d
-    half_angle = math.asin(min(fp[F_SCAN_RADIUS] / max(r, 1e-12), 1.0))
+    half_angle = math.asin(min(fp[F_TARGET_RADIUS] / max(r, 1e-12), 1.0))
     # start of each side's step or ramp, less the first beam past the edge
     lead = (
-        -half_angle + 0.5 * fp[F_SCAN_FOOTPRINT] + (fp[F_MIN_RETURNS] - 1.0) * fp[F_BEAM_SPACING]
+        -half_angle + 0.5 * fp[F_BEAM_FOOTPRINT] + (fp[F_MIN_RETURNS] - 1.0) * fp[F_BEAM_SPACING]
     )
     ramp = fp[F_EDGE_RAMP]
     reach = 9.0 * max(std, RAMP_MIN_STD_RAD)  # Phi(-9) ~ 1e-19: beyond it a ramp is 0 or 1
@@ -301,7 +297,7 @@ def _visible_width_blind(ux, uy, r, d, pxx, pxy, pyy, fp, sector_scaled, sector_
         dx = sector_scaled[k, 0] / inv_var
         dy = sector_scaled[k, 1] / inv_var
         offset = math.atan2(dx * uy - dy * ux, dx * ux + dy * uy)
-        clear = half_width + half_angle - 0.5 * fp[F_SCAN_FOOTPRINT]
+        clear = half_width + half_angle - 0.5 * fp[F_BEAM_FOOTPRINT]
         if abs(offset) - clear > reach:
             continue  # 9 sigmas clear of the sector: its side's ramp is 1, the factor 1
         start_plus = sector_params[k, 1] + lead
@@ -382,40 +378,6 @@ def _camera_pd(tab, n, fp):
     if n > 1:
         _apply_occlusion(pd, tab, n, ranges, units, fp[F_OCC_INV_VAR], fp[F_OCC_SEPARATION])
     return pd
-
-
-@njit(cache=True)
-def _scan_factors(tab, n, memory, ox, oy, fp):
-    """Visibility and free-space probability ``(n,)`` each of ``tab``'s components against the
-    robot's last scan (:mod:`localization.scan_evidence`)."""
-    visible = np.empty(n)
-    free = np.empty(n)
-    scan_factors_into(
-        visible,
-        free,
-        tab,
-        n,
-        memory,
-        ox,
-        oy,
-        fp[F_SCAN_RADIUS],
-        fp[F_SCAN_STD0],
-        fp[F_SCAN_STD2],
-        fp[F_SCAN_FOOTPRINT],
-        fp[F_SCAN_MARGIN],
-        fp[F_MIN_RANGE],
-    )
-    return visible, free
-
-
-@njit(cache=True)
-def _refute(tab, n, memory, fp):
-    """Weights times ``1 - P_free`` against the scan in ``memory``, then pruned (as the
-    reference's reduction does). Returns (table, k)."""
-    _, free = _scan_factors(tab, n, memory, 0.0, 0.0, fp)
-    for i in range(n):
-        tab[0, i] *= 1.0 - free[i]
-    return _prune(tab, n, fp[F_PRUNE])
 
 
 # ---------------------------------------------------------------------- time update
@@ -734,24 +696,17 @@ def lidar_exponent(pts, h, mx, my, h_xx, h_xy, h_yy):
 
 
 @njit(cache=True)
-def _lidar_update(tab, n, pts, nulls, fp, ip, sector_scaled, sector_params, memory):
-    """Lidar GM-PHD update (H = I), pruned, then the scan's free-space evidence
-    (``memory``: the robot's scan memory, :mod:`localization.scan_evidence`). Returns
-    (table, k, explained (M,))."""
+def _lidar_update(tab, n, pts, nulls, fp, ip, sector_scaled, sector_params):
+    """Lidar GM-PHD update (H = I), pruned. Returns (table, k, explained (M,))."""
     m = pts.shape[0]
     prune = fp[F_PRUNE]
-    scan = ip[I_SCAN_EVIDENCE] and memory[0] != 0.0
     if m == 0:
         pd = _lidar_pd(tab, n, nulls, fp, ip, sector_scaled, sector_params)
-        if scan:
-            pd *= _scan_factors(tab, n, memory, 0.0, 0.0, fp)[0]
         if ip[I_LIDAR_MISSED_MOMENTS]:
             missed_pd, missed_tab = _missed_moments(tab, n, pd, fp)
         else:
             missed_pd, missed_tab = pd, tab
         out, k = _missed_only(tab, n, missed_pd, prune, ip[I_MISSED_BERNOULLI], missed_tab)
-        if scan:
-            out, k = _refute(out, k, memory, fp)
         return out, k, np.empty(0)
     fixed_birth = ip[I_BIRTH_FIXED]
     n1 = n + 1 if fixed_birth else n
@@ -760,8 +715,6 @@ def _lidar_update(tab, n, pts, nulls, fp, ip, sector_scaled, sector_params, memo
     if fixed_birth:
         set_fixed_birth(prior, n, fp)
     pd = _lidar_pd(prior, n1, nulls, fp, ip, sector_scaled, sector_params)
-    if scan:
-        pd *= _scan_factors(prior, n1, memory, 0.0, 0.0, fp)[0]
     r = fp[F_LIDAR_VAR]
     kappa = fp[F_KAPPA_L]
     detected = np.empty((n1, m))
@@ -799,8 +752,6 @@ def _lidar_update(tab, n, pts, nulls, fp, ip, sector_scaled, sector_params, memo
         missed_tab,
         missed_pd,
     )
-    if scan:
-        out, k = _refute(out, k, memory, fp)
     return out, k, explained
 
 
@@ -892,7 +843,7 @@ def _camera_update(tab, n, brg, fp, ip, memory, ox, oy):
     """Camera EKF bearing GM-PHD update (+ ray births), pruned. Returns (table, k).
 
     ``tab`` is seen from the camera: the filter's frame shifted by ``(-ox, -oy)``, which is
-    how the scan memory's pose is read (:func:`_scan_factors`).
+    how the scan memory's pose is read (its wide objects' clutter).
 
     Sparse: of the ``n x M`` (component, bearing) pairs only those above the component's
     :func:`_negligible_exponent` are kept (in component-major order, bearings ascending:
@@ -903,12 +854,9 @@ def _camera_update(tab, n, brg, fp, ip, memory, ox, oy):
     sum, so the result is the same to the bit."""
     m = brg.shape[0]
     prune = fp[F_PRUNE]
-    scan = ip[I_SCAN_EVIDENCE] and memory[0] != 0.0
     pd = _camera_pd(tab, n, fp)
-    # missed copies: P_d V(prior); detected copies: P_d V(posterior) (phd.camera_update)
-    missed_pd = pd * _scan_factors(tab, n, memory, ox, oy, fp)[0] if scan else pd
     if m == 0:
-        return _missed_only(tab, n, missed_pd, prune, ip[I_MISSED_BERNOULLI], tab)
+        return _missed_only(tab, n, pd, prune, ip[I_MISSED_BERNOULLI], tab)
     # The uniform part alone bounds the pairs dropped below (kappa_h >= kappa_C).
     kappa = fp[F_KAPPA_C_UNIFORM] if memory[0] != 0.0 else fp[F_KAPPA_C]
     kappas = camera_clutter(brg, memory, ox, oy, fp)
@@ -948,45 +896,13 @@ def _camera_update(tab, n, brg, fp, ip, memory, ox, oy):
             pair_x[q] = x + g0 * innov
             pair_y[q] = y + g1 * innov
     first[n] = p
-    if scan:
-        _pairs_times_visibility(pair_w, pair_x, pair_y, first, n, post_covs, memory, ox, oy, fp)
     out, k, explained = _camera_posterior(
-        tab, n, missed_pd, pair_h, pair_w, pair_x, pair_y, first, post_covs, kappas, prune,
+        tab, n, pd, pair_h, pair_w, pair_x, pair_y, first, post_covs, kappas, prune,
         ip[I_MISSED_BERNOULLI],
     )  # fmt: skip
     if ip[I_CAMERA_BIRTH]:
-        return _with_ray_births(out, k, brg, explained, fp, ip, memory, scan, ox, oy)
+        return _with_ray_births(out, k, brg, explained, fp, ip)
     return out, k
-
-
-@njit(cache=True)
-def _pairs_times_visibility(pair_w, pair_x, pair_y, first, n, post_covs, memory, ox, oy, fp):
-    """Each kept pair's ``P_d w N`` (``pair_w``) times its detected copy's visibility against
-    the scan memory (only the pairs with ``pair_w > 0``, as :func:`_camera_update`'s dense
-    form: the same components in the same order go to :func:`_scan_factors`)."""
-    n_pairs = 0
-    for p in range(first[n]):
-        n_pairs += pair_w[p] > 0.0
-    if n_pairs == 0:
-        return
-    pairs = np.empty((N_ROWS, n_pairs))
-    col = 0
-    for i in range(n):
-        for p in range(first[i], first[i + 1]):
-            if pair_w[p] > 0.0:
-                pairs[0, col] = 1.0
-                pairs[1, col] = pair_x[p]
-                pairs[2, col] = pair_y[p]
-                pairs[3, col] = post_covs[0, i]
-                pairs[4, col] = post_covs[1, i]
-                pairs[5, col] = post_covs[2, i]
-                col += 1
-    visible = _scan_factors(pairs, n_pairs, memory, ox, oy, fp)[0]
-    col = 0
-    for p in range(first[n]):
-        if pair_w[p] > 0.0:
-            pair_w[p] *= visible[col]
-            col += 1
 
 
 @njit(cache=True)
@@ -1040,11 +956,9 @@ def _camera_posterior(
 
 
 @njit(cache=True)
-def _with_ray_births(tab, n, brg, explained, fp, ip, memory, scan, ox, oy):
+def _with_ray_births(tab, n, brg, explained, fp, ip):
     """``tab`` plus :func:`localization.phd.ray_births` of the bearings explained less than
-    ``camera_birth_max_explained``, those above the prune threshold. With ``scan``, each
-    cell's weight is times its visibility against the scan memory (a teammate the camera saw
-    is not behind the scan's first surface). Returns (table, k)."""
+    ``births.camera_max_explained``, those above the prune threshold. Returns (table, k)."""
     n_cells = ip[I_CBIRTH_COMPONENTS]
     r_min = fp[F_CBIRTH_MIN_RANGE]
     step = (fp[F_CBIRTH_MAX_RANGE] - r_min) / n_cells
@@ -1086,10 +1000,6 @@ def _with_ray_births(tab, n, brg, explained, fp, ip, memory, scan, ox, oy):
             cells[3, c] = radial_var * (co * co) + cross_var * (si * si)
             cells[4, c] = (radial_var - cross_var) * (co * si)
             cells[5, c] = radial_var * (si * si) + cross_var * (co * co)
-        if scan:
-            visible = _scan_factors(cells, n_cells, memory, ox, oy, fp)[0]
-            for c in range(n_cells):
-                cells[0, c] *= visible[c]
         for c in range(n_cells):
             if cells[0, c] < prune:
                 continue
@@ -1379,10 +1289,10 @@ def _apply_call(q, state, calls, params):
         out, n_out = predict_with_births(tab, n, pending[r], pending_counts[r], odo, q_var, fp, ip)
         after_predict(pending_counts, r, memory, odo)
     elif kind == LIDAR:
-        keep_scan = ip[I_SCAN_EVIDENCE] != 0 or fp[F_WIDE_CLUTTER] > 0.0
+        keep_scan = fp[F_WIDE_CLUTTER] > 0.0
         pts, nul = lidar_call_inputs(calls, j, memory, keep_scan, fp)
         cand, n_cand, explained = _lidar_update(
-            tab, n, pts, nul, fp, ip, sector_scaled, sector_params, memory
+            tab, n, pts, nul, fp, ip, sector_scaled, sector_params
         )
         if ip[I_BIRTH_MEASUREMENT]:
             keep_measurement_births(pending, pending_counts, r, pts, explained, fp)
@@ -1413,7 +1323,7 @@ def apply_calls(state, calls, params):
         ``Pmax`` at least the largest lidar call's point count) and ``pending_counts (R,)``;
         ``clock (R, 2)`` per robot its last stamp (s, nan before the first) and whether it
         was advanced since the last predict (:func:`advance_clock`); ``scan_memory (R,
-        MEMORY_LEN)`` per robot its last scan (:mod:`localization.scan_evidence`),
+        MEMORY_LEN)`` per robot its last scan (:mod:`localization.scan_memory`),
         ``[has_scan, x_m, y_m, psi_rad, profile, wide objects]``, the pose in the filter's
         frame: written by lidar calls (where the scans are read; a call without a profile
         clears it), moved by predicts.

@@ -17,12 +17,12 @@ becomes
 with ``beta_o`` the object's bearing from the camera (the scan's pose moves with the odometry,
 so a frame taken between two scans is judged from where the camera is), ``alpha_o`` its
 angular half-width in the scan, ``s0^2`` the camera's constant bearing variance, ``lambda``
-(``PHDConfig.camera_clutter_per_wide_object``) the blobs per frame per wide object that are not
-teammates, and ``f`` (``PHDConfig.camera_wide_object_std_fraction``) the spread of those blobs
+(``PHDConfig.camera.clutter_per_wide_object``) the blobs per frame per wide object that are not
+teammates, and ``f`` (``PHDConfig.camera.wide_object_std_fraction``) the spread of those blobs
 about the object's centre in half-widths. Both are measured in ``seed-sim``
 (``benchmarks/bench_detection_curves.py``): ``lambda = 0.878``, ``f = 0.280``. The uniform part
 then no longer counts the decoy blobs the objects explain (67 % of them,
-``PHDConfig.camera_clutter_wide_object_share_per_rad``), except before the first scan (or
+``PHDConfig.camera.clutter_wide_object_share_per_rad``), except before the first scan (or
 after a lidar call without one), when the objects are unknown and it is the whole.
 
 A teammate's bearing at a wide object's is rarely lost: in front of the object it hides it from
@@ -49,7 +49,7 @@ from swarm_core.perception.lidar_features import (
     extract_wide_objects,
 )
 
-from .scan_evidence import BIN_WIDTH_RAD, MAX_WIDE_OBJECTS, N_BINS, WIDE_OBJECTS_AT
+from .scan_memory import BIN_WIDTH_RAD, MAX_WIDE_OBJECTS, N_BINS, WIDE_OBJECTS_AT
 
 __all__ = [
     "WIDE_OBJECT_MAX_WIDTH_M",
@@ -66,7 +66,7 @@ __all__ = [
 #: ones 0.05-0.25 and 0.23-0.34, so that treating them as clutter would take teammates' bearings
 #: (tried at 0.3 m: teammates lost on held-out seeds 105 and 107 of ``lab-3m-4``).
 WIDE_OBJECT_MAX_WIDTH_M = 0.12
-#: The profile's bin centres as beam bearings (:mod:`localization.scan_evidence`).
+#: The profile's bin centres as beam bearings (:mod:`localization.scan_memory`).
 BIN_ANGLES_RAD = -math.pi + BIN_WIDTH_RAD * np.arange(N_BINS)
 _BIN_COS = np.cos(BIN_ANGLES_RAD)
 _BIN_SIN = np.sin(BIN_ANGLES_RAD)
@@ -130,9 +130,9 @@ def camera_clutter(
         config.camera_clutter_uniform_per_rad
         if memory[0]
         else config.camera_clutter_total_per_rad,
-        config.camera_clutter_per_wide_object,
-        config.camera_wide_object_std_fraction,
-        config.camera_noise_var_rad2,
+        config.camera.clutter_per_wide_object,
+        config.camera.wide_object_std_fraction,
+        config.camera.noise_var_rad2,
     )
 
 

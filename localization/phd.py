@@ -19,7 +19,6 @@ References
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,7 +43,7 @@ __all__ = [
 
 @dataclass(frozen=True, slots=True)
 class ProcessClock:
-    """When a robot's random-walk process noise went in (``PHDConfig.time_update``).
+    """When a robot's random-walk process noise went in (``PHDConfig.prediction.time_update``).
 
     ``time_update == "measurement"``: the noise accrues continuously at the rate
     ``process_var / interval_s``; every stamped call (``("advance", stamp_s)``) adds what
@@ -398,20 +397,20 @@ def ray_births(
 
 def camera_ray_births(config, bearings: np.ndarray) -> np.ndarray:
     """:func:`ray_births` of ``bearings`` (M,) with ``config``'s (a ``PHDConfig``) camera
-    birth and camera models: ``camera_birth_weight`` per bearing over
-    ``[camera_birth_min_range_m, camera_birth_max_range_m]`` in ``camera_birth_components``
+    birth and camera models: ``births.camera_weight`` per bearing over
+    ``[births.camera_min_range_m, births.camera_max_range_m]`` in ``births.camera_components``
     cells, the range-dependent ``R_C`` and the camera's range factor. Shape (6, M K)."""
     return ray_births(
         bearings,
-        config.camera_birth_weight,
-        config.camera_birth_components,
-        config.camera_birth_min_range_m,
-        config.camera_birth_max_range_m,
+        config.births.camera_weight,
+        config.births.camera_components,
+        config.births.camera_min_range_m,
+        config.births.camera_max_range_m,
         CAMERA_BIRTH_RADIAL_STD_FRACTION,
         config.camera_bearing_var,
-        config.camera_pd_offset,
-        config.camera_pd_slope_per_m,
-        config.camera_pd_midpoint_m,
+        config.camera.pd_offset,
+        config.camera.pd_slope_per_m,
+        config.camera.pd_midpoint_m,
     )
 
 
@@ -475,7 +474,6 @@ def camera_update(
     clutter_intensity: float | np.ndarray,
     min_range_m: float,
     bernoulli: bool = False,
-    visibility: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """GM-PHD update with camera bearings, one EKF step per component (Perera 2021 eqs. 24-30).
 
@@ -496,13 +494,6 @@ def camera_update(
         Floor on ``||m||`` for the bearing Jacobian (m).
     bernoulli : bool
         Bernoulli missed-copy weights (:func:`missed_weights`).
-    visibility : callable, optional
-        ``V(table (6, K)) -> (K,)``, the probability that nothing hides a target with that
-        distribution (the scan's occlusion, :mod:`localization.scan_evidence`). A missed copy
-        takes ``P_d V(prior)``; a detected copy ``P_d V(its posterior)``, which is
-        ``E[V(x)]`` over where the bearing puts the target: an occluder off the bearing does
-        not hide it, one on the bearing does (a camera-confirmed component behind the object
-        that explains its bearing keeps only ``V`` of that support).
 
     Returns
     -------
@@ -515,22 +506,6 @@ def camera_update(
     post_means, post_covs, likelihood = bearing_update(
         table[ROW_X : ROW_Y + 1], table[ROW_PXX:], bearings, noise_var, min_range_m
     )
-    missed = None
-    if visibility is not None:
-        n, m = likelihood.shape
-        pairs = np.empty((N_ROWS, n, m))
-        pairs[ROW_W] = 1.0
-        pairs[ROW_X : ROW_Y + 1] = post_means
-        pairs[ROW_PXX:] = post_covs[:, :, None]
-        likelihood = likelihood * visibility(pairs.reshape(N_ROWS, n * m)).reshape(n, m)
-        missed = (detection_prob * visibility(table), table)
     return _posterior_table(
-        table,
-        detection_prob,
-        post_means,
-        post_covs,
-        likelihood,
-        clutter_intensity,
-        bernoulli,
-        missed,
+        table, detection_prob, post_means, post_covs, likelihood, clutter_intensity, bernoulli
     )

@@ -8,8 +8,8 @@ and the replay.
 
 Every entry builds a :class:`~localization.protocol.Localizer` from ``(n_robots, phd, seed)``:
 ``phd`` is the :class:`~localization.PHDConfig` holding the sensor models of the World the
-localizer runs on (the simulator presets' :data:`swarm_env.config.SIMULATOR_PHD`, or the Perera
-2021 study's ``PHDConfig()`` for real robots); the ``-lc`` / ``-lo`` names set its ``mode``, the
+localizer runs on (``PHDConfig()``, the simulator presets' model, or the Perera 2021 study's
+``PHDConfig.perera2021()`` for real robots); the ``-lc`` / ``-lo`` names set its ``mode``, the
 bare family names (``phd``, ``phd-reference``) keep it. :func:`register` adds a family (see
 ``docs/how-to/add-a-localizer-family.md``).
 
@@ -331,8 +331,8 @@ def idphd_config(phd: PHDConfig) -> IDPHDConfig:
     """ID-PHD with the World's lidar models (noise, clutter, detection) from ``phd``."""
     return IDPHDConfig(
         detection=phd,
-        lidar_noise_std_m=phd.lidar_noise_std_m,
-        lidar_clutter_intensity_per_m2=phd.lidar_clutter_intensity,
+        lidar_noise_std_m=phd.lidar.noise_std_m,
+        lidar_clutter_intensity_per_m2=phd.lidar.clutter_intensity,
     )
 
 

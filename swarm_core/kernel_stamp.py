@@ -2,7 +2,7 @@
 
 numba stamps a cached kernel with the hash of its own source file. A kernel that calls a kernel
 from another module (the filter bank's camera update calls
-``localization.scan_evidence.scan_factors_into``) holds the callee's machine code in its own
+``localization.object_clutter.clutter_density_into``) holds the callee's machine code in its own
 cache entry. After an edit or a ``git pull`` that changes only the callee's file, the caller's
 entry still matches its own file, so it is loaded and silently runs the old callee.
 

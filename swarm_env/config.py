@@ -14,9 +14,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
-
 from localization import PHDConfig
+from localization.config import replace_fields
 from swarm_core.perception.lidar_features import LidarFeatureConfig
 from swarm_core.validation import (
     check_int_range,
@@ -189,126 +188,11 @@ class ArenaConfig:
         return self.width_m * self.height_m
 
 
-#: The simulated lidar's range factor, fitted to its measured detection curve
-#: (``benchmarks/bench_detection_curves.py``; ``docs/concepts/sensors.md``, "Detection curves"):
-#: the
-#: probability that the feature extractor reports a teammate's housing at range r, in free
-#: space, outside the blind sectors, without interference (the filter's other factors), is
-#: ``1 / (offset + exp(slope (r - midpoint)))`` with these values (1500 pairs per range,
-#: RMS residual 0.017 on 0.25-5.5 m). It follows from the geometry: a 65 mm housing gives
-#: ``2 asin(0.0325 / r) / 0.5 deg - 1`` clean returns and a cluster needs 3, so P_d is 1 up to
-#: 1.86 m, 0.73 at 2 m and 0 from 2.48 m. Perera 2021's real X4 (eq. 19: 1.02, 8, 1.5 m) fades
-#: about 0.6 m sooner; what the simulated X4 leaves out is listed in ``docs/concepts/sensors.md``.
-SIM_LIDAR_PD_OFFSET = 1.0
-SIM_LIDAR_PD_SLOPE_PER_M = 8.78
-SIM_LIDAR_PD_MIDPOINT_M = 2.14
-
-#: The simulated cameras' range factor, fitted the same way to their measured curve (a
-#: teammate's 5 cm strip with free line of sight; RMS residual 0.023): 0.95 up to 3 m, 0.56
-#: at 4 m, 0.18 at 4.5 m, 0 from 4.75 m (Perera 2021 eq. 30: 1.1, 5, 4 m).
-SIM_CAMERA_PD_OFFSET = 1.050
-SIM_CAMERA_PD_SLOPE_PER_M = 3.84
-SIM_CAMERA_PD_MIDPOINT_M = 4.08
-
-#: Camera bearing noise of the simulated blobs, ``R_C(r) = s0^2 + (k W(r))^2`` with
-#: ``W(r) = 2 asin(R / r)`` the strip's angular width: least squares on the measured RMS error
-#: per range where P_d >= 0.9 (0.96 deg at 0.5 m, 0.48 at 1 m, 0.23 at 2 m, 0.16 at 3 m) gives
-#: k = 0.0845 (the blob model's own (1 - fill_min) / 6 = 0.0833: a centroid offset uniform
-#: within the unlit part of the strip) and an s0 below what the fit resolves; s0 is the pixel
-#: rounding, 1 px / sqrt(12) = 0.027 deg. Over all of ``seed-sim``'s frames the RMS error is
-#: 0.45 deg, which a constant model would use at every range: 4x too tight at 0.3 m.
-SIM_CAMERA_NOISE_STD_DEG = 0.027
-SIM_CAMERA_NOISE_WIDTH_FRACTION = 0.0845
-
-#: Camera clutter intensity per radian in ``seed-sim``: bearings that no tracked teammate
-#: explains. Measured per frame: 1.29 from the arena's red decoys, 0.10 random false blobs
-#: (0.22 /rad together), and 6.3 bearings of teammates beyond the lidar's 50 % range (2.1 m),
-#: which the lidar-initialised mixture does not hold (1.00 /rad): 1.22 /rad in all.
-SIM_CAMERA_CLUTTER_PER_RAD = 1.22
-
-#: Where the lidar places part of that clutter (``localization.object_clutter``): a ``seed-sim``
-#: scan shows 0.94 compact objects wider than a housing and at most 0.12 m wide (mostly red
-#: decoys); each brings 0.878 blobs per frame that are not teammates (and 0.014 of teammates),
-#: spread about its centre with a std of 0.280 of its angular half-width. They explain 67 % of
-#: the decoys' blobs: 0.131 /rad of the uniform clutter (1.22 -> 1.09 /rad where they are
-#: modelled). ``benchmarks/bench_detection_curves.py``, 2026-12-02.
-SIM_CAMERA_CLUTTER_PER_WIDE_OBJECT = 0.878
-SIM_CAMERA_WIDE_OBJECT_STD_FRACTION = 0.280
-SIM_CAMERA_CLUTTER_WIDE_OBJECT_SHARE_PER_RAD = 0.131
-
-#: The robots' filter in the simulator: the Perera 2021 study's GM-PHD (``PHDConfig()``, which
-#: describes that study's hardware) with its sensor models set from measurements of the simulated
-#: sensors (``benchmarks/bench_detection_curves.py``, above), never from a localization score:
-#:
-#: * the lidar range factor :data:`SIM_LIDAR_PD_OFFSET`, ``_SLOPE_PER_M``, ``_MIDPOINT_M``, and
-#:   the blind sectors' notch derived from the scanner's geometry (``"visible-width"``);
-#: * the camera range factor :data:`SIM_CAMERA_PD_OFFSET`, ``_SLOPE_PER_M``, ``_MIDPOINT_M``,
-#:   the bearing noise :data:`SIM_CAMERA_NOISE_STD_DEG`, ``_WIDTH_FRACTION`` and the clutter
-#:   :data:`SIM_CAMERA_CLUTTER_PER_RAD`;
-#: * measurement-driven births of weight 0.25: teammates enter a robot's 2 m disc 0.085 times
-#:   per scan, and the Perera 2021 study's fixed birth needs 2-3 extra scans per newcomer;
-#: * the model corrections of ``docs/concepts/localizers.md`` ("The camera's measurement model,
-#:   corrected"): the Bernoulli missed-detection term, process noise up to each measurement's
-#:   stamp, the camera's position in the bearing model (always on with motion compensation),
-#:   the range-dependent bearing noise and the moment-matched missed lidar copies.
-#:
-#: Real robots (:func:`hardware_bridge.real_env`) keep the Perera 2021 study's values unless
-#: overridden.
-SIMULATOR_PHD = PHDConfig(
-    birth="measurement",
-    measurement_birth_weight=0.25,
-    lidar_pd_offset=SIM_LIDAR_PD_OFFSET,
-    lidar_pd_slope_per_m=SIM_LIDAR_PD_SLOPE_PER_M,
-    lidar_pd_midpoint_m=SIM_LIDAR_PD_MIDPOINT_M,
-    # The notch the X4's beam geometry cuts where a pillar hides its beams, from the housing,
-    # the beams and the extractor's minimum returns (docs/concepts/localizers.md, "The blind
-    # sectors' notch"): the Perera 2021 study's bump (sigma 5 deg) expected 0.17 of the detections
-    # at 2-4 deg from a centre and 0.62 at 6-8 deg, where the simulator gives 0.04 and 0.93.
-    blind_sector_model="visible-width",
-    lidar_beam_spacing_deg=360.0 / LidarConfig().n_beams,
-    lidar_min_returns=LidarFeatureConfig().min_beams,
-    lidar_beam_phase="fixed",
-    camera_pd_offset=SIM_CAMERA_PD_OFFSET,
-    camera_pd_slope_per_m=SIM_CAMERA_PD_SLOPE_PER_M,
-    camera_pd_midpoint_m=SIM_CAMERA_PD_MIDPOINT_M,
-    camera_noise_std_deg=SIM_CAMERA_NOISE_STD_DEG,
-    camera_noise_width_fraction=SIM_CAMERA_NOISE_WIDTH_FRACTION,
-    camera_target_radius_m=RobotConfig().camera_holder_radius_m,
-    camera_clutter_intensity=SIM_CAMERA_CLUTTER_PER_RAD,
-    # The decoys' blobs where the scan shows a wide object: a bearing there is explained by the
-    # object, not by a component on or behind it (docs/concepts/localizers.md, "Clutter the lidar
-    # places").
-    camera_clutter_per_wide_object=SIM_CAMERA_CLUTTER_PER_WIDE_OBJECT,
-    camera_wide_object_std_fraction=SIM_CAMERA_WIDE_OBJECT_STD_FRACTION,
-    camera_clutter_wide_object_share_per_rad=SIM_CAMERA_CLUTTER_WIDE_OBJECT_SHARE_PER_RAD,
-    # One missed frame does not kill an established track (docs/concepts/localizers.md, "Missed
-    # detections: the Bernoulli term"). Camera-started tracks (camera_birth="ray") stay an
-    # option, off here: measured, they put ghost components along the rays that the
-    # formation controller follows (final error 0.05 -> 0.44 m, lab-3m-4, seed 0) and cost
-    # the Perera 2021 metric a point; the bearings of teammates the lidar does not reach are
-    # clutter instead (camera_clutter_intensity above counts them).
-    missed_detection="bernoulli",
-    # Process noise up to each measurement's stamp: three camera frames and a scan fall between
-    # two odometry samples (docs/concepts/localizers.md, "When Q goes in").
-    time_update="measurement",
-    # The lidar's missed copies moment-matched under its range-dependent P_d (the GM-PHD's):
-    # a track left at the range edge by a teammate that moved beyond it drifts outwards
-    # instead of being confirmed in place by the camera (docs/concepts/localizers.md).
-    lidar_missed_moments=True,
-    # The scan's raw ranges as negative information (localization.scan_evidence), matched to
-    # the simulated X4 but off. Alone it removed 80 % of the shadows behind the red decoys,
-    # but the camera then kept that mass on the decoy itself (lab-3m-4 validation formation
-    # error 0.086 -> 0.132 m). With the wide objects' clutter above it helps (GOSPA 0.293 ->
-    # 0.263 m, validation formation error 0.077 -> 0.062 m, held out 0.150 -> 0.135 m) but
-    # the bearing quadrature cost 10x the filters' time when measured without the wide
-    # objects (docs/concepts/localizers.md, "The scan's negative information"): off until that
-    # cost is cut.
-    scan_evidence=False,
-    scan_target_radius_m=RobotConfig().housing_radius_m,
-    scan_range_noise_std_m=LidarConfig().range_noise_std_m,
-    scan_range_noise_quadratic_per_m=LidarConfig().range_noise_quadratic_per_m,
-    scan_beam_footprint_deg=LidarConfig().beam_footprint_deg,
-)
+#: The robots' filter in the simulator: ``PHDConfig()``, whose sensor models were measured on
+#: the simulated sensors (each field's description says where; the geometry ones are checked
+#: against these configs' defaults in ``tests/swarm_env/test_config_phd.py``). Real robots
+#: (:func:`hardware_bridge.real_env`) run :meth:`PHDConfig.perera2021` unless overridden.
+SIMULATOR_PHD = PHDConfig()
 
 
 @dataclass(frozen=True, slots=True)
@@ -354,7 +238,8 @@ class SwarmConfig:
         Count each sensor's detections, false positives and misses against the truth at the
         instant of every reading (``SimWorld.stats``; the demo prints them). Costs time.
     phd : PHDConfig
-        Every robot's filter (default :data:`SIMULATOR_PHD`).
+        Every robot's filter (default ``PHDConfig()``, the model measured on the simulated
+        sensors).
     comms : CommsConfig
         The robots' radio (off by default): teammates' odometry and anonymous detections, with
         loss, latency and a radius; received broadcasts are in ``infos[agent]["comms"]``.
@@ -508,7 +393,7 @@ def _dense(n_robots: int) -> SwarmConfig:
 #: R_C (5 deg std, eq. 28), no false blobs, no lost frames, ideal blob centroids (fill 1); the
 #: range fade is eq. 30's (``PERERA2021_CAMERA_FADE``).
 PERERA2021_CAMERA = CameraConfig(
-    bearing_noise_std_deg=PHDConfig.perera2021().camera_noise_std_deg,
+    bearing_noise_std_deg=PHDConfig.perera2021().camera.noise_std_deg,
     fill_min=1.0,
     miss_probability=0.0,
     false_positive_rate=0.0,
@@ -573,19 +458,4 @@ def make_config(preset: str = "sim-6m-20", config: SwarmConfig | None = None, **
         raise ValueError(
             f"config must be a SwarmConfig (or None, with keyword overrides), got {config!r}"
         )
-    return _replace_strict(config, overrides, prefix="")
-
-
-def _replace_strict(obj: Any, overrides: dict[str, Any], prefix: str) -> Any:
-    names = {f.name: f for f in dataclasses.fields(obj)}
-    changes: dict[str, Any] = {}
-    for key, value in overrides.items():
-        if key not in names:
-            raise ValueError(f"unknown config key {prefix + key!r}; valid keys: {sorted(names)}")
-        current = getattr(obj, key)
-        if dataclasses.is_dataclass(current) and isinstance(value, dict):
-            value = _replace_strict(current, value, prefix=f"{prefix}{key}.")
-        elif isinstance(value, np.generic):  # np.int64(4) from a sweep: stored as 4
-            value = value.item()
-        changes[key] = value
-    return dataclasses.replace(obj, **changes) if changes else obj
+    return replace_fields(config, overrides)

@@ -21,8 +21,6 @@ from swarm_core import progress
 CASES = (
     {"phd": {"mode": "lidar-camera"}},
     {"phd": {"mode": "lidar-only"}},
-    # The scan evidence's kernels (the feed bins scans only for a filter that reads them).
-    {"phd": {"mode": "lidar-camera", "scan_evidence": True}, "steps": 2},
     {"localizer": "pmb-lc"},
     {"localizer": "pmb-lo"},
     {"observation": "measurements", "localize": False},

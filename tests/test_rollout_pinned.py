@@ -50,7 +50,7 @@ def rollout_hash(steps: int = 60, seed: int = 3, **kwargs) -> str:
 # with lidar_features={"beam_footprint_deg": 0.5, "max_gap_beams": 0} the previous ones are
 # reproduced (pinned below), except the phd-lc cases' wide-object clutter, which reads the
 # default extractor (localization.object_clutter).
-SEED_BUMP = {"blind_sector_model": "seed"}
+SEED_BUMP = {"lidar": {"blind_sector_model": "seed"}}
 FOOTPRINT_RULE = {"beam_footprint_deg": 0.5, "max_gap_beams": 0}
 PINNED = {
     "phd-lc": ({"localizer": "phd-lc"}, "3be74797c7cfdad0"),
@@ -70,19 +70,19 @@ PINNED = {
     "phd-lc-bump": ({"localizer": "phd-lc", "phd": SEED_BUMP}, "5cbe979ec13bd77a"),
     "phd-lo-bump": ({"localizer": "phd-lo", "phd": SEED_BUMP}, "0d78ca8666d5cb1e"),
     "pmb-lc-bump-uniform-clutter": (
-        {"localizer": "pmb-lc", "phd": {**SEED_BUMP, "camera_clutter_per_wide_object": 0.0}},
+        {"localizer": "pmb-lc", "phd": {**SEED_BUMP, "camera": {"clutter_per_wide_object": 0.0}}},
         "d2c6c04bd45f5a93",
     ),
     "phd-lc-width-only": (
         {
             "localizer": "phd-lc",
             "lidar_features": {"extent_test": False},
-            "phd": {**SEED_BUMP, "camera_clutter_per_wide_object": 0.0},
+            "phd": {**SEED_BUMP, "camera": {"clutter_per_wide_object": 0.0}},
         },
         "50fca56a0405e160",
     ),
     "phd-lc-uniform-clutter": (
-        {"localizer": "phd-lc", "phd": {**SEED_BUMP, "camera_clutter_per_wide_object": 0.0}},
+        {"localizer": "phd-lc", "phd": {**SEED_BUMP, "camera": {"clutter_per_wide_object": 0.0}}},
         "c1af82dea5d9e830",
     ),
 }

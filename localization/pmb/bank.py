@@ -48,8 +48,8 @@ class PMBBank(FilterBank):
     Notes
     -----
     Tables: the tracks ``(6, R, max_tracks)`` (shown by :meth:`padded_tables`, ``w`` =
-    existence) and the Poisson intensities ``(6, R, phd.max_components)``. Bounds per robot
-    and filter call: ``sum r + sum Poisson w`` obeys the GM-PHD's time-update bound, and
+    existence) and the Poisson intensities ``(6, R, phd.reduction.max_components)``. Bounds per
+    robot and filter call: ``sum r + sum Poisson w`` obeys the GM-PHD's time-update bound, and
     ``<= sum r + sum (1 - P_d) w_Poisson + M`` (or ``K`` bearings) per update; every existence
     in ``[0, 1]``, at most ``max_tracks`` tracks.
     """
@@ -58,7 +58,7 @@ class PMBBank(FilterBank):
     weight_meaning = "existence"
     tables = (
         BankTable("tracks", "track_counts", lambda c: c.max_tracks),
-        BankTable("poisson", "poisson_counts", lambda c: c.phd.max_components),
+        BankTable("poisson", "poisson_counts", lambda c: c.phd.reduction.max_components),
     )
     reference = RobotCentricPMB
     pack_params = staticmethod(kernels.pack_pmb_params)
@@ -74,10 +74,9 @@ class PMBBank(FilterBank):
 
     @property
     def reads_scans(self) -> bool:
-        """Whether the lidar calls' scan profiles are used: for the wide objects' camera
-        clutter (``config.phd.models_wide_objects``); the scan evidence is the GM-PHD's
-        only. A :class:`~localization.feed.SwarmFeed` packs them only then."""
-        return bool(self.config.phd.models_wide_objects)
+        """Whether the lidar calls' scan profiles are used (``PHDConfig.reads_scans``). A
+        :class:`~localization.feed.SwarmFeed` packs them only then."""
+        return self.config.phd.reads_scans
 
     def filter_with_mixture(self, mixture: GaussianMixture) -> RobotCentricPMB:
         """A reference filter whose tracks are ``mixture`` (weights = existences in

@@ -5,10 +5,9 @@
 exactly the models the GM-PHD ``RobotCentricPHD(cfg)`` uses, plus the few parameters that only a
 multi-Bernoulli filter has (gating, loopy belief propagation, recycling, the track cap).
 
-Shared fields used from ``phd``: the mode (LC / LO), process noise, survival model, both birth
-models, every lidar and camera detection / noise / clutter parameter, and the Poisson
-intensity's reduction (``prune_threshold``, ``merge_threshold``, ``max_components``) and
-``min_range_m``.
+Shared fields used from ``phd``: the mode (LC / LO), the missed-detection rule, ``prediction``,
+``births``, ``lidar`` and ``camera`` (but ``lidar.missed_moments``), and ``reduction`` for the
+Poisson intensity.
 
 References
 ----------
@@ -28,7 +27,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..config import PHDConfig
+from ..config import MOVED_FIELDS, REMOVED_FIELDS, PHDConfig, replace_fields
 
 __all__ = ["PMBConfig", "pmb_config"]
 
@@ -41,9 +40,9 @@ class PMBConfig:
     Attributes
     ----------
     phd : PHDConfig
-        Every model shared with the GM-PHD (see the module docstring). Default: the Perera 2021
-        study's ``PHDConfig()``; pass the same object the GM-PHD gets (e.g. the simulator preset)
-        so that ``pmb-lc`` and ``phd-lc`` see identical sensor models.
+        Every model shared with the GM-PHD (see the module docstring). Default ``PHDConfig()``
+        (the simulator presets' model); pass the same object the GM-PHD gets so that ``pmb-lc``
+        and ``phd-lc`` see identical sensor models.
     gate_sigma : float
         A (track or Poisson component, measurement) pair whose squared Mahalanobis distance of
         the innovation exceeds ``gate_sigma**2`` gets likelihood 0. Default 4: such a pair's
@@ -105,13 +104,13 @@ class PMBConfig:
         return float(self.gate_sigma) ** 2
 
 
-_PMB_FIELDS = {f.name for f in dataclasses.fields(PMBConfig)} - {"phd"}
 _PHD_FIELDS = {f.name for f in dataclasses.fields(PHDConfig)}
 
 
 def pmb_config(config: Any = None, overrides: dict[str, Any] | None = None) -> PMBConfig:
     """A :class:`PMBConfig` from ``None`` (defaults), a ``PMBConfig`` or a ``PHDConfig`` (the
-    shared models, PMB defaults), with ``overrides`` naming PMB or PHD fields replaced.
+    shared models, PMB defaults), with ``overrides`` naming PMB or PHD fields replaced (a PHD
+    component takes a dict of its fields: ``{"lidar": {"noise_std_m": 0.04}}``).
 
     Raises
     ------
@@ -125,11 +124,9 @@ def pmb_config(config: Any = None, overrides: dict[str, Any] | None = None) -> P
     elif not isinstance(config, PMBConfig):
         raise ValueError(f"config must be a PMBConfig or PHDConfig, got {type(config).__name__}")
     overrides = dict(overrides or {})
-    unknown = sorted(set(overrides) - _PMB_FIELDS - _PHD_FIELDS - {"phd"})
-    if unknown:
-        raise ValueError(f"unknown PMBConfig / PHDConfig field(s) {unknown}")
-    phd_over = {k: v for k, v in overrides.items() if k in _PHD_FIELDS}
-    pmb_over = {k: v for k, v in overrides.items() if k not in _PHD_FIELDS}
+    # PHD fields (and the flat names of earlier releases, refused with their new place)
+    shared = _PHD_FIELDS | set(MOVED_FIELDS) | set(REMOVED_FIELDS)
+    phd_over = {k: overrides.pop(k) for k in list(overrides) if k in shared}
     if phd_over:
-        pmb_over["phd"] = dataclasses.replace(pmb_over.get("phd", config.phd), **phd_over)
-    return dataclasses.replace(config, **pmb_over) if pmb_over else config
+        overrides["phd"] = replace_fields(overrides.get("phd", config.phd), phd_over)
+    return replace_fields(config, overrides) if overrides else config

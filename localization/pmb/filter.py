@@ -67,7 +67,7 @@ from ..mixture import (
     empty_table,
 )
 from ..reducer import reduce
-from ..scan_evidence import MEMORY_LEN
+from ..scan_memory import MEMORY_LEN
 from .association import lbp_marginals
 from .config import pmb_config
 
@@ -124,7 +124,8 @@ class RobotCentricPMB(RobotCentricFilter):
     an update with ``M`` measurements ``n' <= sum r + sum_k (1 - P_d,k) w_k + M`` (each
     measurement goes to one track or to new-or-clutter; recycling moves mass, pruning and the
     cap only remove it). Every existence is in ``[0, 1]`` (and ``>= recycle_threshold`` after
-    an update), at most ``max_tracks`` tracks and ``phd.max_components`` Poisson components.
+    an update), at most ``max_tracks`` tracks and ``phd.reduction.max_components`` Poisson
+    components.
     """
 
     __slots__ = (
@@ -144,9 +145,9 @@ class RobotCentricPMB(RobotCentricFilter):
         self.config = config = pmb_config(config, overrides)
         self._model = DetectionModel(config.phd)
         self._fixed_birth = phd.birth_components(
-            np.asarray([config.phd.birth_mean_m], dtype=float),
-            config.phd.birth_std_m**2,
-            config.phd.birth_weight,
+            np.asarray([config.phd.births.mean_m], dtype=float),
+            config.phd.births.std_m**2,
+            config.phd.births.weight,
         )
         self.reset()
 
@@ -274,26 +275,25 @@ class RobotCentricPMB(RobotCentricFilter):
             ``[x_m, y_m, psi_rad]`` in the filter's frame the scan was taken from; points and
             null bearings are moved into the filter's frame (:mod:`localization.frames`).
         scan_profile : array_like, shape (N_BINS,), optional
-            The scan's :func:`~localization.scan_evidence.scan_profile` (m, 0 = unknown).
+            The scan's :func:`~localization.scan_memory.scan_profile` (m, 0 = unknown).
             Where the camera clutter models the wide objects
             (``PHDConfig.models_wide_objects``) it becomes the filter's scan memory with its
             wide objects, from which later camera frames take their clutter; without one
-            the filter has no scan until the next. The scan evidence
-            (``PHDConfig.scan_evidence``) is the GM-PHD's only.
+            the filter has no scan until the next.
         """
         pts, nulls, pose, profile = lidar_inputs(points, null_bearings, sensor_pose, scan_profile)
         if self.config.phd.models_wide_objects:  # the memory is kept only where it is used
             self._scan = scan_memory_of(profile, pose, True)
         cfg = self.config.phd
         poisson = self._poisson
-        fixed = cfg.birth == "fixed" and pts.shape[0] > 0
+        fixed = cfg.births.model == "fixed" and pts.shape[0] > 0
         if fixed:
             # As the GM-PHD: the Perera 2021 study's birth joins the prior of every lidar update
             # with detections; only its detected part is kept (its missed part is dropped below).
             poisson = np.concatenate((poisson, self._fixed_birth), axis=1)
         union = np.concatenate((self._tracks, poisson), axis=1)
         pd = self._model.lidar(union, nulls)
-        var = cfg.lidar_noise_var_m2
+        var = cfg.lidar.noise_var_m2
         post_means, post_covs, lik = position_update(
             union[ROW_X : ROW_Y + 1], union[ROW_PXX:], pts.T, var
         )
@@ -301,17 +301,17 @@ class RobotCentricPMB(RobotCentricFilter):
         det_s = (union[ROW_PXX] + var) * (union[ROW_PYY] + var) - union[ROW_PXY] ** 2
         scale = _TWO_PI * np.sqrt(np.maximum(det_s, _TINY))
         explained = self._update(
-            union, poisson, pd, post_means, post_covs, lik, scale, cfg.lidar_clutter_intensity
+            union, poisson, pd, post_means, post_covs, lik, scale, cfg.lidar.clutter_intensity
         )
-        if cfg.birth == "measurement":
-            self._pending_births = pts[explained < cfg.measurement_birth_max_explained]
+        if cfg.births.model == "measurement":
+            self._pending_births = pts[explained < cfg.births.measurement_max_explained]
 
     def update_camera(self, bearings: Any, sensor_pose: Any = None) -> None:
         """PMB update with camera bearings: the GM-PHD's EKF bearing update per hypothesis.
 
         A no-op (after validation) in ``mode="lidar-only"``. New tracks from bearings come
         only from the Poisson intensity's own mass (see the module docs); no position is
-        invented along the ray. With ``PHDConfig.camera_birth="ray"`` bearings start no
+        invented along the ray. With ``PHDConfig.births.camera="ray"`` bearings start no
         track at all: what the Poisson part explains stays in it, and the bearings nothing
         explains add their ray (``phd.ray_births``) to it, so a teammate only the camera sees
         is held as undetected mass until a lidar detection confirms it.
@@ -357,14 +357,14 @@ class RobotCentricPMB(RobotCentricFilter):
         means = union[ROW_X : ROW_Y + 1]
         var = cfg.camera_bearing_var(np.hypot(means[0], means[1]))  # R_C at each prior mean
         post_means, post_covs, lik = bearing_update(
-            means, union[ROW_PXX:], brg, var, cfg.min_range_m
+            means, union[ROW_PXX:], brg, var, cfg.reduction.min_range_m
         )
         # Gate: q > G  <=>  N(nu; 0, S) * sqrt(2 pi S) < exp(-G / 2), S = H P H^T + R_C.
-        inv_r2 = 1.0 / np.maximum(means[0] ** 2 + means[1] ** 2, cfg.min_range_m**2)
+        inv_r2 = 1.0 / np.maximum(means[0] ** 2 + means[1] ** 2, cfg.reduction.min_range_m**2)
         j0, j1 = -means[1] * inv_r2, means[0] * inv_r2
         s = j0 * j0 * union[ROW_PXX] + 2.0 * j0 * j1 * union[ROW_PXY] + j1 * j1 * union[ROW_PYY]
         scale = np.sqrt(_TWO_PI * (s + var))
-        to_poisson = cfg.camera_birth == "ray"
+        to_poisson = cfg.births.camera == "ray"
         explained = self._update(
             union,
             self._poisson,
@@ -380,16 +380,16 @@ class RobotCentricPMB(RobotCentricFilter):
             # Bearings nothing explains: a teammate somewhere along the ray, undetected so
             # far. Its mass joins the Poisson part (the range prior over the camera's reach,
             # phd.ray_births); a track is born only when a lidar detection falls on it.
-            unexplained = brg[explained < cfg.camera_birth_max_explained]
+            unexplained = brg[explained < cfg.births.camera_max_explained]
             if unexplained.shape[0]:
                 births = phd.camera_ray_births(cfg, unexplained)
-                births = births[:, births[ROW_W] >= cfg.prune_threshold]
+                births = births[:, births[ROW_W] >= cfg.reduction.prune_threshold]
                 if births.shape[1]:
                     self._poisson = reduce(
                         np.concatenate((self._poisson, births), axis=1),
-                        cfg.prune_threshold,
-                        cfg.merge_threshold,
-                        cfg.max_components,
+                        cfg.reduction.prune_threshold,
+                        cfg.reduction.merge_threshold,
+                        cfg.reduction.max_components,
                     )
 
     def estimate(self, threshold: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
@@ -423,7 +423,7 @@ class RobotCentricPMB(RobotCentricFilter):
         ``births_to_poisson``: the Bernoullis a measurement would start from the Poisson part
         stay in it as Poisson components, one per (component, measurement) pair, unmatched (a
         bearing says a teammate is on its ray, not where: the camera's births, with
-        ``PHDConfig.camera_birth="ray"``).
+        ``PHDConfig.births.camera="ray"``).
 
         ``union`` is ``[tracks | poisson]`` ``(6, N + K)`` (``poisson`` may end with the fixed
         birth, whose missed part is dropped), ``pd (N + K,)``, ``post_means (2, N + K, M)``,
@@ -494,7 +494,12 @@ class RobotCentricPMB(RobotCentricFilter):
             keep[order[: cfg.max_tracks]] = True
         poisson = np.concatenate((poisson, tracks[:, ~keep]), axis=1)
         p = cfg.phd
-        self._poisson = reduce(poisson, p.prune_threshold, p.merge_threshold, p.max_components)
+        self._poisson = reduce(
+            poisson,
+            p.reduction.prune_threshold,
+            p.reduction.merge_threshold,
+            p.reduction.max_components,
+        )
         self._tracks = tracks[:, keep]
         self._mixture = None
 

@@ -467,7 +467,7 @@ def _camera(tracks, nt, pois, npz, brg, fp, ip, pf, pi, memory, ox, oy):
     pois[:, :k_missed] = missed
     pois[:, k_missed:] = det
     t, n_t, p, n_p = _finish(out[:, :nt].copy(), nt, pois, fp, ip, pf, pi)
-    p2, n_p2 = gk._with_ray_births(p, n_p, brg, explained, fp, ip, memory, False, ox, oy)
+    p2, n_p2 = gk._with_ray_births(p, n_p, brg, explained, fp, ip)
     if n_p2 > n_p:
         p, n_p = reduce_table(p2, n_p2, fp[F_PRUNE], fp[F_MERGE], ip[I_MAX_COMPONENTS])
     return t, n_t, p, n_p
@@ -499,7 +499,7 @@ def _apply_call(q, state, calls, params):
         )
         after_predict(pending_counts, r, memory, odo)
     elif kind == LIDAR:
-        # The profiles are kept for the wide objects only: the scan evidence is the GM-PHD's.
+        # The profiles are kept for the wide objects' camera clutter only.
         pts, nul = lidar_call_inputs(calls, j, memory, fp[F_WIDE_CLUTTER] > 0.0, fp)
         t, n_t, p, n_p, explained = _lidar(
             tab, nt, pois, npz, pts, nul, fp, ip, sector_scaled, sector_params, pf, pi

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
@@ -297,20 +295,20 @@ def test_expected_lidar_detections_by_hand():
     point = np.array([[np.cos(np.pi / 4), np.sin(np.pi / 4)]])
     turns = np.radians([0.0, 45.0])
     in_range = inverse_sigmoid(
-        np.array([1.0]), phd.lidar_pd_offset, phd.lidar_pd_slope_per_m, phd.lidar_pd_midpoint_m
+        np.array([1.0]), phd.lidar.pd_offset, phd.lidar.pd_slope_per_m, phd.lidar.pd_midpoint_m
     )[0]
     got = expected_lidar_detections(point, np.array([0.8]), turns, DetectionModel(phd), 0.02)
     assert got[0] == pytest.approx(0.0, abs=1e-4)  # 1.1 deg of bearing std: 4 sigma inside
     assert got[1] == pytest.approx(0.8 * in_range)
-    bump = DetectionModel(dataclasses.replace(phd, blind_sector_model="seed"))
+    bump = DetectionModel(phd.replace(lidar={"blind_sector_model": "seed"}))
     got = expected_lidar_detections(point, np.array([0.8]), turns, bump)
     inv_var = 1.0 / np.radians(5.0) ** 2
     factors = [1.0 - np.exp((np.cos(np.radians(a)) - 1.0) * inv_var) for a in (45, 135, 135, 45)]
     assert got[0] == pytest.approx(0.0, abs=1e-12)
     assert got[1] == pytest.approx(0.8 * in_range * np.prod(factors))
-    constant = DetectionModel(dataclasses.replace(phd, lidar_pd_model="constant"))
+    constant = DetectionModel(phd.replace(lidar={"pd_model": "constant"}))
     flat = expected_lidar_detections(point, [0.8], turns, constant)
-    np.testing.assert_allclose(flat, 0.8 * phd.lidar_detection_probability)
+    np.testing.assert_allclose(flat, 0.8 * phd.lidar.detection_probability)
     with pytest.raises(ValueError, match=r"weights must have shape \(1,\)"):
         expected_lidar_detections(point, [0.8, 0.1], turns, constant)
 
@@ -342,7 +340,7 @@ def test_sensing_turn_settings_are_checked():
     with pytest.raises(ValueError, match="sensing_margin"):
         FormationPolicy(sensing_margin=float("nan"))
     with pytest.raises(TypeError, match="sensing_model must be a PHDConfig or None, got dict"):
-        FormationPolicy(sensing_model={"lidar_pd_model": "seed"})
+        FormationPolicy(sensing_model={"lidar": {"pd_model": "seed"}})
 
 
 def test_arrival_hysteresis_by_hand():

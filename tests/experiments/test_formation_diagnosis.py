@@ -119,12 +119,16 @@ def test_diagnose_runs_and_its_shares_add_up():
 
 def test_env_overrides_reach_the_env_and_cannot_replace_the_diagnosis_settings():
     out = diagnose(
-        "lab-3m-4", [200], from_step=0, max_steps=5, env_overrides={"phd": {"scan_evidence": True}}
+        "lab-3m-4",
+        [200],
+        from_step=0,
+        max_steps=5,
+        env_overrides={"phd": {"births": {"camera": "ray"}}},
     )
     assert out["observer_steps"] == 4 * 5
     # the env's own validation sees the override (the filter's config names the field)
-    with pytest.raises(ValueError, match="scan_margin_sigmas"):
-        diagnose("lab-3m-4", [200], 0, 5, env_overrides={"phd": {"scan_margin_sigmas": -1.0}})
+    with pytest.raises(ValueError, match=r"lidar\.noise_std_m"):
+        diagnose("lab-3m-4", [200], 0, 5, env_overrides={"phd": {"lidar": {"noise_std_m": -1.0}}})
     with pytest.raises(ValueError, match=r"may not set \['task'\]"):
         diagnose("lab-3m-4", [200], from_step=0, max_steps=5, env_overrides={"task": "wander"})
 
@@ -196,7 +200,7 @@ def test_lost_teammate_tally_by_hand():
     )
     assert lost["camera_blob_on_bearing_share"] == 0.5  # C's blob (at pi - 0.01); none on A
     # P_range = 1 / (offset + exp(slope (r - midpoint))) = 0.5 there
-    half = phd.lidar_pd_midpoint_m + np.log(2.0 - phd.lidar_pd_offset) / phd.lidar_pd_slope_per_m
+    half = phd.lidar.pd_midpoint_m + np.log(2.0 - phd.lidar.pd_offset) / phd.lidar.pd_slope_per_m
     assert near["lidar_range_m"] == pytest.approx(half, abs=0.001)
     assert near["per_observer_step"] == 2 and near["on_blind_sector_share"] == 0.5
     assert near["lost_share_on_blind_sector"] == 1.0 and near["lost_share_in_view"] == 0.0
@@ -207,7 +211,9 @@ def test_lost_teammate_tally_by_hand():
     # With the nulls: scan 1 expects B with P_range, scan 2 with P_range (1 - depth) (the
     # null sits on B's bearing); A, C and B are 45 deg or more apart, so none occludes another.
     with_nulls = near["lidar_pd_predicted_with_nulls_per_scan"]
-    assert with_nulls["in_view"] == pytest.approx(p_range * (2.0 - phd.interference_depth) / 2)
+    assert with_nulls["in_view"] == pytest.approx(
+        p_range * (2.0 - phd.lidar.interference_depth) / 2
+    )
     assert with_nulls["blind"] == pytest.approx(0.0, abs=1e-9)
     assert near["lidar_detected_per_scan"] == {"blind": 0.0, "in_view": 0.5}
     profile = near["blind_sector_factor_by_offset"]  # A at offset 0 (bin 0), B at 45 deg

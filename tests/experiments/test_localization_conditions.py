@@ -52,11 +52,11 @@ def test_camera_rays_config_comes_from_the_measured_camera():
     from swarm_env.config import SIMULATOR_PHD
 
     phd = lc.camera_rays_phd(SIMULATOR_PHD)
-    assert phd.camera_birth == "ray"
-    assert phd.camera_birth_weight == pytest.approx(1.00 / 1.22)
-    assert phd.camera_clutter_intensity == pytest.approx(0.22)
-    assert phd.camera_birth_max_range_m == 4.75
-    assert phd.lidar_pd_midpoint_m == SIMULATOR_PHD.lidar_pd_midpoint_m  # the rest unchanged
+    assert phd.births.camera == "ray"
+    assert phd.births.camera_weight == pytest.approx(1.00 / 1.22)
+    assert phd.camera.clutter_intensity == pytest.approx(0.22)
+    assert phd.births.camera_max_range_m == 4.75
+    assert phd.lidar.pd_midpoint_m == SIMULATOR_PHD.lidar.pd_midpoint_m  # the rest unchanged
 
 
 def _tiny(tmp_path, preset: str, *extra: str) -> dict:

@@ -33,8 +33,8 @@ class ScenarioResult:
 
 
 def _blind(bearings: np.ndarray, cfg: PHDConfig) -> np.ndarray:
-    centres = np.radians(cfg.blind_sector_centers_deg)
-    half = np.radians(cfg.blind_sector_widths_deg) / 2
+    centres = np.radians(cfg.lidar.blind_sector_centers_deg)
+    half = np.radians(cfg.lidar.blind_sector_widths_deg) / 2
     d = np.angle(np.exp(1j * (bearings[:, None] - centres)))
     return (np.abs(d) < half).any(axis=1)
 
@@ -58,7 +58,7 @@ def run_scenario(
     config: PHDConfig | None = None,
 ) -> ScenarioResult:
     """Run one filter in ``mode`` on the scenario drawn from ``seed``; score it."""
-    cfg = config if config is not None else PHDConfig(mode=mode)
+    cfg = config if config is not None else PHDConfig.perera2021().replace(mode=mode)
     if cfg.mode != mode:
         raise ValueError("config.mode must equal mode")
     rng = np.random.default_rng(seed)  # truth and measurements: identical for LC and LO

@@ -37,7 +37,7 @@ def family(tmp_path_factory):
 
 
 def test_a_lidar_call_leaves_its_detections_and_a_predict_moves_them(family):
-    cfg = PHDConfig()
+    cfg = PHDConfig.perera2021()
     bank = make_localizer("last-scan", 3, cfg)
     assert isinstance(bank, Localizer) and isinstance(bank, family.LastScanBank)
     pts = np.array([[1.0, 0.5], [-2.0, 0.25]])
@@ -45,7 +45,7 @@ def test_a_lidar_call_leaves_its_detections_and_a_predict_moves_them(family):
     table = bank.table(0)
     np.testing.assert_array_equal(table[0], [1.0, 1.0])
     np.testing.assert_array_equal(table[1:3].T, pts)
-    np.testing.assert_array_equal(table[3], [cfg.lidar_noise_var_m2] * 2)
+    np.testing.assert_array_equal(table[3], [cfg.lidar.noise_var_m2] * 2)
     np.testing.assert_array_equal(table[4], [0.0, 0.0])
     assert bank.counts.tolist() == [2, 0, 0]
     # A sensor pose moves the detections into the filter's frame first.
@@ -55,7 +55,9 @@ def test_a_lidar_call_leaves_its_detections_and_a_predict_moves_them(family):
     bank.apply([[("predict", np.array([0.5, 0.0, np.pi / 2]))], [], []])
     moved = bank.table(0)
     np.testing.assert_allclose(moved[1:3].T, [[0.5, -0.5], [0.25, 2.5]], atol=1e-12)
-    np.testing.assert_allclose(moved[3], cfg.lidar_noise_var_m2 + cfg.process_noise_std_m**2)
+    np.testing.assert_allclose(
+        moved[3], cfg.lidar.noise_var_m2 + cfg.prediction.process_noise_std_m**2
+    )
     np.testing.assert_array_equal(moved[0], [1.0, 1.0])
     positions, weights = bank.estimate(0)
     assert positions.shape == (2, 2) and weights.tolist() == [1.0, 1.0]

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
@@ -88,60 +86,86 @@ def run_both(
 
 
 CONFIGS = {
-    "lc-fixed": PHDConfig(birth="fixed"),
-    "lc-measurement": PHDConfig(birth="measurement"),
-    "lo-fixed": PHDConfig(mode="lidar-only", birth="fixed"),
-    "lo-measurement": PHDConfig(mode="lidar-only", birth="measurement"),
-    "lc-fixed-cap": PHDConfig(birth="fixed", max_components=6),
-    "seed-defaults": PHDConfig(),
+    "lc-fixed": PHDConfig.perera2021().replace(births={"model": "fixed"}),
+    "lc-measurement": PHDConfig.perera2021().replace(births={"model": "measurement"}),
+    "lo-fixed": PHDConfig.perera2021().replace(mode="lidar-only", births={"model": "fixed"}),
+    "lo-measurement": PHDConfig.perera2021().replace(
+        mode="lidar-only", births={"model": "measurement"}
+    ),
+    "lc-fixed-cap": PHDConfig.perera2021().replace(
+        births={"model": "fixed"}, reduction={"max_components": 6}
+    ),
+    "seed-defaults": PHDConfig.perera2021(),
     # Without the cap: its ray births give many components of exactly equal weight (the same
     # cells from several bearings), and at the cap the two engines may keep different ones of
     # those ties (equal weights to 5e-14, different positions). The cap path with ray births
     # is "camera-ray-cap" below. The bearing noise is the generator's (~5 deg): with the
     # simulator's measured 0.46 deg, the generator's bearings are 10-sigma outliers and the
     # thin ray cells' EKF updates amplify summation-order round-off to ~1e-10 m.
-    "simulator": dataclasses.replace(SIMULATOR_PHD, max_components=400, camera_noise_std_deg=5.0),
-    "lc-measurement-cap": PHDConfig(birth="measurement", max_components=5),
-    "constant-models": PHDConfig(
-        lidar_pd_model="constant", survival_model="constant", occlusion_min_separation_m=0.0
+    "simulator": SIMULATOR_PHD.replace(
+        reduction={"max_components": 400}, camera={"noise_std_deg": 5.0}
     ),
-    "wide-merge": PHDConfig(birth="measurement", merge_threshold=30.0),
+    "lc-measurement-cap": PHDConfig.perera2021().replace(
+        births={"model": "measurement"}, reduction={"max_components": 5}
+    ),
+    "constant-models": PHDConfig.perera2021().replace(
+        lidar={"pd_model": "constant", "occlusion_min_separation_m": 0.0},
+        prediction={"survival_model": "constant"},
+    ),
+    "wide-merge": PHDConfig.perera2021().replace(
+        births={"model": "measurement"}, reduction={"merge_threshold": 30.0}
+    ),
     # below the compiled engine's likelihood-skip fraction: nothing may be skipped that survives
-    "tiny-prune": PHDConfig(birth="measurement", prune_threshold=1e-30, max_components=40),
+    "tiny-prune": PHDConfig.perera2021().replace(
+        births={"model": "measurement"}, reduction={"prune_threshold": 1e-30, "max_components": 40}
+    ),
     # the camera's own tracks, the untracked-teammate clutter and the Bernoulli missed term
-    "camera-ray": PHDConfig(birth="measurement", camera_birth="ray"),
-    "camera-ray-cap": PHDConfig(camera_birth="ray", camera_birth_components=9, max_components=12),
-    "camera-ray-prune": PHDConfig(camera_birth="ray", camera_birth_weight=3e-4),
-    "untracked-kappa": PHDConfig(birth="measurement", camera_untracked_density_per_m2=0.3),
+    "camera-ray": PHDConfig.perera2021().replace(births={"model": "measurement", "camera": "ray"}),
+    "camera-ray-cap": PHDConfig.perera2021().replace(
+        births={"camera": "ray", "camera_components": 9}, reduction={"max_components": 12}
+    ),
+    "camera-ray-prune": PHDConfig.perera2021().replace(
+        births={"camera": "ray", "camera_weight": 3e-4}
+    ),
+    "untracked-kappa": PHDConfig.perera2021().replace(
+        births={"model": "measurement"}, camera={"untracked_density_per_m2": 0.3}
+    ),
     # R_C(r): the blob-centroid term evaluated at each component's (and ray cell's) range
-    "range-noise": PHDConfig(
-        birth="measurement", camera_noise_std_deg=2.0, camera_noise_width_fraction=0.5
+    "range-noise": PHDConfig.perera2021().replace(
+        births={"model": "measurement"}, camera={"noise_std_deg": 2.0, "noise_width_fraction": 0.5}
     ),
-    "range-noise-ray": PHDConfig(
-        camera_birth="ray", camera_noise_std_deg=2.0, camera_noise_width_fraction=0.5
+    "range-noise-ray": PHDConfig.perera2021().replace(
+        births={"camera": "ray"}, camera={"noise_std_deg": 2.0, "noise_width_fraction": 0.5}
     ),
-    "bernoulli": PHDConfig(birth="measurement", missed_detection="bernoulli"),
+    "bernoulli": PHDConfig.perera2021().replace(
+        missed_detection="bernoulli", births={"model": "measurement"}
+    ),
     # the lidar's missed copies moment-matched under the range-dependent P_d
-    "missed-moments": PHDConfig(birth="measurement", lidar_missed_moments=True),
-    "missed-moments-bernoulli-fixed": PHDConfig(
-        lidar_missed_moments=True, missed_detection="bernoulli", lidar_pd_midpoint_m=1.0
+    "missed-moments": PHDConfig.perera2021().replace(
+        births={"model": "measurement"}, lidar={"missed_moments": True}
     ),
-    "bernoulli-fixed": PHDConfig(missed_detection="bernoulli"),
+    "missed-moments-bernoulli-fixed": PHDConfig.perera2021().replace(
+        missed_detection="bernoulli", lidar={"missed_moments": True, "pd_midpoint_m": 1.0}
+    ),
+    "bernoulli-fixed": PHDConfig.perera2021().replace(missed_detection="bernoulli"),
     # the blind sectors' notch from the beam geometry, averaged over each component's bearing;
     # wide sectors so that many components sit on a notch's edges
-    "visible-width": PHDConfig(birth="measurement", blind_sector_model="visible-width"),
-    "visible-width-wide-sectors": PHDConfig(
-        blind_sector_model="visible-width",
-        blind_sector_centers_deg=(30.0, 150.0, -90.0),
-        blind_sector_widths_deg=(40.0, 60.0, 50.0),
-        lidar_min_returns=5,
+    "visible-width": PHDConfig.perera2021().replace(
+        births={"model": "measurement"}, lidar={"blind_sector_model": "visible-width"}
     ),
-    "bernoulli-ray-constant": PHDConfig(
+    "visible-width-wide-sectors": PHDConfig.perera2021().replace(
+        lidar={
+            "blind_sector_model": "visible-width",
+            "blind_sector_centers_deg": (30.0, 150.0, -90.0),
+            "blind_sector_widths_deg": (40.0, 60.0, 50.0),
+            "min_returns": 5,
+        }
+    ),
+    "bernoulli-ray-constant": PHDConfig.perera2021().replace(
         missed_detection="bernoulli",
-        camera_birth="ray",
-        lidar_pd_model="constant",
-        lidar_detection_probability=1.0,
-        survival_model="constant",
+        births={"camera": "ray"},
+        lidar={"pd_model": "constant", "detection_probability": 1.0},
+        prediction={"survival_model": "constant"},
     ),
 }
 
@@ -153,7 +177,7 @@ def test_bank_matches_independent_filters(name, seed):
     # the scenario did exercise the filter: some robots track something
     assert max(len(f) for f in filters) > 0
     if "cap" in name:
-        assert max(len(f) for f in filters) == CONFIGS[name].max_components
+        assert max(len(f) for f in filters) == CONFIGS[name].reduction.max_components
 
 
 def test_cap_and_covering_chains_are_exercised(monkeypatch):
@@ -188,7 +212,7 @@ def test_apply_schedules_per_robot_order(with_poses):
     """``apply`` runs each robot's calls in order; sensor poses move lidar points into the
     filter's frame exactly as :mod:`localization.frames` does before the reference updates, and
     camera updates take the camera's position as the reference's ``sensor_pose`` does."""
-    config = PHDConfig(birth="measurement")
+    config = PHDConfig.perera2021().replace(births={"model": "measurement"})
     rng = np.random.default_rng(5)
     calls = [[] for _ in range(R)]
     for kind, robots, args in random_calls(rng, 40):
@@ -303,8 +327,8 @@ def test_bad_constructor_and_apply():
     with pytest.raises(ValueError, match="config"):
         PHDBank("nope", 3)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="n_robots"):
-        PHDBank(PHDConfig(), 0)
-    bank = PHDBank(PHDConfig(), 2)
+        PHDBank(PHDConfig.perera2021(), 0)
+    bank = PHDBank(PHDConfig.perera2021(), 2)
     bank.apply([[("predict", [0.0, 0.0, 0.0]), ("lidar", [[1.0, 0.0]], None)], []])
     before = snapshot(bank)
     with pytest.raises(ValueError, match="odometry"):

@@ -20,7 +20,9 @@ def test_bearing_model_is_evaluated_from_the_camera_position(family):
     has bearing atan2(-0.03, 0.5) = -3.4 deg: with the camera's position in the model the track
     stays put and keeps its weight; the bearing taken as if from the origin would pull it 3 cm
     sideways (7.6 sigma of the 0.45 deg noise this test uses, at 0.5 m)."""
-    config = PHDConfig(camera_noise_std_deg=0.45, camera_clutter_intensity=0.5)
+    config = PHDConfig.perera2021().replace(
+        camera={"noise_std_deg": 0.45, "clutter_intensity": 0.5}
+    )
     pose = np.array([0.0, 0.03, 0.0])
     bearing = np.array([np.arctan2(-0.03, 0.5)])
     _check_parallax(family, config, pose, bearing)
@@ -30,7 +32,9 @@ def test_bearing_model_is_evaluated_from_the_camera_position(family):
 def test_parallax_with_rotation(family):
     """The camera moved (0.1, -0.08) and turned 0.3 rad: the teammate at (0.5, 0) in the
     filter's frame is seen at atan2(0.08, 0.4) - 0.3 in the camera's own frame."""
-    config = PHDConfig(camera_noise_std_deg=0.45, camera_clutter_intensity=0.5)
+    config = PHDConfig.perera2021().replace(
+        camera={"noise_std_deg": 0.45, "clutter_intensity": 0.5}
+    )
     pose = np.array([0.1, -0.08, 0.3])
     bearing = np.array([np.arctan2(0.0 + 0.08, 0.5 - 0.1) - 0.3])
     _check_parallax(family, config, pose, bearing)
@@ -58,7 +62,9 @@ def _check_parallax(family, config, pose, bearing):
 
 
 def test_range_dependent_bearing_variance_by_hand():
-    cfg = PHDConfig(camera_noise_std_deg=0.03, camera_noise_width_fraction=1 / 12)
+    cfg = PHDConfig.perera2021().replace(
+        camera={"noise_std_deg": 0.03, "noise_width_fraction": 1 / 12}
+    )
     # W(1 m) = 2 asin(0.05) = 5.732 deg: std sqrt(0.03^2 + (5.732 / 12)^2) = 0.4786 deg
     assert math.degrees(math.sqrt(cfg.camera_bearing_var(1.0))) == pytest.approx(0.4786, abs=1e-4)
     # below min_range_m (0.1 m) the range is floored: W = 2 asin(0.5) = pi / 3
@@ -67,9 +73,14 @@ def test_range_dependent_bearing_variance_by_hand():
         math.radians(0.03) ** 2 + (math.pi / 3 / 12) ** 2,
     )
     # a target wider than its range (R > r) saturates at W = pi
-    wide = PHDConfig(camera_noise_width_fraction=1.0, camera_target_radius_m=0.5)
-    assert wide.camera_bearing_var(0.2) == pytest.approx(wide.camera_noise_var_rad2 + math.pi**2)
-    assert PHDConfig().camera_bearing_var(3.0) == PHDConfig().camera_noise_var_rad2  # Perera 2021
+    wide = PHDConfig.perera2021().replace(
+        camera={"noise_width_fraction": 1.0, "target_radius_m": 0.5}
+    )
+    assert wide.camera_bearing_var(0.2) == pytest.approx(wide.camera.noise_var_rad2 + math.pi**2)
+    assert (
+        PHDConfig.perera2021().camera_bearing_var(3.0)
+        == PHDConfig.perera2021().camera.noise_var_rad2
+    )  # Perera 2021
 
 
 @pytest.mark.parametrize("engine", ["reference", "bank"])
@@ -78,11 +89,13 @@ def test_bearing_update_uses_the_noise_at_the_component_range(engine):
     position with variance d^2 R_C(d), so it becomes 1 / (1/p + 1/(d^2 R_C(d))); the radial
     variance is unchanged."""
     # P_d = 1: no missed copy to merge back into the detected one
-    cfg = PHDConfig(
-        camera_noise_std_deg=0.03,
-        camera_noise_width_fraction=1 / 12,
-        camera_pd_offset=1.0,
-        camera_pd_midpoint_m=50.0,
+    cfg = PHDConfig.perera2021().replace(
+        camera={
+            "noise_std_deg": 0.03,
+            "noise_width_fraction": 1 / 12,
+            "pd_offset": 1.0,
+            "pd_midpoint_m": 50.0,
+        }
     )
     p = 0.02**2
     for d in (0.4, 1.0, 2.5):

@@ -3,7 +3,6 @@ the bit, as the dense update over every pair (kept here as the readable referenc
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
@@ -11,22 +10,9 @@ import pytest
 from numba import njit
 
 from localization import kernels as K
-from localization import scan_evidence
+from localization import scan_memory
 from localization.mixture import N_ROWS
 from swarm_env.config import SIMULATOR_PHD
-
-
-@njit
-def _times_posterior_visibility(detected, post_means, post_covs, n, m, memory, ox, oy, fp):
-    """``detected`` times each detected copy's visibility (its own scan factor: the factors
-    are per component)."""
-    one = np.ones((N_ROWS, 1))
-    for i in range(n):
-        one[3:, 0] = post_covs[:, i]
-        for h in range(m):
-            if detected[i, h] > 0.0:
-                one[1:3, 0] = post_means[:, i, h]
-                detected[i, h] *= K._scan_factors(one, 1, memory, ox, oy, fp)[0][0]
 
 
 @njit
@@ -34,11 +20,9 @@ def _camera_update_dense(tab, n, brg, fp, ip, memory, ox, oy):
     """Every (component, bearing) pair in an ``(n, M)`` array, then :func:`K._posterior`."""
     m = brg.shape[0]
     prune = fp[K.F_PRUNE]
-    scan = ip[K.I_SCAN_EVIDENCE] and memory[0] != 0.0
     pd = K._camera_pd(tab, n, fp)
-    missed_pd = pd * K._scan_factors(tab, n, memory, ox, oy, fp)[0] if scan else pd
     if m == 0:
-        return K._missed_only(tab, n, missed_pd, prune, ip[K.I_MISSED_BERNOULLI], tab)
+        return K._missed_only(tab, n, pd, prune, ip[K.I_MISSED_BERNOULLI], tab)
     kappa = fp[K.F_KAPPA_C_UNIFORM] if memory[0] != 0.0 else fp[K.F_KAPPA_C]
     kappas = K.camera_clutter(brg, memory, ox, oy, fp)
     min_r2 = fp[K.F_MIN_RANGE] * fp[K.F_MIN_RANGE]
@@ -62,21 +46,19 @@ def _camera_update_dense(tab, n, brg, fp, ip, memory, ox, oy):
             detected[i, h] = math.exp(exponent) * norm * pd_w
             post_means[0, i, h] = x + g0 * innov
             post_means[1, i, h] = y + g1 * innov
-    if scan:
-        _times_posterior_visibility(detected, post_means, post_covs, n, m, memory, ox, oy, fp)
     out, k, explained = K._posterior(
-        tab, n, missed_pd, detected, post_means, post_covs, kappas, prune, -1,
-        ip[K.I_MISSED_BERNOULLI], tab, missed_pd,
+        tab, n, pd, detected, post_means, post_covs, kappas, prune, -1,
+        ip[K.I_MISSED_BERNOULLI], tab, pd,
     )  # fmt: skip
     if ip[K.I_CAMERA_BIRTH]:
-        return K._with_ray_births(out, k, brg, explained, fp, ip, memory, scan, ox, oy)
+        return K._with_ray_births(out, k, brg, explained, fp, ip)
     return out, k
 
 
 def _memory(rng, with_scan: bool) -> np.ndarray:
     """A robot's scan memory of a random scan taken where it stands (or none): a few objects,
     some wide enough to place camera clutter."""
-    memory = np.zeros(scan_evidence.MEMORY_LEN)
+    memory = np.zeros(scan_memory.MEMORY_LEN)
     if not with_scan:
         return memory
     angles = np.linspace(-np.pi, np.pi, 720, endpoint=False)
@@ -85,7 +67,7 @@ def _memory(rng, with_scan: bool) -> np.ndarray:
         centre, width = rng.uniform(-np.pi, np.pi), rng.uniform(0.02, 0.6)
         near = np.abs((angles - centre + np.pi) % (2 * np.pi) - np.pi) < width / 2
         ranges[near] = rng.uniform(0.4, 3.0)
-    profiles = scan_evidence.profiles_of(angles, ranges, np.array([720], dtype=np.int64))
+    profiles = scan_memory.profiles_of(angles, ranges, np.array([720], dtype=np.int64))
     one = np.ones(1, dtype=np.int64)
     K._remember_scan(memory, profiles, one, np.zeros((1, 3)), 0 * one, 0)
     if memory[0] != 0.0:
@@ -120,13 +102,11 @@ def _bearings(rng, tab, n: int, m: int) -> np.ndarray:
 
 CONFIGS = [
     {},
-    {"scan_evidence": True},
-    {"camera_birth": "ray"},
-    {"scan_evidence": True, "camera_birth": "ray"},
+    {"births": {"camera": "ray"}},
     {"missed_detection": "phd"},
     {"missed_detection": "bernoulli"},
-    {"prune_threshold": 1e-12},
-    {"camera_clutter_per_wide_object": 0.0},
+    {"reduction": {"prune_threshold": 1e-12}},
+    {"camera": {"clutter_per_wide_object": 0.0}},
 ]
 
 
@@ -135,7 +115,7 @@ CONFIGS = [
 )
 def test_sparse_camera_update_equals_the_dense_one_bit_for_bit(overrides):
     try:
-        config = dataclasses.replace(SIMULATOR_PHD, **overrides)
+        config = SIMULATOR_PHD.replace(**overrides)
     except (TypeError, ValueError) as exc:  # an option this config does not have
         pytest.skip(str(exc))
     fp, ip, _, _ = K.pack_params(config)

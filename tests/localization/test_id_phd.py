@@ -23,12 +23,14 @@ from localization.id_phd import (
 from .relative_scenario import simulate
 
 # A detection model without blind sectors or range fall-off, matching the synthetic scenario.
-FLAT = PHDConfig(
-    lidar_pd_model="constant",
-    lidar_range_m=3.0,
-    lidar_detection_probability=0.9,
-    blind_sector_centers_deg=(),
-    blind_sector_widths_deg=(),
+FLAT = PHDConfig.perera2021().replace(
+    lidar={
+        "pd_model": "constant",
+        "range_m": 3.0,
+        "detection_probability": 0.9,
+        "blind_sector_centers_deg": (),
+        "blind_sector_widths_deg": (),
+    }
 )
 
 

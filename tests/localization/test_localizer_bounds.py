@@ -13,7 +13,6 @@ detection probabilities of :class:`localization.detection.DetectionModel` on the
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
@@ -164,14 +163,18 @@ def _phd_config(loc, r: int) -> PHDConfig:
 
 def _survival_max(cfg: PHDConfig) -> float:
     """Largest ``P_s`` of the config: eq. 10's ``1 / (offset + exp(..)) < 1 / offset``."""
-    if cfg.survival_model == "constant":
-        return cfg.survival_probability
-    return 1.0 / cfg.survival_offset
+    if cfg.prediction.survival_model == "constant":
+        return cfg.prediction.survival_probability
+    return 1.0 / cfg.prediction.survival_offset
 
 
 def _births(cfg: PHDConfig, state: dict) -> float:
     """Weight the time update adds: one measurement birth per detection of the last scan."""
-    return cfg.measurement_birth_weight * state["pending"] if cfg.birth == "measurement" else 0.0
+    return (
+        cfg.births.measurement_weight * state["pending"]
+        if cfg.births.model == "measurement"
+        else 0.0
+    )
 
 
 def _missed_bound(w: np.ndarray, pd: np.ndarray, bernoulli: bool) -> np.ndarray:
@@ -199,12 +202,12 @@ def _lowest_expected_pd(cfg, table: np.ndarray, pd: np.ndarray) -> np.ndarray:
     factor decreases with range, so its value 5 sigma out bounds the 9-node rule's average;
     sigma grows by the process noise the advance before the scan may add (two periods')."""
     r = np.hypot(table[1], table[2])
-    u = table[1:3] / np.maximum(r, cfg.min_range_m)
+    u = table[1:3] / np.maximum(r, cfg.reduction.min_range_m)
     s2 = u[0] ** 2 * table[3] + 2 * u[0] * u[1] * table[4] + u[1] ** 2 * table[5]
-    s_max = np.sqrt(np.maximum(s2, 0.0) + 2.0 * cfg.process_noise_std_m**2)
-    f = inverse_sigmoid(r, cfg.lidar_pd_offset, cfg.lidar_pd_slope_per_m, cfg.lidar_pd_midpoint_m)
+    s_max = np.sqrt(np.maximum(s2, 0.0) + 2.0 * cfg.prediction.process_noise_std_m**2)
+    f = inverse_sigmoid(r, cfg.lidar.pd_offset, cfg.lidar.pd_slope_per_m, cfg.lidar.pd_midpoint_m)
     f_far = inverse_sigmoid(
-        r + 5.0 * s_max, cfg.lidar_pd_offset, cfg.lidar_pd_slope_per_m, cfg.lidar_pd_midpoint_m
+        r + 5.0 * s_max, cfg.lidar.pd_offset, cfg.lidar.pd_slope_per_m, cfg.lidar.pd_midpoint_m
     )
     g = np.divide(pd, f, out=np.zeros_like(f), where=f > 1e-12)
     return g * f_far
@@ -218,8 +221,10 @@ def _lowest_pd_after_advance(model: DetectionModel, table: np.ndarray, lid) -> n
     periods': the factor is smooth in the std and varies little between grid points."""
     nulls = lid.null_bearings_rad if lid.null_bearings_rad.size else None
     pd = model.lidar(table, nulls)
-    if model.config.blind_sector_model == "visible-width":
-        for extra in np.linspace(0.0, 2.0 * model.config.process_noise_std_m**2, 33)[1:]:
+    if model.config.lidar.blind_sector_model == "visible-width":
+        for extra in np.linspace(0.0, 2.0 * model.config.prediction.process_noise_std_m**2, 33)[
+            1:
+        ]:
             widened = table.copy()
             widened[ROW_PXX] += extra
             widened[ROW_PYY] += extra
@@ -239,25 +244,25 @@ def check_gm_phd(loc, before, after, kind, rec, r, state) -> None:
     w0, w1 = t0[ROW_W].sum(), t1[ROW_W].sum()
     bern = cfg.missed_detection == "bernoulli"
     model = DetectionModel(cfg)
-    assert t1.shape[1] <= cfg.max_components
+    assert t1.shape[1] <= cfg.reduction.max_components
     if rec.odometry:
         bound = _survival_max(cfg) * w0 + _births(cfg, state)
     elif rec.lidar:
         lid = rec.lidar[0]
         pd = _lowest_pd_after_advance(model, t0, lid)
-        if cfg.lidar_missed_moments and cfg.lidar_pd_model == "seed":
+        if cfg.lidar.missed_moments and cfg.lidar.pd_model == "seed":
             pd = _lowest_expected_pd(cfg, t0, pd)
         bound = _missed_bound(t0[ROW_W], pd, bern).sum() + lid.detections.shape[0]
-        assert np.all(t1[ROW_W] >= cfg.prune_threshold)  # reduced
+        assert np.all(t1[ROW_W] >= cfg.reduction.prune_threshold)  # reduced
     else:
         k = rec.camera[0].bearings_rad.shape[0]
         if cfg.mode == "lidar-only":
             _only_diffused(t0, t1)
             return
         pc = model.camera(t0)
-        ray = cfg.camera_birth_weight * k if cfg.camera_birth == "ray" else 0.0
+        ray = cfg.births.camera_weight * k if cfg.births.camera == "ray" else 0.0
         bound = _missed_bound(t0[ROW_W], pc, bern).sum() + k + ray
-        assert np.all(t1[ROW_W] >= cfg.prune_threshold)
+        assert np.all(t1[ROW_W] >= cfg.reduction.prune_threshold)
     assert w1 <= bound + TOL * (1 + bound), f"{loc.name} {kind} robot {r}: {w1} > {bound}"
 
 
@@ -270,7 +275,7 @@ def check_pmb(loc, before, after, kind, rec, r, state) -> None:
     n1 = t1[ROW_W].sum() + p1[ROW_W].sum()
     assert np.all(t1[ROW_W] <= 1.0), f"{loc.name}: existence above 1"
     assert t1.shape[1] <= fcfg.max_tracks
-    assert p1.shape[1] <= cfg.max_components
+    assert p1.shape[1] <= cfg.reduction.max_components
     assert np.all(np.isfinite(p1)) and np.all(p1[ROW_W] >= 0.0)
     model = DetectionModel(cfg)
     moment = np.concatenate((t0, p0), axis=1)  # P_d is evaluated on the first moment
@@ -358,9 +363,11 @@ def _checker(name: str):
 #: a constant P_s.
 CONFIGS = {
     "sim": SIMULATOR_PHD,
-    "seed": PHDConfig(),
-    "ray": dataclasses.replace(
-        SIMULATOR_PHD, camera_birth="ray", survival_model="constant", max_components=24
+    "seed": PHDConfig.perera2021(),
+    "ray": SIMULATOR_PHD.replace(
+        births={"camera": "ray"},
+        prediction={"survival_model": "constant"},
+        reduction={"max_components": 24},
     ),
 }
 ALL = list(LOCALIZERS)

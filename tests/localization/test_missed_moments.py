@@ -1,5 +1,5 @@
 """The lidar's missed-detection copy under a range-dependent P_d, moment-matched
-(``PHDConfig.lidar_missed_moments``), against Monte Carlo of ``(1 - P_d(x)) N(x; m, P)``."""
+(``PHDConfig.lidar.missed_moments``), against Monte Carlo of ``(1 - P_d(x)) N(x; m, P)``."""
 
 from __future__ import annotations
 
@@ -38,10 +38,15 @@ def test_moments_match_monte_carlo(mean, cov):
 
 def test_flat_detection_probability_leaves_the_copy_as_the_seed_has_it():
     """Well inside the lidar's range f is flat: the missed copy is the prior reweighted."""
-    cfg = PHDConfig(lidar_missed_moments=True, lidar_pd_offset=1.0, lidar_pd_midpoint_m=3.0,
-                    lidar_pd_slope_per_m=8.78, occlusion_min_separation_m=0.0)  # fmt: skip
-    plain = PHDConfig(lidar_pd_offset=1.0, lidar_pd_midpoint_m=3.0, lidar_pd_slope_per_m=8.78,
-                      occlusion_min_separation_m=0.0)  # fmt: skip
+    plain = PHDConfig.perera2021().replace(
+        lidar={
+            "pd_offset": 1.0,
+            "pd_midpoint_m": 3.0,
+            "pd_slope_per_m": 8.78,
+            "occlusion_min_separation_m": 0.0,
+        }
+    )
+    cfg = plain.replace(lidar={"missed_moments": True})
     mix = GaussianMixture(np.array([0.8]), np.array([[0.6, 0.2]]), np.array([0.002 * np.eye(2)]))
     tables = []
     for c in (cfg, plain):
@@ -53,8 +58,15 @@ def test_flat_detection_probability_leaves_the_copy_as_the_seed_has_it():
 
 
 def test_a_track_at_the_lidar_edge_drifts_outwards_with_missed_scans():
-    cfg = PHDConfig(lidar_missed_moments=True, lidar_pd_offset=1.0, lidar_pd_slope_per_m=8.78,
-                    lidar_pd_midpoint_m=2.14, missed_detection="bernoulli")  # fmt: skip
+    cfg = PHDConfig.perera2021().replace(
+        missed_detection="bernoulli",
+        lidar={
+            "missed_moments": True,
+            "pd_offset": 1.0,
+            "pd_slope_per_m": 8.78,
+            "pd_midpoint_m": 2.14,
+        },
+    )
     f = RobotCentricPHD(cfg)
     f.set_mixture(
         GaussianMixture(np.array([0.95]), np.array([[1.9, 0.0]]), np.array([0.01 * np.eye(2)]))

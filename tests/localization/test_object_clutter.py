@@ -20,7 +20,7 @@ from localization.object_clutter import (
 )
 from localization.pmb import PMBBank, PMBConfig, RobotCentricPMB
 from localization.registry import run_calls
-from localization.scan_evidence import (
+from localization.scan_memory import (
     BIN_WIDTH_RAD,
     MEMORY_LEN,
     N_BINS,
@@ -29,7 +29,7 @@ from localization.scan_evidence import (
 )
 from swarm_env.config import SIMULATOR_PHD
 
-from .test_scan_evidence import ANGLES, DECOY, HOUSING, cast, scanned_calls
+from .test_scan_memory import ANGLES, DECOY, HOUSING, cast, scanned_calls
 
 
 def memory_of(ranges: np.ndarray, pose=(0.0, 0.0, 0.0)) -> np.ndarray:
@@ -149,7 +149,7 @@ def test_a_camera_bearing_on_a_decoy_no_longer_confirms_an_estimate_there(on_dec
     mixture = GaussianMixture(np.array([0.3]), decoy[None, :], 1e-3 * np.eye(2)[None])
     weights = {}
     for per_object in (0.0, 0.72):
-        phd = dataclasses.replace(SIMULATOR_PHD, camera_clutter_per_wide_object=per_object)
+        phd = SIMULATOR_PHD.replace(camera={"clutter_per_wide_object": per_object})
         f = on_decoy(phd, mixture, scan_profile(ANGLES, ranges))
         f.update_camera(brg)
         weights[per_object] = f.table[0].sum()
@@ -160,13 +160,13 @@ def test_a_camera_bearing_on_a_decoy_no_longer_confirms_an_estimate_there(on_dec
 @pytest.mark.parametrize(
     "config",
     [
-        dataclasses.replace(SIMULATOR_PHD, camera_clutter_per_wide_object=0.72),
-        dataclasses.replace(
-            SIMULATOR_PHD, camera_clutter_per_wide_object=0.72, scan_evidence=True
+        SIMULATOR_PHD.replace(camera={"clutter_per_wide_object": 0.72}),
+        PHDConfig.perera2021().replace(
+            births={"model": "measurement", "camera": "ray"},
+            camera={"clutter_per_wide_object": 2.0},
         ),
-        PHDConfig(birth="measurement", camera_birth="ray", camera_clutter_per_wide_object=2.0),
     ],
-    ids=["simulator", "with-scan-evidence", "camera-ray"],
+    ids=["simulator", "camera-ray"],
 )
 def test_bank_matches_reference_filters(config):
     rng = np.random.default_rng(3)
@@ -192,7 +192,7 @@ def test_bank_matches_reference_filters(config):
 
 
 def test_a_memory_saved_before_the_wide_objects_loads_without_them():
-    config = dataclasses.replace(SIMULATOR_PHD, camera_clutter_per_wide_object=0.72)
+    config = SIMULATOR_PHD.replace(camera={"clutter_per_wide_object": 0.72})
     f = RobotCentricPHD(config)
     state = f.__getstate__()
     state["scan_memory"] = np.ones(WIDE_OBJECTS_AT)
@@ -211,7 +211,7 @@ def test_only_a_filter_with_a_camera_keeps_the_scan_for_the_objects():
     uniform = SIMULATOR_PHD.camera_clutter_total_per_rad
     assert lidar_only.camera_clutter_uniform_per_rad == uniform
     assert SIMULATOR_PHD.camera_clutter_uniform_per_rad == pytest.approx(
-        uniform - SIMULATOR_PHD.camera_clutter_wide_object_share_per_rad
+        uniform - SIMULATOR_PHD.camera.clutter_wide_object_share_per_rad
     )
 
 
@@ -225,7 +225,7 @@ def test_only_a_filter_with_a_camera_keeps_the_scan_for_the_objects():
 )
 def test_impossible_settings_are_refused_naming_the_field(field, value):
     with pytest.raises(ValueError, match=field):
-        PHDConfig(**{field: value})
+        PHDConfig.perera2021().replace(**{field: value})
 
 
 def test_an_object_across_the_seam_is_one_bump():
@@ -245,7 +245,7 @@ def test_before_the_first_scan_the_camera_uses_the_whole_uniform_clutter():
     brg = np.array([math.atan2(0.3, 1.5) + 0.002, 1.0])
     tables = []
     for per_object in (0.0, 0.878):
-        config = dataclasses.replace(SIMULATOR_PHD, camera_clutter_per_wide_object=per_object)
+        config = SIMULATOR_PHD.replace(camera={"clutter_per_wide_object": per_object})
         f = RobotCentricPHD(config)  # no scan yet
         f.set_mixture(mixture)
         bank = PHDBank(config, 1)
@@ -258,7 +258,7 @@ def test_before_the_first_scan_the_camera_uses_the_whole_uniform_clutter():
 
 
 def test_a_bank_state_from_before_the_wide_objects_loads_and_a_bad_one_is_refused():
-    config = dataclasses.replace(SIMULATOR_PHD, camera_clutter_per_wide_object=0.878)
+    config = SIMULATOR_PHD.replace(camera={"clutter_per_wide_object": 0.878})
     bank = PHDBank(config, 3)
     bank.apply(scanned_calls(np.random.default_rng(2), 3, 20, decoys=1))
     state = bank.__getstate__()
@@ -286,7 +286,9 @@ def test_a_bank_state_from_before_the_wide_objects_loads_and_a_bad_one_is_refuse
     [
         SIMULATOR_PHD,
         dataclasses.replace(SIMULATOR_PHD, mode="lidar-only"),  # keeps no scan
-        PHDConfig(birth="fixed", camera_clutter_per_wide_object=2.0),
+        PHDConfig.perera2021().replace(
+            births={"model": "fixed"}, camera={"clutter_per_wide_object": 2.0}
+        ),
     ],
     ids=["simulator", "lidar-only", "fixed-birth"],
 )

@@ -5,7 +5,6 @@ encoding of ``localizer_calls`` array for array, bit for bit, and fall back to t
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
@@ -21,9 +20,8 @@ from localization.feed import (
     pack_calls,
 )
 from localization.pmb import PMBBank, PMBConfig
-from localization.scan_evidence import N_BINS
+from localization.scan_memory import N_BINS
 from swarm_core.records import CameraRecord, LidarRecord, OdometryRecord, RobotMeasurements
-from swarm_env.config import SIMULATOR_PHD
 
 
 def tuple_encoding(feed: SwarmFeed) -> tuple:
@@ -124,7 +122,10 @@ def test_motion_poses_match_the_scalar_function_bit_for_bit():
 def test_banks_take_the_packed_path_and_end_in_the_same_state():
     """The bank stepped on a feed (its packed arrays) and the bank fed the tuples hold the
     same bits."""
-    for make in (lambda: PHDBank(PHDConfig(), 6), lambda: PMBBank(PHDConfig(), 6)):
+    for make in (
+        lambda: PHDBank(PHDConfig.perera2021(), 6),
+        lambda: PMBBank(PHDConfig.perera2021(), 6),
+    ):
         a, b = make(), make()
         for repeat in range(3):  # the same calls again: the banks move on, both alike
             feed = hand_feed(True)
@@ -145,7 +146,7 @@ def test_falls_back_on_what_it_cannot_vouch_for():
     assert pack_calls([many], [()]) is None
     # ... and the bank then names the bad value, as for tuples.
     bad = RobotMeasurements([OdometryRecord(0.1, [np.nan, 0, 0], [0, 0])])
-    bank = PHDBank(PHDConfig(), 1)
+    bank = PHDBank(PHDConfig.perera2021(), 1)
     with pytest.raises(ValueError, match="odometry"):
         bank.step(SwarmFeed(0.1, [bad], [()]))
     huge = RobotMeasurements([], [lidar(0.1, rng)], [CameraRecord(0.1, np.array([1e9]))])
@@ -193,16 +194,17 @@ def test_scan_profiles_are_packed_only_when_asked():
     for k, (a, b) in enumerate(zip(full.encoded, bare.encoded, strict=True)):
         if k not in (18, 19):
             assert np.array_equal(a, b), k
-    assert PHDBank(PHDConfig(), 2).reads_scans is False
-    assert PHDBank(PHDConfig(scan_evidence=True), 2).reads_scans is True
-    assert PMBBank(PMBConfig(), 2).reads_scans is False
+    assert PHDBank(PHDConfig.perera2021(), 2).reads_scans is False
+    assert PHDBank(PHDConfig(), 2).reads_scans is True  # the wide objects' camera clutter
+    assert PMBBank(PMBConfig(phd=PHDConfig.perera2021()), 2).reads_scans is False
+    assert PMBBank(PMBConfig(), 2).reads_scans is True
 
 
-@pytest.mark.parametrize("family", ["phd-lc", "pmb-lc", "phd-scan"])
+@pytest.mark.parametrize("family", ["phd-lc", "pmb-lc"])
 def test_env_rollout_is_bit_identical_to_the_tuple_path(family, monkeypatch):
     """A seeded env with the packed feed (the default) and one forced down the tuple path
-    hold the same filter bits at every step, and the default makes no call tuple at all.
-    ``phd-scan``: the GM-PHD with the scan evidence, the one bank that is packed the scans."""
+    hold the same filter bits at every step, and the default makes no call tuple at all (both
+    banks read the scans, for the wide objects' camera clutter)."""
     import localization.feed
     from swarm_env import parallel_env
 
@@ -213,11 +215,7 @@ def test_env_rollout_is_bit_identical_to_the_tuple_path(family, monkeypatch):
             else:
                 # no packed arrays: both banks encode the feed's call tuples
                 m.setattr(localization.feed.SwarmFeed, "packed", lambda *a: None)
-            if family == "phd-scan":
-                scan = dataclasses.replace(SIMULATOR_PHD, scan_evidence=True)
-                env = parallel_env("sim-6m-20", localizer="phd", phd=scan)
-            else:
-                env = parallel_env("sim-6m-20", localizer=family)
+            env = parallel_env("sim-6m-20", localizer=family)
             env.reset(seed=4)
             rng = np.random.default_rng(4)
             out = []

@@ -4,6 +4,7 @@ missed-detection term (hand-derived cases; the bank's equivalence is in test_ban
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -16,7 +17,7 @@ from localization.reducer import reduce
 
 def camera_pd(cfg: PHDConfig, r: float) -> float:
     """Perera 2021 eq. 30 by hand."""
-    return 1.0 / (cfg.camera_pd_offset + math.exp(cfg.camera_pd_slope_per_m * (r - 4.0)))
+    return 1.0 / (cfg.camera.pd_offset + math.exp(cfg.camera.pd_slope_per_m * (r - 4.0)))
 
 
 def one_track(cfg: PHDConfig, weight: float, xy=(1.0, 0.0), var=0.01) -> RobotCentricPHD:
@@ -44,7 +45,7 @@ def test_missed_weights_by_hand():
 
 @pytest.mark.parametrize("model", ["phd", "bernoulli"])
 def test_empty_camera_frame(model):
-    cfg = PHDConfig(missed_detection=model)
+    cfg = PHDConfig.perera2021().replace(missed_detection=model)
     f = one_track(cfg, 0.95)
     f.update_camera(np.empty(0))
     pd = camera_pd(cfg, 1.0)
@@ -54,7 +55,9 @@ def test_empty_camera_frame(model):
 
 def test_bernoulli_missed_copy_with_a_measurement_by_hand():
     # One track at (1, 0), var 0.01, w = 0.8; one bearing at 0.05 rad; kappa_C = 0.5.
-    cfg = PHDConfig(missed_detection="bernoulli", merge_threshold=1e-9, prune_threshold=1e-12)
+    cfg = PHDConfig.perera2021().replace(
+        missed_detection="bernoulli", reduction={"merge_threshold": 1e-9, "prune_threshold": 1e-12}
+    )
     f = one_track(cfg, 0.8)
     f.update_camera(np.array([0.05]))
     pd = camera_pd(cfg, 1.0)
@@ -76,7 +79,9 @@ def test_track_survives_one_dropped_frame_and_dies_after_three():
     bearing = np.arctan2(target[:, 1], target[:, 0])
     results = {}
     for model in ("phd", "bernoulli"):
-        f = RobotCentricPHD(PHDConfig(missed_detection=model, birth="measurement"))
+        f = RobotCentricPHD(
+            PHDConfig.perera2021().replace(missed_detection=model, births={"model": "measurement"})
+        )
         for _ in range(10):
             f.predict(np.zeros(3))
             f.update_lidar(target)
@@ -94,16 +99,16 @@ def test_track_survives_one_dropped_frame_and_dies_after_three():
     # Established: without the missed copy's (1 - P_d) w the weight settles where the detected
     # copy P_d w g / (kappa_C + P_d w g) equals w, i.e. w = 1 - kappa_C / (P_d g), with g the
     # peak bearing likelihood (S ~ R_C once the track is sharp): 0.88 for kappa_C = 0.5.
-    cfg = PHDConfig()
-    g = 1.0 / math.sqrt(2 * math.pi * cfg.camera_noise_var_rad2)
-    w_star = 1.0 - cfg.camera_clutter_intensity / (camera_pd(cfg, math.hypot(1.0, 0.2)) * g)
+    cfg = PHDConfig.perera2021()
+    g = 1.0 / math.sqrt(2 * math.pi * cfg.camera.noise_var_rad2)
+    w_star = 1.0 - cfg.camera.clutter_intensity / (camera_pd(cfg, math.hypot(1.0, 0.2)) * g)
     assert results["bernoulli"][0] == pytest.approx(w_star, abs=0.02)
     assert results["phd"][0] > results["bernoulli"][0]
 
 
 # ---------------------------------------------------------------------- ray births
 def test_ray_births_by_hand():
-    cfg = PHDConfig(camera_birth="ray")
+    cfg = PHDConfig.perera2021().replace(births={"camera": "ray"})
     theta = 0.3
     births = ray_births(
         np.array([theta]),
@@ -112,7 +117,7 @@ def test_ray_births_by_hand():
         0.3,
         4.0,
         CAMERA_BIRTH_RADIAL_STD_FRACTION,
-        cfg.camera_noise_var_rad2,
+        cfg.camera.noise_var_rad2,
         1.1,
         5.0,
         4.0,
@@ -130,7 +135,7 @@ def test_ray_births_by_hand():
     for k in range(6):
         cov = np.array([[births[3, k], births[4, k]], [births[4, k], births[5, k]]])
         assert u @ cov @ u == pytest.approx((0.45 * d) ** 2, rel=1e-10)
-        assert v @ cov @ v == pytest.approx(ranges[k] ** 2 * cfg.camera_noise_var_rad2, rel=1e-10)
+        assert v @ cov @ v == pytest.approx(ranges[k] ** 2 * cfg.camera.noise_var_rad2, rel=1e-10)
         assert u @ cov @ v == pytest.approx(0.0, abs=1e-15)
 
 
@@ -148,20 +153,20 @@ def test_ray_covers_the_band_flat_and_survives_the_default_merge():
     births = ray_births(
         np.array([1.0]), 0.25, 6, 0.3, 4.0, CAMERA_BIRTH_RADIAL_STD_FRACTION, 0.0076, 1.1, 5, 4
     )
-    assert reduce(births, 1e-4, PHDConfig().merge_threshold, 64).shape[1] == 6
+    assert reduce(births, 1e-4, PHDConfig.perera2021().reduction.merge_threshold, 64).shape[1] == 6
 
 
 def test_unexplained_bearing_starts_a_ray_explained_one_does_not():
-    cfg = PHDConfig(camera_birth="ray")
+    cfg = PHDConfig.perera2021().replace(births={"camera": "ray"})
     f = one_track(cfg, 1.0, xy=(1.0, 0.0), var=0.005)
     f.update_camera(np.array([0.0, 2.0]))  # 0.0 is the track's, 2.0 nobody's
     table = np.asarray(f.table)
     ray = np.abs(np.arctan2(table[2], table[1]) - 2.0) < 1e-9
-    assert ray.sum() == cfg.camera_birth_components
-    assert table[0, ray].sum() == pytest.approx(cfg.camera_birth_weight, rel=1e-12)
+    assert ray.sum() == cfg.births.camera_components
+    assert table[0, ray].sum() == pytest.approx(cfg.births.camera_weight, rel=1e-12)
     assert not (np.abs(np.arctan2(table[2], table[1])) > 0.2).sum() - ray.sum()
     # off by default: the Perera 2021 study's model
-    g = one_track(PHDConfig(), 1.0, xy=(1.0, 0.0), var=0.005)
+    g = one_track(PHDConfig.perera2021(), 1.0, xy=(1.0, 0.0), var=0.005)
     g.update_camera(np.array([0.0, 2.0]))
     assert len(g) == 1
 
@@ -169,7 +174,10 @@ def test_unexplained_bearing_starts_a_ray_explained_one_does_not():
 def test_camera_only_teammate_is_localised_by_parallax():
     """A static teammate at (2.5, 1.0) that the lidar never reports: the observer drives
     forward; the ray's components converge on it through the bearing's change."""
-    cfg = PHDConfig(camera_birth="ray", survival_model="constant", survival_probability=0.999)
+    cfg = PHDConfig.perera2021().replace(
+        births={"camera": "ray"},
+        prediction={"survival_model": "constant", "survival_probability": 0.999},
+    )
     f = RobotCentricPHD(cfg)
     rng = np.random.default_rng(0)
     pos = np.array([2.5, 1.0])
@@ -189,20 +197,29 @@ def test_camera_only_teammate_is_localised_by_parallax():
 # ---------------------------------------------------------------------- untracked clutter
 def test_untracked_clutter_by_hand():
     # A step-like range factor (P = 1 up to 4 m, 0 beyond): integral_2^4 r dr = 6 m^2.
-    cfg = PHDConfig(
-        camera_clutter_intensity=0.1,
-        camera_untracked_density_per_m2=0.2,
-        camera_pd_offset=1.0,
-        camera_pd_slope_per_m=400.0,
+    cfg = PHDConfig.perera2021().replace(
+        camera={
+            "clutter_intensity": 0.1,
+            "untracked_density_per_m2": 0.2,
+            "pd_offset": 1.0,
+            "pd_slope_per_m": 400.0,
+        }
     )
     assert cfg.camera_clutter_total_per_rad == pytest.approx(0.1 + 0.2 * 6.0, rel=1e-4)
-    assert PHDConfig().camera_clutter_total_per_rad == PHDConfig().camera_clutter_intensity
+    assert (
+        PHDConfig.perera2021().camera_clutter_total_per_rad
+        == PHDConfig.perera2021().camera.clutter_intensity
+    )
 
 
 def test_untracked_clutter_enters_the_update():
-    base = PHDConfig(camera_clutter_intensity=0.2)
-    dense = PHDConfig(camera_clutter_intensity=0.0, camera_untracked_density_per_m2=1.0)
-    same = PHDConfig(camera_clutter_intensity=dense.camera_clutter_total_per_rad)
+    base = PHDConfig.perera2021().replace(camera={"clutter_intensity": 0.2})
+    dense = PHDConfig.perera2021().replace(
+        camera={"clutter_intensity": 0.0, "untracked_density_per_m2": 1.0}
+    )
+    same = PHDConfig.perera2021().replace(
+        camera={"clutter_intensity": dense.camera_clutter_total_per_rad}
+    )
     out = {}
     for name, cfg in (("base", base), ("dense", dense), ("same", same)):
         f = one_track(cfg, 1.0)
@@ -215,18 +232,20 @@ def test_untracked_clutter_enters_the_update():
 @pytest.mark.parametrize(
     "field, value",
     [
-        ("camera_birth", "lidar"),
+        ("births.camera", "lidar"),
         ("missed_detection", "cphd"),
-        ("camera_birth_weight", -0.1),
-        ("camera_birth_components", 0),
-        ("camera_birth_components", 2.0),
-        ("camera_birth_min_range_m", 0.0),
-        ("camera_birth_max_range_m", 0.2),
-        ("camera_birth_max_explained", 1.5),
-        ("camera_untracked_density_per_m2", -1.0),
-        ("camera_untracked_min_range_m", float("nan")),
+        ("births.camera_weight", -0.1),
+        ("births.camera_components", 0),
+        ("births.camera_components", 2.0),
+        ("births.camera_min_range_m", 0.0),
+        ("births.camera_max_range_m", 0.2),
+        ("births.camera_max_explained", 1.5),
+        ("camera.untracked_density_per_m2", -1.0),
+        ("camera.untracked_min_range_m", float("nan")),
     ],
 )
 def test_bad_new_fields_raise_naming_the_field(field, value):
-    with pytest.raises(ValueError, match=field):
-        PHDConfig(**{field: value})
+    component, _, name = field.rpartition(".")
+    change = {component: {name: value}} if component else {field: value}
+    with pytest.raises(ValueError, match=re.escape(field)):
+        PHDConfig.perera2021().replace(**change)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import math
 import pickle
+import re
 
 import numpy as np
 import pytest
@@ -59,7 +60,7 @@ def test_tracks_two_static_teammates():
     ],
 )
 def test_bad_input_raises_naming_argument_and_leaves_state_unchanged(method, args, name):
-    f = tracked_filter(PHDConfig(birth="measurement"))
+    f = tracked_filter(PHDConfig.perera2021().replace(births={"model": "measurement"}))
     f.update_lidar(np.array([[1.5, -1.5]]))  # leaves a pending measurement birth
     before = snapshot(f)
     with pytest.raises(ValueError, match=name):
@@ -81,38 +82,60 @@ def test_error_messages_show_the_offending_value():
     "field, value",
     [
         ("mode", "camera-only"),
-        ("birth", "adaptive"),
-        ("lidar_pd_model", "sigmoid"),
-        ("process_noise_std_m", -0.1),
-        ("process_noise_std_m", float("nan")),
-        ("lidar_noise_std_m", 0.0),
-        ("survival_probability", 1.5),
-        ("lidar_detection_probability", -0.1),
-        ("prune_threshold", 1.0),
-        ("merge_threshold", 0.0),
-        ("max_components", 0),
-        ("max_components", 2.5),
-        ("blind_sector_widths_deg", (10.0, 10.0)),
-        ("blind_sector_centers_deg", (45.0, float("inf"), 0.0, 1.0)),
-        ("birth_mean_m", (0.0,)),
-        ("survival_offset", 0.5),
-        ("camera_clutter_intensity", -1.0),
-        ("interference_depth", 2.0),
-        ("min_range_m", 0.0),
-        ("birth_weight", "0.1"),
+        ("births.model", "adaptive"),
+        ("lidar.pd_model", "sigmoid"),
+        ("prediction.process_noise_std_m", -0.1),
+        ("prediction.process_noise_std_m", float("nan")),
+        ("lidar.noise_std_m", 0.0),
+        ("prediction.survival_probability", 1.5),
+        ("lidar.detection_probability", -0.1),
+        ("reduction.prune_threshold", 1.0),
+        ("reduction.merge_threshold", 0.0),
+        ("reduction.max_components", 0),
+        ("reduction.max_components", 2.5),
+        ("lidar.blind_sector_widths_deg", (10.0, 10.0)),
+        ("lidar.blind_sector_centers_deg", (45.0, float("inf"), 0.0, 1.0)),
+        ("births.mean_m", (0.0,)),
+        ("prediction.survival_offset", 0.5),
+        ("camera.clutter_intensity", -1.0),
+        ("lidar.interference_depth", 2.0),
+        ("reduction.min_range_m", 0.0),
+        ("births.weight", "0.1"),
     ],
 )
 def test_bad_config_raises_naming_the_field(field, value):
-    with pytest.raises(ValueError, match=field):
-        PHDConfig(**{field: value})
+    """Each component checks its own fields: the error names ``component.field``."""
+    component, _, name = field.rpartition(".")
+    change = {component: {name: value}} if component else {field: value}
+    with pytest.raises(ValueError, match=re.escape(field)):
+        PHDConfig.perera2021().replace(**change)
+
+
+@pytest.mark.parametrize(
+    "old, new",
+    [
+        ("camera_noise_std_deg", "camera.noise_std_deg"),
+        ("birth", "births.model"),
+        ("lidar_pd_offset", "lidar.pd_offset"),
+        ("max_components", "reduction.max_components"),
+        ("process_noise_std_m", "prediction.process_noise_std_m"),
+    ],
+)
+def test_an_old_flat_field_is_refused_naming_its_new_place(old, new):
+    with pytest.raises(ValueError, match=re.escape(f"{old} is now {new}")):
+        PHDConfig().replace(**{old: 1.0})
+    with pytest.raises(ValueError, match=re.escape(f"{old} is now {new}")):
+        RobotCentricPHD(**{old: 1.0})
+    with pytest.raises(ValueError, match="scan_evidence was removed"):
+        PHDConfig().replace(scan_evidence=False)
 
 
 def test_config_is_frozen_and_keyword_overrides_work():
-    cfg = PHDConfig()
+    cfg = PHDConfig.perera2021()
     with pytest.raises(AttributeError):
         cfg.mode = "lidar-only"  # type: ignore[misc]
-    f = RobotCentricPHD(cfg, mode="lidar-only", max_components=10)
-    assert f.config.mode == "lidar-only" and f.config.max_components == 10
+    f = RobotCentricPHD(cfg, mode="lidar-only", reduction={"max_components": 10})
+    assert f.config.mode == "lidar-only" and f.config.reduction.max_components == 10
     with pytest.raises(ValueError, match="unknown"):
         RobotCentricPHD(cfg, not_a_field=1)
     with pytest.raises(ValueError, match="PHDConfig"):
@@ -133,7 +156,7 @@ def test_empty_updates_are_valid_and_apply_missed_detection():
 
 
 def test_lidar_only_mode_ignores_camera():
-    f = tracked_filter(PHDConfig(mode="lidar-only"))
+    f = tracked_filter(PHDConfig.perera2021().replace(mode="lidar-only"))
     before = snapshot(f)
     f.update_camera(np.array([0.3, -2.0]))
     assert_unchanged(f, before)
@@ -159,7 +182,7 @@ def test_mixture_is_a_read_only_snapshot():
 
 
 def test_pickle_and_deepcopy_give_independent_equal_filters():
-    f = tracked_filter(PHDConfig(birth="measurement"))
+    f = tracked_filter(PHDConfig.perera2021().replace(births={"model": "measurement"}))
     f.update_lidar(np.array([[1.0, 0.3], [-0.5, 0.8], [1.7, -0.2]]))
     for clone in (pickle.loads(pickle.dumps(f)), copy.deepcopy(f), copy.copy(f)):
         assert clone.config == f.config
@@ -213,7 +236,7 @@ def test_set_mixture_validates():
 
 
 def test_measurement_birth_confirms_a_new_teammate_in_a_few_scans():
-    f = RobotCentricPHD(PHDConfig(birth="measurement"))
+    f = RobotCentricPHD(PHDConfig.perera2021().replace(births={"model": "measurement"}))
     z = np.array([[0.8, -0.4]])
     counts = []
     for _ in range(4):
@@ -232,7 +255,7 @@ def test_measurement_birth_confirms_a_new_teammate_in_a_few_scans():
 
 
 def test_interference_lowers_detection_probability_at_null_bearings():
-    f = tracked_filter(PHDConfig(mode="lidar-only"))
+    f = tracked_filter(PHDConfig.perera2021().replace(mode="lidar-only"))
     g = copy.deepcopy(f)
     bearing = math.atan2(0.3, 1.0)
     f.update_lidar(np.empty((0, 2)))
@@ -242,7 +265,7 @@ def test_interference_lowers_detection_probability_at_null_bearings():
 
 
 def test_component_count_stays_capped():
-    cfg = PHDConfig(max_components=8)
+    cfg = PHDConfig.perera2021().replace(reduction={"max_components": 8})
     f = RobotCentricPHD(cfg)
     rng = np.random.default_rng(0)
     for _ in range(30):

@@ -116,13 +116,13 @@ def test_camera_update_shrinks_tangential_not_radial_variance():
     # A component at 2 m straight ahead with isotropic 0.2 m std, one bearing measurement.
     # Prior bearing variance 0.04 / 2^2 = 0.01 rad^2, R_C = (5 deg)^2 = 0.0076 rad^2, so the
     # posterior bearing variance is 1 / (1/0.01 + 1/0.0076): tangential variance x 0.43.
-    cfg = PHDConfig()
+    cfg = PHDConfig.perera2021()
     table = table_from_arrays(np.array([1.0]), np.array([[2.0, 0.0]]), 0.04 * np.eye(2)[None])
     out, _ = phd.camera_update(
-        table, np.array([0.02]), np.array([0.9]), cfg.camera_noise_var_rad2, 0.05, 0.1
+        table, np.array([0.02]), np.array([0.9]), cfg.camera.noise_var_rad2, 0.05, 0.1
     )
     pxx, pxy, pyy = out[3:, 1]  # the detected copy
-    rc = cfg.camera_noise_var_rad2
+    rc = cfg.camera.noise_var_rad2
     assert np.isclose(pyy, 4.0 / (1 / 0.01 + 1 / rc), rtol=1e-12)
     assert pyy < 0.5 * 0.04  # tangential variance shrinks
     assert pxx == 0.04 and pxy == 0.0  # radial untouched: a bearing says nothing about range
@@ -201,7 +201,7 @@ def test_frame_change_rotates_covariance_with_the_means():
 
 
 def test_filter_predict_moves_the_estimate_with_seed_survival():
-    f = RobotCentricPHD(PHDConfig(process_noise_std_m=1e-9))
+    f = RobotCentricPHD(PHDConfig.perera2021().replace(prediction={"process_noise_std_m": 1e-9}))
     f.set_mixture(GaussianMixture(np.array([1.0]), np.array([[1.0, 0.0]]), 0.01 * np.eye(2)[None]))
     f.predict(np.array([0.5, 0.0, 0.0]))
     mix = f.mixture
@@ -213,19 +213,19 @@ def test_filter_predict_moves_the_estimate_with_seed_survival():
 
 
 def test_fixed_birth_enters_lidar_updates_through_its_detected_copies_only():
-    cfg = PHDConfig()
+    cfg = PHDConfig.perera2021()
     f = RobotCentricPHD(cfg)
     z = np.array([[1.0, -0.5]])
     f.update_lidar(z)
     mix = f.mixture
     # Only the birth's detected copy: w_b P_d(0) N(z; 0, 4 I + R) / (kappa + same).
-    r = cfg.lidar_noise_var_m2
+    r = cfg.lidar.noise_var_m2
     s = 4.0 + r
     g = math.exp(-0.5 * (1.0 + 0.25) / s) / (2 * math.pi * s)
     pd0 = 1.0 / (1.02 + math.exp(8 * (0.0 - 1.5)))
     num = 0.001 * pd0 * g
     assert len(mix) == 1
-    assert np.isclose(mix.weights[0], num / (cfg.lidar_clutter_intensity + num), rtol=1e-12)
+    assert np.isclose(mix.weights[0], num / (cfg.lidar.clutter_intensity + num), rtol=1e-12)
     k = 4.0 / s
     assert np.allclose(mix.means[0], k * z[0], atol=ATOL)
     assert np.allclose(mix.covs[0], r * k * np.eye(2), atol=ATOL)

@@ -72,9 +72,9 @@ def test_measurements_are_moved_to_the_last_odometry_frame(v, omega):
     raw = _measurements_only(localizer_calls(records, compensate_motion=False))
     assert raw[0][3] is None and np.array_equal(raw[0][1], lidar_records[0].detections)
     # The bank applies the pose as the reference does.
-    bank = PHDBank(PHDConfig(), 1)
+    bank = PHDBank(PHDConfig.perera2021(), 1)
     bank.apply([stamped])
-    f = RobotCentricPHD(PHDConfig())
+    f = RobotCentricPHD(PHDConfig.perera2021())
     for call in calls:
         if call[0] == "predict":
             f.predict(call[1])

@@ -40,7 +40,7 @@ def assert_valid(f: RobotCentricPHD) -> None:
     assert (pxx * pyy - pxy * pxy > 0).all()
     mix = f.mixture
     assert np.array_equal(mix.covs, mix.covs.transpose(0, 2, 1))
-    assert len(f) <= f.config.max_components + 1
+    assert len(f) <= f.config.reduction.max_components + 1
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -59,7 +59,11 @@ def assert_valid(f: RobotCentricPHD) -> None:
     pd_model=st.sampled_from(["seed", "constant"]),
 )
 def test_updates_keep_a_valid_mixture(steps, birth, pd_model):
-    f = RobotCentricPHD(PHDConfig(birth=birth, lidar_pd_model=pd_model, max_components=32))
+    f = RobotCentricPHD(
+        PHDConfig.perera2021().replace(
+            births={"model": birth}, lidar={"pd_model": pd_model}, reduction={"max_components": 32}
+        )
+    )
     for points, bearings, odo, nulls in steps:
         f.predict(np.array(odo))
         assert_valid(f)

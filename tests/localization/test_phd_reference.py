@@ -33,20 +33,22 @@ def ref_lidar_pd(cfg: PHDConfig, weights, means, nulls=()):
     out = []
     for i in range(len(weights)):
         r = math.hypot(*means[i])
-        if cfg.lidar_pd_model == "constant":
-            out.append(cfg.lidar_detection_probability if r <= cfg.lidar_range_m else 0.0)
+        if cfg.lidar.pd_model == "constant":
+            out.append(cfg.lidar.detection_probability if r <= cfg.lidar.range_m else 0.0)
             continue
-        slope, mid = cfg.lidar_pd_slope_per_m, cfg.lidar_pd_midpoint_m
-        pd = 1.0 / (cfg.lidar_pd_offset + math.exp(slope * (r - mid)))
+        slope, mid = cfg.lidar.pd_slope_per_m, cfg.lidar.pd_midpoint_m
+        pd = 1.0 / (cfg.lidar.pd_offset + math.exp(slope * (r - mid)))
         for c, width in zip(
-            cfg.blind_sector_centers_deg, cfg.blind_sector_widths_deg, strict=True
+            cfg.lidar.blind_sector_centers_deg, cfg.lidar.blind_sector_widths_deg, strict=True
         ):
             sigma = math.radians(width) / 2
-            pd *= 1.0 - ref_bump(means[i], math.radians(c), sigma, cfg.min_range_m)
+            pd *= 1.0 - ref_bump(means[i], math.radians(c), sigma, cfg.reduction.min_range_m)
         pd *= ref_occlusion(cfg, i, weights, means)
         for b in nulls:
-            sigma = math.radians(cfg.interference_std_deg)
-            pd *= 1.0 - cfg.interference_depth * ref_bump(means[i], b, sigma, cfg.min_range_m)
+            sigma = math.radians(cfg.lidar.interference_std_deg)
+            pd *= 1.0 - cfg.lidar.interference_depth * ref_bump(
+                means[i], b, sigma, cfg.reduction.min_range_m
+            )
         out.append(pd)
     return np.array(out)
 
@@ -56,10 +58,12 @@ def ref_occlusion(cfg, i, weights, means):
     ri = math.hypot(*means[i])
     for j in range(len(weights)):
         rj = math.hypot(*means[j])
-        if rj < ri - cfg.occlusion_min_separation_m:
-            ui = np.asarray(means[i]) / max(ri, cfg.min_range_m)
-            uj = np.asarray(means[j]) / max(rj, cfg.min_range_m)
-            bump = math.exp((float(ui @ uj) - 1.0) / math.radians(cfg.occlusion_std_deg) ** 2)
+        if rj < ri - cfg.lidar.occlusion_min_separation_m:
+            ui = np.asarray(means[i]) / max(ri, cfg.reduction.min_range_m)
+            uj = np.asarray(means[j]) / max(rj, cfg.reduction.min_range_m)
+            bump = math.exp(
+                (float(ui @ uj) - 1.0) / math.radians(cfg.lidar.occlusion_std_deg) ** 2
+            )
             f *= 1.0 - min(weights[j], 1.0) * bump
     return f
 
@@ -69,10 +73,10 @@ def ref_camera_pd(cfg, weights, means):
     for i in range(len(weights)):
         r = math.hypot(*means[i])
         pd = 1.0 / (
-            cfg.camera_pd_offset
-            + math.exp(cfg.camera_pd_slope_per_m * (r - cfg.camera_pd_midpoint_m))
+            cfg.camera.pd_offset
+            + math.exp(cfg.camera.pd_slope_per_m * (r - cfg.camera.pd_midpoint_m))
         )
-        if r < cfg.min_range_m:
+        if r < cfg.reduction.min_range_m:
             pd = 0.0
         out.append(pd * ref_occlusion(cfg, i, weights, means))
     return np.array(out)
@@ -179,7 +183,7 @@ def sorted_components(weights, means, covs):
 @pytest.mark.parametrize("seed", range(6))
 def test_lidar_pd_matches_reference(seed):
     rng = np.random.default_rng(seed)
-    cfg = PHDConfig()
+    cfg = PHDConfig.perera2021()
     n = int(rng.integers(1, 15))
     w, m, c = random_mixture(rng, n, clumped=bool(seed % 2))
     m[0] = [0.0, 0.0]  # a component at the origin exercises the range floor
@@ -190,13 +194,13 @@ def test_lidar_pd_matches_reference(seed):
     assert np.allclose(got, ref_lidar_pd(cfg, w, m, nulls), rtol=RTOL, atol=ATOL)
     assert ((got >= 0) & (got <= 1)).all()
     assert np.allclose(model.camera(table), ref_camera_pd(cfg, w, m), rtol=RTOL, atol=ATOL)
-    cfg_c = PHDConfig(lidar_pd_model="constant")
+    cfg_c = PHDConfig.perera2021().replace(lidar={"pd_model": "constant"})
     got_c = DetectionModel(cfg_c).lidar(table, None)
     assert np.allclose(got_c, ref_lidar_pd(cfg_c, w, m), atol=0)
 
 
 def test_blind_sector_pd_vanishes_at_centre_and_recovers():
-    cfg = PHDConfig(occlusion_min_separation_m=0.0)
+    cfg = PHDConfig.perera2021().replace(lidar={"occlusion_min_separation_m": 0.0})
     model = DetectionModel(cfg)
     angles = np.radians([45.0, 47.5, 50.0, 60.0, 90.0])
     means = 1.0 * np.stack((np.cos(angles), np.sin(angles)), axis=1)
@@ -221,13 +225,15 @@ def test_lidar_pd_is_its_range_factor_times_its_blind_sector_factor(pd_model, bl
     """For a lone component (no occlusion) ``lidar`` is the product of the two public factors
     (what ``agents.scripted.expected_lidar_detections`` uses, with the component's bearing
     std); the constant model has no sectors, and the seed model's vanish at their centres."""
-    cfg = PHDConfig(lidar_pd_model=pd_model, blind_sector_model=blind_model)
+    cfg = PHDConfig.perera2021().replace(
+        lidar={"pd_model": pd_model, "blind_sector_model": blind_model}
+    )
     model = DetectionModel(cfg)
     rng = np.random.default_rng(7)
     ranges = rng.uniform(0.2, 3.0, 50)
     bearings = rng.uniform(-math.pi, math.pi, 50)
     # a quarter of them within 8 deg of a sector centre, where the notch's edges are
-    near = rng.choice(np.radians(cfg.blind_sector_centers_deg), 12) + np.radians(
+    near = rng.choice(np.radians(cfg.lidar.blind_sector_centers_deg), 12) + np.radians(
         rng.uniform(-8.0, 8.0, 12)
     )
     bearings[:12] = near
@@ -240,12 +246,14 @@ def test_lidar_pd_is_its_range_factor_times_its_blind_sector_factor(pd_model, bl
         )[0]
         for r, b in zip(ranges, bearings, strict=True)
     ]
-    bearing_std = 0.1 / np.maximum(ranges, cfg.min_range_m)  # sqrt(0.01) m across the bearing
+    bearing_std = 0.1 / np.maximum(
+        ranges, cfg.reduction.min_range_m
+    )  # sqrt(0.01) m across the bearing
     product = model.lidar_range_factor(ranges) * model.lidar_blind_sector_factor(
         bearings, ranges, bearing_std
     )
     np.testing.assert_allclose(product, lone, rtol=1e-9, atol=1e-12)
-    centres = np.radians(cfg.blind_sector_centers_deg)
+    centres = np.radians(cfg.lidar.blind_sector_centers_deg)
     expected = np.ones(4) if pd_model == "constant" else np.zeros(4)
     np.testing.assert_allclose(
         model.lidar_blind_sector_factor(centres, np.ones(4)), expected, atol=1e-12
@@ -256,7 +264,7 @@ def test_lidar_pd_is_its_range_factor_times_its_blind_sector_factor(pd_model, bl
 
 
 def test_occlusion_hides_the_farther_component():
-    cfg = PHDConfig()
+    cfg = PHDConfig.perera2021()
     model = DetectionModel(cfg)
     means = np.array([[0.5, 0.0], [1.2, 0.0], [1.2, 0.5]])
     pd = model.lidar(
@@ -265,6 +273,12 @@ def test_occlusion_hides_the_farther_component():
     )
     assert pd[1] < 1e-9 * pd[2]  # right behind a weight-1 component: hidden
     assert pd[0] > 0.9
+
+
+def assert_table_is(table: np.ndarray, reference: tuple) -> None:
+    """``table`` (6, N) holds the reference's ``(weights, means, covariances)``."""
+    for got, want in zip(arrays_from_table(table), reference, strict=True):
+        assert np.allclose(got, want, rtol=RTOL, atol=ATOL)
 
 
 @pytest.mark.parametrize("seed", range(8))
@@ -284,11 +298,7 @@ def test_lidar_update_matches_reference(seed):
 
     table = table_from_arrays(w, m, c)
     out, _ = phd.lidar_update(table, points, pd, 0.0025, 0.3)
-    gw, gm, gc = arrays_from_table(out)
-    rw, rm, rc = ref_lidar_update(w, m, c, points, pd, 0.0025, 0.3)
-    assert np.allclose(gw, rw, rtol=RTOL, atol=ATOL)
-    assert np.allclose(gm, rm, rtol=RTOL, atol=ATOL)
-    assert np.allclose(gc, rc, rtol=RTOL, atol=ATOL)
+    assert_table_is(out, ref_lidar_update(w, m, c, points, pd, 0.0025, 0.3))
 
 
 @pytest.mark.parametrize("seed", range(8))
@@ -304,11 +314,7 @@ def test_camera_update_matches_reference(seed):
     from localization import phd
 
     out, _ = phd.camera_update(table_from_arrays(w, m, c), bearings, pd, rcam, 0.2, 0.1)
-    gw, gm, gc = arrays_from_table(out)
-    rw, rm, rc = ref_camera_update(w, m, c, bearings, pd, rcam, 0.2, 0.1)
-    assert np.allclose(gw, rw, rtol=RTOL, atol=ATOL)
-    assert np.allclose(gm, rm, rtol=RTOL, atol=ATOL)
-    assert np.allclose(gc, rc, rtol=RTOL, atol=ATOL)
+    assert_table_is(out, ref_camera_update(w, m, c, bearings, pd, rcam, 0.2, 0.1))
 
 
 @pytest.mark.parametrize("seed", range(12))
@@ -364,8 +370,9 @@ def test_merge_preserves_total_weight_exactly_and_prune_loses_exactly_the_pruned
 def test_filter_step_matches_reference_pipeline(seed):
     """predict -> lidar -> camera through the public API vs the reference step by step."""
     rng = np.random.default_rng(400 + seed)
-    cfg = PHDConfig(
-        birth="fixed", prune_threshold=1e-5, merge_threshold=1e-300, max_components=10_000
+    cfg = PHDConfig.perera2021().replace(
+        births={"model": "fixed"},
+        reduction={"prune_threshold": 1e-5, "merge_threshold": 1e-300, "max_components": 10_000},
     )
     w, m, c = random_mixture(rng, int(rng.integers(1, 8)), spread=1.5)
     f = RobotCentricPHD(cfg)
@@ -376,15 +383,15 @@ def test_filter_step_matches_reference_pipeline(seed):
     # The fixed birth (mean 0, cov 4 I, weight 0.001) joins the lidar prior; its
     # missed-detection copy (right after the n prior components) is dropped.
     n = len(w)
-    wb = np.append(w, cfg.birth_weight)
+    wb = np.append(w, cfg.births.weight)
     mb = np.vstack([m, [0.0, 0.0]])
-    cb = np.concatenate([c, [cfg.birth_std_m**2 * np.eye(2)]])
+    cb = np.concatenate([c, [cfg.births.std_m**2 * np.eye(2)]])
     pd = ref_lidar_pd(cfg, wb, mb)
     rw, rm, rc = ref_lidar_update(
-        wb, mb, cb, points, pd, cfg.lidar_noise_var_m2, cfg.lidar_clutter_intensity
+        wb, mb, cb, points, pd, cfg.lidar.noise_var_m2, cfg.lidar.clutter_intensity
     )
     rw[n] = 0.0
-    keep = rw >= cfg.prune_threshold
+    keep = rw >= cfg.reduction.prune_threshold
     rw, rm, rc = rw[keep], rm[keep], rc[keep]
     mix = f.mixture
     gw, gm, gc = sorted_components(np.array(mix.weights), np.array(mix.means), np.array(mix.covs))
@@ -400,11 +407,11 @@ def test_filter_step_matches_reference_pipeline(seed):
         rc,
         bearings,
         pdc,
-        cfg.camera_noise_var_rad2,
-        cfg.camera_clutter_intensity,
-        cfg.min_range_m,
+        cfg.camera.noise_var_rad2,
+        cfg.camera.clutter_intensity,
+        cfg.reduction.min_range_m,
     )
-    keep = rw2 >= cfg.prune_threshold
+    keep = rw2 >= cfg.reduction.prune_threshold
     mix = f.mixture
     gw, gm, gc = sorted_components(np.array(mix.weights), np.array(mix.means), np.array(mix.covs))
     ew, em, ec = sorted_components(rw2[keep], rm2[keep], rc2[keep])

@@ -10,15 +10,15 @@ from tests.localization.scenario import run_scenario
 
 def test_lidar_camera_beats_lidar_only_on_the_seed_metric():
     # The synthetic sensors follow the Perera 2021 study's models (eq. 19 lidar range factor, fixed
-    # births), so the filters run with them: PHDConfig().
-    lc = [
-        run_scenario("lidar-camera", seed=s, steps=400, config=PHDConfig(mode="lidar-camera"))
-        for s in (0, 1)
-    ]
-    lo = [
-        run_scenario("lidar-only", seed=s, steps=400, config=PHDConfig(mode="lidar-only"))
-        for s in (0, 1)
-    ]
+    # births), so the filters run with them: PHDConfig.perera2021().
+    runs = {
+        mode: [
+            run_scenario(mode, seed=s, steps=400, config=PHDConfig.perera2021().replace(mode=mode))
+            for s in (0, 1)
+        ]
+        for mode in ("lidar-camera", "lidar-only")
+    }
+    lc, lo = runs["lidar-camera"], runs["lidar-only"]
     for c, o in zip(lc, lo, strict=True):
         # % of in-range time with error > 0.30 m (seed fig. 7): LC clearly lower.
         assert c.summary["percent_large_error"] < 0.7 * o.summary["percent_large_error"]

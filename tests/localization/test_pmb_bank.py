@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import pickle
 
 import numpy as np
@@ -83,48 +82,63 @@ def run_both(config, seed, steps=30, with_poses=False):
 
 
 def phd(**kw):
-    return PHDConfig(**kw)
+    return PHDConfig.perera2021().replace(**kw)
 
 
 CONFIGS = {
-    "lc-fixed": PMBConfig(phd=phd(birth="fixed")),
-    "lc-measurement": PMBConfig(phd=phd(birth="measurement")),
-    "lo-fixed": PMBConfig(phd=phd(mode="lidar-only", birth="fixed")),
-    "lo-measurement": PMBConfig(phd=phd(mode="lidar-only", birth="measurement")),
+    "lc-fixed": PMBConfig(phd=phd(births={"model": "fixed"})),
+    "lc-measurement": PMBConfig(phd=phd(births={"model": "measurement"})),
+    "lo-fixed": PMBConfig(phd=phd(mode="lidar-only", births={"model": "fixed"})),
+    "lo-measurement": PMBConfig(phd=phd(mode="lidar-only", births={"model": "measurement"})),
     "seed-defaults": PMBConfig(),
     "simulator": PMBConfig(phd=SIMULATOR_PHD),
     "constant-models": PMBConfig(
         phd=phd(
-            lidar_pd_model="constant",
-            survival_model="constant",
-            occlusion_min_separation_m=0.0,
-            birth="measurement",
+            lidar={"pd_model": "constant", "occlusion_min_separation_m": 0.0},
+            prediction={"survival_model": "constant"},
+            births={"model": "measurement"},
         )
     ),
     "visible-width": PMBConfig(
         phd=phd(
-            birth="measurement",
-            blind_sector_model="visible-width",
-            blind_sector_centers_deg=(30.0, 150.0, -90.0),
-            blind_sector_widths_deg=(40.0, 60.0, 50.0),
+            births={"model": "measurement"},
+            lidar={
+                "blind_sector_model": "visible-width",
+                "blind_sector_centers_deg": (30.0, 150.0, -90.0),
+                "blind_sector_widths_deg": (40.0, 60.0, 50.0),
+            },
         )
     ),
-    "track-cap": PMBConfig(phd=phd(birth="measurement", max_components=5), max_tracks=3),
+    "track-cap": PMBConfig(
+        phd=phd(births={"model": "measurement"}, reduction={"max_components": 5}), max_tracks=3
+    ),
     "range-noise": PMBConfig(
-        phd=phd(birth="measurement", camera_noise_std_deg=2.0, camera_noise_width_fraction=0.5)
+        phd=phd(
+            births={"model": "measurement"},
+            camera={"noise_std_deg": 2.0, "noise_width_fraction": 0.5},
+        )
     ),
     "no-clutter": PMBConfig(
-        phd=phd(birth="measurement", lidar_clutter_intensity=0.0, camera_clutter_intensity=0.0)
+        phd=phd(
+            births={"model": "measurement"},
+            lidar={"clutter_intensity": 0.0},
+            camera={"clutter_intensity": 0.0},
+        )
     ),
-    "camera-rays-to-poisson": PMBConfig(phd=phd(birth="measurement", camera_birth="ray")),
+    "camera-rays-to-poisson": PMBConfig(phd=phd(births={"model": "measurement", "camera": "ray"})),
     "camera-rays-simulator": PMBConfig(
-        phd=dataclasses.replace(SIMULATOR_PHD, camera_birth="ray", camera_birth_max_range_m=4.7)
+        phd=SIMULATOR_PHD.replace(births={"camera": "ray", "camera_max_range_m": 4.7})
     ),
     "one-bp-sweep-wide-gate": PMBConfig(
-        phd=phd(birth="measurement"), bp_max_iterations=1, gate_sigma=10.0, recycle_threshold=0.3
+        phd=phd(births={"model": "measurement"}),
+        bp_max_iterations=1,
+        gate_sigma=10.0,
+        recycle_threshold=0.3,
     ),
     "narrow-gate-low-recycle": PMBConfig(
-        phd=phd(birth="measurement", prune_threshold=1e-8), gate_sigma=2.0, recycle_threshold=1e-3
+        phd=phd(births={"model": "measurement"}, reduction={"prune_threshold": 1e-8}),
+        gate_sigma=2.0,
+        recycle_threshold=1e-3,
     ),
 }
 
@@ -141,13 +155,17 @@ def test_camera_rays_stay_poisson_until_the_lidar_confirms():
     """With camera_birth="ray" a bearing starts no track: its ray joins the Poisson part
     (weight camera_birth_weight over the camera's reach), repeated bearings keep it there, and
     a lidar detection on the ray starts a track there (with the Poisson mass as its prior)."""
-    cfg = PMBConfig(phd=phd(birth="measurement", camera_birth="ray", lidar_clutter_intensity=0.05))
+    cfg = PMBConfig(
+        phd=phd(
+            births={"model": "measurement", "camera": "ray"}, lidar={"clutter_intensity": 0.05}
+        )
+    )
     f = RobotCentricPMB(cfg)
     bearing = 0.6
     f.update_camera(np.array([bearing]))
     poisson = np.asarray(f.poisson_table)
     assert len(f) == 0
-    assert poisson[0].sum() == pytest.approx(cfg.phd.camera_birth_weight, rel=1e-6)
+    assert poisson[0].sum() == pytest.approx(cfg.phd.births.camera_weight, rel=1e-6)
     angles = np.arctan2(poisson[2], poisson[1])
     assert np.allclose(angles, bearing, atol=1e-9)  # all of it on the ray
     for _ in range(5):
@@ -298,12 +316,12 @@ def test_one_view_class_steps_and_loads_like_the_reference():
     and loaded with ``set_mixture`` holds what its RobotCentricPMB holds."""
     from localization import PHDBank
     from localization.bank import BankView
-    from localization.scan_evidence import N_BINS
+    from localization.scan_memory import N_BINS
 
     cfg = PMBConfig(phd=SIMULATOR_PHD)
     bank, f = PMBBank(cfg, 3), RobotCentricPMB(cfg)
     view = bank.views[1]
-    assert type(view) is BankView and type(PHDBank(PHDConfig(), 2).views[0]) is BankView
+    assert type(view) is BankView and type(PHDBank(PHDConfig.perera2021(), 2).views[0]) is BankView
     profile = np.full(N_BINS, 2.5)
     for target in (view, f):
         target.advance(0.1)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import copy
-import dataclasses
 import math
 import pickle
 
@@ -16,15 +15,16 @@ from localization.pmb import PMBConfig, RobotCentricPMB
 
 # Constant models (P_d = 0.9 everywhere, P_s = 1), measurement births (no fixed birth joins
 # the Poisson prior), so every number below can be derived by hand.
-HAND = PHDConfig(
-    lidar_pd_model="constant",
-    lidar_detection_probability=0.9,
-    lidar_range_m=100.0,
-    survival_model="constant",
-    survival_probability=1.0,
-    birth="measurement",
-    lidar_clutter_intensity=0.05,
-    occlusion_min_separation_m=0.0,
+HAND = PHDConfig.perera2021().replace(
+    lidar={
+        "pd_model": "constant",
+        "detection_probability": 0.9,
+        "range_m": 100.0,
+        "clutter_intensity": 0.05,
+        "occlusion_min_separation_m": 0.0,
+    },
+    prediction={"survival_model": "constant", "survival_probability": 1.0},
+    births={"model": "measurement"},
 )
 R_L = 0.05**2
 
@@ -109,7 +109,9 @@ def test_two_targets_one_measurement_by_hand():
 
 
 def test_bearing_update_against_hand_ekf():
-    cfg = PHDConfig(birth="measurement", camera_clutter_intensity=0.5)
+    cfg = PHDConfig.perera2021().replace(
+        births={"model": "measurement"}, camera={"clutter_intensity": 0.5}
+    )
     f = RobotCentricPMB(cfg)
     f.set_state(mix([0.95], [[2.0, 0.0]], 0.04))
     theta = 0.05
@@ -174,7 +176,7 @@ def test_static_teammate_stays_put_in_world():
     rng = np.random.default_rng(0)
     pose = np.array([0.3, -0.2, 0.7])
     target = np.array([1.5, 0.9])
-    f = RobotCentricPMB(HAND, process_noise_std_m=1e-9)
+    f = RobotCentricPMB(HAND, prediction={"process_noise_std_m": 1e-9})
     f.set_state(mix([0.99], [rel(pose, target)], 0.01))
     for _ in range(50):
         odo = np.array([rng.uniform(-0.05, 0.1), rng.uniform(-0.03, 0.03), rng.uniform(-0.3, 0.3)])
@@ -200,7 +202,9 @@ def test_sensor_pose_moves_measurements_like_frames():
     pts = np.array([[1.0, 0.4], [0.2, -1.1]])
     nulls = np.array([0.3, -2.0])
     brg = np.array([0.4, -1.0])
-    a = RobotCentricPMB(PMBConfig(phd=PHDConfig(birth="measurement")))
+    a = RobotCentricPMB(
+        PMBConfig(phd=PHDConfig.perera2021().replace(births={"model": "measurement"}))
+    )
     b = copy.deepcopy(a)
     for f, with_pose in ((a, True), (b, False)):
         for _ in range(3):
@@ -222,15 +226,24 @@ def test_sensor_pose_moves_measurements_like_frames():
 
 CONFIGS = {
     "seed": PMBConfig(),
-    "measurement": PMBConfig(phd=PHDConfig(birth="measurement")),
-    "lidar-only": PMBConfig(phd=PHDConfig(mode="lidar-only", birth="measurement")),
-    "cap": PMBConfig(phd=PHDConfig(birth="measurement", max_components=5), max_tracks=3),
+    "measurement": PMBConfig(phd=PHDConfig.perera2021().replace(births={"model": "measurement"})),
+    "lidar-only": PMBConfig(
+        phd=PHDConfig.perera2021().replace(mode="lidar-only", births={"model": "measurement"})
+    ),
+    "cap": PMBConfig(
+        phd=PHDConfig.perera2021().replace(
+            births={"model": "measurement"}, reduction={"max_components": 5}
+        ),
+        max_tracks=3,
+    ),
     "no-clutter": PMBConfig(
-        phd=PHDConfig(
-            birth="measurement", lidar_clutter_intensity=0.0, camera_clutter_intensity=0.0
+        phd=PHDConfig.perera2021().replace(
+            births={"model": "measurement"},
+            lidar={"clutter_intensity": 0.0},
+            camera={"clutter_intensity": 0.0},
         )
     ),
-    "pd-one": PMBConfig(phd=dataclasses.replace(HAND, lidar_detection_probability=1.0)),
+    "pd-one": PMBConfig(phd=HAND.replace(lidar={"detection_probability": 1.0})),
 }
 
 
@@ -265,7 +278,10 @@ def test_invariants_on_random_sequences(name):
         if kind == 1 or (kind == 2 and cfg.phd.mode == "lidar-camera"):
             # updates recycle every track below the threshold (predict only decays r)
             assert (t.r >= cfg.recycle_threshold).all()
-        assert len(f) <= cfg.max_tracks and f.poisson_table.shape[1] <= cfg.phd.max_components
+        assert (
+            len(f) <= cfg.max_tracks
+            and f.poisson_table.shape[1] <= cfg.phd.reduction.max_components
+        )
         seen_tracks = max(seen_tracks, len(f))
     assert seen_tracks > 0
 
@@ -282,7 +298,7 @@ def test_estimate_sorted_and_thresholded():
 
 
 def test_lidar_only_ignores_camera_and_copies_are_independent():
-    f = RobotCentricPMB(PHDConfig(mode="lidar-only"))
+    f = RobotCentricPMB(PHDConfig.perera2021().replace(mode="lidar-only"))
     f.set_state(mix([0.9], [[1.0, 0.0]], 0.01))
     f.update_camera([0.0, 1.0])
     np.testing.assert_array_equal(f.tracks.r, [0.9])
@@ -311,7 +327,9 @@ def test_lidar_only_ignores_camera_and_copies_are_independent():
     ],
 )
 def test_bad_input_raises_before_any_change(call, name):
-    f = RobotCentricPMB(PMBConfig(phd=PHDConfig(birth="measurement")))
+    f = RobotCentricPMB(
+        PMBConfig(phd=PHDConfig.perera2021().replace(births={"model": "measurement"}))
+    )
     f.update_lidar([[1.0, 0.5]])
     f.predict([0.0, 0.0, 0.0])
     f.update_lidar([[1.0, 0.5]])
@@ -331,9 +349,13 @@ def test_config_validation_and_overrides():
         PMBConfig(recycle_threshold=1.5)
     with pytest.raises(ValueError, match="unknown"):
         RobotCentricPMB(nope=1)
-    f = RobotCentricPMB(PHDConfig(birth="measurement"), max_tracks=7, mode="lidar-only")
+    f = RobotCentricPMB(
+        PHDConfig.perera2021().replace(births={"model": "measurement"}),
+        max_tracks=7,
+        mode="lidar-only",
+    )
     assert f.config.max_tracks == 7 and f.config.phd.mode == "lidar-only"
-    assert f.config.phd.birth == "measurement"
+    assert f.config.phd.births.model == "measurement"
 
 
 def test_pmb_tracks_the_synthetic_swarm_at_least_as_well_as_the_gm_phd(monkeypatch):
@@ -347,7 +369,9 @@ def test_pmb_tracks_the_synthetic_swarm_at_least_as_well_as_the_gm_phd(monkeypat
         for name, cls in (("phd", RobotCentricPHD), ("pmb", RobotCentricPMB)):
             monkeypatch.setattr(scenario, "RobotCentricPHD", cls)
             runs = [
-                scenario.run_scenario(mode, seed=s, steps=400, config=PHDConfig(mode=mode))
+                scenario.run_scenario(
+                    mode, seed=s, steps=400, config=PHDConfig.perera2021().replace(mode=mode)
+                )
                 for s in range(3)
             ]
             gospa[name] = np.mean([r.mean_gospa for r in runs])

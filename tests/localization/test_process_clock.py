@@ -1,4 +1,4 @@
-"""Process noise added up to each measurement's stamp (``PHDConfig.time_update``).
+"""Process noise added up to each measurement's stamp (``PHDConfig.prediction.time_update``).
 
 Hand-derived: with a random walk of variance ``q`` per ``T`` seconds, a stamp ``dt`` after the
 previous one adds ``q dt / T`` to every covariance, a predict after stamps adds nothing more, and
@@ -24,9 +24,11 @@ from tests.localization.test_bank import assert_same as assert_same_phd
 from tests.localization.test_pmb_bank import R, random_call_lists
 from tests.localization.test_pmb_bank import assert_same as assert_same_pmb
 
-MEASUREMENT = PHDConfig(time_update="measurement", birth="measurement")
-Q = MEASUREMENT.process_noise_std_m**2
-T = MEASUREMENT.process_noise_interval_s
+MEASUREMENT = PHDConfig.perera2021().replace(
+    prediction={"time_update": "measurement"}, births={"model": "measurement"}
+)
+Q = MEASUREMENT.prediction.process_noise_std_m**2
+T = MEASUREMENT.prediction.process_noise_interval_s
 
 
 def one_component(f, p0=0.01):
@@ -64,7 +66,7 @@ def test_noise_accrues_between_stamps_and_sums_to_q_per_period(family):
 
 
 def test_odometry_time_update_ignores_stamps():
-    f = RobotCentricPHD(PHDConfig())
+    f = RobotCentricPHD(PHDConfig.perera2021())
     one_component(f)
     for t in (0.0, 0.03, 0.07, 0.1):
         f.advance(t)

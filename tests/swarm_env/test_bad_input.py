@@ -130,14 +130,18 @@ def test_sensor_faster_than_the_substeps_is_refused():
     "override, match",
     [
         ({"localize": "no"}, "localize"),
-        ({"lidar": {"blind_sector_centers_deg": (float("nan"), 90.0, 180.0, 270.0)}}, "blind"),
+        (
+            {"lidar": {"blind_sector_centers_deg": (float("nan"), 90.0, 180.0, 270.0)}},
+            "blind",
+        ),
         ({"odometry": {"pulses_per_revolution": 0.5}}, "pulses_per_revolution"),
         ({"lidar": {"range_max_m": float("inf")}}, "range_max_m"),
         ({"camera": {"range_max_m": 1e300}}, "range_max_m"),
         ({"lidar": {"n_beams": 10**7}}, "n_beams"),  # cost guard: 54 s per step
         ({"camera": {"false_positive_rate": 1e7}}, "false_positive_rate"),  # memory guard
         ({"localizer": "phd-xyz"}, "localizer"),
-        ({"phd": {"camera_noise_std_deg": float("nan")}}, "camera_noise_std_deg"),
+        ({"phd": {"camera": {"noise_std_deg": float("nan")}}}, r"camera\.noise_std_deg"),
+        ({"phd": {"camera_noise_std_deg": 1.0}}, r"camera_noise_std_deg is now phd\.camera\."),
     ],
 )
 def test_bad_config_is_refused_at_construction_naming_the_field(override, match):

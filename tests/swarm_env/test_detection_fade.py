@@ -65,7 +65,7 @@ def test_preset_is_the_studys_setup():
     assert (cfg.arena.n_decoy_posts, cfg.arena.n_red_decoys, cfg.arena.n_boxes) == (0, 0, 0)
     assert cfg.camera.false_positive_rate == 0.0
     assert cfg.camera.bearing_noise_std_deg == 5.0
-    assert cfg.lidar.blind_sector_centers_deg == cfg.phd.blind_sector_centers_deg
+    assert cfg.lidar.blind_sector_centers_deg == cfg.phd.lidar.blind_sector_centers_deg
     assert cfg.phd == type(cfg.phd).perera2021()
 
 

@@ -35,7 +35,7 @@ from localization.registry import LOCALIZERS, make_localizer
 from swarm_core.records import CameraRecord, LidarRecord, OdometryRecord, RobotMeasurements
 from swarm_core.world import GroundTruth
 from swarm_env import parallel_env
-from swarm_env.config import SIMULATOR_PHD, SwarmConfig, make_config
+from swarm_env.config import SIMULATOR_PHD, make_config
 
 PRESET = "lab-3m-4"
 FAST = settings(
@@ -46,16 +46,27 @@ FAST = settings(
 
 
 # ---------------------------------------------------------------------- configs
-def _config_fields() -> list[tuple[str, str | None]]:
-    base = make_config(PRESET)
-    out: list[tuple[str, str | None]] = []
-    for f in dataclasses.fields(SwarmConfig):
-        sub = getattr(base, f.name)
-        if dataclasses.is_dataclass(sub):
-            out += [(f.name, g.name) for g in dataclasses.fields(sub)]
-        else:
-            out.append((f.name, None))
-    return out
+def _config_fields() -> list[tuple[str, ...]]:
+    """Every leaf field of the preset's config, as its path (``("phd", "lidar", "range_m")``)."""
+
+    def leaves(obj: object, path: tuple[str, ...]) -> list[tuple[str, ...]]:
+        if not dataclasses.is_dataclass(obj):
+            return [path]
+        return [
+            p
+            for f in dataclasses.fields(obj)
+            for p in leaves(getattr(obj, f.name), path + (f.name,))
+        ]
+
+    return leaves(make_config(PRESET), ())
+
+
+def _nested(path: tuple[str, ...], value: object) -> dict:
+    """``{path[0]: {path[1]: ... value}}``."""
+    out: object = value
+    for name in reversed(path):
+        out = {name: out}
+    return out  # type: ignore[return-value]
 
 
 CONFIG_FIELDS = _config_fields()
@@ -96,8 +107,8 @@ hostile_values = st.one_of(
 )
 
 
-def _names_the_field(message: str, group: str, name: str | None) -> bool:
-    return (name or group) in message
+def _names_the_field(message: str, path: tuple[str, ...]) -> bool:
+    return path[-1] in message
 
 
 def _run_briefly(overrides: dict) -> None:
@@ -118,15 +129,14 @@ def _run_briefly(overrides: dict) -> None:
 @FAST
 @given(field=st.sampled_from(CONFIG_FIELDS), value=hostile_values)
 def test_any_config_field_refuses_hostile_values_naming_it_or_runs(field, value):
-    group, name = field
-    if group == "phd" and {name: value} in PHD_GAPS:
+    if field[0] == "phd" and _nested(field[1:], value) in PHD_GAPS:
         return  # known, open: test_phd_config_refuses_implausible_values_naming_the_field
-    overrides = {group: value} if name is None else {group: {name: value}}
+    overrides = _nested(field, value)
     try:
         make_config(PRESET, **overrides)
     except ValueError as exc:
         message = str(exc)
-        assert _names_the_field(message, group, name), (overrides, message)
+        assert _names_the_field(message, field), (overrides, message)
         # ...and the value (repr, str or the shortened repr of a huge int)
         shown = {repr(value), str(value), reprlib.repr(value), f"{value}"}
         assert any(s in message for s in shown) or isinstance(value, (list, tuple, dict)), (
@@ -142,7 +152,7 @@ def test_any_config_field_refuses_hostile_values_naming_it_or_runs(field, value)
     [
         # Found by the property test above (each was accepted, or failed without the field).
         ({"n_robots": 10**400}, "n_robots is too large"),  # was OverflowError
-        ({"phd": {"birth_weight": 10**400}}, "birth_weight is too large"),
+        ({"phd": {"births": {"weight": 10**400}}}, r"births\.weight is too large"),
         ({"lidar_features": {"foreground_only": None}}, "foreground_only must be True or False"),
         ({"localize": 1}, "localize must be True or False"),
         ({"arena": {"box_size_range_m": 0.5}}, "box_size_range_m must be a tuple"),  # TypeError
@@ -167,23 +177,26 @@ PHD_GAPS = [
     # PHDConfig once accepted these; the env then failed with an error that did not name the
     # field (OverflowError, ZeroDivisionError, numba's SystemError). Now refused by its
     # plausibility bounds and the max_components cost guard.
-    {"process_noise_std_m": 1e300},
-    {"birth_std_m": 1e300},
-    {"lidar_noise_std_m": 1e300},
-    {"camera_noise_std_deg": 1e300},
-    {"occlusion_std_deg": 1e300},
-    {"occlusion_std_deg": 1e-300},
-    {"interference_std_deg": 1e-300},
-    {"measurement_birth_cov_scale": 1e300},  # numba SystemError inside apply_calls
-    {"camera_noise_width_fraction": 1e300},  # numba SystemError
-    {"process_noise_interval_s": 1e-300},  # numba SystemError (Q / interval overflows)
-    {"max_components": 10**18},  # "array is too big" from numpy, no field named
+    {"prediction": {"process_noise_std_m": 1e300}},
+    {"births": {"std_m": 1e300}},
+    {"lidar": {"noise_std_m": 1e300}},
+    {"camera": {"noise_std_deg": 1e300}},
+    {"lidar": {"occlusion_std_deg": 1e300}},
+    {"lidar": {"occlusion_std_deg": 1e-300}},
+    {"lidar": {"interference_std_deg": 1e-300}},
+    {"births": {"measurement_cov_scale": 1e300}},  # numba SystemError inside apply_calls
+    {"camera": {"noise_width_fraction": 1e300}},  # numba SystemError
+    {
+        "prediction": {"process_noise_interval_s": 1e-300}
+    },  # numba SystemError (Q / interval overflows)
+    {"reduction": {"max_components": 10**18}},  # "array is too big" from numpy, no field named
 ]
 
 
 @pytest.mark.parametrize("phd", PHD_GAPS)
 def test_phd_config_refuses_implausible_values_naming_the_field(phd):
-    (name,) = phd
+    ((component, inner),) = phd.items()
+    name = f"{component}.{next(iter(inner))}"
     try:
         make_config(PRESET, phd=phd)
     except ValueError as exc:
@@ -520,14 +533,14 @@ def sweep_configs() -> None:
     outcomes: collections.Counter = collections.Counter()
     notes = []
     t0 = time.monotonic()
-    for group, name in CONFIG_FIELDS:
+    for field in CONFIG_FIELDS:
         for value in SWEEP_VALUES:
-            overrides = {group: value} if name is None else {group: {name: value}}
-            label = f"{group}.{name}" if name else group
+            overrides = _nested(field, value)
+            label = ".".join(field)
             try:
                 make_config(PRESET, **overrides)
             except ValueError as exc:
-                named = _names_the_field(str(exc), group, name)
+                named = _names_the_field(str(exc), field)
                 outcomes["refused, ValueError naming the field" if named else "refused, "
                          "ValueError naming a related field"] += 1  # fmt: skip
                 if not named:

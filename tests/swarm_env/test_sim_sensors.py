@@ -166,7 +166,7 @@ def test_simulator_filter_range_factors_follow_the_sensor_geometry():
     clean = (2.0 * np.arcsin(cfg.robot.housing_radius_m / r) - footprint) / lidar.beam_spacing_rad
     lidar_geometry = np.clip(clean - (cfg.lidar_features.min_beams - 1), 0.0, 1.0)
     lidar_filter = 1.0 / (
-        phd.lidar_pd_offset + np.exp(phd.lidar_pd_slope_per_m * (r - phd.lidar_pd_midpoint_m))
+        phd.lidar.pd_offset + np.exp(phd.lidar.pd_slope_per_m * (r - phd.lidar.pd_midpoint_m))
     )
     # A sigmoid cannot follow the ramp's corners exactly: max 0.1, RMS 0.03.
     assert np.abs(lidar_filter - lidar_geometry).max() < 0.1
@@ -176,8 +176,8 @@ def test_simulator_filter_range_factors_follow_the_sensor_geometry():
     assert abs(np.interp(0.5, lidar_filter[::-1], r[::-1]) - r50) < 0.03
     camera = CameraSensor(cfg.camera).detection_probability(r, cfg.robot.camera_holder_radius_m)
     camera_filter = 1.0 / (
-        phd.camera_pd_offset + np.exp(phd.camera_pd_slope_per_m * (r - phd.camera_pd_midpoint_m))
+        phd.camera.pd_offset + np.exp(phd.camera.pd_slope_per_m * (r - phd.camera.pd_midpoint_m))
     )
     assert np.abs(camera_filter - camera).max() < 0.1
     assert np.sqrt(np.mean((camera_filter - camera) ** 2)) < 0.03
-    assert phd.camera_pd_offset == pytest.approx(1.0 / (1.0 - cfg.camera.miss_probability), 0.01)
+    assert phd.camera.pd_offset == pytest.approx(1.0 / (1.0 - cfg.camera.miss_probability), 0.01)
