@@ -162,8 +162,10 @@ class BatchedSwarmVecEnv(VecEnv):
     def copy_infos(self, copy: int) -> dict[str, dict[str, Any]]:
         """The env's own ``infos`` for copy ``copy``'s current observation (what its last
         reset or step returned: sensor records and, in simulation, ground truth). The VecEnv
-        does not pass them to SB3; a teacher labelling the copy reads them here."""
-        return self._infos[copy]
+        does not pass them to SB3; a teacher labelling the copy reads them here. Plain dicts:
+        the env builds each agent's info on first read (:class:`swarm_env.env.LazyInfo`), and
+        the worker processes' copies arrive as plain dicts too."""
+        return {agent: dict(info.items()) for agent, info in self._infos[copy].items()}
 
     def scripted_commands(self, copy: int) -> dict[str, np.ndarray]:
         """The residual base's commands ``[v_mps, omega_radps]`` per agent for copy ``copy``'s

@@ -60,13 +60,17 @@ def test_env_steps_all_agents_with_unit_actions_and_one_kernel_thread(restore_ke
     assert agents == sorted(env.possible_agents) and len(agents) == 4
     space = env.action_space[agents[0]]
     assert space.low.tolist() == [-1, -1] and space.high.tolist() == [1, 1]
-    for _ in range(10):
+    for t in range(10):
         obs, rew, term, trunc, infos = env.step({a: np.ones(2, np.float32) for a in agents})
         assert set(rew) == set(agents) and "__all__" in term and "__all__" in trunc
+        # Raw sensor records dropped; at the episode's end, the task's headline metric.
+        last = {"task_metric"} if t == 9 else set()
         for a in agents:
             assert obs[a].shape == env.observation_space[a].shape
-            assert set(infos[a]) == {"TimeLimit.truncated"}  # raw sensor records dropped
+            assert set(infos[a]) == {"TimeLimit.truncated", *last}
     assert trunc["__all__"] and not term["__all__"]  # max_steps = 10: time limit, not an end
+    name, value = infos[agents[0]]["task_metric"]
+    assert name == next(iter(env.par_env.unwrapped.task.metrics())) and np.isfinite(value)
     # The unit action 1 reached the robots as the full command [v_max, omega_max].
     inner = env.par_env.unwrapped
     high = inner.action_space(agents[0]).high
