@@ -126,7 +126,9 @@ def extract(weights: np.ndarray, means: np.ndarray) -> np.ndarray:
     return np.repeat(means[keep], counts, axis=0)
 
 
-def our_config(pd_range_m: float = 1e6, birth: str = "fixed") -> PHDConfig:
+def our_config(pd_range_m: float = 1000.0, birth: str = "fixed") -> PHDConfig:
+    """The matched model; ``pd_range_m`` (m) cuts P_d to 0 beyond it (default: the largest
+    range the config accepts, far beyond every target: no cut)."""
     return PHDConfig.perera2021().replace(
         mode="lidar-only",
         prediction={
