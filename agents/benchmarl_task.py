@@ -40,6 +40,7 @@ from torchrl.data import Composite
 from torchrl.envs import EnvBase
 
 from agents.torchrl_env import make_torchrl_env
+from swarm_core.validation import check_number
 
 
 @dataclass
@@ -230,8 +231,7 @@ def make_experiment(
         ("minibatch_iters", minibatch_iters),
         ("n_envs", n_envs),
     ):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+        check_number(name, value, integer=True, low=1)
     config = ExperimentConfig.get_from_yaml()
     config.sampling_device = config.train_device = config.buffer_device = "cpu"
     config.max_n_frames = max_n_frames

@@ -794,6 +794,14 @@ class EncirclementPolicy(VectorFieldPolicy):
             pf.update({0: reading})
         return pf.estimate()[0] if pf.ids else None  # range-only: no fix yet
 
+    def _nearest_in_gate(self, pts: np.ndarray, q: np.ndarray) -> int | None:
+        """Row of ``pts`` (K, 2) m nearest to ``q`` (2,) m if nearer than ``gate_m``, else None."""
+        if not len(pts):
+            return None
+        gap = np.linalg.norm(pts - q, axis=1)
+        k = int(np.argmin(gap))
+        return k if gap[k] < self.gate_m else None
+
     def _estimate_q(self, agent: str, odometry, valid: bool, q_cue, pts) -> np.ndarray | None:
         q = self._track.get(agent)
         if valid:
@@ -805,13 +813,11 @@ class EncirclementPolicy(VectorFieldPolicy):
             q = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1]])
         if q is None:
             return None
-        if len(pts):
-            gap = np.linalg.norm(pts - q, axis=1)
-            k = int(np.argmin(gap))
-            if gap[k] < self.gate_m:
-                self._unseen_s[agent] = 0.0
-                self._track[agent] = pts[k].copy()
-                return pts[k].copy()
+        k = self._nearest_in_gate(pts, q)
+        if k is not None:
+            self._unseen_s[agent] = 0.0
+            self._track[agent] = pts[k].copy()
+            return pts[k].copy()
         self._unseen_s[agent] = self._unseen_s.get(agent, 0.0) + self.control_period_s
         if self._unseen_s[agent] > self.lost_after_s:
             self._track.pop(agent, None)
@@ -836,13 +842,11 @@ class EncirclementPolicy(VectorFieldPolicy):
             q = rho * np.array([cos_b, sin_b]) if has_reading else None
         if q is None:
             return None
-        if len(pts):
-            gap = np.linalg.norm(pts - q, axis=1)
-            k = int(np.argmin(gap))
-            if gap[k] < self.gate_m:
-                if self.intruder_source == "beacon":
-                    q = pts[k]
-                pts = np.delete(pts, k, axis=0)
+        k = self._nearest_in_gate(pts, q)
+        if k is not None:
+            if self.intruder_source == "beacon":
+                q = pts[k]
+            pts = np.delete(pts, k, axis=0)
         dq = float(np.linalg.norm(q))
         if dq < 1e-6:
             return np.zeros(2)

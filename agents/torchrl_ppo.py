@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from agents.torchrl_env import GROUP
+from swarm_core.validation import check_number
 
 
 @dataclass
@@ -125,8 +126,7 @@ def train_ppo(
         ("minibatch_size", minibatch_size),
         ("epochs", epochs),
     ):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+        check_number(name, value, integer=True, low=1)
     if total_frames < frames_per_batch:
         raise ValueError(
             f"total_frames ({total_frames}) must be at least frames_per_batch ({frames_per_batch})"

@@ -13,6 +13,7 @@ kill experiments put the robots or the env in a separate process.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime
 import logging
 import os
@@ -56,6 +57,19 @@ def _drive(env, steps: int, v: float = 0.2):
     return infos
 
 
+@contextlib.contextmanager
+def _seed_lab(**bridge):
+    """A seed-lab loopback server (seed 0) and a real env on it with the ``bridge`` overrides,
+    reset with seed 0; yields ``(server, env)`` and closes the env before the server."""
+    with LoopbackServer("seed-lab", seed=0) as server:
+        env = real_env(port=server.port, preset="seed-lab", max_steps=100_000, bridge=bridge)
+        try:
+            env.reset(seed=0)
+            yield server, env
+        finally:
+            env.close()
+
+
 def _first_zero(entries, after: float) -> dict[str, float]:
     out: dict[str, float] = {}
     for t, robot, v, w in entries:
@@ -83,17 +97,12 @@ def _stats(values: list[float]) -> str:
 def stall_latency(n: int) -> dict:
     """The in-process watchdog: the controller stops calling step()."""
     lat = []
-    with LoopbackServer("seed-lab", seed=0) as server:
-        env = real_env(port=server.port, preset="seed-lab", max_steps=100_000)
-        try:
-            env.reset(seed=0)
-            for _ in range(n):
-                _drive(env, 3)
-                t0 = time.monotonic()
-                _wait(lambda t0=t0: len(_first_zero(server.twists(), t0)) == 4, 2.0)
-                lat += list(_first_zero(server.twists(), t0).values())
-        finally:
-            env.close()
+    with _seed_lab() as (server, env):
+        for _ in range(n):
+            _drive(env, 3)
+            t0 = time.monotonic()
+            _wait(lambda t0=t0: len(_first_zero(server.twists(), t0)) == 4, 2.0)
+            lat += list(_first_zero(server.twists(), t0).values())
     return {"n": len(lat), "latency_s": lat}
 
 
@@ -209,26 +218,16 @@ def frozen_server(stamped: bool, pause_s: float = 2.0) -> dict:
 
 
 def transport_grace(grace_s: float) -> dict:
-    with LoopbackServer("seed-lab", seed=0) as server:
-        env = real_env(
-            port=server.port,
-            preset="seed-lab",
-            max_steps=100_000,
-            bridge={"transport_grace_s": grace_s},
-        )
+    with _seed_lab(transport_grace_s=grace_s) as (server, env):
+        _drive(env, 2)
+        t0 = time.monotonic()
+        server.stop()
+        raised = None
         try:
-            env.reset(seed=0)
-            _drive(env, 2)
-            t0 = time.monotonic()
-            server.stop()
-            raised = None
-            try:
-                for _ in range(int(grace_s * 10) + 50):
-                    _drive(env, 1)
-            except TransportLostError as exc:
-                raised = (time.monotonic() - t0, str(exc))
-        finally:
-            env.close()
+            for _ in range(int(grace_s * 10) + 50):
+                _drive(env, 1)
+        except TransportLostError as exc:
+            raised = (time.monotonic() - t0, str(exc))
     return {
         "grace_s": grace_s,
         "raised_after_s": raised[0] if raised else None,
@@ -240,41 +239,31 @@ def hostile_classes() -> list[dict]:
     """Each hostile frame class, sent once per robot; what the bridge counted."""
     limit = 256 * 1024
     rows = []
-    with LoopbackServer("seed-lab", seed=0) as server:
-        env = real_env(
-            port=server.port,
-            preset="seed-lab",
-            max_steps=100_000,
-            bridge={"max_message_bytes": limit},
-        )
-        try:
-            env.reset(seed=0)
-            _drive(env, 2, v=0.05)
-            for name in hostile_inputs("ugv_0", time.time_ns(), limit):
-                before = env.world.counters_snapshot()
-                for robot in env.possible_agents:
-                    server.send_raw(hostile_inputs(robot, time.time_ns(), limit)[name])
-                infos = _drive(env, 4, v=0.05)
-                after = env.world.counters_snapshot()
-                diff = {
-                    k: after.get(k, 0) - before.get(k, 0)
-                    for k in after
-                    if after.get(k, 0) != before.get(k, 0)
-                    and not k.endswith((".received", ".accepted", ".pre_command", "published"))
-                    and not k.startswith("safety.")
+    with _seed_lab(max_message_bytes=limit) as (server, env):
+        _drive(env, 2, v=0.05)
+        for name in hostile_inputs("ugv_0", time.time_ns(), limit):
+            before = env.world.counters_snapshot()
+            for robot in env.possible_agents:
+                server.send_raw(hostile_inputs(robot, time.time_ns(), limit)[name])
+            infos = _drive(env, 4, v=0.05)
+            after = env.world.counters_snapshot()
+            diff = {
+                k: after.get(k, 0) - before.get(k, 0)
+                for k in after
+                if after.get(k, 0) != before.get(k, 0)
+                and not k.endswith((".received", ".accepted", ".pre_command", "published"))
+                and not k.startswith("safety.")
+            }
+            rows.append(
+                {
+                    "class": name,
+                    "sent": len(env.possible_agents),
+                    "counted": diff,
+                    "link_up": env.world.client.connected
+                    and not env.world.counters.get("transport.lost"),
+                    "stale_after": sorted({s for i in infos.values() for s in i["stale"]}),
                 }
-                rows.append(
-                    {
-                        "class": name,
-                        "sent": len(env.possible_agents),
-                        "counted": diff,
-                        "link_up": env.world.client.connected
-                        and not env.world.counters.get("transport.lost"),
-                        "stale_after": sorted({s for i in infos.values() for s in i["stale"]}),
-                    }
-                )
-        finally:
-            env.close()
+            )
     return rows
 
 

@@ -216,11 +216,9 @@ class ReceivedEstimates:
         return [LocalizerView(self, r) for r in range(self.n_robots)]
 
     def _robot(self, robot: int) -> int:
-        if isinstance(robot, bool) or not isinstance(robot, (int, np.integer)):
-            raise ValueError(f"robot must be an int index, got {robot!r}")
-        if not 0 <= robot < self.n_robots:
-            raise ValueError(f"robot must be in [0, {self.n_robots}), got {robot}")
-        return int(robot)
+        from localization.protocol import robot_index
+
+        return robot_index(robot, self.n_robots)
 
     def reset(self, robots=None) -> None:
         for r in range(self.n_robots) if robots is None else [self._robot(r) for r in robots]:

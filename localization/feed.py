@@ -277,15 +277,7 @@ def _motion_since_sample(odo: OdometryRecord, tau_s: float) -> np.ndarray:
     """
     dx, dy, dpsi = odo.delta.tolist()
     v, omega = odo.velocity.tolist()
-    # Never remove more than the whole interval's motion when tau exceeds it (irregular rates).
-    psi_r = omega * tau_s
-    if abs(psi_r) > abs(dpsi):
-        psi_r = dpsi
-    chord = v * tau_s
-    psi = dpsi - psi_r
-    tx, ty = chord * math.cos(0.5 * psi_r), chord * math.sin(0.5 * psi_r)
-    c, s = math.cos(psi), math.sin(psi)
-    return np.array([dx - (c * tx - s * ty), dy - (s * tx + c * ty), psi])
+    return np.array(_motion_pose(dx, dy, dpsi, v, omega, float(tau_s)))
 
 
 @dataclass(frozen=True, eq=False)
@@ -592,9 +584,9 @@ def _encode_empty() -> tuple:
 
 @njit(cache=True)
 def _motion_pose(dx, dy, dpsi, v, omega, tau):
-    """:func:`_motion_since_sample` compiled: the same operations in the same order with
-    libm's ``cos`` / ``sin`` (what ``math`` calls), so every value is the scalar function's
-    bit for bit (``tests/localization/test_packed_calls.py``)."""
+    """:func:`_motion_since_sample`'s pose ``(x, y, psi)`` from the scalars of one sample (m,
+    m, rad, m/s, rad/s, s): the one implementation of the scalar and the packed paths."""
+    # Never remove more than the whole interval's motion when tau exceeds it (irregular rates).
     psi_r = omega * tau
     if abs(psi_r) > abs(dpsi):
         psi_r = dpsi

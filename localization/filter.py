@@ -639,13 +639,7 @@ def checked_pose(value: Any) -> np.ndarray | None:
     """Optional sensor pose ``[x_m, y_m, psi_rad]``: finite, within the input bound."""
     if value is None:
         return None
-    pose = as_float_array(value, "sensor_pose")
-    if pose.shape != (3,):
-        raise ValueError(
-            f"sensor_pose must have shape (3,) [x_m, y_m, psi_rad], got shape {pose.shape}"
-        )
-    check_magnitude(pose, "sensor_pose")
-    return pose
+    return _checked_triple(value, "sensor_pose", "[x_m, y_m, psi_rad]")
 
 
 def _shifted(table: np.ndarray, offset: np.ndarray) -> np.ndarray:
@@ -668,13 +662,17 @@ def _checked_stamp(value: Any) -> float:
 
 
 def _checked_odometry(odometry: Any) -> np.ndarray:
-    odo = as_float_array(odometry, "odometry")
-    if odo.shape != (3,):
-        raise ValueError(
-            f"odometry must have shape (3,) [dx_m, dy_m, dpsi_rad], got shape {odo.shape}"
-        )
-    check_magnitude(odo, "odometry")
-    return odo
+    return _checked_triple(odometry, "odometry", "[dx_m, dy_m, dpsi_rad]")
+
+
+def _checked_triple(value: Any, name: str, layout: str) -> np.ndarray:
+    """``value`` as a finite float array of shape (3,) within the input bound; the
+    ``ValueError`` names ``name`` and the expected ``layout``."""
+    arr = as_float_array(value, name)
+    if arr.shape != (3,):
+        raise ValueError(f"{name} must have shape (3,) {layout}, got shape {arr.shape}")
+    check_magnitude(arr, name)
+    return arr
 
 
 def _checked_points(points: Any) -> np.ndarray:

@@ -466,6 +466,18 @@ def set_round_gaussian(out, col, w, x, y, var):
 
 
 @njit(cache=True)
+def _set_posterior_column(out, col, w, x, y, post_covs, i):
+    """Column ``col`` of ``out`` becomes the component ``(w, [x, y], P_i)``, ``P_i`` the
+    shared posterior covariance ``post_covs[:, i]`` (xx, xy, yy) of prior ``i``."""
+    out[0, col] = w
+    out[1, col] = x
+    out[2, col] = y
+    out[3, col] = post_covs[0, i]
+    out[4, col] = post_covs[1, i]
+    out[5, col] = post_covs[2, i]
+
+
+@njit(cache=True)
 def set_fixed_birth(out, col, fp):
     """Column ``col`` of ``out`` becomes the Perera 2021 study's fixed birth component
     (``birth == "fixed"``), which joins the prior of every lidar update."""
@@ -566,12 +578,9 @@ def _posterior(
         for h in range(m):
             w = weights[n + i * m + h]
             if w >= prune:
-                out[0, col] = w
-                out[1, col] = post_means[0, i, h]
-                out[2, col] = post_means[1, i, h]
-                out[3, col] = post_covs[0, i]
-                out[4, col] = post_covs[1, i]
-                out[5, col] = post_covs[2, i]
+                _set_posterior_column(
+                    out, col, w, post_means[0, i, h], post_means[1, i, h], post_covs, i
+                )
                 col += 1
     return out, k, explained
 
@@ -945,12 +954,7 @@ def _camera_posterior(
     for i in range(n):
         for p in range(first[i], first[i + 1]):
             if pair_w[p] >= prune:
-                out[0, col] = pair_w[p]
-                out[1, col] = pair_x[p]
-                out[2, col] = pair_y[p]
-                out[3, col] = post_covs[0, i]
-                out[4, col] = post_covs[1, i]
-                out[5, col] = post_covs[2, i]
+                _set_posterior_column(out, col, pair_w[p], pair_x[p], pair_y[p], post_covs, i)
                 col += 1
     return out, k, explained
 

@@ -39,6 +39,7 @@ __all__ = [
     "LocalizerView",
     "LocalizerBase",
     "LocalizerSlice",
+    "robot_index",
     "tables_from_mixtures",
 ]
 
@@ -106,6 +107,16 @@ class LocalizerView:
         return self.localizer.identities(self.robot)
 
 
+def robot_index(robot: int, n_robots: int) -> int:
+    """``robot`` as a Python int after checking it indexes one of ``n_robots`` robots
+    (``ValueError`` naming ``robot`` and its value otherwise; a bool is refused)."""
+    if isinstance(robot, bool) or not isinstance(robot, (int, np.integer)):
+        raise ValueError(f"robot must be an int index, got {robot!r}")
+    if not 0 <= robot < n_robots:
+        raise ValueError(f"robot must be in [0, {n_robots}), got {robot}")
+    return int(robot)
+
+
 class LocalizerBase:
     """Shared plumbing: robot-index checks, :attr:`views`, and anonymous identities."""
 
@@ -128,11 +139,7 @@ class LocalizerBase:
             )
 
     def _robot(self, robot: int) -> int:
-        if isinstance(robot, bool) or not isinstance(robot, (int, np.integer)):
-            raise ValueError(f"robot must be an int index, got {robot!r}")
-        if not 0 <= robot < self.n_robots:
-            raise ValueError(f"robot must be in [0, {self.n_robots}), got {robot}")
-        return int(robot)
+        return robot_index(robot, self.n_robots)
 
     def identities(self, robot: int) -> dict[int, np.ndarray]:
         self._robot(robot)

@@ -5,12 +5,7 @@ robot's filter in one numba-compiled call, with the interface of :class:`localiz
 Both take a :class:`PMBConfig` (whose ``phd`` field holds the sensor models shared with the
 GM-PHD) or a plain :class:`~localization.PHDConfig` (PMB defaults for the rest).
 
-References
-----------
-.. [1] J. L. Williams, "Marginal multi-Bernoulli filters: RFS derivation of MHT, JIPDA and
-   association-based MeMBer", IEEE TAES 51(3), 2015.
-.. [2] J. L. Williams and R. A. Lau, "Approximate evaluation of marginal association
-   probabilities with belief propagation", IEEE TAES 50(4), 2014.
+The filter's recursion and its references are in :mod:`localization.pmb.filter`.
 """
 
 from __future__ import annotations

@@ -606,13 +606,9 @@ def _visibility_kernel(
             blocked = False
             do = -dy * ox + dx * oy
             for s in range(n_seg):
-                # Observer and target strictly on opposite sides of the segment's line ...
-                if side_o[s] * (seg_px[s] * tx + seg_py[s] * ty - seg_pa[s]) >= 0.0:
-                    continue
-                # ... and the segment's end points strictly on opposite sides of the sight line.
-                side_a = -dy * seg_a[s, 0] + dx * seg_a[s, 1] - do
-                side_b = -dy * seg_b[s, 0] + dx * seg_b[s, 1] - do
-                if side_a * side_b < 0.0:
+                if _wall_blocks(
+                    s, s, tx, ty, dx, dy, do, side_o, seg_px, seg_py, seg_pa, seg_a, seg_b
+                ):
                     blocked = True
                     break
             # Static occluders, then the moving ones of the frame's own instant.
@@ -720,12 +716,10 @@ def _pairs_kernel(
             blocked = False
             do = -dy * ox + dx * oy
             for g in range(n_seg):
-                if side_o[g] * (seg_px[g] * tx + seg_py[g] * ty - seg_pa[g]) >= 0.0:
-                    continue
                 s = seg[g]
-                side_a = -dy * seg_a[s, 0] + dx * seg_a[s, 1] - do
-                side_b = -dy * seg_b[s, 0] + dx * seg_b[s, 1] - do
-                if side_a * side_b < 0.0:
+                if _wall_blocks(
+                    g, s, tx, ty, dx, dy, do, side_o, seg_px, seg_py, seg_pa, seg_a, seg_b
+                ):
                     blocked = True
                     break
             if not blocked:
@@ -779,6 +773,20 @@ def _gather_slots(grid, n_slots, when, origin, radius, out):
         if when < 0 or slot == when + 1:
             n = gather(grid, slot, origin[0], origin[1], radius, out, n)
     return n
+
+
+@njit(cache=True, inline="always")
+def _wall_blocks(g, s, tx, ty, dx, dy, do, side_o, seg_px, seg_py, seg_pa, seg_a, seg_b):
+    """Whether wall segment ``s`` (row ``g`` of the per-observer line tests ``side_o``,
+    ``seg_px``, ``seg_py``, ``seg_pa``) blocks the sight line ``o -> t`` to the target
+    ``t = (tx, ty)``, with ``d = t - o`` and ``do = d x o`` (m^2)."""
+    # Observer and target strictly on opposite sides of the segment's line ...
+    if side_o[g] * (seg_px[g] * tx + seg_py[g] * ty - seg_pa[g]) >= 0.0:
+        return False
+    # ... and the segment's end points strictly on opposite sides of the sight line.
+    side_a = -dy * seg_a[s, 0] + dx * seg_a[s, 1] - do
+    side_b = -dy * seg_b[s, 0] + dx * seg_b[s, 1] - do
+    return side_a * side_b < 0.0
 
 
 @njit(cache=True, inline="always")

@@ -602,6 +602,17 @@ class SimWorld:
         )
 
 
+@njit(cache=True, inline="always")
+def _in_range(x, y, d2, lo, hi, range_m):
+    """``hypot(x, y) <= range_m`` (m) given ``d2 = x^2 + y^2`` and ``lo < range_m^2 < hi``:
+    the libm ``hypot`` only where ``d2`` is within ``[lo, hi]`` (see :func:`_truth_kernel`)."""
+    if d2 < lo:
+        return True
+    if d2 > hi:
+        return False
+    return math.hypot(x, y) <= range_m
+
+
 @njit(cache=True, parallel=True)
 def _truth_kernel(xy, cos_yaw, sin_yaw, lidar_range_m, camera_range_m):
     """Relative positions (N, N, 2) and in-range masks (N, N) of robots at ``xy`` (N, 2) m with
@@ -630,20 +641,8 @@ def _truth_kernel(xy, cos_yaw, sin_yaw, lidar_range_m, camera_range_m):
             rel[i, j, 0] = x
             rel[i, j, 1] = y
             d2 = x * x + y * y
-            if d2 < lidar_lo:
-                in_lidar = True
-            elif d2 > lidar_hi:
-                in_lidar = False
-            else:
-                in_lidar = math.hypot(x, y) <= lidar_range_m
-            if d2 < cam_lo:
-                in_camera = True
-            elif d2 > cam_hi:
-                in_camera = False
-            else:
-                in_camera = math.hypot(x, y) <= camera_range_m
-            lidar[i, j] = in_lidar and i != j
-            camera[i, j] = in_camera and i != j
+            lidar[i, j] = _in_range(x, y, d2, lidar_lo, lidar_hi, lidar_range_m) and i != j
+            camera[i, j] = _in_range(x, y, d2, cam_lo, cam_hi, camera_range_m) and i != j
     return rel, lidar, camera
 
 

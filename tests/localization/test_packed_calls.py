@@ -119,6 +119,23 @@ def test_motion_poses_match_the_scalar_function_bit_for_bit():
     assert math.isfinite(got.sum())
 
 
+def test_motion_since_sample_leaves_the_tail_motion_to_the_sample():
+    """The pose composed with the removed last ``tau`` (turn ``psi_r``, chord ``v tau`` at
+    ``psi_r / 2``) is the whole interval's ``delta``; the turn never exceeds ``dpsi``."""
+    rng = np.random.default_rng(8)
+    for _ in range(500):
+        delta = rng.normal(0, 0.1, 3)
+        v, omega = rng.normal(0, 1.0, 2)
+        tau = float(rng.uniform(0, 0.2))
+        x, y, psi = _motion_since_sample(OdometryRecord(1.0, delta, np.array([v, omega])), tau)
+        psi_r = omega * tau if abs(omega * tau) <= abs(delta[2]) else delta[2]
+        chord = v * tau
+        tx, ty = chord * math.cos(psi_r / 2), chord * math.sin(psi_r / 2)
+        assert psi + psi_r == pytest.approx(delta[2], abs=1e-15)
+        assert x + math.cos(psi) * tx - math.sin(psi) * ty == pytest.approx(delta[0], abs=1e-12)
+        assert y + math.sin(psi) * tx + math.cos(psi) * ty == pytest.approx(delta[1], abs=1e-12)
+
+
 def test_banks_take_the_packed_path_and_end_in_the_same_state():
     """The bank stepped on a feed (its packed arrays) and the bank fed the tuples hold the
     same bits."""
