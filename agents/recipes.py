@@ -33,7 +33,6 @@ from __future__ import annotations
 import json
 import math
 import shutil
-import subprocess
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -43,6 +42,7 @@ from typing import Any
 from swarm_core import inputs
 from swarm_core.atomic_files import write_json_atomically
 from swarm_core.inputs import format_seeds
+from swarm_core.provenance import source_commit
 
 __all__ = ["RECIPES", "Recipe", "run_recipe", "recipe_names", "check_recipe"]
 
@@ -101,7 +101,7 @@ def _formation(
         raise _Stopped(code)
     left = None if max_wall_s is None else max(1.0, max_wall_s - (time.monotonic() - started))
     iterations = _scaled(40, scale)
-    n_copies = 16 if scale >= 1 else min(16, _scaled(16, scale * 4))
+    n_copies = _scaled(16, scale)
     finetune_config = FinetuneConfig(
         student=str(out / "dagger" / "student_best.pt"),
         task_params={"progress_weight": 10},
@@ -280,23 +280,6 @@ def check_recipe(name: Any, flag: str = "--recipe") -> Recipe:
     return RECIPES[name]
 
 
-def _commit() -> str | None:
-    """The source tree's git commit (with ``+dirty`` for uncommitted changes), or None."""
-    root = Path(__file__).resolve().parent.parent
-
-    def git(*args: str) -> str:
-        return subprocess.run(
-            ["git", "-C", str(root), *args], capture_output=True, text=True, timeout=10, check=True
-        ).stdout.strip()
-
-    try:
-        head = git("rev-parse", "--short", "HEAD")
-        dirty = git("status", "--porcelain", "--untracked-files=no")
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return head + ("+dirty" if dirty else "")
-
-
 def run_recipe(
     name: str,
     out: str | Path,
@@ -352,7 +335,7 @@ def run_recipe(
         "seed": seed,
         "stages": stages,
         "policy": str(final.relative_to(out)),
-        "commit": _commit(),
+        "commit": source_commit(),
         "held_out_seeds": format_seeds(seeds) if seeds else None,
         "held_out": (
             {spec: s["mean"] for spec, s in report["scores"].items()} if report else None

@@ -42,7 +42,6 @@ import datetime
 import json
 import math
 import platform
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -51,6 +50,7 @@ from typing import Any
 import numpy as np
 
 from swarm_core.inputs import parse_seeds
+from swarm_core.provenance import source_commit
 
 ROOT = Path(__file__).resolve().parent.parent
 LOCALIZERS = ("phd-lc", "phd-lo", "pmb-lc", "pmb-lo")
@@ -364,7 +364,7 @@ def result_file(
             f"anything: {decision}, not reported.",
         ],
         "command": command,
-        "commit": _commit(),
+        "commit": source_commit(mark_dirty=False) or "0000000",
         "date": datetime.date.today().isoformat(),
         "machine": _machine(),
         "source": "this command's output, the file itself (per-localizer figures under `rows`)",
@@ -372,16 +372,6 @@ def result_file(
         "rows": rows,
         **({"cost_alternated_ms_per_step": cost_ms} if cost_ms else {}),
     }
-
-
-def _commit() -> str:
-    try:
-        out = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True
-        )
-        return out.stdout.strip() or "0000000"
-    except OSError:
-        return "0000000"
 
 
 def _machine() -> str:
@@ -423,7 +413,8 @@ def main(argv: list[str] | None = None) -> int:
         raise ValueError(f"--duration must be > 0 s, got {args.duration!r}")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    commit = _commit()  # the code that runs: later commits during the run are not it
+    # the code that runs: later commits during the run are not it
+    commit = source_commit(mark_dirty=False) or "0000000"
     command = "python -m experiments.localization_conditions " + " ".join(
         argv if argv is not None else sys.argv[1:]
     )

@@ -9,6 +9,7 @@ import json
 import pytest
 
 from agents import pretrained
+from agents.evaluation import higher_is_better
 from agents.recipes import RECIPES, check_recipe, run_recipe
 from swarm_phd.cli import main
 
@@ -94,9 +95,8 @@ def test_every_task_ships_a_policy_with_its_card():
         assert goal["status"] in ("met", "tie", "missed") and goal["met"] == (
             goal["status"] == "met"
         )
-        better = (
-            goal["mean_difference"] >= 0 if name == "exploration" else goal["mean_difference"] <= 0
-        )
+        sign = 1 if higher_is_better(goal["metric"]) else -1
+        better = sign * goal["mean_difference"] >= 0
         assert goal["met"] == (better and not goal["verdict"].startswith("worse"))
         assert goal["n_seeds"] >= 20 and card["commit"]
         assert card["held_out_seeds"].startswith("100000")
