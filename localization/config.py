@@ -43,7 +43,13 @@ from typing import Any, ClassVar, TypeVar
 import numpy as np
 
 from swarm_core.perception.lidar_features import LidarFeatureConfig
-from swarm_core.validation import check_blind_sectors, check_number_fields
+from swarm_core.validation import (
+    check_blind_sectors,
+    check_non_negative,
+    check_number,
+    check_number_fields,
+    check_positive,
+)
 
 __all__ = [
     "PHDConfig",
@@ -128,31 +134,22 @@ class _Checks:
 
     def _positive(self, *names: str) -> None:
         for name in names:
-            if not getattr(self, name) > 0.0:
-                raise ValueError(f"{self._name(name)} must be > 0, got {getattr(self, name)!r}")
+            check_positive(self._name(name), getattr(self, name))
 
     def _non_negative(self, *names: str) -> None:
         for name in names:
-            if getattr(self, name) < 0.0:
-                raise ValueError(f"{self._name(name)} must be >= 0, got {getattr(self, name)!r}")
+            check_non_negative(self._name(name), getattr(self, name))
 
     def _within(self, name: str, low: float, high: float) -> None:
-        value = getattr(self, name)
-        if not low <= value <= high:
-            raise ValueError(f"{self._name(name)} must be in [{low}, {high}], got {value!r}")
+        check_number(self._name(name), getattr(self, name), low=low, high=high)
 
     def _sigmoid_offset(self, *names: str) -> None:
         # Sigmoid offsets >= 1 keep P_s and P_d inside [0, 1] without clipping.
         for name in names:
-            if getattr(self, name) < 1.0:
-                raise ValueError(f"{self._name(name)} must be >= 1, got {getattr(self, name)!r}")
+            check_number(self._name(name), getattr(self, name), low=1)
 
     def _int_within(self, name: str, low: int, high: int) -> None:
-        value = getattr(self, name)
-        if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-            raise ValueError(
-                f"{self._name(name)} must be an int in [{low}, {high}], got {value!r}"
-            )
+        check_number(self._name(name), getattr(self, name), integer=True, low=low, high=high)
 
 
 # ------------------------------------------------------------------------------ components

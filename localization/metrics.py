@@ -47,6 +47,8 @@ from typing import Any
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from swarm_core.validation import check_number, check_positive
+
 from .mixture import GaussianMixture
 
 __all__ = [
@@ -88,10 +90,8 @@ def _points(value: np.ndarray, name: str) -> np.ndarray:
 
 
 def _check_cp(c: float, p: float) -> None:
-    if not (c > 0 and math.isfinite(c)):
-        raise ValueError(f"c must be a positive finite number, got {c!r}")
-    if not (p >= 1 and math.isfinite(p)):
-        raise ValueError(f"p must be >= 1 and finite, got {p!r}")
+    check_positive("c", c)
+    check_number("p", p, low=1)
 
 
 def _distances(x: np.ndarray, y: np.ndarray) -> np.ndarray:

@@ -22,14 +22,15 @@ def check_number(
     low: float | None = None,
     high: float | None = None,
     above: bool = False,
+    below: bool = False,
     optional: bool = False,
     schedule: bool = False,
 ) -> None:
     """Refuse ``value`` unless it is a finite number (an int with ``integer``; never a bool) in
-    ``[low, high]`` (``(low, high]`` with ``above``); None passes with ``optional``, a callable
-    (an SB3 schedule) with ``schedule``. The ``ValueError`` names ``name`` (a field, or a
-    command-line flag) and the value. The one number check of the project: the others below
-    are its common cases."""
+    ``[low, high]`` (open at ``low`` with ``above``, at ``high`` with ``below``); None passes
+    with ``optional``, a callable (an SB3 schedule) with ``schedule``. The ``ValueError`` names
+    ``name`` (a field, or a command-line flag) and the value. The one number check of the
+    project: the others below are its common cases."""
     if (optional and value is None) or (schedule and callable(value)):
         return
     if integer:
@@ -39,13 +40,15 @@ def check_number(
         ok = is_real(value) and math.isfinite(value)
         kind = "a finite number"
     ok = ok and (low is None or value > low or (value == low and not above))
-    ok = ok and (high is None or value <= high)
+    ok = ok and (high is None or value < high or (value == high and not below))
     if ok:
         return
     if low is not None and high is not None:
-        bounds = f" in {'(' if above else '['}{low}, {high}]"
+        bounds = f" in {'(' if above else '['}{low}, {high}{')' if below else ']'}"
     elif low is not None:
         bounds = f" {'>' if above else '>='} {low}"
+    elif high is not None:
+        bounds = f" {'<' if below else '<='} {high}"
     else:
         bounds = ""
     raise ValueError(f"{name} must be {kind}{bounds}, got {value!r}")

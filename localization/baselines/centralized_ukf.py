@@ -34,9 +34,9 @@ from typing import Any
 import numpy as np
 
 from localization.gaussian import wrap_angle
+from swarm_core.validation import check_non_negative, check_positive
 
 from ..config import config_with_overrides
-from ._common import check_real
 from .ukf import _pose_mean, _psd, merwe_weights, sigma_points
 
 __all__ = ["CentralizedUKF", "CentralizedUKFConfig"]
@@ -67,9 +67,9 @@ class CentralizedUKFConfig:
                 if not isinstance(value, bool):
                     raise ValueError(f"landmark_uncertainty must be True or False, got {value!r}")
             elif f.name in ("beta", "kappa", "motion_std_m", "motion_std_rad"):
-                check_real(f.name, value, low=0.0, low_open=False)
+                check_non_negative(f.name, value)
             else:
-                check_real(f.name, value)
+                check_positive(f.name, value)
 
 
 class CentralizedUKF:

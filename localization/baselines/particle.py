@@ -53,11 +53,10 @@ from scipy.special import logsumexp
 
 from localization.gaussian import wrap_angle
 from localization.mixture import GaussianMixture
+from swarm_core.validation import check_non_negative, check_number, check_positive
 
 from ..config import config_with_overrides
 from ._common import (
-    check_int,
-    check_real,
     checked_odometry,
     checked_range_bearing,
     extract,
@@ -140,22 +139,18 @@ class ParticleConfig:
     max_stations: int = 20
 
     def __post_init__(self) -> None:
-        check_int("n_particles", self.n_particles, 10)
-        check_int("max_stations", self.max_stations, 3)
+        check_number("n_particles", self.n_particles, integer=True, low=10)
+        check_number("max_stations", self.max_stations, integer=True, low=3)
         if self.start not in STARTS:
             raise ValueError(f"start must be one of {STARTS}, got {self.start!r}")
-        check_real("min_station_spread_m", self.min_station_spread_m)
-        check_int("seed", self.seed, 0)
-        rf = self.resample_fraction
-        if isinstance(rf, bool) or not isinstance(rf, (int, float)) or not 0.0 < rf <= 1.0:
-            raise ValueError(f"resample_fraction must be in (0, 1], got {rf!r}")
-        vd = self.velocity_damping
-        if isinstance(vd, bool) or not isinstance(vd, (int, float)) or not 0.0 <= vd <= 1.0:
-            raise ValueError(f"velocity_damping must be in [0, 1], got {vd!r}")
+        check_positive("min_station_spread_m", self.min_station_spread_m)
+        check_number("seed", self.seed, integer=True, low=0)
+        check_number("resample_fraction", self.resample_fraction, low=0, above=True, high=1)
+        check_number("velocity_damping", self.velocity_damping, low=0, high=1)
         for name in ("reseed_range_m", "range_std_m", "bearing_std_rad", "period_s"):
-            check_real(name, getattr(self, name))
+            check_positive(name, getattr(self, name))
         for name in ("max_speed_mps", "diffusion_std_m", "velocity_diffusion_std_mps"):
-            check_real(name, getattr(self, name), low_open=False)
+            check_non_negative(name, getattr(self, name))
 
     @property
     def n_resampled(self) -> int:

@@ -34,11 +34,10 @@ import numpy as np
 
 from localization.gaussian import wrap_angle
 from localization.mixture import GaussianMixture
+from swarm_core.validation import check_non_negative, check_number
 
 from ..config import config_with_overrides
 from ._common import (
-    check_int,
-    check_real,
     checked_odometry,
     checked_range_bearing,
     compose_poses,
@@ -70,15 +69,13 @@ class UKFConfig:
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
             if f.name == "state_dim":
-                check_int(f.name, self.state_dim, 3)
+                check_number(f.name, self.state_dim, integer=True, low=3)
                 if self.state_dim != 3:
                     raise ValueError(f"state_dim must be 3, got {self.state_dim!r}")
             elif f.name in ("beta", "kappa"):
-                check_real(f.name, getattr(self, f.name), low=0.0, low_open=False)
+                check_non_negative(f.name, getattr(self, f.name))
             else:  # odometry noise may be 0; every other std and alpha must be > 0
-                check_real(
-                    f.name, getattr(self, f.name), low=0.0, low_open="odometry" not in f.name
-                )
+                check_number(f.name, getattr(self, f.name), low=0, above="odometry" not in f.name)
 
 
 def merwe_weights(n: int, alpha: float, beta: float, kappa: float):

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+
+from swarm_core.validation import check_non_negative, check_number, check_positive
 
 from ..config import PHDConfig
 
@@ -82,18 +83,18 @@ class IDPHDConfig:
             "static_process_std_m",
             "lidar_clutter_intensity_per_m2",
         ):
-            _check_real(name, getattr(self, name), low=0.0)
+            check_non_negative(name, getattr(self, name))
         for name in ("lidar_noise_std_m", "birth_std_m", "birth_heading_std_rad"):
-            _check_real(name, getattr(self, name), low=0.0, low_open=True)
+            check_positive(name, getattr(self, name))
         for name in (
             "survival_probability",
             "birth_weight",
             "birth_max_explained",
             "birth_min_detection_prob",
         ):
-            _check_real(name, getattr(self, name), low=0.0, high=1.0)
-        _check_real("prune_threshold", self.prune_threshold, low=0.0, low_open=True, high=1.0)
-        _check_real("merge_threshold", self.merge_threshold, low=0.0)
+            check_number(name, getattr(self, name), low=0, high=1)
+        check_number("prune_threshold", self.prune_threshold, low=0, above=True, high=1)
+        check_non_negative("merge_threshold", self.merge_threshold)
         value = self.recovered_weight
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
             raise ValueError(f"recovered_weight must be a number > 0 (or inf), got {value!r}")
@@ -107,23 +108,6 @@ class IDPHDConfig:
     @property
     def lidar_noise_var_m2(self) -> float:
         return self.lidar_noise_std_m**2
-
-
-def _check_real(
-    name: str,
-    value: Any,
-    low: float,
-    high: float | None = None,
-    low_open: bool = False,
-) -> None:
-    ok = not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
-    if ok:
-        ok = value > low if low_open else value >= low
-    if ok and high is not None:
-        ok = value <= high
-    if not ok:
-        bound = f"{'>' if low_open else '>='} {low}" + (f" and <= {high}" if high else "")
-        raise ValueError(f"{name} must be a finite number {bound}, got {value!r}")
 
 
 # ---------------------------------------------------------------------- pure functions

@@ -34,9 +34,8 @@ from scipy.special import logsumexp
 from swarm_core.geometry import wrap_angle
 from swarm_core.records import Broadcast, RobotMeasurements
 
-from .links import PoseTrack, TeammateLink, absorb_broadcasts, next_due
+from .links import ObserverLocalizer, TeammateLink, absorb_broadcasts, next_due
 from .particles import MotionNoise, odometry_noise, weighted_moments
-from .pmultireg import check_localizer_args
 from .se2 import compose, inverse_compose, rotation
 
 __all__ = ["FastSLAMConfig", "FastSLAMLocalizer"]
@@ -99,7 +98,7 @@ class FastSLAMConfig:
             )
 
 
-class FastSLAMLocalizer:
+class FastSLAMLocalizer(ObserverLocalizer):
     """FastSLAM-MC for one observer (same interface as :class:`PMultiRegLocalizer`).
 
     Parameters
@@ -111,19 +110,10 @@ class FastSLAMLocalizer:
     """
 
     name = "fastslam"
+    config_type = FastSLAMConfig
 
-    def __init__(
-        self,
-        observer: str,
-        teammates: tuple[str, ...],
-        config: FastSLAMConfig | None = None,
-        rng: np.random.Generator | None = None,
-    ) -> None:
-        check_localizer_args(observer, teammates, config, FastSLAMConfig, rng)
-        self.observer = observer
-        self.teammates = tuple(t for t in teammates if t != observer)
-        self.config = cfg = config or FastSLAMConfig()
-        self.rng = np.random.default_rng(0) if rng is None else rng
+    def _init_filters(self) -> None:
+        cfg = self.config
         p, r, f = cfg.n_particles, len(self.teammates), cfg.max_features
         self.mu_r = np.zeros((p, r, 3))
         self.cov_r = np.tile(np.eye(3), (p, r, 1, 1))
@@ -132,11 +122,7 @@ class FastSLAMLocalizer:
         self.cov_f = np.tile(np.eye(2), (p, f, 1, 1))
         self.active_f = np.zeros((p, f), dtype=bool)
         self.logw = np.full(p, -math.log(p))
-        self.links = {t: TeammateLink() for t in self.teammates}
         self._r_meas = cfg.detection_std_m**2 * np.eye(2)
-        self._next_update_s = -math.inf  # the first registration anchors the schedule
-        self.own_track = PoseTrack()
-        self._own_stamp = math.nan
 
     # ------------------------------------------------------------------ motion
     def _predict_own(self, delta: np.ndarray) -> None:

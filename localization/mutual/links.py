@@ -20,7 +20,14 @@ from swarm_core.records import Broadcast
 
 from .se2 import compose, inverse_compose, rotation
 
-__all__ = ["PoseTrack", "TeammateLink", "absorb_broadcasts", "next_due", "to_filter_instant"]
+__all__ = [
+    "ObserverLocalizer",
+    "PoseTrack",
+    "TeammateLink",
+    "absorb_broadcasts",
+    "next_due",
+    "to_filter_instant",
+]
 
 
 def next_due(due_s: float, time_s: float, period_s: float) -> float:
@@ -131,3 +138,65 @@ def to_filter_instant(
         g[:2, :2] = rotation(float(p_scan[2] - p_now[2]))
         covs = g @ covs @ g.T
     return out, covs
+
+
+class ObserverLocalizer:
+    """What every mutual localizer of one observer starts from: its checked arguments, its own
+    dead-reckoned track, one link per teammate and an unanchored registration schedule.
+
+    Subclasses set ``config_type`` (their config dataclass, which has ``update_period_s``) and
+    build their filters in ``_init_filters``, called last.
+
+    Parameters
+    ----------
+    observer : str
+        The observer's robot id.
+    teammates : sequence of str
+        Every robot id it may hear (the observer itself is dropped).
+    config : config_type or None
+        None: ``config_type()``.
+    rng : numpy Generator or None
+        The filters' own stream; None: ``default_rng(0)``.
+    """
+
+    config_type: type = type(None)
+
+    def __init__(
+        self,
+        observer: str,
+        teammates: tuple[str, ...],
+        config: object = None,
+        rng: np.random.Generator | None = None,
+    ) -> None:
+        check_localizer_args(observer, teammates, config, self.config_type, rng)
+        self.observer = observer
+        self.teammates = tuple(t for t in teammates if t != observer)
+        self.config = config if config is not None else self.config_type()
+        self.rng = np.random.default_rng(0) if rng is None else rng
+        self.links = {t: TeammateLink() for t in self.teammates}
+        self.own_track = PoseTrack()
+        self._own_stamp = math.nan
+        self._next_update_s = -math.inf  # the first registration anchors the schedule
+        self._init_filters()
+
+    def _init_filters(self) -> None:
+        """Build the family's filters from ``self.config``, ``self.teammates`` and ``self.rng``."""
+        raise NotImplementedError
+
+
+def check_localizer_args(
+    observer: object, teammates: object, config: object, config_type: type, rng: object
+) -> None:
+    """The mutual localizers' constructor arguments (``config`` and ``rng`` may be ``None``)."""
+    if not isinstance(observer, str):
+        raise ValueError(f"observer must be a robot id (str), got {observer!r}")
+    if (
+        isinstance(teammates, str)
+        or not hasattr(teammates, "__iter__")
+        or not all(isinstance(t, str) for t in teammates)
+    ):
+        raise ValueError(f"teammates must be a sequence of robot ids (str), got {teammates!r}")
+    if config is not None and not isinstance(config, config_type):
+        raise ValueError(f"config must be a {config_type.__name__}, got {config!r}")
+    if rng is not None and not isinstance(rng, np.random.Generator):
+        raise ValueError(f"rng must be a numpy Generator, got {rng!r}")

@@ -31,15 +31,8 @@ from swarm_core.geometry import wrap_angle
 from swarm_core.records import RobotMeasurements
 
 from .beareg import bearing_solutions
-from .links import PoseTrack, TeammateLink
 from .particles import MotionNoise, TeammateParticles
-from .pmultireg import (
-    _ScheduledRegistrar,
-    check_count,
-    check_fraction,
-    check_localizer_args,
-    check_positive_number,
-)
+from .pmultireg import _ScheduledRegistrar, check_registrar_config
 
 __all__ = ["PMultiBeaRegConfig", "PMultiBeaRegLocalizer"]
 
@@ -124,22 +117,10 @@ class PMultiBeaRegConfig:
         for name, value in FEATURE_MODELS[self.features].items():
             if getattr(self, name) is None:
                 object.__setattr__(self, name, value)
-        if isinstance(self.n_particles, bool) or not isinstance(self.n_particles, int):
-            raise ValueError(f"n_particles must be an integer >= 2, got {self.n_particles!r}")
-        if self.n_particles < 2:
-            raise ValueError(f"n_particles must be an integer >= 2, got {self.n_particles!r}")
-        for name in (
-            "update_period_s",
-            "max_skew_s",
-            "triangle_tol_deg",
-            "bearing_std_deg",
-            "orientation_std_deg",
-            "gate_mahalanobis2",
-            "log_fitness_drop",
-        ):
-            check_positive_number(name, getattr(self, name))
-        check_fraction("reseed_fraction", self.reseed_fraction)
-        check_count("lost_after", self.lost_after)
+        check_registrar_config(
+            self,
+            ("triangle_tol_deg", "bearing_std_deg", "orientation_std_deg", "log_fitness_drop"),
+        )
         r = self.range_m
         if not (
             isinstance(r, (tuple, list))
@@ -158,8 +139,6 @@ class PMultiBeaRegConfig:
                 f"bearing_std_deg={self.bearing_std_deg} over range_m={r!r} needs {n_scales} "
                 f"scales for eq. 18's search, more than {MAX_SCALES}: widen the bearing noise"
             )
-        if not isinstance(self.motion_noise, MotionNoise):
-            raise ValueError(f"motion_noise must be a MotionNoise, got {self.motion_noise!r}")
 
 
 #: Most scales eq. 18's search may test (a bearing std of ~0.36 deg over 0.2-4.7 m; the
@@ -179,31 +158,18 @@ class PMultiBeaRegLocalizer(_ScheduledRegistrar):
     """P-MultiBeaReg plus one particle filter per teammate, for one observer."""
 
     name = "p-multibeareg"
+    config_type = PMultiBeaRegConfig
 
-    def __init__(
-        self,
-        observer: str,
-        teammates: tuple[str, ...],
-        config: PMultiBeaRegConfig | None = None,
-        rng: np.random.Generator | None = None,
-    ) -> None:
-        check_localizer_args(observer, teammates, config, PMultiBeaRegConfig, rng)
-        self.observer = observer
-        self.teammates = tuple(t for t in teammates if t != observer)
-        self.config = cfg = config or PMultiBeaRegConfig()
-        self.rng = np.random.default_rng(0) if rng is None else rng
+    def _init_filters(self) -> None:
+        cfg = self.config
         self.filters = {
             t: TeammateParticles(
                 cfg.n_particles, cfg.motion_noise, np.full(3, 1e-3), cfg.reseed_fraction, self.rng
             )
             for t in self.teammates
         }
-        self.links = {t: TeammateLink() for t in self.teammates}
         self._rejections = {t: 0 for t in self.teammates}
-        self.own_track = PoseTrack()
         self._own = np.zeros(0)
-        self._own_stamp = math.nan
-        self._next_update_s = -math.inf  # the first registration anchors the schedule
         self._std = np.radians([cfg.bearing_std_deg, cfg.orientation_std_deg])
         self._scales = scale_grid(cfg.range_m, float(self._std[0]))
         self.last_hypotheses: dict[str, np.ndarray] = {}

@@ -18,8 +18,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from swarm_core.records import Broadcast, RobotMeasurements
+from swarm_core.validation import check_number, check_positive
 
-from .links import PoseTrack, TeammateLink, absorb_broadcasts, next_due, to_filter_instant
+from .links import ObserverLocalizer, absorb_broadcasts, next_due, to_filter_instant
 from .multireg import MultiRegConfig, MultiRegResult, multi_register
 from .particles import MotionNoise, TeammateParticles
 
@@ -68,72 +69,34 @@ class PMultiRegConfig:
     multireg: MultiRegConfig = field(default_factory=MultiRegConfig)
 
     def __post_init__(self) -> None:
-        if isinstance(self.n_particles, bool) or not isinstance(self.n_particles, int):
-            raise ValueError(f"n_particles must be an integer >= 2, got {self.n_particles!r}")
-        if self.n_particles < 2:
-            raise ValueError(f"n_particles must be an integer >= 2, got {self.n_particles!r}")
-        for name in ("update_period_s", "max_skew_s", "gate_mahalanobis2"):
-            check_positive_number(name, getattr(self, name))
-        check_fraction("reseed_fraction", self.reseed_fraction)
-        check_count("lost_after", self.lost_after)
+        check_registrar_config(self)
         floor = np.asarray(self.measurement_floor, dtype=np.float64)
         if floor.shape != (3,) or not (np.isfinite(floor).all() and (floor > 0).all()):
             raise ValueError(
                 f"measurement_floor must be 3 finite numbers > 0, got {self.measurement_floor!r}"
             )
-        if not isinstance(self.motion_noise, MotionNoise):
-            raise ValueError(f"motion_noise must be a MotionNoise, got {self.motion_noise!r}")
         if not isinstance(self.multireg, MultiRegConfig):
             raise ValueError(f"multireg must be a MultiRegConfig, got {self.multireg!r}")
 
 
-def _is_number(v: object) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
+def check_registrar_config(config: object, positive: tuple[str, ...] = ()) -> None:
+    """The fields P-MultiReg's and P-MultiBeaReg's configs share, and their other ``positive``
+    ones: ``ValueError`` naming the field and the value."""
+    check_number("n_particles", config.n_particles, integer=True, low=2)
+    for name in ("update_period_s", "max_skew_s", "gate_mahalanobis2", *positive):
+        check_positive(name, getattr(config, name))
+    # A share of the particles redrawn per update: all of them would leave the filter no memory.
+    check_number("reseed_fraction", config.reseed_fraction, low=0, high=1, below=True)
+    check_number("lost_after", config.lost_after, integer=True, low=1)
+    if not isinstance(config.motion_noise, MotionNoise):
+        raise ValueError(f"motion_noise must be a MotionNoise, got {config.motion_noise!r}")
 
 
-def check_positive_number(name: str, v: object) -> None:
-    """``ValueError`` naming ``name`` and ``v`` unless ``v`` is a finite number > 0."""
-    if not (_is_number(v) and math.isfinite(v) and v > 0):
-        raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
-
-
-def check_fraction(name: str, v: object) -> None:
-    """``ValueError`` naming ``name`` and ``v`` unless ``v`` is a number in ``[0, 1)`` (a share of
-    the particles redrawn per update: all of them would leave the filter no memory)."""
-    if not (_is_number(v) and 0.0 <= v < 1.0):
-        raise ValueError(f"{name} must be a number in [0, 1), got {v!r}")
-
-
-def check_count(name: str, v: object) -> None:
-    """``ValueError`` naming ``name`` and ``v`` unless ``v`` is an integer >= 1."""
-    if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
-        raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
-
-
-def check_localizer_args(
-    observer: object, teammates: object, config: object, config_type: type, rng: object
-) -> None:
-    """The mutual localizers' constructor arguments (``config`` and ``rng`` may be ``None``)."""
-    if not isinstance(observer, str):
-        raise ValueError(f"observer must be a robot id (str), got {observer!r}")
-    if (
-        isinstance(teammates, str)
-        or not hasattr(teammates, "__iter__")
-        or not all(isinstance(t, str) for t in teammates)
-    ):
-        raise ValueError(f"teammates must be a sequence of robot ids (str), got {teammates!r}")
-    if config is not None and not isinstance(config, config_type):
-        raise ValueError(f"config must be a {config_type.__name__}, got {config!r}")
-    if rng is not None and not isinstance(rng, np.random.Generator):
-        raise ValueError(f"rng must be a numpy Generator, got {rng!r}")
-
-
-class _ScheduledRegistrar:
+class _ScheduledRegistrar(ObserverLocalizer):
     """The step shared by P-MultiReg and P-MultiBeaReg: motion updates from the observer's and
     the teammates' odometry, keep the latest own scan, register every ``update_period_s``.
 
-    Subclasses set ``filters``, ``links``, ``own_track``, ``config`` (with ``update_period_s``),
-    ``_own``, ``_own_stamp``, ``_next_update_s`` and define ``_own_set`` and ``_register``."""
+    Subclasses set ``filters`` and ``_own`` and define ``_own_set`` and ``_register``."""
 
     def step(
         self, time_s: float, measurements: RobotMeasurements, broadcasts: list[Broadcast]
@@ -174,19 +137,9 @@ class PMultiRegLocalizer(_ScheduledRegistrar):
     """
 
     name = "p-multireg"
+    config_type = PMultiRegConfig
 
-    def __init__(
-        self,
-        observer: str,
-        teammates: tuple[str, ...],
-        config: PMultiRegConfig | None = None,
-        rng: np.random.Generator | None = None,
-    ) -> None:
-        check_localizer_args(observer, teammates, config, PMultiRegConfig, rng)
-        self.observer = observer
-        self.teammates = tuple(t for t in teammates if t != observer)
-        self.config = config or PMultiRegConfig()
-        self.rng = np.random.default_rng(0) if rng is None else rng
+    def _init_filters(self) -> None:
         cfg = self.config
         self.filters = {
             t: TeammateParticles(
@@ -198,12 +151,8 @@ class PMultiRegLocalizer(_ScheduledRegistrar):
             )
             for t in self.teammates
         }
-        self.links = {t: TeammateLink() for t in self.teammates}
         self._rejections = {t: 0 for t in self.teammates}
-        self.own_track = PoseTrack()
         self._own = np.zeros((0, 2))
-        self._own_stamp = math.nan
-        self._next_update_s = -math.inf  # the first registration anchors the schedule
         self.last_result: MultiRegResult | None = None
         self.last_hypotheses: dict[str, np.ndarray] = {}
         self.n_registrations = 0

@@ -45,18 +45,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from swarm_core.geometry import wrap_angle
+from swarm_core.validation import check_number
 
 __all__ = ["IRConfig", "IRReadings", "IRSensor"]
-
-
-def _check_real(name: str, value: object, low: float, high: float, low_open: bool) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ValueError(f"ir.{name} must be a finite number, got {value!r}")
-    if value < low or (low_open and value == low) or value > high:
-        raise ValueError(
-            f"ir.{name} must be in {'(' if low_open else '['}{low}, {high}], got {value!r}"
-        )
-    return float(value)
 
 
 @dataclass(frozen=True, slots=True)
@@ -75,14 +66,14 @@ class IRConfig:
     sweep_motion: bool = False
 
     def __post_init__(self) -> None:
-        _check_real("rate_hz", self.rate_hz, 0.0, 100.0, True)
-        _check_real("max_range_m", self.max_range_m, 0.0, 20.0, True)
-        _check_real("min_range_m", self.min_range_m, 0.0, self.max_range_m, False)
-        _check_real("range_std_m", self.range_std_m, 0.0, 5.0, False)
-        _check_real("outlier_probability", self.outlier_probability, 0.0, 1.0, False)
-        _check_real("bearing_std_deg", self.bearing_std_deg, 0.0, 180.0, False)
-        _check_real("dropout_probability", self.dropout_probability, 0.0, 1.0, False)
-        _check_real("range_scale_std", self.range_scale_std, 0.0, 0.5, False)
+        check_number("ir.rate_hz", self.rate_hz, low=0, above=True, high=100)
+        check_number("ir.max_range_m", self.max_range_m, low=0, above=True, high=20)
+        check_number("ir.min_range_m", self.min_range_m, low=0, high=self.max_range_m)
+        check_number("ir.range_std_m", self.range_std_m, low=0, high=5)
+        check_number("ir.outlier_probability", self.outlier_probability, low=0, high=1)
+        check_number("ir.bearing_std_deg", self.bearing_std_deg, low=0, high=180)
+        check_number("ir.dropout_probability", self.dropout_probability, low=0, high=1)
+        check_number("ir.range_scale_std", self.range_scale_std, low=0, high=0.5)
         if not isinstance(self.sweep_motion, bool):
             raise ValueError(f"ir.sweep_motion must be True or False, got {self.sweep_motion!r}")
         off = self.outlier_offset_m

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from swarm_core.validation import is_real
+from swarm_core.validation import check_number
 
 if TYPE_CHECKING:
     from swarm_env.world.arena import Layout
@@ -18,14 +18,7 @@ def check_param(
 ) -> float:
     """``value`` as a float in ``[low, high]`` (``(low, high]`` with ``low_open``), else a
     ``ValueError`` naming the task and the parameter."""
-    if not is_real(value) or not math.isfinite(value):
-        raise ValueError(f"task {task!r}: {name} must be a finite number, got {value!r}")
-    too_low = value <= low if low_open else value < low
-    if too_low or value > high:
-        bracket = "(" if low_open else "["
-        raise ValueError(
-            f"task {task!r}: {name} must be in {bracket}{low}, {high}], got {value!r}"
-        )
+    check_number(f"task {task!r}: {name}", value, low=low, high=high, above=low_open)
     return float(value)
 
 
