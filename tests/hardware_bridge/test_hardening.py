@@ -6,8 +6,6 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -18,7 +16,12 @@ import pytest
 from hardware_bridge import real_env
 from hardware_bridge.assembly import RecordAssembler, integrate_odometry, odometry_increment
 from hardware_bridge.bag import ReplayWorld
-from hardware_bridge.loopback import FaultConfig, hostile_inputs, read_twist_log
+from hardware_bridge.loopback import (
+    FaultConfig,
+    hostile_inputs,
+    read_twist_log,
+    spawn_driving_env,
+)
 from hardware_bridge.messages import (
     InvalidMessage,
     Odom,
@@ -174,24 +177,8 @@ def test_the_guard_process_stops_the_robots_while_the_env_holds_the_gil(guarded_
 @pytest.mark.timeout(300)  # the env process may compile the numba kernels first
 def test_the_guard_stops_the_robots_when_the_env_process_is_killed(loopback, tmp_path):
     server = loopback()
-    script = (
-        "import numpy as np, sys, time\n"
-        "from hardware_bridge import real_env\n"
-        f"env = real_env(port={server.port}, preset='seed-lab')\n"
-        "env.reset(seed=0)\n"
-        "print('driving', flush=True)\n"
-        "while True:\n"
-        "    env.step({a: np.array([0.2, 0.0]) for a in env.agents})\n"
-    )
-    proc = subprocess.Popen(
-        [sys.executable, "-c", script],
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-    )
+    proc = spawn_driving_env(server.port, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
     try:
-        assert proc.stdout.readline().strip() == b"driving"  # blocks until it drives
         assert wait_until(lambda: any(v > 0 for _, _, v, _ in server.twists()), 5.0)
         time.sleep(0.5)
         t_kill = time.monotonic()
