@@ -42,6 +42,28 @@ def policy(source: str) -> EncirclementPolicy:
     )
 
 
+def scripted_encirclement(task_params: dict, max_steps: int):
+    """A ``lab-3m-4`` encirclement env with ``task_params`` and ``max_steps``, and the scripted
+    controller loaded for it: ``(env, act)``."""
+    from agents.policies import load_policy
+    from swarm_env import parallel_env
+
+    env = parallel_env(
+        "lab-3m-4", task="encirclement", task_params=task_params, max_steps=max_steps
+    )
+    return env, load_policy("scripted:encirclement", env)
+
+
+def run_scripted(env, act, seed: int, steps: int) -> tuple[dict, dict]:
+    """Reset ``env`` with ``seed`` and step it ``steps`` times with ``act``: the observations
+    at reset (copied before the first step) and after the last step."""
+    o, infos = env.reset(seed=seed)
+    first = {a: x.copy() for a, x in o.items()}
+    for _ in range(steps):
+        o, _, _, _, infos = env.step(act(o, infos))
+    return first, o
+
+
 def velocity(p: EncirclementPolicy, o: np.ndarray):
     from agents.scripted import split_observation
 
@@ -164,20 +186,12 @@ def test_estimate_follows_own_odometry_and_drops_a_lost_track():
 
 
 def test_policy_reads_the_source_of_the_env_task():
-    from agents.policies import load_policy
-    from swarm_env import parallel_env
-
-    env = parallel_env(
-        "lab-3m-4", task="encirclement", task_params={"intruder_source": "estimate"}, max_steps=20
-    )
-    act = load_policy("scripted:encirclement", env)
+    env, act = scripted_encirclement({"intruder_source": "estimate"}, max_steps=20)
     assert act.intruder_source == "estimate"
     assert act.control_period_s == env.config.control_period_s
-    o, infos = env.reset(seed=0)
-    assert all(o[a][-4] == 1.0 for a in env.agents)  # the cue's valid flag at reset
-    for _ in range(3):
-        o, _, _, _, infos = env.step(act(o, infos))
-    assert all(o[a][-4] == 0.0 for a in env.agents)
+    first, last = run_scripted(env, act, seed=0, steps=3)
+    assert all(first[a][-4] == 1.0 for a in env.agents)  # the cue's valid flag at reset
+    assert all(last[a][-4] == 0.0 for a in env.agents)
     env.close()
 
 
@@ -248,20 +262,11 @@ def test_filter_features_track_the_intruder_between_sparse_readings():
 
 
 def test_scripted_policy_reads_the_task_filter():
-    from agents.policies import load_policy
-    from swarm_env import parallel_env
-
-    env = parallel_env(
-        "lab-3m-4",
-        task="encirclement",
-        task_params={"intruder_source": "particle", "intruder_features": "filter"},
-        max_steps=30,
+    env, act = scripted_encirclement(
+        {"intruder_source": "particle", "intruder_features": "filter"}, max_steps=30
     )
-    act = load_policy("scripted:encirclement", env)
     assert act.task_filter and act.intruder_source == "particle"
-    o, infos = env.reset(seed=3)
-    for _ in range(30):
-        o, _, _, _, infos = env.step(act(o, infos))
+    _, o = run_scripted(env, act, seed=3, steps=30)
     # After 3 s every robot has had a reading: the features hold the filter's estimate.
     assert all(o[a][-4] == 1.0 for a in env.possible_agents)
     assert act.intruder_estimate(env.possible_agents[0]) is None  # the task keeps it
@@ -363,20 +368,14 @@ def test_range_only_track_converges_with_the_trilateration_start():
 
 
 def test_scripted_policy_takes_the_range_only_reading_and_the_start():
-    from agents.policies import load_policy
-    from swarm_env import parallel_env
-
-    env = parallel_env(
-        "lab-3m-4",
-        task="encirclement",
-        task_params={
+    env, act = scripted_encirclement(
+        {
             "intruder_source": "particle",
             "intruder_sensing": "range",
             "particle_start": "trilateration",
         },
         max_steps=10,
     )
-    act = load_policy("scripted:encirclement", env)
     assert act.particle_start == "trilateration"
     p = policy("particle")
     p.particle_start = "trilateration"
