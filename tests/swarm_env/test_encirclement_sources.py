@@ -72,13 +72,29 @@ def velocity(p: EncirclementPolicy, o: np.ndarray):
 
 
 # --------------------------------------------------------------------------- the task
-def test_bad_source_is_rejected():
-    with pytest.raises(ValueError, match="intruder_source"):
-        EncirclementTask(intruder_source="gps")
-    with pytest.raises(ValueError, match="beacon=True"):
-        EncirclementTask(intruder_source="particle", beacon=False)
-    with pytest.raises(ValueError, match="reading_dropout"):
-        EncirclementTask(intruder_source="particle", reading_dropout=1.5)
+@pytest.mark.parametrize(
+    ("params", "named"),
+    [
+        ({"intruder_source": "gps"}, "intruder_source"),
+        ({"intruder_source": "particle", "beacon": False}, "beacon=True"),
+        ({"intruder_source": "particle", "reading_dropout": 1.5}, "reading_dropout"),
+        ({"intruder_features": "filter"}, "intruder_features"),  # beacon source
+        ({"intruder_source": "particle", "intruder_features": "kalman"}, "intruder_features"),
+        (
+            {"intruder_source": "particle", "intruder_features": "filter", "n_particles": 3},
+            "n_particles",
+        ),
+        ({"intruder_sensing": "range"}, "intruder_sensing"),  # beacon source
+        ({"intruder_source": "particle", "intruder_sensing": "sonar"}, "intruder_sensing"),
+        ({"intruder_source": "particle", "particle_start": "gps"}, "particle_start"),
+    ],
+)
+def test_bad_task_parameters_are_refused_by_name(params, named):
+    with pytest.raises(ValueError, match=named):
+        EncirclementTask(**params)
+
+
+def test_bad_policy_source_is_rejected():
     with pytest.raises(ValueError, match="intruder_source"):
         EncirclementPolicy(intruder_source="gps")
 
@@ -196,15 +212,6 @@ def test_policy_reads_the_source_of_the_env_task():
 
 
 # ------------------------------------------------------------- the task's filter (learned input)
-def test_filter_features_need_the_particle_source():
-    with pytest.raises(ValueError, match="intruder_features"):
-        EncirclementTask(intruder_features="filter")  # beacon source
-    with pytest.raises(ValueError, match="intruder_features"):
-        EncirclementTask(intruder_source="particle", intruder_features="kalman")
-    with pytest.raises(ValueError, match="n_particles"):
-        EncirclementTask(intruder_source="particle", intruder_features="filter", n_particles=3)
-
-
 def test_command_arc_hand_computed():
     from swarm_env.tasks.encirclement import command_arc
 
@@ -273,13 +280,7 @@ def test_scripted_policy_reads_the_task_filter():
     env.close()
 
 
-def test_range_sensing_needs_the_particle_source_and_drops_the_bearing():
-    with pytest.raises(ValueError, match="intruder_sensing"):
-        EncirclementTask(intruder_sensing="range")  # beacon source
-    with pytest.raises(ValueError, match="intruder_sensing"):
-        EncirclementTask(intruder_source="particle", intruder_sensing="sonar")
-    with pytest.raises(ValueError, match="particle_start"):
-        EncirclementTask(intruder_source="particle", particle_start="gps")
+def test_range_sensing_drops_the_bearing():
     rates = {}
     for sensing in ("range-bearing", "range"):
         task = EncirclementTask(
