@@ -223,47 +223,55 @@ def test_command_arc_hand_computed():
     )
 
 
-def test_filter_features_track_the_intruder_between_sparse_readings():
-    """Two robots drive arcs by their commands (their true poses follow the commanded arcs);
-    readings come at 2 Hz with 20 % lost. The ``filter`` features give the intruder every
-    step, within 10 cm of the truth in each robot's frame, where ``reading`` has it on ~2 steps
-    in 10."""
+def _arcs_around_the_intruder(task: EncirclementTask, seed: int, steps: int):
+    """Two robots drive arcs by their commands (their true poses follow the commanded arcs)
+    around a static intruder at (0.3, -0.2) m; ``task`` (two robots) is reset with ``seed``
+    and stepped ``steps`` control periods of 0.1 s. Returns the task's features per step
+    ``(steps, 2, 5)`` and the distance (m) per step and robot ``(steps, 2)`` between the
+    intruder the features give (``rho [cos b, sin b]``) and the truth in the robot's frame
+    (meaningful where the valid flag ``[..., 1]`` is set)."""
     from swarm_core.geometry import integrate_body_delta
     from swarm_env.tasks.encirclement import command_arc, intruder_in_agent_frames
 
     q = np.array([0.3, -0.2])
     commands = np.array([[0.15, 0.3], [0.1, -0.2]])
+    poses = np.array([[-1.0, 0.0, 0.0], [1.0, 0.5, math.pi]])
+
+    def state():
+        return GroundTruth(
+            poses=poses.copy(), relative_xy=np.zeros((2, 2, 2)), extra_xy=q[None, :].copy()
+        )
+
+    task.reset(state(), np.random.default_rng(seed), ARENA)
+    feats, errors = [], []
+    for _ in range(steps):
+        task.extra_commands(state(), 0.1)
+        for i in range(2):
+            poses[i] = integrate_body_delta(poses[i], command_arc(commands[i], 0.1))
+        task.rewards(state(), commands)
+        f = task.features(2)
+        est = f[:, 4:5] * f[:, 2:4]
+        feats.append(f)
+        errors.append(np.hypot(*(est - intruder_in_agent_frames(poses, q)).T))
+    return np.array(feats), np.array(errors)
+
+
+def test_filter_features_track_the_intruder_between_sparse_readings():
+    """Two robots drive arcs by their commands (their true poses follow the commanded arcs);
+    readings come at 2 Hz with 20 % lost. The ``filter`` features give the intruder every
+    step, within 10 cm of the truth in each robot's frame, where ``reading`` has it on ~2 steps
+    in 10."""
     tasks = {
         mode: EncirclementTask(path="static", intruder_source="particle", intruder_features=mode)
         for mode in ("reading", "filter")
     }
-    valid = {mode: 0 for mode in tasks}
-    errors = []
-    for mode, task in tasks.items():
-        poses = np.array([[-1.0, 0.0, 0.0], [1.0, 0.5, math.pi]])
-
-        def state(poses=poses):
-            return GroundTruth(
-                poses=poses.copy(),
-                relative_xy=np.zeros((2, 2, 2)),
-                extra_xy=q[None, :].copy(),
-            )
-
-        task.reset(state(), np.random.default_rng(5), ARENA)
-        for k in range(80):
-            task.extra_commands(state(), 0.1)
-            for i in range(2):
-                poses[i] = integrate_body_delta(poses[i], command_arc(commands[i], 0.1))
-            task.rewards(state(), commands)
-            f = task.features(2)
-            if k >= 20:
-                valid[mode] += int(f[:, 1].sum())
-                if mode == "filter":
-                    est = f[:, 4:5] * f[:, 2:4]  # rho [cos b, sin b]
-                    errors.append(np.hypot(*(est - intruder_in_agent_frames(poses, q)).T))
+    runs = {
+        mode: _arcs_around_the_intruder(task, seed=5, steps=80) for mode, task in tasks.items()
+    }
+    valid = {mode: int(feats[20:, :, 1].sum()) for mode, (feats, _) in runs.items()}
     assert valid["filter"] == 2 * 60  # every step, both robots
     assert valid["reading"] < 0.3 * 2 * 60
-    assert np.max(errors) < 0.10
+    assert np.max(runs["filter"][1][20:]) < 0.10
     est = tasks["filter"].intruder_estimates()
     assert len(est) == 2 and all(e is not None for e in est)
 
@@ -311,11 +319,6 @@ def _range_only_filter_errors(start: str, seed: int) -> tuple[list, np.ndarray]:
     range-only readings (2 Hz, 20 % lost) for 40 s; the task's filter features against the
     ground truth: the first step each robot's filter reports, and the errors (steps, 2) m
     (NaN before)."""
-    from swarm_core.geometry import integrate_body_delta
-    from swarm_env.tasks.encirclement import command_arc, intruder_in_agent_frames
-
-    q = np.array([0.3, -0.2])
-    commands = np.array([[0.15, 0.3], [0.1, -0.2]])
     task = EncirclementTask(
         path="static",
         intruder_source="particle",
@@ -323,29 +326,10 @@ def _range_only_filter_errors(start: str, seed: int) -> tuple[list, np.ndarray]:
         intruder_sensing="range",
         particle_start=start,
     )
-    poses = np.array([[-1.0, 0.0, 0.0], [1.0, 0.5, math.pi]])
-
-    def state():
-        return GroundTruth(
-            poses=poses.copy(), relative_xy=np.zeros((2, 2, 2)), extra_xy=q[None, :].copy()
-        )
-
-    task.reset(state(), np.random.default_rng(seed), ARENA)
-    first: list = [None, None]
-    errors = []
-    for k in range(400):
-        task.extra_commands(state(), 0.1)
-        for i in range(2):
-            poses[i] = integrate_body_delta(poses[i], command_arc(commands[i], 0.1))
-        task.rewards(state(), commands)
-        f = task.features(2)
-        for i in range(2):
-            if first[i] is None and f[i, 1] == 1.0:
-                first[i] = k
-        est = f[:, 4:5] * f[:, 2:4]
-        err = np.hypot(*(est - intruder_in_agent_frames(poses, q)).T)
-        errors.append(np.where(f[:, 1] == 1.0, err, np.nan))
-    return first, np.array(errors)
+    feats, errors = _arcs_around_the_intruder(task, seed=seed, steps=400)
+    valid = feats[:, :, 1] == 1.0
+    first = [int(np.argmax(valid[:, i])) if valid[:, i].any() else None for i in range(2)]
+    return first, np.where(valid, errors, np.nan)
 
 
 def test_range_only_track_converges_with_the_trilateration_start():
