@@ -43,6 +43,7 @@ from hardware_bridge.loopback import (  # noqa: E402
     hostile_inputs,
     read_twist_log,
     spawn,
+    spawn_driving_env,
 )
 from hardware_bridge.world import TransportLostError  # noqa: E402
 from swarm_core.atomic_files import write_text_atomically  # noqa: E402
@@ -152,23 +153,7 @@ def killed_env(n: int) -> dict:
     lat = []
     with LoopbackServer("seed-lab", seed=0) as server:
         for _ in range(n):
-            script = (
-                "import numpy as np\n"
-                "from hardware_bridge import real_env\n"
-                f"env = real_env(port={server.port}, preset='seed-lab', max_steps=10**6)\n"
-                "env.reset(seed=0)\n"
-                "print('driving', flush=True)\n"
-                "while True:\n"
-                "    env.step({a: np.array([0.2, 0.0]) for a in env.agents})\n"
-            )
-            proc = subprocess.Popen(
-                [sys.executable, "-c", script],
-                cwd=ROOT,
-                stdout=subprocess.PIPE,
-                stderr=subprocess.DEVNULL,
-                env=ENV,
-            )
-            proc.stdout.readline()
+            proc = spawn_driving_env(server.port, cwd=ROOT, env=ENV)
             time.sleep(1.0)
             t0 = time.monotonic()
             proc.kill()

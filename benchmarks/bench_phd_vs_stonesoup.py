@@ -62,6 +62,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from localization import PHDBank, PHDConfig, RobotCentricPHD  # noqa: E402
 from localization.metrics import gospa  # noqa: E402
 from localization.pmb import PMBBank, PMBConfig, RobotCentricPMB  # noqa: E402
+from tests.localization.scenario import walk_start, walk_step  # noqa: E402
 
 RATE_HZ = 7.0
 ARENA_HALF_M = 3.0
@@ -91,17 +92,10 @@ def make_scenario(n_targets: int, n_scans: int, seed: int) -> Scenario:
     """Deterministic targets and measurements (one generator per scenario)."""
     rng = np.random.default_rng(seed)
     dt = 1.0 / RATE_HZ
-    pos = rng.uniform(-ARENA_HALF_M, ARENA_HALF_M, size=(n_targets, 2))
-    vel = rng.normal(0.0, 0.15, size=(n_targets, 2))
+    pos, vel = walk_start(rng, n_targets, ARENA_HALF_M)
     truth, scans = [], []
     for _ in range(n_scans):
-        vel += rng.normal(0.0, 0.1, size=vel.shape)
-        speed = np.hypot(vel[:, 0], vel[:, 1])[:, None]
-        vel *= np.minimum(1.0, 0.3 / np.maximum(speed, 1e-9))
-        pos += vel * dt
-        out = np.abs(pos) > ARENA_HALF_M
-        vel[out] *= -1.0
-        pos = np.clip(pos, -ARENA_HALF_M, ARENA_HALF_M)
+        walk_step(pos, vel, rng, dt, ARENA_HALF_M, accel_std_mps=0.1)
         inside = np.hypot(pos[:, 0], pos[:, 1]) <= SENSOR_RANGE_M
         detected = inside & (rng.random(n_targets) < PD)
         z = pos[detected] + rng.normal(0.0, NOISE_STD_M, size=(int(detected.sum()), 2))

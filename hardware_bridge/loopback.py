@@ -980,6 +980,42 @@ def spawn(
     return proc, int(line)
 
 
+def spawn_driving_env(
+    port: int,
+    v_mps: float = 0.2,
+    cwd: str | Path | None = None,
+    env: dict[str, str] | None = None,
+) -> subprocess.Popen:
+    """A ``real_env`` (preset ``seed-lab``, reset with seed 0) in a new process, commanding
+    every robot of the server on 127.0.0.1:``port`` ``[v_mps, 0]`` (m/s, rad/s) every step
+    until it is killed: returns the process once it has reset and starts driving. Killing it
+    (SIGKILL: no ``finally``, no watchdog thread) leaves only the bridge's guard process to
+    stop the robots. Its stdout is a pipe, its stderr discarded; ``cwd`` and ``env`` are the
+    child's (default: this process's)."""
+    script = (
+        "import numpy as np\n"
+        "from hardware_bridge import real_env\n"
+        f"env = real_env(port={int(port)}, preset='seed-lab', max_steps=10**6)\n"
+        "env.reset(seed=0)\n"
+        "print('driving', flush=True)\n"
+        "while True:\n"
+        f"    env.step({{a: np.array([{float(v_mps)!r}, 0.0]) for a in env.agents}})\n"
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", script],
+        cwd=cwd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        env=env,
+    )
+    line = proc.stdout.readline()  # blocks until it drives (it may compile the kernels first)
+    if line.strip() != b"driving":
+        proc.kill()
+        proc.wait(5)
+        raise RuntimeError(f"the driving env process did not start: {line!r}")
+    return proc
+
+
 def read_twist_log(path: str | Path) -> list[tuple[float, str, float, float, bool]]:
     """A ``--twist-log`` file (:func:`main`): ``(monotonic_s, robot, v_mps, omega_radps,
     applied)`` per command received, in order."""

@@ -22,8 +22,9 @@ from agents.sb3.recurrent_student import (  # noqa: E402
 from experiments.recurrent_ppo import main as run_main  # noqa: E402
 from swarm_env import parallel_env  # noqa: E402
 from tests.agents.test_recurrent_student import drive_one_step  # noqa: E402
+from tests.env_kwargs import formation_env  # noqa: E402
 
-ENV = {"preset": "lab-3m-4", "task": "formation", "observation": "phd", "max_steps": 6}
+ENV = formation_env(6, observation="phd")
 BASE = "scripted:formation-known-n-fast"
 
 

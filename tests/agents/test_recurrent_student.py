@@ -24,8 +24,9 @@ from agents.sb3.residual import ResidualBase, base_in_unit_scale, compose  # noq
 from agents.sb3.sequences import collect_sequences  # noqa: E402
 from experiments.recurrent_student import main  # noqa: E402
 from swarm_env import parallel_env  # noqa: E402
+from tests.env_kwargs import formation_env  # noqa: E402
 
-ENV = {"preset": "lab-3m-4", "task": "formation", "observation": "phd", "max_steps": 8}
+ENV = formation_env(8, observation="phd")
 BASE = "scripted:formation-known-n-fast"
 TEACHER = "privileged:formation-known-n-fast@truth"
 

@@ -13,14 +13,9 @@ from agents.policies import load_policy  # noqa: E402
 from agents.sb3.batched import BatchedSwarmVecEnv  # noqa: E402
 from agents.sb3.residual import check_residual, compose  # noqa: E402
 from swarm_env import parallel_env  # noqa: E402
+from tests.env_kwargs import formation_env  # noqa: E402
 
-KWARGS = {
-    "preset": "lab-3m-4",
-    "task": "formation",
-    "task_params": {"progress_weight": 10},
-    "max_steps": 15,
-    "lidar_sectors": 8,
-}
+KWARGS = formation_env(15, task_params={"progress_weight": 10}, lidar_sectors=8)
 
 
 def test_compose_adds_and_clips():

@@ -26,14 +26,9 @@ from agents.sb3.warm_start import (  # noqa: E402
 )
 from swarm_env import parallel_env  # noqa: E402
 from swarm_phd.cli import main  # noqa: E402
+from tests.env_kwargs import formation_env  # noqa: E402
 
-ENV = {
-    "preset": "lab-3m-4",
-    "task": "formation",
-    "task_params": {"progress_weight": 10},
-    "observation": "phd",
-    "max_steps": 60,
-}
+ENV = formation_env(60, observation="phd", task_params={"progress_weight": 10})
 
 
 def _model(obs_dim_env=ENV, share=False):

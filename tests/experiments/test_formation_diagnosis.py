@@ -17,6 +17,7 @@ from experiments.formation_diagnosis import (
 from localization.detection import DetectionModel
 from swarm_env.config import SIMULATOR_PHD
 from swarm_env.world.arena import Layout
+from tests.env_kwargs import formation_env
 
 
 def test_classify_components_by_hand():
@@ -264,15 +265,9 @@ def test_lost_teammates_on_the_post_seed_and_on_the_truth():
         diagnose("lab-3m-4", [200], from_step=0, max_steps=5, match_m=0.0)
 
 
-STUDENT_ENV = {
-    "preset": "lab-3m-4",
-    "task": "formation",
-    "task_params": {"progress_weight": 10.0},
-    "observation": "phd",
-    "max_steps": 300,
-    "lidar_sectors": 16,
-    "n_robots": 3,
-}
+STUDENT_ENV = formation_env(
+    300, observation="phd", task_params={"progress_weight": 10.0}, lidar_sectors=16, n_robots=3
+)
 
 
 def _student(tmp_path, bias, base="scripted:formation-known-n-fast", saved_env=None):

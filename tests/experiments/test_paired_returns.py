@@ -12,13 +12,9 @@ pytest.importorskip("stable_baselines3")
 
 from agents.sb3.batched import BatchedSwarmVecEnv  # noqa: E402
 from experiments import paired_returns as pr  # noqa: E402
+from tests.env_kwargs import formation_env  # noqa: E402
 
-KWARGS = {
-    "preset": "lab-3m-4",
-    "task": "formation",
-    "task_params": {"progress_weight": 10},
-    "max_steps": 12,
-}
+KWARGS = formation_env(12, task_params={"progress_weight": 10})
 BASE = "scripted:formation-known-n"
 
 

@@ -60,6 +60,23 @@ def drive(env, steps: int, v: float = 0.2) -> dict | None:
     return infos
 
 
+def crash_in_step(
+    env, monkeypatch: pytest.MonkeyPatch, target: Any, attr: str, v: float = 0.2
+) -> float:
+    """Make ``target.attr`` raise ``RuntimeError("<attr> crashed")`` (``monkeypatch`` undoes it)
+    and take one step commanding every agent ``[v, 0]`` (m/s, rad/s), which must raise it:
+    returns the monotonic time (s) just before that step."""
+
+    def crashed(*args: Any, **kwargs: Any) -> None:
+        raise RuntimeError(f"{attr} crashed")
+
+    monkeypatch.setattr(target, attr, crashed)
+    t0 = time.monotonic()
+    with pytest.raises(RuntimeError, match=f"{attr} crashed"):
+        drive(env, 1, v=v)
+    return t0
+
+
 def hold_the_gil(seconds: float) -> None:
     """Busy-loop for ``seconds`` without letting another thread of this process run (a step
     that hangs holding the GIL: only another process can act)."""
@@ -132,13 +149,16 @@ def guarded_lab(robot_process: tuple[int, Path]) -> Iterator[tuple[Any, Path]]:
 
 @pytest.fixture
 def lab(loopback) -> Iterator[Callable[..., tuple[LoopbackServer, Any]]]:
-    """Factory: ``lab(**env_kwargs)`` -> ``(server, env)``, a started loopback server and a
-    ``real_env`` on it (preset ``seed-lab``), reset with seed 0. Every env it made is closed
-    after the test (closing twice is a no-op, so a test may close it itself)."""
+    """Factory: ``lab(server_kwargs=None, **env_kwargs)`` -> ``(server, env)``, a loopback server
+    started by :func:`loopback` (with ``server_kwargs``) and a ``real_env`` on it (preset
+    ``seed-lab``), reset with seed 0. Every env it made is closed after the test (closing twice
+    is a no-op, so a test may close it itself, e.g. before reading the bag it recorded)."""
     envs: list[Any] = []
 
-    def make(**kwargs: Any) -> tuple[LoopbackServer, Any]:
-        server = loopback()
+    def make(
+        server_kwargs: dict[str, Any] | None = None, **kwargs: Any
+    ) -> tuple[LoopbackServer, Any]:
+        server = loopback(**(server_kwargs or {}))
         env = real_env(port=server.port, preset="seed-lab", **kwargs)
         envs.append(env)
         env.reset(seed=0)

@@ -15,11 +15,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hardware_bridge import real_env
 from hardware_bridge.bag import BagError, ReplayWorld, replay_env
 from hardware_bridge.faults import CORRUPTIONS, copy_bag
 from swarm_phd.cli import main
 from swarm_phd.export_bag import export_sim_episode
+from tests.hardware_bridge.conftest import crash_in_step
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -143,49 +143,29 @@ def test_export_bag_survives_two_signals(tmp_path, first, second, gap_s):
 
 
 @pytest.mark.timeout(60)
-def test_recording_survives_an_exception_in_step(loopback, tmp_path, monkeypatch):
-    server = loopback()
+def test_recording_survives_an_exception_in_step(lab, tmp_path, monkeypatch):
     bag = tmp_path / "exc"
-    env = real_env(port=server.port, preset="seed-lab", record=str(bag), max_steps=1000)
-    try:
-        env.reset(seed=0)
-        for _ in range(5):
-            env.step({a: np.array([0.1, 0.0]) for a in env.agents})
-
-        def boom(*args, **kwargs):
-            raise RuntimeError("filter crashed")
-
-        monkeypatch.setattr(env.world.limiter, "limit", boom)
-        with pytest.raises(RuntimeError, match="filter crashed"):
-            env.step({a: np.array([0.1, 0.0]) for a in env.agents})
-    finally:
-        env.close()
+    _, env = lab(record=str(bag), max_steps=1000)
+    for _ in range(5):
+        env.step({a: np.array([0.1, 0.0]) for a in env.agents})
+    crash_in_step(env, monkeypatch, env.world.limiter, "limit", v=0.1)
+    env.close()  # the bag is complete
     world = ReplayWorld(bag)
     assert world.n_steps() == 5 and not world.skipped()
 
 
 @pytest.mark.timeout(60)
-def test_replay_judges_odometry_with_the_recorded_jump_factor(loopback, tmp_path):
+def test_replay_judges_odometry_with_the_recorded_jump_factor(lab, tmp_path):
     """A bag remembers the bridge's ``odometry_jump_factor``: with a factor so tight that a
     spin at full turn rate looks like a jump, the replay refuses the same increments as the
     live run did (with the default 3.0 it would integrate them, and feed other odometry)."""
-    server = loopback()
     bag = tmp_path / "spin"
-    env = real_env(
-        port=server.port,
-        preset="seed-lab",
-        record=str(bag),
-        max_steps=1000,
-        bridge={"odometry_jump_factor": 0.1},
-    )
-    try:
-        env.reset(seed=0)
-        turn = env.config.robot.max_turn_rate_radps
-        for _ in range(15):
-            env.step({a: np.array([0.0, turn]) for a in env.agents})
-        live = env.world.counters_snapshot().get("odometry.implausible", 0)
-    finally:
-        env.close()
+    _, env = lab(record=str(bag), max_steps=1000, bridge={"odometry_jump_factor": 0.1})
+    turn = env.config.robot.max_turn_rate_radps
+    for _ in range(15):
+        env.step({a: np.array([0.0, turn]) for a in env.agents})
+    live = env.world.counters_snapshot().get("odometry.implausible", 0)
+    env.close()  # the bag is complete
     assert live > 0
     replay = replay_env(bag)
     try:

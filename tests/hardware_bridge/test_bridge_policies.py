@@ -17,17 +17,16 @@ torch = pytest.importorskip("torch")
 
 from agents.sb3.recurrent_student import new_student, save_student  # noqa: E402
 from swarm_env import parallel_env  # noqa: E402
+from tests.env_kwargs import formation_env  # noqa: E402
 
-STUDENT_ENV = {
-    "preset": "lab-3m-4",
-    "task": "formation",
-    "task_params": {"radius_m": 0.7},
-    "observation": "phd",
-    "max_steps": 300,
-    "lidar_sectors": 16,
-    "n_robots": 3,
-    "control_period_s": 0.1,  # a training override the robots do not take
-}
+STUDENT_ENV = formation_env(
+    300,
+    observation="phd",
+    task_params={"radius_m": 0.7},
+    lidar_sectors=16,
+    n_robots=3,
+    control_period_s=0.1,  # a training override the robots do not take
+)
 BASE = "scripted:formation-known-n-fast"
 
 

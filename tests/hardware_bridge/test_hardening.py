@@ -6,8 +6,6 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -18,7 +16,12 @@ import pytest
 from hardware_bridge import real_env
 from hardware_bridge.assembly import RecordAssembler, integrate_odometry, odometry_increment
 from hardware_bridge.bag import ReplayWorld
-from hardware_bridge.loopback import FaultConfig, hostile_inputs, read_twist_log
+from hardware_bridge.loopback import (
+    FaultConfig,
+    hostile_inputs,
+    read_twist_log,
+    spawn_driving_env,
+)
 from hardware_bridge.messages import (
     InvalidMessage,
     Odom,
@@ -30,6 +33,7 @@ from hardware_bridge.messages import (
 from hardware_bridge.world import RealWorld, TransportLostError
 from swarm_env.config import make_config
 from tests.hardware_bridge.conftest import (
+    crash_in_step,
     drive,
     hold_the_gil,
     wait_until,
@@ -64,14 +68,7 @@ def test_halt_stops_every_robot_at_once_is_idempotent_and_never_raises(lab):
 def test_an_exception_outside_the_world_stops_the_robots_at_once(lab, monkeypatch):
     server, env = lab()
     drive(env, 3)
-
-    def boom(*args, **kwargs):
-        raise RuntimeError("reward code crashed")
-
-    monkeypatch.setattr(env.task, "rewards", boom)
-    t0 = time.monotonic()
-    with pytest.raises(RuntimeError, match="reward code crashed"):
-        drive(env, 1)
+    t0 = crash_in_step(env, monkeypatch, env.task, "rewards")  # the reward code crashes
     # Well before the 0.5 s stall timer: the env called world.halt().
     assert wait_until(lambda: len(zero_times(server, t0)) == 4, 0.35)
     assert max(zero_times(server, t0).values()) - t0 < 0.35
@@ -174,24 +171,8 @@ def test_the_guard_process_stops_the_robots_while_the_env_holds_the_gil(guarded_
 @pytest.mark.timeout(300)  # the env process may compile the numba kernels first
 def test_the_guard_stops_the_robots_when_the_env_process_is_killed(loopback, tmp_path):
     server = loopback()
-    script = (
-        "import numpy as np, sys, time\n"
-        "from hardware_bridge import real_env\n"
-        f"env = real_env(port={server.port}, preset='seed-lab')\n"
-        "env.reset(seed=0)\n"
-        "print('driving', flush=True)\n"
-        "while True:\n"
-        "    env.step({a: np.array([0.2, 0.0]) for a in env.agents})\n"
-    )
-    proc = subprocess.Popen(
-        [sys.executable, "-c", script],
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-    )
+    proc = spawn_driving_env(server.port, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
     try:
-        assert proc.stdout.readline().strip() == b"driving"  # blocks until it drives
         assert wait_until(lambda: any(v > 0 for _, _, v, _ in server.twists()), 5.0)
         time.sleep(0.5)
         t_kill = time.monotonic()
@@ -397,25 +378,20 @@ def test_short_soak_of_hostile_inputs_and_faults(loopback):
 
 
 @pytest.mark.timeout(60)
-def test_recorded_stamped_and_unstamped_bearings_replay_identically(loopback, tmp_path):
-    server = loopback(unstamped_bearings=("ugv_2",))
+def test_recorded_stamped_and_unstamped_bearings_replay_identically(lab, tmp_path):
     bag = tmp_path / "mixed"
-    env = real_env(
-        port=server.port,
-        preset="seed-lab",
+    _, env = lab(
+        server_kwargs={"unstamped_bearings": ("ugv_2",)},
         record=str(bag),
         max_steps=10_000,
         bridge={"unstamped_bearings": ("ugv_2",)},
     )
-    try:
-        env.reset(seed=0)
-        fed = {a: 0 for a in env.possible_agents}
-        for _ in range(15):
-            infos = drive(env, 1, v=0.1)
-            for a, info in infos.items():
-                fed[a] += len(info["measurements"]["camera"])
-        assert all(n > 0 for n in fed.values()), fed
-    finally:
-        env.close()
+    fed = {a: 0 for a in env.possible_agents}
+    for _ in range(15):
+        infos = drive(env, 1, v=0.1)
+        for a, info in infos.items():
+            fed[a] += len(info["measurements"]["camera"])
+    assert all(n > 0 for n in fed.values()), fed
+    env.close()  # the bag is complete
     world = ReplayWorld(bag)
     assert world.n_steps() == 15 and not world.skipped()

@@ -10,11 +10,10 @@ import signal
 import threading
 import time
 
-import numpy as np
 import pytest
 
 from hardware_bridge import real_env
-from tests.hardware_bridge.conftest import drive, wait_until, zero_times
+from tests.hardware_bridge.conftest import crash_in_step, drive, wait_until, zero_times
 
 
 @pytest.mark.timeout(30)
@@ -46,14 +45,7 @@ def test_watchdog_sends_zero_twist_within_0_6_s_of_the_client_stalling(lab):
 def test_exception_in_step_and_close_stop_the_robots_at_once(lab, monkeypatch):
     server, env = lab()
     drive(env, 3)
-
-    def boom(*args, **kwargs):
-        raise RuntimeError("planner crashed")
-
-    monkeypatch.setattr(env.world.limiter, "limit", boom)
-    t0 = time.monotonic()
-    with pytest.raises(RuntimeError, match="planner crashed"):
-        env.step({a: np.array([0.2, 0.0]) for a in env.agents})
+    t0 = crash_in_step(env, monkeypatch, env.world.limiter, "limit")  # the planner crashes
     assert wait_until(lambda: len(zero_times(server, t0)) == 4, 0.3)
     assert max(zero_times(server, t0).values()) - t0 < 0.2
     monkeypatch.undo()

@@ -47,6 +47,38 @@ def _occluded(pos: np.ndarray, angle_rad: float) -> np.ndarray:
     return ((d < angle_rad) & nearer).any(axis=1)
 
 
+def walk_start(
+    rng: np.random.Generator, n_targets: int, half_m: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The targets' start for :func:`walk_step`: positions (m) uniform in the square
+    ``[-half_m, half_m]^2`` and velocities (m/s) N(0, 0.15^2) per axis, each ``(n_targets, 2)``."""
+    pos = rng.uniform(-half_m, half_m, size=(n_targets, 2))
+    vel = rng.normal(0.0, 0.15, size=(n_targets, 2))
+    return pos, vel
+
+
+def walk_step(
+    pos: np.ndarray,
+    vel: np.ndarray,
+    rng: np.random.Generator,
+    dt_s: float,
+    half_m: float,
+    accel_std_mps: float,
+) -> None:
+    """One step of the targets' bounded random walk, in place on ``pos`` (m) and ``vel`` (m/s),
+    both ``(n_targets, 2)``: a N(0, ``accel_std_mps``^2) velocity kick per axis, speed capped at
+    0.3 m/s, ``dt_s`` of motion, and a target outside the square ``[-half_m, half_m]^2``
+    reverses both velocity components and is clipped back to its edge. Draws ``vel.size``
+    normals from ``rng``."""
+    vel += rng.normal(0.0, accel_std_mps, size=vel.shape)
+    speed = np.hypot(vel[:, 0], vel[:, 1])[:, None]
+    vel *= np.minimum(1.0, 0.3 / np.maximum(speed, 1e-9))
+    pos += vel * dt_s
+    out = np.abs(pos) > half_m
+    vel[out] *= -1.0
+    np.clip(pos, -half_m, half_m, out=pos)
+
+
 def run_scenario(
     mode: str,
     seed: int = 0,
@@ -62,21 +94,14 @@ def run_scenario(
     if cfg.mode != mode:
         raise ValueError("config.mode must equal mode")
     rng = np.random.default_rng(seed)  # truth and measurements: identical for LC and LO
-    pos = rng.uniform(-box_m, box_m, size=(n_targets, 2))
-    vel = rng.normal(0.0, 0.15, size=(n_targets, 2))
+    pos, vel = walk_start(rng, n_targets, box_m)
     f = RobotCentricPHD(cfg)
     scorer = LocalizationScorer()
     gospas = []
     dt = 0.1
     occ = math.radians(3.0)
     for k in range(steps):
-        vel += rng.normal(0.0, 0.05, size=vel.shape)
-        speed = np.hypot(vel[:, 0], vel[:, 1])[:, None]
-        vel *= np.minimum(1.0, 0.3 / np.maximum(speed, 1e-9))
-        pos += vel * dt
-        out = np.abs(pos) > box_m
-        vel[out] *= -1.0
-        pos = np.clip(pos, -box_m, box_m)
+        walk_step(pos, vel, rng, dt, box_m, accel_std_mps=0.05)
         r = np.hypot(pos[:, 0], pos[:, 1])
         b = np.arctan2(pos[:, 1], pos[:, 0])
         hidden = _occluded(pos, occ)

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import pytest
@@ -164,22 +166,46 @@ def _within_seed_bounds(uav_info: dict) -> list[bool]:
     ]
 
 
-def test_env_recovers_every_identity():
-    """The env's UAV (seed-uav, wandering UGVs, hovering UAV) identifies all three UGVs: over
-    the last 3 s of a 12 s run each identity is within Stegagno 2013's 0.12 m and 10 deg."""
+def _supervised_run(
+    seed: int,
+    max_steps: int,
+    steps: int,
+    score_from: int,
+    uav_command: Callable[[Any, int], np.ndarray],
+) -> tuple[Any, dict, dict, list[list[bool]]]:
+    """``steps`` steps of ``SupervisedSwarmEnv("seed-uav", max_steps=max_steps)`` reset with
+    ``seed``: the UGVs wander (``WanderPolicy(seed=seed)``), the UAV obeys
+    ``uav_command(env, k)`` (``[vx, vy, yaw rate, climb]``, (4,) float32) at step ``k``. Returns
+    ``(env, last obs, last infos, ok)``, ``ok`` holding :func:`_within_seed_bounds` of every
+    step from ``score_from`` on."""
     from agents.scripted import WanderPolicy
     from swarm_env.uav import UAV_ID, SupervisedSwarmEnv
 
-    env = SupervisedSwarmEnv("seed-uav", max_steps=200)
-    obs, infos = env.reset(seed=0)
-    policy = WanderPolicy(seed=0)
+    env = SupervisedSwarmEnv("seed-uav", max_steps=max_steps)
+    obs, infos = env.reset(seed=seed)
+    policy = WanderPolicy(seed=seed)
     ok = []
-    for k in range(120):
+    for k in range(steps):
         acts = policy({a: obs[a] for a in env.ugv_agents}, {a: infos[a] for a in env.ugv_agents})
-        acts[UAV_ID] = np.zeros(4, dtype=np.float32)
+        acts[UAV_ID] = uav_command(env, k)
         obs, _, _, _, infos = env.step(acts)
-        if k >= 90:
+        if k >= score_from:
             ok.append(_within_seed_bounds(infos[UAV_ID]))
+    return env, obs, infos, ok
+
+
+def test_env_recovers_every_identity():
+    """The env's UAV (seed-uav, wandering UGVs, hovering UAV) identifies all three UGVs: over
+    the last 3 s of a 12 s run each identity is within Stegagno 2013's 0.12 m and 10 deg."""
+    from swarm_env.uav import UAV_ID
+
+    _, obs, infos, ok = _supervised_run(
+        seed=0,
+        max_steps=200,
+        steps=120,
+        score_from=90,
+        uav_command=lambda env, k: np.zeros(4, dtype=np.float32),
+    )
     assert np.asarray(ok).all(axis=0).tolist() == [True, True, True]
     # The observation carries the same estimate (valid flag, x, y per UGV).
     est = infos[UAV_ID]["estimate"]
@@ -192,20 +218,15 @@ def test_env_recovers_identities_from_a_moving_yawing_climbing_uav():
     """The UAV follows the detections' centroid while yawing and changing altitude: its own
     increments (noisy) enter every time update, the footprint and noise change with altitude.
     Over the last 5 s of 20 s each identity is within 0.12 m and 10 deg >= 90 % of the time."""
-    from agents.scripted import WanderPolicy
-    from swarm_env.uav import UAV_ID, SupervisedSwarmEnv, centroid_command
+    from swarm_env.uav import centroid_command
 
-    env = SupervisedSwarmEnv("seed-uav", max_steps=300)
-    obs, infos = env.reset(seed=1)
-    policy = WanderPolicy(seed=1)
-    ok = []
-    for k in range(200):
-        acts = policy({a: obs[a] for a in env.ugv_agents}, {a: infos[a] for a in env.ugv_agents})
+    def follow_yaw_climb(env, k: int) -> np.ndarray:
         v = centroid_command(env.last_frame)
         yaw_rate, climb = 0.4 * math.sin(0.2 * k), 0.2 * math.cos(0.05 * k)
-        acts[UAV_ID] = np.array([v[0], v[1], yaw_rate, climb], dtype=np.float32)
-        obs, _, _, _, infos = env.step(acts)
-        if k >= 150:
-            ok.append(_within_seed_bounds(infos[UAV_ID]))
+        return np.array([v[0], v[1], yaw_rate, climb], dtype=np.float32)
+
+    env, _, _, ok = _supervised_run(
+        seed=1, max_steps=300, steps=200, score_from=150, uav_command=follow_yaw_climb
+    )
     assert abs(env.uav_pose[2]) > 0.05 and env.altitude_m != pytest.approx(2.8)  # it did move
     assert (np.mean(ok, axis=0) >= 0.9).all(), np.mean(ok, axis=0)

@@ -42,6 +42,28 @@ def policy(source: str) -> EncirclementPolicy:
     )
 
 
+def scripted_encirclement(task_params: dict, max_steps: int):
+    """A ``lab-3m-4`` encirclement env with ``task_params`` and ``max_steps``, and the scripted
+    controller loaded for it: ``(env, act)``."""
+    from agents.policies import load_policy
+    from swarm_env import parallel_env
+
+    env = parallel_env(
+        "lab-3m-4", task="encirclement", task_params=task_params, max_steps=max_steps
+    )
+    return env, load_policy("scripted:encirclement", env)
+
+
+def run_scripted(env, act, seed: int, steps: int) -> tuple[dict, dict]:
+    """Reset ``env`` with ``seed`` and step it ``steps`` times with ``act``: the observations
+    at reset (copied before the first step) and after the last step."""
+    o, infos = env.reset(seed=seed)
+    first = {a: x.copy() for a, x in o.items()}
+    for _ in range(steps):
+        o, _, _, _, infos = env.step(act(o, infos))
+    return first, o
+
+
 def velocity(p: EncirclementPolicy, o: np.ndarray):
     from agents.scripted import split_observation
 
@@ -50,13 +72,29 @@ def velocity(p: EncirclementPolicy, o: np.ndarray):
 
 
 # --------------------------------------------------------------------------- the task
-def test_bad_source_is_rejected():
-    with pytest.raises(ValueError, match="intruder_source"):
-        EncirclementTask(intruder_source="gps")
-    with pytest.raises(ValueError, match="beacon=True"):
-        EncirclementTask(intruder_source="particle", beacon=False)
-    with pytest.raises(ValueError, match="reading_dropout"):
-        EncirclementTask(intruder_source="particle", reading_dropout=1.5)
+@pytest.mark.parametrize(
+    ("params", "named"),
+    [
+        ({"intruder_source": "gps"}, "intruder_source"),
+        ({"intruder_source": "particle", "beacon": False}, "beacon=True"),
+        ({"intruder_source": "particle", "reading_dropout": 1.5}, "reading_dropout"),
+        ({"intruder_features": "filter"}, "intruder_features"),  # beacon source
+        ({"intruder_source": "particle", "intruder_features": "kalman"}, "intruder_features"),
+        (
+            {"intruder_source": "particle", "intruder_features": "filter", "n_particles": 3},
+            "n_particles",
+        ),
+        ({"intruder_sensing": "range"}, "intruder_sensing"),  # beacon source
+        ({"intruder_source": "particle", "intruder_sensing": "sonar"}, "intruder_sensing"),
+        ({"intruder_source": "particle", "particle_start": "gps"}, "particle_start"),
+    ],
+)
+def test_bad_task_parameters_are_refused_by_name(params, named):
+    with pytest.raises(ValueError, match=named):
+        EncirclementTask(**params)
+
+
+def test_bad_policy_source_is_rejected():
     with pytest.raises(ValueError, match="intruder_source"):
         EncirclementPolicy(intruder_source="gps")
 
@@ -164,33 +202,16 @@ def test_estimate_follows_own_odometry_and_drops_a_lost_track():
 
 
 def test_policy_reads_the_source_of_the_env_task():
-    from agents.policies import load_policy
-    from swarm_env import parallel_env
-
-    env = parallel_env(
-        "lab-3m-4", task="encirclement", task_params={"intruder_source": "estimate"}, max_steps=20
-    )
-    act = load_policy("scripted:encirclement", env)
+    env, act = scripted_encirclement({"intruder_source": "estimate"}, max_steps=20)
     assert act.intruder_source == "estimate"
     assert act.control_period_s == env.config.control_period_s
-    o, infos = env.reset(seed=0)
-    assert all(o[a][-4] == 1.0 for a in env.agents)  # the cue's valid flag at reset
-    for _ in range(3):
-        o, _, _, _, infos = env.step(act(o, infos))
-    assert all(o[a][-4] == 0.0 for a in env.agents)
+    first, last = run_scripted(env, act, seed=0, steps=3)
+    assert all(first[a][-4] == 1.0 for a in env.agents)  # the cue's valid flag at reset
+    assert all(last[a][-4] == 0.0 for a in env.agents)
     env.close()
 
 
 # ------------------------------------------------------------- the task's filter (learned input)
-def test_filter_features_need_the_particle_source():
-    with pytest.raises(ValueError, match="intruder_features"):
-        EncirclementTask(intruder_features="filter")  # beacon source
-    with pytest.raises(ValueError, match="intruder_features"):
-        EncirclementTask(intruder_source="particle", intruder_features="kalman")
-    with pytest.raises(ValueError, match="n_particles"):
-        EncirclementTask(intruder_source="particle", intruder_features="filter", n_particles=3)
-
-
 def test_command_arc_hand_computed():
     from swarm_env.tasks.encirclement import command_arc
 
@@ -202,79 +223,72 @@ def test_command_arc_hand_computed():
     )
 
 
-def test_filter_features_track_the_intruder_between_sparse_readings():
-    """Two robots drive arcs by their commands (their true poses follow the commanded arcs);
-    readings come at 2 Hz with 20 % lost. The ``filter`` features give the intruder every
-    step, within 10 cm of the truth in each robot's frame, where ``reading`` has it on ~2 steps
-    in 10."""
+def _arcs_around_the_intruder(task: EncirclementTask, seed: int, steps: int):
+    """Two robots drive arcs by their commands (their true poses follow the commanded arcs)
+    around a static intruder at (0.3, -0.2) m; ``task`` (two robots) is reset with ``seed``
+    and stepped ``steps`` control periods of 0.1 s. Returns the task's features per step
+    ``(steps, 2, 5)`` and the distance (m) per step and robot ``(steps, 2)`` between the
+    intruder the features give (``rho [cos b, sin b]``) and the truth in the robot's frame
+    (meaningful where the valid flag ``[..., 1]`` is set)."""
     from swarm_core.geometry import integrate_body_delta
     from swarm_env.tasks.encirclement import command_arc, intruder_in_agent_frames
 
     q = np.array([0.3, -0.2])
     commands = np.array([[0.15, 0.3], [0.1, -0.2]])
+    poses = np.array([[-1.0, 0.0, 0.0], [1.0, 0.5, math.pi]])
+
+    def state():
+        return GroundTruth(
+            poses=poses.copy(), relative_xy=np.zeros((2, 2, 2)), extra_xy=q[None, :].copy()
+        )
+
+    task.reset(state(), np.random.default_rng(seed), ARENA)
+    feats, errors = [], []
+    for _ in range(steps):
+        task.extra_commands(state(), 0.1)
+        for i in range(2):
+            poses[i] = integrate_body_delta(poses[i], command_arc(commands[i], 0.1))
+        task.rewards(state(), commands)
+        f = task.features(2)
+        est = f[:, 4:5] * f[:, 2:4]
+        feats.append(f)
+        errors.append(np.hypot(*(est - intruder_in_agent_frames(poses, q)).T))
+    return np.array(feats), np.array(errors)
+
+
+def test_filter_features_track_the_intruder_between_sparse_readings():
+    """Two robots drive arcs by their commands (their true poses follow the commanded arcs);
+    readings come at 2 Hz with 20 % lost. The ``filter`` features give the intruder every
+    step, within 10 cm of the truth in each robot's frame, where ``reading`` has it on ~2 steps
+    in 10."""
     tasks = {
         mode: EncirclementTask(path="static", intruder_source="particle", intruder_features=mode)
         for mode in ("reading", "filter")
     }
-    valid = {mode: 0 for mode in tasks}
-    errors = []
-    for mode, task in tasks.items():
-        poses = np.array([[-1.0, 0.0, 0.0], [1.0, 0.5, math.pi]])
-
-        def state(poses=poses):
-            return GroundTruth(
-                poses=poses.copy(),
-                relative_xy=np.zeros((2, 2, 2)),
-                extra_xy=q[None, :].copy(),
-            )
-
-        task.reset(state(), np.random.default_rng(5), ARENA)
-        for k in range(80):
-            task.extra_commands(state(), 0.1)
-            for i in range(2):
-                poses[i] = integrate_body_delta(poses[i], command_arc(commands[i], 0.1))
-            task.rewards(state(), commands)
-            f = task.features(2)
-            if k >= 20:
-                valid[mode] += int(f[:, 1].sum())
-                if mode == "filter":
-                    est = f[:, 4:5] * f[:, 2:4]  # rho [cos b, sin b]
-                    errors.append(np.hypot(*(est - intruder_in_agent_frames(poses, q)).T))
+    runs = {
+        mode: _arcs_around_the_intruder(task, seed=5, steps=80) for mode, task in tasks.items()
+    }
+    valid = {mode: int(feats[20:, :, 1].sum()) for mode, (feats, _) in runs.items()}
     assert valid["filter"] == 2 * 60  # every step, both robots
     assert valid["reading"] < 0.3 * 2 * 60
-    assert np.max(errors) < 0.10
+    assert np.max(runs["filter"][1][20:]) < 0.10
     est = tasks["filter"].intruder_estimates()
     assert len(est) == 2 and all(e is not None for e in est)
 
 
 def test_scripted_policy_reads_the_task_filter():
-    from agents.policies import load_policy
-    from swarm_env import parallel_env
-
-    env = parallel_env(
-        "lab-3m-4",
-        task="encirclement",
-        task_params={"intruder_source": "particle", "intruder_features": "filter"},
-        max_steps=30,
+    env, act = scripted_encirclement(
+        {"intruder_source": "particle", "intruder_features": "filter"}, max_steps=30
     )
-    act = load_policy("scripted:encirclement", env)
     assert act.task_filter and act.intruder_source == "particle"
-    o, infos = env.reset(seed=3)
-    for _ in range(30):
-        o, _, _, _, infos = env.step(act(o, infos))
+    _, o = run_scripted(env, act, seed=3, steps=30)
     # After 3 s every robot has had a reading: the features hold the filter's estimate.
     assert all(o[a][-4] == 1.0 for a in env.possible_agents)
     assert act.intruder_estimate(env.possible_agents[0]) is None  # the task keeps it
     env.close()
 
 
-def test_range_sensing_needs_the_particle_source_and_drops_the_bearing():
-    with pytest.raises(ValueError, match="intruder_sensing"):
-        EncirclementTask(intruder_sensing="range")  # beacon source
-    with pytest.raises(ValueError, match="intruder_sensing"):
-        EncirclementTask(intruder_source="particle", intruder_sensing="sonar")
-    with pytest.raises(ValueError, match="particle_start"):
-        EncirclementTask(intruder_source="particle", particle_start="gps")
+def test_range_sensing_drops_the_bearing():
     rates = {}
     for sensing in ("range-bearing", "range"):
         task = EncirclementTask(
@@ -305,11 +319,6 @@ def _range_only_filter_errors(start: str, seed: int) -> tuple[list, np.ndarray]:
     range-only readings (2 Hz, 20 % lost) for 40 s; the task's filter features against the
     ground truth: the first step each robot's filter reports, and the errors (steps, 2) m
     (NaN before)."""
-    from swarm_core.geometry import integrate_body_delta
-    from swarm_env.tasks.encirclement import command_arc, intruder_in_agent_frames
-
-    q = np.array([0.3, -0.2])
-    commands = np.array([[0.15, 0.3], [0.1, -0.2]])
     task = EncirclementTask(
         path="static",
         intruder_source="particle",
@@ -317,29 +326,10 @@ def _range_only_filter_errors(start: str, seed: int) -> tuple[list, np.ndarray]:
         intruder_sensing="range",
         particle_start=start,
     )
-    poses = np.array([[-1.0, 0.0, 0.0], [1.0, 0.5, math.pi]])
-
-    def state():
-        return GroundTruth(
-            poses=poses.copy(), relative_xy=np.zeros((2, 2, 2)), extra_xy=q[None, :].copy()
-        )
-
-    task.reset(state(), np.random.default_rng(seed), ARENA)
-    first: list = [None, None]
-    errors = []
-    for k in range(400):
-        task.extra_commands(state(), 0.1)
-        for i in range(2):
-            poses[i] = integrate_body_delta(poses[i], command_arc(commands[i], 0.1))
-        task.rewards(state(), commands)
-        f = task.features(2)
-        for i in range(2):
-            if first[i] is None and f[i, 1] == 1.0:
-                first[i] = k
-        est = f[:, 4:5] * f[:, 2:4]
-        err = np.hypot(*(est - intruder_in_agent_frames(poses, q)).T)
-        errors.append(np.where(f[:, 1] == 1.0, err, np.nan))
-    return first, np.array(errors)
+    feats, errors = _arcs_around_the_intruder(task, seed=seed, steps=400)
+    valid = feats[:, :, 1] == 1.0
+    first = [int(np.argmax(valid[:, i])) if valid[:, i].any() else None for i in range(2)]
+    return first, np.where(valid, errors, np.nan)
 
 
 def test_range_only_track_converges_with_the_trilateration_start():
@@ -363,20 +353,14 @@ def test_range_only_track_converges_with_the_trilateration_start():
 
 
 def test_scripted_policy_takes_the_range_only_reading_and_the_start():
-    from agents.policies import load_policy
-    from swarm_env import parallel_env
-
-    env = parallel_env(
-        "lab-3m-4",
-        task="encirclement",
-        task_params={
+    env, act = scripted_encirclement(
+        {
             "intruder_source": "particle",
             "intruder_sensing": "range",
             "particle_start": "trilateration",
         },
         max_steps=10,
     )
-    act = load_policy("scripted:encirclement", env)
     assert act.particle_start == "trilateration"
     p = policy("particle")
     p.particle_start = "trilateration"
