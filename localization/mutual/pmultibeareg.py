@@ -260,12 +260,3 @@ class PMultiBeaRegLocalizer(_ScheduledRegistrar):
             self._rejections[t] = 0
             f.update_bearing(xis, self._std, cfg.range_m, scales)
             self.last_hypotheses[t] = xis
-
-    def estimates(self) -> dict[str, np.ndarray | None]:
-        """Each teammate's relative pose ``[x_m, y_m, theta_rad]`` (particle mean) or ``None``."""
-        return {t: f.mean() for t, f in self.filters.items()}
-
-    def moments(self) -> dict[str, tuple[np.ndarray, np.ndarray] | None]:
-        """Each teammate's pose mean (3,) and covariance (3, 3) over its particles, or ``None``
-        while uninformed (what :class:`~localization.mutual.localizer.MutualLocalizer` reports)."""
-        return {t: f.moments() for t, f in self.filters.items()}

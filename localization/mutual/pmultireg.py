@@ -115,6 +115,15 @@ class _ScheduledRegistrar(ObserverLocalizer):
             )
             self._register()
 
+    def estimates(self) -> dict[str, np.ndarray | None]:
+        """Each teammate's relative pose ``[x_m, y_m, theta_rad]`` (particle mean) or ``None``."""
+        return {t: f.mean() for t, f in self.filters.items()}
+
+    def moments(self) -> dict[str, tuple[np.ndarray, np.ndarray] | None]:
+        """Each teammate's pose mean (3,) and covariance (3, 3) over its particles, or ``None``
+        while uninformed (what :class:`~localization.mutual.localizer.MutualLocalizer` reports)."""
+        return {t: f.moments() for t, f in self.filters.items()}
+
     def _absorb_own(self, measurements: RobotMeasurements) -> None:
         """Keep the observer's latest feature set and its stamp (here: the lidar scan's)."""
         if measurements.lidar:
@@ -206,12 +215,3 @@ class PMultiRegLocalizer(_ScheduledRegistrar):
             )
             self.filters[t].update(moved, covs)
             self.last_hypotheses[t] = moved
-
-    def estimates(self) -> dict[str, np.ndarray | None]:
-        """Each teammate's relative pose ``[x_m, y_m, theta_rad]`` (particle mean) or ``None``."""
-        return {t: f.mean() for t, f in self.filters.items()}
-
-    def moments(self) -> dict[str, tuple[np.ndarray, np.ndarray] | None]:
-        """Each teammate's pose mean (3,) and covariance (3, 3) over its particles, or ``None``
-        while uninformed (what :class:`~localization.mutual.localizer.MutualLocalizer` reports)."""
-        return {t: f.moments() for t, f in self.filters.items()}
