@@ -11,6 +11,8 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from swarm_core.validation import check_number
 
 SENSORS = ("odometry", "lidar", "camera", "mocap", "estimate")
@@ -243,6 +245,8 @@ class BridgeConfig:
                     high=high,
                     above=not low_inclusive,
                 )
+                if isinstance(value, np.generic):  # sent as JSON and written into bags as is
+                    object.__setattr__(self, f.name, value.item())
         for name in ("use_mocap", "drop_pre_command", "stamped_commands", "guard_process"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(

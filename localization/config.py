@@ -590,9 +590,7 @@ class BirthModel(_Checks):
         for name in ("measurement_max_explained", "camera_max_explained"):
             self._within(name, 0.0, 1.0)
         for name in ("weight", "measurement_weight", "camera_weight"):
-            value = getattr(self, name)
-            if not 0.0 <= value < 1e3:
-                raise ValueError(f"{self._name(name)} must be in [0, 1000), got {value!r}")
+            check_number(self._name(name), getattr(self, name), low=0, high=1e3, below=True)
         self._int_within("camera_components", 1, 64)
         if not self.camera_max_range_m > self.camera_min_range_m:
             raise ValueError(
@@ -641,10 +639,14 @@ class Reduction(_Checks):
     def __post_init__(self) -> None:
         self._numbers()
         self._positive("merge_threshold", "min_range_m")
-        if not 0.0 < self.prune_threshold < 1.0:
-            raise ValueError(
-                f"reduction.prune_threshold must be in (0, 1), got {self.prune_threshold!r}"
-            )
+        check_number(
+            self._name("prune_threshold"),
+            self.prune_threshold,
+            low=0,
+            high=1,
+            above=True,
+            below=True,
+        )
         # Cost guard: the banks allocate (6, R, max_components) and merge in O(C^2).
         self._int_within("max_components", 1, 10_000)
 

@@ -415,7 +415,7 @@ def _mutual(method: str, **config: Any) -> Builder:
     def build(n: int, phd: PHDConfig, seed: int) -> Localizer:
         from .mutual.localizer import METHODS, MutualLocalizer
 
-        cfg = METHODS[method][1](**config) if config else None
+        cfg = METHODS[method].config_type(**config) if config else None
         return MutualLocalizer(method, n, seed, config=cfg)
 
     return build

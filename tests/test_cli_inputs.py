@@ -240,6 +240,11 @@ def test_one_number_check_serves_fields_and_flags():
     check_number("--lr", lambda progress: 3e-4 * progress, low=0, above=True, schedule=True)
     with pytest.raises(ValueError, match=r"--x must be a finite number in \(0, 1\], got 0"):
         check_number("--x", 0, low=0, high=1, above=True)
+    with pytest.raises(ValueError, match=r"--x must be a finite number in \[0, 1\), got 1"):
+        check_number("--x", 1, low=0, high=1, below=True)
+    with pytest.raises(ValueError, match=r"--x must be a finite number <= 2, got 3"):
+        check_number("--x", 3, high=2)
+    check_number("--x", 0.999, low=0, high=1, below=True)
 
 
 # (5) Outputs: a location that cannot be written is refused before the run, not after it.

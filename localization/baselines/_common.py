@@ -11,22 +11,6 @@ from localization.gaussian import wrap_angle
 from localization.mixture import GaussianMixture
 
 
-def check_real(name: str, value: Any, low: float = 0.0, low_open: bool = True) -> None:
-    """Raise ``ValueError`` naming ``name`` unless ``value`` is a finite number above ``low``."""
-    ok = not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
-    if ok:
-        ok = value > low if low_open else value >= low
-    if not ok:
-        raise ValueError(
-            f"{name} must be a finite number {'>' if low_open else '>='} {low}, got {value!r}"
-        )
-
-
-def check_int(name: str, value: Any, low: int = 1) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value < low:
-        raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
-
-
 def checked_vector(value: Any, name: str, size: int) -> np.ndarray:
     try:
         arr = np.asarray(value, dtype=float)

@@ -99,9 +99,7 @@ class IDPHDConfig:
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
             raise ValueError(f"recovered_weight must be a number > 0 (or inf), got {value!r}")
         for name in ("birth_heading_hypotheses", "max_components"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+            check_number(name, getattr(self, name), integer=True, low=1)
         if not isinstance(self.detection, PHDConfig):
             raise ValueError(f"detection must be a PHDConfig, got {self.detection!r}")
 

@@ -33,6 +33,7 @@ from scipy.special import logsumexp
 
 from swarm_core.geometry import wrap_angle
 from swarm_core.records import Broadcast, RobotMeasurements
+from swarm_core.validation import check_number, check_positive
 
 from .links import ObserverLocalizer, TeammateLink, absorb_broadcasts, next_due
 from .particles import MotionNoise, odometry_noise, weighted_moments
@@ -77,9 +78,7 @@ class FastSLAMConfig:
 
     def __post_init__(self) -> None:
         for name, low in (("n_particles", 2), ("n_orientations", 1), ("max_features", 0)):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < low:
-                raise ValueError(f"fastslam.{name} must be an integer >= {low}, got {v!r}")
+            check_number(f"fastslam.{name}", getattr(self, name), integer=True, low=low)
         for name in (
             "detection_std_m",
             "new_density_per_m2",
@@ -87,11 +86,7 @@ class FastSLAMConfig:
             "update_period_s",
             "max_skew_s",
         ):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not (
-                isinstance(v, (int, float)) and math.isfinite(v) and v > 0
-            ):
-                raise ValueError(f"fastslam.{name} must be a finite number > 0, got {v!r}")
+            check_positive(f"fastslam.{name}", getattr(self, name))
         if not isinstance(self.motion_noise, MotionNoise):
             raise ValueError(
                 f"fastslam.motion_noise must be a MotionNoise, got {self.motion_noise!r}"

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -159,13 +160,14 @@ class ObserverLocalizer:
         The filters' own stream; None: ``default_rng(0)``.
     """
 
-    config_type: type = type(None)
+    #: The family's config dataclass (set by every subclass).
+    config_type: type
 
     def __init__(
         self,
         observer: str,
         teammates: tuple[str, ...],
-        config: object = None,
+        config: Any = None,
         rng: np.random.Generator | None = None,
     ) -> None:
         check_localizer_args(observer, teammates, config, self.config_type, rng)

@@ -45,19 +45,19 @@ from swarm_core.records import Broadcast, RobotMeasurements
 from ..feed import SwarmFeed
 from ..mixture import GaussianMixture
 from ..protocol import LocalizerBase, tables_from_mixtures
-from .fastslam import FastSLAMConfig, FastSLAMLocalizer
+from .fastslam import FastSLAMLocalizer
 from .particles import weighted_moments
-from .pmultibeareg import PMultiBeaRegConfig, PMultiBeaRegLocalizer
-from .pmultireg import PMultiRegConfig, PMultiRegLocalizer
+from .pmultibeareg import PMultiBeaRegLocalizer
+from .pmultireg import PMultiRegLocalizer
 
 __all__ = ["DEFAULT_RADIO", "METHODS", "MutualLocalizer", "observer_rng", "weighted_moments"]
 
 #: Registry name -> (per-observer system, its config class). The order fixes each method's
 #: random streams (:func:`observer_rng`), shared with ``swarm-phd mutual``.
-METHODS: dict[str, tuple[type, type]] = {
-    "p-multireg": (PMultiRegLocalizer, PMultiRegConfig),
-    "fastslam-mc": (FastSLAMLocalizer, FastSLAMConfig),
-    "p-multibeareg": (PMultiBeaRegLocalizer, PMultiBeaRegConfig),
+METHODS: dict[str, type] = {
+    "p-multireg": PMultiRegLocalizer,
+    "fastslam-mc": FastSLAMLocalizer,
+    "p-multibeareg": PMultiBeaRegLocalizer,
 }
 
 #: The radio ``swarm-phd evaluate`` and ``swarm-phd mutual`` switch on for these methods
@@ -124,7 +124,8 @@ class MutualLocalizer(LocalizerBase):
         self.method = method
         self.n_robots = int(n_robots)
         self.seed = int(seed)
-        system, config_type = METHODS[method]
+        system = METHODS[method]
+        config_type = system.config_type
         if config is None:
             config = config_type(**({} if n_particles is None else {"n_particles": n_particles}))
         elif not isinstance(config, config_type):

@@ -67,9 +67,9 @@ def walk_step(
 ) -> None:
     """One step of the targets' bounded random walk, in place on ``pos`` (m) and ``vel`` (m/s),
     both ``(n_targets, 2)``: a N(0, ``accel_std_mps``^2) velocity kick per axis, speed capped at
-    0.3 m/s, ``dt_s`` of motion, and a target outside the square ``[-half_m, half_m]^2``
-    reverses both velocity components and is clipped back to its edge. Draws ``vel.size``
-    normals from ``rng``."""
+    0.3 m/s, ``dt_s`` of motion, and a target past an edge of the square
+    ``[-half_m, half_m]^2`` reverses the velocity component across that edge and is clipped back
+    to it. Draws ``vel.size`` normals from ``rng``."""
     vel += rng.normal(0.0, accel_std_mps, size=vel.shape)
     speed = np.hypot(vel[:, 0], vel[:, 1])[:, None]
     vel *= np.minimum(1.0, 0.3 / np.maximum(speed, 1e-9))

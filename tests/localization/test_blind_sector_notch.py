@@ -128,7 +128,11 @@ def test_the_bearing_std_smooths_the_notch():
         ("min_returns", 0, "lidar.min_returns must be an integer in [1, 100], got 0"),
         ("min_returns", 2.5, "lidar.min_returns must be an int, got 2.5"),
         ("beam_phase", "random", "lidar.beam_phase"),
-        ("beam_spacing_deg", 0.0, "lidar.beam_spacing_deg must be a finite number in [0.001, 10.0]"),
+        (
+            "beam_spacing_deg",
+            0.0,
+            "lidar.beam_spacing_deg must be a finite number in [0.001, 10.0]",
+        ),
     ],
 )
 def test_bad_notch_configuration_names_the_field(field, value, message):
