@@ -11,10 +11,6 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
-from swarm_core.validation import check_number
-
 SENSORS = ("odometry", "lidar", "camera", "mocap", "estimate")
 FEED_SENSORS = ("odometry", "lidar", "camera")
 
@@ -75,6 +71,25 @@ OPTIONAL_FIELDS = (
     "max_accel_mps2",
     "max_turn_accel_radps2",
 )
+
+
+# Its own check, not swarm_core.validation's: the guard process (``python -m
+# hardware_bridge.guard``) imports this package, and it must start on the standard library alone.
+def _check_bounded(name: str, value: Any) -> None:
+    low, high, low_inclusive = BOUNDS[name]
+    whole = name in INT_FIELDS
+    kind = "an int" if whole else "a finite number"
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int if whole else (int, float))
+        or not math.isfinite(value)
+        or not (value >= low if low_inclusive else value > low)
+        or value > high
+    ):
+        side = ">=" if low_inclusive else ">"
+        raise ValueError(
+            f"BridgeConfig.{name} must be {kind} {side} {low:g} and <= {high:g}, got {value!r}"
+        )
 
 
 @dataclass(frozen=True, slots=True)
@@ -236,17 +251,7 @@ class BridgeConfig:
                 value = getattr(self, f.name)
                 if value is None and f.name in OPTIONAL_FIELDS:
                     continue
-                low, high, low_inclusive = BOUNDS[f.name]
-                check_number(
-                    f"BridgeConfig.{f.name}",
-                    value,
-                    integer=f.name in INT_FIELDS,
-                    low=low,
-                    high=high,
-                    above=not low_inclusive,
-                )
-                if isinstance(value, np.generic):  # sent as JSON and written into bags as is
-                    object.__setattr__(self, f.name, value.item())
+                _check_bounded(f.name, value)
         for name in ("use_mocap", "drop_pre_command", "stamped_commands", "guard_process"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(

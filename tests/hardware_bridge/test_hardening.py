@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import json
 import os
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -149,6 +151,22 @@ def test_a_frozen_server_never_executes_a_stale_command(loopback):
         assert all(age <= 0.5 for age in applied_ages), max(applied_ages)
     finally:
         env.close()
+
+
+def test_the_guard_process_imports_only_the_standard_library_and_websockets():
+    """The guard must start fast (robots unguarded until it connects) and compile nothing: its
+    import chain (``python -m hardware_bridge.guard`` imports the package) stays free of numpy,
+    numba and the project's other packages."""
+    probe = (
+        "import sys, hardware_bridge.guard\n"
+        "heavy = sorted({m.split('.')[0] for m in sys.modules} & {'numpy', 'numba', 'swarm_core', "
+        "'swarm_env', 'localization', 'scipy', 'torch'})\n"
+        "print(','.join(heavy))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", probe], capture_output=True, text=True, timeout=60, check=True
+    )
+    assert out.stdout.strip() == "", f"the guard process imports {out.stdout.strip()}"
 
 
 @pytest.mark.timeout(300)  # the robot process may compile the numba kernels first
