@@ -37,7 +37,10 @@ def check_number(
         ok = is_real(value) and isinstance(value, numbers.Integral)
         kind = "an integer"
     else:
-        ok = is_real(value) and math.isfinite(value)
+        try:
+            ok = is_real(value) and math.isfinite(value)
+        except OverflowError:  # an int beyond the float range (10**400)
+            ok = False
         kind = "a finite number"
     ok = ok and (low is None or value > low or (value == low and not above))
     ok = ok and (high is None or value < high or (value == high and not below))

@@ -245,6 +245,8 @@ def test_one_number_check_serves_fields_and_flags():
     with pytest.raises(ValueError, match=r"--x must be a finite number <= 2, got 3"):
         check_number("--x", 3, high=2)
     check_number("--x", 0.999, low=0, high=1, below=True)
+    with pytest.raises(ValueError, match=r"--x must be a finite number >= 0, got 1000"):
+        check_number("--x", 10**400, low=0)
 
 
 # (5) Outputs: a location that cannot be written is refused before the run, not after it.

@@ -52,8 +52,8 @@ from .pmultireg import PMultiRegLocalizer
 
 __all__ = ["DEFAULT_RADIO", "METHODS", "MutualLocalizer", "observer_rng", "weighted_moments"]
 
-#: Registry name -> (per-observer system, its config class). The order fixes each method's
-#: random streams (:func:`observer_rng`), shared with ``swarm-phd mutual``.
+#: Registry name -> per-observer system (its ``config_type`` names its config). The order fixes
+#: each method's random streams (:func:`observer_rng`), shared with ``swarm-phd mutual``.
 METHODS: dict[str, type] = {
     "p-multireg": PMultiRegLocalizer,
     "fastslam-mc": FastSLAMLocalizer,
